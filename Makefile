@@ -1,0 +1,34 @@
+# The README's two commands: `make run` and `make test`.
+PYTHON ?= python3
+VENV   := .venv
+PY     := $(VENV)/bin/python
+STAMP  := $(VENV)/.installed-stamp
+PROBLEM ?= problems/needle_regrasp.yaml
+OUT    ?= out
+
+.PHONY: run test install browser clean
+
+$(STAMP): pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install --quiet --upgrade pip
+	$(PY) -m pip install --quiet -e ".[test]"
+	touch $(STAMP)
+
+install: $(STAMP)
+
+# Solve the default problem, compare the methods, write the visualisation.
+run: $(STAMP)
+	$(VENV)/bin/surestep compare $(PROBLEM) --output-dir $(OUT)/needle_regrasp
+	$(VENV)/bin/surestep show $(OUT)/needle_regrasp --html $(OUT)/needle_regrasp.html
+
+# Headless Chromium for the browser tests (Debian package), installed when missing.
+browser:
+	@command -v chromium >/dev/null 2>&1 || (command -v apt-get >/dev/null 2>&1 && \
+	  (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null) \
+	  || echo "chromium not installed: browser tests will be skipped")
+
+test: $(STAMP) browser
+	$(PY) -m pytest -n 2 -q
+
+clean:
+	rm -rf $(VENV) $(OUT)

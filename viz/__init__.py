@@ -1,0 +1,1 @@
+"""Meshcat visualisation (optional dependency: meshcat)."""
