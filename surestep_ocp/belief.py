@@ -1,0 +1,206 @@
+"""The belief model: noise models and the EKF step under maximum-likelihood observations.
+
+State `x = (p, r)`: tool position [m] and axis-angle orientation [rad] in the
+camera frame. The covariance is carried as `vech(Sigma)` (21 numbers, the lower
+triangle column by column). All maps are named CasADi Functions built once;
+every method (OCP, gradient variant, baseline, rollouts) uses these.
+
+    predict:  P  = F Sigma F^T + Q W(x_t, x_t+1) Q^T
+    update:   S  = H P H^T + R V(x_t+1) R^T,  K = P H^T S^-1,  Sigma+ = sym((I - K H) P)
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from functools import cached_property
+
+import casadi as ca
+import numpy as np
+
+from .camera import Intrinsics
+from .lie import angle_sq, so3_exp
+
+COMPONENTS = ("depth", "fov", "orientation")
+ORIENTATION_FORMULAS = ("cosine", "geodesic")
+NX = 6
+NV = NX * (NX + 1) // 2  # 21
+_TRIL = [(i, j) for j in range(NX) for i in range(j, NX)]  # vech order: column-major lower triangle
+_EPS_NORM = 1e-12  # [rad^2] guard of |r| in the cosine formula (undefined at r = 0)
+
+
+def vech(M):
+    """Lower triangle of a symmetric 6x6 matrix, column by column (CasADi or NumPy)."""
+    if isinstance(M, np.ndarray):
+        return np.array([M[i, j] for i, j in _TRIL])
+    return ca.vertcat(*[M[i, j] for i, j in _TRIL])
+
+
+def unvech(v):
+    """Symmetric 6x6 matrix of its `vech` (CasADi or NumPy)."""
+    if isinstance(v, np.ndarray):
+        M = np.zeros((NX, NX))
+        for k, (i, j) in enumerate(_TRIL):
+            M[i, j] = M[j, i] = v[k]
+        return M
+    M = ca.SX.zeros(NX, NX) if isinstance(v, ca.SX) else ca.MX.zeros(NX, NX)
+    for k, (i, j) in enumerate(_TRIL):
+        M[i, j] = v[k]
+        if i != j:
+            M[j, i] = v[k]
+    return M
+
+
+def trace_vech(v):
+    """Trace of the matrix whose vech is `v`."""
+    idx = [k for k, (i, j) in enumerate(_TRIL) if i == j]
+    return sum(v[k] for k in idx)
+
+
+@dataclass(frozen=True)
+class NoiseParams:
+    """Noise constants (6x6 matrices; the paper's values by default) and options."""
+
+    W_p0: np.ndarray = field(default_factory=lambda: 1e-3 * np.eye(NX))
+    W_o0: np.ndarray = field(default_factory=lambda: 1e-3 * np.eye(NX))
+    V_d0: np.ndarray = field(default_factory=lambda: 1e-1 * np.eye(NX))
+    V_f0: np.ndarray = field(default_factory=lambda: 1e-2 * np.eye(NX))
+    V_o0: np.ndarray = field(default_factory=lambda: 5e-3 * np.eye(NX))
+    Sigma0: np.ndarray = field(default_factory=lambda: 1e-2 * np.eye(NX))
+    depth_star: float = 0.15  # [m]
+    o_star: tuple[float, float, float] = (0.0, 0.0, 1.0)  # [rad] axis-angle
+    components: tuple[str, ...] = COMPONENTS
+    orientation_formula: str = "cosine"
+
+
+def _identity_jacobians() -> ca.Function:
+    x0, x1 = ca.SX.sym("x0", NX), ca.SX.sym("x1", NX)
+    eye = ca.SX.eye(NX)
+    return ca.Function("jacobians", [x0, x1], [eye, eye, eye, eye], ["x0", "x1"], ["F", "Q", "H", "R"])
+
+
+class BeliefModel:
+    """Noise models and the EKF belief step as named CasADi Functions.
+
+    Args:
+        noise: constants and options.
+        camera: intrinsics (for the field-of-view term).
+        components: observation components to include; defaults to `noise.components`.
+        jacobians: optional Function `(x0, x1) -> (F, Q, H, R)` for models whose motion or
+            observation maps are not the identity (e.g. built with `casadi.jacobian`).
+    """
+
+    def __init__(
+        self,
+        noise: NoiseParams,
+        camera: Intrinsics,
+        components: tuple[str, ...] | None = None,
+        jacobians: ca.Function | None = None,
+    ):
+        self.noise = noise
+        self.camera = camera
+        self.components = tuple(noise.components if components is None else components)
+        unknown = set(self.components) - set(COMPONENTS)
+        if unknown:
+            raise ValueError(f"unknown observation components {sorted(unknown)}; allowed: {COMPONENTS}")
+        self.jacobians = jacobians or _identity_jacobians()
+
+    def with_components(self, components: tuple[str, ...]) -> BeliefModel:
+        """The same model with another set of observation components."""
+        return BeliefModel(self.noise, self.camera, components, self.jacobians)
+
+    # --------------------------------------------------------------- noise models
+    def motion_noise_expr(self, x0, x1):
+        """W = ||p1 - p0||^2 W_p0 + angle(r0, r1)^2 W_o0."""
+        n = self.noise
+        dp = x1[:3] - x0[:3]
+        return ca.dot(dp, dp) * ca.DM(n.W_p0) + angle_sq(so3_exp(x0[3:]), so3_exp(x1[3:])) * ca.DM(n.W_o0)
+
+    def observation_noise_expr(self, x):
+        """V(x) = sum of the selected depth, field-of-view and orientation terms."""
+        n = self.noise
+        p, r = x[:3], x[3:]
+        V = ca.SX.zeros(NX, NX) if isinstance(x, ca.SX) else ca.MX.zeros(NX, NX)
+        if "depth" in self.components:
+            V += (p[2] - n.depth_star) ** 2 * ca.DM(n.V_d0)
+        if "fov" in self.components:
+            du, dv = self.camera.offset(p)
+            V += (du**2 + dv**2) * ca.DM(n.V_f0)
+        if "orientation" in self.components:
+            o = ca.DM(n.o_star)
+            if n.orientation_formula == "cosine":
+                cos = ca.dot(r, o) / (ca.sqrt(ca.dot(r, r) + _EPS_NORM) * float(np.linalg.norm(n.o_star)))
+            else:  # geodesic: cosine of the angle between the rotations
+                cos = 0.5 * (ca.trace(so3_exp(r).T @ so3_exp(o)) - 1)
+            V += (1 - cos) ** 2 * ca.DM(n.V_o0)
+        return V
+
+    @cached_property
+    def motion_noise(self) -> ca.Function:
+        x0, x1 = ca.SX.sym("x0", NX), ca.SX.sym("x1", NX)
+        return ca.Function("motion_noise", [x0, x1], [self.motion_noise_expr(x0, x1)], ["x0", "x1"], ["W"])
+
+    @cached_property
+    def observation_noise(self) -> ca.Function:
+        x = ca.SX.sym("x", NX)
+        return ca.Function("observation_noise", [x], [self.observation_noise_expr(x)], ["x"], ["V"])
+
+    # --------------------------------------------------------------- EKF
+    def predict_expr(self, x0, x1, s):
+        """vech of the predicted covariance P (the prior before observing x1)."""
+        F, Q, _, _ = self.jacobians(x0, x1)
+        return vech(F @ unvech(s) @ F.T + Q @ self.motion_noise(x0, x1) @ Q.T)
+
+    def innovation_expr(self, x0, x1, p):
+        """(S, H) of the update at x1 given the predicted covariance vech `p`."""
+        _, _, H, R = self.jacobians(x0, x1)
+        P = unvech(p)
+        return H @ P @ H.T + R @ self.observation_noise(x1) @ R.T, H
+
+    def step_expr(self, x0, x1, s):
+        """vech(Sigma_t+1|t+1) from vech(Sigma_t|t) for the step x0 -> x1."""
+        p = self.predict_expr(x0, x1, s)
+        P = unvech(p)
+        S, H = self.innovation_expr(x0, x1, p)
+        KT = ca.solve(S, H @ P)  # K^T = S^-1 H P (S symmetric)
+        post = P - KT.T @ H @ P
+        return vech(0.5 * (post + post.T))
+
+    @cached_property
+    def predict(self) -> ca.Function:
+        x0, x1, s = ca.SX.sym("x0", NX), ca.SX.sym("x1", NX), ca.SX.sym("sigma", NV)
+        return ca.Function("predict", [x0, x1, s], [self.predict_expr(x0, x1, s)], ["x0", "x1", "sigma"], ["sigma_pred"])
+
+    @cached_property
+    def step(self) -> ca.Function:
+        x0, x1, s = ca.SX.sym("x0", NX), ca.SX.sym("x1", NX), ca.SX.sym("sigma", NV)
+        return ca.Function("belief_step", [x0, x1, s], [self.step_expr(x0, x1, s)], ["x0", "x1", "sigma"], ["sigma_next"])
+
+    def sigma0_vech(self) -> np.ndarray:
+        return vech(np.asarray(self.noise.Sigma0, dtype=float))
+
+    def propagate(self, poses: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Covariances along a trajectory under maximum likelihood.
+
+        Args:
+            poses: (T+1, 6) waypoints, camera frame.
+
+        Returns:
+            (sigmas (T+1, 6, 6) posterior covariances Sigma_t|t, predicted (T, 6, 6) Sigma_t+1|t).
+        """
+        poses = np.asarray(poses, dtype=float)
+        s = self.sigma0_vech()
+        sig, pred = [unvech(s)], []
+        for t in range(len(poses) - 1):
+            pred.append(unvech(np.asarray(self.predict(poses[t], poses[t + 1], s)).ravel()))
+            s = np.asarray(self.step(poses[t], poses[t + 1], s)).ravel()
+            sig.append(unvech(s))
+        return np.array(sig), np.array(pred)
+
+
+def entropy(sigma: np.ndarray) -> float:
+    """Differential entropy [nats] of a Gaussian with covariance `sigma`."""
+    n = sigma.shape[0]
+    sign, logdet = np.linalg.slogdet(sigma)
+    if sign <= 0:
+        return float("-inf")
+    return float(0.5 * (n * (1 + np.log(2 * np.pi)) + logdet))

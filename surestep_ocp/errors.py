@@ -1,0 +1,61 @@
+"""Exception hierarchy.
+
+Every error a user can cause derives from :class:`SurestepError`; the CLI turns
+it into a one-line message and exit code 2. Solver failures carry the solver's
+status so nothing is hidden.
+"""
+
+from __future__ import annotations
+
+
+class SurestepError(Exception):
+    """Root of all errors raised by surestep_ocp."""
+
+
+class ProblemError(SurestepError):
+    """A problem file is missing, malformed or describes an impossible set-up.
+
+    The message names the file, the key path and what is allowed.
+    """
+
+    def __init__(self, file: str | None, key: str | None, message: str):
+        self.file = file
+        self.key = key
+        where = ": ".join(part for part in (file, key) if part)
+        super().__init__(f"{where}: {message}" if where else message)
+
+
+class FrameNotFound(SurestepError):
+    """A frame name that the robot model does not have; lists the valid ones."""
+
+    def __init__(self, name: str, available: list[str]):
+        self.name = name
+        self.available = available
+        super().__init__(f"frame '{name}' not in the model; available frames: {', '.join(available)}")
+
+
+class UnsupportedJoint(SurestepError):
+    """A joint type the symbolic kinematics cannot express (only 1-DoF joints are)."""
+
+
+class UnreachablePose(SurestepError):
+    """Inverse kinematics found no configuration inside the joint limits."""
+
+    def __init__(self, what: str, residual_m: float, residual_rad: float):
+        self.residual_m = residual_m
+        self.residual_rad = residual_rad
+        super().__init__(
+            f"{what} is not reachable within the joint limits "
+            f"(best IK residual {residual_m * 1e3:.3f} mm, {residual_rad:.4f} rad)"
+        )
+
+
+class SolverError(SurestepError):
+    """A numerical solver failed; carries its return status and statistics."""
+
+    def __init__(self, solver: str, status: str, stats: dict | None = None, message: str = ""):
+        self.solver = solver
+        self.status = status
+        self.stats = stats or {}
+        text = f"{solver} failed with status '{status}'"
+        super().__init__(f"{text}: {message}" if message else text)

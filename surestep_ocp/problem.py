@@ -1,0 +1,276 @@
+"""Problem files: YAML -> frozen dataclasses, validated strictly.
+
+See `problems/README.md` for the schema. Relative paths (URDFs) are resolved
+against the repository root first, then against the problem file's folder.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from .belief import COMPONENTS, ORIENTATION_FORMULAS, NoiseParams
+from .camera import Intrinsics
+from .errors import ProblemError
+from .lie import np_exp, rpy_matrix
+from .schema import Reader
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+
+
+@dataclass(frozen=True)
+class PoseSpec:
+    """A pose given in a problem file, as a 4x4 matrix (frame stated by the field using it)."""
+
+    matrix: np.ndarray
+
+
+@dataclass(frozen=True)
+class EndpointSpec:
+    """Start or goal: joint values, or a tool pose `[p, r]` in the camera frame."""
+
+    joints: np.ndarray | None = None
+    pose: np.ndarray | None = None  # [px, py, pz, rx, ry, rz], camera frame
+    key: str = ""
+
+
+@dataclass(frozen=True)
+class RobotSpec:
+    urdf: Path  # absolute
+    urdf_rel: str  # as written relative to the repository, for the solution file
+    frame: str
+    base_pose: np.ndarray  # 4x4, URDF root in world
+
+
+@dataclass(frozen=True)
+class CameraSpec:
+    intrinsics: Intrinsics
+    pose: np.ndarray | None = None  # 4x4 camera in world (given directly)
+    ecm: RobotSpec | None = None  # or: the ECM arm whose `frame` is the camera
+    ecm_joints: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class SolverSpec:
+    name: str = "ipopt"
+    max_iter: int = 3000
+    tol: float = 1e-8
+    print_level: int = 0
+    options: dict = field(default_factory=dict)  # extra raw solver options
+
+
+@dataclass(frozen=True)
+class GradientSpec:
+    iterations: int = 50
+    memory: int = 10
+    pose_loss_weight: float = 1.0
+
+
+@dataclass(frozen=True)
+class ObjectiveSpec:
+    smoothness: float = 0.0  # weight on sum_t ||q_t+1 - q_t||^2 [1/rad^2], relative to Tr(Sigma_T) scale
+
+
+@dataclass(frozen=True)
+class Problem:
+    """A validated problem file."""
+
+    name: str
+    path: Path
+    robot: RobotSpec
+    camera: CameraSpec
+    start: EndpointSpec
+    goal: EndpointSpec
+    horizon: int
+    noise: NoiseParams
+    min_depth: float = 0.03  # [m] lower bound on the tool's depth along the path
+    objective: ObjectiveSpec = ObjectiveSpec()
+    solver: SolverSpec = SolverSpec()
+    gradient: GradientSpec = GradientSpec()
+    description: str = ""
+
+
+_TOP = {"name", "description", "robot", "camera", "start", "goal", "horizon", "noise", "constraints",
+        "objective", "solver", "gradient"}
+
+
+def load_problem(path: str | Path) -> Problem:
+    """Read and validate a problem file.
+
+    Raises:
+        ProblemError: naming the file, the key path and what is allowed.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise ProblemError(str(path), None, "no such file")
+    try:
+        tree = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as exc:
+        raise ProblemError(str(path), None, f"not valid YAML: {exc}") from None
+    return parse_problem(tree, path)
+
+
+def parse_problem(tree: Any, path: Path) -> Problem:
+    rd = Reader(str(path))
+    top = rd.mapping(tree, "", _TOP, {"robot", "camera", "start", "goal", "horizon"})
+    robot = _robot(rd, top["robot"], "robot", path, default_frame="tool")
+    camera = _camera(rd, top["camera"], path)
+    horizon = rd.integer(top["horizon"], "horizon", minimum=1)
+    noise = _noise(rd, top.get("noise", {}))
+    cons = rd.mapping(top.get("constraints", {}), "constraints", {"min_depth"})
+    obj = rd.mapping(top.get("objective", {}), "objective", {"smoothness"})
+    return Problem(
+        name=rd.string(top.get("name", path.stem), "name"),
+        description=rd.string(top.get("description", ""), "description"),
+        path=path,
+        robot=robot,
+        camera=camera,
+        start=_endpoint(rd, top["start"], "start"),
+        goal=_endpoint(rd, top["goal"], "goal"),
+        horizon=horizon,
+        noise=noise,
+        min_depth=rd.number(cons.get("min_depth", 0.03), "constraints.min_depth", positive=True),
+        objective=ObjectiveSpec(smoothness=rd.number(obj.get("smoothness", 0.0), "objective.smoothness", nonneg=True)),
+        solver=_solver(rd, top.get("solver", {})),
+        gradient=_gradient(rd, top.get("gradient", {})),
+    )
+
+
+def resolve_path(rd: Reader, text: Any, key: str, problem_path: Path) -> tuple[Path, str]:
+    """Absolute path of a file named in a problem, and its path relative to the repository."""
+    text = rd.string(text, key)
+    for base in (REPO_ROOT, problem_path.resolve().parent):
+        candidate = (base / text).resolve()
+        if candidate.is_file():
+            try:
+                rel = str(candidate.relative_to(REPO_ROOT))
+            except ValueError:
+                rel = str(candidate)
+            return candidate, rel
+    raise rd.fail(key, f"file '{text}' not found (looked in {REPO_ROOT} and {problem_path.resolve().parent})")
+
+
+def _robot(rd: Reader, node: Any, key: str, path: Path, default_frame: str) -> RobotSpec:
+    m = rd.mapping(node, key, {"urdf", "frame", "base_pose"}, {"urdf"})
+    urdf, rel = resolve_path(rd, m["urdf"], f"{key}.urdf", path)
+    base = _pose(rd, m["base_pose"], f"{key}.base_pose") if "base_pose" in m else np.eye(4)
+    return RobotSpec(urdf=urdf, urdf_rel=rel, frame=rd.string(m.get("frame", default_frame), f"{key}.frame"),
+                     base_pose=base)
+
+
+def _pose(rd: Reader, node: Any, key: str) -> np.ndarray:
+    """A pose: `position` plus one of `rpy`, `axis_angle`, `minus_z_toward` (a point), or a 4x4 `matrix`."""
+    m = rd.mapping(node, key, {"position", "rpy", "axis_angle", "minus_z_toward", "matrix"})
+    if "matrix" in m:
+        if len(m) != 1:
+            raise rd.fail(key, "a 'matrix' pose takes no other keys")
+        T = rd.matrix(m["matrix"], f"{key}.matrix", 4)
+        R = T[:3, :3]
+        if not np.allclose(R.T @ R, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0 or not np.allclose(T[3], [0, 0, 0, 1]):
+            raise rd.fail(f"{key}.matrix", "not a rigid transform (rotation must be orthonormal, last row 0 0 0 1)")
+        return T
+    if "position" not in m:
+        raise rd.fail(f"{key}.position", "missing required key")
+    T = np.eye(4)
+    T[:3, 3] = rd.vector(m["position"], f"{key}.position", 3)
+    kind = rd.one_of(m, key, ["rpy", "axis_angle", "minus_z_toward"])
+    if kind == "rpy":
+        T[:3, :3] = rpy_matrix(rd.vector(m["rpy"], f"{key}.rpy", 3))
+    elif kind == "axis_angle":
+        T[:3, :3] = np_exp(rd.vector(m["axis_angle"], f"{key}.axis_angle", 3))
+    else:
+        target = rd.vector(m["minus_z_toward"], f"{key}.minus_z_toward", 3)
+        d = target - T[:3, 3]
+        if np.linalg.norm(d) < 1e-9:
+            raise rd.fail(f"{key}.minus_z_toward", "the point must differ from the position")
+        z = -d / np.linalg.norm(d)
+        helper = np.array([0.0, 1.0, 0.0]) if abs(z[1]) < 0.9 else np.array([1.0, 0.0, 0.0])
+        x = np.cross(helper, z)
+        x /= np.linalg.norm(x)
+        T[:3, :3] = np.column_stack([x, np.cross(z, x), z])
+    return T
+
+
+def _camera(rd: Reader, node: Any, path: Path) -> CameraSpec:
+    m = rd.mapping(node, "camera", {"intrinsics", "pose", "ecm"}, {"intrinsics"})
+    i = rd.mapping(m["intrinsics"], "camera.intrinsics", {"fx", "fy", "cx", "cy", "width", "height"},
+                   {"fx", "fy", "cx", "cy", "width", "height"})
+    k = "camera.intrinsics"
+    intr = Intrinsics(
+        fx=rd.number(i["fx"], f"{k}.fx", positive=True), fy=rd.number(i["fy"], f"{k}.fy", positive=True),
+        cx=rd.number(i["cx"], f"{k}.cx"), cy=rd.number(i["cy"], f"{k}.cy"),
+        width=rd.integer(i["width"], f"{k}.width", minimum=1), height=rd.integer(i["height"], f"{k}.height", minimum=1),
+    )
+    kind = rd.one_of(m, "camera", ["pose", "ecm"])
+    if kind == "pose":
+        return CameraSpec(intrinsics=intr, pose=_pose(rd, m["pose"], "camera.pose"))
+    e = rd.mapping(m["ecm"], "camera.ecm", {"urdf", "frame", "base_pose", "joints"}, {"urdf", "joints"})
+    joints = rd.vector(e.pop("joints"), "camera.ecm.joints")
+    ecm = _robot(rd, e, "camera.ecm", path, default_frame="camera")
+    return CameraSpec(intrinsics=intr, ecm=ecm, ecm_joints=joints)
+
+
+def _endpoint(rd: Reader, node: Any, key: str) -> EndpointSpec:
+    m = rd.mapping(node, key, {"joints", "pose"})
+    kind = rd.one_of(m, key, ["joints", "pose"])
+    if kind == "joints":
+        return EndpointSpec(joints=rd.vector(m["joints"], f"{key}.joints"), key=f"{key}.joints")
+    p = rd.mapping(m["pose"], f"{key}.pose", {"position", "axis_angle"}, {"position", "axis_angle"})
+    pose = np.concatenate([rd.vector(p["position"], f"{key}.pose.position", 3),
+                           rd.vector(p["axis_angle"], f"{key}.pose.axis_angle", 3)])
+    return EndpointSpec(pose=pose, key=f"{key}.pose")
+
+
+_NOISE_KEYS = {"W_p0", "W_o0", "V_d0", "V_f0", "V_o0", "Sigma0", "depth_star", "o_star", "components",
+               "orientation_formula"}
+
+
+def _noise(rd: Reader, node: Any) -> NoiseParams:
+    m = rd.mapping(node, "noise", _NOISE_KEYS)
+    d = NoiseParams()
+    kw: dict[str, Any] = {}
+    for name in ("W_p0", "W_o0", "V_d0", "V_f0", "V_o0"):
+        kw[name] = rd.covariance(m[name], f"noise.{name}") if name in m else getattr(d, name)
+    kw["Sigma0"] = rd.covariance(m["Sigma0"], "noise.Sigma0", definite=True) if "Sigma0" in m else d.Sigma0
+    kw["depth_star"] = rd.number(m.get("depth_star", d.depth_star), "noise.depth_star", positive=True)
+    o = rd.vector(m.get("o_star", list(d.o_star)), "noise.o_star", 3)
+    if np.linalg.norm(o) == 0:
+        raise rd.fail("noise.o_star", "must be a non-zero axis-angle vector (its direction is used)")
+    kw["o_star"] = tuple(float(v) for v in o)
+    comps = m.get("components", list(COMPONENTS))
+    if not isinstance(comps, list):
+        raise rd.fail("noise.components", f"expected a list drawn from {', '.join(COMPONENTS)}")
+    kw["components"] = tuple(rd.string(c, f"noise.components[{i}]", COMPONENTS) for i, c in enumerate(comps))
+    kw["orientation_formula"] = rd.string(m.get("orientation_formula", d.orientation_formula),
+                                          "noise.orientation_formula", ORIENTATION_FORMULAS)
+    return NoiseParams(**kw)
+
+
+def _solver(rd: Reader, node: Any) -> SolverSpec:
+    m = rd.mapping(node, "solver", {"name", "max_iter", "tol", "print_level", "options"})
+    d = SolverSpec()
+    opts = m.get("options", {})
+    if not isinstance(opts, dict):
+        raise rd.fail("solver.options", "expected a mapping of raw solver options")
+    return SolverSpec(
+        name=rd.string(m.get("name", d.name), "solver.name", ("ipopt", "fatrop")),
+        max_iter=rd.integer(m.get("max_iter", d.max_iter), "solver.max_iter", minimum=1),
+        tol=rd.number(m.get("tol", d.tol), "solver.tol", positive=True),
+        print_level=rd.integer(m.get("print_level", d.print_level), "solver.print_level", minimum=0),
+        options=dict(opts),
+    )
+
+
+def _gradient(rd: Reader, node: Any) -> GradientSpec:
+    m = rd.mapping(node, "gradient", {"iterations", "memory", "pose_loss_weight"})
+    d = GradientSpec()
+    return GradientSpec(
+        iterations=rd.integer(m.get("iterations", d.iterations), "gradient.iterations", minimum=1),
+        memory=rd.integer(m.get("memory", d.memory), "gradient.memory", minimum=1),
+        pose_loss_weight=rd.number(m.get("pose_loss_weight", d.pose_loss_weight), "gradient.pose_loss_weight",
+                                   nonneg=True),
+    )

@@ -1,0 +1,256 @@
+"""Robot kinematics: a Pinocchio model and its symbolic CasADi forward kinematics.
+
+The PyPI `pin` wheels ship no `pinocchio.casadi`, so the symbolic forward
+kinematics is built here by walking the Pinocchio `Model`: joint placements,
+1-DoF joints (revolute, continuous, prismatic, about any axis) and fixed frames.
+Any serial or tree URDF made of such joints works.
+
+Joint vectors in this package hold one value per 1-DoF joint (angle [rad] or
+displacement [m]), in the model's joint order; continuous joints (Pinocchio
+stores them as `(cos, sin)`) are converted at the boundary by `to_pinocchio`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cached_property
+from pathlib import Path
+
+import casadi as ca
+import numpy as np
+import pinocchio as pin
+from scipy.optimize import least_squares
+
+from .errors import FrameNotFound, UnreachablePose, UnsupportedJoint
+from .lie import np_log, so3_exp, so3_log
+
+
+@dataclass(frozen=True)
+class _Joint:
+    name: str
+    parent: int  # index into Pinocchio's joints (0 = universe)
+    placement: np.ndarray  # 4x4, parent joint frame -> this joint frame at zero
+    axis: np.ndarray  # unit 3-vector, in this joint's frame
+    prismatic: bool
+    continuous: bool  # stored by Pinocchio as (cos, sin)
+    lower: float
+    upper: float
+
+
+def _se3(M: pin.SE3) -> np.ndarray:
+    return np.asarray(M.homogeneous, dtype=float)
+
+
+def _parse_joints(model: pin.Model) -> list[_Joint]:
+    joints = []
+    for jid in range(1, model.njoints):
+        jm = model.joints[jid]
+        name = model.names[jid]
+        if jm.nv != 1 or jm.nq not in (1, 2):
+            raise UnsupportedJoint(
+                f"joint '{name}' ({jm.shortname()}) has {jm.nv} degrees of freedom; "
+                "only revolute, continuous and prismatic joints are supported"
+            )
+        jd = jm.createData()
+        jm.calc(jd, pin.neutral(model)[jm.idx_q : jm.idx_q + jm.nq])
+        S = np.asarray(jd.S).ravel()
+        lin, ang = S[:3], S[3:]
+        if np.linalg.norm(lin) > 1e-12 and np.linalg.norm(ang) > 1e-12:
+            raise UnsupportedJoint(f"joint '{name}' ({jm.shortname()}) is helical; not supported")
+        prismatic = np.linalg.norm(lin) > 1e-12
+        continuous = jm.nq == 2
+        if continuous:
+            lower, upper = -np.inf, np.inf
+        else:
+            lower = float(model.lowerPositionLimit[jm.idx_q])
+            upper = float(model.upperPositionLimit[jm.idx_q])
+        joints.append(
+            _Joint(
+                name=name,
+                parent=int(model.parents[jid]),
+                placement=_se3(model.jointPlacements[jid]),
+                axis=lin if prismatic else ang,
+                prismatic=prismatic,
+                continuous=continuous,
+                lower=lower,
+                upper=upper,
+            )
+        )
+    return joints
+
+
+def _joint_motion(j: _Joint, q):
+    """Homogeneous transform of a 1-DoF joint's motion by `q` (CasADi)."""
+    T = ca.SX.eye(4)
+    if j.prismatic:
+        T[:3, 3] = ca.DM(j.axis) * q
+    else:
+        T[:3, :3] = so3_exp(ca.DM(j.axis) * q)
+    return T
+
+
+class Robot:
+    """A kinematic model loaded from a URDF, with numeric and symbolic FK and IK.
+
+    Args:
+        urdf: path of the URDF file.
+        base_pose: 4x4 pose of the URDF root in the world frame.
+        frame: name of the tracked frame.
+    """
+
+    def __init__(self, urdf: str | Path, base_pose: np.ndarray | None = None, frame: str = "tool"):
+        self.urdf = Path(urdf)
+        self.model = pin.buildModelFromUrdf(str(self.urdf))
+        self.data = self.model.createData()
+        self._joints = _parse_joints(self.model)
+        self.base_pose = np.eye(4) if base_pose is None else np.asarray(base_pose, dtype=float)
+        self.frame = frame
+        self.frame_id = self.frame_index(frame)
+
+    # ------------------------------------------------------------------ model facts
+    @property
+    def joint_names(self) -> list[str]:
+        return [j.name for j in self._joints]
+
+    @property
+    def nq(self) -> int:
+        return len(self._joints)
+
+    @property
+    def lower(self) -> np.ndarray:
+        return np.array([j.lower for j in self._joints])
+
+    @property
+    def upper(self) -> np.ndarray:
+        return np.array([j.upper for j in self._joints])
+
+    @property
+    def frame_names(self) -> list[str]:
+        return [f.name for f in self.model.frames]
+
+    def frame_index(self, name: str) -> int:
+        if not self.model.existFrame(name):
+            raise FrameNotFound(name, self.frame_names)
+        return int(self.model.getFrameId(name))
+
+    def supporting_joints(self, frame: str | None = None) -> list[int]:
+        """Indices (into `joint_names`) of the joints that move `frame`."""
+        fid = self.frame_index(frame or self.frame)
+        jid = int(self.model.frames[fid].parentJoint)
+        return sorted(i - 1 for i in self.model.supports[jid] if i > 0)
+
+    # ------------------------------------------------------------------ numeric FK
+    def to_pinocchio(self, q: np.ndarray) -> np.ndarray:
+        """Pinocchio configuration vector of a joint vector (one value per joint)."""
+        out = np.zeros(self.model.nq)
+        for k, (j, jm) in enumerate(zip(self._joints, self.model.joints[1:])):
+            if j.continuous:
+                out[jm.idx_q : jm.idx_q + 2] = np.cos(q[k]), np.sin(q[k])
+            else:
+                out[jm.idx_q] = q[k]
+        return out
+
+    def frame_pose(self, q: np.ndarray, frame: str | None = None) -> np.ndarray:
+        """4x4 pose of `frame` in the URDF root frame, by Pinocchio (numeric)."""
+        fid = self.frame_index(frame or self.frame)
+        pin.framesForwardKinematics(self.model, self.data, self.to_pinocchio(np.asarray(q, float)))
+        return _se3(self.data.oMf[fid])
+
+    # ------------------------------------------------------------------ symbolic FK
+    def fk_expr(self, q: ca.SX, frame: str | None = None) -> ca.SX:
+        """4x4 symbolic pose of `frame` in the URDF root frame, for the SX joint vector `q`."""
+        fid = self.frame_index(frame or self.frame)
+        f = self.model.frames[fid]
+        chain = []
+        jid = int(f.parentJoint)
+        while jid > 0:
+            chain.append(jid)
+            jid = int(self.model.parents[jid])
+        T = ca.SX.eye(4)
+        for jid in reversed(chain):
+            j = self._joints[jid - 1]
+            T = T @ ca.DM(j.placement) @ _joint_motion(j, q[jid - 1])
+        return T @ ca.DM(_se3(f.placement))
+
+    def fk_function(self, frame: str | None = None) -> ca.Function:
+        """CasADi Function `fk_<frame>(q) -> (p[3], R[3x3])` in the URDF root frame."""
+        name = frame or self.frame
+        q = ca.SX.sym("q", self.nq)
+        T = self.fk_expr(q, name)
+        return ca.Function(f"fk_{name}", [q], [T[:3, 3], T[:3, :3]], ["q"], ["p", "R"])
+
+    @cached_property
+    def fk(self) -> ca.Function:
+        """Symbolic FK of the tracked frame (built once)."""
+        return self.fk_function(self.frame)
+
+    # ------------------------------------------------------------------ inverse kinematics
+    @cached_property
+    def _ik_funcs(self) -> ca.Function:
+        q = ca.SX.sym("q", self.nq)
+        Tw = ca.SX.sym("Tw", 4, 4)  # target pose of the tracked frame in the URDF root frame
+        T = self.fk_expr(q)
+        e_p = T[:3, 3] - Tw[:3, 3]
+        e_r = so3_log(Tw[:3, :3].T @ T[:3, :3])
+        e = ca.vertcat(e_p, 0.05 * e_r)  # 0.05 m/rad: a wrist-sized lever arm
+        return ca.Function("ik_residual", [q, Tw], [e, ca.jacobian(e, q)], ["q", "T"], ["e", "J"])
+
+    def inverse_kinematics(
+        self,
+        target: np.ndarray,
+        q0: np.ndarray,
+        what: str = "pose",
+        restarts: int = 20,
+        seed: int = 0,
+        tol_m: float = 1e-9,
+        tol_rad: float = 1e-9,
+        raise_on_fail: bool = True,
+    ) -> tuple[np.ndarray, float, float]:
+        """Joint vector whose tracked frame reaches `target` (4x4, URDF root frame).
+
+        Bounded least squares (joint limits as bounds), started at `q0`, then at
+        seeded random configurations. Joints that do not move the frame keep
+        their `q0` values.
+
+        Returns:
+            (q, position residual [m], orientation residual [rad]).
+
+        Raises:
+            UnreachablePose: no start converged below the tolerances (when `raise_on_fail`).
+        """
+        f = self._ik_funcs
+        movable = np.array(self.supporting_joints())
+        lo, hi = self.lower[movable], self.upper[movable]
+        lo_f = np.where(np.isfinite(lo), lo, -np.pi)
+        hi_f = np.where(np.isfinite(hi), hi, np.pi)
+        base = np.array(q0, dtype=float)
+
+        def full(x):
+            q = base.copy()
+            q[movable] = x
+            return q
+
+        def fun(x):
+            return np.asarray(f(full(x), target)[0]).ravel()
+
+        def jac(x):
+            return np.asarray(f(full(x), target)[1])[:, movable]
+
+        rng = np.random.default_rng(seed)
+        best = None
+        starts = [np.clip(base[movable], lo_f, hi_f)]
+        starts += [rng.uniform(lo_f, hi_f) for _ in range(restarts)]
+        for x0 in starts:
+            x0 = np.clip(x0, lo, hi)
+            res = least_squares(fun, x0, jac=jac, bounds=(lo, hi), xtol=1e-15, ftol=1e-15, gtol=1e-15, max_nfev=200)
+            q = full(res.x)
+            Tq = self.frame_pose(q)
+            err_p = float(np.linalg.norm(Tq[:3, 3] - target[:3, 3]))
+            err_r = float(np.linalg.norm(np_log(target[:3, :3].T @ Tq[:3, :3])))
+            if best is None or err_p + 0.05 * err_r < best[1] + 0.05 * best[2]:
+                best = (q, err_p, err_r)
+            if err_p <= tol_m and err_r <= tol_rad:
+                return best
+        if raise_on_fail:
+            raise UnreachablePose(what, best[1], best[2])
+        return best

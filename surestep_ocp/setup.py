@@ -1,0 +1,143 @@
+"""A problem made concrete: robot and camera loaded, start and goal resolved to joints and poses."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cached_property
+
+import casadi as ca
+import numpy as np
+
+from .belief import COMPONENTS, BeliefModel
+from .errors import FrameNotFound, ProblemError, UnreachablePose
+from .lie import matrix_to_pose, pose_to_matrix, so3_log
+from .problem import EndpointSpec, Problem
+from .robot import Robot
+
+
+@dataclass
+class Setup:
+    """Everything a method needs: robot, camera, start and goal, belief models.
+
+    Poses `x = [p, r]` are in the camera frame (OpenCV) unless said otherwise.
+    """
+
+    problem: Problem
+    robot: Robot
+    camera_pose: np.ndarray  # 4x4, camera in world
+    q_start: np.ndarray
+    q_goal: np.ndarray
+    x_start: np.ndarray
+    x_goal: np.ndarray
+    ecm: Robot | None = None
+
+    @property
+    def T_cam_base(self) -> np.ndarray:
+        """4x4 pose of the robot's URDF root in the camera frame."""
+        return np.linalg.inv(self.camera_pose) @ self.robot.base_pose
+
+    @cached_property
+    def model(self) -> BeliefModel:
+        """Belief model with the observation components used in optimisation."""
+        return BeliefModel(self.problem.noise, self.problem.camera.intrinsics)
+
+    @cached_property
+    def eval_model(self) -> BeliefModel:
+        """Belief model with all components: every method is evaluated with it."""
+        return self.model.with_components(COMPONENTS)
+
+    def pose_of(self, q: np.ndarray) -> np.ndarray:
+        """Camera-frame pose `[p, r]` of the tracked frame at joints `q` (Pinocchio, numeric)."""
+        return matrix_to_pose(self.T_cam_base @ self.robot.frame_pose(q))
+
+    @cached_property
+    def camera_pose_fn(self) -> ca.Function:
+        """Symbolic `pose(q) -> x` (camera frame, axis-angle) of the tracked frame."""
+        q = ca.SX.sym("q", self.robot.nq)
+        T = ca.DM(self.T_cam_base) @ self.robot.fk_expr(q)
+        return ca.Function("camera_pose", [q], [ca.vertcat(T[:3, 3], so3_log(T[:3, :3]))], ["q"], ["x"])
+
+    def joints_for(self, x: np.ndarray, q0: np.ndarray, what: str = "pose", raise_on_fail: bool = True):
+        """IK of a camera-frame pose: (q, residual [m], residual [rad])."""
+        target = np.linalg.inv(self.T_cam_base) @ pose_to_matrix(x)
+        return self.robot.inverse_kinematics(target, q0, what=what, raise_on_fail=raise_on_fail)
+
+    def joints_along(self, poses: np.ndarray, q0: np.ndarray, tol_m: float = 1e-6, tol_rad: float = 1e-5):
+        """IK of every waypoint, each started from the previous solution.
+
+        Returns:
+            (q_best (N, nq) best-effort solutions, reachable (N,) bool, res_m (N,), res_rad (N,)).
+        """
+        qs, res_m, res_r = [], [], []
+        q_prev = np.asarray(q0, float)
+        for x in poses:
+            q_prev, em, er = self.joints_for(x, q_prev, raise_on_fail=False)
+            qs.append(q_prev)
+            res_m.append(em)
+            res_r.append(er)
+        res_m, res_r = np.array(res_m), np.array(res_r)
+        return np.array(qs), (res_m <= tol_m) & (res_r <= tol_rad), res_m, res_r
+
+
+def build_setup(problem: Problem) -> Setup:
+    """Load the robot and the camera and resolve start and goal.
+
+    Raises:
+        ProblemError: frame missing, joints out of limits, goal behind the camera or unreachable.
+    """
+    file = str(problem.path)
+    try:
+        robot = Robot(problem.robot.urdf, problem.robot.base_pose, problem.robot.frame)
+    except FrameNotFound as exc:
+        raise ProblemError(file, "robot.frame", str(exc)) from None
+    except ValueError as exc:  # Pinocchio's URDF parser
+        raise ProblemError(file, "robot.urdf", f"cannot load URDF: {exc}") from None
+
+    cam = problem.camera
+    ecm = None
+    if cam.pose is not None:
+        camera_pose = cam.pose
+    else:
+        try:
+            ecm = Robot(cam.ecm.urdf, cam.ecm.base_pose, cam.ecm.frame)
+        except FrameNotFound as exc:
+            raise ProblemError(file, "camera.ecm.frame", str(exc)) from None
+        _check_joints(problem, ecm, cam.ecm_joints, "camera.ecm.joints")
+        camera_pose = ecm.base_pose @ ecm.frame_pose(cam.ecm_joints)
+
+    setup = Setup(problem, robot, camera_pose, np.zeros(robot.nq), np.zeros(robot.nq), np.zeros(6), np.zeros(6), ecm)
+    mid = np.where(np.isfinite(robot.lower), 0.5 * (robot.lower + robot.upper), 0.0)
+    setup.q_start, setup.x_start = _endpoint(problem, setup, problem.start, mid)
+    setup.q_goal, setup.x_goal = _endpoint(problem, setup, problem.goal, setup.q_start)
+    return setup
+
+
+def _check_joints(problem: Problem, robot: Robot, q: np.ndarray, key: str) -> None:
+    if len(q) != robot.nq:
+        raise ProblemError(str(problem.path), key,
+                           f"expected {robot.nq} joint values ({', '.join(robot.joint_names)}), got {len(q)}")
+    for name, v, lo, hi in zip(robot.joint_names, q, robot.lower, robot.upper):
+        if not lo - 1e-12 <= v <= hi + 1e-12:
+            raise ProblemError(str(problem.path), key, f"joint '{name}' = {v:g} outside its limits [{lo:g}, {hi:g}]")
+
+
+def _endpoint(problem: Problem, setup: Setup, spec: EndpointSpec, seed: np.ndarray):
+    file = str(problem.path)
+    if spec.joints is not None:
+        _check_joints(problem, setup.robot, spec.joints, spec.key)
+        q = np.asarray(spec.joints, float)
+        x = setup.pose_of(q)
+    else:
+        x = np.asarray(spec.pose, float)
+        x = matrix_to_pose(pose_to_matrix(x))  # normalise the angle into [0, pi]
+        try:
+            q, _, _ = setup.joints_for(x, seed, what=f"the pose at {spec.key}")
+        except UnreachablePose as exc:
+            raise ProblemError(file, spec.key, str(exc)) from None
+    if x[2] <= 0:
+        raise ProblemError(file, spec.key, f"the tool is behind the camera (depth z = {x[2]:.4f} m); "
+                                           "the camera looks along its +z axis")
+    if x[2] < problem.min_depth:
+        raise ProblemError(file, spec.key, f"depth z = {x[2]:.4f} m is below constraints.min_depth "
+                                           f"= {problem.min_depth} m")
+    return q, x

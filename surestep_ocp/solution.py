@@ -1,0 +1,167 @@
+"""One `Solution` type for every method, evaluated by one function, saved as JSON atomically."""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .belief import entropy
+from .lie import np_angle
+from .setup import Setup
+
+
+@dataclass
+class Solution:
+    """A planned trajectory and its evaluation (see README, "The solution file")."""
+
+    method: str
+    problem: str
+    success: bool
+    status: str
+    solve_time_s: float
+    iterations: int
+    horizon: int
+    joint_names: list[str]
+    q: list[list[float] | None]
+    poses: list[list[float]]
+    goal: list[float]
+    camera: dict
+    camera_pose: list[list[float]]
+    robot: dict
+    noise: dict
+    trace: list[float]
+    sigma: list[list[list[float]]]
+    sigma_final: list[list[float]]
+    objective: float
+    extras: dict[str, Any] = field(default_factory=dict)
+
+    # ----------------------------------------------------------- derived numbers
+    @property
+    def trace_final(self) -> float:
+        return float(self.trace[-1])
+
+    @property
+    def terminal_error(self) -> tuple[float, float]:
+        """Distance [m] and angle [rad] between the plan's last waypoint and the goal."""
+        x, g = np.asarray(self.poses[-1]), np.asarray(self.goal)
+        return float(np.linalg.norm(x[:3] - g[:3])), np_angle(x[3:], g[3:])
+
+    @property
+    def entropy_final(self) -> float:
+        return entropy(np.asarray(self.sigma_final))
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        extras = d.pop("extras")
+        d.update(extras)
+        return d
+
+    def save(self, path: str | Path) -> Path:
+        return write_json_atomic(path, self.to_dict())
+
+    @classmethod
+    def load(cls, path: str | Path) -> Solution:
+        d = json.loads(Path(path).read_text())
+        names = set(cls.__dataclass_fields__) - {"extras"}
+        return cls(**{k: d[k] for k in names}, extras={k: v for k, v in d.items() if k not in names})
+
+
+def write_json_atomic(path: str | Path, obj: Any) -> Path:
+    """Write JSON to a temporary file beside `path`, then rename it over `path`."""
+    return write_text_atomic(path, json.dumps(obj, indent=1, default=_jsonable) + "\n")
+
+
+def write_text_atomic(path: str | Path, text: str | bytes) -> Path:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb" if isinstance(text, bytes) else "w") as fh:
+            fh.write(text)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return path
+
+
+def _jsonable(o: Any):
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, (np.floating, np.integer)):
+        return o.item()
+    if isinstance(o, Path):
+        return str(o)
+    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
+
+
+def _cov_json(M: np.ndarray):
+    """A scalar when the matrix is a multiple of the identity, else the 6x6 list."""
+    M = np.asarray(M)
+    s = M[0, 0]
+    return float(s) if np.allclose(M, s * np.eye(len(M)), rtol=0, atol=0) else M.tolist()
+
+
+def noise_dict(setup: Setup) -> dict:
+    n = setup.problem.noise
+    d = {k: _cov_json(getattr(n, k)) for k in ("W_p0", "W_o0", "V_d0", "V_f0", "V_o0", "Sigma0")}
+    d.update(depth_star=n.depth_star, o_star=list(n.o_star), components=list(setup.model.components),
+             orientation_formula=n.orientation_formula)
+    return d
+
+
+def evaluate(
+    setup: Setup,
+    method: str,
+    poses: np.ndarray,
+    q: list[np.ndarray | None],
+    *,
+    success: bool,
+    status: str,
+    solve_time_s: float,
+    iterations: int,
+    objective: float,
+    components: tuple[str, ...] | None = None,
+    extras: dict | None = None,
+) -> Solution:
+    """The single evaluation every method goes through: the EKF with all components along `poses`."""
+    poses = np.asarray(poses, dtype=float)
+    sig, _ = setup.eval_model.propagate(poses)
+    prob = setup.problem
+    noise = noise_dict(setup)
+    if components is not None:
+        noise["components"] = list(components)
+    robot = {"urdf": prob.robot.urdf_rel, "frame": prob.robot.frame, "base_pose": setup.robot.base_pose.tolist()}
+    ext = dict(extras or {})
+    if setup.ecm is not None:
+        ext.setdefault("ecm", {"urdf": prob.camera.ecm.urdf_rel, "frame": prob.camera.ecm.frame,
+                               "q": list(map(float, prob.camera.ecm_joints)),
+                               "base_pose": setup.ecm.base_pose.tolist()})
+    return Solution(
+        method=method,
+        problem=str(prob.path),
+        success=bool(success),
+        status=str(status),
+        solve_time_s=float(solve_time_s),
+        iterations=int(iterations),
+        horizon=len(poses) - 1,
+        joint_names=setup.robot.joint_names,
+        q=[None if qi is None else [float(v) for v in qi] for qi in q],
+        poses=poses.tolist(),
+        goal=setup.x_goal.tolist(),
+        camera=prob.camera.intrinsics.to_dict(),
+        camera_pose=setup.camera_pose.tolist(),
+        robot=robot,
+        noise=noise,
+        trace=[float(np.trace(s)) for s in sig],
+        sigma=sig.tolist(),
+        sigma_final=sig[-1].tolist(),
+        objective=float(objective),
+        extras=ext,
+    )

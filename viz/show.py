@@ -1,0 +1,117 @@
+"""`surestep show`: write the scene as static HTML, or serve it live with Meshcat."""
+
+from __future__ import annotations
+
+import argparse
+import time
+import webbrowser
+from pathlib import Path
+from typing import Sequence, Union
+
+from .scene import SceneInfo, build_scene, write_static_html
+from .solutions import Solution, load_solutions
+
+Target = Union[Path, str, Solution, Sequence[Solution]]
+
+
+def as_solutions(target: Target) -> list[Solution]:
+    """Solutions from a solution file, a directory of them, one dict or a list of dicts."""
+    if isinstance(target, dict):
+        return [target]
+    if isinstance(target, (str, Path)):
+        return load_solutions(Path(target))
+    return list(target)
+
+
+def serve(
+    solutions: Sequence[Solution],
+    open_browser: bool = False,
+    endoscope_view: bool = False,
+    repo_root: Path | None = None,
+    animate: str | None = None,
+    zmq_url: str | None = None,
+):
+    """Start (or connect to) a Meshcat server on loopback and draw the scene into it.
+
+    Returns `(vis, info)`; the server subprocess lives as long as this process
+    (meshcat registers its cleanup with `atexit`). `zmq_url` connects to an already
+    running `meshcat-server` instead of starting one.
+    """
+    import meshcat
+
+    vis = meshcat.Visualizer(zmq_url=zmq_url)
+    info = build_scene(solutions, repo_root=repo_root, vis=vis, animate=animate,
+                       endoscope=endoscope_view)
+    if open_browser:
+        webbrowser.open(vis.url(), new=2)
+    return vis, info
+
+
+def show(
+    target: Target,
+    open_browser: bool = False,
+    html: Path | str | None = None,
+    endoscope_view: bool = False,
+    repo_root: Path | None = None,
+    animate: str | None = None,
+    block: bool = True,
+) -> SceneInfo:
+    """Show solutions: static HTML if `html` is given, else a live Meshcat server.
+
+    Args:
+        target: solution JSON file, directory of them (comparison.json ignored), or
+            solution dict(s) (e.g. a baseline the CLI just solved from a problem YAML).
+        open_browser: open the page (the HTML file or the server URL) in a browser.
+        html: output file for the standalone page; no server is started then.
+        endoscope_view: start from the endoscope's point of view.
+        repo_root: folder the solutions' `urdf` paths are relative to.
+        animate: method the arm follows (default "ocp" if present, else the first).
+        block: in server mode, keep serving until Ctrl-C (False returns at once).
+    """
+    sols = as_solutions(target)
+    if html is not None:
+        out = Path(html)
+        info = write_static_html(sols, out, repo_root=repo_root, animate=animate,
+                                 endoscope=endoscope_view)
+        print(f"wrote {out} ({', '.join(info.paths)})")
+        if open_browser:
+            webbrowser.open(out.resolve().as_uri(), new=2)
+        return info
+    vis, info = serve(sols, open_browser, endoscope_view, repo_root, animate)
+    print(f"Meshcat scene ({', '.join(info.paths)}) at {vis.url()}")
+    if block:
+        print("Serving; press Ctrl-C to stop.")
+        try:
+            while True:
+                time.sleep(1.0)
+        except KeyboardInterrupt:
+            print("stopped")
+    return info
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add the `show` options (target, --open, --html, --endoscope-view, --animate)."""
+    parser.add_argument("target", type=Path, help="solution JSON or directory of them")
+    parser.add_argument("--open", dest="open_browser", action="store_true",
+                        help="open a browser")
+    parser.add_argument("--html", type=Path, default=None,
+                        help="write a standalone HTML file instead of serving")
+    parser.add_argument("--endoscope-view", action="store_true",
+                        help="start from the endoscope's view")
+    parser.add_argument("--animate", default=None, help="method the arm follows (default ocp)")
+
+
+def show_main(args: argparse.Namespace, solutions: Sequence[Solution] | None = None) -> int:
+    """Run `show` from parsed CLI arguments (see `add_arguments`); return an exit code.
+
+    `solutions`, when given, replaces loading `args.target` (e.g. the CLI solved a
+    problem YAML first).
+    """
+    show(
+        solutions if solutions is not None else args.target,
+        open_browser=bool(getattr(args, "open_browser", getattr(args, "open", False))),
+        html=getattr(args, "html", None),
+        endoscope_view=bool(getattr(args, "endoscope_view", False)),
+        animate=getattr(args, "animate", None),
+    )
+    return 0
