@@ -1,0 +1,158 @@
+"""Command line: `surestep solve|compare|validate|show`.
+
+User errors (bad problem files, unknown methods, unreachable poses) print one line
+and exit 2; a solver that fails prints its status and exits 1.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from .errors import SolverError, SurestepError
+
+
+def _load(path: str):
+    from .problem import load_problem
+    from .setup import build_setup
+
+    return build_setup(load_problem(path))
+
+
+def _summary(sol, base=None) -> str:
+    err_m, err_rad = sol.terminal_error
+    lines = [
+        f"method      {sol.method}",
+        f"status      {sol.status} ({'success' if sol.success else 'FAILED'})",
+        f"iterations  {sol.iterations}",
+        f"solve time  {sol.solve_time_s:.3f} s",
+        f"Tr(Sigma_T) {sol.trace_final:.4e}",
+    ]
+    if base is not None and base is not sol:
+        lines.append(f"baseline    {base.trace_final:.4e}  (ratio baseline / {sol.method} = "
+                     f"{base.trace_final / sol.trace_final:.2f})")
+    lines.append(f"terminal    {err_m:.2e} m, {err_rad:.2e} rad from the goal")
+    unreachable = sum(q is None for q in sol.q)
+    if unreachable:
+        lines.append(f"reachable   {len(sol.q) - unreachable}/{len(sol.q)} waypoints (IK)")
+    return "\n".join(lines)
+
+
+def cmd_solve(args) -> int:
+    from .methods import run_method
+
+    setup = _load(args.problem)
+    if args.solver != "ipopt":
+        raise SurestepError(f"solver '{args.solver}' is not available yet; allowed: ipopt")
+    method = args.method
+    if method == "ocp" and args.init == "gradient":
+        method = "ocp-from-gradient"
+    sol = run_method(setup, method)
+    base = run_method(setup, "baseline") if method != "baseline" else sol
+    if args.output:
+        sol.save(args.output)
+    print(_summary(sol, base))
+    if args.output:
+        print(f"wrote       {args.output}")
+    if not sol.success:
+        raise SolverError(sol.extras.get("solver", sol.method), sol.status)
+    return 0
+
+
+def cmd_compare(args) -> int:
+    from .compare import run_comparison, write_comparison
+    from .methods import COMPARE_METHODS
+
+    setup = _load(args.problem)
+    methods = tuple(args.methods) if args.methods else COMPARE_METHODS
+    sols = run_comparison(setup, methods, progress=lambda m: print(f"solving: {m}", file=sys.stderr, flush=True))
+    table = write_comparison(sols, Path(args.output_dir), args.problem)
+    print(table)
+    print(f"\nwrote {args.output_dir}/{{<method>.json, comparison.md, comparison.json, trace.png, path.png}}")
+    failed = [s.method for s in sols if not s.success]
+    if failed:
+        print(f"failed: {', '.join(failed)}", file=sys.stderr)
+        return 1
+    return 0
+
+
+def cmd_validate(args) -> int:
+    bad = 0
+    for path in args.problems:
+        try:
+            setup = _load(path)
+            print(f"ok    {path}  (T={setup.problem.horizon}, goal depth {setup.x_goal[2]:.3f} m)")
+        except SurestepError as exc:
+            print(f"error {exc}", file=sys.stderr)
+            bad += 1
+    return 2 if bad else 0
+
+
+def cmd_show(args) -> int:
+    try:
+        from .viz import show
+    except ImportError as exc:
+        raise SurestepError(f"the visualisation needs meshcat: {exc}") from None
+    target = Path(args.target)
+    if not target.exists():
+        raise SurestepError(f"{target}: no such file or directory")
+    solutions = None
+    if target.suffix in (".yaml", ".yml"):
+        from .methods import run_method
+
+        setup = _load(str(target))
+        solutions = [run_method(setup, "baseline").to_dict()]
+    return show(target, open_browser=args.open, html=Path(args.html) if args.html else None,
+                endoscope_view=args.endoscope_view, solutions=solutions) or 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="surestep", description="Uncertainty-aware trajectory optimisation (SURESTEP).")
+    sub = p.add_subparsers(dest="command", required=True)
+
+    s = sub.add_parser("solve", help="solve one problem with one method, write the solution JSON")
+    s.add_argument("problem")
+    s.add_argument("--method", default="ocp", help="baseline | gradient | gradient-no-pose-loss | ocp "
+                   "(suffix -no-depth/-no-fov/-no-orientation for ablations)")
+    s.add_argument("--init", choices=("baseline", "gradient"), default="baseline",
+                   help="initial guess of the OCP (gradient = the hybrid)")
+    s.add_argument("--solver", default="ipopt", help="NLP solver of the OCP")
+    s.add_argument("--output", "-o", help="solution JSON to write")
+    s.set_defaults(func=cmd_solve)
+
+    c = sub.add_parser("compare", help="run every method on one problem and compare them")
+    c.add_argument("problem")
+    c.add_argument("--output-dir", required=True)
+    c.add_argument("--methods", nargs="+", help="subset of methods (default: all)")
+    c.set_defaults(func=cmd_compare)
+
+    v = sub.add_parser("validate", help="check problem files")
+    v.add_argument("problems", nargs="+")
+    v.set_defaults(func=cmd_validate)
+
+    w = sub.add_parser("show", help="Meshcat view of a problem, a solution or a comparison directory")
+    w.add_argument("target")
+    w.add_argument("--open", action="store_true", help="open a browser")
+    w.add_argument("--html", help="write a self-contained static HTML file instead of serving")
+    w.add_argument("--endoscope-view", action="store_true", help="look through the endoscope")
+    w.set_defaults(func=cmd_show)
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return args.func(args)
+    except SolverError as exc:
+        print(f"surestep: {exc}", file=sys.stderr)
+        return 1
+    except SurestepError as exc:
+        print(f"surestep: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,106 @@
+"""`surestep compare`: every method on one problem, side by side (files, table, plots)."""
+
+from __future__ import annotations
+
+import io
+from pathlib import Path
+
+import numpy as np
+
+from .camera import Intrinsics
+from .metrics import comparison_rows, markdown_table
+from .methods import COMPARE_METHODS, run_method
+from .setup import Setup
+from .solution import Solution, write_json_atomic, write_text_atomic
+
+
+def run_comparison(setup: Setup, methods: tuple[str, ...] = COMPARE_METHODS, progress=None) -> list[Solution]:
+    """Solve with each method in turn (a gradient solution is reused by `ocp-from-gradient`)."""
+    cache: dict[str, Solution] = {}
+    for name in methods:
+        if progress:
+            progress(name)
+        cache[name] = run_method(setup, name, cache)
+    return [cache[m] for m in methods]
+
+
+def write_comparison(solutions: list[Solution], out_dir: Path, problem_path: str) -> str:
+    """Write `<method>.json`, `comparison.md`, `comparison.json`, `trace.png`, `path.png`; return the table."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    for s in solutions:
+        s.save(out_dir / f"{s.method}.json")
+    rows = comparison_rows(solutions)
+    table = markdown_table(rows)
+    write_json_atomic(out_dir / "comparison.json", {"problem": problem_path, "methods": rows})
+    text = (f"# Comparison on `{problem_path}`\n\n"
+            "Every method evaluated by the same EKF (all observation components) along its own waypoints; "
+            "`rel.` is relative to the straight-line baseline with the paper's scaling (lower is better).\n\n"
+            f"{table}\n")
+    write_text_atomic(out_dir / "comparison.md", text)
+    _plot_trace(solutions, out_dir / "trace.png")
+    _plot_paths(solutions, out_dir / "path.png")
+    return table
+
+
+COLOURS = {"baseline": "#7f7f7f", "gradient": "#ff7f0e", "gradient-no-pose-loss": "#d62728",
+           "ocp": "#1f77b4", "ocp-from-gradient": "#2ca02c"}
+
+
+def _figure():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _save(fig, path: Path) -> None:
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=110)
+    write_text_atomic(path, buf.getvalue())
+
+
+def _plot_trace(solutions: list[Solution], path: Path) -> None:
+    plt = _figure()
+    fig, ax = plt.subplots(figsize=(7, 4.2))
+    for s in solutions:
+        ax.semilogy(range(len(s.trace)), s.trace, "o-", ms=3, label=s.method, color=COLOURS.get(s.method))
+    ax.set_xlabel("step t")
+    ax.set_ylabel("Tr(Σ_t|t)")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend()
+    fig.tight_layout()
+    _save(fig, path)
+    plt.close(fig)
+
+
+def _plot_paths(solutions: list[Solution], path: Path) -> None:
+    plt = _figure()
+    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4.2))
+    intr = Intrinsics(**solutions[0].camera)
+    ax1.add_patch(plt.Rectangle((0, 0), intr.width, intr.height, fill=False, color="k"))
+    for s in solutions:
+        P = np.asarray(s.poses)
+        uv = intr.project(P[:, :3])
+        c = COLOURS.get(s.method)
+        ax1.plot(uv[:, 0], uv[:, 1], "o-", ms=3, color=c, label=s.method)
+        ax2.plot(range(len(P)), P[:, 2] * 1e3, "o-", ms=3, color=c, label=s.method)
+    g = np.asarray(solutions[0].goal)
+    gu = intr.project(g[:3])
+    ax1.plot(*gu, "k*", ms=12, label="goal")
+    ax1.plot(intr.width / 2, intr.height / 2, "k+", ms=12)
+    ax1.set_xlim(-0.1 * intr.width, 1.1 * intr.width)
+    ax1.set_ylim(1.1 * intr.height, -0.1 * intr.height)
+    ax1.set_aspect("equal")
+    ax1.set_title("image-plane projection [px]")
+    ax1.legend(fontsize=7)
+    ax2.axhline(float(solutions[0].noise["depth_star"]) * 1e3, color="k", ls="--", lw=1, label="d*")
+    ax2.set_xlabel("step t")
+    ax2.set_ylabel("depth z [mm]")
+    ax2.set_title("depth along the path")
+    ax2.legend(fontsize=7)
+    fig.tight_layout()
+    _save(fig, path)
+    plt.close(fig)

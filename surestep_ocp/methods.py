@@ -1,0 +1,79 @@
+"""Method names and dispatch: every method takes a Setup and returns a Solution.
+
+Names: `baseline`, `gradient`, `gradient-no-pose-loss`, `ocp`, `ocp-from-gradient`
+(IPOPT started from the gradient solution), each optionally with an ablation suffix
+`-no-depth`, `-no-fov` or `-no-orientation` (that observation component is left out
+during optimisation; evaluation always uses all components).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .baseline import solve_baseline, straight_line
+from .belief import COMPONENTS
+from .errors import SurestepError
+from .ocp import InitialGuess, solve_ocp
+from .setup import Setup
+from .solution import Solution
+
+BASE_METHODS = ("baseline", "gradient", "gradient-no-pose-loss", "ocp", "ocp-from-gradient")
+ABLATIONS = {f"-no-{c}": c for c in COMPONENTS}
+COMPARE_METHODS = ("baseline", "gradient", "gradient-no-pose-loss", "ocp", "ocp-from-gradient")
+
+
+def parse_method(name: str) -> tuple[str, tuple[str, ...] | None]:
+    """Split a method name into (base method, components or None for the problem's own)."""
+    for suffix, comp in ABLATIONS.items():
+        if name.endswith(suffix) and name[: -len(suffix)] in BASE_METHODS:
+            return name[: -len(suffix)], tuple(c for c in COMPONENTS if c != comp)
+    if name in BASE_METHODS:
+        return name, None
+    allowed = ", ".join(BASE_METHODS)
+    raise SurestepError(f"unknown method '{name}'; allowed: {allowed} (optionally with -no-depth, -no-fov, "
+                        "-no-orientation)")
+
+
+def _with_components(setup: Setup, components: tuple[str, ...] | None) -> Setup:
+    if components is None:
+        return setup
+    from dataclasses import replace
+
+    noise = replace(setup.problem.noise, components=components)
+    new = replace(setup, problem=replace(setup.problem, noise=noise))
+    return new
+
+
+def ocp_initial_guess(setup: Setup, source: str = "baseline", gradient: Solution | None = None) -> InitialGuess:
+    """Joint trajectory to start IPOPT from: IK of the straight line or of a gradient solution."""
+    if source == "baseline":
+        poses = straight_line(setup.x_start, setup.x_goal, setup.problem.horizon)
+    else:
+        poses = np.asarray(gradient.poses)
+    q_best, ok, _, _ = setup.joints_along(poses, setup.q_start)
+    note = source if ok.all() else f"{source} ({int((~ok).sum())} waypoints unreachable, best-effort IK used)"
+    return InitialGuess(q_best, note)
+
+
+def run_method(setup: Setup, name: str, cache: dict[str, Solution] | None = None,
+               solver_options: dict | None = None) -> Solution:
+    """Solve `setup` with the named method (see module docstring).
+
+    `cache` (method name -> Solution) lets `ocp-from-gradient` reuse a gradient solution.
+    """
+    base, comps = parse_method(name)
+    s = _with_components(setup, comps)
+    if base == "baseline":
+        sol = solve_baseline(s)
+    elif base in ("gradient", "gradient-no-pose-loss"):
+        from .gradient import solve_gradient
+
+        sol = solve_gradient(s, pose_loss=(base == "gradient"), components=comps)
+    elif base == "ocp":
+        sol = solve_ocp(s, ocp_initial_guess(s), solver_options)
+    else:  # ocp-from-gradient
+        suffix = name[len(base):]
+        grad = (cache or {}).get("gradient" + suffix) or run_method(setup, "gradient" + suffix)
+        sol = solve_ocp(s, ocp_initial_guess(s, "gradient", grad), solver_options)
+    sol.method = name
+    return sol
