@@ -36,23 +36,25 @@ INTRINSICS = {"fx": 800.0, "fy": 800.0, "cx": 320.0, "cy": 240.0, "width": 640, 
 UR5 = (Path(sysconfig.get_paths()["purelib"])
        / "cmeel.prefix/share/example-robot-data/robots/ur_description/urdf/ur5_robot.urdf")
 
+_LIM = '<limit lower="-3" upper="3" effort="1" velocity="1"/>'
+_ARM = '<material name="arm"/>'
 ARM_URDF = f"""<?xml version="1.0"?>
 <robot name="mini_arm">
   <material name="arm"><color rgba="{ROBOT_RGB[0]} {ROBOT_RGB[1]} {ROBOT_RGB[2]} 1"/></material>
-  <link name="base"><visual><geometry><sphere radius="0.012"/></geometry>
-    <material name="arm"/></visual></link>
+  <link name="base"><visual><geometry><sphere radius="0.012"/></geometry>{_ARM}</visual></link>
   <joint name="j1" type="revolute"><parent link="base"/><child link="l1"/>
-    <axis xyz="0 0 1"/><limit lower="-3" upper="3" effort="1" velocity="1"/></joint>
+    <axis xyz="0 0 1"/>{_LIM}</joint>
   <link name="l1"><visual><origin xyz="0 0 0.05"/>
-    <geometry><cylinder radius="0.006" length="0.1"/></geometry><material name="arm"/></visual></link>
+    <geometry><cylinder radius="0.006" length="0.1"/></geometry>{_ARM}</visual></link>
   <joint name="j2" type="revolute"><parent link="l1"/><child link="l2"/>
-    <origin xyz="0 0 0.1"/><axis xyz="0 1 0"/><limit lower="-3" upper="3" effort="1" velocity="1"/></joint>
+    <origin xyz="0 0 0.1"/><axis xyz="0 1 0"/>{_LIM}</joint>
   <link name="l2"><visual><origin xyz="0.06 0 0"/>
-    <geometry><box size="0.12 0.012 0.012"/></geometry><material name="arm"/></visual></link>
+    <geometry><box size="0.12 0.012 0.012"/></geometry>{_ARM}</visual></link>
   <joint name="j3" type="prismatic"><parent link="l2"/><child link="l3"/>
-    <origin xyz="0.12 0 0"/><axis xyz="1 0 0"/><limit lower="0" upper="0.1" effort="1" velocity="1"/></joint>
+    <origin xyz="0.12 0 0"/><axis xyz="1 0 0"/>
+    <limit lower="0" upper="0.1" effort="1" velocity="1"/></joint>
   <link name="l3"><visual><origin xyz="0.02 0 0" rpy="0 1.5708 0"/>
-    <geometry><cylinder radius="0.003" length="0.04"/></geometry><material name="arm"/></visual></link>
+    <geometry><cylinder radius="0.003" length="0.04"/></geometry>{_ARM}</visual></link>
   <joint name="tool_joint" type="fixed"><parent link="l3"/><child link="tool"/>
     <origin xyz="0.04 0 0"/></joint>
   <link name="tool"/>
@@ -100,7 +102,7 @@ def make_solution(urdf: Path, method: str, bend: float, seed: int = 0, base=None
         C = np.linalg.inv(cam) @ W
         poses.append(list(C[:3, 3]) + list(pin.log3(C[:3, :3])))
     rng = np.random.default_rng(seed)
-    sigma = [random_spd(rng, 1e-4 * 0.7 ** t).tolist() for t in range(T_STEPS + 1)]
+    sigma = [random_spd(rng, 2e-5 * 0.75 ** t).tolist() for t in range(T_STEPS + 1)]
     return {
         "method": method, "problem": "synthetic.yaml", "success": True, "status": "ok",
         "solve_time_s": 0.1, "iterations": 3, "horizon": T_STEPS,
@@ -171,11 +173,11 @@ def test_ellipsoids_are_3_sigma_of_position_block(solutions):
         p = info.paths[sol["method"]]
         for k, t in enumerate(p.nodes):
             S = np.asarray(sol["sigma"][t])[:3, :3]
-            np.testing.assert_allclose(np.sort(p.radii[k]), np.sort(3 * np.sqrt(np.linalg.eigvalsh(S))),
-                                       rtol=1e-9)
+            expect = np.sort(3 * np.sqrt(np.linalg.eigvalsh(S)))
+            np.testing.assert_allclose(np.sort(p.radii[k]), expect, rtol=1e-9)
             node = p.ellipsoid_nodes[k]
-            radii = np.diag(np.reshape(last(window, node, "set_object")["object"]["object"]["matrix"],
-                                       (4, 4)))[:3]
+            obj = last(window, node, "set_object")["object"]["object"]
+            radii = np.diag(np.reshape(obj["matrix"], (4, 4)))[:3]
             A = np.reshape(last(window, node, "set_transform")["matrix"], (4, 4)).T  # column-major
             np.testing.assert_allclose(A[:3, :3] @ np.diag((radii / 3) ** 2) @ A[:3, :3].T,
                                        R @ S @ R.T, atol=1e-12)
@@ -247,15 +249,21 @@ def test_null_q_and_ecm(solutions, arm_urdf):
 
 
 def test_endoscope_view_points_along_camera_axis(solutions):
+    """Effective view = scene-root display transform M, camera at Rx(90) (0, 0, d), aimed at 0."""
     vis, window = recording_visualizer()
     C = np.asarray(solutions[0]["camera_pose"])
     view = set_endoscope_view(vis, C, INTRINSICS)
-    A = np.reshape(last(window, "/Cameras/default", "set_transform")["matrix"], (4, 4)).T
+    M = np.reshape(last(window, "/meshcat", "set_transform")["matrix"], (4, 4)).T  # column-major
+    Rx90 = np.reshape(last(window, "/Cameras/default/rotated", "set_transform")["matrix"], (4, 4)).T
+    np.testing.assert_allclose(
+        np.reshape(last(window, "/Cameras/default", "set_transform")["matrix"], (4, 4)), np.eye(4))
     props = {c["property"]: c["value"] for c in window.decoded["/Cameras/default/rotated/<object>"]}
-    eye = A[:3, :3] @ np.asarray(props["position"]) + A[:3, 3]
-    np.testing.assert_allclose(eye, C[:3, 3], atol=1e-12)  # camera at the endoscope centre
-    np.testing.assert_allclose(-A[:3, 2], C[:3, 2], atol=1e-12)  # three.js looks along -z
-    np.testing.assert_allclose(A[:3, 1], -C[:3, 1], atol=1e-12)  # screen up = image up (-y)
+    eye_display = Rx90[:3, :3] @ np.asarray(props["position"]) + Rx90[:3, 3]
+    Minv = np.linalg.inv(M)
+    np.testing.assert_allclose(Minv[:3, :3] @ eye_display + Minv[:3, 3], C[:3, 3], atol=1e-12)
+    forward = -eye_display / np.linalg.norm(eye_display)  # OrbitControls aim at the origin
+    np.testing.assert_allclose(Minv[:3, :3] @ forward, C[:3, 2], atol=1e-12)  # along camera z
+    np.testing.assert_allclose(Minv[:3, :3] @ [0, 0, 1.0], -C[:3, 1], atol=1e-12)  # up = -y
     assert props["fov"] == pytest.approx(np.degrees(2 * np.arctan(240 / 800)))
     np.testing.assert_allclose(view.target, C[:3, 3] + 0.15 * C[:3, 2])
 
@@ -310,7 +318,7 @@ def test_mesh_robot_ur5(solutions):
     assert obj["geometries"][0]["type"] == "BufferGeometry" and len(unpack_points(obj)) > 1000
 
 
-@pytest.mark.skipif(not (REPO / "robots/psm.urdf").exists() or not (REPO / "robots/ecm.urdf").exists(),
+@pytest.mark.skipif(not all((REPO / f"robots/{r}.urdf").exists() for r in ("psm", "ecm")),
                     reason="robots/psm.urdf or robots/ecm.urdf not present")
 def test_psm_and_ecm_urdfs_draw(solutions):
     sol = solutions[1]

@@ -3,7 +3,8 @@
 Importing this package does not import meshcat; the names below load on first use:
 
     load_solutions(path) -> list[dict]
-    build_scene(solutions, repo_root=None, vis=None, animate=None, endoscope=False, ...) -> SceneInfo
+    build_scene(solutions, repo_root=None, vis=None, animate=None, endoscope=False, ...)
+        -> SceneInfo
     write_static_html(solutions, path, repo_root=None, **kwargs) -> SceneInfo
     set_endoscope_view(vis, camera_pose, intrinsics, depth=0.15) -> CameraView
     show(target, open_browser=False, html=None, endoscope_view=False, ...) -> SceneInfo

@@ -26,7 +26,8 @@ _VIEWER_JS = FsPath(meshcat.__file__).parent / "viewer" / "dist" / "main.min.js"
 _HTML = """<!DOCTYPE html>
 <html>
 <head><meta charset="utf-8"><title>{title}</title>
-<style>body {{ margin: 0; }} #meshcat-pane {{ width: 100vw; height: 100vh; overflow: hidden; }}</style>
+<style>body {{ margin: 0; }}
+#meshcat-pane {{ width: 100vw; height: 100vh; overflow: hidden; }}</style>
 </head>
 <body>
 <div id="meshcat-pane"></div>
@@ -82,7 +83,7 @@ class RecordingWindow:
         self.decoded: dict[str, list[dict[str, Any]]] = {}
 
     def send(self, command: Any) -> None:
-        """Record one Meshcat command (SetObject, SetTransform, SetProperty, Delete, SetAnimation)."""
+        """Record one Meshcat command (set_object/transform/property, delete, set_animation)."""
         data = command.lower()
         kind, path = data["type"], data.get("path", "")
         packed = umsgpack.packb(data)

@@ -114,9 +114,8 @@ class RobotVisual:
         """Load a URDF and its visual geometry (meshes searched via `package_dirs`)."""
         urdf = Path(urdf)
         model = pin.buildModelFromUrdf(str(urdf))
-        geom = pin.buildGeomFromUrdf(
-            model, str(urdf), pin.GeometryType.VISUAL, package_dirs=_package_dirs(urdf, package_dirs)
-        )
+        dirs = _package_dirs(urdf, package_dirs)
+        geom = pin.buildGeomFromUrdf(model, str(urdf), pin.GeometryType.VISUAL, package_dirs=dirs)
         names = [g.name.replace("/", "_") for g in geom.geometryObjects]
         return cls(model, geom, np.asarray(base_pose, dtype=float), root, names)
 

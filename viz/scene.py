@@ -116,7 +116,8 @@ def _draw_camera(vis, sol: Solution, info: SceneInfo) -> None:
     cam["footprint_fill"].set_object(quad(corners), fill)
     cam["triad"].set_object(mg.triad(style.TRIAD_SCALE))
     info.frustum, info.footprint = transform_points(T, seg), transform_points(T, corners)
-    info.nodes += [f"{ROOT}/camera/{n}" for n in ("frustum", "footprint", "footprint_fill", "triad")]
+    parts = ("frustum", "footprint", "footprint_fill", "triad")
+    info.nodes += [f"{ROOT}/camera/{n}" for n in parts]
 
 
 def _draw_goal(vis, sol: Solution, info: SceneInfo) -> None:
@@ -257,7 +258,7 @@ def build_scene(
     if endoscope:
         info.view = set_endoscope_view(vis, camera_pose(main), main["camera"], d_star)
     else:
-        pts = [p.points for p in info.paths.values()]
+        pts = [p.points for p in info.paths.values()] + [info.footprint]
         if info.goal is not None:
             pts.append(info.goal[None, :3, 3])
         info.view = overview(np.concatenate(pts), camera_pose(main))

@@ -99,5 +99,5 @@ def position_covariances(sol: Solution) -> list[np.ndarray | None]:
     """3x3 camera-frame position covariance [m^2] per node (None where missing)."""
     out: list[np.ndarray | None] = []
     for S in sol.get("sigma") or []:
-        out.append(None if S is None else np.asarray(S, dtype=float)[:3, :3])
+        out.append(None if S is None else np.asarray(S, dtype=float).reshape(6, 6)[:3, :3])
     return out

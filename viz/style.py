@@ -23,7 +23,7 @@ FOOTPRINT_COLOR: tuple[float, float, float] = (0.35, 0.35, 0.40)  # image rectan
 BACKGROUND_TOP: tuple[float, float, float] = (0.97, 0.97, 0.98)
 BACKGROUND_BOTTOM: tuple[float, float, float] = (0.86, 0.87, 0.90)
 
-TUBE_RADIUS = 0.0006  # [m] radius of the drawn path tubes
+TUBE_RADIUS = 0.0008  # [m] radius of the drawn path tubes
 NODE_RADIUS = 0.0012  # [m] radius of the small spheres at path nodes
 GOAL_RADIUS = 0.0025  # [m] radius of the goal sphere
 TRIAD_SCALE = 0.012  # [m] axis length of the goal and camera triads

@@ -93,7 +93,8 @@ def endoscope_view(
     field of view of the intrinsics, 2 atan(H / (2 fy)).
     """
     T = np.asarray(camera_pose, dtype=float)
-    fov = math.degrees(2.0 * math.atan(float(intrinsics["height"]) / (2.0 * float(intrinsics["fy"]))))
+    half_height = float(intrinsics["height"]) / (2.0 * float(intrinsics["fy"]))
+    fov = math.degrees(2.0 * math.atan(half_height))
     return CameraView(T[:3, 3], T[:3, 3] + depth * T[:3, 2], -T[:3, 1], fov)
 
 
@@ -111,22 +112,21 @@ def set_endoscope_view(
 
 
 def overview(
-    points: np.ndarray, camera_pose: np.ndarray, fov_deg: float = 50.0, margin: float = 1.1
+    points: np.ndarray, camera_pose: np.ndarray, fov_deg: float = 45.0, margin: float = 1.05
 ) -> CameraView:
-    """A three-quarter view centred on `points` (N, 3, world) [m], endoscope included.
+    """A three-quarter view framing `points` (N, 3, world) [m], e.g. paths and image footprint.
 
-    The orbit centre is the centre of the points' bounding box; the distance fits
-    the sphere around it that holds the points and the endoscope centre. The view
-    comes from behind, right of and above the endoscope (in its image axes), so
-    the paths keep the image's left/right sense while their depth stays visible;
-    world +z is screen-up unless nearly parallel to the view (then image-up).
+    The orbit centre is the centre of the points' bounding box and the distance
+    fits the sphere around it that holds them. The view comes from behind, right
+    of and above the endoscope (in its image axes), so the paths keep the image's
+    left/right sense while their depth stays visible; world +z is screen-up
+    unless nearly parallel to the view (then image-up).
     """
     pts = np.asarray(points, dtype=float).reshape(-1, 3)
     T = np.asarray(camera_pose, dtype=float)
     target = 0.5 * (pts.min(axis=0) + pts.max(axis=0))
-    reach = np.vstack([pts, T[None, :3, 3]]) - target
-    radius = max(float(np.linalg.norm(reach, axis=1).max()), 0.02)
-    direction = -1.0 * T[:3, 2] + 0.9 * T[:3, 0] - 0.7 * T[:3, 1]
+    radius = max(float(np.linalg.norm(pts - target, axis=1).max()), 0.02)
+    direction = -1.0 * T[:3, 2] + 0.35 * T[:3, 0] - 0.5 * T[:3, 1]
     direction /= np.linalg.norm(direction)
     dist = margin * radius / math.sin(math.radians(fov_deg) / 2.0)
     up = np.array([0.0, 0.0, 1.0])
