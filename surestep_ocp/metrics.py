@@ -30,7 +30,8 @@ def solution_metrics(sol: Solution) -> dict:
     poses = np.asarray(sol.poses)
     intr = Intrinsics(**sol.camera)
     d_star = float(sol.noise["depth_star"])
-    offsets = [np.hypot(*intr.offset(p)) for p in poses[:, :3]]
+    inner = poses[1:-1] if len(poses) > 2 else poses  # start and goal are shared by every method
+    offsets = [np.hypot(*intr.offset(p)) for p in inner[:, :3]]
     err_m, err_rad = sol.terminal_error
     reach = sol.extras.get("reachability", {})
     unreachable = sum(q is None for q in sol.q)
@@ -44,8 +45,8 @@ def solution_metrics(sol: Solution) -> dict:
         "terminal_error_rad": err_rad,
         "final_step_m": float(np.linalg.norm(poses[-1, :3] - poses[-2, :3])),
         "final_step_rad": np_angle(poses[-2, 3:], poses[-1, 3:]),
-        "worst_depth_error_m": float(np.max(np.abs(poses[:, 2] - d_star))),
-        "worst_image_offset": float(np.max(offsets)),  # normalised image plane [-]
+        "worst_depth_error_m": float(np.max(np.abs(inner[:, 2] - d_star))),
+        "worst_image_offset": float(np.max(offsets)),  # normalised image plane [-], interior waypoints
         "unreachable_waypoints": int(reach.get("unreachable", unreachable)),
         "solve_time_s": sol.solve_time_s,
         "iterations": sol.iterations,
