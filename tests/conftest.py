@@ -1,0 +1,60 @@
+"""Shared fixtures: the default problem and set-up (loaded once), a writer of modified problems."""
+
+from __future__ import annotations
+
+import copy
+from collections.abc import Callable
+from pathlib import Path
+
+import pytest
+import yaml
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+PROBLEMS_DIR = REPO_ROOT / "problems"
+DEFAULT_PROBLEM = PROBLEMS_DIR / "needle_regrasp.yaml"
+
+
+@pytest.fixture(scope="session")
+def default_problem_tree() -> dict:
+    """The default problem file as a plain YAML tree (copy it before changing it)."""
+    return yaml.safe_load(DEFAULT_PROBLEM.read_text())
+
+
+@pytest.fixture(scope="session")
+def default_problem():
+    """The default problem, loaded once per session (a frozen dataclass: safe to share)."""
+    from surestep_ocp.problem import load_problem
+
+    return load_problem(DEFAULT_PROBLEM)
+
+
+@pytest.fixture(scope="session")
+def default_setup(default_problem):
+    """Robot, camera, start and goal of the default problem, built once per session.
+
+    Shared: tests must not mutate it (use `dataclasses.replace` on the problem and
+    `build_setup` for a variant).
+    """
+    from surestep_ocp.setup import build_setup
+
+    return build_setup(default_problem)
+
+
+@pytest.fixture()
+def write_problem(tmp_path: Path, default_problem_tree: dict) -> Callable[..., Path]:
+    """Write a variant of the default problem to `tmp_path` and return its path.
+
+    Usage: `write_problem(lambda tree: tree.update(horizon=0), name="zero_horizon")`.
+    The callable receives a deep copy of the default YAML tree and edits it in place
+    (its return value is ignored, so `tree.pop(...)` works).
+    """
+
+    def write(edit: Callable[[dict], object] | None = None, name: str = "variant") -> Path:
+        tree = copy.deepcopy(default_problem_tree)
+        if edit is not None:
+            edit(tree)
+        path = tmp_path / f"{name}.yaml"
+        path.write_text(yaml.safe_dump(tree, sort_keys=False))
+        return path
+
+    return write

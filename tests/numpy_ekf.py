@@ -1,0 +1,103 @@
+"""A plain NumPy EKF belief model, written from surestep_method.md sections 3-4.
+
+Independent of the package's CasADi code: rotations come from
+`scipy.spatial.transform.Rotation`, the noise models and the EKF step are the
+textbook formulas. Only plain data (noise constants, intrinsics) is read from
+the package's objects, by attribute name.
+
+State `x = (p, r)`: position [m] and axis-angle orientation [rad], camera frame.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+ALL_COMPONENTS = ("depth", "fov", "orientation")
+I6 = np.eye(6)
+
+
+def geodesic_angle(ra, rb) -> float:
+    """Angle [rad] of the relative rotation R(ra)^T R(rb)."""
+    return float((Rotation.from_rotvec(ra).inv() * Rotation.from_rotvec(rb)).magnitude())
+
+
+def motion_noise(x0, x1, noise) -> np.ndarray:
+    """W = ||p1 - p0||^2 W_p0 + angle(r0, r1)^2 W_o0."""
+    x0, x1 = np.asarray(x0, float), np.asarray(x1, float)
+    dp = x1[:3] - x0[:3]
+    return float(dp @ dp) * np.asarray(noise.W_p0) + geodesic_angle(
+        x0[3:], x1[3:]
+    ) ** 2 * np.asarray(noise.W_o0)
+
+
+def image_offset(p, camera) -> tuple[float, float]:
+    """Pinhole projection (u, v) minus the image centre, on the normalised plane."""
+    u = camera.fx * p[0] / p[2] + camera.cx
+    v = camera.fy * p[1] / p[2] + camera.cy
+    return (u - camera.width / 2) / camera.fx, (v - camera.height / 2) / camera.fy
+
+
+def observation_noise(
+    x, noise, camera, components=ALL_COMPONENTS, formula="cosine", guard: float = 0.0
+) -> np.ndarray:
+    """V(x) = depth + field-of-view + orientation terms (those in `components`).
+
+    `guard` [rad^2] is added under the square root of |r|^2 in the cosine formula (undefined at
+    r = 0, section 4: "guard it"); 0 gives the paper's formula exactly.
+    """
+    x = np.asarray(x, float)
+    p, r = x[:3], x[3:]
+    o = np.asarray(noise.o_star, float)
+    V = np.zeros((6, 6))
+    if "depth" in components:
+        V += (p[2] - noise.depth_star) ** 2 * np.asarray(noise.V_d0)
+    if "fov" in components:
+        du, dv = image_offset(p, camera)
+        V += (du**2 + dv**2) * np.asarray(noise.V_f0)
+    if "orientation" in components:
+        if formula == "cosine":  # the paper's cosine between the axis-angle vectors
+            cos = float(r @ o) / (np.sqrt(r @ r + guard) * np.linalg.norm(o))
+        elif formula == "geodesic":
+            cos = np.cos(geodesic_angle(r, o))
+        else:
+            raise ValueError(formula)
+        V += (1.0 - cos) ** 2 * np.asarray(noise.V_o0)
+    return V
+
+
+def ekf_step(sigma, W, V, F=I6, Q=I6, H=I6, R=I6):
+    """Standard EKF covariance step: (posterior, predicted)."""
+    P = F @ sigma @ F.T + Q @ W @ Q.T
+    S = H @ P @ H.T + R @ V @ R.T
+    K = P @ H.T @ np.linalg.inv(S)
+    return (np.eye(len(P)) - K @ H) @ P, P
+
+
+def propagate(
+    poses, noise, camera, components=ALL_COMPONENTS, formula=None, jacobians=None, guard=0.0
+):
+    """Posterior covariances (T+1, 6, 6) and predicted ones (T, 6, 6) along `poses` (T+1, 6).
+
+    `jacobians(x0, x1) -> (F, Q, H, R)` (NumPy arrays); identity when omitted.
+    `formula` defaults to `noise.orientation_formula`.
+    """
+    formula = formula or getattr(noise, "orientation_formula", "cosine")
+    poses = np.asarray(poses, float)
+    sig = np.asarray(noise.Sigma0, float)
+    sigmas, preds = [sig], []
+    for t in range(len(poses) - 1):
+        x0, x1 = poses[t], poses[t + 1]
+        F, Q, H, R = jacobians(x0, x1) if jacobians is not None else (I6, I6, I6, I6)
+        W = motion_noise(x0, x1, noise)
+        V = observation_noise(x1, noise, camera, components, formula, guard)
+        sig, P = ekf_step(sig, W, V, F, Q, H, R)
+        sigmas.append(sig)
+        preds.append(P)
+    return np.array(sigmas), np.array(preds)
+
+
+def rel_err(a, b) -> float:
+    """Largest entry-wise difference relative to the largest entry of `b`."""
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    return float(np.max(np.abs(a - b)) / max(np.max(np.abs(b)), 1e-300))

@@ -1,0 +1,328 @@
+"""The CasADi belief model (surestep_ocp.belief) against a plain NumPy EKF (tests/numpy_ekf.py).
+
+The NumPy EKF is written from surestep_method.md sections 3-4 only; it shares no
+code with the package (rotations from scipy, textbook EKF step).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import casadi as ca
+import numpy as np
+import numpy_ekf as ref
+import pytest
+
+from surestep_ocp.belief import (
+    COMPONENTS,
+    NV,
+    BeliefModel,
+    NoiseParams,
+    entropy,
+    trace_vech,
+    unvech,
+    vech,
+)
+from surestep_ocp.camera import Intrinsics
+
+CAMERA = Intrinsics(
+    fx=768.98551924, fy=768.98551924, cx=292.8861567, cy=291.61479526, width=640, height=480
+)
+O_STAR = (0.40, 0.40, 1.53)
+GUARD = 1e-12  # [rad^2] the package's guard of |r| in the cosine formula (section 4: "guard it")
+REL = 1e-12
+# Random non-identity H, F (condition numbers ~10) amplify either EKF's rounding (solve vs inv).
+REL_JAC = 1e-11
+T = 10
+
+
+def random_pose(rng: np.random.Generator) -> np.ndarray:
+    """A tool pose in front of the camera, roughly inside the field of view, any orientation."""
+    z = rng.uniform(0.05, 0.25)
+    axis = rng.normal(size=3)
+    axis /= np.linalg.norm(axis)
+    return np.r_[
+        rng.uniform(-0.4, 0.4) * z, rng.uniform(-0.3, 0.3) * z, z, rng.uniform(0.1, 3.0) * axis
+    ]
+
+
+def random_trajectory(rng: np.random.Generator, n: int = T + 1) -> np.ndarray:
+    return np.array([random_pose(rng) for _ in range(n)])
+
+
+def random_spd(rng: np.random.Generator, scale: float) -> np.ndarray:
+    A = rng.normal(size=(6, 6))
+    return scale * (A @ A.T / 6 + 0.1 * np.eye(6))
+
+
+def random_noise(rng: np.random.Generator, formula: str = "cosine") -> NoiseParams:
+    return NoiseParams(
+        W_p0=random_spd(rng, 1e-3),
+        W_o0=random_spd(rng, 1e-3),
+        V_d0=random_spd(rng, 1e-1),
+        V_f0=random_spd(rng, 1e-2),
+        V_o0=random_spd(rng, 5e-3),
+        Sigma0=random_spd(rng, 1e-2),
+        o_star=O_STAR,
+        orientation_formula=formula,
+    )
+
+
+def assert_matches(
+    model: BeliefModel, poses: np.ndarray, components=COMPONENTS, jacobians=None, rel=REL
+):
+    sig, pred = model.propagate(poses)
+    sig_ref, pred_ref = ref.propagate(
+        poses, model.noise, CAMERA, components, jacobians=jacobians, guard=GUARD
+    )
+    assert sig.shape == (len(poses), 6, 6) and pred.shape == (len(poses) - 1, 6, 6)
+    for t in range(len(poses)):
+        assert ref.rel_err(sig[t], sig_ref[t]) < rel, f"Sigma_{t}|{t}"
+    for t in range(len(poses) - 1):
+        assert ref.rel_err(pred[t], pred_ref[t]) < rel, f"Sigma_{t + 1}|{t}"
+
+
+# ------------------------------------------------------------------ noise models
+
+
+@pytest.mark.parametrize("formula", ["cosine", "geodesic"])
+def test_noise_models_match_numpy(formula):
+    """W and V, the inputs of every EKF step, follow the formulas of section 4 term by term."""
+    rng = np.random.default_rng(1)
+    noise = random_noise(rng, formula)
+    model = BeliefModel(noise, CAMERA)
+    for _ in range(20):
+        x0, x1 = random_pose(rng), random_pose(rng)
+        W = np.asarray(model.motion_noise(x0, x1))
+        assert ref.rel_err(W, ref.motion_noise(x0, x1, noise)) < REL
+        V = np.asarray(model.observation_noise(x1))
+        assert (
+            ref.rel_err(V, ref.observation_noise(x1, noise, CAMERA, COMPONENTS, formula, GUARD))
+            < REL
+        )
+
+
+def test_motion_noise_uses_geodesic_angle():
+    """The orientation step is the geodesic angle, not |r1 - r0| (they differ past the pi wrap)."""
+    noise = NoiseParams(W_p0=np.zeros((6, 6)), W_o0=np.eye(6))
+    model = BeliefModel(noise, CAMERA)
+    axis = np.array([0.0, 0.0, 1.0])
+    x0, x1 = (
+        np.r_[0, 0, 0.1, 3.0 * axis],
+        np.r_[0, 0, 0.1, -3.0 * axis],
+    )  # 2*pi - 6 rad apart, |dr| = 6
+    W = np.asarray(model.motion_noise(x0, x1))
+    assert W[0, 0] == pytest.approx((2 * np.pi - 6.0) ** 2, rel=1e-12)
+
+
+def test_fov_noise_is_zero_at_image_centre_and_depth_at_d_star():
+    """The ideal pose (image centre, depth d*, r parallel to o*) has zero observation noise."""
+    noise = NoiseParams(o_star=O_STAR)
+    model = BeliefModel(noise, CAMERA)
+    z = noise.depth_star
+    p = np.array(
+        [
+            (CAMERA.width / 2 - CAMERA.cx) / CAMERA.fx * z,
+            (CAMERA.height / 2 - CAMERA.cy) / CAMERA.fy * z,
+            z,
+        ]
+    )
+    x = np.r_[p, 0.7 * np.array(O_STAR)]
+    assert np.abs(np.asarray(model.observation_noise(x))).max() < 1e-20
+
+
+def test_cosine_formula_guarded_at_zero_rotation():
+    """The paper's cosine is undefined at r = 0: the guarded value and its gradient are finite."""
+    model = BeliefModel(NoiseParams(o_star=O_STAR), CAMERA)
+    x = ca.SX.sym("x", 6)
+    V = model.observation_noise(x)
+    f = ca.Function("f", [x], [V[0, 0], ca.gradient(V[0, 0], x)])
+    v, g = f(np.r_[0.01, 0.0, 0.15, 0.0, 0.0, 0.0])
+    assert np.isfinite(float(v)) and np.all(np.isfinite(np.asarray(g)))
+    # far from zero the guard is invisible: the paper's formula without any guard
+    x1 = np.r_[0.01, 0.0, 0.15, 0.3, -0.2, 0.5]
+    V_ref = ref.observation_noise(x1, model.noise, CAMERA, guard=0.0)
+    assert ref.rel_err(np.asarray(model.observation_noise(x1)), V_ref) < 1e-10
+
+
+# ------------------------------------------------------------------ EKF along trajectories
+
+
+@pytest.mark.parametrize("formula", ["cosine", "geodesic"])
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_propagate_matches_numpy_ekf_paper_constants(seed, formula):
+    """ML covariances along random trajectories equal the textbook EKF (paper's constants)."""
+    rng = np.random.default_rng(100 + seed)
+    noise = dataclasses.replace(NoiseParams(o_star=O_STAR), orientation_formula=formula)
+    assert_matches(BeliefModel(noise, CAMERA), random_trajectory(rng))
+
+
+@pytest.mark.parametrize("formula", ["cosine", "geodesic"])
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_propagate_matches_numpy_ekf_random_spd_constants(seed, formula):
+    """Full (non-diagonal) SPD base covariances are carried correctly, not just multiples of I."""
+    rng = np.random.default_rng(200 + seed)
+    noise = random_noise(rng, formula)
+    assert_matches(BeliefModel(noise, CAMERA), random_trajectory(rng))
+
+
+@pytest.mark.parametrize("off", COMPONENTS)
+def test_propagate_with_component_switched_off(off):
+    """Ablations (section 4) drop exactly one observation term and nothing else."""
+    rng = np.random.default_rng(300 + COMPONENTS.index(off))
+    comps = tuple(c for c in COMPONENTS if c != off)
+    for noise in (NoiseParams(o_star=O_STAR), random_noise(rng)):
+        model = BeliefModel(noise, CAMERA).with_components(comps)
+        assert model.components == comps
+        assert_matches(model, random_trajectory(rng), components=comps)
+
+
+@pytest.mark.parametrize("only", COMPONENTS)
+def test_propagate_with_a_single_component(only):
+    """Each observation term on its own also matches (no cross-talk between the terms)."""
+    rng = np.random.default_rng(400 + COMPONENTS.index(only))
+    model = BeliefModel(random_noise(rng), CAMERA, components=(only,))
+    assert_matches(model, random_trajectory(rng), components=(only,))
+
+
+def test_unknown_component_rejected():
+    """A misspelt ablation must not silently become 'no component'."""
+    with pytest.raises(ValueError, match="fov"):
+        BeliefModel(NoiseParams(), CAMERA, components=("depth", "fovv"))
+
+
+def _constant_jacobians(rng):
+    F = np.eye(6) + 0.2 * rng.normal(size=(6, 6))
+    Q = np.eye(6) + 0.2 * rng.normal(size=(6, 6))
+    H = np.eye(6) + 0.2 * rng.normal(size=(6, 6))
+    R = np.eye(6) + 0.2 * rng.normal(size=(6, 6))
+    return F, Q, H, R
+
+
+def test_propagate_with_constant_non_identity_jacobians():
+    """Non-identity motion/observation maps (section 3) use F, Q, H, R correctly."""
+    rng = np.random.default_rng(500)
+    F, Q, H, R = _constant_jacobians(rng)
+    x0, x1 = ca.SX.sym("x0", 6), ca.SX.sym("x1", 6)
+    jac = ca.Function(
+        "jacobians",
+        [x0, x1],
+        [ca.SX(F), ca.SX(Q), ca.SX(H), ca.SX(R)],
+        ["x0", "x1"],
+        ["F", "Q", "H", "R"],
+    )
+    for noise in (NoiseParams(o_star=O_STAR), random_noise(rng)):
+        model = BeliefModel(noise, CAMERA, jacobians=jac)
+        assert_matches(
+            model, random_trajectory(rng), jacobians=lambda a, b: (F, Q, H, R), rel=REL_JAC
+        )
+        # with_components keeps the Jacobians
+        sub = model.with_components(("depth",))
+        assert_matches(
+            sub,
+            random_trajectory(rng),
+            components=("depth",),
+            jacobians=lambda a, b: (F, Q, H, R),
+            rel=REL_JAC,
+        )
+
+
+def test_propagate_with_pose_dependent_jacobians_from_casadi():
+    """Jacobians from CasADi differentiation of nonlinear maps are evaluated at the right poses."""
+    rng = np.random.default_rng(600)
+    A = 0.3 * rng.normal(size=(6, 6))
+    x0, x1 = ca.SX.sym("x0", 6), ca.SX.sym("x1", 6)
+    f = x0 + 0.1 * ca.sin(ca.DM(A) @ x0)  # motion map x1 = f(x0) + u (its Jacobian in x0)
+    h = x1 + 0.05 * ca.tanh(x1) ** 2  # observation map z = h(x1)
+    jac = ca.Function(
+        "jacobians",
+        [x0, x1],
+        [ca.jacobian(f, x0), ca.SX.eye(6), ca.jacobian(h, x1), ca.SX.eye(6)],
+        ["x0", "x1"],
+        ["F", "Q", "H", "R"],
+    )
+
+    def jac_np(a, b):
+        F = np.eye(6) + 0.1 * np.cos(A @ a)[:, None] * A
+        H = np.diag(1 + 0.1 * np.tanh(b) * (1 - np.tanh(b) ** 2))
+        return F, np.eye(6), H, np.eye(6)
+
+    model = BeliefModel(random_noise(rng), CAMERA, jacobians=jac)
+    assert_matches(model, random_trajectory(rng), jacobians=jac_np, rel=REL_JAC)
+
+
+# ------------------------------------------------------------------ vech, symmetry, definiteness
+
+
+def test_vech_unvech_round_trip_numpy_and_casadi():
+    """The 21-number covariance storage loses nothing; NumPy and CasADi agree."""
+    rng = np.random.default_rng(700)
+    M = random_spd(rng, 1.0)
+    v = vech(M)
+    assert v.shape == (NV,) and NV == 21
+    np.testing.assert_array_equal(unvech(v), M)
+    np.testing.assert_array_equal(vech(unvech(v)), v)
+    assert sorted(v) == sorted(M[np.tril_indices(6)])
+    assert trace_vech(v) == pytest.approx(np.trace(M), rel=1e-15)
+    # CasADi: SX and MX round trips evaluate to the same numbers
+    for sym in (ca.SX.sym("v", NV), ca.MX.sym("v", NV)):
+        f = ca.Function("rt", [sym], [unvech(sym), vech(unvech(sym)), trace_vech(sym)])
+        Mc, vc, tc = f(v)
+        np.testing.assert_array_equal(np.asarray(Mc), M)
+        np.testing.assert_array_equal(np.asarray(vc).ravel(), v)
+        assert float(tc) == pytest.approx(np.trace(M), rel=1e-15)
+    S = ca.SX.sym("S", 6, 6)
+    fv = ca.Function("v", [S], [vech(S)])
+    np.testing.assert_array_equal(np.asarray(fv(M)).ravel(), v)
+
+
+@pytest.mark.parametrize("formula", ["cosine", "geodesic"])
+def test_covariances_stay_symmetric_and_positive_definite(formula):
+    """Posteriors and priors along long random paths are exactly symmetric and positive definite."""
+    rng = np.random.default_rng(800 + len(formula))
+    for noise in (
+        dataclasses.replace(NoiseParams(o_star=O_STAR), orientation_formula=formula),
+        random_noise(rng, formula),
+    ):
+        model = BeliefModel(noise, CAMERA)
+        poses = random_trajectory(rng, 41)
+        # visit near-ideal poses too (small V: the update nearly cancels the prior)
+        z = noise.depth_star
+        centre = np.array(
+            [
+                (CAMERA.width / 2 - CAMERA.cx) / CAMERA.fx,
+                (CAMERA.height / 2 - CAMERA.cy) / CAMERA.fy,
+                1,
+            ]
+        )
+        for k in (10, 25):
+            poses[k] = np.r_[
+                centre * z + 1e-3 * rng.normal(size=3),
+                1.1 * np.array(O_STAR) + 1e-3 * rng.normal(size=3),
+            ]
+        sig, pred = model.propagate(poses)
+        for M in list(sig) + list(pred):
+            np.testing.assert_array_equal(M, M.T)
+            assert np.linalg.eigvalsh(M).min() > 0
+            assert np.isfinite(entropy(M))
+        sig_ref, _ = ref.propagate(poses, noise, CAMERA, guard=GUARD)
+        for a, b in zip(sig, sig_ref, strict=True):
+            assert ref.rel_err(a, b) < 1e-10
+
+
+def test_step_function_equals_propagate():
+    """The named CasADi step (used inside the OCP) is the function propagate iterates."""
+    rng = np.random.default_rng(900)
+    model = BeliefModel(random_noise(rng), CAMERA)
+    poses = random_trajectory(rng, 4)
+    sig, pred = model.propagate(poses)
+    s = vech(np.asarray(model.noise.Sigma0))
+    for t in range(3):
+        np.testing.assert_allclose(
+            unvech(np.asarray(model.predict(poses[t], poses[t + 1], s)).ravel()),
+            pred[t],
+            rtol=0,
+            atol=1e-15,
+        )
+        s = np.asarray(model.step(poses[t], poses[t + 1], s)).ravel()
+        np.testing.assert_array_equal(unvech(s), sig[t + 1])
