@@ -41,9 +41,10 @@ def so3_log(R):
     v = 0.5 * ca.vertcat(R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1])  # sin(th) * axis
     c = 0.5 * (R[0, 0] + R[1, 1] + R[2, 2] - 1)  # cos(th)
     s2 = ca.dot(v, v)
-    safe = ca.if_else(s2 < _SMALL, 1.0, s2)
+    small = ca.logic_and(s2 < _SMALL, c > 0)  # near the identity only; near pi sin(th) is small too
+    safe = ca.if_else(small, 1.0, ca.fmax(s2, 1e-300))
     s = ca.sqrt(safe)
-    f = ca.if_else(s2 < _SMALL, 1 + s2 / 6 + 3 * s2**2 / 40, ca.atan2(s, c) / s)
+    f = ca.if_else(small, 1 + s2 / 6 + 3 * s2**2 / 40, ca.atan2(s, c) / s)
     return f * v
 
 

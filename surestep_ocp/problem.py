@@ -94,6 +94,23 @@ class Problem:
     description: str = ""
 
 
+class _StrictLoader(yaml.SafeLoader):
+    """YAML SafeLoader that rejects a key given twice in one mapping."""
+
+
+def _no_duplicates(loader: yaml.SafeLoader, node: yaml.MappingNode, deep: bool = False):
+    seen = set()
+    for key_node, _ in node.value:
+        key = loader.construct_object(key_node, deep=deep)
+        if key in seen:
+            raise yaml.constructor.ConstructorError(None, None, f"key '{key}' given twice", key_node.start_mark)
+        seen.add(key)
+    return loader.construct_mapping(node, deep)
+
+
+_StrictLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _no_duplicates)
+
+
 _TOP = {"name", "description", "robot", "camera", "start", "goal", "horizon", "noise", "constraints",
         "objective", "solver", "gradient"}
 
@@ -108,7 +125,7 @@ def load_problem(path: str | Path) -> Problem:
     if not path.is_file():
         raise ProblemError(str(path), None, "no such file")
     try:
-        tree = yaml.safe_load(path.read_text())
+        tree = yaml.load(path.read_text(), Loader=_StrictLoader)  # noqa: S506 (a SafeLoader subclass)
     except yaml.YAMLError as exc:
         raise ProblemError(str(path), None, f"not valid YAML: {exc}") from None
     return parse_problem(tree, path)

@@ -23,7 +23,7 @@ class Reader:
         """A mapping with only `allowed` keys, all `required` ones present."""
         if not isinstance(node, Mapping):
             raise self.fail(key or "<top>", f"expected a mapping with keys {sorted(allowed)}, got {_kind(node)}")
-        unknown = sorted(set(node) - allowed)
+        unknown = sorted(set(node) - allowed, key=str)
         if unknown:
             raise self.fail(_join(key, str(unknown[0])), f"unknown key; allowed keys here: {', '.join(sorted(allowed))}")
         missing = sorted(required - set(node))

@@ -130,14 +130,20 @@ def _endpoint(problem: Problem, setup: Setup, spec: EndpointSpec, seed: np.ndarr
     else:
         x = np.asarray(spec.pose, float)
         x = matrix_to_pose(pose_to_matrix(x))  # normalise the angle into [0, pi]
+        _check_depth(problem, spec, x)
         try:
             q, _, _ = setup.joints_for(x, seed, what=f"the pose at {spec.key}")
         except UnreachablePose as exc:
             raise ProblemError(file, spec.key, str(exc)) from None
+    _check_depth(problem, spec, x)
+    return q, x
+
+
+def _check_depth(problem: Problem, spec: EndpointSpec, x: np.ndarray) -> None:
+    file = str(problem.path)
     if x[2] <= 0:
         raise ProblemError(file, spec.key, f"the tool is behind the camera (depth z = {x[2]:.4f} m); "
                                            "the camera looks along its +z axis")
     if x[2] < problem.min_depth:
         raise ProblemError(file, spec.key, f"depth z = {x[2]:.4f} m is below constraints.min_depth "
                                            f"= {problem.min_depth} m")
-    return q, x

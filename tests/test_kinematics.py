@@ -390,9 +390,6 @@ NEAR_PI = np.pi - 1e-7
 NEAR_PI_AXIS = np.array([1.0, 2.0, 3.0]) / np.linalg.norm([1.0, 2.0, 3.0])
 
 
-@pytest.mark.xfail(
-    reason="lie.so3_log uses the small-angle branch near theta = pi (|sin| < 1e-6)", strict=True
-)
 def test_so3_log_just_below_pi(lie_functions):
     """The symbolic log is right on all of [0, pi) as documented, including just below pi."""
     R = Rotation.from_rotvec(NEAR_PI * NEAR_PI_AXIS).as_matrix()
@@ -400,7 +397,6 @@ def test_so3_log_just_below_pi(lie_functions):
     np.testing.assert_allclose(r, NEAR_PI * NEAR_PI_AXIS, rtol=0, atol=1e-6)
 
 
-@pytest.mark.xfail(reason="lie.angle_sq inherits so3_log's small-angle branch near pi", strict=True)
 def test_angle_sq_just_below_pi(lie_functions):
     """A step turning the tool by almost half a turn has a squared angle near pi^2, not 0."""
     assert float(lie_functions["angle_sq"](np.zeros(3), NEAR_PI * NEAR_PI_AXIS)) == pytest.approx(

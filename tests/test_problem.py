@@ -217,10 +217,6 @@ def test_camera_pose_given_directly_equals_ecm(write_problem, default_setup):
     np.testing.assert_allclose(setup.pose_of(setup.q_goal), setup.x_goal, atol=1e-9)
 
 
-@pytest.mark.xfail(
-    reason="schema.Reader.mapping sorts unknown keys: a str and an int key raise TypeError",
-    strict=True,
-)
 def test_unknown_keys_of_mixed_types(tmp_path):
     """Unknown keys YAML reads as numbers (`1:`) next to string ones still give a ProblemError."""
     path = tmp_path / "mixed_keys.yaml"
@@ -229,10 +225,6 @@ def test_unknown_keys_of_mixed_types(tmp_path):
         load_problem(path)
 
 
-@pytest.mark.xfail(
-    reason="load_problem uses yaml.safe_load, which keeps the last of duplicate keys silently",
-    strict=True,
-)
 def test_duplicate_key_rejected(tmp_path):
     """Strict loading: a key written twice (the last silently winning) is an error naming it."""
     path = tmp_path / "duplicate.yaml"
