@@ -1,0 +1,88 @@
+"""The command line: exit codes, one-line errors, solution and comparison files."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import yaml
+
+REPO = Path(__file__).resolve().parents[1]
+DEFAULT = REPO / "problems" / "needle_regrasp.yaml"
+
+
+def run(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "surestep_ocp.cli", *args], capture_output=True, text=True,
+                          cwd=REPO, timeout=600)
+
+
+def small_problem(tmp_path: Path, horizon: int = 6, **changes) -> Path:
+    tree = yaml.safe_load(DEFAULT.read_text())
+    tree["horizon"] = horizon
+    tree.update(changes)
+    path = tmp_path / "small.yaml"
+    path.write_text(yaml.safe_dump(tree))
+    return path
+
+
+@pytest.mark.parametrize(
+    "change, key",
+    [
+        ({"colour": "red"}, "colour"),
+        ({"horizon": "ten"}, "horizon"),
+        ({"goal": {"pose": {"position": [0.5, 0.5, 0.6], "axis_angle": [0, 0, 1]}}}, "goal.pose"),
+    ],
+)
+def test_bad_problem_exits_2_with_one_line(tmp_path, change, key):
+    """User errors are one line naming the file and key, exit code 2, no traceback."""
+    path = small_problem(tmp_path, **change)
+    for cmd in (["validate", str(path)], ["solve", str(path), "--method", "baseline"]):
+        res = run(*cmd)
+        assert res.returncode == 2, res.stderr
+        assert "Traceback" not in res.stderr
+        lines = [ln for ln in res.stderr.splitlines() if ln.strip()]
+        assert len(lines) == 1 and "small.yaml" in lines[0] and key in lines[0], res.stderr
+
+
+def test_missing_file_and_unknown_method_exit_2(tmp_path):
+    """A missing problem file or an unknown method name is a clean error listing what is allowed."""
+    res = run("solve", str(tmp_path / "nope.yaml"))
+    assert res.returncode == 2 and "no such file" in res.stderr and "Traceback" not in res.stderr
+    res = run("solve", str(small_problem(tmp_path)), "--method", "magic")
+    assert res.returncode == 2 and "allowed" in res.stderr and "Traceback" not in res.stderr
+
+
+def test_solve_writes_solution(tmp_path):
+    """`surestep solve` writes the solution JSON and prints the summary against the baseline."""
+    out = tmp_path / "sol.json"
+    res = run("solve", str(small_problem(tmp_path)), "--method", "ocp", "--output", str(out))
+    assert res.returncode == 0, res.stderr
+    assert "Tr(Sigma_T)" in res.stdout and "baseline" in res.stdout
+    sol = json.loads(out.read_text())
+    assert sol["method"] == "ocp" and sol["success"] and sol["horizon"] == 6
+    assert len(sol["q"]) == len(sol["poses"]) == len(sol["trace"]) == 7
+    assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []  # no temp file left
+
+
+def test_compare_writes_files_and_ocp_wins(tmp_path):
+    """`surestep compare` writes every method's JSON, the tables and plots; the OCP beats the paper's variant."""
+    out = tmp_path / "cmp"
+    res = run("compare", str(small_problem(tmp_path)), "--output-dir", str(out))
+    assert res.returncode == 0, res.stderr
+    methods = ["baseline", "gradient", "gradient-no-pose-loss", "ocp", "ocp-from-gradient"]
+    for m in methods:
+        assert json.loads((out / f"{m}.json").read_text())["method"] == m
+    table = json.loads((out / "comparison.json").read_text())
+    rows = {r["method"]: r for r in table["methods"]}
+    assert set(rows) == set(methods)
+    assert rows["ocp"]["trace_final"] <= rows["gradient"]["trace_final"]
+    assert rows["ocp"]["terminal_error_m"] < 1e-6 and rows["ocp"]["terminal_error_rad"] < 1e-6
+    assert rows["baseline"]["trace_rel"] == pytest.approx(1.0)
+    assert "final_step_m" in rows["gradient"]
+    md = (out / "comparison.md").read_text()
+    assert all(m in md for m in methods)
+    for png in ("trace.png", "path.png"):
+        assert (out / png).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
