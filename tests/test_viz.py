@@ -138,6 +138,12 @@ def unpack_points(obj: dict) -> np.ndarray:
     return np.frombuffer(attr.data, dtype=np.float32).reshape(-1, 3).astype(float)
 
 
+def html_paths(html: str) -> set[str]:
+    """Scene paths of the commands embedded in a static HTML page."""
+    return {umsgpack.unpackb(base64.b64decode(b64)).get("path", "")
+            for b64 in re.findall(r'^"([A-Za-z0-9+/=]+)",?$', html, flags=re.M)}
+
+
 def last(window, path: str, kind: str) -> dict:
     return [c for c in window.decoded[path] if c["type"] == kind][-1]
 
@@ -182,6 +188,19 @@ def test_ellipsoids_are_3_sigma_of_position_block(solutions):
             np.testing.assert_allclose(A[:3, :3] @ np.diag((radii / 3) ** 2) @ A[:3, :3].T,
                                        R @ S @ R.T, atol=1e-12)
             np.testing.assert_allclose(A[:3, 3], p.points[k], atol=1e-12)
+
+
+def test_prior_sized_ellipsoid_starts_hidden_and_big_ones_are_faint(solutions):
+    solutions[1]["sigma"][0] = (1e-2 * np.eye(6)).tolist()  # the paper's prior: 3 sigma = 0.3 m
+    info, window = built(solutions)
+    p = info.paths["ocp"]
+    assert len(p.ellipsoid_nodes) == T_STEPS + 1 and p.hidden == [p.ellipsoid_nodes[0]]
+    assert {"property": "visible", "value": False}.items() <= last(
+        window, p.hidden[0], "set_property").items()
+    np.testing.assert_allclose(p.radii[0], 0.3)
+    opacity = [last(window, n, "set_object")["object"]["materials"][0]["opacity"]
+               for n in p.ellipsoid_nodes]
+    assert opacity[0] < min(opacity[1:]) and max(opacity) <= 0.3
 
 
 def test_polyline_is_camera_pose_times_poses(solutions):
@@ -283,10 +302,7 @@ def test_static_html_written_atomically(tmp_path, solutions, monkeypatch):
     assert calls and calls[0][1] == out
     html = out.read_text()
     assert "MeshCat.Viewer" in html and "<script" in html
-    paths = set()
-    for b64 in re.findall(r'^"([A-Za-z0-9+/=]+)",?$', html, flags=re.M):
-        paths.add(umsgpack.unpackb(base64.b64decode(b64)).get("path"))
-    assert set(info.nodes) <= paths
+    assert set(info.nodes) <= html_paths(html)
     assert [p.name for p in out.parent.iterdir()] == ["view.html"]  # no temp file left
 
     # A failure while writing leaves the previous file untouched and no temporary file.
@@ -300,8 +316,12 @@ def test_show_html_and_show_main(tmp_path, solutions):
     for s in solutions:
         (tmp_path / f"{s['method']}.json").write_text(json.dumps(s))
     out = tmp_path / "a.html"
-    info = show(tmp_path, html=out)
-    assert out.exists() and set(info.paths) == {"baseline", "ocp"}
+    assert show(tmp_path, html=out) == 0 and out.exists()
+    assert "/meshcat/paths/ocp/line" in html_paths(out.read_text())
+    # Solutions passed directly (the CLI solved a problem YAML first) replace the target.
+    assert show(tmp_path / "nonexistent.yaml", html=tmp_path / "c.html",
+                solutions=solutions[:1]) == 0
+    assert not any("paths/ocp" in p for p in html_paths((tmp_path / "c.html").read_text()))
     args = argparse.Namespace(target=tmp_path / "baseline.json", open_browser=False,
                               html=tmp_path / "b.html", endoscope_view=True, animate=None)
     assert show_main(args) == 0 and (tmp_path / "b.html").exists()

@@ -40,22 +40,29 @@ pytestmark = pytest.mark.skipif(
 
 
 def screenshot(html: Path, png: Path, tmp: Path, budget_ms: int = 8000) -> np.ndarray:
-    """Render `html` headless (1024x768) and return the screenshot as uint8 RGB (H, W, 3)."""
-    args = [
-        CHROMIUM, "--headless", "--no-sandbox", "--disable-gpu",
-        "--use-gl=angle", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
-        "--disable-background-networking", "--disable-quic", "--no-first-run",
-        "--disable-component-update", "--disable-sync", "--disable-dev-shm-usage",
-        f"--user-data-dir={tmp / ('profile-' + png.stem)}", "--window-size=1024,768",
-        f"--virtual-time-budget={budget_ms}", "--enable-logging=stderr", "--v=0",
-        f"--screenshot={png}", html.resolve().as_uri(),
-    ]
-    out = subprocess.run(args, capture_output=True, text=True, timeout=300)
-    if "Error creating WebGL context" in out.stderr:
-        pytest.skip("this Chromium has no WebGL (SwiftShader) support")
-    assert png.exists(), f"no screenshot (rc={out.returncode}):\n{out.stderr[-3000:]}"
-    img = mpimg.imread(str(png))[..., :3]
-    return np.round(img * 255).astype(int)
+    """Render `html` headless (1024x768) and return the screenshot as uint8 RGB (H, W, 3).
+
+    One retry with a fresh profile if Chromium exits without writing the file.
+    """
+    err = ""
+    for attempt in range(2):
+        args = [
+            CHROMIUM, "--headless", "--no-sandbox", "--disable-gpu",
+            "--use-gl=angle", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
+            "--disable-background-networking", "--disable-quic", "--no-first-run",
+            "--disable-component-update", "--disable-sync", "--disable-dev-shm-usage",
+            f"--user-data-dir={tmp / f'profile-{png.stem}-{attempt}'}", "--window-size=1024,768",
+            f"--virtual-time-budget={budget_ms}", "--enable-logging=stderr", "--v=0",
+            f"--screenshot={png}", html.resolve().as_uri(),
+        ]
+        out = subprocess.run(args, capture_output=True, text=True, timeout=300)
+        if "Error creating WebGL context" in out.stderr:
+            pytest.skip("this Chromium has no WebGL (SwiftShader) support")
+        if png.exists():
+            img = mpimg.imread(str(png))[..., :3]
+            return np.round(img * 255).astype(int)
+        err = f"rc={out.returncode}:\n{out.stderr[-3000:]}"
+    raise AssertionError(f"no screenshot of {html}: {err}")
 
 
 def count_color(img: np.ndarray, rgb, tol: int = 10) -> int:

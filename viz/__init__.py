@@ -21,7 +21,7 @@ _EXPORTS = {
     "build_scene": "scene",
     "write_static_html": "scene",
     "SceneInfo": "scene",
-    "PathInfo": "scene",
+    "PathInfo": "paths",
     "set_endoscope_view": "view",
     "set_camera_view": "view",
     "CameraView": "view",

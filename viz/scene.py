@@ -8,9 +8,11 @@ Scene tree (under Meshcat's `/meshcat` root), readable as a legend:
     /meshcat/goal/{triad,marker}
     /meshcat/paths/<method>/{line,tube}
     /meshcat/paths/<method>/ellipsoids/<t>   3-sigma position ellipsoid of node t
+                                             (see paths.py for opacity and hiding)
 
 Everything is drawn in the world frame [m]; camera-frame data are mapped with
-the solution's `camera_pose`.
+the solution's `camera_pose`. The `/meshcat` node's own transform is the view's
+display transform (see view.py); the poses of the nodes below it are world poses.
 """
 
 from __future__ import annotations
@@ -28,30 +30,16 @@ import numpy as np
 from meshcat.animation import Animation
 
 from . import style
+from .paths import PathInfo, draw_path
 from .recorder import recording_visualizer
 from .robot_visual import RobotVisual
-from .shapes import (covariance_ellipsoid, frustum_segments, image_corners, line_segments,
-                     polyline, quad, rectangle_segments, transform_points, tube)
-from .solutions import (Solution, camera_pose, order_methods, position_covariances,
-                        valid_nodes, world_points, world_pose)
+from .shapes import (frustum_segments, image_corners, line_segments, quad, rectangle_segments,
+                     transform_points)
+from .solutions import Solution, camera_pose, order_methods, world_pose
 from .view import CameraView, overview, set_camera_view, set_endoscope_view
 
 ROOT = "/meshcat"
 PACKAGE_ROOT = Path(__file__).resolve().parents[1]  # the repository root for an editable install
-
-
-@dataclass
-class PathInfo:
-    """What was drawn for one method's path (world frame, metres)."""
-
-    method: str
-    color: tuple[float, float, float]
-    nodes: list[int]  # node indices t drawn
-    points: np.ndarray  # (N, 3) tool positions, camera_pose @ p_t
-    radii: np.ndarray  # (M, 3) ellipsoid radii [m], N_SIGMA * sqrt(eig(Sigma_pp))
-    axes: np.ndarray  # (M, 3, 3) ellipsoid axes (columns) in the world frame
-    line_node: str
-    ellipsoid_nodes: list[str]
 
 
 @dataclass
@@ -73,8 +61,9 @@ class SceneInfo:
 def resolve_file(path: str | Path, repo_root: Path | None, sol: Solution | None = None) -> Path:
     """Find a file named relative to the repository root (or absolute).
 
-    Tries `repo_root`, the current directory, the package's repository root and the
-    folders above the solution's source file. Raises FileNotFoundError.
+    Tries `repo_root`, the current directory, the package's repository root, the
+    solution's problem-file folder and the folders above the solution's source
+    file. Raises FileNotFoundError.
     """
     p = Path(path)
     if p.is_absolute():
@@ -82,6 +71,8 @@ def resolve_file(path: str | Path, repo_root: Path | None, sol: Solution | None 
             return p
         raise FileNotFoundError(p)
     bases = [repo_root, Path.cwd(), PACKAGE_ROOT]
+    if sol is not None and sol.get("problem"):
+        bases.append(Path(sol["problem"]).resolve().parent)  # paths relative to the problem file
     if sol is not None and sol.get("_source"):
         bases += list(Path(sol["_source"]).resolve().parents)
     for base in bases:
@@ -133,34 +124,6 @@ def _draw_goal(vis, sol: Solution, info: SceneInfo) -> None:
     info.nodes += [f"{ROOT}/goal/triad", f"{ROOT}/goal/marker"]
 
 
-def _draw_path(vis, sol: Solution, color: tuple[float, float, float]) -> PathInfo:
-    """Polyline, tube and 3-sigma ellipsoids of one method."""
-    m = sol["method"]
-    node = vis["paths"][m]
-    nodes, pts = valid_nodes(sol), world_points(sol)
-    node["line"].set_object(polyline(pts, color))
-    tube_geo = tube(pts, style.TUBE_RADIUS)
-    if tube_geo is not None:
-        node["tube"].set_object(tube_geo, mg.MeshBasicMaterial(color=style.rgb_int(color)))
-    R = camera_pose(sol)[:3, :3]
-    covs = position_covariances(sol)
-    radii, axes, enodes = [], [], []
-    mat = mg.MeshPhongMaterial(color=style.rgb_int(color), opacity=style.ELLIPSOID_OPACITY,
-                               depthWrite=False, side=0)
-    for t, p in zip(nodes, pts):
-        if t >= len(covs) or covs[t] is None:
-            continue
-        r, V = covariance_ellipsoid(covs[t], R, style.N_SIGMA)
-        T = np.eye(4)
-        T[:3, :3], T[:3, 3] = V, p
-        e = node["ellipsoids"][str(t)]
-        e.set_object(mg.Ellipsoid(np.maximum(r, 1e-6).tolist()), mat)
-        e.set_transform(T)
-        radii.append(r), axes.append(V), enodes.append(f"{ROOT}/paths/{m}/ellipsoids/{t}")
-    return PathInfo(m, color, nodes, pts, np.array(radii).reshape(-1, 3),
-                    np.array(axes).reshape(-1, 3, 3), f"{ROOT}/paths/{m}/line", enodes)
-
-
 def _animate(vis, robot: RobotVisual, sol: Solution, seconds_per_step: float, fps: int = 30,
              substeps: int = 4) -> int:
     """Key-frame the arm along the solution's joint path (linear in q between nodes)."""
@@ -202,6 +165,7 @@ def build_scene(
     endoscope: bool = False,
     robot_color: Sequence[float] | None = None,
     seconds_per_step: float = 0.5,
+    hide_above: float | None = None,
 ) -> SceneInfo:
     """Draw all solutions into `vis` (default: a new server-less recording visualizer).
 
@@ -215,6 +179,10 @@ def build_scene(
         endoscope: start from the endoscope's view instead of the overview.
         robot_color: RGB(A) in [0, 1] overriding the URDF colours of the arm.
         seconds_per_step: animation time per trajectory step [s].
+        hide_above: ellipsoids whose largest radius exceeds this [m] are drawn but
+            start hidden (toggle them in Meshcat's "Open Controls" scene tree);
+            default: half the diagonal of the image footprint at d* (this hides
+            the prior Sigma_0, 0.3 m for the paper's 1e-2 I); `math.inf`: never.
 
     Returns:
         SceneInfo listing the nodes and what was drawn (`info.vis` is not kept; pass
@@ -238,8 +206,10 @@ def build_scene(
     scene = vis[ROOT]
     _draw_camera(scene, main, info)
     _draw_goal(scene, main, info)
-    for sol, color in zip(sols, style.method_colors(methods).values()):
-        p = _draw_path(scene, sol, color)
+    if hide_above is None:  # ellipsoids wider than the image at d* start hidden
+        hide_above = 0.5 * float(np.linalg.norm(info.footprint[2] - info.footprint[0]))
+    for k, (sol, color) in enumerate(zip(sols, style.method_colors(methods).values())):
+        p = draw_path(scene["paths"], sol, color, hide_above, priority=len(sols) - k)
         info.paths[p.method] = p
         info.nodes += [p.line_node, f"{ROOT}/paths/{p.method}/tube", *p.ellipsoid_nodes]
     robot = _load_robot(main["robot"], "robot", repo_root, main) if main.get("robot") else None

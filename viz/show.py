@@ -8,7 +8,7 @@ import webbrowser
 from pathlib import Path
 from typing import Sequence, Union
 
-from .scene import SceneInfo, build_scene, write_static_html
+from .scene import build_scene, write_static_html
 from .solutions import Solution, load_solutions
 
 Target = Union[Path, str, Solution, Sequence[Solution]]
@@ -55,8 +55,9 @@ def show(
     repo_root: Path | None = None,
     animate: str | None = None,
     block: bool = True,
-) -> SceneInfo:
-    """Show solutions: static HTML if `html` is given, else a live Meshcat server.
+    solutions: Sequence[Solution] | None = None,
+) -> int:
+    """Show solutions: static HTML if `html` is given, else a live Meshcat server; return 0.
 
     Args:
         target: solution JSON file, directory of them (comparison.json ignored), or
@@ -66,9 +67,12 @@ def show(
         endoscope_view: start from the endoscope's point of view.
         repo_root: folder the solutions' `urdf` paths are relative to.
         animate: method the arm follows (default "ocp" if present, else the first).
-        block: in server mode, keep serving until Ctrl-C (False returns at once).
+        block: in server mode, keep serving until Ctrl-C (False returns at once; the
+            server lives until this process exits).
+        solutions: solution dicts to show instead of loading `target` (e.g. when the
+            target is a problem YAML the caller solved first).
     """
-    sols = as_solutions(target)
+    sols = list(solutions) if solutions is not None else as_solutions(target)
     if html is not None:
         out = Path(html)
         info = write_static_html(sols, out, repo_root=repo_root, animate=animate,
@@ -76,7 +80,7 @@ def show(
         print(f"wrote {out} ({', '.join(info.paths)})")
         if open_browser:
             webbrowser.open(out.resolve().as_uri(), new=2)
-        return info
+        return 0
     vis, info = serve(sols, open_browser, endoscope_view, repo_root, animate)
     print(f"Meshcat scene ({', '.join(info.paths)}) at {vis.url()}")
     if block:
@@ -86,7 +90,7 @@ def show(
                 time.sleep(1.0)
         except KeyboardInterrupt:
             print("stopped")
-    return info
+    return 0
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -107,11 +111,12 @@ def show_main(args: argparse.Namespace, solutions: Sequence[Solution] | None = N
     `solutions`, when given, replaces loading `args.target` (e.g. the CLI solved a
     problem YAML first).
     """
-    show(
-        solutions if solutions is not None else args.target,
+    html = getattr(args, "html", None)
+    return show(
+        args.target,
         open_browser=bool(getattr(args, "open_browser", getattr(args, "open", False))),
-        html=getattr(args, "html", None),
+        html=Path(html) if html else None,
         endoscope_view=bool(getattr(args, "endoscope_view", False)),
         animate=getattr(args, "animate", None),
+        solutions=solutions,
     )
-    return 0

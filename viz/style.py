@@ -27,7 +27,9 @@ TUBE_RADIUS = 0.0008  # [m] radius of the drawn path tubes
 NODE_RADIUS = 0.0012  # [m] radius of the small spheres at path nodes
 GOAL_RADIUS = 0.0025  # [m] radius of the goal sphere
 TRIAD_SCALE = 0.012  # [m] axis length of the goal and camera triads
-ELLIPSOID_OPACITY = 0.18  # opacity of the 3-sigma ellipsoids
+ELLIPSOID_OPACITY = 0.3  # opacity of the 3-sigma ellipsoids up to ELLIPSOID_REF_RADIUS
+ELLIPSOID_REF_RADIUS = 0.006  # [m] larger ellipsoids get fainter (opacity ~ 1 / radius)
+ELLIPSOID_MIN_OPACITY = 0.04
 N_SIGMA = 3.0  # ellipsoid radii are N_SIGMA * sqrt(eigenvalue)
 
 
