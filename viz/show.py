@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import argparse
+import signal
+import threading
 import time
 import webbrowser
 from pathlib import Path
@@ -85,12 +87,24 @@ def show(
     print(f"Meshcat scene ({', '.join(info.paths)}) at {vis.url()}")
     if block:
         print("Serving; press Ctrl-C to stop.")
+        _stop_on_sigterm()
         try:
             while True:
                 time.sleep(1.0)
         except KeyboardInterrupt:
             print("stopped")
     return 0
+
+
+def _stop_on_sigterm() -> None:
+    """Turn SIGTERM into KeyboardInterrupt so meshcat's atexit cleanup stops its server."""
+    if threading.current_thread() is not threading.main_thread():
+        return
+
+    def handler(signum, frame):
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGTERM, handler)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
