@@ -102,7 +102,26 @@ class BeliefModel:
         unknown = set(self.components) - set(COMPONENTS)
         if unknown:
             raise ValueError(f"unknown observation components {sorted(unknown)}; allowed: {COMPONENTS}")
+        self.identity_maps = jacobians is None
         self.jacobians = jacobians or _identity_jacobians()
+
+    @property
+    def diagonal(self) -> bool:
+        """Whether every covariance stays diagonal along any path (exactly).
+
+        True when F = Q = H = R = I and all base covariances are diagonal: then each
+        noise matrix is diagonal, and so is every predicted and posterior covariance.
+        """
+        n = self.noise
+        mats = [n.W_p0, n.W_o0, n.V_d0, n.V_f0, n.V_o0, n.Sigma0]
+        return self.identity_maps and all(np.count_nonzero(M - np.diag(np.diag(M))) == 0 for M in mats)
+
+    def key(self) -> tuple:
+        """Hashable identity of the model's constants (for caching built solvers)."""
+        n = self.noise
+        mats = tuple(np.asarray(getattr(n, k), float).tobytes() for k in ("W_p0", "W_o0", "V_d0", "V_f0", "V_o0"))
+        return (mats, n.depth_star, tuple(n.o_star), self.components, n.orientation_formula,
+                tuple(self.camera.to_dict().items()), self.identity_maps or id(self.jacobians))
 
     def with_components(self, components: tuple[str, ...]) -> BeliefModel:
         """The same model with another set of observation components."""

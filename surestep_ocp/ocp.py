@@ -1,27 +1,36 @@
 """The belief-space OCP: direct multiple shooting over joints, belief mean and covariance, solved by IPOPT.
 
-Per node t = 0..T: joints `q_t`, mean `mu_t` (camera-frame pose) and the scaled
-`vech(Sigma_t)`; per interval: the gain `K_t` as a free variable. The covariance
-step is written in Joseph form,
-
-    Sigma_t+1 = (I - K H) P (I - K H)^T + K R V R^T K^T,
-
-which is positive semidefinite for any K and is minimised, in the matrix (Loewner)
-order, by the Kalman gain. Since every later step is monotone in that order,
-minimising Tr(Sigma_T) over the gains as well as the path gives exactly the Kalman
-gains at the optimum: the NLP has no symbolic inverse, a polynomial Hessian, and
-no gain equality whose Jacobian blows up when the observation is much sharper than
-the prior (the form `Sigma+ = (I - K H) P` with `K S = P H^T` as a constraint was
-measured to fail: IPOPT restoration failures on the default problem). The solution
-is re-evaluated by the exact EKF from its poses anyway. Constraints:
+Per node t = 0..T: joints `q_t`, mean `mu_t` (camera-frame pose) and the covariance,
+scaled by its initial-guess magnitude (entries span 1e-2..1e-8). Constraints:
 
     mu_t = pose_in_camera(FK(q_t))                      every node
-    Sigma_t+1 = Joseph(Sigma_t, K_t; mu_t, mu_t+1)       every interval
+    Sigma_t+1 = belief step (mu_t, mu_t+1, Sigma_t)      every interval
     q_lo <= q_t <= q_hi,  mu_t,z >= min_depth
     q_0 = q_start, mu_0 = x_start, Sigma_0 given, mu_T = x_goal  (hard terminal equality)
 
-Objective: `Tr(Sigma_T)` (divided by the initial guess's value, for scaling)
-plus an optional joint-step smoothness term.
+Objective: `Tr(Sigma_T)` (divided by the initial guess's value) plus an optional
+joint-step smoothness term.
+
+Two covariance forms (`form`):
+
+* `full`: `vech(Sigma_t)` (21 numbers) per node and a free gain `K_t` per interval,
+  with the step in Joseph form `(I - K H) P (I - K H)^T + K R V R^T K^T`. That is
+  positive semidefinite for any K and smallest, in the matrix (Loewner) order, at
+  the Kalman gain; every later step is monotone in that order, so minimising
+  `Tr(Sigma_T)` over gains and path together gives exactly the Kalman gains at the
+  optimum, with no symbolic inverse. (Measured alternatives that did worse on the
+  default problem: `(I - K H) P` with the gain equality `K S = P H^T`, restoration
+  failures; the EKF step with a symbolic 6x6 solve, 3000 iterations without
+  convergence.)
+* `diagonal` (option): when F = Q = H = R = I and every base covariance is diagonal
+  (the paper's constants are multiples of I), every covariance along any path is
+  diagonal, exactly; the step is then six scalar Joseph updates with free gains
+  `(1 - k)^2 p + k^2 v`. Same optimum and 5x cheaper iterations, but measured to
+  converge worse than `full` on problems/*.yaml (restoration failures), so `full`
+  is the default. (The scalar form `p v / (p + v)` without gains did no better.) The NLP is parametric in the camera
+pose (the robot base in the camera frame) and the scales, so one built solver
+serves every start, goal and camera pose of a given structure and horizon (a cache
+keeps it), which is what re-planning after a camera move needs.
 """
 
 from __future__ import annotations
@@ -32,9 +41,14 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
-from .belief import NV, NX, BeliefModel, trace_vech, unvech, vech
+from .belief import NV, NX, BeliefModel, unvech, vech
+from .lie import so3_log
+from .robot import Robot
 from .setup import Setup
 from .solution import Solution, evaluate
+
+FORMS = ("full", "diagonal")
+_DIAG = [0, 6, 11, 15, 18, 20]  # positions of the diagonal in vech
 
 
 @dataclass
@@ -45,7 +59,13 @@ class InitialGuess:
     source: str
 
 
-_DIAG = [0, 6, 11, 15, 18, 20]  # positions of the diagonal in vech
+@dataclass
+class WarmStart:
+    """Primal and dual values of a previous solve of the same transcription."""
+
+    x: np.ndarray
+    lam_x: np.ndarray
+    lam_g: np.ndarray
 
 
 class _Layout:
@@ -73,93 +93,164 @@ class _Layout:
         return np.concatenate([np.asarray(values[name], float).ravel() for name, _, _ in self.blocks])
 
 
-def guess_from_joints(setup: Setup, model: BeliefModel, q: np.ndarray) -> dict[str, np.ndarray]:
-    """A consistent primal point (mean, covariance and gains) from a joint trajectory."""
-    T = len(q) - 1
-    mu = np.array([setup.pose_of(qi) for qi in q])
-    sig, pred = model.propagate(mu)
-    out = {}
-    for t in range(T + 1):
-        out[f"q{t}"], out[f"mu{t}"], out[f"s{t}"] = q[t], mu[t], vech(sig[t])
-    for t in range(T):
-        F, Q, H, R = (np.asarray(M) for M in model.jacobians(mu[t], mu[t + 1]))
-        S = H @ pred[t] @ H.T + R @ np.asarray(model.observation_noise(mu[t + 1])) @ R.T
-        out[f"K{t}"] = np.linalg.solve(S, H @ pred[t]).T.ravel(order="F")
-    return out
+def resolve_form(model: BeliefModel, form: str) -> str:
+    if form not in FORMS:
+        raise ValueError(f"unknown covariance form '{form}'; allowed: {', '.join(FORMS)}")
+    if form == "diagonal" and not model.diagonal:
+        raise ValueError("the diagonal covariance form is exact only with identity motion/observation maps "
+                         "and diagonal base covariances")
+    return form
 
 
-def solve_ocp(setup: Setup, init: InitialGuess, solver_options: dict | None = None,
-              method: str = "ocp") -> Solution:
-    """Solve the belief-space OCP from the initial joint trajectory `init`.
+class Transcription:
+    """The multiple-shooting NLP of one structure (robot, belief model, horizon, form), built once."""
 
-    Returns a Solution whatever IPOPT's status; check `success` (the CLI turns a
-    failure into an error carrying the status).
-    """
-    prob = setup.problem
-    model = setup.model
-    T, nq = prob.horizon, setup.robot.nq
-    movable = set(setup.robot.supporting_joints())
-    x0 = guess_from_joints(setup, model, init.q)
+    def __init__(self, robot: Robot, model: BeliefModel, horizon: int, form: str, smoothness: float,
+                 options: dict):
+        self.robot, self.model, self.T, self.form = robot, model, horizon, form
+        T, nq = horizon, robot.nq
+        ns = NX if form == "diagonal" else NV
+        self.ns = ns
+        L = self.layout = _Layout()
+        qs, mus, ss, Ks = [], [], [], []
+        for t in range(T + 1):
+            qs.append(L.add(f"q{t}", nq))
+            mus.append(L.add(f"mu{t}", NX))
+            ss.append(L.add(f"s{t}", ns))
+            if t < T:
+                Ks.append(L.add(f"K{t}", NX * NX if form == "full" else NX))
+        # Parameters: robot base in the camera frame (3x4), covariance scales, trace reference.
+        Tcb = ca.SX.sym("T_cam_base", 3, 4)
+        scale = ca.SX.sym("scale", T + 1)
+        trace_ref = ca.SX.sym("trace_ref")
+        self.p = ca.vertcat(ca.vec(Tcb), scale, trace_ref)
 
-    # Scales from the initial guess: covariance entries span 1e-2..1e-8.
-    scale = np.array([max(x0[f"s{t}"][_DIAG].mean(), 1e-14) for t in range(T + 1)])
-    trace_ref = float(trace_vech(x0[f"s{T}"]))
+        q_sym = ca.SX.sym("q", nq)
+        Tq = robot.fk_expr(q_sym)
+        R = Tcb[:, :3] @ Tq[:3, :3]
+        pose = ca.Function("pose", [q_sym, Tcb], [ca.vertcat(Tcb[:, :3] @ Tq[:3, 3] + Tcb[:, 3], so3_log(R))])
 
-    L = _Layout()
-    qs, mus, ss, Ks = [], [], [], []
-    for t in range(T + 1):
-        qs.append(L.add(f"q{t}", nq))
-        mus.append(L.add(f"mu{t}", NX))
-        ss.append(L.add(f"s{t}", NV))
-        if t < T:
-            Ks.append(L.add(f"K{t}", NX * NX))
-    w = L.vector()
+        g = [mus[t] - pose(qs[t], Tcb) for t in range(T + 1)]
+        for t in range(T):
+            g.append(self._step(mus[t], mus[t + 1], scale[t] * ss[t], Ks[t]) / scale[t + 1]
+                     - ss[t + 1])
+        trace_T = scale[T] * (ca.sum1(ss[T]) if form == "diagonal" else sum(ss[T][i] for i in _DIAG))
+        f = trace_T / trace_ref
+        if smoothness > 0:
+            f += smoothness * sum(ca.sumsqr(qs[t + 1] - qs[t]) for t in range(T))
+        self.ng = ca.vertcat(*g).shape[0]
+        t0 = time.perf_counter()
+        self.solver = ca.nlpsol("surestep_ocp", "ipopt", {"x": L.vector(), "f": f, "g": ca.vertcat(*g),
+                                                           "p": self.p}, options)
+        self.build_time_s = time.perf_counter() - t0
 
-    pose_fn = setup.camera_pose_fn
-    g, lbg, ubg = [], [], []
-    for t in range(T + 1):
-        g.append(mus[t] - pose_fn(qs[t]))
-    for t in range(T):
-        s_t = scale[t] * ss[t]
-        p = model.predict_expr(mus[t], mus[t + 1], s_t)
-        S, H = model.innovation_expr(mus[t], mus[t + 1], p)
+    def _step(self, x0, x1, s, K):
+        m = self.model
+        if self.form == "diagonal":
+            w = ca.diag(m.motion_noise(x0, x1))
+            v = ca.diag(m.observation_noise(x1))
+            p = s + w
+            return (1 - K) ** 2 * p + K**2 * v  # scalar Joseph form, gains free (as in `full`)
+        p = m.predict_expr(x0, x1, s)
+        S, H = m.innovation_expr(x0, x1, p)
         P = unvech(p)
-        K = ca.reshape(Ks[t], NX, NX)
+        K = ca.reshape(K, NX, NX)
         IKH = ca.DM.eye(NX) - K @ H
         post = IKH @ P @ IKH.T + K @ (S - H @ P @ H.T) @ K.T  # Joseph form; S - H P H^T = R V R^T
-        g.append(ss[t + 1] - vech(0.5 * (post + post.T)) / scale[t + 1])
-    g = ca.vertcat(*g)
-    lbg = ubg = np.zeros(g.shape[0])
+        return vech(0.5 * (post + post.T))
 
-    f = trace_vech(scale[T] * ss[T]) / trace_ref
-    if prob.objective.smoothness > 0:
-        f += prob.objective.smoothness * sum(ca.sumsqr(qs[t + 1] - qs[t]) for t in range(T))
+    # ------------------------------------------------------------------ one solve
+    def guess(self, setup: Setup, q: np.ndarray) -> tuple[dict, np.ndarray]:
+        """Consistent primal point (mean, covariance, gains) from a joint trajectory; and the scales."""
+        model, T = self.model, self.T
+        mu = np.array([setup.pose_of(qi) for qi in q])
+        sig, pred = model.propagate(mu)
+        out = {}
+        for t in range(T + 1):
+            out[f"q{t}"], out[f"mu{t}"] = q[t], mu[t]
+            out[f"s{t}"] = np.diag(sig[t]) if self.form == "diagonal" else vech(sig[t])
+            if t < T and self.form == "diagonal":
+                v = np.diag(np.asarray(model.observation_noise(mu[t + 1])))
+                out[f"K{t}"] = np.diag(pred[t]) / (np.diag(pred[t]) + v)
+            elif t < T:
+                _, _, H, Rm = (np.asarray(M) for M in model.jacobians(mu[t], mu[t + 1]))
+                S = H @ pred[t] @ H.T + Rm @ np.asarray(model.observation_noise(mu[t + 1])) @ Rm.T
+                out[f"K{t}"] = np.linalg.solve(S, H @ pred[t]).T.ravel(order="F")
+        scale = np.array([max(np.trace(s) / NX, 1e-14) for s in sig])
+        return out, scale
 
-    lo, hi = {}, {}
-    for t in range(T + 1):
-        ql, qh = setup.robot.lower.copy(), setup.robot.upper.copy()
-        for j in range(nq):
-            if j not in movable or t == 0:
-                ql[j] = qh[j] = (setup.q_start[j] if t == 0 or j not in movable else ql[j])
-        lo[f"q{t}"], hi[f"q{t}"] = ql, qh
-        ml, mh = np.full(NX, -np.inf), np.full(NX, np.inf)
-        ml[2] = prob.min_depth
-        if t == 0:
-            ml = mh = setup.x_start
-        if t == T:
-            ml = mh = setup.x_goal
-        lo[f"mu{t}"], hi[f"mu{t}"] = ml, mh
-        if t == 0:
-            lo["s0"] = hi["s0"] = x0["s0"] / scale[0]
-        else:
-            lo[f"s{t}"], hi[f"s{t}"] = np.full(NV, -np.inf), np.full(NV, np.inf)
-            lo[f"s{t}"][_DIAG] = 0.0
-        if t < T:
-            lo[f"K{t}"], hi[f"K{t}"] = np.full(NX * NX, -np.inf), np.full(NX * NX, np.inf)
-    x0s = dict(x0)
-    for t in range(T + 1):
-        x0s[f"s{t}"] = x0[f"s{t}"] / scale[t]
+    def bounds(self, setup: Setup, scale: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        prob, T, nq = setup.problem, self.T, self.robot.nq
+        movable = set(self.robot.supporting_joints())
+        s0 = np.asarray(prob.noise.Sigma0, float)
+        lo, hi = {}, {}
+        for t in range(T + 1):
+            ql, qh = self.robot.lower.copy(), self.robot.upper.copy()
+            for j in range(nq):
+                if t == 0 or j not in movable:
+                    ql[j] = qh[j] = setup.q_start[j]
+            lo[f"q{t}"], hi[f"q{t}"] = ql, qh
+            ml, mh = np.full(NX, -np.inf), np.full(NX, np.inf)
+            ml[2] = prob.min_depth
+            if t == 0:
+                ml = mh = setup.x_start
+            if t == T:
+                ml = mh = setup.x_goal
+            lo[f"mu{t}"], hi[f"mu{t}"] = ml, mh
+            if t == 0:
+                lo["s0"] = hi["s0"] = (np.diag(s0) if self.form == "diagonal" else vech(s0)) / scale[0]
+            else:
+                lo[f"s{t}"], hi[f"s{t}"] = np.full(self.ns, -np.inf), np.full(self.ns, np.inf)
+                lo[f"s{t}"][slice(None) if self.form == "diagonal" else _DIAG] = 0.0
+            if t < T:
+                nk = NX * NX if self.form == "full" else NX
+                lo[f"K{t}"], hi[f"K{t}"] = np.full(nk, -np.inf), np.full(nk, np.inf)
+        return self.layout.join(lo), self.layout.join(hi)
 
+    def solve(self, setup: Setup, init: InitialGuess, method: str = "ocp",
+              warm: WarmStart | None = None, scale: np.ndarray | None = None) -> tuple[Solution, WarmStart]:
+        T = self.T
+        x0, guess_scale = self.guess(setup, np.asarray(init.q, float))
+        scale = guess_scale if scale is None else scale
+        trace_ref = float(np.sum(np.asarray(x0[f"s{T}"])[slice(None) if self.form == "diagonal" else _DIAG]))
+        for t in range(T + 1):
+            x0[f"s{t}"] = x0[f"s{t}"] / scale[t]
+        lbx, ubx = self.bounds(setup, scale)
+        p = np.concatenate([setup.T_cam_base[:3, :].ravel(order="F"), scale, [trace_ref]])
+        args = dict(x0=self.layout.join(x0), lbx=lbx, ubx=ubx, lbg=0.0, ubg=0.0, p=p)
+        if warm is not None:
+            args.update(x0=warm.x, lam_x0=warm.lam_x, lam_g0=warm.lam_g)
+        t0 = time.perf_counter()
+        res = self.solver(**args)
+        solve_s = time.perf_counter() - t0
+        stats = self.solver.stats()
+        vals = self.layout.split(np.asarray(res["x"]).ravel())
+        q = np.array([vals[f"q{t}"] for t in range(T + 1)])
+        poses = np.array([setup.pose_of(qi) for qi in q])  # Pinocchio FK of the solution's joints
+        sT = vals[f"s{T}"] * scale[T]
+        ocp_trace = float(np.sum(sT) if self.form == "diagonal" else np.trace(unvech(sT)))
+        sol = evaluate(
+            setup, method, poses, list(q),
+            success=bool(stats["success"]), status=str(stats["return_status"]), solve_time_s=solve_s,
+            iterations=int(stats["iter_count"]), objective=float(res["f"]) * trace_ref,
+            extras={
+                "init": init.source if warm is None else f"warm start ({init.source})",
+                "solver": "ipopt",
+                "covariance_form": self.form,
+                "build_time_s": self.build_time_s,
+                "ocp_trace_final": ocp_trace,
+                "constraint_violation": float(np.max(np.abs(np.asarray(res["g"])))),
+            },
+        )
+        return sol, WarmStart(np.asarray(res["x"]).ravel(), np.asarray(res["lam_x"]).ravel(),
+                              np.asarray(res["lam_g"]).ravel())
+
+
+_CACHE: dict[tuple, Transcription] = {}
+
+
+def solver_options(setup: Setup, extra: dict | None = None) -> dict:
+    prob = setup.problem
     opts = {
         "ipopt.print_level": prob.solver.print_level,
         "print_time": False,
@@ -171,29 +262,31 @@ def solve_ocp(setup: Setup, init: InitialGuess, solver_options: dict | None = No
         "ipopt.mu_strategy": "adaptive",
     }
     opts.update({f"ipopt.{k}": v for k, v in prob.solver.options.items()})
-    opts.update(solver_options or {})
-    nlp = {"x": w, "f": f, "g": g}
-    t_build = time.perf_counter()
-    solver = ca.nlpsol("surestep_ocp", "ipopt", nlp, opts)
-    build_s = time.perf_counter() - t_build
-    t0 = time.perf_counter()
-    res = solver(x0=L.join(x0s), lbx=L.join(lo), ubx=L.join(hi), lbg=lbg, ubg=ubg)
-    solve_s = time.perf_counter() - t0
-    stats = solver.stats()
+    opts.update(extra or {})
+    return opts
 
-    sol = L.split(np.asarray(res["x"]).ravel())
-    q = np.array([sol[f"q{t}"] for t in range(T + 1)])
-    poses = np.array([setup.pose_of(qi) for qi in q])  # Pinocchio FK of the solution's joints
-    sigma_T = unvech(sol[f"s{T}"] * scale[T])
-    return evaluate(
-        setup, method, poses, list(q),
-        success=bool(stats["success"]), status=str(stats["return_status"]), solve_time_s=solve_s,
-        iterations=int(stats["iter_count"]), objective=float(res["f"]) * trace_ref,
-        extras={
-            "init": init.source,
-            "solver": "ipopt",
-            "build_time_s": build_s,
-            "ocp_trace_final": float(np.trace(sigma_T)),
-            "constraint_violation": float(np.max(np.abs(np.asarray(res["g"])))) if g.shape[0] else 0.0,
-        },
-    )
+
+def transcription(setup: Setup, form: str = "full", extra_options: dict | None = None,
+                  horizon: int | None = None) -> Transcription:
+    """The (cached) transcription for this setup's structure."""
+    model = setup.model
+    form = resolve_form(model, form)
+    T = setup.problem.horizon if horizon is None else horizon
+    opts = solver_options(setup, extra_options)
+    key = (str(setup.robot.urdf), setup.robot.frame, model.key(), T, form, setup.problem.objective.smoothness,
+           tuple(sorted((k, repr(v)) for k, v in opts.items())))
+    if key not in _CACHE:
+        _CACHE[key] = Transcription(setup.robot, model, T, form, setup.problem.objective.smoothness, opts)
+    return _CACHE[key]
+
+
+def solve_ocp(setup: Setup, init: InitialGuess, solver_options: dict | None = None,
+              method: str = "ocp", form: str = "full") -> Solution:
+    """Solve the belief-space OCP from the initial joint trajectory `init`.
+
+    Returns a Solution whatever IPOPT's status; check `success` (the CLI turns a
+    failure into an error carrying the status).
+    """
+    tr = transcription(setup, form, solver_options)
+    sol, _ = tr.solve(setup, init, method)
+    return sol
