@@ -128,29 +128,47 @@ class BeliefModel:
         return BeliefModel(self.noise, self.camera, components, self.jacobians)
 
     # --------------------------------------------------------------- noise models
-    def motion_noise_expr(self, x0, x1):
-        """W = ||p1 - p0||^2 W_p0 + angle(r0, r1)^2 W_o0."""
-        n = self.noise
+    def motion_coefficients(self, x0, x1):
+        """Scalars multiplying (W_p0, W_o0): squared step length [m^2] and squared angle [rad^2]."""
         dp = x1[:3] - x0[:3]
-        return ca.dot(dp, dp) * ca.DM(n.W_p0) + angle_sq(so3_exp(x0[3:]), so3_exp(x1[3:])) * ca.DM(n.W_o0)
+        return [ca.dot(dp, dp), angle_sq(so3_exp(x0[3:]), so3_exp(x1[3:]))]
 
-    def observation_noise_expr(self, x):
-        """V(x) = sum of the selected depth, field-of-view and orientation terms."""
+    def motion_matrices(self) -> list[np.ndarray]:
+        return [self.noise.W_p0, self.noise.W_o0]
+
+    def observation_coefficients(self, x):
+        """Scalars multiplying the base matrices of the selected components (same order)."""
         n = self.noise
         p, r = x[:3], x[3:]
-        V = ca.SX.zeros(NX, NX) if isinstance(x, ca.SX) else ca.MX.zeros(NX, NX)
+        out = []
         if "depth" in self.components:
-            V += (p[2] - n.depth_star) ** 2 * ca.DM(n.V_d0)
+            out.append((p[2] - n.depth_star) ** 2)
         if "fov" in self.components:
             du, dv = self.camera.offset(p)
-            V += (du**2 + dv**2) * ca.DM(n.V_f0)
+            out.append(du**2 + dv**2)
         if "orientation" in self.components:
             o = ca.DM(n.o_star)
             if n.orientation_formula == "cosine":
                 cos = ca.dot(r, o) / (ca.sqrt(ca.dot(r, r) + _EPS_NORM) * float(np.linalg.norm(n.o_star)))
             else:  # geodesic: cosine of the angle between the rotations
                 cos = 0.5 * (ca.trace(so3_exp(r).T @ so3_exp(o)) - 1)
-            V += (1 - cos) ** 2 * ca.DM(n.V_o0)
+            out.append((1 - cos) ** 2)
+        return out
+
+    def observation_matrices(self) -> list[np.ndarray]:
+        n = self.noise
+        table = {"depth": n.V_d0, "fov": n.V_f0, "orientation": n.V_o0}
+        return [table[c] for c in COMPONENTS if c in self.components]
+
+    def motion_noise_expr(self, x0, x1):
+        """W = ||p1 - p0||^2 W_p0 + angle(r0, r1)^2 W_o0."""
+        return sum(c * ca.DM(M) for c, M in zip(self.motion_coefficients(x0, x1), self.motion_matrices()))
+
+    def observation_noise_expr(self, x):
+        """V(x) = sum of the selected depth, field-of-view and orientation terms."""
+        V = ca.SX.zeros(NX, NX) if isinstance(x, ca.SX) else ca.MX.zeros(NX, NX)
+        for c, M in zip(self.observation_coefficients(x), self.observation_matrices()):
+            V += c * ca.DM(M)
         return V
 
     @cached_property
