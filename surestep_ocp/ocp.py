@@ -284,9 +284,25 @@ def solve_ocp(setup: Setup, init: InitialGuess, solver_options: dict | None = No
               method: str = "ocp", form: str = "full") -> Solution:
     """Solve the belief-space OCP from the initial joint trajectory `init`.
 
+    Strategy: IPOPT with the adaptive barrier update; if that attempt fails, a second
+    attempt with the monotone update from the same initial guess (measured: each
+    fails on some problems where the other succeeds). Both attempts are reported in
+    `extras["attempts"]`; time and iterations are their sums. The barrier strategy
+    is left alone when the caller or the problem file sets it.
+
     Returns a Solution whatever IPOPT's status; check `success` (the CLI turns a
     failure into an error carrying the status).
     """
-    tr = transcription(setup, form, solver_options)
-    sol, _ = tr.solve(setup, init, method)
-    return sol
+    sol, _ = transcription(setup, form, solver_options).solve(setup, init, method)
+    pinned = "ipopt.mu_strategy" in (solver_options or {}) or "mu_strategy" in setup.problem.solver.options
+    if sol.success or pinned:
+        return sol
+    second, _ = transcription(setup, form, {**(solver_options or {}), "ipopt.mu_strategy": "monotone"}).solve(
+        setup, init, method)
+    second.extras["attempts"] = [
+        {"mu_strategy": name, "status": s.status, "iterations": s.iterations, "solve_time_s": s.solve_time_s}
+        for name, s in (("adaptive", sol), ("monotone", second))
+    ]
+    second.solve_time_s += sol.solve_time_s
+    second.iterations += sol.iterations
+    return second
