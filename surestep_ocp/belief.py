@@ -22,6 +22,7 @@ from .lie import angle_sq, so3_exp
 
 COMPONENTS = ("depth", "fov", "orientation")
 ORIENTATION_FORMULAS = ("cosine", "geodesic")
+OBSERVATION_NOISE_FORMS = ("mean", "expected")
 NX = 6
 NV = NX * (NX + 1) // 2  # 21
 _TRIL = [(i, j) for j in range(NX) for i in range(j, NX)]  # vech order: column-major lower triangle
@@ -70,6 +71,7 @@ class NoiseParams:
     o_star: tuple[float, float, float] = (0.0, 0.0, 1.0)  # [rad] axis-angle
     components: tuple[str, ...] = COMPONENTS
     orientation_formula: str = "cosine"
+    observation_noise: str = "mean"  # mean (the paper's) | expected (under the predicted belief, section 8)
 
 
 def _identity_jacobians() -> ca.Function:
@@ -120,12 +122,19 @@ class BeliefModel:
         """Hashable identity of the model's constants (for caching built solvers)."""
         n = self.noise
         mats = tuple(np.asarray(getattr(n, k), float).tobytes() for k in ("W_p0", "W_o0", "V_d0", "V_f0", "V_o0"))
-        return (mats, n.depth_star, tuple(n.o_star), self.components, n.orientation_formula,
+        return (mats, n.depth_star, tuple(n.o_star), self.components, n.orientation_formula, n.observation_noise,
                 tuple(self.camera.to_dict().items()), self.identity_maps or id(self.jacobians))
 
     def with_components(self, components: tuple[str, ...]) -> BeliefModel:
         """The same model with another set of observation components."""
-        return BeliefModel(self.noise, self.camera, components, self.jacobians)
+        return BeliefModel(self.noise, self.camera, components, None if self.identity_maps else self.jacobians)
+
+    def evaluation_model(self) -> BeliefModel:
+        """The model every plan is evaluated with: all components, the paper's (mean) noise."""
+        from dataclasses import replace
+
+        noise = replace(self.noise, observation_noise="mean", components=COMPONENTS)
+        return BeliefModel(noise, self.camera, COMPONENTS, None if self.identity_maps else self.jacobians)
 
     # --------------------------------------------------------------- noise models
     def motion_coefficients(self, x0, x1):
@@ -136,23 +145,37 @@ class BeliefModel:
     def motion_matrices(self) -> list[np.ndarray]:
         return [self.noise.W_p0, self.noise.W_o0]
 
-    def observation_coefficients(self, x):
-        """Scalars multiplying the base matrices of the selected components (same order)."""
+    def observation_coefficients(self, x, P=None):
+        """Scalars multiplying the base matrices of the selected components (same order).
+
+        With `P` (the predicted covariance, 6x6) and `noise.observation_noise == "expected"`,
+        each term is its expectation under N(x, P): exact for the depth term, first order
+        for the field-of-view and orientation terms (surestep_method.md, section 8).
+        """
         n = self.noise
         p, r = x[:3], x[3:]
+        expected = P is not None and n.observation_noise == "expected"
         out = []
         if "depth" in self.components:
-            out.append((p[2] - n.depth_star) ** 2)
+            out.append((p[2] - n.depth_star) ** 2 + (P[2, 2] if expected else 0))
         if "fov" in self.components:
             du, dv = self.camera.offset(p)
-            out.append(du**2 + dv**2)
+            c = du**2 + dv**2
+            if expected:
+                J = ca.jacobian(ca.vertcat(du, dv), p)
+                c += ca.trace(J @ P[:3, :3] @ J.T)
+            out.append(c)
         if "orientation" in self.components:
             o = ca.DM(n.o_star)
             if n.orientation_formula == "cosine":
                 cos = ca.dot(r, o) / (ca.sqrt(ca.dot(r, r) + _EPS_NORM) * float(np.linalg.norm(n.o_star)))
             else:  # geodesic: cosine of the angle between the rotations
                 cos = 0.5 * (ca.trace(so3_exp(r).T @ so3_exp(o)) - 1)
-            out.append((1 - cos) ** 2)
+            c = (1 - cos) ** 2
+            if expected:
+                gr = ca.jacobian(1 - cos, r)
+                c += gr @ P[3:, 3:] @ gr.T
+            out.append(c)
         return out
 
     def observation_matrices(self) -> list[np.ndarray]:
@@ -164,10 +187,10 @@ class BeliefModel:
         """W = ||p1 - p0||^2 W_p0 + angle(r0, r1)^2 W_o0."""
         return sum(c * ca.DM(M) for c, M in zip(self.motion_coefficients(x0, x1), self.motion_matrices()))
 
-    def observation_noise_expr(self, x):
-        """V(x) = sum of the selected depth, field-of-view and orientation terms."""
+    def observation_noise_expr(self, x, P=None):
+        """V(x) = sum of the selected depth, field-of-view and orientation terms (see coefficients)."""
         V = ca.SX.zeros(NX, NX) if isinstance(x, ca.SX) else ca.MX.zeros(NX, NX)
-        for c, M in zip(self.observation_coefficients(x), self.observation_matrices()):
+        for c, M in zip(self.observation_coefficients(x, P), self.observation_matrices()):
             V += c * ca.DM(M)
         return V
 
@@ -175,6 +198,13 @@ class BeliefModel:
     def motion_noise(self) -> ca.Function:
         x0, x1 = ca.SX.sym("x0", NX), ca.SX.sym("x1", NX)
         return ca.Function("motion_noise", [x0, x1], [self.motion_noise_expr(x0, x1)], ["x0", "x1"], ["W"])
+
+    @cached_property
+    def planning_noise(self) -> ca.Function:
+        """V used by the planner's EKF step: `(x, P_pred vech) -> V` (equals `observation_noise` in mean form)."""
+        x, p = ca.SX.sym("x", NX), ca.SX.sym("sigma_pred", NV)
+        return ca.Function("planning_noise", [x, p], [self.observation_noise_expr(x, unvech(p))],
+                           ["x", "sigma_pred"], ["V"])
 
     @cached_property
     def observation_noise(self) -> ca.Function:
@@ -191,7 +221,7 @@ class BeliefModel:
         """(S, H) of the update at x1 given the predicted covariance vech `p`."""
         _, _, H, R = self.jacobians(x0, x1)
         P = unvech(p)
-        return H @ P @ H.T + R @ self.observation_noise(x1) @ R.T, H
+        return H @ P @ H.T + R @ self.planning_noise(x1, p) @ R.T, H
 
     def step_expr(self, x0, x1, s):
         """vech(Sigma_t+1|t+1) from vech(Sigma_t|t) for the step x0 -> x1."""

@@ -22,8 +22,19 @@ ABLATIONS = {f"-no-{c}": c for c in COMPONENTS}
 COMPARE_METHODS = ("baseline", "gradient", "gradient-no-pose-loss", "ocp", "ocp-from-gradient")
 
 
-def parse_method(name: str) -> tuple[str, tuple[str, ...] | None]:
-    """Split a method name into (base method, components or None for the problem's own)."""
+def parse_method(name: str) -> tuple[str, tuple[str, ...] | None, str | None]:
+    """Split a method name into (base method, components or None, observation-noise form or None).
+
+    A trailing `-expected` plans with the belief-aware observation noise (section 8).
+    """
+    form = None
+    if name.endswith("-expected"):
+        name, form = name[: -len("-expected")], "expected"
+    base, comps = _parse_base(name)
+    return base, comps, form
+
+
+def _parse_base(name: str) -> tuple[str, tuple[str, ...] | None]:
     for suffix, comp in ABLATIONS.items():
         if name.endswith(suffix) and name[: -len(suffix)] in BASE_METHODS:
             return name[: -len(suffix)], tuple(c for c in COMPONENTS if c != comp)
@@ -31,17 +42,19 @@ def parse_method(name: str) -> tuple[str, tuple[str, ...] | None]:
         return name, None
     allowed = ", ".join(BASE_METHODS)
     raise SurestepError(f"unknown method '{name}'; allowed: {allowed} (optionally with -no-depth, -no-fov, "
-                        "-no-orientation)")
+                        "-no-orientation, then -expected)")
 
 
-def _with_components(setup: Setup, components: tuple[str, ...] | None) -> Setup:
-    if components is None:
+def _variant(setup: Setup, components: tuple[str, ...] | None, form: str | None) -> Setup:
+    """The same setup planning with other observation components or noise form."""
+    if components is None and form is None:
         return setup
     from dataclasses import replace
 
-    noise = replace(setup.problem.noise, components=components)
-    new = replace(setup, problem=replace(setup.problem, noise=noise))
-    return new
+    noise = setup.problem.noise
+    noise = replace(noise, components=components or noise.components, observation_noise=form or
+                    noise.observation_noise)
+    return replace(setup, problem=replace(setup.problem, noise=noise))
 
 
 def ocp_initial_guess(setup: Setup, source: str = "baseline", gradient: Solution | None = None) -> InitialGuess:
@@ -61,8 +74,8 @@ def run_method(setup: Setup, name: str, cache: dict[str, Solution] | None = None
 
     `cache` (method name -> Solution) lets `ocp-from-gradient` reuse a gradient solution.
     """
-    base, comps = parse_method(name)
-    s = _with_components(setup, comps)
+    base, comps, form = parse_method(name)
+    s = _variant(setup, comps, form)
     if base == "baseline":
         sol = solve_baseline(s)
     elif base in ("gradient", "gradient-no-pose-loss"):
@@ -73,7 +86,7 @@ def run_method(setup: Setup, name: str, cache: dict[str, Solution] | None = None
         sol = solve_ocp(s, ocp_initial_guess(s), solver_options)
     else:  # ocp-from-gradient
         suffix = name[len(base):]
-        grad = (cache or {}).get("gradient" + suffix) or run_method(setup, "gradient" + suffix)
+        grad = (cache or {}).get("gradient" + suffix) or run_method(setup, "gradient" + suffix, cache)
         sol = solve_ocp(s, ocp_initial_guess(s, "gradient", grad), solver_options)
     sol.method = name
     return sol

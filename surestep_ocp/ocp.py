@@ -148,7 +148,7 @@ class Transcription:
         m = self.model
         if self.form == "diagonal":
             w = ca.diag(m.motion_noise(x0, x1))
-            v = ca.diag(m.observation_noise(x1))
+            v = ca.diag(m.planning_noise(x1, vech(ca.diag(p))))
             p = s + w
             return (1 - K) ** 2 * p + K**2 * v  # scalar Joseph form, gains free (as in `full`)
         p = m.predict_expr(x0, x1, s)
@@ -170,11 +170,11 @@ class Transcription:
             out[f"q{t}"], out[f"mu{t}"] = q[t], mu[t]
             out[f"s{t}"] = np.diag(sig[t]) if self.form == "diagonal" else vech(sig[t])
             if t < T and self.form == "diagonal":
-                v = np.diag(np.asarray(model.observation_noise(mu[t + 1])))
+                v = np.diag(np.asarray(model.planning_noise(mu[t + 1], vech(pred[t]))))
                 out[f"K{t}"] = np.diag(pred[t]) / (np.diag(pred[t]) + v)
             elif t < T:
                 _, _, H, Rm = (np.asarray(M) for M in model.jacobians(mu[t], mu[t + 1]))
-                S = H @ pred[t] @ H.T + Rm @ np.asarray(model.observation_noise(mu[t + 1])) @ Rm.T
+                S = H @ pred[t] @ H.T + Rm @ np.asarray(model.planning_noise(mu[t + 1], vech(pred[t]))) @ Rm.T
                 out[f"K{t}"] = np.linalg.solve(S, H @ pred[t]).T.ravel(order="F")
         scale = np.array([max(np.trace(s) / NX, 1e-14) for s in sig])
         return out, scale

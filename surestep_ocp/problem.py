@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from .belief import COMPONENTS, ORIENTATION_FORMULAS, NoiseParams
+from .belief import COMPONENTS, OBSERVATION_NOISE_FORMS, ORIENTATION_FORMULAS, NoiseParams
 from .camera import Intrinsics
 from .errors import ProblemError
 from .lie import np_exp, rpy_matrix
@@ -243,7 +243,7 @@ def _endpoint(rd: Reader, node: Any, key: str) -> EndpointSpec:
 
 
 _NOISE_KEYS = {"W_p0", "W_o0", "V_d0", "V_f0", "V_o0", "Sigma0", "depth_star", "o_star", "components",
-               "orientation_formula"}
+               "orientation_formula", "observation_noise"}
 
 
 def _noise(rd: Reader, node: Any) -> NoiseParams:
@@ -264,6 +264,8 @@ def _noise(rd: Reader, node: Any) -> NoiseParams:
     kw["components"] = tuple(rd.string(c, f"noise.components[{i}]", COMPONENTS) for i, c in enumerate(comps))
     kw["orientation_formula"] = rd.string(m.get("orientation_formula", d.orientation_formula),
                                           "noise.orientation_formula", ORIENTATION_FORMULAS)
+    kw["observation_noise"] = rd.string(m.get("observation_noise", d.observation_noise), "noise.observation_noise",
+                                        OBSERVATION_NOISE_FORMS)
     return NoiseParams(**kw)
 
 

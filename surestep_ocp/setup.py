@@ -8,7 +8,7 @@ from functools import cached_property
 import casadi as ca
 import numpy as np
 
-from .belief import COMPONENTS, BeliefModel
+from .belief import BeliefModel
 from .errors import FrameNotFound, ProblemError, UnreachablePose
 from .lie import matrix_to_pose, pose_to_matrix, so3_log
 from .problem import EndpointSpec, Problem
@@ -44,7 +44,7 @@ class Setup:
     @cached_property
     def eval_model(self) -> BeliefModel:
         """Belief model with all components: every method is evaluated with it."""
-        return self.model.with_components(COMPONENTS)
+        return self.model.evaluation_model()
 
     def pose_of(self, q: np.ndarray) -> np.ndarray:
         """Camera-frame pose `[p, r]` of the tracked frame at joints `q` (Pinocchio, numeric)."""

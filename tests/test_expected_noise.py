@@ -1,0 +1,90 @@
+"""Belief-aware observation noise (`observation_noise: expected`, method note section 8)."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import casadi as ca
+import numpy as np
+import pytest
+
+from surestep_ocp.belief import BeliefModel, NoiseParams, vech
+from surestep_ocp.camera import Intrinsics
+
+CAMERA = Intrinsics(fx=768.98551924, fy=768.98551924, cx=292.8861567, cy=291.61479526, width=640, height=480)
+X = np.array([0.03, -0.02, 0.12, 0.5, 0.3, 1.4])  # a tool pose off the ideal one [m, rad]
+
+
+def model(form: str, components=("depth", "fov", "orientation")) -> BeliefModel:
+    return BeliefModel(replace(NoiseParams(o_star=(0.4, 0.4, 1.53)), observation_noise=form), CAMERA, components)
+
+
+def random_spd(rng, scale: float) -> np.ndarray:
+    A = rng.normal(size=(6, 6))
+    return scale * (A @ A.T / 6 + 0.1 * np.eye(6))
+
+
+def test_zero_covariance_gives_the_papers_form():
+    """With Sigma^- = 0 the expected form equals the paper's form exactly."""
+    V_exp = np.asarray(model("expected").planning_noise(X, np.zeros(21)))
+    V_mean = np.asarray(model("mean").observation_noise(X))
+    assert np.array_equal(V_exp, V_mean)
+
+
+def test_mean_form_ignores_the_belief():
+    """The paper's form (default) does not depend on the predicted covariance."""
+    rng = np.random.default_rng(1)
+    P = random_spd(rng, 1e-4)
+    m = model("mean")
+    assert np.array_equal(np.asarray(m.planning_noise(X, vech(P))), np.asarray(m.observation_noise(X)))
+
+
+def test_expected_depth_term_equals_monte_carlo():
+    """E[(z - d*)^2] under N(mu, P) equals the Monte-Carlo average (closed form; 200k samples, 1 %)."""
+    rng = np.random.default_rng(0)
+    P = random_spd(rng, 4e-4)
+    m = model("expected", components=("depth",))
+    coef = float(np.asarray(m.planning_noise(X, vech(P)))[0, 0] / m.noise.V_d0[0, 0])
+    z = rng.multivariate_normal(X, P, size=200_000)[:, 2]
+    mc = float(np.mean((z - m.noise.depth_star) ** 2))
+    assert coef == pytest.approx((X[2] - 0.15) ** 2 + P[2, 2], rel=1e-12)
+    assert coef == pytest.approx(mc, rel=0.01)
+
+
+def test_expected_fov_term_matches_monte_carlo_for_small_spread():
+    """The first-order FOV expectation agrees with sampling when the spread is small (2 %)."""
+    rng = np.random.default_rng(2)
+    P = random_spd(rng, 2e-6)
+    m = model("expected", components=("fov",))
+    coef = float(np.asarray(m.planning_noise(X, vech(P)))[0, 0] / m.noise.V_f0[0, 0])
+    s = rng.multivariate_normal(X, P, size=200_000)
+    du = s[:, 0] / s[:, 2] + (CAMERA.cx - CAMERA.width / 2) / CAMERA.fx
+    dv = s[:, 1] / s[:, 2] + (CAMERA.cy - CAMERA.height / 2) / CAMERA.fy
+    assert coef == pytest.approx(float(np.mean(du**2 + dv**2)), rel=0.02)
+
+
+def test_expected_step_gradient_matches_finite_differences():
+    """The planner's EKF step with expected noise has correct derivatives (central differences, 1e-6)."""
+    m = model("expected")
+    x0 = ca.SX.sym("x0", 6)
+    x1 = ca.SX.sym("x1", 6)
+    s = ca.SX.sym("s", 21)
+    out = ca.sum1(m.step_expr(x0, x1, s)[[0, 6, 11, 15, 18, 20]])  # trace of the posterior
+    f = ca.Function("f", [x0, x1, s], [out])
+    g = ca.Function("g", [x0, x1, s], [ca.gradient(out, x1)])
+    rng = np.random.default_rng(3)
+    a = X - np.array([0.01, 0.0, 0.01, 0.1, 0.0, 0.0])
+    S0 = vech(random_spd(rng, 1e-4))
+    grad = np.asarray(g(a, X, S0)).ravel()
+    h = 1e-6
+    fd = np.array([(float(f(a, X + h * e, S0)) - float(f(a, X - h * e, S0))) / (2 * h) for e in np.eye(6)])
+    np.testing.assert_allclose(grad, fd, rtol=1e-5, atol=1e-12 * np.abs(fd).max())
+
+
+def test_expected_noise_never_vanishes_while_uncertain():
+    """At the ideal pose the paper's V is zero; the expected V is not, while the belief is uncertain."""
+    ideal = np.array([-(CAMERA.cx - 320) / CAMERA.fx * 0.15, -(CAMERA.cy - 240) / CAMERA.fy * 0.15, 0.15,
+                      0.4, 0.4, 1.53])
+    P = 1e-4 * np.eye(6)
+    assert np.abs(np.asarray(model("mean").observation_noise(ideal))).max() < 1e-20
+    assert np.trace(np.asarray(model("expected").planning_noise(ideal, vech(P)))) > 1e-6
