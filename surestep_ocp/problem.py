@@ -35,6 +35,7 @@ class EndpointSpec:
 
     joints: np.ndarray | None = None
     pose: np.ndarray | None = None  # [px, py, pz, rx, ry, rz], camera frame
+    relative: RelativeGoal | None = None
     key: str = ""
 
 
@@ -44,6 +45,17 @@ class RobotSpec:
     urdf_rel: str  # as written relative to the repository, for the solution file
     frame: str
     base_pose: np.ndarray  # 4x4, URDF root in world
+    grasp: np.ndarray | None = None  # 4x4: tracked needle in `frame` (None: the frame itself is tracked)
+    needle_radius: float | None = None  # [m]
+    joints: np.ndarray | None = None  # fixed joint values (an arm that does not move)
+
+
+@dataclass(frozen=True)
+class RelativeGoal:
+    """A goal given in the frame of another arm's tracked object (e.g. the regrasp pose on its needle)."""
+
+    arm: RobotSpec
+    pose: np.ndarray  # [px, py, pz, rx, ry, rz] in that object's frame
 
 
 @dataclass(frozen=True)
@@ -127,7 +139,10 @@ def load_problem(path: str | Path) -> Problem:
     try:
         tree = yaml.load(path.read_text(), Loader=_StrictLoader)  # noqa: S506 (a SafeLoader subclass)
     except yaml.YAMLError as exc:
-        raise ProblemError(str(path), None, f"not valid YAML: {exc}") from None
+        mark = getattr(exc, "problem_mark", None)
+        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
+        what = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+        raise ProblemError(str(path), None, f"not valid YAML{where}: {what}") from None
     return parse_problem(tree, path)
 
 
@@ -146,8 +161,8 @@ def parse_problem(tree: Any, path: Path) -> Problem:
         path=path,
         robot=robot,
         camera=camera,
-        start=_endpoint(rd, top["start"], "start"),
-        goal=_endpoint(rd, top["goal"], "goal"),
+        start=_endpoint(rd, top["start"], "start", path),
+        goal=_endpoint(rd, top["goal"], "goal", path),
         horizon=horizon,
         noise=noise,
         min_depth=rd.number(cons.get("min_depth", 0.03), "constraints.min_depth", positive=True),
@@ -157,9 +172,32 @@ def parse_problem(tree: Any, path: Path) -> Problem:
     )
 
 
+ERD_PREFIX = "example-robot-data:"
+
+
+def example_robot_data_dir() -> Path:
+    """Folder of the URDFs shipped by the `example-robot-data` wheel (a cmeel prefix in site-packages)."""
+    import sysconfig
+
+    return Path(sysconfig.get_paths()["purelib"]) / "cmeel.prefix" / "share" / "example-robot-data" / "robots"
+
+
+def resolve_urdf(text: str) -> Path:
+    """Absolute path of a URDF named in a solution file (repository-relative or example-robot-data:)."""
+    if text.startswith(ERD_PREFIX):
+        return example_robot_data_dir() / text[len(ERD_PREFIX):]
+    p = Path(text)
+    return p if p.is_absolute() else REPO_ROOT / p
+
+
 def resolve_path(rd: Reader, text: Any, key: str, problem_path: Path) -> tuple[Path, str]:
     """Absolute path of a file named in a problem, and its path relative to the repository."""
     text = rd.string(text, key)
+    if text.startswith(ERD_PREFIX):
+        path = example_robot_data_dir() / text[len(ERD_PREFIX):]
+        if not path.is_file():
+            raise rd.fail(key, f"'{text}' not found in the example-robot-data package ({example_robot_data_dir()})")
+        return path, text
     for base in (REPO_ROOT, problem_path.resolve().parent):
         candidate = (base / text).resolve()
         if candidate.is_file():
@@ -171,12 +209,19 @@ def resolve_path(rd: Reader, text: Any, key: str, problem_path: Path) -> tuple[P
     raise rd.fail(key, f"file '{text}' not found (looked in {REPO_ROOT} and {problem_path.resolve().parent})")
 
 
-def _robot(rd: Reader, node: Any, key: str, path: Path, default_frame: str) -> RobotSpec:
-    m = rd.mapping(node, key, {"urdf", "frame", "base_pose"}, {"urdf"})
+def _robot(rd: Reader, node: Any, key: str, path: Path, default_frame: str, joints: bool = False) -> RobotSpec:
+    allowed = {"urdf", "frame", "base_pose", "needle"} | ({"joints"} if joints else set())
+    m = rd.mapping(node, key, allowed, {"urdf"} | ({"joints"} if joints else set()))
     urdf, rel = resolve_path(rd, m["urdf"], f"{key}.urdf", path)
     base = _pose(rd, m["base_pose"], f"{key}.base_pose") if "base_pose" in m else np.eye(4)
+    grasp = radius = None
+    if "needle" in m:
+        n = rd.mapping(m["needle"], f"{key}.needle", {"radius", "grasp"}, {"radius", "grasp"})
+        radius = rd.number(n["radius"], f"{key}.needle.radius", positive=True)
+        grasp = _pose(rd, n["grasp"], f"{key}.needle.grasp")
     return RobotSpec(urdf=urdf, urdf_rel=rel, frame=rd.string(m.get("frame", default_frame), f"{key}.frame"),
-                     base_pose=base)
+                     base_pose=base, grasp=grasp, needle_radius=radius,
+                     joints=rd.vector(m["joints"], f"{key}.joints") if joints else None)
 
 
 def _pose(rd: Reader, node: Any, key: str) -> np.ndarray:
@@ -225,24 +270,30 @@ def _camera(rd: Reader, node: Any, path: Path) -> CameraSpec:
     kind = rd.one_of(m, "camera", ["pose", "ecm"])
     if kind == "pose":
         return CameraSpec(intrinsics=intr, pose=_pose(rd, m["pose"], "camera.pose"))
-    e = rd.mapping(m["ecm"], "camera.ecm", {"urdf", "frame", "base_pose", "joints"}, {"urdf", "joints"})
-    joints = rd.vector(e.pop("joints"), "camera.ecm.joints")
-    ecm = _robot(rd, e, "camera.ecm", path, default_frame="camera")
-    return CameraSpec(intrinsics=intr, ecm=ecm, ecm_joints=joints)
+    ecm = _robot(rd, m["ecm"], "camera.ecm", path, default_frame="camera", joints=True)
+    return CameraSpec(intrinsics=intr, ecm=ecm, ecm_joints=ecm.joints)
 
 
-def _endpoint(rd: Reader, node: Any, key: str) -> EndpointSpec:
-    m = rd.mapping(node, key, {"joints", "pose"})
-    kind = rd.one_of(m, key, ["joints", "pose"])
+def _endpoint(rd: Reader, node: Any, key: str, path: Path) -> EndpointSpec:
+    m = rd.mapping(node, key, {"joints", "pose", "relative"})
+    kind = rd.one_of(m, key, ["joints", "pose", "relative"])
     if kind == "joints":
         return EndpointSpec(joints=rd.vector(m["joints"], f"{key}.joints"), key=f"{key}.joints")
-    p = rd.mapping(m["pose"], f"{key}.pose", {"position", "axis_angle"}, {"position", "axis_angle"})
-    pose = np.concatenate([rd.vector(p["position"], f"{key}.pose.position", 3),
-                           rd.vector(p["axis_angle"], f"{key}.pose.axis_angle", 3)])
-    return EndpointSpec(pose=pose, key=f"{key}.pose")
+    if kind == "relative":
+        r = rd.mapping(m["relative"], f"{key}.relative", {"arm", "pose"}, {"arm", "pose"})
+        arm = _robot(rd, r["arm"], f"{key}.relative.arm", path, default_frame="tool", joints=True)
+        return EndpointSpec(relative=RelativeGoal(arm, _pose6(rd, r["pose"], f"{key}.relative.pose")),
+                            key=f"{key}.relative")
+    return EndpointSpec(pose=_pose6(rd, m["pose"], f"{key}.pose"), key=f"{key}.pose")
 
 
-_NOISE_KEYS = {"W_p0", "W_o0", "V_d0", "V_f0", "V_o0", "Sigma0", "depth_star", "o_star", "components",
+def _pose6(rd: Reader, node: Any, key: str) -> np.ndarray:
+    p = rd.mapping(node, key, {"position", "axis_angle"}, {"position", "axis_angle"})
+    return np.concatenate([rd.vector(p["position"], f"{key}.position", 3),
+                           rd.vector(p["axis_angle"], f"{key}.axis_angle", 3)])
+
+
+_NOISE_KEYS = {"observation_scale", "W_p0", "W_o0", "V_d0", "V_f0", "V_o0", "Sigma0", "depth_star", "o_star", "components",
                "orientation_formula", "observation_noise"}
 
 
@@ -252,6 +303,9 @@ def _noise(rd: Reader, node: Any) -> NoiseParams:
     kw: dict[str, Any] = {}
     for name in ("W_p0", "W_o0", "V_d0", "V_f0", "V_o0"):
         kw[name] = rd.covariance(m[name], f"noise.{name}") if name in m else getattr(d, name)
+    light = rd.number(m.get("observation_scale", 1.0), "noise.observation_scale", positive=True)
+    for name in ("V_d0", "V_f0", "V_o0"):  # dim light: every observation term scaled alike
+        kw[name] = light * kw[name]
     kw["Sigma0"] = rd.covariance(m["Sigma0"], "noise.Sigma0", definite=True) if "Sigma0" in m else d.Sigma0
     kw["depth_star"] = rd.number(m.get("depth_star", d.depth_star), "noise.depth_star", positive=True)
     o = rd.vector(m.get("o_star", list(d.o_star)), "noise.o_star", 3)

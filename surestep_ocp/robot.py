@@ -95,16 +95,21 @@ class Robot:
     Args:
         urdf: path of the URDF file.
         base_pose: 4x4 pose of the URDF root in the world frame.
-        frame: name of the tracked frame.
+        frame: name of the frame the tracked object is attached to.
+        offset: 4x4 pose of the tracked object in that frame (e.g. a needle's grasp
+            transform); identity by default. `frame_pose` and `fk_expr` called without
+            a frame name give the tracked object's pose (frame composed with offset).
     """
 
-    def __init__(self, urdf: str | Path, base_pose: np.ndarray | None = None, frame: str = "tool"):
+    def __init__(self, urdf: str | Path, base_pose: np.ndarray | None = None, frame: str = "tool",
+                 offset: np.ndarray | None = None):
         self.urdf = Path(urdf)
         self.model = pin.buildModelFromUrdf(str(self.urdf))
         self.data = self.model.createData()
         self._joints = _parse_joints(self.model)
         self.base_pose = np.eye(4) if base_pose is None else np.asarray(base_pose, dtype=float)
         self.frame = frame
+        self.offset = np.eye(4) if offset is None else np.asarray(offset, dtype=float)
         self.frame_id = self.frame_index(frame)
 
     # ------------------------------------------------------------------ model facts
@@ -151,14 +156,15 @@ class Robot:
         return out
 
     def frame_pose(self, q: np.ndarray, frame: str | None = None) -> np.ndarray:
-        """4x4 pose of `frame` in the URDF root frame, by Pinocchio (numeric)."""
+        """4x4 pose of `frame` (default: the tracked object) in the URDF root frame, by Pinocchio."""
         fid = self.frame_index(frame or self.frame)
         pin.framesForwardKinematics(self.model, self.data, self.to_pinocchio(np.asarray(q, float)))
-        return _se3(self.data.oMf[fid])
+        T = _se3(self.data.oMf[fid])
+        return T if frame is not None else T @ self.offset
 
     # ------------------------------------------------------------------ symbolic FK
     def fk_expr(self, q: ca.SX, frame: str | None = None) -> ca.SX:
-        """4x4 symbolic pose of `frame` in the URDF root frame, for the SX joint vector `q`."""
+        """4x4 symbolic pose of `frame` (default: the tracked object) in the URDF root frame."""
         fid = self.frame_index(frame or self.frame)
         f = self.model.frames[fid]
         chain = []
@@ -170,19 +176,20 @@ class Robot:
         for jid in reversed(chain):
             j = self._joints[jid - 1]
             T = T @ ca.DM(j.placement) @ _joint_motion(j, q[jid - 1])
-        return T @ ca.DM(_se3(f.placement))
+        T = T @ ca.DM(_se3(f.placement))
+        return T if frame is not None else T @ ca.DM(self.offset)
 
     def fk_function(self, frame: str | None = None) -> ca.Function:
         """CasADi Function `fk_<frame>(q) -> (p[3], R[3x3])` in the URDF root frame."""
         name = frame or self.frame
         q = ca.SX.sym("q", self.nq)
-        T = self.fk_expr(q, name)
+        T = self.fk_expr(q, frame)
         return ca.Function(f"fk_{name}", [q], [T[:3, 3], T[:3, :3]], ["q"], ["p", "R"])
 
     @cached_property
     def fk(self) -> ca.Function:
-        """Symbolic FK of the tracked frame (built once)."""
-        return self.fk_function(self.frame)
+        """Symbolic FK of the tracked object (frame composed with offset; built once)."""
+        return self.fk_function()
 
     # ------------------------------------------------------------------ inverse kinematics
     @cached_property

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import cached_property
 
 import casadi as ca
@@ -30,6 +30,7 @@ class Setup:
     x_start: np.ndarray
     x_goal: np.ndarray
     ecm: Robot | None = None
+    other_arms: list = field(default_factory=list)  # arms that hold still (e.g. the needle arm)
 
     @property
     def T_cam_base(self) -> np.ndarray:
@@ -87,7 +88,7 @@ def build_setup(problem: Problem) -> Setup:
     """
     file = str(problem.path)
     try:
-        robot = Robot(problem.robot.urdf, problem.robot.base_pose, problem.robot.frame)
+        robot = Robot(problem.robot.urdf, problem.robot.base_pose, problem.robot.frame, problem.robot.grasp)
     except FrameNotFound as exc:
         raise ProblemError(file, "robot.frame", str(exc)) from None
     except ValueError as exc:  # Pinocchio's URDF parser
@@ -99,7 +100,7 @@ def build_setup(problem: Problem) -> Setup:
         camera_pose = cam.pose
     else:
         try:
-            ecm = Robot(cam.ecm.urdf, cam.ecm.base_pose, cam.ecm.frame)
+            ecm = Robot(cam.ecm.urdf, cam.ecm.base_pose, cam.ecm.frame, cam.ecm.grasp)
         except FrameNotFound as exc:
             raise ProblemError(file, "camera.ecm.frame", str(exc)) from None
         _check_joints(problem, ecm, cam.ecm_joints, "camera.ecm.joints")
@@ -128,7 +129,7 @@ def _endpoint(problem: Problem, setup: Setup, spec: EndpointSpec, seed: np.ndarr
         q = np.asarray(spec.joints, float)
         x = setup.pose_of(q)
     else:
-        x = np.asarray(spec.pose, float)
+        x = np.asarray(spec.pose, float) if spec.relative is None else _relative_goal(problem, setup, spec)
         x = matrix_to_pose(pose_to_matrix(x))  # normalise the angle into [0, pi]
         _check_depth(problem, spec, x)
         try:
@@ -137,6 +138,20 @@ def _endpoint(problem: Problem, setup: Setup, spec: EndpointSpec, seed: np.ndarr
             raise ProblemError(file, spec.key, str(exc)) from None
     _check_depth(problem, spec, x)
     return q, x
+
+
+def _relative_goal(problem: Problem, setup: Setup, spec: EndpointSpec) -> np.ndarray:
+    """Camera-frame pose of a goal given in another arm's tracked-object frame."""
+    arm = spec.relative.arm
+    key = f"{spec.key}.arm"
+    try:
+        other = Robot(arm.urdf, arm.base_pose, arm.frame, arm.grasp)
+    except FrameNotFound as exc:
+        raise ProblemError(str(problem.path), f"{key}.frame", str(exc)) from None
+    _check_joints(problem, other, arm.joints, f"{key}.joints")
+    setup.other_arms.append(other)
+    T_world_obj = other.base_pose @ other.frame_pose(arm.joints)
+    return matrix_to_pose(np.linalg.inv(setup.camera_pose) @ T_world_obj @ pose_to_matrix(spec.relative.pose))
 
 
 def _check_depth(problem: Problem, spec: EndpointSpec, x: np.ndarray) -> None:

@@ -138,7 +138,20 @@ def evaluate(
     if components is not None:
         noise["components"] = list(components)
     robot = {"urdf": prob.robot.urdf_rel, "frame": prob.robot.frame, "base_pose": setup.robot.base_pose.tolist()}
+    if prob.robot.grasp is not None:
+        robot["needle"] = {"radius": prob.robot.needle_radius, "grasp": prob.robot.grasp.tolist()}
     ext = dict(extras or {})
+    arms = []
+    for spec in (prob.start.relative, prob.goal.relative):
+        if spec is not None:
+            a = spec.arm
+            arm = {"urdf": a.urdf_rel, "frame": a.frame, "base_pose": a.base_pose.tolist(),
+                   "q": [float(v) for v in a.joints]}
+            if a.grasp is not None:
+                arm["needle"] = {"radius": a.needle_radius, "grasp": a.grasp.tolist()}
+            arms.append(arm)
+    if arms:
+        ext.setdefault("other_arms", arms)
     if setup.ecm is not None:
         ext.setdefault("ecm", {"urdf": prob.camera.ecm.urdf_rel, "frame": prob.camera.ecm.frame,
                                "q": list(map(float, prob.camera.ecm_joints)),
