@@ -104,7 +104,8 @@ def cmd_show(args) -> int:
         setup = _load(str(target))
         solutions = [run_method(setup, "baseline").to_dict()]
     return show(target, open_browser=args.open, html=Path(args.html) if args.html else None,
-                endoscope_view=args.endoscope_view, solutions=solutions) or 0
+                endoscope_view=args.endoscope_view, solutions=solutions,
+                screenshot=Path(args.screenshot) if args.screenshot else None) or 0
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -135,6 +136,8 @@ def build_parser() -> argparse.ArgumentParser:
     w.add_argument("target")
     w.add_argument("--open", action="store_true", help="open a browser")
     w.add_argument("--html", help="write a self-contained static HTML file instead of serving")
+    w.add_argument("--screenshot", metavar="PNG",
+                   help="render the static HTML with headless Chromium and write it as a PNG")
     w.add_argument("--endoscope-view", action="store_true", help="look through the endoscope")
     w.set_defaults(func=cmd_show)
     return p

@@ -1,15 +1,14 @@
 """Browser test: headless Chromium renders the static HTML (WebGL via SwiftShader).
 
-Skipped when no Chromium is installed (`make browser` installs it). Checks the
-screenshot for pixels of every path colour and of the arm's colour, and that two
-different solution sets give different pictures.
+Skipped when no Chromium is installed (`make browser` installs it). Uses the same
+`viz.screenshot.screenshot_html` as `surestep show --screenshot` (the README
+images). Checks the screenshot for pixels of every path colour and of the arm's
+colour, that two different solution sets give different pictures, and that the
+screenshot function refuses a blank page.
 """
 
 from __future__ import annotations
 
-import os
-import shutil
-import subprocess
 from pathlib import Path
 
 import numpy as np
@@ -21,48 +20,27 @@ mpimg = pytest.importorskip("matplotlib.image")
 
 from test_viz import ARM_URDF, make_solution  # noqa: E402  (tests/ is on sys.path under pytest)
 
+from surestep_ocp.errors import SurestepError  # noqa: E402
 from surestep_ocp.viz import write_static_html  # noqa: E402
+from surestep_ocp.viz.screenshot import ScreenshotError, find_chromium, screenshot_html  # noqa: E402
 from surestep_ocp.viz.style import METHOD_COLORS  # noqa: E402
-
-
-def find_chromium() -> str | None:
-    """Path of a Chromium executable, or None."""
-    for name in ("chromium", "chromium-browser", "google-chrome", "google-chrome-stable"):
-        path = shutil.which(name)
-        if path:
-            return path
-    return "/usr/bin/chromium" if os.path.exists("/usr/bin/chromium") else None
-
 
 CHROMIUM = find_chromium()
 pytestmark = pytest.mark.skipif(
     CHROMIUM is None, reason="chromium not installed (make browser, or apt-get install chromium)")
 
 
-def screenshot(html: Path, png: Path, tmp: Path, budget_ms: int = 8000) -> np.ndarray:
-    """Render `html` headless (1024x768) and return the screenshot as uint8 RGB (H, W, 3).
-
-    One retry with a fresh profile if Chromium exits without writing the file.
-    """
-    err = ""
-    for attempt in range(2):
-        args = [
-            CHROMIUM, "--headless", "--no-sandbox", "--disable-gpu",
-            "--use-gl=angle", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
-            "--disable-background-networking", "--disable-quic", "--no-first-run",
-            "--disable-component-update", "--disable-sync", "--disable-dev-shm-usage",
-            f"--user-data-dir={tmp / f'profile-{png.stem}-{attempt}'}", "--window-size=1024,768",
-            f"--virtual-time-budget={budget_ms}", "--enable-logging=stderr", "--v=0",
-            f"--screenshot={png}", html.resolve().as_uri(),
-        ]
-        out = subprocess.run(args, capture_output=True, text=True, timeout=300)
-        if "Error creating WebGL context" in out.stderr:
+def screenshot(html: Path, png: Path) -> np.ndarray:
+    """Render `html` headless (1024x768) with the shared `screenshot_html` (the one
+    `surestep show --screenshot` uses) and return the image as int RGB (H, W, 3) in 0-255."""
+    try:
+        screenshot_html(html, png, size=(1024, 768), timeout_s=300)
+    except ScreenshotError as exc:
+        if exc.no_webgl:
             pytest.skip("this Chromium has no WebGL (SwiftShader) support")
-        if png.exists():
-            img = mpimg.imread(str(png))[..., :3]
-            return np.round(img * 255).astype(int)
-        err = f"rc={out.returncode}:\n{out.stderr[-3000:]}"
-    raise AssertionError(f"no screenshot of {html}: {err}")
+        raise
+    img = mpimg.imread(str(png))[..., :3]
+    return np.round(img * 255).astype(int)
 
 
 def count_color(img: np.ndarray, rgb, tol: int = 10) -> int:
@@ -92,7 +70,7 @@ def scenes(tmp_path: Path) -> dict[str, Path]:
 
 
 def test_screenshot_shows_paths_robot_and_changes(tmp_path: Path, scenes: dict[str, Path]):
-    img_a = screenshot(scenes["a"], tmp_path / "a.png", tmp_path)
+    img_a = screenshot(scenes["a"], tmp_path / "a.png")
     assert img_a.shape == (768, 1024, 3)
     assert img_a.std() > 5, "blank screenshot: the scene did not render"
     for method in ("baseline", "gradient", "ocp"):
@@ -100,13 +78,34 @@ def test_screenshot_shows_paths_robot_and_changes(tmp_path: Path, scenes: dict[s
         assert n >= 40, f"{method} path colour: only {n} pixels"
     assert count_green(img_a) >= 500, "robot colour missing"
 
-    img_b = screenshot(scenes["b"], tmp_path / "b.png", tmp_path)
+    img_b = screenshot(scenes["b"], tmp_path / "b.png")
     assert count_color(img_b, METHOD_COLORS["gradient"]) < 10  # no gradient path in b
     changed = (np.abs(img_a - img_b).max(axis=-1) > 30).mean()
     assert changed > 0.002, f"pictures barely differ ({changed:.4%} of pixels)"
 
 
 def test_endoscope_view_screenshot(tmp_path: Path, scenes: dict[str, Path]):
-    img = screenshot(scenes["endo"], tmp_path / "endo.png", tmp_path)
+    img = screenshot(scenes["endo"], tmp_path / "endo.png")
     for method in ("baseline", "ocp"):
         assert count_color(img, METHOD_COLORS[method]) >= 40, method
+
+
+def test_blank_page_is_an_error(tmp_path: Path):
+    """A page that draws nothing gives a uniform image: a SurestepError, and no PNG."""
+    page = tmp_path / "blank.html"
+    page.write_text("<!DOCTYPE html><html><body style='background:#fff'></body></html>")
+    png = tmp_path / "blank.png"
+    with pytest.raises(SurestepError, match="blank"):
+        screenshot_html(page, png, size=(320, 200), budget_ms=200)
+    assert not png.exists()
+    assert not list(tmp_path.glob(".blank.png.*"))  # no temporary file left behind
+
+
+def test_missing_chromium_is_an_error(tmp_path: Path, monkeypatch):
+    page = tmp_path / "p.html"
+    page.write_text("<html></html>")
+    monkeypatch.setattr("surestep_ocp.viz.screenshot.find_chromium", lambda: None)
+    with pytest.raises(SurestepError, match="no Chromium found"):
+        screenshot_html(page, tmp_path / "p.png")
+    with pytest.raises(SurestepError, match="cannot run"):
+        screenshot_html(page, tmp_path / "p.png", chromium=str(tmp_path / "no-such-browser"))

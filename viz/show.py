@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import signal
+import tempfile
 import threading
 import time
 import webbrowser
@@ -58,8 +59,11 @@ def show(
     animate: str | None = None,
     block: bool = True,
     solutions: Sequence[Solution] | None = None,
+    screenshot: Path | str | None = None,
+    screenshot_size: Sequence[int] = (1280, 800),
 ) -> int:
-    """Show solutions: static HTML if `html` is given, else a live Meshcat server; return 0.
+    """Show solutions: static HTML if `html` is given, a PNG if `screenshot` is, else a
+    live Meshcat server; return 0.
 
     Args:
         target: solution JSON file, directory of them (comparison.json ignored), or
@@ -73,8 +77,15 @@ def show(
             server lives until this process exits).
         solutions: solution dicts to show instead of loading `target` (e.g. when the
             target is a problem YAML the caller solved first).
+        screenshot: PNG to write: the static page (`html`, or a temporary file)
+            rendered by headless Chromium (see `screenshot.screenshot_html`); no
+            server is started. Raises `SurestepError` if Chromium fails.
+        screenshot_size: (width, height) of the PNG [px].
     """
     sols = list(solutions) if solutions is not None else as_solutions(target)
+    if screenshot is not None:
+        return _screenshot(sols, Path(screenshot), html, screenshot_size, open_browser,
+                           repo_root=repo_root, animate=animate, endoscope=endoscope_view)
     if html is not None:
         out = Path(html)
         info = write_static_html(sols, out, repo_root=repo_root, animate=animate,
@@ -96,6 +107,23 @@ def show(
     return 0
 
 
+def _screenshot(sols: Sequence[Solution], png: Path, html: Path | str | None,
+                size: Sequence[int], open_browser: bool, **scene_kwargs) -> int:
+    """Write the static page (to `html`, or a temporary file) and screenshot it to `png`."""
+    from .screenshot import screenshot_html
+
+    with tempfile.TemporaryDirectory(prefix="surestep-show-") as tmp:
+        page = Path(html) if html is not None else Path(tmp) / "scene.html"
+        info = write_static_html(sols, page, **scene_kwargs)
+        if html is not None:
+            print(f"wrote {page} ({', '.join(info.paths)})")
+        screenshot_html(page, png, size=size)
+    print(f"wrote {png} ({', '.join(info.paths)})")
+    if open_browser:
+        webbrowser.open(png.resolve().as_uri(), new=2)
+    return 0
+
+
 def _stop_on_sigterm() -> None:
     """Turn SIGTERM into KeyboardInterrupt so meshcat's atexit cleanup stops its server."""
     if threading.current_thread() is not threading.main_thread():
@@ -108,12 +136,15 @@ def _stop_on_sigterm() -> None:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """Add the `show` options (target, --open, --html, --endoscope-view, --animate)."""
+    """Add the `show` options (target, --open, --html, --screenshot, --endoscope-view,
+    --animate)."""
     parser.add_argument("target", type=Path, help="solution JSON or directory of them")
     parser.add_argument("--open", dest="open_browser", action="store_true",
                         help="open a browser")
     parser.add_argument("--html", type=Path, default=None,
                         help="write a standalone HTML file instead of serving")
+    parser.add_argument("--screenshot", type=Path, default=None, metavar="PNG",
+                        help="render the static page with headless Chromium to a PNG")
     parser.add_argument("--endoscope-view", action="store_true",
                         help="start from the endoscope's view")
     parser.add_argument("--animate", default=None, help="method the arm follows (default ocp)")
@@ -126,6 +157,7 @@ def show_main(args: argparse.Namespace, solutions: Sequence[Solution] | None = N
     problem YAML first).
     """
     html = getattr(args, "html", None)
+    png = getattr(args, "screenshot", None)
     return show(
         args.target,
         open_browser=bool(getattr(args, "open_browser", getattr(args, "open", False))),
@@ -133,4 +165,5 @@ def show_main(args: argparse.Namespace, solutions: Sequence[Solution] | None = N
         endoscope_view=bool(getattr(args, "endoscope_view", False)),
         animate=getattr(args, "animate", None),
         solutions=solutions,
+        screenshot=Path(png) if png else None,
     )
