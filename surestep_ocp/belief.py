@@ -18,7 +18,7 @@ import casadi as ca
 import numpy as np
 
 from .camera import Intrinsics
-from .lie import angle_sq, so3_exp
+from .lie import angle_sq, so3_exp, so3_log
 
 COMPONENTS = ("depth", "fov", "orientation")
 ORIENTATION_FORMULAS = ("cosine", "geodesic")
@@ -72,6 +72,8 @@ class NoiseParams:
     components: tuple[str, ...] = COMPONENTS
     orientation_formula: str = "cosine"
     observation_noise: str = "mean"  # mean (the paper's) | expected (under the predicted belief, section 8)
+    camera_W_p0: np.ndarray = field(default_factory=lambda: 1e-3 * np.eye(NX))  # per camera move [1/m^2 scale]
+    camera_W_o0: np.ndarray = field(default_factory=lambda: 1e-3 * np.eye(NX))
 
 
 def _identity_jacobians() -> ca.Function:
@@ -245,21 +247,45 @@ class BeliefModel:
     def sigma0_vech(self) -> np.ndarray:
         return vech(np.asarray(self.noise.Sigma0, dtype=float))
 
-    def propagate(self, poses: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    @cached_property
+    def camera_change(self) -> ca.Function:
+        """A camera move: `(x, sigma, D) -> (x', sigma')`, D (4x4) maps old to new camera coordinates.
+
+        The mean is re-expressed in the new camera frame (`p' = R p + t`, `R' = R_D R`),
+        the covariance by the Jacobian of that map, plus motion noise of the camera's
+        own displacement, `|t|^2 camera_W_p0 + angle(R_D)^2 camera_W_o0` (ECM cable stretch).
+        """
+        x, s, D = ca.SX.sym("x", NX), ca.SX.sym("sigma", NV), ca.SX.sym("D", 4, 4)
+        Rd, td = D[:3, :3], D[:3, 3]
+        xn = ca.vertcat(Rd @ x[:3] + td, so3_log(Rd @ so3_exp(x[3:])))
+        F = ca.jacobian(xn, x)
+        n = self.noise
+        W = ca.dot(td, td) * ca.DM(n.camera_W_p0) + angle_sq(ca.DM.eye(3), Rd) * ca.DM(n.camera_W_o0)
+        sn = vech(F @ unvech(s) @ F.T + W)
+        return ca.Function("camera_change", [x, s, D], [xn, sn], ["x", "sigma", "D"], ["x_new", "sigma_new"])
+
+    def propagate(self, poses: np.ndarray, changes: list | None = None,
+                  sigma0: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Covariances along a trajectory under maximum likelihood.
 
         Args:
-            poses: (T+1, 6) waypoints, camera frame.
+            poses: (T+1, 6) waypoints, each in the camera frame of its own step.
+            changes: optional list of T camera moves; entry t (4x4 or None) maps the camera
+                frame of step t to that of step t+1 and is applied before the step t -> t+1.
+            sigma0: initial covariance (default: the model's Sigma0).
 
         Returns:
             (sigmas (T+1, 6, 6) posterior covariances Sigma_t|t, predicted (T, 6, 6) Sigma_t+1|t).
         """
         poses = np.asarray(poses, dtype=float)
-        s = self.sigma0_vech()
+        s = self.sigma0_vech() if sigma0 is None else vech(np.asarray(sigma0, float))
         sig, pred = [unvech(s)], []
         for t in range(len(poses) - 1):
-            pred.append(unvech(np.asarray(self.predict(poses[t], poses[t + 1], s)).ravel()))
-            s = np.asarray(self.step(poses[t], poses[t + 1], s)).ravel()
+            x0 = poses[t]
+            if changes is not None and changes[t] is not None:
+                x0, s = (np.asarray(v).ravel() for v in self.camera_change(x0, s, changes[t]))
+            pred.append(unvech(np.asarray(self.predict(x0, poses[t + 1], s)).ravel()))
+            s = np.asarray(self.step(x0, poses[t + 1], s)).ravel()
             sig.append(unvech(s))
         return np.array(sig), np.array(pred)
 

@@ -59,11 +59,20 @@ class RelativeGoal:
 
 
 @dataclass(frozen=True)
+class CameraMove:
+    """The ECM moves to `ecm_joints` between waypoint `step - 1` and waypoint `step`."""
+
+    step: int
+    ecm_joints: np.ndarray
+
+
+@dataclass(frozen=True)
 class CameraSpec:
     intrinsics: Intrinsics
     pose: np.ndarray | None = None  # 4x4 camera in world (given directly)
     ecm: RobotSpec | None = None  # or: the ECM arm whose `frame` is the camera
     ecm_joints: np.ndarray | None = None
+    moves: tuple[CameraMove, ...] = ()  # ECM moves during the motion (Types 3 and 4)
 
 
 @dataclass(frozen=True)
@@ -258,7 +267,7 @@ def _pose(rd: Reader, node: Any, key: str) -> np.ndarray:
 
 
 def _camera(rd: Reader, node: Any, path: Path) -> CameraSpec:
-    m = rd.mapping(node, "camera", {"intrinsics", "pose", "ecm"}, {"intrinsics"})
+    m = rd.mapping(node, "camera", {"intrinsics", "pose", "ecm", "moves"}, {"intrinsics"})
     i = rd.mapping(m["intrinsics"], "camera.intrinsics", {"fx", "fy", "cx", "cy", "width", "height"},
                    {"fx", "fy", "cx", "cy", "width", "height"})
     k = "camera.intrinsics"
@@ -269,9 +278,25 @@ def _camera(rd: Reader, node: Any, path: Path) -> CameraSpec:
     )
     kind = rd.one_of(m, "camera", ["pose", "ecm"])
     if kind == "pose":
+        if "moves" in m:
+            raise rd.fail("camera.moves", "camera moves need the camera given as camera.ecm (joint values)")
         return CameraSpec(intrinsics=intr, pose=_pose(rd, m["pose"], "camera.pose"))
     ecm = _robot(rd, m["ecm"], "camera.ecm", path, default_frame="camera", joints=True)
-    return CameraSpec(intrinsics=intr, ecm=ecm, ecm_joints=ecm.joints)
+    return CameraSpec(intrinsics=intr, ecm=ecm, ecm_joints=ecm.joints, moves=_moves(rd, m.get("moves", [])))
+
+
+def _moves(rd: Reader, node: Any) -> tuple[CameraMove, ...]:
+    if not isinstance(node, list):
+        raise rd.fail("camera.moves", "expected a list of {step, ecm_joints}")
+    out = []
+    for i, item in enumerate(node):
+        k = f"camera.moves[{i}]"
+        mv = rd.mapping(item, k, {"step", "ecm_joints"}, {"step", "ecm_joints"})
+        step = rd.integer(mv["step"], f"{k}.step", minimum=1)
+        if out and step <= out[-1].step:
+            raise rd.fail(f"{k}.step", "moves must be listed in increasing step order")
+        out.append(CameraMove(step, rd.vector(mv["ecm_joints"], f"{k}.ecm_joints")))
+    return tuple(out)
 
 
 def _endpoint(rd: Reader, node: Any, key: str, path: Path) -> EndpointSpec:
@@ -293,7 +318,7 @@ def _pose6(rd: Reader, node: Any, key: str) -> np.ndarray:
                            rd.vector(p["axis_angle"], f"{key}.axis_angle", 3)])
 
 
-_NOISE_KEYS = {"observation_scale", "W_p0", "W_o0", "V_d0", "V_f0", "V_o0", "Sigma0", "depth_star", "o_star", "components",
+_NOISE_KEYS = {"observation_scale", "camera_W_p0", "camera_W_o0", "W_p0", "W_o0", "V_d0", "V_f0", "V_o0", "Sigma0", "depth_star", "o_star", "components",
                "orientation_formula", "observation_noise"}
 
 
@@ -301,7 +326,7 @@ def _noise(rd: Reader, node: Any) -> NoiseParams:
     m = rd.mapping(node, "noise", _NOISE_KEYS)
     d = NoiseParams()
     kw: dict[str, Any] = {}
-    for name in ("W_p0", "W_o0", "V_d0", "V_f0", "V_o0"):
+    for name in ("W_p0", "W_o0", "V_d0", "V_f0", "V_o0", "camera_W_p0", "camera_W_o0"):
         kw[name] = rd.covariance(m[name], f"noise.{name}") if name in m else getattr(d, name)
     light = rd.number(m.get("observation_scale", 1.0), "noise.observation_scale", positive=True)
     for name in ("V_d0", "V_f0", "V_o0"):  # dim light: every observation term scaled alike

@@ -31,6 +31,28 @@ class Setup:
     x_goal: np.ndarray
     ecm: Robot | None = None
     other_arms: list = field(default_factory=list)  # arms that hold still (e.g. the needle arm)
+    camera_schedule: list = field(default_factory=list)  # (T+1) 4x4 camera poses when the camera moves
+
+    def camera_poses(self, horizon: int | None = None) -> list[np.ndarray]:
+        """Camera pose (world) at each waypoint 0..T: the schedule, or the fixed pose."""
+        T = self.problem.horizon if horizon is None else horizon
+        return list(self.camera_schedule) if self.camera_schedule else [self.camera_pose] * (T + 1)
+
+    def camera_changes(self) -> list | None:
+        """Per step t, the 4x4 map from camera-t to camera-(t+1) coordinates (None: no move); None if fixed."""
+        if not self.camera_schedule:
+            return None
+        C = self.camera_schedule
+        return [None if np.array_equal(C[t], C[t + 1]) else np.linalg.inv(C[t + 1]) @ C[t]
+                for t in range(len(C) - 1)]
+
+    def in_step_frames(self, poses_cam0: np.ndarray) -> np.ndarray:
+        """Waypoints given in the first camera frame, each re-expressed in its own step's camera frame."""
+        if not self.camera_schedule:
+            return np.asarray(poses_cam0, float)
+        C0 = self.camera_schedule[0]
+        return np.array([matrix_to_pose(np.linalg.inv(Ct) @ C0 @ pose_to_matrix(x))
+                         for Ct, x in zip(self.camera_schedule, poses_cam0)])
 
     @property
     def T_cam_base(self) -> np.ndarray:
@@ -105,12 +127,33 @@ def build_setup(problem: Problem) -> Setup:
             raise ProblemError(file, "camera.ecm.frame", str(exc)) from None
         _check_joints(problem, ecm, cam.ecm_joints, "camera.ecm.joints")
         camera_pose = ecm.base_pose @ ecm.frame_pose(cam.ecm_joints)
+        schedule = _camera_schedule(problem, ecm, camera_pose)
 
     setup = Setup(problem, robot, camera_pose, np.zeros(robot.nq), np.zeros(robot.nq), np.zeros(6), np.zeros(6), ecm)
+    if ecm is not None:
+        setup.camera_schedule = schedule
     mid = np.where(np.isfinite(robot.lower), 0.5 * (robot.lower + robot.upper), 0.0)
     setup.q_start, setup.x_start = _endpoint(problem, setup, problem.start, mid)
     setup.q_goal, setup.x_goal = _endpoint(problem, setup, problem.goal, setup.q_start)
     return setup
+
+
+def _camera_schedule(problem: Problem, ecm: Robot, first: np.ndarray) -> list[np.ndarray]:
+    moves = problem.camera.moves
+    if not moves:
+        return []
+    T = problem.horizon
+    poses, current = [], first
+    by_step = {}
+    for i, mv in enumerate(moves):
+        if mv.step > T:
+            raise ProblemError(str(problem.path), f"camera.moves[{i}].step", f"must be <= horizon ({T})")
+        _check_joints(problem, ecm, mv.ecm_joints, f"camera.moves[{i}].ecm_joints")
+        by_step[mv.step] = ecm.base_pose @ ecm.frame_pose(mv.ecm_joints)
+    for t in range(T + 1):
+        current = by_step.get(t, current)
+        poses.append(current)
+    return poses
 
 
 def _check_joints(problem: Problem, robot: Robot, q: np.ndarray, key: str) -> None:

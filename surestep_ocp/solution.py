@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 
 from .belief import entropy
-from .lie import np_angle
+from .lie import matrix_to_pose, np_angle, pose_to_matrix
 from .setup import Setup
 
 
@@ -48,8 +48,11 @@ class Solution:
 
     @property
     def terminal_error(self) -> tuple[float, float]:
-        """Distance [m] and angle [rad] between the plan's last waypoint and the goal."""
+        """Distance [m] and angle [rad] between the plan's last waypoint and the goal (first camera frame)."""
         x, g = np.asarray(self.poses[-1]), np.asarray(self.goal)
+        if "camera_poses" in self.extras:  # poses are in their own step's camera frame
+            C = [np.asarray(c) for c in self.extras["camera_poses"]]
+            x = matrix_to_pose(np.linalg.inv(C[0]) @ C[-1] @ pose_to_matrix(x))
         return float(np.linalg.norm(x[:3] - g[:3])), np_angle(x[3:], g[3:])
 
     @property
@@ -131,8 +134,8 @@ def evaluate(
     extras: dict | None = None,
 ) -> Solution:
     """The single evaluation every method goes through: the EKF with all components along `poses`."""
-    poses = np.asarray(poses, dtype=float)
-    sig, _ = setup.eval_model.propagate(poses)
+    poses = setup.in_step_frames(np.asarray(poses, dtype=float))  # planned in the first camera frame
+    sig, _ = setup.eval_model.propagate(poses, setup.camera_changes())
     prob = setup.problem
     noise = noise_dict(setup)
     if components is not None:
@@ -152,6 +155,8 @@ def evaluate(
             arms.append(arm)
     if arms:
         ext.setdefault("other_arms", arms)
+    if setup.camera_schedule:
+        ext.setdefault("camera_poses", [C.tolist() for C in setup.camera_schedule])
     if setup.ecm is not None:
         ext.setdefault("ecm", {"urdf": prob.camera.ecm.urdf_rel, "frame": prob.camera.ecm.frame,
                                "q": list(map(float, prob.camera.ecm_joints)),
