@@ -1,7 +1,6 @@
-"""The belief-space OCP: direct multiple shooting over joints, belief mean and covariance, solved by IPOPT.
+"""The belief-space OCP: direct multiple shooting over joints and belief mean, solved by IPOPT.
 
-Per node t = 0..T: joints `q_t`, mean `mu_t` (camera-frame pose) and the covariance,
-scaled by its initial-guess magnitude (entries span 1e-2..1e-8). Constraints:
+Per node t = 0..T: joints `q_t` and mean `mu_t` (camera-frame pose). Constraints:
 
     mu_t = pose_in_camera(FK(q_t))                      every node
     Sigma_t+1 = belief step (mu_t, mu_t+1, Sigma_t)      every interval
@@ -11,26 +10,34 @@ scaled by its initial-guess magnitude (entries span 1e-2..1e-8). Constraints:
 Objective: `Tr(Sigma_T)` (divided by the initial guess's value) plus an optional
 joint-step smoothness term.
 
-Two covariance forms (`form`):
+The covariance has four forms (`solver.covariance` in the problem file):
 
-* `full`: `vech(Sigma_t)` (21 numbers) per node and a free gain `K_t` per interval,
-  with the step in Joseph form `(I - K H) P (I - K H)^T + K R V R^T K^T`. That is
-  positive semidefinite for any K and smallest, in the matrix (Loewner) order, at
-  the Kalman gain; every later step is monotone in that order, so minimising
-  `Tr(Sigma_T)` over gains and path together gives exactly the Kalman gains at the
-  optimum, with no symbolic inverse. (Measured alternatives that did worse on the
-  default problem: `(I - K H) P` with the gain equality `K S = P H^T`, restoration
-  failures; the EKF step with a symbolic 6x6 solve, 3000 iterations without
-  convergence.)
-* `diagonal` (option): when F = Q = H = R = I and every base covariance is diagonal
-  (the paper's constants are multiples of I), every covariance along any path is
-  diagonal, exactly; the step is then six scalar Joseph updates with free gains
-  `(1 - k)^2 p + k^2 v`. Same optimum and 5x cheaper iterations, but measured to
-  converge worse than `full` on problems/*.yaml (restoration failures), so `full`
-  is the default. (The scalar form `p v / (p + v)` without gains did no better.) The NLP is parametric in the camera
-pose (the robot base in the camera frame) and the scales, so one built solver
-serves every start, goal and camera pose of a given structure and horizon (a cache
-keeps it), which is what re-planning after a camera move needs.
+* `full`: `vech(Sigma_t)` (21 numbers, scaled by the initial guess's magnitude) per
+  node and a free gain `K_t` per interval, the step in Joseph form
+  `(I - K H) P (I - K H)^T + K R V R^T K^T`. That is positive semidefinite for any K
+  and smallest, in the matrix (Loewner) order, at the Kalman gain; every later step
+  is monotone in that order, so minimising `Tr(Sigma_T)` over gains and path gives
+  exactly the Kalman gains at the optimum, with no symbolic inverse. Works for any
+  F, Q, H, R and base covariances.
+* `condensed`: the covariance is not a variable; the EKF recursion is written out in
+  the objective. With identity maps and diagonal base covariances (the paper's
+  constants are multiples of I) every covariance along any path is diagonal, exactly,
+  and the recursion is six scalar Kalman updates `sigma+ = p v / (p + v)`.
+* `diagonal`: six scalar covariances per node with free scalar gains (multiple shooting).
+* `auto` (default): `condensed` when the diagonal structure is exact, else `full`.
+
+Measured on problems/*.yaml (T = 20, this 2-core machine; see the issue notes): `full`
+converges (the first formulation tried, `(I - K H) P` with the gain equality
+`K S = P H^T`, ended in restoration failures) but needs 300-1800 IPOPT iterations
+(3-45 s) and sometimes fails; `diagonal` fails more often; `condensed` with the scalar
+recursion solved every problem in 130-460 iterations (1.5-3.5 s). The slow
+convergence of the lifted forms comes from the paper's noise model: it vanishes at
+the ideal pose, so the covariance collapses there and everything before that node
+stops mattering (near-singular reduced Hessian).
+
+The NLP is parametric in the camera pose (the robot base in the camera frame), the
+scales and Sigma_0, so one built solver serves every start, goal and camera pose of
+a given structure and horizon (a cache keeps it), which re-planning needs.
 """
 
 from __future__ import annotations
@@ -47,7 +54,7 @@ from .robot import Robot
 from .setup import Setup
 from .solution import Solution, evaluate
 
-FORMS = ("full", "diagonal")
+FORMS = ("auto", "full", "diagonal", "condensed")
 _DIAG = [0, 6, 11, 15, 18, 20]  # positions of the diagonal in vech
 
 
@@ -96,6 +103,8 @@ class _Layout:
 def resolve_form(model: BeliefModel, form: str) -> str:
     if form not in FORMS:
         raise ValueError(f"unknown covariance form '{form}'; allowed: {', '.join(FORMS)}")
+    if form == "auto":
+        return "condensed" if model.diagonal else "full"
     if form == "diagonal" and not model.diagonal:
         raise ValueError("the diagonal covariance form is exact only with identity motion/observation maps "
                          "and diagonal base covariances")
@@ -116,6 +125,8 @@ class Transcription:
         for t in range(T + 1):
             qs.append(L.add(f"q{t}", nq))
             mus.append(L.add(f"mu{t}", NX))
+            if form == "condensed":
+                continue
             ss.append(L.add(f"s{t}", ns))
             if t < T:
                 Ks.append(L.add(f"K{t}", NX * NX if form == "full" else NX))
@@ -123,7 +134,8 @@ class Transcription:
         Tcb = ca.SX.sym("T_cam_base", 3, 4)
         scale = ca.SX.sym("scale", T + 1)
         trace_ref = ca.SX.sym("trace_ref")
-        self.p = ca.vertcat(ca.vec(Tcb), scale, trace_ref)
+        sigma0 = ca.SX.sym("sigma0", NV)
+        self.p = ca.vertcat(ca.vec(Tcb), scale, trace_ref, sigma0)
 
         q_sym = ca.SX.sym("q", nq)
         Tq = robot.fk_expr(q_sym)
@@ -131,10 +143,24 @@ class Transcription:
         pose = ca.Function("pose", [q_sym, Tcb], [ca.vertcat(Tcb[:, :3] @ Tq[:3, 3] + Tcb[:, 3], so3_log(R))])
 
         g = [mus[t] - pose(qs[t], Tcb) for t in range(T + 1)]
-        for t in range(T):
-            g.append(self._step(mus[t], mus[t + 1], scale[t] * ss[t], Ks[t]) / scale[t + 1]
-                     - ss[t + 1])
-        trace_T = scale[T] * (ca.sum1(ss[T]) if form == "diagonal" else sum(ss[T][i] for i in _DIAG))
+        if form == "condensed":  # the covariance is shot through the EKF steps inside the objective
+            if model.diagonal:  # exact: six scalar Kalman recursions
+                s_t = ca.vertcat(*[sigma0[i] for i in _DIAG])
+                for t in range(T):
+                    p_t = s_t + ca.diag(model.motion_noise(mus[t], mus[t + 1]))
+                    v_t = ca.diag(model.planning_noise(mus[t + 1], vech(ca.diag(p_t))))
+                    s_t = p_t * v_t / (p_t + v_t)
+                trace_T = ca.sum1(s_t)
+            else:
+                s_t = sigma0
+                for t in range(T):
+                    s_t = model.step_expr(mus[t], mus[t + 1], s_t)
+                trace_T = sum(s_t[i] for i in _DIAG)
+        else:
+            for t in range(T):
+                g.append(self._step(mus[t], mus[t + 1], scale[t] * ss[t], Ks[t]) / scale[t + 1]
+                         - ss[t + 1])
+            trace_T = scale[T] * (ca.sum1(ss[T]) if form == "diagonal" else sum(ss[T][i] for i in _DIAG))
         f = trace_T / trace_ref
         if smoothness > 0:
             f += smoothness * sum(ca.sumsqr(qs[t + 1] - qs[t]) for t in range(T))
@@ -216,7 +242,8 @@ class Transcription:
         for t in range(T + 1):
             x0[f"s{t}"] = x0[f"s{t}"] / scale[t]
         lbx, ubx = self.bounds(setup, scale)
-        p = np.concatenate([setup.T_cam_base[:3, :].ravel(order="F"), scale, [trace_ref]])
+        p = np.concatenate([setup.T_cam_base[:3, :].ravel(order="F"), scale, [trace_ref],
+                            vech(np.asarray(setup.problem.noise.Sigma0, float))])
         args = dict(x0=self.layout.join(x0), lbx=lbx, ubx=ubx, lbg=0.0, ubg=0.0, p=p)
         if warm is not None:
             args.update(x0=warm.x, lam_x0=warm.lam_x, lam_g0=warm.lam_g)
@@ -227,8 +254,11 @@ class Transcription:
         vals = self.layout.split(np.asarray(res["x"]).ravel())
         q = np.array([vals[f"q{t}"] for t in range(T + 1)])
         poses = np.array([setup.pose_of(qi) for qi in q])  # Pinocchio FK of the solution's joints
-        sT = vals[f"s{T}"] * scale[T]
-        ocp_trace = float(np.sum(sT) if self.form == "diagonal" else np.trace(unvech(sT)))
+        if self.form == "condensed":
+            ocp_trace = float(res["f"]) * trace_ref
+        else:
+            sT = vals[f"s{T}"] * scale[T]
+            ocp_trace = float(np.sum(sT) if self.form == "diagonal" else np.trace(unvech(sT)))
         sol = evaluate(
             setup, method, poses, list(q),
             success=bool(stats["success"]), status=str(stats["return_status"]), solve_time_s=solve_s,
@@ -266,11 +296,11 @@ def solver_options(setup: Setup, extra: dict | None = None) -> dict:
     return opts
 
 
-def transcription(setup: Setup, form: str = "full", extra_options: dict | None = None,
+def transcription(setup: Setup, form: str | None = None, extra_options: dict | None = None,
                   horizon: int | None = None) -> Transcription:
-    """The (cached) transcription for this setup's structure."""
+    """The (cached) transcription for this setup's structure (form: default from the problem file)."""
     model = setup.model
-    form = resolve_form(model, form)
+    form = resolve_form(model, form or setup.problem.solver.covariance)
     T = setup.problem.horizon if horizon is None else horizon
     opts = solver_options(setup, extra_options)
     key = (str(setup.robot.urdf), setup.robot.frame, model.key(), T, form, setup.problem.objective.smoothness,
@@ -281,7 +311,7 @@ def transcription(setup: Setup, form: str = "full", extra_options: dict | None =
 
 
 def solve_ocp(setup: Setup, init: InitialGuess, solver_options: dict | None = None,
-              method: str = "ocp", form: str = "full") -> Solution:
+              method: str = "ocp", form: str | None = None) -> Solution:
     """Solve the belief-space OCP from the initial joint trajectory `init`.
 
     Strategy: IPOPT with the adaptive barrier update; if that attempt fails, a second

@@ -81,6 +81,7 @@ class SolverSpec:
     max_iter: int = 3000
     tol: float = 1e-8
     print_level: int = 0
+    covariance: str = "auto"  # auto | full | diagonal | condensed (see ocp.py)
     options: dict = field(default_factory=dict)  # extra raw solver options
 
 
@@ -349,7 +350,7 @@ def _noise(rd: Reader, node: Any) -> NoiseParams:
 
 
 def _solver(rd: Reader, node: Any) -> SolverSpec:
-    m = rd.mapping(node, "solver", {"name", "max_iter", "tol", "print_level", "options"})
+    m = rd.mapping(node, "solver", {"name", "max_iter", "tol", "print_level", "covariance", "options"})
     d = SolverSpec()
     opts = m.get("options", {})
     if not isinstance(opts, dict):
@@ -359,6 +360,8 @@ def _solver(rd: Reader, node: Any) -> SolverSpec:
         max_iter=rd.integer(m.get("max_iter", d.max_iter), "solver.max_iter", minimum=1),
         tol=rd.number(m.get("tol", d.tol), "solver.tol", positive=True),
         print_level=rd.integer(m.get("print_level", d.print_level), "solver.print_level", minimum=0),
+        covariance=rd.string(m.get("covariance", d.covariance), "solver.covariance",
+                             ("auto", "full", "diagonal", "condensed")),
         options=dict(opts),
     )
 
