@@ -77,6 +77,17 @@ def cmd_compare(args) -> int:
     return 0
 
 
+def cmd_replan(args) -> int:
+    from .replan import replan
+
+    setup = _load(args.problem)
+    res = replan(setup, Path(args.output_dir), progress=lambda k: print(f"re-planning after the camera move at "
+                                                                        f"step {k}", file=sys.stderr, flush=True))
+    print(res["table"])
+    print(f"\nwrote {args.output_dir}/{{baseline, ocp-once, ocp-replanned, ocp-replan-<step>}}.json, replan.md")
+    return 0
+
+
 def cmd_validate(args) -> int:
     bad = 0
     for path in args.problems:
@@ -127,6 +138,11 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--output-dir", required=True)
     c.add_argument("--methods", nargs="+", help="subset of methods (default: all)")
     c.set_defaults(func=cmd_compare)
+
+    r = sub.add_parser("replan", help="plan, then re-plan after every camera move (problems with camera.moves)")
+    r.add_argument("problem")
+    r.add_argument("--output-dir", required=True)
+    r.set_defaults(func=cmd_replan)
 
     v = sub.add_parser("validate", help="check problem files")
     v.add_argument("problems", nargs="+")

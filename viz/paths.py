@@ -21,7 +21,7 @@ import numpy as np
 
 from . import style
 from .shapes import covariance_ellipsoid, polyline, tube
-from .solutions import Solution, camera_pose, position_covariances, valid_nodes, world_points
+from .solutions import Solution, node_camera_poses, position_covariances, valid_nodes, world_points
 
 
 class _OnTopMesh(mg.Mesh):
@@ -80,13 +80,13 @@ def draw_path(parent, sol: Solution, color: tuple[float, float, float],
     if tube_geo is not None:
         mat = mg.MeshBasicMaterial(color=style.rgb_int(color), transparent=True, opacity=1.0)
         node["tube"].set_object(_OnTopMesh(tube_geo, mat, 10 + priority))
-    R = camera_pose(sol)[:3, :3]
+    cams = node_camera_poses(sol)
     covs = position_covariances(sol)
     radii, axes, enodes, hidden = [], [], [], []
     for t, p in zip(nodes, pts):
         if t >= len(covs) or covs[t] is None:
             continue
-        r, V = covariance_ellipsoid(covs[t], R, style.N_SIGMA)
+        r, V = covariance_ellipsoid(covs[t], cams[t][:3, :3], style.N_SIGMA)
         T = np.eye(4)
         T[:3, :3], T[:3, 3] = V, p
         e = node["ellipsoids"][str(t)]

@@ -83,11 +83,18 @@ def valid_nodes(sol: Solution) -> list[int]:
     return [t for t, p in enumerate(sol["poses"]) if p is not None and None not in p]
 
 
+def node_camera_poses(sol: Solution) -> list[np.ndarray]:
+    """4x4 world pose of the camera frame each node's pose is expressed in (the camera may move)."""
+    if sol.get("camera_poses"):
+        return [np.asarray(C, dtype=float).reshape(4, 4) for C in sol["camera_poses"]]
+    return [camera_pose(sol)] * len(sol["poses"])
+
+
 def world_points(sol: Solution) -> np.ndarray:
-    """(N, 3) tool positions in the world [m], `camera_pose @ p_t`, for the valid nodes."""
-    T = camera_pose(sol)
-    p = np.array([sol["poses"][t][:3] for t in valid_nodes(sol)], dtype=float).reshape(-1, 3)
-    return p @ T[:3, :3].T + T[:3, 3]
+    """(N, 3) tool positions in the world [m], `camera_pose_t @ p_t`, for the valid nodes."""
+    C = node_camera_poses(sol)
+    pts = [C[t][:3, :3] @ np.asarray(sol["poses"][t][:3], dtype=float) + C[t][:3, 3] for t in valid_nodes(sol)]
+    return np.array(pts, dtype=float).reshape(-1, 3)
 
 
 def world_pose(sol: Solution, pose: Sequence[float]) -> np.ndarray:
