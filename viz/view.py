@@ -119,8 +119,9 @@ def overview(
     The orbit centre is the centre of the points' bounding box and the distance
     fits the sphere around it that holds them. The view comes from behind, right
     of and above the endoscope (in its image axes), so the paths keep the image's
-    left/right sense while their depth stays visible; world +z is screen-up
-    unless nearly parallel to the view (then image-up).
+    left/right sense while their depth stays visible; image-up (-y of the camera)
+    is screen-up, so the overview is not upside down against the endoscope image
+    when the endoscope looks down the world z axis.
     """
     pts = np.asarray(points, dtype=float).reshape(-1, 3)
     T = np.asarray(camera_pose, dtype=float)
@@ -129,7 +130,5 @@ def overview(
     direction = -1.0 * T[:3, 2] + 0.35 * T[:3, 0] - 0.5 * T[:3, 1]
     direction /= np.linalg.norm(direction)
     dist = margin * radius / math.sin(math.radians(fov_deg) / 2.0)
-    up = np.array([0.0, 0.0, 1.0])
-    if abs(up @ direction) > 0.95:
-        up = -T[:3, 1]
+    up = -T[:3, 1]
     return CameraView(target + dist * direction, target, up, fov_deg)
