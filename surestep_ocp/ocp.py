@@ -278,6 +278,14 @@ class Transcription:
 
 _CACHE: dict[tuple, Transcription] = {}
 
+# IPOPT options for re-solves started from a previous primal-dual solution.
+WARM_OPTIONS = {
+    "ipopt.warm_start_init_point": "yes",
+    "ipopt.warm_start_bound_push": 1e-9,
+    "ipopt.warm_start_mult_bound_push": 1e-9,
+    "ipopt.mu_init": 1e-6,
+}
+
 
 def solver_options(setup: Setup, extra: dict | None = None) -> dict:
     prob = setup.problem

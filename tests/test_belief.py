@@ -14,6 +14,7 @@ import numpy_ekf as ref
 import pytest
 
 from surestep_ocp.belief import (
+    COSINE_GUARD,
     COMPONENTS,
     NV,
     BeliefModel,
@@ -29,7 +30,7 @@ CAMERA = Intrinsics(
     fx=768.98551924, fy=768.98551924, cx=292.8861567, cy=291.61479526, width=640, height=480
 )
 O_STAR = (0.40, 0.40, 1.53)
-GUARD = 1e-12  # [rad^2] the package's guard of |r| in the cosine formula (section 4: "guard it")
+GUARD = COSINE_GUARD  # [rad^2] the package's guard of |r| in the cosine formula (section 4: "guard it")
 REL = 1e-12
 # Random non-identity H, F (condition numbers ~10) amplify either EKF's rounding (solve vs inv).
 REL_JAC = 1e-11
@@ -116,8 +117,12 @@ def test_motion_noise_uses_geodesic_angle():
 
 
 def test_fov_noise_is_zero_at_image_centre_and_depth_at_d_star():
-    """The ideal pose (image centre, depth d*, r parallel to o*) has zero observation noise."""
-    noise = NoiseParams(o_star=O_STAR)
+    """The ideal pose (image centre, depth d*, r parallel to o*) has zero observation noise.
+
+    Exactly zero with the geodesic orientation formula; with the paper's cosine formula zero
+    up to its guard at r = 0, i.e. (1 - 1/sqrt(1 + g/|r|^2))^2 V_o0.
+    """
+    noise = NoiseParams(o_star=O_STAR, orientation_formula="geodesic")
     model = BeliefModel(noise, CAMERA)
     z = noise.depth_star
     p = np.array(
@@ -127,8 +132,12 @@ def test_fov_noise_is_zero_at_image_centre_and_depth_at_d_star():
             z,
         ]
     )
-    x = np.r_[p, 0.7 * np.array(O_STAR)]
+    x = np.r_[p, np.array(O_STAR)]
     assert np.abs(np.asarray(model.observation_noise(x))).max() < 1e-20
+    cosine = BeliefModel(NoiseParams(o_star=O_STAR), CAMERA)
+    r2 = float(np.dot(O_STAR, O_STAR))
+    expected = (1 - 1 / np.sqrt(1 + COSINE_GUARD / r2)) ** 2 * cosine.noise.V_o0
+    np.testing.assert_allclose(np.asarray(cosine.observation_noise(x)), expected, rtol=1e-6, atol=1e-30)
 
 
 def test_cosine_formula_guarded_at_zero_rotation():
@@ -139,10 +148,18 @@ def test_cosine_formula_guarded_at_zero_rotation():
     f = ca.Function("f", [x], [V[0, 0], ca.gradient(V[0, 0], x)])
     v, g = f(np.r_[0.01, 0.0, 0.15, 0.0, 0.0, 0.0])
     assert np.isfinite(float(v)) and np.all(np.isfinite(np.asarray(g)))
-    # far from zero the guard is invisible: the paper's formula without any guard
-    x1 = np.r_[0.01, 0.0, 0.15, 0.3, -0.2, 0.5]
+    # far from zero the guard is small: the paper's formula without any guard, within 0.5 %
+    x1 = np.r_[0.01, 0.0, 0.15, 0.9, -0.6, 1.5]
     V_ref = ref.observation_noise(x1, model.noise, CAMERA, guard=0.0)
-    assert ref.rel_err(np.asarray(model.observation_noise(x1)), V_ref) < 1e-10
+    assert ref.rel_err(np.asarray(model.observation_noise(x1)), V_ref) < 5e-3
+
+
+def test_tiny_rotation_along_o_star_does_not_zero_the_orientation_noise():
+    """Near r = 0 the direction of r is free; the guard keeps a 1e-4 rad turn about o* from looking ideal."""
+    model = BeliefModel(NoiseParams(o_star=O_STAR), CAMERA, components=("orientation",))
+    axis = np.asarray(O_STAR) / np.linalg.norm(O_STAR)
+    V_tiny = float(np.asarray(model.observation_noise(np.r_[0.0, 0.0, 0.15, 1e-4 * axis]))[0, 0])
+    assert V_tiny > 0.99 * model.noise.V_o0[0, 0]
 
 
 # ------------------------------------------------------------------ EKF along trajectories

@@ -11,6 +11,8 @@ import dataclasses
 import json
 
 import numpy as np
+
+from surestep_ocp.belief import COSINE_GUARD
 import numpy_ekf as ref
 import pinocchio as pin
 import pytest
@@ -22,7 +24,7 @@ from surestep_ocp.setup import build_setup
 from surestep_ocp.solution import Solution
 
 T = 8
-GUARD = 1e-12  # [rad^2] the package's guard of |r| in the cosine formula (see test_belief.py)
+GUARD = COSINE_GUARD  # [rad^2] the package's guard of |r| in the cosine formula (section 4: "guard it")
 
 
 @pytest.fixture(scope="module")
