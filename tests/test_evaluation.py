@@ -1,0 +1,155 @@
+"""Random configurations (surestep_ocp.configs) and the `evaluate` runner (surestep_ocp.evaluation)."""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from surestep_ocp import evaluation, evaluation_report
+from surestep_ocp.configs import ConfigurationSampler, load_evaluation
+from surestep_ocp.errors import ProblemError, SurestepError
+from surestep_ocp.metrics import relative
+from surestep_ocp.rollout import METRICS
+
+REPO = Path(__file__).resolve().parents[1]
+EVAL = REPO / "problems" / "evaluation.yaml"
+
+
+@pytest.fixture(scope="module")
+def sampler() -> ConfigurationSampler:
+    return ConfigurationSampler(load_evaluation(EVAL))
+
+
+def test_configurations_are_reachable_and_in_image(sampler):
+    """evaluation.yaml loads; its configurations are seeded, in the image, in the depth range and reachable."""
+    spec = sampler.spec
+    assert spec.horizon == 20 and spec.base.horizon == 20
+    intr = spec.base.camera.intrinsics
+    for i in range(8):
+        cfg = sampler.sample(0, i)
+        assert np.array_equal(cfg.q_goal, sampler.sample(0, i).q_goal)  # same draw every time
+        setup = sampler.setup_of(cfg)  # raises if a joint is outside its limits or a pose behind the camera
+        assert setup.problem.horizon == 20
+        for q, x in ((cfg.q_start, setup.x_start), (cfg.q_goal, setup.x_goal)):
+            assert np.all(q >= setup.robot.lower) and np.all(q <= setup.robot.upper)
+            np.testing.assert_allclose(setup.pose_of(q), x, atol=1e-12)  # the pose is the FK of a joint sample
+            assert spec.depth[0] <= x[2] <= spec.depth[1]
+            u, v = intr.project(x[:3])
+            assert 0 < u < intr.width and 0 < v < intr.height
+        assert np.linalg.norm(setup.x_start[:3] - setup.x_goal[:3]) >= spec.min_distance
+    assert not np.array_equal(sampler.sample(0, 0).q_goal, sampler.sample(1, 0).q_goal)
+
+
+@pytest.mark.parametrize("edit, key", [
+    (lambda t: t.update(colour="red"), "colour"),
+    (lambda t: t["accept"].update(depth=[0.3, 0.1]), "accept.depth"),
+    (lambda t: t["goal_joints"]["high"].__setitem__(2, 0.5), "goal_joints.high[2]"),
+    (lambda t: t.update(horizon="long"), "horizon"),
+    (lambda t: t.pop("start_joints"), "start_joints"),
+])
+def test_evaluation_file_is_read_strictly(tmp_path, edit, key):
+    """A bad evaluation file is an error naming the file and the key."""
+    tree = yaml.safe_load(EVAL.read_text())
+    tree["base"] = str(EVAL.parent / tree["base"])
+    edit(tree)
+    path = tmp_path / "bad_eval.yaml"
+    path.write_text(yaml.safe_dump(tree))
+    with pytest.raises(ProblemError) as exc:
+        load_evaluation(path)
+    assert "bad_eval.yaml" in str(exc.value) and key in str(exc.value)
+
+
+def test_relative_scaling_is_the_papers():
+    """y / b for positive metrics, 1 - (y - b) / b for negative ones (entropies); lower is better in both."""
+    assert relative(2.0, 4.0) == pytest.approx(0.5)
+    assert relative(-30.0, -20.0) == pytest.approx(0.5)  # lower (better) entropy than the baseline: < 1
+    assert relative(-10.0, -20.0) == pytest.approx(1.5)  # higher entropy: > 1
+    assert relative(-20.0, -20.0) == 1.0 and np.isnan(relative(1.0, -1.0))
+    # the table averages the per-configuration ratios
+    recs = [{"metrics": {"model": {"baseline": {k: b for k in METRICS}, "x": {k: y for k in METRICS}}}}
+            for y, b in ((1.0, 2.0), (-30.0, -20.0), (3.0, -1.0))]
+    rel = evaluation_report.relative_means(recs, ("baseline", "x"), ("model",))
+    assert rel["model"]["x"]["trace_ml"] == (pytest.approx(0.5), 2)  # mixed signs excluded
+    assert rel["model"]["baseline"]["entropy_ml"] == (pytest.approx(1.0), 3)
+
+
+def _run(argv: list[str]) -> int:
+    parser = argparse.ArgumentParser(prog="surestep")
+    evaluation.register(parser.add_subparsers(dest="command", required=True))
+    args = parser.parse_args(argv)
+    return args.func(args)
+
+
+def test_evaluate_end_to_end_and_resume(tmp_path, monkeypatch, capsys):
+    """`evaluate` writes table.md, raw.csv, solves.csv, boxplot.png; `--resume` only runs unfinished configs."""
+    out = tmp_path / "run"
+    base = ["evaluate", str(EVAL), "--rollouts", "5", "--seed", "0", "--output-dir", str(out),
+            "--methods", "baseline,gradient", "--quiet"]
+    assert _run(base + ["--configs", "2"]) == 0
+    table = (out / "table.md").read_text()
+    for text in ("Rollout mode `model`", "Rollout mode `true`", "failed", "SURESTEP (all)", "mean of these ratios"):
+        assert text in table
+    with open(out / "raw.csv") as fh:
+        rows = list(csv.DictReader(fh))
+    assert list(rows[0]) == ["config", "mode", "method", "metric", "value"]
+    assert len(rows) == 2 * 2 * 2 * len(METRICS)
+    assert {r["metric"] for r in rows} == set(METRICS) and {r["method"] for r in rows} == {"baseline", "gradient"}
+    assert all(np.isfinite(float(r["value"])) for r in rows)
+    with open(out / "solves.csv") as fh:
+        solves = list(csv.DictReader(fh))
+    assert list(solves[0]) == ["config", "method", "success", "status", "solve_time_s", "iterations"]
+    assert len(solves) == 4
+    assert (out / "boxplot.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    first = (out / "progress.jsonl").read_text().splitlines()
+    assert sorted(json.loads(line)["config"] for line in first) == [0, 1]
+
+    # a finished directory is not overwritten by accident
+    with pytest.raises(SurestepError, match="--resume"):
+        _run(base + ["--configs", "2"])
+    # an interrupted write leaves a torn line: it is dropped, and only config 2 is run
+    with open(out / "progress.jsonl", "a") as fh:
+        fh.write('{"config": 2, "solv')
+    calls = []
+    real = evaluation.evaluate_configuration
+
+    def counting(*args):
+        calls.append(args[2])
+        return real(*args)
+
+    monkeypatch.setattr(evaluation, "evaluate_configuration", counting)
+    capsys.readouterr()
+    assert _run(base + ["--configs", "3", "--resume"]) == 0
+    assert calls == [2]
+    lines = (out / "progress.jsonl").read_text().splitlines()
+    assert lines[:2] == first and json.loads(lines[2])["config"] == 2
+    assert "| gradient |" in capsys.readouterr().out
+    with open(out / "solves.csv") as fh:
+        assert len(list(csv.DictReader(fh))) == 6
+    # resuming with other settings is refused
+    with pytest.raises(SurestepError, match="rollouts"):
+        _run([*base[:3], "7", *base[4:], "--configs", "3", "--resume"])
+
+
+def test_worker_processes_give_the_same_numbers(tmp_path):
+    """`--jobs 2` (spawned worker processes, each with its own set-up) reproduces the in-process run exactly."""
+    common = ["evaluate", str(EVAL), "--configs", "2", "--rollouts", "4", "--methods", "baseline", "--quiet",
+              "--rollout-mode", "true"]
+    assert _run(common + ["--output-dir", str(tmp_path / "one")]) == 0
+    assert _run(common + ["--output-dir", str(tmp_path / "two"), "--jobs", "2"]) == 0
+    assert (tmp_path / "one" / "raw.csv").read_text() == (tmp_path / "two" / "raw.csv").read_text()
+
+
+def test_bad_arguments_are_user_errors(tmp_path):
+    """Unknown methods and impossible counts raise SurestepError (the CLI's exit code 2)."""
+    with pytest.raises(SurestepError, match="allowed"):
+        _run(["evaluate", str(EVAL), "--methods", "magic", "--output-dir", str(tmp_path / "a"), "--quiet"])
+    with pytest.raises(SurestepError, match="rollouts"):
+        _run(["evaluate", str(EVAL), "--rollouts", "1", "--output-dir", str(tmp_path / "b"), "--quiet"])
+    with pytest.raises(ProblemError, match="no such file"):
+        _run(["evaluate", str(tmp_path / "nope.yaml"), "--output-dir", str(tmp_path / "c"), "--quiet"])
