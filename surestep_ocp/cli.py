@@ -1,4 +1,4 @@
-"""Command line: `surestep solve|compare|validate|show`.
+"""Command line: `surestep solve|compare|replan|evaluate|validate|show`.
 
 User errors (bad problem files, unknown methods, unreachable poses) print one line
 and exit 2; a solver that fails prints its status and exits 1.
@@ -156,6 +156,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="render the static HTML with headless Chromium and write it as a PNG")
     w.add_argument("--endoscope-view", action="store_true", help="look through the endoscope")
     w.set_defaults(func=cmd_show)
+
+    from .evaluation import register as register_evaluate
+
+    register_evaluate(sub)
     return p
 
 
