@@ -66,17 +66,19 @@ def ellipsoid_opacity(max_radius: float) -> float:
 
 
 def draw_path(parent, sol: Solution, color: tuple[float, float, float],
-              hide_above: float = np.inf, priority: int = 0) -> PathInfo:
+              hide_above: float = np.inf, priority: int = 0,
+              tube_radius: float = style.TUBE_RADIUS) -> PathInfo:
     """Draw one solution's path under `parent[method]` and return what was drawn.
 
-    `priority`: where tubes coincide, the path with the higher priority is on top.
+    `priority`: where tubes coincide, the path with the higher priority is on top (a
+    thicker `tube_radius` [m] wins where tubes run along each other but differ slightly).
     """
     m = sol["method"]
     node = parent[m]
     base = node.path.lower()
     nodes, pts = valid_nodes(sol), world_points(sol)
     node["line"].set_object(polyline(pts, color))
-    tube_geo = tube(pts, style.TUBE_RADIUS)
+    tube_geo = tube(pts, tube_radius)
     if tube_geo is not None:
         mat = mg.MeshBasicMaterial(color=style.rgb_int(color), transparent=True, opacity=1.0)
         node["tube"].set_object(_OnTopMesh(tube_geo, mat, 10 + priority))

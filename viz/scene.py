@@ -1,25 +1,29 @@
-"""The SURESTEP Meshcat scene: arm, endoscope, camera frustum, goal, paths, ellipsoids.
+"""The SURESTEP Meshcat scene: arms, needles, endoscope, camera frustum, goal, paths, ellipsoids.
 
 Scene tree (under Meshcat's `/meshcat` root), readable as a legend:
 
     /meshcat/robot/<geometry>          PSM (or any URDF) visual geometry, animated
+    /meshcat/robot/needle              the needle it holds (`robot.needle`), animated
+    /meshcat/other_arms/<k>/<geometry> arms that hold still (`other_arms`), at their q
+    /meshcat/other_arms/<k>/needle     ... and their needles (see arms.py)
     /meshcat/ecm/<geometry>            endoscope arm, when the solution has `ecm`
-    /meshcat/camera/{frustum,footprint,footprint_fill,triad}
+    /meshcat/camera/{frustum,footprint,footprint_fill,triad}   animated if it moves
+    /meshcat/camera_history/<k>/frustum  faint, one per distinct `camera_poses` pose
     /meshcat/goal/{triad,marker}
     /meshcat/paths/<method>/{line,tube}
     /meshcat/paths/<method>/ellipsoids/<t>   3-sigma position ellipsoid of node t
                                              (see paths.py for opacity and hiding)
 
 Everything is drawn in the world frame [m]; camera-frame data are mapped with
-the solution's `camera_pose`. The `/meshcat` node's own transform is the view's
-display transform (see view.py); the poses of the nodes below it are world poses.
+the solution's `camera_pose` (per node with `camera_poses`). The `/meshcat` node's
+own transform is the view's display transform (see view.py); the poses of the
+nodes below it are world poses.
 """
 
 from __future__ import annotations
 
 import os
 import tempfile
-import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Sequence
@@ -30,16 +34,18 @@ import numpy as np
 from meshcat.animation import Animation
 
 from . import style
+from .arms import Needle, animate_arm, arm_q, draw_needle, draw_other_arms, first_q, load_arm
+from .camera import animate_camera, depth_star, draw_camera
 from .paths import PathInfo, draw_path
 from .recorder import recording_visualizer
-from .robot_visual import RobotVisual
-from .shapes import (frustum_segments, image_corners, line_segments, quad, rectangle_segments,
-                     transform_points)
 from .solutions import Solution, camera_pose, order_methods, world_pose
+from .timeline import Timeline
 from .view import CameraView, overview, set_camera_view, set_endoscope_view
 
 ROOT = "/meshcat"
 PACKAGE_ROOT = Path(__file__).resolve().parents[1]  # the repository root for an editable install
+ERD_PREFIX = "example-robot-data:"
+DEFAULT_ANIMATED = ("ocp", "ocp-replanned")  # the arm follows the first present
 
 
 @dataclass
@@ -51,20 +57,32 @@ class SceneInfo:
     animated: str | None = None  # method whose trajectory the arm follows
     robot_nodes: list[str] = field(default_factory=list)
     ecm_nodes: list[str] = field(default_factory=list)
+    other_arm_nodes: list[str] = field(default_factory=list)  # other_arms/<k>/<geometry>
+    needles: dict[str, np.ndarray] = field(default_factory=dict)  # node -> (n, 3) world arc
     frustum: np.ndarray | None = None  # (16, 3) world segment end points
     footprint: np.ndarray | None = None  # (4, 3) world corners of the image at d*
+    camera_history: list[np.ndarray] = field(default_factory=list)  # distinct 4x4 camera poses
+    camera_switch_steps: list[int] = field(default_factory=list)  # steps where the camera moves
     goal: np.ndarray | None = None  # 4x4 world goal pose
     view: CameraView | None = None
     n_frames: int = 0  # animation frames
 
 
 def resolve_file(path: str | Path, repo_root: Path | None, sol: Solution | None = None) -> Path:
-    """Find a file named relative to the repository root (or absolute).
+    """Find a file named relative to the repository root (or absolute, or `example-robot-data:`).
 
     Tries `repo_root`, the current directory, the package's repository root, the
     solution's problem-file folder and the folders above the solution's source
-    file. Raises FileNotFoundError.
+    file; `example-robot-data:<path>` is looked up in that package
+    (`surestep_ocp.problem.resolve_urdf`). Raises FileNotFoundError.
     """
+    if str(path).startswith(ERD_PREFIX):
+        from surestep_ocp.problem import resolve_urdf
+
+        found = resolve_urdf(str(path))
+        if found.exists():
+            return found
+        raise FileNotFoundError(f"{path} ({found})")
     p = Path(path)
     if p.is_absolute():
         if p.exists():
@@ -81,34 +99,10 @@ def resolve_file(path: str | Path, repo_root: Path | None, sol: Solution | None 
     raise FileNotFoundError(f"{p} (looked in {[str(b) for b in bases if b is not None]})")
 
 
-def _load_robot(spec: dict, root: str, repo_root: Path | None, sol: Solution) -> RobotVisual | None:
-    """RobotVisual of a `robot`/`ecm` entry, or None with a warning if it cannot be loaded."""
-    try:
-        urdf = resolve_file(spec["urdf"], repo_root, sol)
-        base = np.asarray(spec.get("base_pose", np.eye(4)), dtype=float).reshape(4, 4)
-        return RobotVisual.load(urdf, base, root, [p for p in (repo_root, PACKAGE_ROOT) if p])
-    except Exception as exc:  # a missing robot must not hide the paths
-        warnings.warn(f"cannot draw {root} from {spec.get('urdf')!r}: {exc}")
-        return None
-
-
-def _draw_camera(vis, sol: Solution, info: SceneInfo) -> None:
-    """Frustum (to 1.5 d*), image footprint at d* and a triad at the camera."""
-    T, K = camera_pose(sol), sol["camera"]
-    d_star = float((sol.get("noise") or {}).get("depth_star", 0.15))
-    cam = vis["camera"]
-    cam.set_transform(T)
-    seg = frustum_segments(K, 1.5 * d_star)
-    cam["frustum"].set_object(line_segments(seg, style.CAMERA_COLOR))
-    corners = image_corners(K, d_star)
-    cam["footprint"].set_object(line_segments(rectangle_segments(corners), style.FOOTPRINT_COLOR))
-    fill = mg.MeshBasicMaterial(color=style.rgb_int(style.FOOTPRINT_COLOR), opacity=0.08,
-                                depthWrite=False)
-    cam["footprint_fill"].set_object(quad(corners), fill)
-    cam["triad"].set_object(mg.triad(style.TRIAD_SCALE))
-    info.frustum, info.footprint = transform_points(T, seg), transform_points(T, corners)
-    parts = ("frustum", "footprint", "footprint_fill", "triad")
-    info.nodes += [f"{ROOT}/camera/{n}" for n in parts]
+def _loader(repo_root: Path | None, sol: Solution):
+    """`load(spec, root) -> RobotVisual | None` for the arms of one solution."""
+    dirs = [p for p in (repo_root, PACKAGE_ROOT) if p]
+    return lambda spec, root: load_arm(spec, root, lambda u: resolve_file(u, repo_root, sol), dirs)
 
 
 def _draw_goal(vis, sol: Solution, info: SceneInfo) -> None:
@@ -124,37 +118,31 @@ def _draw_goal(vis, sol: Solution, info: SceneInfo) -> None:
     info.nodes += [f"{ROOT}/goal/triad", f"{ROOT}/goal/marker"]
 
 
-def _animate(vis, robot: RobotVisual, sol: Solution, seconds_per_step: float, fps: int = 30,
-             substeps: int = 4) -> int:
-    """Key-frame the arm along the solution's joint path (linear in q between nodes)."""
-    names = sol.get("joint_names")
-    qs = [robot.q_vector(q, names) for q in sol.get("q") or []]
-    anim = Animation(default_framerate=fps)
-    frame, last = 0, None
-    per_sub = max(1, int(round(seconds_per_step * fps / substeps)))
-    for q in qs:
-        if q is None:  # unreachable node: hold the previous configuration
-            frame += per_sub * substeps
-            continue
-        steps = [q] if last is None else [last + (q - last) * (k / substeps)
-                                          for k in range(1, substeps + 1)]
-        for qk in steps:
-            with anim.at_frame(vis, frame) as f:
-                robot.set_frame(f, qk)
-            frame += per_sub
-        last = q
-    if frame > per_sub:
+def _draw_arms(vis, scene, main: Solution, info: SceneInfo, load, robot_color, timeline) -> None:
+    """The animated arm and its needle, the still arms, the ECM; the animation (arm, needle,
+    moving camera) on one `timeline`."""
+    anim = Animation(default_framerate=timeline.fps)
+    robot = load(main["robot"], "robot") if main.get("robot") else None
+    if robot is not None:
+        q0 = first_q(robot, main)
+        info.robot_nodes = robot.draw(scene, q0, robot_color)
+        needle = Needle.of(main["robot"])
+        if needle is not None:
+            drawn = draw_needle(scene["robot"], robot, needle, q0)
+            info.needles.update(drawn)
+            needle = needle if drawn else None
+        info.n_frames = animate_arm(anim, scene, robot, main, timeline, needle)
+    still = draw_other_arms(scene, main, load)
+    info.other_arm_nodes = still.nodes
+    info.needles.update(still.needles)
+    ecm_spec = main.get("ecm")
+    ecm = load(ecm_spec, "ecm") if ecm_spec else None
+    if ecm is not None:
+        info.ecm_nodes = ecm.draw(scene, arm_q(ecm, ecm_spec))
+    info.nodes += info.robot_nodes + info.other_arm_nodes + list(info.needles) + info.ecm_nodes
+    info.n_frames = max(info.n_frames, animate_camera(anim, scene, main, timeline))
+    if info.n_frames > 0 and anim.clips:
         vis.set_animation(anim, play=True, repetitions=1)
-    return frame
-
-
-def _first_q(robot: RobotVisual, sol: Solution) -> np.ndarray:
-    """First reachable configuration of the solution, else the neutral one."""
-    for q in sol.get("q") or []:
-        v = robot.q_vector(q, sol.get("joint_names"))
-        if v is not None:
-            return v
-    return robot.q_vector([], [])
 
 
 def build_scene(
@@ -175,7 +163,8 @@ def build_scene(
         repo_root: folder the `urdf` paths are relative to (default: tried in order,
             see `resolve_file`).
         vis: Meshcat visualizer (live server or recording); None makes a recording one.
-        animate: method the arm follows; default "ocp" if present, else the first.
+        animate: method the arm follows; default "ocp" if present, else "ocp-replanned"
+            (`surestep replan`), else the first.
         endoscope: start from the endoscope's view instead of the overview.
         robot_color: RGB(A) in [0, 1] overriding the URDF colours of the arm.
         seconds_per_step: animation time per trajectory step [s].
@@ -194,7 +183,7 @@ def build_scene(
     if vis is None:
         vis, _ = recording_visualizer()
     methods = [s["method"] for s in sols]
-    chosen = animate or ("ocp" if "ocp" in methods else methods[0])
+    chosen = animate or next((m for m in DEFAULT_ANIMATED if m in methods), methods[0])
     if chosen not in methods:
         raise ValueError(f"no solution for method {chosen!r} (have {methods})")
     main = sols[methods.index(chosen)]
@@ -204,31 +193,26 @@ def build_scene(
     vis["/Grid"].set_property("visible", False)
     vis["/Axes"].set_property("visible", False)
     scene = vis[ROOT]
-    _draw_camera(scene, main, info)
+    cam = draw_camera(scene, main)
+    info.frustum, info.footprint, info.nodes = cam.frustum, cam.footprint, cam.nodes
+    info.camera_history, info.camera_switch_steps = cam.history, cam.switch_steps
     _draw_goal(scene, main, info)
     if hide_above is None:  # ellipsoids wider than the image at d* start hidden
         hide_above = 0.5 * float(np.linalg.norm(info.footprint[2] - info.footprint[0]))
     for k, (sol, color) in enumerate(zip(sols, style.method_colors(methods).values())):
-        p = draw_path(scene["paths"], sol, color, hide_above, priority=len(sols) - k)
+        wide = style.ANIMATED_TUBE_SCALE if sol is main else 1.0  # the arm's path on top
+        p = draw_path(scene["paths"], sol, color, hide_above, priority=len(sols) - k,
+                      tube_radius=wide * style.TUBE_RADIUS)
         info.paths[p.method] = p
         info.nodes += [p.line_node, f"{ROOT}/paths/{p.method}/tube", *p.ellipsoid_nodes]
-    robot = _load_robot(main["robot"], "robot", repo_root, main) if main.get("robot") else None
-    if robot is not None:
-        info.robot_nodes = robot.draw(scene, _first_q(robot, main), robot_color)
-        info.n_frames = _animate(scene, robot, main, seconds_per_step)
-    ecm_spec = main.get("ecm")
-    ecm = _load_robot(ecm_spec, "ecm", repo_root, main) if ecm_spec else None
-    if ecm is not None:
-        q = ecm_spec.get("q") or []
-        qv = ecm.q_vector(list(q.values()), list(q)) if isinstance(q, dict) else \
-            ecm.q_vector(q, ecm_spec.get("joint_names"))
-        info.ecm_nodes = ecm.draw(scene, qv if qv is not None else ecm.q_vector([], []))
-    info.nodes += info.robot_nodes + info.ecm_nodes
-    d_star = float((main.get("noise") or {}).get("depth_star", 0.15))
+    _draw_arms(vis, scene, main, info, _loader(repo_root, main), robot_color,
+               Timeline(seconds_per_step))
+    d_star = depth_star(main)
     if endoscope:
         info.view = set_endoscope_view(vis, camera_pose(main), main["camera"], d_star)
     else:
-        pts = [p.points for p in info.paths.values()] + [info.footprint]
+        pts = [p.points for p in info.paths.values()] + cam.footprints
+        pts += list(info.needles.values())
         if info.goal is not None:
             pts.append(info.goal[None, :3, 3])
         info.view = overview(np.concatenate(pts), camera_pose(main))

@@ -1,4 +1,4 @@
-"""Geometry helpers: camera frustum, polylines, tubes and covariance ellipsoids.
+"""Geometry helpers: camera frustum, polylines, arcs, tubes and covariance ellipsoids.
 
 All lengths are in metres. Poses are 4x4 homogeneous matrices.
 """
@@ -46,16 +46,26 @@ def rectangle_segments(corners: np.ndarray) -> np.ndarray:
     return np.array([p for i in range(4) for p in (corners[i], corners[(i + 1) % 4])])
 
 
-def line_segments(points: np.ndarray, color: Sequence[float]) -> mg.LineSegments:
-    """Meshcat LineSegments object (pairs of points) in one colour."""
+def line_segments(points: np.ndarray, color: Sequence[float],
+                  opacity: float = 1.0) -> mg.LineSegments:
+    """Meshcat LineSegments object (pairs of points) in one colour (transparent if opacity < 1)."""
     geo = mg.PointsGeometry(np.asarray(points, dtype=np.float32).T)
-    return mg.LineSegments(geo, mg.LineBasicMaterial(color=rgb_int(color)))
+    mat = mg.LineBasicMaterial(color=rgb_int(color), opacity=float(opacity),
+                               **({"depthWrite": False} if opacity < 1 else {}))
+    return mg.LineSegments(geo, mat)
 
 
 def polyline(points: np.ndarray, color: Sequence[float]) -> mg.Line:
     """Meshcat Line object through the points, in one colour."""
     geo = mg.PointsGeometry(np.asarray(points, dtype=np.float32).T)
     return mg.Line(geo, mg.LineBasicMaterial(color=rgb_int(color)))
+
+
+def arc_points(radius: float, start: float, sweep: float, n: int = 61) -> np.ndarray:
+    """(n, 3) points [m] of a circular arc of `radius` [m] in the x-y plane, centred at the
+    origin, from angle `start` [rad] (from +x towards +y) over `sweep` [rad]."""
+    a = start + np.linspace(0.0, sweep, n)
+    return np.column_stack([radius * np.cos(a), radius * np.sin(a), np.zeros(n)])
 
 
 def quad(corners: np.ndarray) -> mg.TriangularMeshGeometry:

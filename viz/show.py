@@ -72,7 +72,8 @@ def show(
         html: output file for the standalone page; no server is started then.
         endoscope_view: start from the endoscope's point of view.
         repo_root: folder the solutions' `urdf` paths are relative to.
-        animate: method the arm follows (default "ocp" if present, else the first).
+        animate: method the arm follows (default "ocp", else "ocp-replanned", else the
+            first).
         block: in server mode, keep serving until Ctrl-C (False returns at once; the
             server lives until this process exits).
         solutions: solution dicts to show instead of loading `target` (e.g. when the
@@ -147,7 +148,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="render the static page with headless Chromium to a PNG")
     parser.add_argument("--endoscope-view", action="store_true",
                         help="start from the endoscope's view")
-    parser.add_argument("--animate", default=None, help="method the arm follows (default ocp)")
+    parser.add_argument("--animate", default=None,
+                        help="method the arm follows (default ocp, else ocp-replanned)")
 
 
 def show_main(args: argparse.Namespace, solutions: Sequence[Solution] | None = None) -> int:
