@@ -23,6 +23,7 @@ from .lie import angle_sq, so3_exp, so3_log
 COMPONENTS = ("depth", "fov", "orientation")
 ORIENTATION_FORMULAS = ("cosine", "geodesic")
 OBSERVATION_NOISE_FORMS = ("mean", "expected")
+OBJECTIVES = ("posterior", "predicted")
 NX = 6
 NV = NX * (NX + 1) // 2  # 21
 _TRIL = [(i, j) for j in range(NX) for i in range(j, NX)]  # vech order: column-major lower triangle
@@ -77,6 +78,7 @@ class NoiseParams:
     components: tuple[str, ...] = COMPONENTS
     orientation_formula: str = "cosine"
     observation_noise: str = "mean"  # mean (the paper's) | expected (under the predicted belief, section 8)
+    objective: str = "posterior"  # planners minimise Tr(Sigma_T|T) (posterior) or Tr(Sigma_T|T-1) (predicted)
     camera_W_p0: np.ndarray = field(default_factory=lambda: 1e-3 * np.eye(NX))  # per camera move [1/m^2 scale]
     camera_W_o0: np.ndarray = field(default_factory=lambda: 1e-3 * np.eye(NX))
 
@@ -130,6 +132,7 @@ class BeliefModel:
         n = self.noise
         mats = tuple(np.asarray(getattr(n, k), float).tobytes() for k in ("W_p0", "W_o0", "V_d0", "V_f0", "V_o0"))
         return (mats, n.depth_star, tuple(n.o_star), self.components, n.orientation_formula, n.observation_noise,
+                n.objective,
                 tuple(self.camera.to_dict().items()), self.identity_maps or id(self.jacobians))
 
     def with_components(self, components: tuple[str, ...]) -> BeliefModel:

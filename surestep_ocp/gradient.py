@@ -62,8 +62,12 @@ def build_loss(setup: Setup, model, pose_loss: bool, weight: float) -> tuple[ca.
         x = x + d[NX * t:NX * (t + 1)]
         xs.append(x)
     xs[T] = ca.DM(setup.x_goal)  # the clipping action
-    for t in range(T):
+    for t in range(T - 1):
         s = model.step(xs[t], xs[t + 1], s)
+    if model.noise.objective == "predicted":  # Sigma_T|T-1: before the last observation
+        s = model.predict(xs[T - 1], xs[T], s)
+    else:
+        s = model.step(xs[T - 1], xs[T], s)
     trace = trace_vech(s)
     dp = xs[T][:3] - xs[T - 1][:3]
     step_m = _smooth_norm(ca.dot(dp, dp), EPS_POS)

@@ -143,6 +143,9 @@ class Transcription:
         pose = ca.Function("pose", [q_sym, Tcb], [ca.vertcat(Tcb[:, :3] @ Tq[:3, 3] + Tcb[:, 3], so3_log(R))])
 
         g = [mus[t] - pose(qs[t], Tcb) for t in range(T + 1)]
+        predicted = model.noise.objective == "predicted"
+        if predicted and form != "condensed":
+            raise ValueError("objective.covariance: predicted needs solver.covariance: condensed (or auto)")
         if form == "condensed":  # the covariance is shot through the EKF steps inside the objective
             if model.diagonal:  # exact: six scalar Kalman recursions
                 s_t = ca.vertcat(*[sigma0[i] for i in _DIAG])
@@ -150,11 +153,13 @@ class Transcription:
                     p_t = s_t + ca.diag(model.motion_noise(mus[t], mus[t + 1]))
                     v_t = ca.diag(model.planning_noise(mus[t + 1], vech(ca.diag(p_t))))
                     s_t = p_t * v_t / (p_t + v_t)
-                trace_T = ca.sum1(s_t)
+                trace_T = ca.sum1(p_t if predicted else s_t)
             else:
                 s_t = sigma0
-                for t in range(T):
+                for t in range(T - 1):
                     s_t = model.step_expr(mus[t], mus[t + 1], s_t)
+                last = model.predict_expr if predicted else model.step_expr
+                s_t = last(mus[T - 1], mus[T], s_t)
                 trace_T = sum(s_t[i] for i in _DIAG)
         else:
             for t in range(T):

@@ -6,14 +6,14 @@ against the repository root first, then against the problem file's folder.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import yaml
 
-from .belief import COMPONENTS, OBSERVATION_NOISE_FORMS, ORIENTATION_FORMULAS, NoiseParams
+from .belief import COMPONENTS, OBJECTIVES, OBSERVATION_NOISE_FORMS, ORIENTATION_FORMULAS, NoiseParams
 from .camera import Intrinsics
 from .errors import ProblemError
 from .lie import np_exp, rpy_matrix
@@ -164,7 +164,11 @@ def parse_problem(tree: Any, path: Path) -> Problem:
     horizon = rd.integer(top["horizon"], "horizon", minimum=1)
     noise = _noise(rd, top.get("noise", {}))
     cons = rd.mapping(top.get("constraints", {}), "constraints", {"min_depth"})
-    obj = rd.mapping(top.get("objective", {}), "objective", {"smoothness"})
+    obj = rd.mapping(top.get("objective", {}), "objective", {"smoothness", "covariance"})
+    # which covariance the planners minimise: Sigma_T|T (the paper's) or Sigma_T|T-1, the one that
+    # governs the executed error under closed-loop control (section 8)
+    noise = replace(noise, objective=rd.string(obj.get("covariance", "posterior"), "objective.covariance",
+                                               OBJECTIVES))
     return Problem(
         name=rd.string(top.get("name", path.stem), "name"),
         description=rd.string(top.get("description", ""), "description"),

@@ -89,3 +89,38 @@ def test_expected_noise_never_vanishes_while_uncertain():
     v_mean = np.trace(np.asarray(model("mean").observation_noise(ideal)))
     assert v_mean < 1e-8  # zero up to the cosine formula's guard at r = 0
     assert np.trace(np.asarray(model("expected").planning_noise(ideal, vech(P)))) > 1e3 * v_mean
+
+
+@pytest.fixture(scope="module")
+def predicted_setup():
+    from pathlib import Path
+
+    from surestep_ocp.problem import load_problem
+    from surestep_ocp.setup import build_setup
+
+    p = load_problem(Path(__file__).resolve().parents[1] / "problems" / "needle_regrasp.yaml")
+    return build_setup(replace(p, horizon=6, noise=replace(p.noise, objective="predicted")))
+
+
+@pytest.mark.parametrize("method", ["gradient-no-pose-loss", "ocp"])
+def test_predicted_objective_is_the_covariance_before_the_last_update(predicted_setup, method):
+    """`objective.covariance: predicted` minimises Tr(Sigma_T|T-1), as the exact EKF computes it."""
+    from surestep_ocp.methods import run_method
+
+    sol = run_method(predicted_setup, method)
+    _, pred = predicted_setup.eval_model.propagate(np.array(sol.poses))
+    assert sol.objective == pytest.approx(np.trace(pred[-1]), rel=1e-6)
+
+
+def test_unknown_objective_is_a_problem_error(tmp_path):
+    """objective.covariance only takes posterior or predicted; anything else names the key."""
+    from pathlib import Path
+
+    from surestep_ocp.errors import ProblemError
+    from surestep_ocp.problem import load_problem
+
+    text = (Path(__file__).resolve().parents[1] / "problems" / "needle_regrasp.yaml").read_text()
+    path = tmp_path / "bad.yaml"
+    path.write_text(text.replace("  smoothness: 0.0", "  smoothness: 0.0\n  covariance: prior"))
+    with pytest.raises(ProblemError, match="objective.covariance"):
+        load_problem(path)
