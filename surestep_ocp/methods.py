@@ -22,16 +22,19 @@ ABLATIONS = {f"-no-{c}": c for c in COMPONENTS}
 COMPARE_METHODS = ("baseline", "gradient", "gradient-no-pose-loss", "ocp", "ocp-from-gradient")
 
 
-def parse_method(name: str) -> tuple[str, tuple[str, ...] | None, str | None]:
-    """Split a method name into (base method, components or None, observation-noise form or None).
+def parse_method(name: str) -> tuple[str, tuple[str, ...] | None, str | None, str | None]:
+    """Split a method name into (base, components or None, observation-noise form or None, objective or None).
 
-    A trailing `-expected` plans with the belief-aware observation noise (section 8).
+    A trailing `-predicted` minimises Tr(Sigma_T|T-1); before it, `-expected` plans with the
+    belief-aware observation noise (section 8).
     """
-    form = None
+    form = objective = None
+    if name.endswith("-predicted"):
+        name, objective = name[: -len("-predicted")], "predicted"
     if name.endswith("-expected"):
         name, form = name[: -len("-expected")], "expected"
     base, comps = _parse_base(name)
-    return base, comps, form
+    return base, comps, form, objective
 
 
 def _parse_base(name: str) -> tuple[str, tuple[str, ...] | None]:
@@ -42,18 +45,19 @@ def _parse_base(name: str) -> tuple[str, tuple[str, ...] | None]:
         return name, None
     allowed = ", ".join(BASE_METHODS)
     raise SurestepError(f"unknown method '{name}'; allowed: {allowed} (optionally with -no-depth, -no-fov, "
-                        "-no-orientation, then -expected)")
+                        "-no-orientation, then -expected, then -predicted)")
 
 
-def _variant(setup: Setup, components: tuple[str, ...] | None, form: str | None) -> Setup:
-    """The same setup planning with other observation components or noise form."""
-    if components is None and form is None:
+def _variant(setup: Setup, components: tuple[str, ...] | None, form: str | None,
+             objective: str | None = None) -> Setup:
+    """The same setup planning with other observation components, noise form or objective."""
+    if components is None and form is None and objective is None:
         return setup
     from dataclasses import replace
 
     noise = setup.problem.noise
     noise = replace(noise, components=components or noise.components, observation_noise=form or
-                    noise.observation_noise)
+                    noise.observation_noise, objective=objective or noise.objective)
     return replace(setup, problem=replace(setup.problem, noise=noise))
 
 
@@ -74,8 +78,8 @@ def run_method(setup: Setup, name: str, cache: dict[str, Solution] | None = None
 
     `cache` (method name -> Solution) lets `ocp-from-gradient` reuse a gradient solution.
     """
-    base, comps, form = parse_method(name)
-    s = _variant(setup, comps, form)
+    base, comps, form, objective = parse_method(name)
+    s = _variant(setup, comps, form, objective)
     if base == "baseline":
         sol = solve_baseline(s)
     elif base in ("gradient", "gradient-no-pose-loss"):
