@@ -20,9 +20,9 @@ from typing import Any
 
 import numpy as np
 
-from .errors import ProblemError, SurestepError
+from .errors import SurestepError
 from .lie import matrix_to_pose
-from .problem import EndpointSpec, Problem, _StrictLoader, load_problem, resolve_path
+from .problem import EndpointSpec, Problem, load_problem, read_yaml, resolve_path
 from .robot import Robot
 from .schema import Reader
 from .setup import Setup, build_setup
@@ -79,15 +79,8 @@ def load_evaluation(path: str | Path) -> EvaluationSpec:
     Raises:
         ProblemError: unknown or missing keys, wrong types, boxes outside the joint limits.
     """
-    import yaml
-
     path = Path(path)
-    if not path.is_file():
-        raise ProblemError(str(path), None, "no such file")
-    try:
-        tree = yaml.load(path.read_text(), Loader=_StrictLoader)  # noqa: S506 (a SafeLoader subclass)
-    except yaml.YAMLError as exc:
-        raise ProblemError(str(path), None, f"not valid YAML: {exc}") from None
+    tree = read_yaml(path)
     rd = Reader(str(path))
     top = rd.mapping(tree, "", _TOP, {"base", "start_joints", "goal_joints"})
     base_path, _ = resolve_path(rd, top["base"], "base", path)

@@ -178,9 +178,8 @@ class Transcription:
     def _step(self, x0, x1, s, K):
         m = self.model
         if self.form == "diagonal":
-            w = ca.diag(m.motion_noise(x0, x1))
+            p = s + ca.diag(m.motion_noise(x0, x1))
             v = ca.diag(m.planning_noise(x1, vech(ca.diag(p))))
-            p = s + w
             return (1 - K) ** 2 * p + K**2 * v  # scalar Joseph form, gains free (as in `full`)
         p = m.predict_expr(x0, x1, s)
         S, H = m.innovation_expr(x0, x1, p)

@@ -144,16 +144,20 @@ def load_problem(path: str | Path) -> Problem:
         ProblemError: naming the file, the key path and what is allowed.
     """
     path = Path(path)
+    return parse_problem(read_yaml(path), path)
+
+
+def read_yaml(path: Path) -> Any:
+    """Parse a YAML file strictly (duplicate keys rejected); errors are one-line ProblemErrors."""
     if not path.is_file():
         raise ProblemError(str(path), None, "no such file")
     try:
-        tree = yaml.load(path.read_text(), Loader=_StrictLoader)  # noqa: S506 (a SafeLoader subclass)
+        return yaml.load(path.read_text(), Loader=_StrictLoader)  # noqa: S506 (a SafeLoader subclass)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
         what = getattr(exc, "problem", None) or str(exc).splitlines()[0]
         raise ProblemError(str(path), None, f"not valid YAML{where}: {what}") from None
-    return parse_problem(tree, path)
 
 
 def parse_problem(tree: Any, path: Path) -> Problem:

@@ -45,3 +45,12 @@ def test_full_and_condensed_forms_agree(small):
     # each form's own covariance equals the exact EKF's at its optimum
     for sol in (full, cond):
         assert sol.extras["ocp_trace_final"] == pytest.approx(sol.trace_final, rel=1e-6)
+
+
+def test_diagonal_form_solves_and_matches_the_exact_ekf(small):
+    """The multiple-shooting diagonal form (six scalars and gains per node) builds, solves, and is exact."""
+    setup, sols = small
+    diag = solve_ocp(setup, InitialGuess(np.array(sols["condensed"].q), "condensed optimum"), form="diagonal")
+    assert diag.success, diag.status
+    assert diag.trace_final == pytest.approx(sols["condensed"].trace_final, rel=1e-5)
+    assert diag.extras["ocp_trace_final"] == pytest.approx(diag.trace_final, rel=1e-6)
