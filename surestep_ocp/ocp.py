@@ -49,6 +49,7 @@ import casadi as ca
 import numpy as np
 
 from .belief import NV, NX, BeliefModel, unvech, vech
+from .errors import SurestepError
 from .lie import so3_log
 from .robot import Robot
 from .setup import Setup
@@ -102,12 +103,12 @@ class _Layout:
 
 def resolve_form(model: BeliefModel, form: str) -> str:
     if form not in FORMS:
-        raise ValueError(f"unknown covariance form '{form}'; allowed: {', '.join(FORMS)}")
+        raise SurestepError(f"unknown covariance form '{form}'; allowed: {', '.join(FORMS)}")
     if form == "auto":
         return "condensed" if model.diagonal else "full"
     if form == "diagonal" and not model.diagonal:
-        raise ValueError("the diagonal covariance form is exact only with identity motion/observation maps "
-                         "and diagonal base covariances")
+        raise SurestepError("solver.covariance: the diagonal form is exact only with identity motion/observation "
+                            "maps and diagonal base covariances; use full, condensed or auto")
     return form
 
 
@@ -145,7 +146,7 @@ class Transcription:
         g = [mus[t] - pose(qs[t], Tcb) for t in range(T + 1)]
         predicted = model.noise.objective == "predicted"
         if predicted and form != "condensed":
-            raise ValueError("objective.covariance: predicted needs solver.covariance: condensed (or auto)")
+            raise SurestepError("objective.covariance: predicted needs solver.covariance: condensed (or auto)")
         if form == "condensed":  # the covariance is shot through the EKF steps inside the objective
             if model.diagonal:  # exact: six scalar Kalman recursions
                 s_t = ca.vertcat(*[sigma0[i] for i in _DIAG])
