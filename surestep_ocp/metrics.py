@@ -74,7 +74,7 @@ _COLUMNS = [
     ("term. err [rad]", "terminal_error_rad", "{:.1e}"),
     ("final step [mm]", "final_step_m", "{:.2f}"),
     ("final step [rad]", "final_step_rad", "{:.3f}"),
-    ("worst |z-d*| [mm]", "worst_depth_error_m", "{:.1f}"),
+    ("worst depth error [mm]", "worst_depth_error_m", "{:.1f}"),
     ("worst img offset", "worst_image_offset", "{:.3f}"),
     ("unreachable", "unreachable_waypoints", "{}"),
     ("time [s]", "solve_time_s", "{:.2f}"),
