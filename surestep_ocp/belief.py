@@ -27,6 +27,7 @@ OBJECTIVES = ("posterior", "predicted")
 NX = 6
 NV = NX * (NX + 1) // 2  # 21
 _TRIL = [(i, j) for j in range(NX) for i in range(j, NX)]  # vech order: column-major lower triangle
+DIAG = [k for k, (i, j) in enumerate(_TRIL) if i == j]  # positions of the diagonal in vech
 # Guard of |r| in the paper's cosine formula, cos = r.o* / (sqrt(|r|^2 + g) |o*|) [rad^2]. The formula is
 # undefined at r = 0, and near it the direction of r is free: an optimiser found that a rotation of
 # 1e-4 rad about o*'s axis makes the orientation noise vanish (measured: an OCP optimum whose true
@@ -59,8 +60,7 @@ def unvech(v):
 
 def trace_vech(v):
     """Trace of the matrix whose vech is `v`."""
-    idx = [k for k, (i, j) in enumerate(_TRIL) if i == j]
-    return sum(v[k] for k in idx)
+    return sum(v[k] for k in DIAG)
 
 
 @dataclass(frozen=True)

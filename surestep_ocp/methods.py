@@ -8,6 +8,8 @@ during optimisation; evaluation always uses all components).
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from .baseline import solve_baseline, straight_line
@@ -53,8 +55,6 @@ def _variant(setup: Setup, components: tuple[str, ...] | None, form: str | None,
     """The same setup planning with other observation components, noise form or objective."""
     if components is None and form is None and objective is None:
         return setup
-    from dataclasses import replace
-
     noise = setup.problem.noise
     noise = replace(noise, components=components or noise.components, observation_noise=form or
                     noise.observation_noise, objective=objective or noise.objective)

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .belief import unvech, vech
 from .errors import SurestepError
 from .lie import matrix_to_pose, pose_to_matrix
 from .methods import ocp_initial_guess, run_method
@@ -29,8 +30,6 @@ def _remaining_setup(setup: Setup, q_exec: np.ndarray, k: int) -> Setup:
     poses = np.array([matrix_to_pose(np.linalg.inv(C[t]) @ setup.robot.base_pose @ setup.robot.frame_pose(q))
                       for t, q in enumerate(q_exec[:k])])
     sig, _ = setup.eval_model.propagate(poses, changes[: k - 1] if k > 1 else None)
-    from .belief import unvech, vech
-
     x_new, s_new = setup.eval_model.camera_change(poses[-1], vech(sig[-1]), changes[k - 1])
     sigma = unvech(np.asarray(s_new).ravel())
     goal = matrix_to_pose(np.linalg.inv(C[k]) @ C[0] @ pose_to_matrix(setup.x_goal))

@@ -5,12 +5,11 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from functools import cached_property
 
-import casadi as ca
 import numpy as np
 
 from .belief import BeliefModel
 from .errors import FrameNotFound, ProblemError, UnreachablePose
-from .lie import matrix_to_pose, pose_to_matrix, so3_log
+from .lie import matrix_to_pose, pose_to_matrix
 from .problem import EndpointSpec, Problem
 from .robot import Robot
 
@@ -72,13 +71,6 @@ class Setup:
     def pose_of(self, q: np.ndarray) -> np.ndarray:
         """Camera-frame pose `[p, r]` of the tracked frame at joints `q` (Pinocchio, numeric)."""
         return matrix_to_pose(self.T_cam_base @ self.robot.frame_pose(q))
-
-    @cached_property
-    def camera_pose_fn(self) -> ca.Function:
-        """Symbolic `pose(q) -> x` (camera frame, axis-angle) of the tracked frame."""
-        q = ca.SX.sym("q", self.robot.nq)
-        T = ca.DM(self.T_cam_base) @ self.robot.fk_expr(q)
-        return ca.Function("camera_pose", [q], [ca.vertcat(T[:3, 3], so3_log(T[:3, :3]))], ["q"], ["x"])
 
     def joints_for(self, x: np.ndarray, q0: np.ndarray, what: str = "pose", raise_on_fail: bool = True):
         """IK of a camera-frame pose: (q, residual [m], residual [rad])."""

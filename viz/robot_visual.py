@@ -19,6 +19,7 @@ import meshcat.geometry as mg
 import numpy as np
 import pinocchio as pin
 
+from .shapes import ring_faces
 from .style import rgb_int
 
 # three.js cylinders are along y; URDF cylinders along z.
@@ -40,12 +41,7 @@ def _capsule(radius: float, half_length: float, n: int = 24) -> mg.TriangularMes
     profile = np.array(bot + top)  # (r, z) from the bottom pole to the top pole
     phi = np.linspace(0, 2 * np.pi, n, endpoint=False)
     verts = np.array([[r * np.cos(p), r * np.sin(p), z] for r, z in profile for p in phi])
-    faces = []
-    for i in range(len(profile) - 1):
-        for j in range(n):
-            a, b = i * n + j, i * n + (j + 1) % n
-            faces += [[a, b, b + n], [a, b + n, a + n]]
-    return mg.TriangularMeshGeometry(verts, np.array(faces))
+    return mg.TriangularMeshGeometry(verts, ring_faces(len(profile), n))
 
 
 def _mesh(geom: coal.CollisionGeometry) -> mg.TriangularMeshGeometry | None:

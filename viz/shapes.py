@@ -94,13 +94,17 @@ def tube(points: np.ndarray, radius: float, sides: int = 8) -> mg.TriangularMesh
         binormal = np.cross(t, normal)
         phi = np.linspace(0, 2 * np.pi, sides, endpoint=False)
         rings.append(p + radius * (np.outer(np.cos(phi), normal) + np.outer(np.sin(phi), binormal)))
-    verts = np.concatenate(rings)
+    return mg.TriangularMeshGeometry(np.concatenate(rings), ring_faces(len(pts), sides))
+
+
+def ring_faces(n_rings: int, n: int) -> np.ndarray:
+    """Triangles joining consecutive rings of `n` vertices each (vertices stored ring after ring)."""
     faces = []
-    for i in range(len(pts) - 1):
-        for j in range(sides):
-            a, b = i * sides + j, i * sides + (j + 1) % sides
-            faces += [[a, b, b + sides], [a, b + sides, a + sides]]
-    return mg.TriangularMeshGeometry(verts, np.array(faces))
+    for i in range(n_rings - 1):
+        for j in range(n):
+            a, b = i * n + j, i * n + (j + 1) % n
+            faces += [[a, b, b + n], [a, b + n, a + n]]
+    return np.array(faces)
 
 
 def covariance_ellipsoid(
