@@ -147,10 +147,13 @@ class BeliefModel:
         return BeliefModel(noise, self.camera, COMPONENTS, None if self.identity_maps else self.jacobians)
 
     # --------------------------------------------------------------- noise models
+    def motion_residuals(self, x0, x1):
+        """Vectors whose squared norms are the motion coefficients: the step and the rotation's log."""
+        return [x1[:3] - x0[:3], so3_log(so3_exp(x0[3:]).T @ so3_exp(x1[3:]))]
+
     def motion_coefficients(self, x0, x1):
         """Scalars multiplying (W_p0, W_o0): squared step length [m^2] and squared angle [rad^2]."""
-        dp = x1[:3] - x0[:3]
-        return [ca.dot(dp, dp), angle_sq(so3_exp(x0[3:]), so3_exp(x1[3:]))]
+        return [ca.sumsqr(r) for r in self.motion_residuals(x0, x1)]
 
     def motion_matrices(self) -> list[np.ndarray]:
         return [self.noise.W_p0, self.noise.W_o0]
@@ -162,30 +165,33 @@ class BeliefModel:
         each term is its expectation under N(x, P): exact for the depth term, first order
         for the field-of-view and orientation terms (surestep_method.md, section 8).
         """
+        expected = P is not None and self.noise.observation_noise == "expected"
+        out = []
+        for e, i in self.observation_residuals(x):
+            c = ca.sumsqr(e)
+            if expected:  # E|e(x + d)|^2 ~ |e(x)|^2 + tr(J P J^T), exact for the (affine) depth residual
+                J = ca.jacobian(e, x[i : i + 3])
+                c += ca.trace(J @ P[i : i + 3, i : i + 3] @ J.T)
+            out.append(c)
+        return out
+
+    def observation_residuals(self, x):
+        """Per selected component, `(e, i)`: the coefficient (mean form) is `|e(x)|^2`, and `e`
+        depends on `x[i:i+3]` only (i = 0: the position, 3: the orientation)."""
         n = self.noise
         p, r = x[:3], x[3:]
-        expected = P is not None and n.observation_noise == "expected"
         out = []
         if "depth" in self.components:
-            out.append((p[2] - n.depth_star) ** 2 + (P[2, 2] if expected else 0))
+            out.append((p[2] - n.depth_star, 0))
         if "fov" in self.components:
-            du, dv = self.camera.offset(p)
-            c = du**2 + dv**2
-            if expected:
-                J = ca.jacobian(ca.vertcat(du, dv), p)
-                c += ca.trace(J @ P[:3, :3] @ J.T)
-            out.append(c)
+            out.append((ca.vertcat(*self.camera.offset(p)), 0))
         if "orientation" in self.components:
             o = ca.DM(n.o_star)
             if n.orientation_formula == "cosine":
                 cos = ca.dot(r, o) / (ca.sqrt(ca.dot(r, r) + COSINE_GUARD) * float(np.linalg.norm(n.o_star)))
             else:  # geodesic: cosine of the angle between the rotations
                 cos = 0.5 * (ca.trace(so3_exp(r).T @ so3_exp(o)) - 1)
-            c = (1 - cos) ** 2
-            if expected:
-                gr = ca.jacobian(1 - cos, r)
-                c += gr @ P[3:, 3:] @ gr.T
-            out.append(c)
+            out.append((1 - cos, 3))
         return out
 
     def observation_matrices(self) -> list[np.ndarray]:

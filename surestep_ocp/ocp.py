@@ -35,6 +35,20 @@ convergence of the lifted forms comes from the paper's noise model: it vanishes 
 the ideal pose, so the covariance collapses there and everything before that node
 stops mattering (near-singular reduced Hessian).
 
+The Hessian (`solver.hessian`): with the condensed form of a diagonal model and the
+paper's observation noise, the objective is S(c(mu)), S the trace after the scalar
+Kalman recursions as a function of the noise coefficients c (each the squared norm of a
+residual of the means: the step, the rotation between steps, the depth, image and
+orientation errors). S is concave and nondecreasing in c (the Riccati map is), so its
+own curvature is what makes the exact Hessian indefinite: IPOPT then adds a large
+multiple of the identity and crawls (the exact Hessian needed 130-900 iterations, with
+the regularisation at 10^1 to 10^2). The Gauss-Newton matrix `sum_k dS/dc_k 2 J_k^T J_k`
+drops that curvature (and the residuals' own): positive semidefinite, block tridiagonal
+in the means, cost linear in T. `auto` runs IPOPT with it for at most
+`solver.gauss_newton_max_iter` iterations and, when that has not converged (it can
+zig-zag near an optimum where the dropped curvature matters), polishes with the exact
+Hessian warm-started from its primal-dual point; see `solve_ocp`.
+
 The NLP is parametric in the camera pose (the robot base in the camera frame), the
 scales and Sigma_0, so one built solver serves every start, goal and camera pose of
 a given structure and horizon (a cache keeps it), which re-planning needs.
@@ -115,7 +129,7 @@ class Transcription:
     """The multiple-shooting NLP of one structure (robot, belief model, horizon, form), built once."""
 
     def __init__(self, robot: Robot, model: BeliefModel, horizon: int, form: str, smoothness: float,
-                 options: dict):
+                 options: dict, hessian: str = "exact"):
         self.robot, self.model, self.T, self.form = robot, model, horizon, form
         T, nq = horizon, robot.nq
         ns = NX if form == "diagonal" else NV
@@ -170,10 +184,63 @@ class Transcription:
         if smoothness > 0:
             f += smoothness * sum(ca.sumsqr(qs[t + 1] - qs[t]) for t in range(T))
         self.ng = ca.vertcat(*g).shape[0]
+        self.hessian = hessian
+        if hessian == "gauss-newton":
+            options = {**options, "hess_lag": self._gauss_newton(L.vector(), mus, g, sigma0, trace_ref, smoothness,
+                                                                 qs, predicted)}
         t0 = time.perf_counter()
         self.solver = ca.nlpsol("surestep_ocp", "ipopt", {"x": L.vector(), "f": f, "g": ca.vertcat(*g),
                                                            "p": self.p}, options)
         self.build_time_s = time.perf_counter() - t0
+
+    def _gauss_newton(self, x, mus, g, sigma0, trace_ref, smoothness, qs, predicted) -> ca.Function:
+        """Hessian of the Lagrangian with the objective's part replaced by a Gauss-Newton matrix.
+
+        The objective is S(c(mu)): S, the trace after the scalar Kalman recursions, as a function
+        of the noise coefficients c (each the squared norm of a residual e(mu)). S is concave and
+        nondecreasing in c, so dropping its curvature and the residuals' own curvature leaves
+        sum_k (dS/dc_k) 2 J_k^T J_k: positive semidefinite and block tridiagonal in the means.
+        """
+        m, T = self.model, self.T
+        Wd = [np.diag(M) for M in m.motion_matrices()]
+        Vd = [np.diag(M) for M in m.observation_matrices()]
+        cm = [ca.SX.sym(f"cm{t}", len(Wd)) for t in range(T)]
+        co = [ca.SX.sym(f"co{t}", len(Vd)) for t in range(T)]
+        s_t = ca.vertcat(*[sigma0[i] for i in DIAG])
+        for t in range(T):
+            p_t = s_t + sum(cm[t][k] * ca.DM(Wd[k]) for k in range(len(Wd)))
+            v_t = sum(co[t][k] * ca.DM(Vd[k]) for k in range(len(Vd)))
+            s_t = p_t * v_t / (p_t + v_t)
+        S = ca.sum1(p_t if predicted else s_t) / trace_ref
+        c_all = ca.vertcat(*cm, *co)
+        weights = ca.Function("weights", [c_all, sigma0, trace_ref], [ca.gradient(S, c_all)])
+        a, b = ca.SX.sym("a", NX), ca.SX.sym("b", NX)
+        res_m = m.motion_residuals(a, b)
+        res_o = [e for e, _ in m.observation_residuals(b)]
+        coef = ca.Function("coef", [a, b], [ca.vertcat(*[ca.sumsqr(e) for e in res_m]),
+                                             ca.vertcat(*[ca.sumsqr(e) for e in res_o])])
+        wm, wo = ca.SX.sym("wm", len(Wd)), ca.SX.sym("wo", len(Vd))
+        ab = ca.vertcat(a, b)
+        block = sum(2 * wm[k] * ca.mtimes(ca.jacobian(e, ab).T, ca.jacobian(e, ab)) for k, e in enumerate(res_m))
+        block += sum(2 * wo[k] * ca.mtimes(ca.jacobian(e, ab).T, ca.jacobian(e, ab)) for k, e in enumerate(res_o))
+        gn_block = ca.Function("gn_block", [a, b, wm, wo], [block])
+        cms, cos_ = zip(*[coef(mus[t], mus[t + 1]) for t in range(T)])
+        w = weights(ca.vertcat(*cms, *cos_), sigma0, trace_ref)
+        nm, no = len(Wd), len(Vd)
+        lam_f, lam_g = ca.SX.sym("lam_f"), ca.SX.sym("lam_g", self.ng)
+        H = ca.SX(x.shape[0], x.shape[0])
+        index = {name: i for i, name in enumerate(n for n, _, _ in self.layout.blocks)}
+        offsets = np.cumsum([0] + [size for _, size, _ in self.layout.blocks])
+        for t in range(T):
+            ia, ib = offsets[index[f"mu{t}"]], offsets[index[f"mu{t + 1}"]]
+            idx = list(range(ia, ia + NX)) + list(range(ib, ib + NX))
+            H[idx, idx] += gn_block(mus[t], mus[t + 1], w[t * nm:(t + 1) * nm], w[T * nm + t * no:T * nm + (t + 1) * no])
+        H = lam_f * H
+        if smoothness > 0:
+            H += lam_f * ca.hessian(smoothness * sum(ca.sumsqr(qs[t + 1] - qs[t]) for t in range(T)), x)[0]
+        H += ca.hessian(ca.dot(lam_g, ca.vertcat(*g)), x)[0]
+        return ca.Function("nlp_hess_l", [x, self.p, lam_f, lam_g], [ca.triu(H)],
+                           ["x", "p", "lam_f", "lam_g"], ["hess"])
 
     def _step(self, x0, x1, s, K):
         m = self.model
@@ -309,42 +376,87 @@ def solver_options(setup: Setup, extra: dict | None = None) -> dict:
 
 
 def transcription(setup: Setup, form: str | None = None, extra_options: dict | None = None,
-                  horizon: int | None = None) -> Transcription:
+                  horizon: int | None = None, hessian: str = "exact") -> Transcription:
     """The (cached) transcription for this setup's structure (form: default from the problem file)."""
     model = setup.model
     form = resolve_form(model, form or setup.problem.solver.covariance)
     T = setup.problem.horizon if horizon is None else horizon
     opts = solver_options(setup, extra_options)
     key = (str(setup.robot.urdf), setup.robot.frame, model.key(), T, form, setup.problem.objective.smoothness,
-           tuple(sorted((k, repr(v)) for k, v in opts.items())))
+           tuple(sorted((k, repr(v)) for k, v in opts.items())), hessian)
     if key not in _CACHE:
-        _CACHE[key] = Transcription(setup.robot, model, T, form, setup.problem.objective.smoothness, opts)
+        _CACHE[key] = Transcription(setup.robot, model, T, form, setup.problem.objective.smoothness, opts, hessian)
     return _CACHE[key]
+
+
+def resolve_hessian(setup: Setup, form: str) -> str:
+    """`solver.hessian` of the problem resolved for this model and covariance form.
+
+    The Gauss-Newton matrix exists for the condensed form of a diagonal model with the
+    paper's (mean) observation noise; `auto` uses it there (then polishes with the exact
+    Hessian if needed) and the exact Hessian elsewhere.
+    """
+    choice, model = setup.problem.solver.hessian, setup.model
+    possible = form == "condensed" and model.diagonal and model.noise.observation_noise == "mean"
+    if choice == "gauss-newton" and not possible:
+        raise SurestepError("solver.hessian: gauss-newton needs the condensed covariance form of a diagonal model "
+                            "with noise.observation_noise: mean; use exact or auto")
+    if choice == "auto":
+        return "gauss-newton" if possible else "exact"
+    return choice
 
 
 def solve_ocp(setup: Setup, init: InitialGuess, solver_options: dict | None = None,
               method: str = "ocp", form: str | None = None) -> Solution:
     """Solve the belief-space OCP from the initial joint trajectory `init`.
 
-    Strategy: IPOPT with the adaptive barrier update; if that attempt fails, a second
-    attempt with the monotone update from the same initial guess (measured: each
-    fails on some problems where the other succeeds). Both attempts are reported in
-    `extras["attempts"]`; time and iterations are their sums. The barrier strategy
-    is left alone when the caller or the problem file sets it.
+    Strategy (each attempt is IPOPT on the same NLP; they differ in the Hessian and the
+    barrier update):
 
-    Returns a Solution whatever IPOPT's status; check `success` (the CLI turns a
-    failure into an error carrying the status).
+    1. With a Gauss-Newton Hessian (`solver.hessian` auto or gauss-newton): at most
+       `solver.gauss_newton_max_iter` iterations (auto) or `solver.max_iter` (gauss-newton).
+       A converged Gauss-Newton run is a KKT point of the true problem (the Hessian only
+       shapes the steps), so it is returned as it is.
+    2. (auto) If it stopped short, the exact Hessian, warm-started from its primal and
+       dual values.
+    3. If that fails too, or with `solver.hessian: exact`: the exact Hessian from `init`
+       with the adaptive barrier update, then with the monotone one (measured: each fails
+       on some problems where the other succeeds). The barrier strategy is left alone
+       when the caller or the problem file sets it.
+
+    Every attempt is reported in `extras["attempts"]`; time and iterations are their sums.
+    Returns a Solution whatever IPOPT's status; check `success` (the CLI turns a failure
+    into an error carrying the status).
     """
-    sol, _ = transcription(setup, form, solver_options).solve(setup, init, method)
-    pinned = "ipopt.mu_strategy" in (solver_options or {}) or "mu_strategy" in setup.problem.solver.options
-    if sol.success or pinned:
-        return sol
-    second, _ = transcription(setup, form, {**(solver_options or {}), "ipopt.mu_strategy": "monotone"}).solve(
-        setup, init, method)
-    second.extras["attempts"] = [
-        {"mu_strategy": name, "status": s.status, "iterations": s.iterations, "solve_time_s": s.solve_time_s}
-        for name, s in (("adaptive", sol), ("monotone", second))
-    ]
-    second.solve_time_s += sol.solve_time_s
-    second.iterations += sol.iterations
-    return second
+    form = resolve_form(setup.model, form or setup.problem.solver.covariance)
+    hessian = resolve_hessian(setup, form)
+    spec, opts = setup.problem.solver, dict(solver_options or {})
+    pinned = "ipopt.mu_strategy" in opts or "mu_strategy" in spec.options
+    tried: list[tuple[str, Solution]] = []
+    warm = None
+
+    def attempt(name: str, hess: str, extra: dict, start: WarmStart | None = None) -> bool:
+        nonlocal warm
+        sol, warm = transcription(setup, form, {**opts, **extra}, hessian=hess).solve(setup, init, method, warm=start)
+        tried.append((name, sol))
+        return sol.success
+
+    if hessian == "gauss-newton":
+        cap = spec.max_iter if spec.hessian == "gauss-newton" else min(spec.gauss_newton_max_iter, spec.max_iter)
+        done = attempt("gauss-newton", "gauss-newton", {"ipopt.max_iter": cap})
+        if not done and spec.hessian == "auto":
+            done = attempt("exact, warm start", "exact", WARM_OPTIONS, warm)
+    else:
+        done = False
+    if not done and spec.hessian != "gauss-newton":
+        done = attempt("exact", "exact", {})
+        if not done and not pinned:
+            attempt("exact, monotone barrier", "exact", {"ipopt.mu_strategy": "monotone"})
+    sol = tried[-1][1]
+    sol.extras["attempts"] = [{"hessian": name, "status": s.status, "iterations": s.iterations,
+                               "solve_time_s": s.solve_time_s} for name, s in tried]
+    sol.extras["hessian"] = " + ".join(name for name, _ in tried)
+    sol.solve_time_s = sum(s.solve_time_s for _, s in tried)
+    sol.iterations = sum(s.iterations for _, s in tried)
+    sol.extras["init"] = init.source
+    return sol

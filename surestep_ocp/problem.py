@@ -82,6 +82,8 @@ class SolverSpec:
     tol: float = 1e-8
     print_level: int = 0
     covariance: str = "auto"  # auto | full | diagonal | condensed (see ocp.py)
+    hessian: str = "auto"  # auto | exact | gauss-newton (see ocp.py)
+    gauss_newton_max_iter: int = 60  # Gauss-Newton iterations before the exact-Hessian polish (hessian: auto)
     options: dict = field(default_factory=dict)  # extra raw solver options
 
 
@@ -358,7 +360,8 @@ def _noise(rd: Reader, node: Any) -> NoiseParams:
 
 
 def _solver(rd: Reader, node: Any) -> SolverSpec:
-    m = rd.mapping(node, "solver", {"name", "max_iter", "tol", "print_level", "covariance", "options"})
+    m = rd.mapping(node, "solver", {"name", "max_iter", "tol", "print_level", "covariance", "hessian",
+                                    "gauss_newton_max_iter", "options"})
     d = SolverSpec()
     opts = m.get("options", {})
     if not isinstance(opts, dict):
@@ -370,6 +373,9 @@ def _solver(rd: Reader, node: Any) -> SolverSpec:
         print_level=rd.integer(m.get("print_level", d.print_level), "solver.print_level", minimum=0),
         covariance=rd.string(m.get("covariance", d.covariance), "solver.covariance",
                              ("auto", "full", "diagonal", "condensed")),
+        hessian=rd.string(m.get("hessian", d.hessian), "solver.hessian", ("auto", "exact", "gauss-newton")),
+        gauss_newton_max_iter=rd.integer(m.get("gauss_newton_max_iter", d.gauss_newton_max_iter),
+                                         "solver.gauss_newton_max_iter", minimum=1),
         options=dict(opts),
     )
 
