@@ -245,12 +245,13 @@ class Robot:
 
         rng = np.random.default_rng(seed)
         best = None
-        starts = [np.clip(base[movable], lo_f, hi_f)]
-        starts += [rng.uniform(lo_f, hi_f) for _ in range(restarts)]
-        for x0 in starts:
-            x0 = np.clip(x0, lo, hi)
-            res = least_squares(fun, x0, jac=jac, bounds=(lo, hi), xtol=1e-15, ftol=1e-15, gtol=1e-15, max_nfev=200)
-            q = full(res.x)
+        for k in range(restarts + 1):  # q0 first, then seeded random starts
+            x0 = np.clip(np.clip(base[movable], lo_f, hi_f) if k == 0 else rng.uniform(lo_f, hi_f), lo, hi)
+            x = _newton(lambda x: f(full(x), target), movable, x0, lo, hi) if k == 0 else None  # a nearby start
+            if x is None:
+                x = least_squares(fun, x0, jac=jac, bounds=(lo, hi), xtol=1e-15, ftol=1e-15, gtol=1e-15,
+                                  max_nfev=200).x
+            q = full(x)
             Tq = self.frame_pose(q)
             err_p = float(np.linalg.norm(Tq[:3, 3] - target[:3, 3]))
             err_r = float(np.linalg.norm(np_log(target[:3, :3].T @ Tq[:3, :3])))
@@ -261,3 +262,18 @@ class Robot:
         if raise_on_fail:
             raise UnreachablePose(what, best[1], best[2])
         return best
+
+
+def _newton(residual, movable: np.ndarray, x0: np.ndarray, lo: np.ndarray, hi: np.ndarray,
+            iterations: int = 12):
+    """Plain Gauss-Newton steps from x0; the point when the residual vanishes inside the bounds, else None."""
+    x = x0.copy()
+    for _ in range(iterations):
+        e, J = (np.asarray(v) for v in residual(x))
+        e = e.ravel()
+        if np.linalg.norm(e) < 1e-13:
+            return x
+        x = x - np.linalg.lstsq(J[:, movable], e, rcond=None)[0]
+        if np.any(x < lo) or np.any(x > hi):
+            return None
+    return None
