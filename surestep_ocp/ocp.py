@@ -63,6 +63,7 @@ import casadi as ca
 import numpy as np
 
 from .belief import DIAG, NV, NX, BeliefModel, unvech, vech
+from .codegen import compiled
 from .errors import SurestepError
 from .lie import so3_log
 from .robot import Robot
@@ -129,7 +130,7 @@ class Transcription:
     """The multiple-shooting NLP of one structure (robot, belief model, horizon, form), built once."""
 
     def __init__(self, robot: Robot, model: BeliefModel, horizon: int, form: str, smoothness: float,
-                 options: dict, hessian: str = "exact"):
+                 options: dict, hessian: str = "exact", codegen: bool = False):
         self.robot, self.model, self.T, self.form = robot, model, horizon, form
         T, nq = horizon, robot.nq
         ns = NX if form == "diagonal" else NV
@@ -189,9 +190,15 @@ class Transcription:
             if form != "condensed" or not model.diagonal or model.noise.observation_noise != "mean":
                 raise SurestepError("the Gauss-Newton Hessian needs the condensed form of a diagonal model with the "
                                     "mean observation noise")
-            self.hess_lag = self._gauss_newton(L.vector(), mus, g, sigma0, trace_ref, smoothness, qs, predicted)
-            options = {**options, "hess_lag": self.hess_lag}
+        elif codegen:
+            raise SurestepError("solver.codegen compiles the Gauss-Newton Hessian only (the exact condensed Hessian "
+                                "did not compile within 10 minutes); use solver.hessian: auto or gauss-newton")
         t0 = time.perf_counter()
+        if hessian == "gauss-newton":
+            self.hess_lag = self._gauss_newton(L.vector(), mus, g, sigma0, trace_ref, smoothness, qs, predicted)
+            if codegen:  # the Hessian is most of the function time (measured: 28 of 41 ms at T = 20)
+                self.hess_lag, _ = compiled(self.hess_lag)
+            options = {**options, "hess_lag": self.hess_lag}
         self.solver = ca.nlpsol("surestep_ocp", "ipopt", {"x": L.vector(), "f": f, "g": ca.vertcat(*g),
                                                            "p": self.p}, options)
         self.build_time_s = time.perf_counter() - t0
@@ -385,10 +392,12 @@ def transcription(setup: Setup, form: str | None = None, extra_options: dict | N
     form = resolve_form(model, form or setup.problem.solver.covariance)
     T = setup.problem.horizon if horizon is None else horizon
     opts = solver_options(setup, extra_options)
-    key = (str(setup.robot.urdf), setup.robot.frame, model.key(), T, form, setup.problem.objective.smoothness,
-           tuple(sorted((k, repr(v)) for k, v in opts.items())), hessian)
+    codegen = setup.problem.solver.codegen and hessian == "gauss-newton"
+    key = (str(setup.robot.urdf), setup.robot.frame, setup.robot.offset.tobytes(), model.key(), T, form,
+           setup.problem.objective.smoothness, tuple(sorted((k, repr(v)) for k, v in opts.items())), hessian, codegen)
     if key not in _CACHE:
-        _CACHE[key] = Transcription(setup.robot, model, T, form, setup.problem.objective.smoothness, opts, hessian)
+        _CACHE[key] = Transcription(setup.robot, model, T, form, setup.problem.objective.smoothness, opts, hessian,
+                                    codegen)
     return _CACHE[key]
 
 

@@ -84,6 +84,7 @@ class SolverSpec:
     covariance: str = "auto"  # auto | full | diagonal | condensed (see ocp.py)
     hessian: str = "auto"  # auto | exact | gauss-newton (see ocp.py)
     gauss_newton_max_iter: int = 60  # Gauss-Newton iterations before the exact-Hessian polish (hessian: auto)
+    codegen: bool = False  # compile the Gauss-Newton Hessian to C (gcc; cached on disk, see codegen.py)
     options: dict = field(default_factory=dict)  # extra raw solver options
 
 
@@ -361,7 +362,7 @@ def _noise(rd: Reader, node: Any) -> NoiseParams:
 
 def _solver(rd: Reader, node: Any) -> SolverSpec:
     m = rd.mapping(node, "solver", {"name", "max_iter", "tol", "print_level", "covariance", "hessian",
-                                    "gauss_newton_max_iter", "options"})
+                                    "gauss_newton_max_iter", "codegen", "options"})
     d = SolverSpec()
     opts = m.get("options", {})
     if not isinstance(opts, dict):
@@ -376,6 +377,7 @@ def _solver(rd: Reader, node: Any) -> SolverSpec:
         hessian=rd.string(m.get("hessian", d.hessian), "solver.hessian", ("auto", "exact", "gauss-newton")),
         gauss_newton_max_iter=rd.integer(m.get("gauss_newton_max_iter", d.gauss_newton_max_iter),
                                          "solver.gauss_newton_max_iter", minimum=1),
+        codegen=rd.boolean(m.get("codegen", d.codegen), "solver.codegen"),
         options=dict(opts),
     )
 

@@ -111,6 +111,7 @@ class Robot:
         self.frame = frame
         self.offset = np.eye(4) if offset is None else np.asarray(offset, dtype=float)
         self.frame_id = self.frame_index(frame)
+        self._ik_maps: dict[int, ca.Function] = {}
 
     # ------------------------------------------------------------------ model facts
     @property
@@ -202,6 +203,40 @@ class Robot:
         e = ca.vertcat(e_p, 0.05 * e_r)  # 0.05 m/rad: a wrist-sized lever arm
         return ca.Function("ik_residual", [q, Tw], [e, ca.jacobian(e, q)], ["q", "T"], ["e", "J"])
 
+    def newton_batch(self, targets: np.ndarray, guesses: np.ndarray, iterations: int = 12):
+        """Plain Newton IK of many targets at once (one CasADi call per iteration), each from its own guess.
+
+        Args:
+            targets: (N, 4, 4) poses of the tracked frame in the URDF root frame.
+            guesses: (N, nq) joint vectors to start from (joints that do not move the frame are kept).
+
+        Returns:
+            (q (N, nq), converged (N,)): converged entries are inside the joint limits with a residual
+            below 1e-13 (position [m], orientation times 0.05 m); the others are to be solved otherwise.
+        """
+        N = len(targets)
+        if N not in self._ik_maps:
+            self._ik_maps[N] = self._ik_funcs.map(N)
+        f, movable = self._ik_maps[N], np.array(self.supporting_joints())
+        lo, hi = self.lower[movable], self.upper[movable]
+        Q = np.array(guesses, dtype=float)
+        T = np.hstack(list(targets))
+        done, alive = np.zeros(N, bool), np.all((Q[:, movable] >= lo) & (Q[:, movable] <= hi), axis=1)
+        for _ in range(iterations + 1):
+            E, J = (np.asarray(v) for v in f(Q.T, T))
+            E, J = E.T, J.reshape(len(E), N, self.nq).transpose(1, 0, 2)[:, :, movable]
+            done |= alive & (np.linalg.norm(E, axis=1) < 1e-13)
+            active = alive & ~done
+            if not active.any():
+                break
+            for k in np.flatnonzero(active):  # small systems: a loop of solves beats a batched lstsq here
+                try:
+                    Q[k, movable] -= np.linalg.lstsq(J[k], E[k], rcond=None)[0]
+                except np.linalg.LinAlgError:
+                    alive[k] = False
+            alive &= np.all((Q[:, movable] >= lo) & (Q[:, movable] <= hi), axis=1)
+        return Q, done
+
     def inverse_kinematics(
         self,
         target: np.ndarray,
@@ -273,7 +308,11 @@ def _newton(residual, movable: np.ndarray, x0: np.ndarray, lo: np.ndarray, hi: n
         e = e.ravel()
         if np.linalg.norm(e) < 1e-13:
             return x
-        x = x - np.linalg.lstsq(J[:, movable], e, rcond=None)[0]
+        J = J[:, movable]
+        try:
+            x = x - (np.linalg.solve(J, e) if J.shape[0] == J.shape[1] else np.linalg.lstsq(J, e, rcond=None)[0])
+        except np.linalg.LinAlgError:  # singular: leave it to the bounded least squares
+            return None
         if np.any(x < lo) or np.any(x > hi):
             return None
     return None

@@ -9,9 +9,13 @@ import numpy as np
 
 from .belief import BeliefModel
 from .errors import FrameNotFound, ProblemError, UnreachablePose
-from .lie import matrix_to_pose, pose_to_matrix
+from .lie import matrix_to_pose, np_log, pose_to_matrix
 from .problem import EndpointSpec, Problem
 from .robot import Robot
+
+# [rad or m] A batch-Newton IK solution farther than this from its guess (in any joint) is
+# taken as another IK branch and the waypoint is solved from the previous one instead.
+GUESS_RADIUS = 0.5
 
 
 @dataclass
@@ -77,21 +81,43 @@ class Setup:
         target = np.linalg.inv(self.T_cam_base) @ pose_to_matrix(x)
         return self.robot.inverse_kinematics(target, q0, what=what, raise_on_fail=raise_on_fail)
 
-    def joints_along(self, poses: np.ndarray, q0: np.ndarray, tol_m: float = 1e-6, tol_rad: float = 1e-5):
+    def joints_along(self, poses: np.ndarray, q0: np.ndarray, tol_m: float = 1e-6, tol_rad: float = 1e-5,
+                     guesses: np.ndarray | None = None):
         """IK of every waypoint, each started from the previous solution.
+
+        With `guesses` (one joint vector per waypoint, e.g. the joint-space line between
+        start and goal), all waypoints are first solved at once by Newton's method from
+        their guesses; a waypoint that does not converge there, or lands farther than
+        `GUESS_RADIUS` from its guess (another IK branch), is solved from the previous one.
 
         Returns:
             (q_best (N, nq) best-effort solutions, reachable (N,) bool, res_m (N,), res_rad (N,)).
         """
+        poses = np.asarray(poses, float)
+        batch, done = None, np.zeros(len(poses), bool)
+        if guesses is not None:
+            targets = np.array([np.linalg.inv(self.T_cam_base) @ pose_to_matrix(x) for x in poses])
+            batch, done = self.robot.newton_batch(targets, guesses)
+            done &= np.max(np.abs(batch - guesses), axis=1) <= GUESS_RADIUS
         qs, res_m, res_r = [], [], []
         q_prev = np.asarray(q0, float)
-        for x in poses:
-            q_prev, em, er = self.joints_for(x, q_prev, raise_on_fail=False)
+        for k, x in enumerate(poses):
+            if done[k]:
+                q_prev = batch[k]
+                em, er = self.pose_error(q_prev, x)
+            else:
+                q_prev, em, er = self.joints_for(x, q_prev, raise_on_fail=False)
             qs.append(q_prev)
             res_m.append(em)
             res_r.append(er)
         res_m, res_r = np.array(res_m), np.array(res_r)
         return np.array(qs), (res_m <= tol_m) & (res_r <= tol_rad), res_m, res_r
+
+    def pose_error(self, q: np.ndarray, x: np.ndarray) -> tuple[float, float]:
+        """Distance [m] and angle [rad] between the tracked frame at `q` (Pinocchio) and the pose `x`."""
+        T = self.T_cam_base @ self.robot.frame_pose(q)
+        X = pose_to_matrix(x)
+        return float(np.linalg.norm(T[:3, 3] - X[:3, 3])), float(np.linalg.norm(np_log(X[:3, :3].T @ T[:3, :3])))
 
 
 def build_setup(problem: Problem) -> Setup:
