@@ -11,9 +11,11 @@ dual values.
 Build times (CasADi expression graphs and IPOPT set-up, paid once per structure and
 horizon and cached) are reported separately and are not in the solve times.
 
-    .venv/bin/python benchmarks/solve_speed.py [--instances 20] [--horizons 10 20 40]
+    .venv/bin/python benchmarks/solve_speed.py [--instances 20] [--horizons 10 20 40] [--codegen]
 
-Writes benchmarks/results/solve_speed.md; the last printed line is
+`--codegen` compiles the Gauss-Newton Hessian to C first (solver.codegen; the compile
+is a build cost, reported with the builds). Writes benchmarks/results/solve_speed.md
+(solve_speed_codegen.md with --codegen); the last printed line is
 `T=20 time_ratio=... trace_share=... warm_ms=... growth_40_20=...`.
 """
 
@@ -50,8 +52,9 @@ def camera_nudge(setup, rng):
     return moved
 
 
-def run(instances: int, horizons: list[int], seed: int) -> tuple[str, str]:
+def run(instances: int, horizons: list[int], seed: int, codegen: bool = False) -> tuple[str, str]:
     spec = load_evaluation(ROOT / "problems" / "evaluation.yaml")
+    spec = replace(spec, base=replace(spec.base, solver=replace(spec.base.solver, codegen=codegen)))
     rows, summary = [], {}
     warm_ms, builds = [], {}
     rng = np.random.default_rng(seed)
@@ -90,7 +93,7 @@ def run(instances: int, horizons: list[int], seed: int) -> tuple[str, str]:
     warm = statistics.median(warm_ms) if warm_ms else float("nan")
     lines = ["# Solve speed: OCP against the gradient variant (same run)", "",
              f"`.venv/bin/python benchmarks/solve_speed.py --instances {instances} --horizons "
-             f"{' '.join(map(str, horizons))}`", "",
+             f"{' '.join(map(str, horizons))}{' --codegen' if codegen else ''}`", "",
              "| T | median time OCP / gradient | share OCP Tr <= gradient Tr | median OCP time [s] "
              "| median gradient time [s] | OCP failures | share solved by Gauss-Newton alone "
              "| OCP builds (once) [s] |", "|---|---|---|---|---|---|---|---|"]
@@ -115,9 +118,11 @@ def main() -> None:
     ap.add_argument("--instances", type=int, default=20)
     ap.add_argument("--horizons", type=int, nargs="+", default=[10, 20, 40])
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--codegen", action="store_true", help="compile the Gauss-Newton Hessian (gcc)")
     args = ap.parse_args()
-    text, last = run(args.instances, args.horizons, args.seed)
-    write_text_atomic(ROOT / "benchmarks" / "results" / "solve_speed.md", text)
+    text, last = run(args.instances, args.horizons, args.seed, args.codegen)
+    name = "solve_speed_codegen.md" if args.codegen else "solve_speed.md"
+    write_text_atomic(ROOT / "benchmarks" / "results" / name, text)
     print(text)
     print(last)
 

@@ -86,3 +86,42 @@ def test_compare_writes_files_and_ocp_wins(tmp_path):
     assert all(m in md for m in methods)
     for png in ("trace.png", "path.png"):
         assert (out / png).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_solver_flags_hessian_and_fatrop(tmp_path):
+    """--hessian picks the OCP Hessian (reported in the solution); --solver fatrop is a clean error, exit 2."""
+    path = small_problem(tmp_path, horizon=4)
+    traces = {}
+    for hessian in ("exact", "gauss-newton"):
+        out = tmp_path / f"{hessian}.json"
+        res = run("solve", str(path), "--hessian", hessian, "-o", str(out))
+        assert res.returncode == 0, res.stderr
+        sol = json.loads(out.read_text())
+        assert sol["hessian"] == hessian
+        traces[hessian] = sol["trace"][-1]
+    assert traces["gauss-newton"] == pytest.approx(traces["exact"], rel=1e-6)
+    res = run("solve", str(path), "--solver", "fatrop")
+    assert res.returncode == 2 and "fatrop" in res.stderr and "Traceback" not in res.stderr
+    bad = small_problem(tmp_path, horizon=4, solver={"hessian": "newton"})
+    res = run("validate", str(bad))
+    assert res.returncode == 2 and "solver.hessian" in res.stderr and "gauss-newton" in res.stderr
+
+
+@pytest.mark.skipif(__import__("shutil").which("gcc") is None, reason="no C compiler on this machine")
+def test_codegen_compiles_once_and_gives_the_same_plan(tmp_path):
+    """--codegen: the compiled Gauss-Newton Hessian gives the VM's plan; the second run loads the cached library."""
+    path = small_problem(tmp_path, horizon=3)
+    env_cache = tmp_path / "cache"
+    sols = {}
+    for name, flags in (("vm", []), ("cg", ["--codegen"]), ("cg2", ["--codegen"])):
+        out = tmp_path / f"{name}.json"
+        res = subprocess.run([sys.executable, "-m", "surestep_ocp.cli", "solve", str(path), "--hessian",
+                              "gauss-newton", "-o", str(out), *flags], capture_output=True, text=True, cwd=REPO,
+                             timeout=600, env={**__import__("os").environ, "SURESTEP_CACHE": str(env_cache)})
+        assert res.returncode == 0, res.stderr
+        sols[name] = json.loads(out.read_text())
+    libs = list(env_cache.glob("*.so"))
+    assert len(libs) == 1  # compiled once, loaded the second time
+    for name in ("cg", "cg2"):
+        assert sols[name]["trace"][-1] == pytest.approx(sols["vm"]["trace"][-1], rel=1e-9)
+        assert sols[name]["iterations"] == sols["vm"]["iterations"]
