@@ -44,9 +44,9 @@ def _with_solver_flags(setup, args):
     from dataclasses import replace
 
     if args.solver == "fatrop":
-        raise SurestepError("solver 'fatrop' is not wired in: measured on our NLPs it did not converge (500 "
-                            "iterations, 8 s on the default problem with the condensed form; its structure detection "
-                            "rejected the lifted form) and it takes no Gauss-Newton Hessian; allowed: ipopt")
+        raise SurestepError("solver 'fatrop' is not wired in: on the condensed OCP it did not converge (500 "
+                            "iterations, 8 s on the default problem) and the stage-wise lifted form it needs did not "
+                            "converge with IPOPT either (README, 'The Hessian'); allowed: ipopt")
     spec = setup.problem.solver
     spec = replace(spec, hessian=args.hessian or spec.hessian, codegen=args.codegen or spec.codegen)
     return replace(setup, problem=replace(setup.problem, solver=spec))
