@@ -29,11 +29,11 @@ from pathlib import Path
 
 import numpy as np
 
+from surestep_ocp import ocp as ocp_mod
 from surestep_ocp.configs import ConfigurationSampler, load_evaluation
 from surestep_ocp.gradient import solve_gradient
 from surestep_ocp.lie import np_exp
 from surestep_ocp.methods import ocp_initial_guess
-from surestep_ocp import ocp as ocp_mod
 from surestep_ocp.setup import build_setup
 from surestep_ocp.solution import write_text_atomic
 
@@ -92,18 +92,18 @@ def run(instances: int, horizons: list[int], seed: int, codegen: bool = False) -
     growth = (summary[40]["ocp_median_s"] / summary[20]["ocp_median_s"]) if {20, 40} <= set(summary) else float("nan")
     warm = statistics.median(warm_ms) if warm_ms else float("nan")
     lines = ["# Solve speed: OCP against the gradient variant (same run)", "",
-             f"`.venv/bin/python benchmarks/solve_speed.py --instances {instances} --horizons "
-             f"{' '.join(map(str, horizons))}{' --codegen' if codegen else ''}`", "",
-             "| T | median time OCP / gradient | share OCP Tr <= gradient Tr | median OCP time [s] "
-             "| median gradient time [s] | OCP failures | share solved by Gauss-Newton alone "
-             "| OCP builds (once) [s] |", "|---|---|---|---|---|---|---|---|"]
+             (f"`.venv/bin/python benchmarks/solve_speed.py --instances {instances} --horizons "
+              f"{' '.join(map(str, horizons))}{' --codegen' if codegen else ''}`"), "",
+             ("| T | median time OCP / gradient | share OCP Tr <= gradient Tr | median OCP time [s] "
+              "| median gradient time [s] | OCP failures | share solved by Gauss-Newton alone "
+              "| OCP builds (once) [s] |"), "|---|---|---|---|---|---|---|---|"]
     for T, s in summary.items():
         lines.append(f"| {T} | {s['time_ratio']:.2f} | {s['trace_share']:.2f} | {s['ocp_median_s']:.3f} | "
                      f"{s['grad_median_s']:.3f} | {s['failures']} | {s['gn_only']:.2f} | {builds[T]:.1f} |")
     lines += ["", f"Warm re-solve at T = 20 after a 3 mm / 2 deg camera move: median {warm:.1f} ms.",
               f"Growth of the median OCP time from T = 20 to T = 40: {growth:.2f}x.", "",
-              "| T | instance | OCP time [s] | OCP iters | OCP status | OCP Hessian(s) | OCP Tr "
-              "| OCP max constraint violation | gradient time [s] | gradient iters | gradient Tr |",
+              ("| T | instance | OCP time [s] | OCP iters | OCP status | OCP Hessian(s) | OCP Tr "
+               "| OCP max constraint violation | gradient time [s] | gradient iters | gradient Tr |"),
               "|---|---|---|---|---|---|---|---|---|---|---|"]
     lines += [f"| {r[0]} | {r[1]} | {r[2]:.3f} | {r[3]} | {r[4]} | {r[5]} | {r[6]:.3e} | {r[7]:.1e} | {r[8]:.3f} "
               f"| {r[9]} | {r[10]:.3e} |" for r in rows]

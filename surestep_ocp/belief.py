@@ -127,6 +127,27 @@ class BeliefModel:
         mats = [n.W_p0, n.W_o0, n.V_d0, n.V_f0, n.V_o0, n.Sigma0]
         return self.identity_maps and all(np.count_nonzero(M - np.diag(np.diag(M))) == 0 for M in mats)
 
+    @property
+    def isotropic(self) -> bool:
+        """Whether F = Q = H = R = I and every motion and observation base matrix is a multiple of I.
+
+        Then each step adds `w I` and observes with `v I`, which keeps the eigenvectors of the
+        covariance: from any Sigma_0 the EKF runs as six scalar recursions on its eigenvalues.
+        """
+        n = self.noise
+        mats = [n.W_p0, n.W_o0, n.V_d0, n.V_f0, n.V_o0]
+        return self.identity_maps and all(np.allclose(M, M[0, 0] * np.eye(NX), rtol=0, atol=0) for M in mats)
+
+    @property
+    def scalar(self) -> bool:
+        """Whether the covariance recursion is exactly six independent scalar Kalman recursions."""
+        return self.diagonal or self.isotropic
+
+    def channel_variances(self, sigma0: np.ndarray) -> np.ndarray:
+        """The six scalar recursions' initial variances: Sigma_0's diagonal, or its eigenvalues (isotropic)."""
+        sigma0 = np.asarray(sigma0, float)
+        return np.diag(sigma0).copy() if self.diagonal else np.linalg.eigvalsh(sigma0)
+
     def key(self) -> tuple:
         """Hashable identity of the model's constants (for caching built solvers)."""
         n = self.noise

@@ -49,7 +49,7 @@ def compiled(fn: ca.Function) -> tuple[ca.Function, bool]:
         if fresh:
             lib.parent.mkdir(parents=True, exist_ok=True)
             part = lib.with_name(f"{lib.name}.{os.getpid()}.part")
-            run = subprocess.run([cc, *FLAGS, str(source), "-o", str(part)], capture_output=True, text=True)
+            run = subprocess.run([cc, *FLAGS, str(source), "-o", str(part)], capture_output=True, text=True, check=False)
             if run.returncode != 0:
                 part.unlink(missing_ok=True)
                 raise SurestepError(f"solver.codegen: {cc} failed on the generated code:\n{run.stderr[-2000:]}")

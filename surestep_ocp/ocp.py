@@ -119,7 +119,7 @@ def resolve_form(model: BeliefModel, form: str) -> str:
     if form not in FORMS:
         raise SurestepError(f"unknown covariance form '{form}'; allowed: {', '.join(FORMS)}")
     if form == "auto":
-        return "condensed" if model.diagonal else "full"
+        return "condensed" if model.scalar else "full"
     if form == "diagonal" and not model.diagonal:
         raise SurestepError("solver.covariance: the diagonal form is exact only with identity motion/observation "
                             "maps and diagonal base covariances; use full, condensed or auto")
@@ -132,6 +132,7 @@ class Transcription:
     def __init__(self, robot: Robot, model: BeliefModel, horizon: int, form: str, smoothness: float,
                  options: dict, hessian: str = "exact", codegen: bool = False):
         self.robot, self.model, self.T, self.form = robot, model, horizon, form
+        self.scalar = form == "condensed" and model.scalar
         T, nq = horizon, robot.nq
         ns = NX if form == "diagonal" else NV
         self.ns = ns
@@ -162,7 +163,7 @@ class Transcription:
         if predicted and form != "condensed":
             raise SurestepError("objective.covariance: predicted needs solver.covariance: condensed (or auto)")
         if form == "condensed":  # the covariance is shot through the EKF steps inside the objective
-            if model.diagonal:  # exact: six scalar Kalman recursions
+            if self.scalar:  # exact: six scalar Kalman recursions (in Sigma_0's eigenbasis when isotropic)
                 s_t = ca.vertcat(*[sigma0[i] for i in DIAG])
                 for t in range(T):
                     p_t = s_t + ca.diag(model.motion_noise(mus[t], mus[t + 1]))
@@ -187,7 +188,7 @@ class Transcription:
         self.ng = ca.vertcat(*g).shape[0]
         self.hessian, self.hess_lag = hessian, None
         if hessian == "gauss-newton":
-            if form != "condensed" or not model.diagonal or model.noise.observation_noise != "mean":
+            if form != "condensed" or not model.scalar or model.noise.observation_noise != "mean":
                 raise SurestepError("the Gauss-Newton Hessian needs the condensed form of a diagonal model with the "
                                     "mean observation noise")
         elif codegen:
@@ -269,7 +270,7 @@ class Transcription:
     # ------------------------------------------------------------------ one solve
     def guess(self, setup: Setup, q: np.ndarray) -> tuple[dict, np.ndarray]:
         """Consistent primal point (mean, covariance, gains) from a joint trajectory; and the scales."""
-        model, T = self.model, self.T
+        model, T = setup.model, self.T  # this setup's Sigma_0 (the cached model may hold another)
         mu = np.array([setup.pose_of(qi) for qi in q])
         sig, pred = model.propagate(mu)
         out = {}
@@ -323,8 +324,10 @@ class Transcription:
         for t in range(T + 1):
             x0[f"s{t}"] = x0[f"s{t}"] / scale[t]
         lbx, ubx = self.bounds(setup, scale)
-        p = np.concatenate([setup.T_cam_base[:3, :].ravel(order="F"), scale, [trace_ref],
-                            vech(np.asarray(setup.problem.noise.Sigma0, float))])
+        sigma0 = np.asarray(setup.problem.noise.Sigma0, float)
+        if self.scalar:  # the scalar recursions start from their channel variances (the trace is the same)
+            sigma0 = np.diag(setup.model.channel_variances(sigma0))
+        p = np.concatenate([setup.T_cam_base[:3, :].ravel(order="F"), scale, [trace_ref], vech(sigma0)])
         args = dict(x0=self.layout.join(x0), lbx=lbx, ubx=ubx, lbg=0.0, ubg=0.0, p=p)
         if warm is not None:
             args.update(x0=warm.x, lam_x0=warm.lam_x, lam_g0=warm.lam_g)
@@ -393,7 +396,7 @@ def transcription(setup: Setup, form: str | None = None, extra_options: dict | N
     T = setup.problem.horizon if horizon is None else horizon
     opts = solver_options(setup, extra_options)
     codegen = setup.problem.solver.codegen and hessian == "gauss-newton"
-    key = (str(setup.robot.urdf), setup.robot.frame, setup.robot.offset.tobytes(), model.key(), T, form,
+    key = (str(setup.robot.urdf), setup.robot.frame, setup.robot.offset.tobytes(), model.key(), model.scalar, T, form,
            setup.problem.objective.smoothness, tuple(sorted((k, repr(v)) for k, v in opts.items())), hessian, codegen)
     if key not in _CACHE:
         _CACHE[key] = Transcription(setup.robot, model, T, form, setup.problem.objective.smoothness, opts, hessian,
@@ -409,7 +412,7 @@ def resolve_hessian(setup: Setup, form: str) -> str:
     Hessian if needed) and the exact Hessian elsewhere.
     """
     choice, model = setup.problem.solver.hessian, setup.model
-    possible = form == "condensed" and model.diagonal and model.noise.observation_noise == "mean"
+    possible = form == "condensed" and model.scalar and model.noise.observation_noise == "mean"
     if choice == "gauss-newton" and not possible:
         raise SurestepError("solver.hessian: gauss-newton needs the condensed covariance form of a diagonal model "
                             "with noise.observation_noise: mean; use exact or auto")

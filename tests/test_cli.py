@@ -117,7 +117,8 @@ def test_codegen_compiles_once_and_gives_the_same_plan(tmp_path):
         out = tmp_path / f"{name}.json"
         res = subprocess.run([sys.executable, "-m", "surestep_ocp.cli", "solve", str(path), "--hessian",
                               "gauss-newton", "-o", str(out), *flags], capture_output=True, text=True, cwd=REPO,
-                             timeout=600, env={**__import__("os").environ, "SURESTEP_CACHE": str(env_cache)})
+                             timeout=600, env={**__import__("os").environ, "SURESTEP_CACHE": str(env_cache)},
+                             check=False)
         assert res.returncode == 0, res.stderr
         sols[name] = json.loads(out.read_text())
     libs = list(env_cache.glob("*.so"))

@@ -8,15 +8,15 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from numpy_ekf import image_offset
+from scipy.spatial.transform import Rotation
 
-from numpy_ekf import geodesic_angle, image_offset
 from surestep_ocp.belief import COSINE_GUARD
 from surestep_ocp.errors import SurestepError
 from surestep_ocp.methods import ocp_initial_guess
 from surestep_ocp.ocp import solve_ocp, solve_ocp_warm, transcription
 from surestep_ocp.problem import load_problem
 from surestep_ocp.setup import build_setup
-from scipy.spatial.transform import Rotation
 
 DEFAULT = Path(__file__).resolve().parents[1] / "problems" / "needle_regrasp.yaml"
 

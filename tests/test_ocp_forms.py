@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from surestep_ocp.belief import COSINE_GUARD
 from surestep_ocp.methods import ocp_initial_guess
 from surestep_ocp.ocp import InitialGuess, resolve_form, solve_ocp
 from surestep_ocp.problem import load_problem
@@ -54,3 +55,28 @@ def test_diagonal_form_solves_and_matches_the_exact_ekf(small):
     assert diag.success, diag.status
     assert diag.trace_final == pytest.approx(sols["condensed"].trace_final, rel=1e-5)
     assert diag.extras["ocp_trace_final"] == pytest.approx(diag.trace_final, rel=1e-6)
+
+
+def test_isotropic_noise_with_a_full_sigma0_runs_scalar_recursions_on_its_eigenvalues():
+    """The paper's constants are multiples of I: from a non-diagonal Sigma_0 (after a camera move) the EKF is six
+    scalar recursions on Sigma_0's eigenvalues. The condensed OCP uses them; its trace equals a NumPy EKF's."""
+    from numpy_ekf import propagate
+    from scipy.spatial.transform import Rotation
+
+    prob = load_problem(DEFAULT)
+    U = np.eye(6)
+    U[:3, :3] = Rotation.from_rotvec([0.3, -0.2, 0.5]).as_matrix()
+    U[3:, 3:] = Rotation.from_rotvec([-0.4, 0.1, 0.2]).as_matrix()
+    sigma0 = U @ np.diag([4e-3, 1e-2, 2e-2, 5e-3, 8e-3, 3e-2]) @ U.T
+    setup = build_setup(replace(prob, horizon=6, noise=replace(prob.noise, Sigma0=sigma0)))
+    assert not setup.model.diagonal and setup.model.isotropic and setup.model.scalar
+    assert resolve_form(setup.model, "auto") == "condensed"
+    sol = solve_ocp(setup, ocp_initial_guess(setup))
+    assert sol.success, sol.status
+    sig, _ = propagate(np.array(sol.poses), setup.problem.noise, setup.problem.camera.intrinsics, guard=COSINE_GUARD)
+    assert sol.extras["ocp_trace_final"] == pytest.approx(np.trace(sig[-1]), rel=1e-9)
+    assert sol.trace_final == pytest.approx(np.trace(sig[-1]), rel=1e-9)
+    # a non-isotropic, non-diagonal model is not scalar: auto falls back to the full form
+    aniso = build_setup(replace(prob, horizon=6, noise=replace(prob.noise, Sigma0=sigma0,
+                                                               W_p0=np.diag([1e-3, 2e-3, 1e-3, 1e-3, 1e-3, 1e-3]))))
+    assert not aniso.model.scalar and resolve_form(aniso.model, "auto") == "full"
