@@ -11,7 +11,7 @@ dual values.
 Build times (CasADi expression graphs and IPOPT set-up, paid once per structure and
 horizon and cached) are reported separately and are not in the solve times.
 
-    .venv/bin/python benchmarks/solve_speed.py [--instances 20] [--horizons 10 20 40] [--codegen]
+    .venv/bin/python benchmarks/solve_speed.py [--instances 20] [--horizons 10 20 40] [--codegen] [--tol 1e-6]
 
 `--codegen` compiles the Gauss-Newton Hessian to C first (solver.codegen; the compile
 is a build cost, reported with the builds). Writes benchmarks/results/solve_speed.md
@@ -52,9 +52,11 @@ def camera_nudge(setup, rng):
     return moved
 
 
-def run(instances: int, horizons: list[int], seed: int, codegen: bool = False) -> tuple[str, str]:
+def run(instances: int, horizons: list[int], seed: int, codegen: bool = False,
+        tol: float | None = None) -> tuple[str, str]:
     spec = load_evaluation(ROOT / "problems" / "evaluation.yaml")
-    spec = replace(spec, base=replace(spec.base, solver=replace(spec.base.solver, codegen=codegen)))
+    solver = replace(spec.base.solver, codegen=codegen, tol=spec.base.solver.tol if tol is None else tol)
+    spec = replace(spec, base=replace(spec.base, solver=solver))
     rows, summary = [], {}
     warm_ms, builds = [], {}
     rng = np.random.default_rng(seed)
@@ -93,7 +95,8 @@ def run(instances: int, horizons: list[int], seed: int, codegen: bool = False) -
     warm = statistics.median(warm_ms) if warm_ms else float("nan")
     lines = ["# Solve speed: OCP against the gradient variant (same run)", "",
              (f"`.venv/bin/python benchmarks/solve_speed.py --instances {instances} --horizons "
-              f"{' '.join(map(str, horizons))}{' --codegen' if codegen else ''}`"), "",
+              f"{' '.join(map(str, horizons))}{' --codegen' if codegen else ''}"
+              f"{f' --tol {tol:g}' if tol is not None else ''}`"), "",
              ("| T | median time OCP / gradient | share OCP Tr <= gradient Tr | median OCP time [s] "
               "| median gradient time [s] | OCP failures | share solved by Gauss-Newton alone "
               "| OCP builds (once) [s] |"), "|---|---|---|---|---|---|---|---|"]
@@ -119,9 +122,10 @@ def main() -> None:
     ap.add_argument("--horizons", type=int, nargs="+", default=[10, 20, 40])
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--codegen", action="store_true", help="compile the Gauss-Newton Hessian (gcc)")
+    ap.add_argument("--tol", type=float, help="IPOPT tolerance instead of the problem's solver.tol (1e-8)")
     args = ap.parse_args()
-    text, last = run(args.instances, args.horizons, args.seed, args.codegen)
-    name = "solve_speed_codegen.md" if args.codegen else "solve_speed.md"
+    text, last = run(args.instances, args.horizons, args.seed, args.codegen, args.tol)
+    name = "solve_speed" + ("_codegen" if args.codegen else "") + (f"_tol{args.tol:g}" if args.tol else "") + ".md"
     write_text_atomic(ROOT / "benchmarks" / "results" / name, text)
     print(text)
     print(last)

@@ -105,6 +105,9 @@ def test_solver_flags_hessian_and_fatrop(tmp_path):
     bad = small_problem(tmp_path, horizon=4, solver={"hessian": "newton"})
     res = run("validate", str(bad))
     assert res.returncode == 2 and "solver.hessian" in res.stderr and "gauss-newton" in res.stderr
+    bad = small_problem(tmp_path, horizon=4, solver={"name": "fatrop"})  # not silently replaced by IPOPT
+    res = run("validate", str(bad))
+    assert res.returncode == 2 and "solver.name" in res.stderr and "ipopt" in res.stderr
 
 
 @pytest.mark.skipif(__import__("shutil").which("gcc") is None, reason="no C compiler on this machine")
