@@ -353,6 +353,7 @@ class Transcription:
                 "covariance_form": self.form,
                 "build_time_s": self.build_time_s,
                 "ocp_trace_final": ocp_trace,
+                "initial_trace": trace_ref,  # the planner's objective at the initial guess
                 "constraint_violation": float(np.max(np.abs(np.asarray(res["g"])))),
             },
         )
@@ -460,14 +461,13 @@ def solve_ocp_warm(setup: Setup, init: InitialGuess, solver_options: dict | None
     hessian = resolve_hessian(setup, form)
     spec, opts = setup.problem.solver, dict(solver_options or {})
     pinned = "ipopt.mu_strategy" in opts or "mu_strategy" in spec.options
-    tried: list[tuple[str, Solution]] = []
-    last: WarmStart | None = None
+    tried: list[tuple[str, Solution, WarmStart]] = []
 
     def attempt(name: str, hess: str, extra: dict, start: WarmStart | None) -> bool:
-        nonlocal last
         extra = {**extra, **WARM_OPTIONS} if start is not None else extra
-        sol, last = transcription(setup, form, {**opts, **extra}, hessian=hess).solve(setup, init, method, warm=start)
-        tried.append((name + (", warm start" if start is not None else ""), sol))
+        sol, reached = transcription(setup, form, {**opts, **extra}, hessian=hess).solve(setup, init, method,
+                                                                                          warm=start)
+        tried.append((name + (", warm start" if start is not None else ""), sol, reached))
         return sol.success
 
     done = False
@@ -478,18 +478,28 @@ def solve_ocp_warm(setup: Setup, init: InitialGuess, solver_options: dict | None
         cap = spec.max_iter if spec.hessian == "gauss-newton" else min(spec.gauss_newton_max_iter, spec.max_iter)
         done = attempt("gauss-newton", "gauss-newton", {"ipopt.max_iter": cap}, None)
         if not done and spec.hessian == "auto":
-            done = attempt("exact", "exact", {}, last)
+            done = attempt("exact", "exact", {}, tried[-1][2])
+        worse = done and tried[-1][1].objective > tried[-1][1].extras["initial_trace"]
+        if worse and warm is None and spec.hessian == "auto":
+            # Converged above its own (feasible) starting point: the steps crossed the axis-angle cut at
+            # rotations of pi, where the paper's orientation term is discontinuous (see the README). The
+            # exact Hessian's smaller, regularised steps measured better there; keep the better optimum.
+            done = attempt("exact (the Gauss-Newton optimum was worse than the start)", "exact", {}, None) or done
     if not done and spec.hessian != "gauss-newton":
         done = attempt("exact", "exact", {}, None)
         if not done and not pinned:
             attempt("exact, monotone barrier", "exact", {"ipopt.mu_strategy": "monotone"}, None)
-    sol = tried[-1][1]
-    sol.extras["attempts"] = [{"hessian": name, "status": s.status, "iterations": s.iterations,
-                               "solve_time_s": s.solve_time_s} for name, s in tried]
-    sol.extras["hessian"] = " + ".join(name for name, _ in tried)
+    finished = [k for k, (_, s_k, _) in enumerate(tried) if s_k.success]
+    pick = min(finished, key=lambda k: tried[k][1].objective) if finished else len(tried) - 1
+    sol, last = tried[pick][1], tried[pick][2]
+    sol.extras["attempts"] = [{"hessian": name, "status": s_k.status, "iterations": s_k.iterations,
+                               "solve_time_s": s_k.solve_time_s, "objective": s_k.objective, "kept": k == pick}
+                              for k, (name, s_k, _) in enumerate(tried)]
+    sol.extras["hessian"] = " + ".join(name for name, _, _ in tried)
+    sol.extras["worse_than_initial_guess"] = bool(sol.objective > sol.extras["initial_trace"])
     sol.extras["init"] = init.source if warm is None else f"warm start ({init.source})"
-    sol.solve_time_s = sum(s.solve_time_s for _, s in tried)
-    sol.iterations = sum(s.iterations for _, s in tried)
+    sol.solve_time_s = sum(s_k.solve_time_s for _, s_k, _ in tried)
+    sol.iterations = sum(s_k.iterations for _, s_k, _ in tried)
     return sol, last
 
 

@@ -160,3 +160,22 @@ def test_gauss_newton_needs_the_mean_noise_form():
     from surestep_ocp.ocp import resolve_hessian
 
     assert resolve_hessian(auto, "condensed") == "exact"
+
+
+def test_an_optimum_worse_than_the_start_is_retried_with_the_exact_hessian():
+    """Evaluation configuration 0 (orientations near a rotation of pi): Gauss-Newton converges above its own
+    feasible start; the exact Hessian is tried from the start too and the better converged point is kept."""
+    from surestep_ocp.configs import ConfigurationSampler, load_evaluation
+
+    sampler = ConfigurationSampler(load_evaluation(DEFAULT.parent / "evaluation.yaml"))
+    setup = build_setup(sampler.problem(sampler.sample(0, 0)))
+    sol = solve_ocp(setup, ocp_initial_guess(setup))
+    attempts = sol.extras["attempts"]
+    assert attempts[0]["hessian"] == "gauss-newton"
+    assert attempts[-1]["hessian"].startswith("exact (the Gauss-Newton optimum was worse")
+    kept = [a for a in attempts if a["kept"]]
+    assert len(kept) == 1 and kept[0]["objective"] == pytest.approx(sol.objective)
+    assert sol.objective == min(a["objective"] for a in attempts if a["status"] in ("Solve_Succeeded",
+                                                                                    "Solved_To_Acceptable_Level"))
+    assert sol.extras["worse_than_initial_guess"] == (sol.objective > sol.extras["initial_trace"])
+    assert sol.iterations == sum(a["iterations"] for a in attempts)
