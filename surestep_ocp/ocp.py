@@ -20,13 +20,14 @@ The covariance has four forms (`solver.covariance` in the problem file):
   exactly the Kalman gains at the optimum, with no symbolic inverse. Works for any
   F, Q, H, R and base covariances.
 * `condensed`: the covariance is not a variable; the EKF recursion is written out in
-  the objective. With identity maps and diagonal base covariances (the paper's
-  constants are multiples of I) every covariance along any path is diagonal, exactly,
-  and the recursion is six scalar Kalman updates `sigma+ = p v / (p + v)`.
+  the objective. With identity maps and diagonal base covariances every covariance
+  along any path is diagonal, exactly, and the recursion is six scalar Kalman updates
+  `sigma+ = p v / (p + v)`; with the paper's constants (multiples of I) the same holds
+  from any Sigma_0 on its eigenvalues (`BeliefModel.isotropic`, e.g. after a camera move).
 * `diagonal`: six scalar covariances per node with free scalar gains (multiple shooting).
-* `auto` (default): `condensed` when the diagonal structure is exact, else `full`.
+* `auto` (default): `condensed` when the scalar structure is exact, else `full`.
 
-Measured on problems/*.yaml (T = 20, this 2-core machine; see the issue notes): `full`
+Measured on problems/*.yaml (T = 20, this 2-core machine, exact Hessian; see the issue notes): `full`
 converges (the first formulation tried, `(I - K H) P` with the gain equality
 `K S = P H^T`, ended in restoration failures) but needs 300-1800 IPOPT iterations
 (3-45 s) and sometimes fails; `diagonal` fails more often; `condensed` with the scalar
@@ -35,7 +36,7 @@ convergence of the lifted forms comes from the paper's noise model: it vanishes 
 the ideal pose, so the covariance collapses there and everything before that node
 stops mattering (near-singular reduced Hessian).
 
-The Hessian (`solver.hessian`): with the condensed form of a diagonal model and the
+The Hessian (`solver.hessian`): with the condensed form of a scalar model and the
 paper's observation noise, the objective is S(c(mu)), S the trace after the scalar
 Kalman recursions as a function of the noise coefficients c (each the squared norm of a
 residual of the means: the step, the rotation between steps, the depth, image and
