@@ -135,10 +135,10 @@ def cmd_show(args) -> int:
 
 def _solver_flags(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--solver", choices=("ipopt", "fatrop"), default="ipopt", help="NLP solver of the OCP")
-    parser.add_argument("--hessian", choices=("auto", "exact", "gauss-newton"),
+    parser.add_argument("--hessian", choices=("auto", "exact", "surrogate", "gauss-newton"),
                         help="OCP Hessian (default: the problem file's solver.hessian, auto)")
     parser.add_argument("--codegen", action="store_true",
-                        help="compile the Gauss-Newton Hessian to C (gcc; cached, see solver.codegen)")
+                        help="compile the surrogate / Gauss-Newton Hessian to C (gcc; cached, see solver.codegen)")
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -43,12 +43,16 @@ residual of the means: the step, the rotation between steps, the depth, image an
 orientation errors). S is concave and nondecreasing in c (the Riccati map is), so its
 own curvature is what makes the exact Hessian indefinite: IPOPT then adds a large
 multiple of the identity and crawls (the exact Hessian needed 130-900 iterations, with
-the regularisation at 10^1 to 10^2). The Gauss-Newton matrix `sum_k dS/dc_k 2 J_k^T J_k`
-drops that curvature (and the residuals' own): positive semidefinite, block tridiagonal
-in the means, cost linear in T. `auto` runs IPOPT with it for at most
-`solver.gauss_newton_max_iter` iterations and, when that has not converged (it can
-zig-zag near an optimum where the dropped curvature matters), polishes with the exact
-Hessian warm-started from its primal-dual point; see `solve_ocp`.
+the regularisation at 10^1 to 10^2). Since S lies below its tangent, the objective is
+majorised by the surrogate `sum_k dS/dc_k c_k(mu)` (weights frozen at the current
+point); `surrogate` (the default through `auto`) uses that surrogate's exact Hessian,
+`sum_k dS/dc_k Hess c_k`: the exact Hessian without S's curvature, block tridiagonal in
+the means, cost linear in T. `gauss-newton` drops the residuals' curvature too
+(`sum_k dS/dc_k 2 J_k^T J_k`, positive semidefinite); measured at T = 20 on 20
+evaluation instances it needed about twice the iterations (median 46 against 24) and
+zig-zags near some optima. `auto` runs IPOPT with the surrogate Hessian for at most
+`solver.surrogate_max_iter` iterations and, when that has not converged, polishes with
+the exact Hessian warm-started from its primal-dual point; see `solve_ocp_warm`.
 
 The NLP is parametric in the camera pose (the robot base in the camera frame), the
 scales and Sigma_0, so one built solver serves every start, goal and camera pose of
@@ -72,6 +76,7 @@ from .setup import Setup
 from .solution import Solution, evaluate
 
 FORMS = ("auto", "full", "diagonal", "condensed")
+HESSIANS = ("exact", "surrogate", "gauss-newton")  # what a Transcription is built with (`auto` resolves to one)
 
 
 @dataclass
@@ -188,15 +193,18 @@ class Transcription:
             f += smoothness * sum(ca.sumsqr(qs[t + 1] - qs[t]) for t in range(T))
         self.ng = ca.vertcat(*g).shape[0]
         self.hessian, self.hess_lag = hessian, None
-        if hessian == "gauss-newton":
+        if hessian not in HESSIANS:
+            raise SurestepError(f"unknown Hessian '{hessian}'; allowed: {', '.join(HESSIANS)}")
+        if hessian != "exact":
             if form != "condensed" or not model.scalar or model.noise.observation_noise != "mean":
-                raise SurestepError("the Gauss-Newton Hessian needs the condensed form of a diagonal model with the "
+                raise SurestepError(f"the {hessian} Hessian needs the condensed form of a scalar model with the "
                                     "mean observation noise")
         elif codegen:
-            raise SurestepError("solver.codegen compiles the Gauss-Newton Hessian only (the exact condensed Hessian "
-                                "did not compile within 10 minutes); use solver.hessian: auto or gauss-newton")
+            raise SurestepError("solver.codegen compiles the surrogate and Gauss-Newton Hessians only (the exact "
+                                "condensed Hessian did not compile within 10 minutes); use solver.hessian: auto, "
+                                "surrogate or gauss-newton")
         t0 = time.perf_counter()
-        if hessian == "gauss-newton":
+        if hessian != "exact":
             self.hess_lag = self._gauss_newton(L.vector(), mus, g, sigma0, trace_ref, smoothness, qs, predicted)
             if codegen:  # the Hessian is most of the function time (measured: 28 of 41 ms at T = 20)
                 self.hess_lag, _ = compiled(self.hess_lag)
@@ -206,12 +214,15 @@ class Transcription:
         self.build_time_s = time.perf_counter() - t0
 
     def _gauss_newton(self, x, mus, g, sigma0, trace_ref, smoothness, qs, predicted) -> ca.Function:
-        """Hessian of the Lagrangian with the objective's part replaced by a Gauss-Newton matrix.
+        """Hessian of the Lagrangian with the objective's part replaced by a structured approximation.
 
         The objective is S(c(mu)): S, the trace after the scalar Kalman recursions, as a function
         of the noise coefficients c (each the squared norm of a residual e(mu)). S is concave and
-        nondecreasing in c, so dropping its curvature and the residuals' own curvature leaves
-        sum_k (dS/dc_k) 2 J_k^T J_k: positive semidefinite and block tridiagonal in the means.
+        nondecreasing in c. `surrogate`: drop S's own curvature, keep the coefficients' exact
+        one, `sum_k (dS/dc_k) Hess c_k`: the Hessian of the majorize-minimise surrogate
+        `sum_k (dS/dc_k) c_k(mu)` (S lies below its tangent). `gauss-newton`: drop the
+        residuals' curvature too, `sum_k (dS/dc_k) 2 J_k^T J_k`, positive semidefinite. Both are
+        block tridiagonal in the means (each c_k depends on two consecutive ones).
         """
         m, T = self.model, self.T
         Wd = [np.diag(M) for M in m.motion_matrices()]
@@ -233,8 +244,12 @@ class Transcription:
                                              ca.vertcat(*[ca.sumsqr(e) for e in res_o])])
         wm, wo = ca.SX.sym("wm", len(Wd)), ca.SX.sym("wo", len(Vd))
         ab = ca.vertcat(a, b)
-        block = sum(2 * wm[k] * ca.mtimes(ca.jacobian(e, ab).T, ca.jacobian(e, ab)) for k, e in enumerate(res_m))
-        block += sum(2 * wo[k] * ca.mtimes(ca.jacobian(e, ab).T, ca.jacobian(e, ab)) for k, e in enumerate(res_o))
+        if self.hessian == "surrogate":  # exact curvature of the weighted coefficients
+            block = ca.hessian(sum(wm[k] * ca.sumsqr(e) for k, e in enumerate(res_m))
+                               + sum(wo[k] * ca.sumsqr(e) for k, e in enumerate(res_o)), ab)[0]
+        else:  # Gauss-Newton: the residuals' curvature dropped too
+            block = sum(2 * wm[k] * ca.mtimes(ca.jacobian(e, ab).T, ca.jacobian(e, ab)) for k, e in enumerate(res_m))
+            block += sum(2 * wo[k] * ca.mtimes(ca.jacobian(e, ab).T, ca.jacobian(e, ab)) for k, e in enumerate(res_o))
         gn_block = ca.Function("gn_block", [a, b, wm, wo], [block])
         cms, cos_ = zip(*[coef(mus[t], mus[t + 1]) for t in range(T)])
         w = weights(ca.vertcat(*cms, *cos_), sigma0, trace_ref)
@@ -401,7 +416,7 @@ def transcription(setup: Setup, form: str | None = None, extra_options: dict | N
     form = resolve_form(model, form or setup.problem.solver.covariance)
     T = setup.problem.horizon if horizon is None else horizon
     opts = solver_options(setup, extra_options)
-    codegen = setup.problem.solver.codegen and hessian == "gauss-newton"
+    codegen = setup.problem.solver.codegen and hessian != "exact"
     key = (str(setup.robot.urdf), setup.robot.frame, setup.robot.offset.tobytes(), model.key(), model.scalar, T, form,
            setup.problem.objective.smoothness, tuple(sorted((k, repr(v)) for k, v in opts.items())), hessian, codegen)
     if key not in _CACHE:
@@ -413,17 +428,17 @@ def transcription(setup: Setup, form: str | None = None, extra_options: dict | N
 def resolve_hessian(setup: Setup, form: str) -> str:
     """`solver.hessian` of the problem resolved for this model and covariance form.
 
-    The Gauss-Newton matrix exists for the condensed form of a diagonal model with the
-    paper's (mean) observation noise; `auto` uses it there (then polishes with the exact
-    Hessian if needed) and the exact Hessian elsewhere.
+    The surrogate and Gauss-Newton matrices exist for the condensed form of a scalar model
+    with the paper's (mean) observation noise; `auto` uses the surrogate there (then polishes
+    with the exact Hessian if needed) and the exact Hessian elsewhere.
     """
     choice, model = setup.problem.solver.hessian, setup.model
     possible = form == "condensed" and model.scalar and model.noise.observation_noise == "mean"
-    if choice == "gauss-newton" and not possible:
-        raise SurestepError("solver.hessian: gauss-newton needs the condensed covariance form of a diagonal model "
+    if choice in ("surrogate", "gauss-newton") and not possible:
+        raise SurestepError(f"solver.hessian: {choice} needs the condensed covariance form of a scalar model "
                             "with noise.observation_noise: mean; use exact or auto")
     if choice == "auto":
-        return "gauss-newton" if possible else "exact"
+        return "surrogate" if possible else "exact"
     return choice
 
 
@@ -441,13 +456,13 @@ def solve_ocp_warm(setup: Setup, init: InitialGuess, solver_options: dict | None
     starting point and the barrier update):
 
     0. With `warm` (a previous solve's primal-dual point, e.g. before the camera moved):
-       the exact Hessian from there (near an optimum Newton converges fast, Gauss-Newton
-       only linearly; measured: 19 ms against 56 ms median at T = 20), or Gauss-Newton
-       with `solver.hessian: gauss-newton`.
-    1. With a Gauss-Newton Hessian (`solver.hessian` auto or gauss-newton): at most
-       `solver.gauss_newton_max_iter` iterations (auto) or `solver.max_iter` (gauss-newton)
-       from `init`. A converged Gauss-Newton run is a KKT point of the true problem (the
-       Hessian only shapes the steps), so it is returned as it is.
+       the exact Hessian from there (near an optimum Newton converges fast; measured with
+       Gauss-Newton instead: 56 ms against 19 ms median at T = 20), or the forced Hessian
+       with `solver.hessian: surrogate | gauss-newton`.
+    1. With the surrogate Hessian (`solver.hessian: auto` or `surrogate`) or Gauss-Newton:
+       at most `solver.surrogate_max_iter` iterations (auto) or `solver.max_iter` (forced)
+       from `init`. A converged run is a KKT point of the true problem (the Hessian only
+       shapes the steps), so it is returned as it is.
     2. (auto) If it stopped short, the exact Hessian, warm-started from where it stopped.
     3. (auto) If 1-2 converged to a point worse than the (feasible) initial guess, which
        happens when the steps cross the axis-angle cut at rotations of pi: the exact
@@ -477,21 +492,21 @@ def solve_ocp_warm(setup: Setup, init: InitialGuess, solver_options: dict | None
         return sol.success
 
     done = False
+    forced = spec.hessian in ("surrogate", "gauss-newton")  # no exact-Hessian attempts
     if warm is not None:  # near the optimum already: Newton's local convergence
-        done = attempt(hessian if spec.hessian == "gauss-newton" else "exact",
-                       hessian if spec.hessian == "gauss-newton" else "exact", {}, warm)
-    if not done and hessian == "gauss-newton":
-        cap = spec.max_iter if spec.hessian == "gauss-newton" else min(spec.gauss_newton_max_iter, spec.max_iter)
-        done = attempt("gauss-newton", "gauss-newton", {"ipopt.max_iter": cap}, None)
-        if not done and spec.hessian == "auto":
+        done = attempt(hessian if forced else "exact", hessian if forced else "exact", {}, warm)
+    if not done and hessian != "exact":
+        cap = spec.max_iter if forced else min(spec.surrogate_max_iter, spec.max_iter)
+        done = attempt(hessian, hessian, {"ipopt.max_iter": cap}, None)
+        if not done and not forced:
             done = attempt("exact", "exact", {}, tried[-1][2])
         worse = done and tried[-1][1].objective > tried[-1][1].extras["initial_trace"]
-        if worse and warm is None and spec.hessian == "auto":
+        if worse and warm is None and not forced:
             # Converged above its own (feasible) starting point: the steps crossed the axis-angle cut at
             # rotations of pi, where the paper's orientation term is discontinuous (see the README). The
             # exact Hessian's smaller, regularised steps measured better there; keep the better optimum.
-            done = attempt("exact (the Gauss-Newton optimum was worse than the start)", "exact", {}, None) or done
-    if not done and spec.hessian != "gauss-newton":
+            done = attempt(f"exact (the {hessian} optimum was worse than the start)", "exact", {}, None) or done
+    if not done and not forced:
         done = attempt("exact", "exact", {}, None)
         if not done and not pinned:
             attempt("exact, monotone barrier", "exact", {"ipopt.mu_strategy": "monotone"}, None)

@@ -82,9 +82,9 @@ class SolverSpec:
     tol: float = 1e-8
     print_level: int = 0
     covariance: str = "auto"  # auto | full | diagonal | condensed (see ocp.py)
-    hessian: str = "auto"  # auto | exact | gauss-newton (see ocp.py)
-    gauss_newton_max_iter: int = 60  # Gauss-Newton iterations before the exact-Hessian polish (hessian: auto)
-    codegen: bool = False  # compile the Gauss-Newton Hessian to C (gcc; cached on disk, see codegen.py)
+    hessian: str = "auto"  # auto | exact | surrogate | gauss-newton (see ocp.py)
+    surrogate_max_iter: int = 60  # surrogate iterations before the exact-Hessian polish (hessian: auto)
+    codegen: bool = False  # compile the surrogate / Gauss-Newton Hessian to C (gcc; cached, see codegen.py)
     options: dict = field(default_factory=dict)  # extra raw solver options
 
 
@@ -362,7 +362,7 @@ def _noise(rd: Reader, node: Any) -> NoiseParams:
 
 def _solver(rd: Reader, node: Any) -> SolverSpec:
     m = rd.mapping(node, "solver", {"name", "max_iter", "tol", "print_level", "covariance", "hessian",
-                                    "gauss_newton_max_iter", "codegen", "options"})
+                                    "surrogate_max_iter", "codegen", "options"})
     d = SolverSpec()
     opts = m.get("options", {})
     if not isinstance(opts, dict):
@@ -374,9 +374,9 @@ def _solver(rd: Reader, node: Any) -> SolverSpec:
         print_level=rd.integer(m.get("print_level", d.print_level), "solver.print_level", minimum=0),
         covariance=rd.string(m.get("covariance", d.covariance), "solver.covariance",
                              ("auto", "full", "diagonal", "condensed")),
-        hessian=rd.string(m.get("hessian", d.hessian), "solver.hessian", ("auto", "exact", "gauss-newton")),
-        gauss_newton_max_iter=rd.integer(m.get("gauss_newton_max_iter", d.gauss_newton_max_iter),
-                                         "solver.gauss_newton_max_iter", minimum=1),
+        hessian=rd.string(m.get("hessian", d.hessian), "solver.hessian", ("auto", "exact", "surrogate", "gauss-newton")),
+        surrogate_max_iter=rd.integer(m.get("surrogate_max_iter", d.surrogate_max_iter),
+                                         "solver.surrogate_max_iter", minimum=1),
         codegen=rd.boolean(m.get("codegen", d.codegen), "solver.codegen"),
         options=dict(opts),
     )

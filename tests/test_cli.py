@@ -92,7 +92,7 @@ def test_solver_flags_hessian_and_fatrop(tmp_path):
     """--hessian picks the OCP Hessian (reported in the solution); --solver fatrop is a clean error, exit 2."""
     path = small_problem(tmp_path, horizon=4)
     traces = {}
-    for hessian in ("exact", "gauss-newton"):
+    for hessian in ("exact", "surrogate", "gauss-newton"):
         out = tmp_path / f"{hessian}.json"
         res = run("solve", str(path), "--hessian", hessian, "-o", str(out))
         assert res.returncode == 0, res.stderr
@@ -100,6 +100,7 @@ def test_solver_flags_hessian_and_fatrop(tmp_path):
         assert sol["hessian"] == hessian
         traces[hessian] = sol["trace"][-1]
     assert traces["gauss-newton"] == pytest.approx(traces["exact"], rel=1e-6)
+    assert traces["surrogate"] == pytest.approx(traces["exact"], rel=1e-6)
     res = run("solve", str(path), "--solver", "fatrop")
     assert res.returncode == 2 and "fatrop" in res.stderr and "Traceback" not in res.stderr
     bad = small_problem(tmp_path, horizon=4, solver={"hessian": "newton"})
@@ -119,7 +120,7 @@ def test_codegen_compiles_once_and_gives_the_same_plan(tmp_path):
     for name, flags in (("vm", []), ("cg", ["--codegen"]), ("cg2", ["--codegen"])):
         out = tmp_path / f"{name}.json"
         res = subprocess.run([sys.executable, "-m", "surestep_ocp.cli", "solve", str(path), "--hessian",
-                              "gauss-newton", "-o", str(out), *flags], capture_output=True, text=True, cwd=REPO,
+                              "surrogate", "-o", str(out), *flags], capture_output=True, text=True, cwd=REPO,
                              timeout=600, env={**__import__("os").environ, "SURESTEP_CACHE": str(env_cache)},
                              check=False)
         assert res.returncode == 0, res.stderr
