@@ -81,7 +81,7 @@ def numpy_structured_hessian(setup, mus: np.ndarray, trace_ref: float, kind: str
         if kind == "gauss-newton":
             block = sum(2 * w[t, k] * J[k].T @ J[k] for k in range(len(base)))
         else:
-            def weighted(y):
+            def weighted(y, t=t):
                 return sum(w[t, k] * float(e @ e) for k, e in enumerate(residuals(setup, *np.split(y, 2))))
             block, h = np.zeros((12, 12)), 1e-4
             for i in range(12):
