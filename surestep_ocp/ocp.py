@@ -205,7 +205,7 @@ class Transcription:
                                 "surrogate or gauss-newton")
         t0 = time.perf_counter()
         if hessian != "exact":
-            self.hess_lag = self._gauss_newton(L.vector(), mus, g, sigma0, trace_ref, smoothness, qs, predicted)
+            self.hess_lag = self._structured_hessian(L.vector(), mus, g, sigma0, trace_ref, smoothness, qs, predicted)
             if codegen:  # the Hessian is most of the function time (measured: 28 of 41 ms at T = 20)
                 self.hess_lag, _ = compiled(self.hess_lag)
             options = {**options, "hess_lag": self.hess_lag}
@@ -213,7 +213,7 @@ class Transcription:
                                                            "p": self.p}, options)
         self.build_time_s = time.perf_counter() - t0
 
-    def _gauss_newton(self, x, mus, g, sigma0, trace_ref, smoothness, qs, predicted) -> ca.Function:
+    def _structured_hessian(self, x, mus, g, sigma0, trace_ref, smoothness, qs, predicted) -> ca.Function:
         """Hessian of the Lagrangian with the objective's part replaced by a structured approximation.
 
         The objective is S(c(mu)): S, the trace after the scalar Kalman recursions, as a function

@@ -113,7 +113,7 @@ def test_solver_flags_hessian_and_fatrop(tmp_path):
 
 @pytest.mark.skipif(__import__("shutil").which("gcc") is None, reason="no C compiler on this machine")
 def test_codegen_compiles_once_and_gives_the_same_plan(tmp_path):
-    """--codegen: the compiled Gauss-Newton Hessian gives the VM's plan; the second run loads the cached library."""
+    """--codegen: the compiled surrogate Hessian gives the VM's plan; the second run loads the cached library."""
     path = small_problem(tmp_path, horizon=3)
     env_cache = tmp_path / "cache"
     sols = {}

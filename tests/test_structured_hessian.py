@@ -30,7 +30,7 @@ def short():
     return build_setup(replace(load_problem(DEFAULT), horizon=6))
 
 
-# ------------------------------------------------------------------ an independent Gauss-Newton matrix
+# ------------------------------------------------------------------ independent structured Hessians
 def residuals(setup, x0, x1) -> list[np.ndarray]:
     """Motion (step, relative rotation) then observation (depth, image offset, 1 - cos) residuals, NumPy."""
     n, cam = setup.problem.noise, setup.problem.camera.intrinsics
