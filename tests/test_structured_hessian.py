@@ -198,3 +198,5 @@ def test_an_optimum_worse_than_the_start_is_retried_with_the_exact_hessian():
                                                                                     "Solved_To_Acceptable_Level"))
     assert sol.extras["worse_than_initial_guess"] == (sol.objective > sol.extras["initial_trace"])
     assert sol.iterations == sum(a["iterations"] for a in attempts)
+    assert sol.success and sol.extras["constraint_violation"] <= 1e-6
+    assert max(sol.terminal_error) <= 1e-6  # the kept point meets the terminal pose (Pinocchio FK)
