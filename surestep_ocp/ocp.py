@@ -89,11 +89,17 @@ class InitialGuess:
 
 @dataclass
 class WarmStart:
-    """Primal and dual values of a previous solve of the same transcription."""
+    """Primal and dual values of a previous solve of the same transcription, and its scaling.
+
+    The scaling (covariance scales, objective reference) is reused by the warm solve: the
+    values and multipliers are those of the scaled NLP.
+    """
 
     x: np.ndarray
     lam_x: np.ndarray
     lam_g: np.ndarray
+    scale: np.ndarray
+    trace_ref: float
 
 
 class _Layout:
@@ -188,6 +194,8 @@ class Transcription:
                 g.append(self._step(mus[t], mus[t + 1], scale[t] * ss[t], Ks[t]) / scale[t + 1]
                          - ss[t + 1])
             trace_T = scale[T] * (ca.sum1(ss[T]) if form == "diagonal" else sum(ss[T][i] for i in DIAG))
+        self.poses = pose.map(T + 1)  # (q columns, T_cam_base) -> mean columns, for initial points
+        self.trace = ca.Function("trace", [L.vector(), self.p], [trace_T])  # Tr(Sigma_T) the planner minimises
         f = trace_T / trace_ref
         if smoothness > 0:
             f += smoothness * sum(ca.sumsqr(qs[t + 1] - qs[t]) for t in range(T))
@@ -331,23 +339,36 @@ class Transcription:
                 lo[f"K{t}"], hi[f"K{t}"] = np.full(nk, -np.inf), np.full(nk, np.inf)
         return self.layout.join(lo), self.layout.join(hi)
 
-    def solve(self, setup: Setup, init: InitialGuess, method: str = "ocp",
-              warm: WarmStart | None = None, scale: np.ndarray | None = None) -> tuple[Solution, WarmStart]:
-        T = self.T
-        x0, guess_scale = self.guess(setup, np.asarray(init.q, float))
-        scale = guess_scale if scale is None else scale
-        trace_ref = float(np.sum(np.asarray(x0[f"s{T}"])[slice(None) if self.form == "diagonal" else DIAG]))
-        for t in range(T + 1):
-            x0[f"s{t}"] = x0[f"s{t}"] / scale[t]
-        lbx, ubx = self.bounds(setup, scale)
+    def _parameters(self, setup: Setup, scale: np.ndarray, trace_ref: float) -> np.ndarray:
         sigma0 = np.asarray(setup.problem.noise.Sigma0, float)
         if self.scalar:  # the scalar recursions start from their channel variances (the trace is the same)
             sigma0 = np.diag(setup.model.channel_variances(sigma0))
-        p = np.concatenate([setup.T_cam_base[:3, :].ravel(order="F"), scale, [trace_ref], vech(sigma0)])
-        args = dict(x0=self.layout.join(x0), lbx=lbx, ubx=ubx, lbg=0.0, ubg=0.0, p=p)
+        return np.concatenate([setup.T_cam_base[:3, :].ravel(order="F"), scale, [trace_ref], vech(sigma0)])
+
+    def solve(self, setup: Setup, init: InitialGuess, method: str = "ocp",
+              warm: WarmStart | None = None, scale: np.ndarray | None = None) -> tuple[Solution, WarmStart]:
+        T = self.T
+        t0 = time.perf_counter()  # the solve time counts the set-up of the call (initial point, scales, bounds)
+        if warm is None and self.form == "condensed":  # no covariance variables: means and the trace only
+            q = np.asarray(init.q, float)
+            mu = np.asarray(self.poses(q.T, setup.T_cam_base[:3, :])).T
+            x0 = self.layout.join({**{f"q{t}": q[t] for t in range(T + 1)}, **{f"mu{t}": mu[t] for t in range(T + 1)}})
+            scale = np.ones(T + 1)  # unused by this form
+            trace_ref = float(self.trace(x0, self._parameters(setup, scale, 1.0)))
+        elif warm is None:
+            x0, guess_scale = self.guess(setup, np.asarray(init.q, float))
+            scale = guess_scale if scale is None else scale
+            trace_ref = float(np.sum(np.asarray(x0[f"s{T}"])[slice(None) if self.form == "diagonal" else DIAG]))
+            for t in range(T + 1):
+                x0[f"s{t}"] = x0[f"s{t}"] / scale[t]
+            x0 = self.layout.join(x0)
+        else:
+            x0, scale, trace_ref = warm.x, warm.scale, warm.trace_ref
+        lbx, ubx = self.bounds(setup, scale)
+        p = self._parameters(setup, scale, trace_ref)
+        args = dict(x0=x0, lbx=lbx, ubx=ubx, lbg=0.0, ubg=0.0, p=p)
         if warm is not None:
-            args.update(x0=warm.x, lam_x0=warm.lam_x, lam_g0=warm.lam_g)
-        t0 = time.perf_counter()
+            args.update(lam_x0=warm.lam_x, lam_g0=warm.lam_g)
         res = self.solver(**args)
         solve_s = time.perf_counter() - t0
         stats = self.solver.stats()
@@ -369,12 +390,12 @@ class Transcription:
                 "covariance_form": self.form,
                 "build_time_s": self.build_time_s,
                 "ocp_trace_final": ocp_trace,
-                "initial_trace": trace_ref,  # the planner's objective at the initial guess
+                "initial_trace": trace_ref,  # the planner's objective at the (cold) initial guess
                 "constraint_violation": float(np.max(np.abs(np.asarray(res["g"])))),
             },
         )
         return sol, WarmStart(np.asarray(res["x"]).ravel(), np.asarray(res["lam_x"]).ravel(),
-                              np.asarray(res["lam_g"]).ravel())
+                              np.asarray(res["lam_g"]).ravel(), scale, trace_ref)
 
 
 _CACHE: dict[tuple, Transcription] = {}

@@ -140,6 +140,12 @@ def test_structured_hessians_reach_the_exact_hessians_optimum():
         assert sols[h].success, (h, sols[h].status)
         assert sols[h].extras["constraint_violation"] <= 1e-6
         assert np.max(np.abs(np.array(sols[h].poses[-1]) - setup.x_goal)) <= 1e-6
+    # the planner's objective at its initial point (the straight line) is the baseline's exact-EKF trace
+    from surestep_ocp.baseline import solve_baseline
+
+    base = solve_baseline(build_setup(prob)).trace_final
+    for h in sols:
+        assert sols[h].extras["initial_trace"] == pytest.approx(base, rel=1e-9)
     for h in ("auto", "surrogate", "gauss-newton"):
         assert sols[h].trace_final == pytest.approx(sols["exact"].trace_final, rel=1e-6)
         assert sols[h].iterations < sols["exact"].iterations
