@@ -3,8 +3,8 @@
 For N random configurations of problems/evaluation.yaml at T in {10, 20, 40}: wall
 time, iterations and Tr(Sigma_T) of the OCP (`solve_ocp`: IPOPT with the problem's
 settings, i.e. the surrogate Hessian with the exact-Hessian polish; the OCP time
-includes the IK of its initial guess) and of the gradient variant (L-BFGS, 50
-iterations, pose loss). Also the warm re-solve: the camera moves by 3 mm and 2
+includes the IK of its initial guess and the set-up of each IPOPT call) and of the
+gradient variant (L-BFGS, 50 iterations, pose loss). Also the warm re-solve: the camera moves by 3 mm and 2
 degrees, and the T = 20 OCP is re-solved from the previous solution's primal and
 dual values.
 
