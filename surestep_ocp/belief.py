@@ -136,7 +136,7 @@ class BeliefModel:
         """
         n = self.noise
         mats = [n.W_p0, n.W_o0, n.V_d0, n.V_f0, n.V_o0]
-        return self.identity_maps and all(np.allclose(M, M[0, 0] * np.eye(NX), rtol=0, atol=0) for M in mats)
+        return self.identity_maps and all(np.array_equal(M, M[0, 0] * np.eye(NX)) for M in mats)
 
     @property
     def scalar(self) -> bool:
@@ -146,7 +146,7 @@ class BeliefModel:
     def channel_variances(self, sigma0: np.ndarray) -> np.ndarray:
         """The six scalar recursions' initial variances: Sigma_0's diagonal, or its eigenvalues (isotropic)."""
         sigma0 = np.asarray(sigma0, float)
-        return np.diag(sigma0).copy() if self.diagonal else np.linalg.eigvalsh(sigma0)
+        return np.diag(sigma0) if self.diagonal else np.linalg.eigvalsh(sigma0)
 
     def key(self) -> tuple:
         """Hashable identity of the model's constants (for caching built solvers)."""

@@ -203,6 +203,12 @@ class Robot:
         e = ca.vertcat(e_p, 0.05 * e_r)  # 0.05 m/rad: a wrist-sized lever arm
         return ca.Function("ik_residual", [q, Tw], [e, ca.jacobian(e, q)], ["q", "T"], ["e", "J"])
 
+    def pose_error(self, q: np.ndarray, target: np.ndarray) -> tuple[float, float]:
+        """Distance [m] and angle [rad] from the tracked frame at `q` (Pinocchio) to `target` (4x4, root frame)."""
+        Tq = self.frame_pose(q)
+        return (float(np.linalg.norm(Tq[:3, 3] - target[:3, 3])),
+                float(np.linalg.norm(np_log(target[:3, :3].T @ Tq[:3, :3]))))
+
     def newton_batch(self, targets: np.ndarray, guesses: np.ndarray, iterations: int = 12):
         """Plain Newton IK of many targets at once (one CasADi call per iteration), each from its own guess.
 
@@ -282,14 +288,15 @@ class Robot:
         best = None
         for k in range(restarts + 1):  # q0 first, then seeded random starts
             x0 = np.clip(np.clip(base[movable], lo_f, hi_f) if k == 0 else rng.uniform(lo_f, hi_f), lo, hi)
-            x = _newton(lambda x: f(full(x), target), movable, x0, lo, hi) if k == 0 else None  # a nearby start
-            if x is None:
+            if k == 0:  # a nearby start: plain Newton steps first
+                q_newton, ok = self.newton_batch(target[None], full(x0)[None])
+            if k == 0 and ok[0]:
+                x = q_newton[0, movable]
+            else:
                 x = least_squares(fun, x0, jac=jac, bounds=(lo, hi), xtol=1e-15, ftol=1e-15, gtol=1e-15,
                                   max_nfev=200).x
             q = full(x)
-            Tq = self.frame_pose(q)
-            err_p = float(np.linalg.norm(Tq[:3, 3] - target[:3, 3]))
-            err_r = float(np.linalg.norm(np_log(target[:3, :3].T @ Tq[:3, :3])))
+            err_p, err_r = self.pose_error(q, target)
             if best is None or err_p + 0.05 * err_r < best[1] + 0.05 * best[2]:
                 best = (q, err_p, err_r)
             if err_p <= tol_m and err_r <= tol_rad:
@@ -298,21 +305,3 @@ class Robot:
             raise UnreachablePose(what, best[1], best[2])
         return best
 
-
-def _newton(residual, movable: np.ndarray, x0: np.ndarray, lo: np.ndarray, hi: np.ndarray,
-            iterations: int = 12):
-    """Plain Gauss-Newton steps from x0; the point when the residual vanishes inside the bounds, else None."""
-    x = x0.copy()
-    for _ in range(iterations):
-        e, J = (np.asarray(v) for v in residual(x))
-        e = e.ravel()
-        if np.linalg.norm(e) < 1e-13:
-            return x
-        J = J[:, movable]
-        try:
-            x = x - (np.linalg.solve(J, e) if J.shape[0] == J.shape[1] else np.linalg.lstsq(J, e, rcond=None)[0])
-        except np.linalg.LinAlgError:  # singular: leave it to the bounded least squares
-            return None
-        if np.any(x < lo) or np.any(x > hi):
-            return None
-    return None

@@ -9,7 +9,7 @@ import numpy as np
 
 from .belief import BeliefModel
 from .errors import FrameNotFound, ProblemError, UnreachablePose
-from .lie import matrix_to_pose, np_log, pose_to_matrix
+from .lie import matrix_to_pose, pose_to_matrix
 from .problem import EndpointSpec, Problem
 from .robot import Robot
 
@@ -95,29 +95,24 @@ class Setup:
         """
         poses = np.asarray(poses, float)
         batch, done = None, np.zeros(len(poses), bool)
+        base_cam = np.linalg.inv(self.T_cam_base)
+        targets = np.array([base_cam @ pose_to_matrix(x) for x in poses])  # root frame
         if guesses is not None:
-            targets = np.array([np.linalg.inv(self.T_cam_base) @ pose_to_matrix(x) for x in poses])
             batch, done = self.robot.newton_batch(targets, guesses)
             done &= np.max(np.abs(batch - guesses), axis=1) <= GUESS_RADIUS
         qs, res_m, res_r = [], [], []
         q_prev = np.asarray(q0, float)
-        for k, x in enumerate(poses):
+        for k, target in enumerate(targets):
             if done[k]:
                 q_prev = batch[k]
-                em, er = self.pose_error(q_prev, x)
+                em, er = self.robot.pose_error(q_prev, target)
             else:
-                q_prev, em, er = self.joints_for(x, q_prev, raise_on_fail=False)
+                q_prev, em, er = self.robot.inverse_kinematics(target, q_prev, raise_on_fail=False)
             qs.append(q_prev)
             res_m.append(em)
             res_r.append(er)
         res_m, res_r = np.array(res_m), np.array(res_r)
         return np.array(qs), (res_m <= tol_m) & (res_r <= tol_rad), res_m, res_r
-
-    def pose_error(self, q: np.ndarray, x: np.ndarray) -> tuple[float, float]:
-        """Distance [m] and angle [rad] between the tracked frame at `q` (Pinocchio) and the pose `x`."""
-        T = self.T_cam_base @ self.robot.frame_pose(q)
-        X = pose_to_matrix(x)
-        return float(np.linalg.norm(T[:3, 3] - X[:3, 3])), float(np.linalg.norm(np_log(X[:3, :3].T @ T[:3, :3])))
 
 
 def build_setup(problem: Problem) -> Setup:
