@@ -226,7 +226,7 @@ class Transcription:
                                 "surrogate or gauss-newton")
         t0 = time.perf_counter()
         if hessian != "exact":
-            self.hess_lag = self._structured_hessian(L.vector(), mus, g, sigma0, trace_ref, smoothness, qs, predicted)
+            self.hess_lag = self._structured_hessian(pose, sigma0, trace_ref, smoothness, predicted)
             if codegen:  # the Hessian is most of the time (measured: 49 of 84 ms, default problem, 60 iterations)
                 self.hess_lag, _ = compiled(self.hess_lag)
             options = {**options, "hess_lag": self.hess_lag}
@@ -234,7 +234,7 @@ class Transcription:
                                                            "p": self.p}, options)
         self.build_time_s = time.perf_counter() - t0
 
-    def _structured_hessian(self, x, mus, g, sigma0, trace_ref, smoothness, qs, predicted) -> ca.Function:
+    def _structured_hessian(self, pose: ca.Function, sigma0, trace_ref, smoothness, predicted) -> ca.Function:
         """Hessian of the Lagrangian with the objective's part replaced by a structured approximation.
 
         The objective is S(c(mu)): S, the trace after the scalar Kalman recursions, as a function
@@ -244,23 +244,30 @@ class Transcription:
         `sum_k (dS/dc_k) c_k(mu)` (S lies below its tangent). `gauss-newton`: drop the
         residuals' curvature too, `sum_k (dS/dc_k) 2 J_k^T J_k`, positive semidefinite. Both are
         block tridiagonal in the means (each c_k depends on two consecutive ones).
+
+        Built stage-wise: one 12x12 block function per interval (the means at both ends) and one
+        joint-space block per node (the kinematic constraint's curvature, weighted by its
+        multipliers), each a small SX Function mapped over the horizon, scattered into the upper
+        triangle by a constant sparse matrix. The expression graph, and the C code of
+        `solver.codegen`, therefore hold each stage once whatever the horizon.
         """
-        m, T = self.model, self.T
+        m, T, nq = self.model, self.T, self.robot.nq
         Wd = [np.diag(M) for M in m.motion_matrices()]
         Vd = [np.diag(M) for M in m.observation_matrices()]
-        cm = [ca.SX.sym(f"cm{t}", len(Wd)) for t in range(T)]
-        co = [ca.SX.sym(f"co{t}", len(Vd)) for t in range(T)]
-        S = _scalar_trace(sigma0, [sum(cm[t][k] * ca.DM(Wd[k]) for k in range(len(Wd))) for t in range(T)],
-                          [lambda p, t=t: sum(co[t][k] * ca.DM(Vd[k]) for k in range(len(Vd))) for t in range(T)],
+        nm, no = len(Wd), len(Vd)
+        cm = ca.SX.sym("cm", nm, T)
+        co = ca.SX.sym("co", no, T)
+        S = _scalar_trace(sigma0, [sum(cm[k, t] * ca.DM(Wd[k]) for k in range(nm)) for t in range(T)],
+                          [lambda p, t=t: sum(co[k, t] * ca.DM(Vd[k]) for k in range(no)) for t in range(T)],
                           predicted) / trace_ref
-        c_all = ca.vertcat(*cm, *co)
-        weights = ca.Function("weights", [c_all, sigma0, trace_ref], [ca.gradient(S, c_all)])
+        weights = ca.Function("weights", [cm, co, sigma0, trace_ref],
+                              [ca.jacobian(S, ca.vec(cm)).reshape((nm, T)), ca.jacobian(S, ca.vec(co)).reshape((no, T))])
         a, b = ca.SX.sym("a", NX), ca.SX.sym("b", NX)
         res_m = m.motion_residuals(a, b)
         res_o = [e for e, _ in m.observation_residuals(b)]
         coef = ca.Function("coef", [a, b], [ca.vertcat(*[ca.sumsqr(e) for e in res_m]),
                                              ca.vertcat(*[ca.sumsqr(e) for e in res_o])])
-        wm, wo = ca.SX.sym("wm", len(Wd)), ca.SX.sym("wo", len(Vd))
+        wm, wo = ca.SX.sym("wm", nm), ca.SX.sym("wo", no)
         ab = ca.vertcat(a, b)
         if self.hessian == "surrogate":  # exact curvature of the weighted coefficients
             block = ca.hessian(sum(wm[k] * ca.sumsqr(e) for k, e in enumerate(res_m))
@@ -268,23 +275,64 @@ class Transcription:
         else:  # Gauss-Newton: the residuals' curvature dropped too
             block = sum(2 * wm[k] * ca.mtimes(ca.jacobian(e, ab).T, ca.jacobian(e, ab)) for k, e in enumerate(res_m))
             block += sum(2 * wo[k] * ca.mtimes(ca.jacobian(e, ab).T, ca.jacobian(e, ab)) for k, e in enumerate(res_o))
-        block_fn = ca.Function("block_fn", [a, b, wm, wo], [block])
-        cms, cos_ = zip(*[coef(mus[t], mus[t + 1]) for t in range(T)])
-        w = weights(ca.vertcat(*cms, *cos_), sigma0, trace_ref)
-        nm, no = len(Wd), len(Vd)
-        lam_f, lam_g = ca.SX.sym("lam_f"), ca.SX.sym("lam_g", self.ng)
-        H = ca.SX(x.shape[0], x.shape[0])
-        index = {name: i for i, name in enumerate(n for n, _, _ in self.layout.blocks)}
-        offsets = np.cumsum([0] + [size for _, size, _ in self.layout.blocks])
-        for t in range(T):
-            ia, ib = offsets[index[f"mu{t}"]], offsets[index[f"mu{t + 1}"]]
-            idx = list(range(ia, ia + NX)) + list(range(ib, ib + NX))
-            H[idx, idx] += block_fn(mus[t], mus[t + 1], w[t * nm:(t + 1) * nm], w[T * nm + t * no:T * nm + (t + 1) * no])
-        H = lam_f * H
-        if smoothness > 0:
-            H += lam_f * ca.hessian(smoothness * sum(ca.sumsqr(qs[t + 1] - qs[t]) for t in range(T)), x)[0]
-        H += ca.hessian(ca.dot(lam_g, ca.vertcat(*g)), x)[0]
-        return ca.Function("nlp_hess_l", [x, self.p, lam_f, lam_g], [ca.triu(H)],
+        block_fn = ca.Function("block_fn", [a, b, wm, wo], [ca.densify(block)])
+        q, lam, Tcb = ca.SX.sym("q", nq), ca.SX.sym("lam", NX), ca.SX.sym("T_cam_base", 3, 4)
+        # g_t = mu_t - pose(q_t): the multipliers weight minus the pose's curvature in the joints
+        fk_fn = ca.Function("fk_block", [q, lam, Tcb], [ca.densify(ca.hessian(-ca.dot(lam, pose(q, Tcb)), q)[0])])
+
+        # Where each stage block's entries go in the upper triangle of the Hessian.
+        offsets = dict(zip((n for n, _, _ in self.layout.blocks),
+                           np.cumsum([0] + [size for _, size, _ in self.layout.blocks])))
+        mu_idx = [np.arange(offsets[f"mu{t}"], offsets[f"mu{t}"] + NX) for t in range(T + 1)]
+        q_idx = [np.arange(offsets[f"q{t}"], offsets[f"q{t}"] + nq) for t in range(T + 1)]
+        obj = [(np.concatenate([mu_idx[t], mu_idx[t + 1]]), 2 * NX) for t in range(T)]
+        kin = [(q_idx[t], nq) for t in range(T + 1)]
+        smooth = np.zeros((self.layout.vector().shape[0],) * 2)
+        if smoothness > 0:  # smoothness * sum |q_t+1 - q_t|^2: constant Hessian
+            for t in range(T):
+                for i, j in ((q_idx[t], q_idx[t]), (q_idx[t + 1], q_idx[t + 1]), (q_idx[t], q_idx[t + 1])):
+                    smooth[i, j] += 2 * smoothness * (1 if i[0] == j[0] else -1) * np.eye(nq)
+            smooth = np.triu(smooth)
+
+        def entries(blocks):  # (global row, global column) of each stage output entry, column-major
+            rows, cols = [], []
+            for idx, n in blocks:
+                rows.append(np.tile(idx, n))
+                cols.append(np.repeat(idx, n))
+            return np.concatenate(rows), np.concatenate(cols)
+
+        ro, co_ = entries(obj)
+        rk, ck = entries(kin)
+        rs, cs = np.nonzero(smooth)
+        keep_o, keep_k = ro <= co_, rk <= ck
+        n = self.layout.vector().shape[0]
+        pairs = sorted(set(zip(ro[keep_o], co_[keep_o])) | set(zip(rk[keep_k], ck[keep_k])) | set(zip(rs, cs)),
+                       key=lambda rc: (rc[1], rc[0]))
+        sp = ca.Sparsity.triplet(n, n, [int(r) for r, _ in pairs], [int(c) for _, c in pairs])
+        nz = {(int(r), int(c)): k for k, (r, c) in enumerate(zip(sp.row(), sp.get_col()))}
+
+        def scatter(rows, cols, keep) -> ca.DM:  # constant 0/1 matrix: stage entries -> Hessian nonzeros
+            src = np.flatnonzero(keep)
+            dst = [nz[(int(rows[i]), int(cols[i]))] for i in src]
+            return ca.DM(ca.Sparsity.triplet(sp.nnz(), len(rows), dst, [int(i) for i in src]), 1.0)
+
+        smooth_nz = np.zeros(sp.nnz())
+        for r, c in zip(rs, cs):
+            smooth_nz[nz[(int(r), int(c))]] = smooth[r, c]
+
+        X, P = ca.MX.sym("x", n), ca.MX.sym("p", self.p.shape[0])
+        lam_f, lam_g = ca.MX.sym("lam_f"), ca.MX.sym("lam_g", self.ng)
+        p_fn = ca.Function("params", [self.p], [self.p[:12].reshape((3, 4)), sigma0, trace_ref])
+        Tcb_x, sigma0_x, ref_x = p_fn(P)
+        mus = ca.horzcat(*[X[i[0]:i[0] + NX] for i in mu_idx])
+        qs = ca.horzcat(*[X[i[0]:i[0] + nq] for i in q_idx])
+        cms, cos_ = coef.map(T)(mus[:, :T], mus[:, 1:])
+        w_m, w_o = weights(cms, cos_, sigma0_x, ref_x)
+        B = block_fn.map(T)(mus[:, :T], mus[:, 1:], w_m, w_o)
+        K = fk_fn.map(T + 1)(qs, ca.reshape(lam_g[:NX * (T + 1)], NX, T + 1), Tcb_x)
+        H_nz = (lam_f * (ca.mtimes(scatter(ro, co_, keep_o), ca.vec(B)) + ca.DM(smooth_nz))
+                + ca.mtimes(scatter(rk, ck, keep_k), ca.vec(K)))
+        return ca.Function("nlp_hess_l", [X, P, lam_f, lam_g], [ca.MX(sp, H_nz)],
                            ["x", "p", "lam_f", "lam_g"], ["hess"])
 
     def _step(self, x0, x1, s, K):
