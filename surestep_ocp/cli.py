@@ -51,7 +51,7 @@ def _with_solver_flags(setup, args):
                             "iterations, 8 s on the default problem) and the stage-wise lifted form it needs did not "
                             "converge with IPOPT either (README, 'The Hessian'); allowed: ipopt")
     spec = setup.problem.solver
-    spec = replace(spec, hessian=args.hessian or spec.hessian, codegen=args.codegen or spec.codegen)
+    spec = replace(spec, hessian=args.hessian or spec.hessian, codegen=spec.codegen if args.codegen is None else args.codegen)
     return replace(setup, problem=replace(setup.problem, solver=spec))
 
 
@@ -137,8 +137,9 @@ def _solver_flags(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--solver", choices=("ipopt", "fatrop"), default="ipopt", help="NLP solver of the OCP")
     parser.add_argument("--hessian", choices=("auto", "exact", "surrogate", "gauss-newton"),
                         help="OCP Hessian (default: the problem file's solver.hessian, auto)")
-    parser.add_argument("--codegen", action="store_true",
-                        help="compile the surrogate / Gauss-Newton Hessian to C (gcc; cached, see solver.codegen)")
+    parser.add_argument("--codegen", action=argparse.BooleanOptionalAction, default=None,
+                        help="compile the OCP's stage-wise derivatives to C, or not (default: the problem file's "
+                             "solver.codegen, auto: when a C compiler is found; cached, see README)")
 
 
 def build_parser() -> argparse.ArgumentParser:

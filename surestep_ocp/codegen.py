@@ -34,6 +34,11 @@ def compiler() -> str:
     return cc
 
 
+def available() -> bool:
+    """Whether a C compiler is found (`$CC`, else gcc)."""
+    return shutil.which(os.environ.get("CC", "gcc")) is not None
+
+
 def compiled(fn: ca.Function) -> tuple[ca.Function, bool]:
     """`fn` compiled to C (same name, inputs and outputs); and whether it was compiled now (not cached)."""
     cc = compiler()

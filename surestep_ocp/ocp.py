@@ -30,7 +30,10 @@ The covariance has four forms (`solver.covariance` in the problem file):
 Measured on problems/*.yaml (T = 20, this 2-core machine, exact Hessian; see the issue notes): `full`
 converges (the first formulation tried, `(I - K H) P` with the gain equality
 `K S = P H^T`, ended in restoration failures) but needs 300-1800 IPOPT iterations
-(3-45 s) and sometimes fails; `diagonal` fails more often; `condensed` with the scalar
+(3-45 s) and sometimes fails; `diagonal` fails more often (T = 3, started from the
+condensed optimum moved by 1e-9 rad in random directions: 4 of 8 starts failed, the
+first step already 1e10 long: the KKT matrix is near singular where the covariance
+collapses); `condensed` with the scalar
 recursion solved every problem in 130-460 iterations (1.5-3.5 s). The slow
 convergence of the lifted forms comes from the paper's noise model: it vanishes at
 the ideal pose, so the covariance collapses there and everything before that node
@@ -68,6 +71,7 @@ import casadi as ca
 import numpy as np
 
 from .belief import DIAG, NV, NX, BeliefModel, unvech, vech
+from .codegen import available as compiler_available
 from .codegen import compiled
 from .errors import SurestepError
 from .lie import so3_log
@@ -221,21 +225,21 @@ class Transcription:
                 raise SurestepError(f"the {hessian} Hessian needs the condensed form of a scalar model with the "
                                     "mean observation noise")
         elif codegen:
-            raise SurestepError("solver.codegen compiles the surrogate and Gauss-Newton Hessians only (the exact "
-                                "condensed Hessian did not compile within 10 minutes); use solver.hessian: auto, "
-                                "surrogate or gauss-newton")
+            raise SurestepError(CODEGEN_EXACT)
+        self.codegen = codegen
         t0 = time.perf_counter()
         if hessian != "exact":
-            self.hess_lag = self._structured_hessian(pose, sigma0, trace_ref, smoothness, predicted)
-            if codegen:  # the Hessian is most of the time (measured: 49 of 84 ms, default problem, 60 iterations)
-                self.hess_lag, _ = compiled(self.hess_lag)
-            options = {**options, "hess_lag": self.hess_lag}
+            staged = self._staged_derivatives(pose, sigma0, trace_ref, smoothness, predicted)
+            if codegen:  # measured at T = 20: function time 22 -> 3.5 ms per solve (24 iterations)
+                staged = {k: compiled(fn)[0] for k, fn in staged.items()}
+            self.hess_lag = staged["hess_lag"]
+            options = {**options, **staged}
         self.solver = ca.nlpsol("surestep_ocp", "ipopt", {"x": L.vector(), "f": f, "g": ca.vertcat(*g),
                                                            "p": self.p}, options)
         self.build_time_s = time.perf_counter() - t0
 
-    def _structured_hessian(self, pose: ca.Function, sigma0, trace_ref, smoothness, predicted) -> ca.Function:
-        """Hessian of the Lagrangian with the objective's part replaced by a structured approximation.
+    def _staged_derivatives(self, pose: ca.Function, sigma0, trace_ref, smoothness, predicted) -> dict:
+        """Objective gradient, constraint Jacobian and a structured Hessian of the Lagrangian, built stage-wise.
 
         The objective is S(c(mu)): S, the trace after the scalar Kalman recursions, as a function
         of the noise coefficients c (each the squared norm of a residual e(mu)). S is concave and
@@ -243,25 +247,26 @@ class Transcription:
         one, `sum_k (dS/dc_k) Hess c_k`: the Hessian of the majorize-minimise surrogate
         `sum_k (dS/dc_k) c_k(mu)` (S lies below its tangent). `gauss-newton`: drop the
         residuals' curvature too, `sum_k (dS/dc_k) 2 J_k^T J_k`, positive semidefinite. Both are
-        block tridiagonal in the means (each c_k depends on two consecutive ones).
+        block tridiagonal in the means (each c_k depends on two consecutive ones). The gradient
+        is exact: `sum_k (dS/dc_k) grad c_k`.
 
-        Built stage-wise: one 12x12 block function per interval (the means at both ends) and one
-        joint-space block per node (the kinematic constraint's curvature, weighted by its
-        multipliers), each a small SX Function mapped over the horizon, scattered into the upper
-        triangle by a constant sparse matrix. The expression graph, and the C code of
-        `solver.codegen`, therefore hold each stage once whatever the horizon.
+        Each derivative is one small SX Function per interval (the means at both ends) or per
+        node (the kinematic constraint `mu_t - pose(q_t)`), mapped over the horizon and scattered
+        into the global sparsity by a constant sparse matrix; only the recursion's weights dS/dc
+        see the whole horizon. The expression graphs, and the C code of `solver.codegen`, hold
+        each stage once whatever the horizon. Returns IPOPT's `grad_f`, `jac_g` and `hess_lag`.
         """
         m, T, nq = self.model, self.T, self.robot.nq
+        n = self.layout.vector().shape[0]
         Wd = [np.diag(M) for M in m.motion_matrices()]
         Vd = [np.diag(M) for M in m.observation_matrices()]
         nm, no = len(Wd), len(Vd)
-        cm = ca.SX.sym("cm", nm, T)
-        co = ca.SX.sym("co", no, T)
+        cm, co = ca.SX.sym("cm", nm, T), ca.SX.sym("co", no, T)
         S = _scalar_trace(sigma0, [sum(cm[k, t] * ca.DM(Wd[k]) for k in range(nm)) for t in range(T)],
                           [lambda p, t=t: sum(co[k, t] * ca.DM(Vd[k]) for k in range(no)) for t in range(T)],
                           predicted) / trace_ref
         weights = ca.Function("weights", [cm, co, sigma0, trace_ref],
-                              [ca.jacobian(S, ca.vec(cm)).reshape((nm, T)), ca.jacobian(S, ca.vec(co)).reshape((no, T))])
+                              [S, ca.jacobian(S, ca.vec(cm)).reshape((nm, T)), ca.jacobian(S, ca.vec(co)).reshape((no, T))])
         a, b = ca.SX.sym("a", NX), ca.SX.sym("b", NX)
         res_m = m.motion_residuals(a, b)
         res_o = [e for e, _ in m.observation_residuals(b)]
@@ -269,71 +274,93 @@ class Transcription:
                                              ca.vertcat(*[ca.sumsqr(e) for e in res_o])])
         wm, wo = ca.SX.sym("wm", nm), ca.SX.sym("wo", no)
         ab = ca.vertcat(a, b)
+        weighted = (sum(wm[k] * ca.sumsqr(e) for k, e in enumerate(res_m))
+                    + sum(wo[k] * ca.sumsqr(e) for k, e in enumerate(res_o)))
         if self.hessian == "surrogate":  # exact curvature of the weighted coefficients
-            block = ca.hessian(sum(wm[k] * ca.sumsqr(e) for k, e in enumerate(res_m))
-                               + sum(wo[k] * ca.sumsqr(e) for k, e in enumerate(res_o)), ab)[0]
+            block = ca.hessian(weighted, ab)[0]
         else:  # Gauss-Newton: the residuals' curvature dropped too
             block = sum(2 * wm[k] * ca.mtimes(ca.jacobian(e, ab).T, ca.jacobian(e, ab)) for k, e in enumerate(res_m))
             block += sum(2 * wo[k] * ca.mtimes(ca.jacobian(e, ab).T, ca.jacobian(e, ab)) for k, e in enumerate(res_o))
-        block_fn = ca.Function("block_fn", [a, b, wm, wo], [ca.densify(block)])
+        interval_grad = ca.Function("interval_grad", [a, b, wm, wo], [ca.densify(ca.gradient(weighted, ab))])
+        interval_hess = ca.Function("interval_hess", [a, b, wm, wo], [ca.densify(block)])
         q, lam, Tcb = ca.SX.sym("q", nq), ca.SX.sym("lam", NX), ca.SX.sym("T_cam_base", 3, 4)
-        # g_t = mu_t - pose(q_t): the multipliers weight minus the pose's curvature in the joints
-        fk_fn = ca.Function("fk_block", [q, lam, Tcb], [ca.densify(ca.hessian(-ca.dot(lam, pose(q, Tcb)), q)[0])])
+        # g_t = mu_t - pose(q_t): Jacobian -d pose/dq (and I in the mean); curvature -Hess(lam . pose)
+        node_jac = ca.Function("node_jac", [q, Tcb], [ca.densify(-ca.jacobian(pose(q, Tcb), q))])
+        node_hess = ca.Function("node_hess", [q, lam, Tcb], [ca.densify(ca.hessian(-ca.dot(lam, pose(q, Tcb)), q)[0])])
 
-        # Where each stage block's entries go in the upper triangle of the Hessian.
-        offsets = dict(zip((n for n, _, _ in self.layout.blocks),
+        # Where each stage output's entries go (column-major within each stage block).
+        offsets = dict(zip((name for name, _, _ in self.layout.blocks),
                            np.cumsum([0] + [size for _, size, _ in self.layout.blocks])))
         mu_idx = [np.arange(offsets[f"mu{t}"], offsets[f"mu{t}"] + NX) for t in range(T + 1)]
         q_idx = [np.arange(offsets[f"q{t}"], offsets[f"q{t}"] + nq) for t in range(T + 1)]
-        obj = [(np.concatenate([mu_idx[t], mu_idx[t + 1]]), 2 * NX) for t in range(T)]
-        kin = [(q_idx[t], nq) for t in range(T + 1)]
-        smooth = np.zeros((self.layout.vector().shape[0],) * 2)
-        if smoothness > 0:  # smoothness * sum |q_t+1 - q_t|^2: constant Hessian
-            for t in range(T):
-                for i, j in ((q_idx[t], q_idx[t]), (q_idx[t + 1], q_idx[t + 1]), (q_idx[t], q_idx[t + 1])):
-                    smooth[i, j] += 2 * smoothness * (1 if i[0] == j[0] else -1) * np.eye(nq)
-            smooth = np.triu(smooth)
+        ab_idx = [np.concatenate([mu_idx[t], mu_idx[t + 1]]) for t in range(T)]
+        g_idx = [np.arange(NX * t, NX * (t + 1)) for t in range(T + 1)]
 
-        def entries(blocks):  # (global row, global column) of each stage output entry, column-major
-            rows, cols = [], []
-            for idx, n in blocks:
-                rows.append(np.tile(idx, n))
-                cols.append(np.repeat(idx, n))
-            return np.concatenate(rows), np.concatenate(cols)
+        def entries(pairs):  # (row, column) of each entry of each stage's dense (rows x cols) output
+            r = np.concatenate([np.tile(ri, len(ci)) for ri, ci in pairs])
+            c = np.concatenate([np.repeat(ci, len(ri)) for ri, ci in pairs])
+            return r, c
 
-        ro, co_ = entries(obj)
-        rk, ck = entries(kin)
-        rs, cs = np.nonzero(smooth)
-        keep_o, keep_k = ro <= co_, rk <= ck
-        n = self.layout.vector().shape[0]
-        pairs = sorted(set(zip(ro[keep_o], co_[keep_o])) | set(zip(rk[keep_k], ck[keep_k])) | set(zip(rs, cs)),
-                       key=lambda rc: (rc[1], rc[0]))
-        sp = ca.Sparsity.triplet(n, n, [int(r) for r, _ in pairs], [int(c) for _, c in pairs])
-        nz = {(int(r), int(c)): k for k, (r, c) in enumerate(zip(sp.row(), sp.get_col()))}
+        D = np.zeros((n, n))  # smoothness * sum |q_t+1 - q_t|^2 = x^T D x / 2 (constant curvature)
+        for t in range(T) if smoothness > 0 else ():
+            for i, j, sign in ((q_idx[t], q_idx[t], 1), (q_idx[t + 1], q_idx[t + 1], 1), (q_idx[t], q_idx[t + 1], -1),
+                               (q_idx[t + 1], q_idx[t], -1)):
+                D[np.ix_(i, j)] += 2 * smoothness * sign * np.eye(nq)
 
-        def scatter(rows, cols, keep) -> ca.DM:  # constant 0/1 matrix: stage entries -> Hessian nonzeros
-            src = np.flatnonzero(keep)
-            dst = [nz[(int(rows[i]), int(cols[i]))] for i in src]
-            return ca.DM(ca.Sparsity.triplet(sp.nnz(), len(rows), dst, [int(i) for i in src]), 1.0)
-
-        smooth_nz = np.zeros(sp.nnz())
-        for r, c in zip(rs, cs):
-            smooth_nz[nz[(int(r), int(c))]] = smooth[r, c]
+        def assemble(shape, parts, constant=None):
+            """Sparsity of the sum of scattered stage parts [(rows, cols)], plus the scatter matrices."""
+            keep = [np.ones(len(r), bool) if shape[0] != shape[1] else r <= c for r, c in parts]
+            rows = [r[k] for (r, _), k in zip(parts, keep)]
+            cols = [c[k] for (_, c), k in zip(parts, keep)]
+            if constant is not None:
+                cr, cc = np.nonzero(constant)
+                rows.append(cr)
+                cols.append(cc)
+            pairs = sorted(set(zip(np.concatenate(rows).tolist(), np.concatenate(cols).tolist())),
+                           key=lambda rc: (rc[1], rc[0]))
+            sp = ca.Sparsity.triplet(*shape, [r for r, _ in pairs], [c for _, c in pairs])
+            nz = {(int(r), int(c)): k for k, (r, c) in enumerate(zip(sp.row(), sp.get_col()))}
+            scatters = []
+            for (r, c), k in zip(parts, keep):
+                src = np.flatnonzero(k)
+                dst = [nz[(int(r[i]), int(c[i]))] for i in src]
+                scatters.append(ca.DM(ca.Sparsity.triplet(sp.nnz(), len(r), dst, src.tolist()), 1.0))
+            const = np.zeros(sp.nnz())
+            if constant is not None:
+                for r, c in zip(cr, cc):
+                    const[nz[(int(r), int(c))]] = constant[r, c]
+            return sp, scatters, ca.DM(const)
 
         X, P = ca.MX.sym("x", n), ca.MX.sym("p", self.p.shape[0])
         lam_f, lam_g = ca.MX.sym("lam_f"), ca.MX.sym("lam_g", self.ng)
-        p_fn = ca.Function("params", [self.p], [self.p[:12].reshape((3, 4)), sigma0, trace_ref])
-        Tcb_x, sigma0_x, ref_x = p_fn(P)
+        Tcb_x, sigma0_x, ref_x = ca.Function("params", [self.p], [self.p[:12].reshape((3, 4)), sigma0, trace_ref])(P)
         mus = ca.horzcat(*[X[i[0]:i[0] + NX] for i in mu_idx])
         qs = ca.horzcat(*[X[i[0]:i[0] + nq] for i in q_idx])
-        cms, cos_ = coef.map(T)(mus[:, :T], mus[:, 1:])
-        w_m, w_o = weights(cms, cos_, sigma0_x, ref_x)
-        B = block_fn.map(T)(mus[:, :T], mus[:, 1:], w_m, w_o)
-        K = fk_fn.map(T + 1)(qs, ca.reshape(lam_g[:NX * (T + 1)], NX, T + 1), Tcb_x)
-        H_nz = (lam_f * (ca.mtimes(scatter(ro, co_, keep_o), ca.vec(B)) + ca.DM(smooth_nz))
-                + ca.mtimes(scatter(rk, ck, keep_k), ca.vec(K)))
-        return ca.Function("nlp_hess_l", [X, P, lam_f, lam_g], [ca.MX(sp, H_nz)],
-                           ["x", "p", "lam_f", "lam_g"], ["hess"])
+        S_x, w_m, w_o = weights(*coef.map(T)(mus[:, :T], mus[:, 1:]), sigma0_x, ref_x)
+        G = interval_grad.map(T)(mus[:, :T], mus[:, 1:], w_m, w_o)
+        B = interval_hess.map(T)(mus[:, :T], mus[:, 1:], w_m, w_o)
+        Jq = node_jac.map(T + 1)(qs, Tcb_x)
+        K = node_hess.map(T + 1)(qs, ca.reshape(lam_g[:NX * (T + 1)], NX, T + 1), Tcb_x)
+        smooth_f = 0.5 * ca.bilin(ca.DM(D), X, X) if smoothness > 0 else 0
+
+        grad_sp, (sc_g,), _ = assemble((n, 1), [entries([(i, [0]) for i in ab_idx])])
+        grad = ca.MX(grad_sp, ca.mtimes(sc_g, ca.vec(G)))
+        if smoothness > 0:
+            grad = ca.densify(grad) + ca.mtimes(ca.DM(D), X)
+        grad_f = ca.Function("nlp_grad_f", [X, P], [S_x + smooth_f, ca.densify(grad)], ["x", "p"], ["f", "grad"])
+
+        jac_sp, (sc_q, sc_mu), _ = assemble((self.ng, n), [entries(list(zip(g_idx, q_idx))),
+                                                          entries(list(zip(g_idx, mu_idx)))])
+        J_nz = ca.mtimes(sc_q, ca.vec(Jq)) + ca.mtimes(sc_mu, ca.DM(np.tile(np.eye(NX).ravel(order="F"), T + 1)))
+        g_x = ca.vec(mus - ca.Function("poses", [q, Tcb], [pose(q, Tcb)]).map(T + 1)(qs, Tcb_x))
+        jac_g = ca.Function("nlp_jac_g", [X, P], [g_x, ca.MX(jac_sp, J_nz)], ["x", "p"], ["g", "jac"])
+
+        hess_sp, (sc_b, sc_k), const = assemble((n, n), [entries([(i, i) for i in ab_idx]),
+                                                         entries([(i, i) for i in q_idx])], np.triu(D))
+        H_nz = lam_f * (ca.mtimes(sc_b, ca.vec(B)) + const) + ca.mtimes(sc_k, ca.vec(K))
+        hess_lag = ca.Function("nlp_hess_l", [X, P, lam_f, lam_g], [ca.MX(hess_sp, H_nz)],
+                               ["x", "p", "lam_f", "lam_g"], ["hess"])
+        return {"grad_f": grad_f, "jac_g": jac_g, "hess_lag": hess_lag}
 
     def _step(self, x0, x1, s, K):
         m = self.model
@@ -446,6 +473,7 @@ class Transcription:
                 "solver": "ipopt",
                 "covariance_form": self.form,
                 "build_time_s": self.build_time_s,
+                "compiled": self.codegen,  # derivatives compiled to C (solver.codegen)
                 "ocp_trace_final": ocp_trace,
                 "initial_trace": trace_ref,  # the planner's objective at the (cold) initial guess
                 "constraint_violation": float(np.max(np.abs(np.asarray(res["g"])))),
@@ -494,13 +522,26 @@ def transcription(setup: Setup, form: str | None = None, extra_options: dict | N
     form = resolve_form(model, form or setup.problem.solver.covariance)
     T = setup.problem.horizon if horizon is None else horizon
     opts = solver_options(setup, extra_options)
-    codegen = setup.problem.solver.codegen and hessian != "exact"
+    codegen = resolve_codegen(setup, hessian)
     key = (str(setup.robot.urdf), setup.robot.frame, setup.robot.offset.tobytes(), model.key(), model.scalar, T, form,
            setup.problem.objective.smoothness, tuple(sorted((k, repr(v)) for k, v in opts.items())), hessian, codegen)
     if key not in _CACHE:
         _CACHE[key] = Transcription(setup.robot, model, T, form, setup.problem.objective.smoothness, opts, hessian,
                                     codegen)
     return _CACHE[key]
+
+
+CODEGEN_EXACT = ("solver.codegen: true compiles the stage-wise derivatives of the surrogate and Gauss-Newton "
+                 "Hessians only (the exact condensed Hessian did not compile within 10 minutes); use "
+                 "solver.hessian: auto, surrogate or gauss-newton, or codegen: auto or false")
+
+
+def resolve_codegen(setup: Setup, hessian: str) -> bool:
+    """Whether the transcription with this Hessian is compiled: `solver.codegen` true, or auto with a C compiler."""
+    choice = setup.problem.solver.codegen
+    if hessian == "exact":
+        return False
+    return compiler_available() if choice == "auto" else bool(choice)
 
 
 def resolve_hessian(setup: Setup, form: str) -> str:
@@ -559,6 +600,8 @@ def solve_ocp_warm(setup: Setup, init: InitialGuess, solver_options: dict | None
     form = resolve_form(setup.model, form or setup.problem.solver.covariance)
     hessian = resolve_hessian(setup, form)
     spec, opts = setup.problem.solver, dict(solver_options or {})
+    if spec.codegen is True and hessian == "exact":
+        raise SurestepError(CODEGEN_EXACT)
     pinned = "ipopt.mu_strategy" in opts or "mu_strategy" in spec.options
     tried: list[tuple[str, Solution, WarmStart]] = []
 
@@ -592,7 +635,8 @@ def solve_ocp_warm(setup: Setup, init: InitialGuess, solver_options: dict | None
     pick = min(finished, key=lambda k: tried[k][1].objective) if finished else len(tried) - 1
     sol, last = tried[pick][1], tried[pick][2]
     sol.extras["attempts"] = [{"hessian": name, "status": s_k.status, "iterations": s_k.iterations,
-                               "solve_time_s": s_k.solve_time_s, "objective": s_k.objective, "kept": k == pick}
+                               "solve_time_s": s_k.solve_time_s, "objective": s_k.objective, "kept": k == pick,
+                               "compiled": s_k.extras["compiled"]}
                               for k, (name, s_k, _) in enumerate(tried)]
     sol.extras["hessian"] = " + ".join(name for name, _, _ in tried)
     sol.extras["worse_than_initial_guess"] = bool(sol.objective > sol.extras["initial_trace"])

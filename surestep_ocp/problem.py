@@ -84,7 +84,9 @@ class SolverSpec:
     covariance: str = "auto"  # auto | full | diagonal | condensed (see ocp.py)
     hessian: str = "auto"  # auto | exact | surrogate | gauss-newton (see ocp.py)
     surrogate_max_iter: int = 60  # surrogate iterations before the exact-Hessian polish (hessian: auto)
-    codegen: bool = False  # compile the surrogate / Gauss-Newton Hessian to C (gcc; cached, see codegen.py)
+    # compile the stage-wise derivatives of the surrogate / Gauss-Newton NLP to C (cached, see codegen.py):
+    # True, False, or "auto" (when a C compiler is found)
+    codegen: bool | str = "auto"
     options: dict = field(default_factory=dict)  # extra raw solver options
 
 
@@ -360,6 +362,12 @@ def _noise(rd: Reader, node: Any) -> NoiseParams:
     return NoiseParams(**kw)
 
 
+def _codegen(rd: Reader, node: Any) -> bool | str:
+    if node == "auto" or isinstance(node, bool):
+        return node
+    raise rd.fail("solver.codegen", f"expected true, false or auto, got {node!r}")
+
+
 def _solver(rd: Reader, node: Any) -> SolverSpec:
     m = rd.mapping(node, "solver", {"name", "max_iter", "tol", "print_level", "covariance", "hessian",
                                     "surrogate_max_iter", "codegen", "options"})
@@ -377,7 +385,7 @@ def _solver(rd: Reader, node: Any) -> SolverSpec:
         hessian=rd.string(m.get("hessian", d.hessian), "solver.hessian", ("auto", "exact", "surrogate", "gauss-newton")),
         surrogate_max_iter=rd.integer(m.get("surrogate_max_iter", d.surrogate_max_iter),
                                          "solver.surrogate_max_iter", minimum=1),
-        codegen=rd.boolean(m.get("codegen", d.codegen), "solver.codegen"),
+        codegen=_codegen(rd, m.get("codegen", d.codegen)),
         options=dict(opts),
     )
 

@@ -111,13 +111,13 @@ def test_solver_flags_hessian_and_fatrop(tmp_path):
     assert res.returncode == 2 and "solver.name" in res.stderr and "ipopt" in res.stderr
 
 
-@pytest.mark.skipif(__import__("shutil").which("gcc") is None, reason="no C compiler on this machine")
+@pytest.mark.skipif(not __import__("surestep_ocp.codegen").codegen.available(), reason="no C compiler on this machine")
 def test_codegen_compiles_once_and_gives_the_same_plan(tmp_path):
-    """--codegen: the compiled surrogate Hessian gives the VM's plan; the second run loads the cached library."""
+    """--codegen: the compiled derivatives give the VM's plan; the second run loads the cached libraries."""
     path = small_problem(tmp_path, horizon=3)
     env_cache = tmp_path / "cache"
-    sols = {}
-    for name, flags in (("vm", []), ("cg", ["--codegen"]), ("cg2", ["--codegen"])):
+    sols, libs = {}, {}
+    for name, flags in (("vm", ["--no-codegen"]), ("cg", ["--codegen"]), ("cg2", ["--codegen"])):
         out = tmp_path / f"{name}.json"
         res = subprocess.run([sys.executable, "-m", "surestep_ocp.cli", "solve", str(path), "--hessian",
                               "surrogate", "-o", str(out), *flags], capture_output=True, text=True, cwd=REPO,
@@ -125,8 +125,10 @@ def test_codegen_compiles_once_and_gives_the_same_plan(tmp_path):
                              check=False)
         assert res.returncode == 0, res.stderr
         sols[name] = json.loads(out.read_text())
-    libs = list(env_cache.glob("*.so"))
-    assert len(libs) == 1  # compiled once, loaded the second time
+        libs[name] = {(p.name, p.stat().st_mtime_ns) for p in env_cache.glob("*.so")}
+    assert not libs["vm"] and sols["vm"]["compiled"] is False
+    # gradient, constraint Jacobian and Hessian compiled once, loaded (untouched) the second time
+    assert len(libs["cg"]) == 3 and libs["cg2"] == libs["cg"] and sols["cg"]["compiled"] is True
     for name in ("cg", "cg2"):
         assert sols[name]["trace"][-1] == pytest.approx(sols["vm"]["trace"][-1], rel=1e-9)
         assert sols[name]["iterations"] == sols["vm"]["iterations"]

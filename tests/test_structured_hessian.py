@@ -129,6 +129,41 @@ def test_structured_hessians_match_numpy_finite_differences(short, kind):
             assert np.all(got[6 * t:6 * t + 6, 6 * i:6 * i + 6] == 0)
 
 
+@pytest.mark.parametrize("kind", ["gauss-newton", "surrogate"])
+def test_staged_derivatives_equal_casadis_own(short, kind):
+    """The stage-wise gradient, constraint Jacobian and kinematic/smoothness curvature (scattered stage
+    blocks) equal what CasADi's AD derives from the whole NLP, at a perturbed point with random multipliers."""
+    setup = replace(short, problem=replace(short.problem, objective=replace(short.problem.objective,
+                                                                            smoothness=0.3)))
+    staged, exact = transcription(setup, hessian=kind), transcription(setup, hessian="exact")
+    x0, scale = staged.guess(setup, np.asarray(ocp_initial_guess(setup).q))
+    rng = np.random.default_rng(3)
+    x = staged.layout.join(x0) + 1e-2 * rng.normal(size=staged.layout.vector().shape[0])
+    p = np.concatenate([setup.T_cam_base[:3, :].ravel(order="F"), scale, [2e-5],
+                        np.asarray(setup.model.sigma0_vech())])
+    lam_g = rng.normal(size=staged.ng)
+    fns = {name: exact.solver.get_function(name) for name in ("nlp_grad_f", "nlp_jac_g", "nlp_hess_l")}
+    f_e, g_e = (np.asarray(v) for v in fns["nlp_grad_f"](x, p))
+    f_s, g_s = (np.asarray(v) for v in staged.solver.get_function("nlp_grad_f")(x, p))
+    assert abs(f_s - f_e).max() <= 1e-12 * abs(f_e).max()
+    assert np.abs(g_s - g_e).max() <= 1e-10 * np.abs(g_e).max()
+    c_e, J_e = fns["nlp_jac_g"](x, p)
+    c_s, J_s = staged.solver.get_function("nlp_jac_g")(x, p)
+    assert np.abs(np.asarray(c_s) - np.asarray(c_e)).max() <= 1e-13
+    assert np.abs(np.asarray(J_s.full()) - np.asarray(J_e.full())).max() <= 1e-12
+    # constraint curvature (no objective): the same matrix
+    H_s = np.asarray(staged.hess_lag(x, p, 0.0, lam_g).full())
+    H_e = np.asarray(fns["nlp_hess_l"](x, p, 0.0, lam_g).full())
+    assert np.abs(H_s - np.triu(H_e)).max() <= 1e-10 * np.abs(H_e).max()
+    # the smoothness term's curvature (joints only; the trace does not depend on them)
+    q_idx = np.concatenate([np.arange(o, o + size) for (name, size, _), o in
+                            zip(staged.layout.blocks, np.cumsum([0] + [b[1] for b in staged.layout.blocks]))
+                            if name.startswith("q")])
+    H_s = np.asarray(staged.hess_lag(x, p, 1.0, np.zeros(staged.ng)).full())[np.ix_(q_idx, q_idx)]
+    H_e = np.asarray(fns["nlp_hess_l"](x, p, 1.0, np.zeros(staged.ng)).full())[np.ix_(q_idx, q_idx)]
+    assert np.abs(H_s - np.triu(H_e)).max() <= 1e-12 and np.abs(H_e).max() > 0
+
+
 def test_structured_hessians_reach_the_exact_hessians_optimum():
     """Surrogate or Gauss-Newton alone, the default (surrogate, then exact if needed), the exact Hessian:
     one optimum on the default problem."""
@@ -206,3 +241,22 @@ def test_an_optimum_worse_than_the_start_is_retried_with_the_exact_hessian():
     assert sol.iterations == sum(a["iterations"] for a in attempts)
     assert sol.success and sol.extras["constraint_violation"] <= 1e-6
     assert max(sol.terminal_error) <= 1e-6  # the kept point meets the terminal pose (Pinocchio FK)
+
+
+def test_codegen_auto_follows_the_compiler(short, monkeypatch):
+    """solver.codegen auto: compiled when a C compiler is found, not when none is; true without a
+    compiler, or true with the exact Hessian, is an error (not a silent fallback)."""
+    from surestep_ocp.ocp import resolve_codegen
+
+    auto = replace(short, problem=with_solver(short.problem, codegen="auto"))
+    forced = replace(short, problem=with_solver(short.problem, codegen=True, hessian="exact"))
+    assert resolve_codegen(auto, "exact") is False
+    monkeypatch.setenv("CC", "no-such-compiler-here")
+    assert resolve_codegen(auto, "surrogate") is False
+    with pytest.raises(SurestepError, match="compiler"):
+        transcription(replace(short, problem=with_solver(short.problem, codegen=True)), hessian="surrogate",
+                      horizon=2)
+    with pytest.raises(SurestepError, match="exact"):
+        solve_ocp(forced, ocp_initial_guess(forced))
+    monkeypatch.setenv("CC", "sh")  # any program on PATH counts as found; compiling is not attempted here
+    assert resolve_codegen(auto, "surrogate") is True
