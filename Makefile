@@ -6,7 +6,7 @@ STAMP  := $(VENV)/.installed-stamp
 PROBLEM ?= problems/needle_regrasp.yaml
 OUT    ?= out
 
-.PHONY: run test install browser clean
+.PHONY: run test install browser compiler clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -27,7 +27,14 @@ browser:
 	  (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null) \
 	  || echo "chromium not installed: browser tests will be skipped")
 
-test: $(STAMP) browser
+# A C compiler for the compiled OCP derivatives (solver.codegen: auto uses it when present; the tests
+# check the compiled path against the interpreted one), installed when missing.
+compiler:
+	@command -v $${CC:-gcc} >/dev/null 2>&1 || (command -v apt-get >/dev/null 2>&1 && \
+	  (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq gcc libc6-dev >/dev/null) \
+	  || echo "no C compiler installed: the OCP runs interpreted, compiled-path tests will be skipped")
+
+test: $(STAMP) browser compiler
 	$(PY) -m pytest -n 2 -q
 
 clean:
