@@ -11,12 +11,15 @@ dual values.
 Build times (CasADi expression graphs and IPOPT set-up, paid once per structure and
 horizon and cached) are reported separately and are not in the solve times.
 
-    .venv/bin/python benchmarks/solve_speed.py [--instances 20] [--horizons 10 20 40] [--codegen] [--tol 1e-6]
-        [--hessian auto|exact|surrogate|gauss-newton]
+    .venv/bin/python benchmarks/solve_speed.py [--instances 20] [--horizons 10 20 40] [--codegen | --no-codegen]
+        [--tol 1e-6] [--hessian auto|exact|surrogate|gauss-newton]
 
-`--codegen` compiles the surrogate Hessian to C first (solver.codegen; the compile
-is a build cost, reported with the builds). Writes benchmarks/results/solve_speed.md
-(solve_speed_codegen.md with --codegen); the last printed line is
+By default the problem's `solver.codegen` (auto: the OCP's derivatives are compiled to C
+when a C compiler is found; the compile is a build cost, reported with the builds);
+`--codegen` / `--no-codegen` force it. The gradient variant's time is its L-BFGS run; its
+waypoints' IK (to get joints, which the OCP returns) is reported beside it, not added to
+the ratio. Writes benchmarks/results/solve_speed.md (solve_speed_codegen.md,
+solve_speed_interpreted.md with the flags); the last printed line is
 `T=20 time_ratio=... trace_share=... warm_ms=... growth_40_20=...`.
 """
 
@@ -53,10 +56,11 @@ def camera_nudge(setup, rng):
     return moved
 
 
-def run(instances: int, horizons: list[int], seed: int, codegen: bool = False,
+def run(instances: int, horizons: list[int], seed: int, codegen: bool | None = None,
         tol: float | None = None, hessian: str | None = None) -> tuple[str, str]:
     spec = load_evaluation(ROOT / "problems" / "evaluation.yaml")
-    solver = replace(spec.base.solver, codegen=codegen, tol=spec.base.solver.tol if tol is None else tol,
+    solver = replace(spec.base.solver, codegen=spec.base.solver.codegen if codegen is None else codegen,
+                     tol=spec.base.solver.tol if tol is None else tol,
                      hessian=hessian or spec.base.solver.hessian)
     spec = replace(spec, base=replace(spec.base, solver=solver))
     rows, summary = [], {}
@@ -65,7 +69,7 @@ def run(instances: int, horizons: list[int], seed: int, codegen: bool = False,
     for T in horizons:
         spec_T = replace(spec, base=replace(spec.base, horizon=T), horizon=T)
         sampler = ConfigurationSampler(spec_T)
-        ratios, wins, t_ocp, t_grad, fails, alone, iters = [], 0, [], [], 0, 0, []
+        ratios, wins, t_ocp, t_grad, fails, alone, iters, t_grad_ik = [], 0, [], [], 0, 0, [], []
         for i in range(instances):
             setup = build_setup(sampler.problem(sampler.sample(seed, i)))
             t0 = time.perf_counter()
@@ -80,6 +84,7 @@ def run(instances: int, horizons: list[int], seed: int, codegen: bool = False,
             alone += ocp.extras["hessian"] == ocp.extras["attempts"][0]["hessian"] != "exact"
             t_ocp.append(ocp_time)
             t_grad.append(grad.solve_time_s)
+            t_grad_ik.append(grad.solve_time_s + grad.extras["ik_time_s"])
             iters.append(ocp.iterations)
             rows.append((T, i, ocp_time, ocp.iterations, ocp.status, ocp.extras["hessian"], ocp.trace_final,
                          ocp.extras["constraint_violation"], grad.solve_time_s, grad.iterations, grad.trace_final))
@@ -93,21 +98,23 @@ def run(instances: int, horizons: list[int], seed: int, codegen: bool = False,
         builds[T] = sum(tr.build_time_s for tr in ocp_mod.cached_transcriptions() if tr.T == T)
         summary[T] = {"time_ratio": statistics.median(ratios), "trace_share": wins / instances,
                       "ocp_median_s": statistics.median(t_ocp), "grad_median_s": statistics.median(t_grad),
-                      "failures": fails, "alone": alone / instances, "iters": statistics.median(iters)}
+                      "failures": fails, "alone": alone / instances, "iters": statistics.median(iters),
+                      "grad_ik_median_s": statistics.median(t_grad_ik),
+                      "compiled": any(tr.codegen for tr in ocp_mod.cached_transcriptions() if tr.T == T)}
     growth = (summary[40]["ocp_median_s"] / summary[20]["ocp_median_s"]) if {20, 40} <= set(summary) else float("nan")
     warm = statistics.median(warm_ms) if warm_ms else float("nan")
     lines = ["# Solve speed: OCP against the gradient variant (same run)", "",
              (f"`.venv/bin/python benchmarks/solve_speed.py --instances {instances} --horizons "
-              f"{' '.join(map(str, horizons))}{' --codegen' if codegen else ''}"
+              f"{' '.join(map(str, horizons))}{ {None: '', True: ' --codegen', False: ' --no-codegen'}[codegen]}"
               f"{f' --tol {tol:g}' if tol is not None else ''}{f' --hessian {hessian}' if hessian else ''}`"), "",
              ("| T | median time OCP / gradient | share OCP Tr <= gradient Tr | median OCP time [s] "
-              "| median gradient time [s] | median OCP iterations | OCP failures "
-              "| share solved by the first Hessian alone | OCP builds (once) [s] |"),
-             "|---|---|---|---|---|---|---|---|---|"]
+              "| median gradient time [s] | median gradient + IK of its waypoints [s] | median OCP iterations "
+              "| OCP failures | share solved by the first Hessian alone | OCP compiled | OCP builds (once) [s] |"),
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
     for T, s in summary.items():
         lines.append(f"| {T} | {s['time_ratio']:.2f} | {s['trace_share']:.2f} | {s['ocp_median_s']:.3f} | "
-                     f"{s['grad_median_s']:.3f} | {s['iters']:g} | {s['failures']} | {s['alone']:.2f} | "
-                     f"{builds[T]:.1f} |")
+                     f"{s['grad_median_s']:.3f} | {s['grad_ik_median_s']:.3f} | {s['iters']:g} | {s['failures']} | "
+                     f"{s['alone']:.2f} | {'yes' if s['compiled'] else 'no'} | {builds[T]:.1f} |")
     lines += ["", f"Warm re-solve at T = 20 after a 3 mm / 2 deg camera move: median {warm:.1f} ms.",
               f"Growth of the median OCP time from T = 20 to T = 40: {growth:.2f}x.", "",
               ("| T | instance | OCP time [s] | OCP iters | OCP status | OCP Hessian(s) | OCP Tr "
@@ -126,13 +133,14 @@ def main() -> None:
     ap.add_argument("--instances", type=int, default=20)
     ap.add_argument("--horizons", type=int, nargs="+", default=[10, 20, 40])
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--codegen", action="store_true", help="compile the surrogate Hessian (gcc)")
+    ap.add_argument("--codegen", action=argparse.BooleanOptionalAction, default=None,
+                    help="compile the OCP's derivatives, or not (default: the problem's solver.codegen, auto)")
     ap.add_argument("--tol", type=float, help="IPOPT tolerance instead of the problem's solver.tol (1e-8)")
     ap.add_argument("--hessian", choices=("auto", "exact", "surrogate", "gauss-newton"),
                     help="solver.hessian instead of the problem's (auto)")
     args = ap.parse_args()
     text, last = run(args.instances, args.horizons, args.seed, args.codegen, args.tol, args.hessian)
-    name = ("solve_speed" + ("_codegen" if args.codegen else "") + (f"_tol{args.tol:g}" if args.tol else "")
+    name = ("solve_speed" + {None: "", True: "_codegen", False: "_interpreted"}[args.codegen] + (f"_tol{args.tol:g}" if args.tol else "")
             + (f"_{args.hessian}" if args.hessian else "") + ".md")
     write_text_atomic(ROOT / "benchmarks" / "results" / name, text)
     print(text)

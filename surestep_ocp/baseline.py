@@ -6,7 +6,7 @@ import time
 
 import numpy as np
 
-from .lie import slerp
+from .lie import slerp_many
 from .setup import Setup
 from .solution import Solution, evaluate
 
@@ -15,7 +15,7 @@ def straight_line(x_start: np.ndarray, x_goal: np.ndarray, horizon: int) -> np.n
     """(T+1, 6) waypoints from start to goal, evenly spaced in position and in angle."""
     s = np.linspace(0.0, 1.0, horizon + 1)
     p = (1 - s)[:, None] * x_start[:3] + s[:, None] * x_goal[:3]
-    r = np.array([slerp(x_start[3:], x_goal[3:], si) for si in s])
+    r = slerp_many(x_start[3:], x_goal[3:], s)
     r[0], r[-1] = x_start[3:], x_goal[3:]
     return np.hstack([p, r])
 

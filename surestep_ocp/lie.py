@@ -97,6 +97,41 @@ def slerp(ra: np.ndarray, rb: np.ndarray, s: float) -> np.ndarray:
     return np_log(Ra @ np_exp(s * np_log(Ra.T @ np_exp(rb))))
 
 
+def slerp_many(ra: np.ndarray, rb: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """`slerp(ra, rb, s_i)` for every s_i, as rows (vectorised; angles in [0, pi])."""
+    Ra = np_exp(ra)
+    rel = np_log(Ra.T @ np_exp(rb))
+    R = Ra @ np_exp_many(np.outer(s, rel))
+    return np_log_many(R)
+
+
+def np_exp_many(r: np.ndarray) -> np.ndarray:
+    """(N, 3, 3) rotation matrices of (N, 3) axis-angle vectors (Rodrigues, vectorised)."""
+    r = np.asarray(r, dtype=float).reshape(-1, 3)
+    th = np.linalg.norm(r, axis=1)
+    K = np.zeros((len(r), 3, 3))
+    K[:, 0, 1], K[:, 0, 2], K[:, 1, 2] = -r[:, 2], r[:, 1], -r[:, 0]
+    K -= K.transpose(0, 2, 1)
+    small = th < 1e-8
+    safe = np.where(small, 1.0, th)
+    a = np.where(small, 1.0, np.sin(safe) / safe)
+    b = np.where(small, 0.5, (1 - np.cos(safe)) / safe**2)
+    return np.eye(3) + a[:, None, None] * K + b[:, None, None] * (K @ K)
+
+
+def np_log_many(R: np.ndarray) -> np.ndarray:
+    """(N, 3) axis-angle vectors of (N, 3, 3) rotations; `np_log` where the angle is near pi."""
+    R = np.asarray(R, dtype=float)
+    c = np.clip(0.5 * (np.trace(R, axis1=1, axis2=2) - 1), -1.0, 1.0)
+    v = 0.5 * np.stack([R[:, 2, 1] - R[:, 1, 2], R[:, 0, 2] - R[:, 2, 0], R[:, 1, 0] - R[:, 0, 1]], axis=1)
+    s = np.linalg.norm(v, axis=1)
+    th = np.arctan2(s, c)
+    out = np.where((s < 1e-9)[:, None], v, (th / np.where(s < 1e-9, 1.0, s))[:, None] * v)
+    for k in np.flatnonzero((s < 1e-9) & (c <= 0)):  # angle near pi: the axis from the symmetric part
+        out[k] = np_log(R[k])
+    return out
+
+
 def pose_to_matrix(x: np.ndarray) -> np.ndarray:
     """4x4 homogeneous matrix of a pose `[px, py, pz, rx, ry, rz]`."""
     T = np.eye(4)

@@ -217,8 +217,9 @@ class Robot:
             guesses: (N, nq) joint vectors to start from (joints that do not move the frame are kept).
 
         Returns:
-            (q (N, nq), converged (N,)): converged entries are inside the joint limits with a residual
-            below 1e-13 (position [m], orientation times 0.05 m); the others are to be solved otherwise.
+            (q (N, nq), converged (N,), errors (N, 2)): converged entries are inside the joint limits
+            with a residual below 1e-13 (position [m], orientation times 0.05 m); the others are to be
+            solved otherwise. `errors`: distance [m] and angle [rad] to the target of the converged ones.
         """
         N = len(targets)
         if N not in self._ik_maps:
@@ -228,20 +229,29 @@ class Robot:
         Q = np.array(guesses, dtype=float)
         T = np.hstack(list(targets))
         done, alive = np.zeros(N, bool), np.all((Q[:, movable] >= lo) & (Q[:, movable] <= hi), axis=1)
+        errors = np.full((N, 2), np.inf)
         for _ in range(iterations + 1):
             E, J = (np.asarray(v) for v in f(Q.T, T))
             E, J = E.T, J.reshape(len(E), N, self.nq).transpose(1, 0, 2)[:, :, movable]
-            done |= alive & (np.linalg.norm(E, axis=1) < 1e-13)
+            now = alive & ~done & (np.linalg.norm(E, axis=1) < 1e-13)
+            errors[now] = np.stack([np.linalg.norm(E[now, :3], axis=1), np.linalg.norm(E[now, 3:], axis=1) / 0.05], 1)
+            done |= now
             active = alive & ~done
             if not active.any():
                 break
-            for k in np.flatnonzero(active):  # small systems: a loop of solves beats a batched lstsq here
-                try:
-                    Q[k, movable] -= np.linalg.lstsq(J[k], E[k], rcond=None)[0]
-                except np.linalg.LinAlgError:
-                    alive[k] = False
+            idx = np.flatnonzero(active)
+            try:  # square Jacobians (six movable joints): one batched solve
+                if J.shape[1] != J.shape[2]:
+                    raise np.linalg.LinAlgError("not square")
+                Q[np.ix_(idx, movable)] -= np.linalg.solve(J[idx], E[idx][:, :, None])[:, :, 0]
+            except np.linalg.LinAlgError:  # a singular one, or redundant/deficient arms: least squares each
+                for k in idx:
+                    try:
+                        Q[k, movable] -= np.linalg.lstsq(J[k], E[k], rcond=None)[0]
+                    except np.linalg.LinAlgError:
+                        alive[k] = False
             alive &= np.all((Q[:, movable] >= lo) & (Q[:, movable] <= hi), axis=1)
-        return Q, done
+        return Q, done, errors
 
     def inverse_kinematics(
         self,
@@ -289,7 +299,7 @@ class Robot:
         for k in range(restarts + 1):  # q0 first, then seeded random starts
             x0 = np.clip(np.clip(base[movable], lo_f, hi_f) if k == 0 else rng.uniform(lo_f, hi_f), lo, hi)
             if k == 0:  # a nearby start: plain Newton steps first
-                q_newton, ok = self.newton_batch(target[None], full(x0)[None])
+                q_newton, ok, _ = self.newton_batch(target[None], full(x0)[None])
             if k == 0 and ok[0]:
                 x = q_newton[0, movable]
             else:

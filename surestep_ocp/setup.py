@@ -9,7 +9,7 @@ import numpy as np
 
 from .belief import BeliefModel
 from .errors import FrameNotFound, ProblemError, UnreachablePose
-from .lie import matrix_to_pose, pose_to_matrix
+from .lie import matrix_to_pose, np_exp_many, pose_to_matrix
 from .problem import EndpointSpec, Problem
 from .robot import Robot
 
@@ -96,16 +96,18 @@ class Setup:
         poses = np.asarray(poses, float)
         batch, done = None, np.zeros(len(poses), bool)
         base_cam = np.linalg.inv(self.T_cam_base)
-        targets = np.array([base_cam @ pose_to_matrix(x) for x in poses])  # root frame
+        targets = np.zeros((len(poses), 4, 4))  # root frame
+        targets[:, :3, :3], targets[:, :3, 3], targets[:, 3, 3] = np_exp_many(poses[:, 3:]), poses[:, :3], 1.0
+        targets = base_cam @ targets
         if guesses is not None:
-            batch, done = self.robot.newton_batch(targets, guesses)
+            batch, done, errors = self.robot.newton_batch(targets, guesses)
             done &= np.max(np.abs(batch - guesses), axis=1) <= GUESS_RADIUS
         qs, res_m, res_r = [], [], []
         q_prev = np.asarray(q0, float)
         for k, target in enumerate(targets):
-            if done[k]:
+            if done[k]:  # the batch's own residual (its FK is checked against Pinocchio's in the tests)
                 q_prev = batch[k]
-                em, er = self.robot.pose_error(q_prev, target)
+                em, er = errors[k]
             else:
                 q_prev, em, er = self.robot.inverse_kinematics(target, q_prev, raise_on_fail=False)
             qs.append(q_prev)

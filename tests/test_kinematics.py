@@ -17,7 +17,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from surestep_ocp.errors import FrameNotFound
-from surestep_ocp.lie import angle_sq, np_angle, np_exp, np_log, so3_exp, so3_log
+from surestep_ocp.lie import (angle_sq, np_angle, np_exp, np_exp_many, np_log, np_log_many, slerp, slerp_many, so3_exp,
+                              so3_log)
 from surestep_ocp.robot import Robot
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
@@ -402,3 +403,18 @@ def test_angle_sq_just_below_pi(lie_functions):
     assert float(lie_functions["angle_sq"](np.zeros(3), NEAR_PI * NEAR_PI_AXIS)) == pytest.approx(
         NEAR_PI**2, rel=1e-6
     )
+
+
+def test_vectorised_exp_log_slerp_equal_the_scalar_ones():
+    """np_exp_many / np_log_many / slerp_many equal the per-vector versions, including zero and near-pi angles."""
+    rng = np.random.default_rng(5)
+    axes = rng.normal(size=(40, 3))
+    axes /= np.linalg.norm(axes, axis=1)[:, None]
+    angles = np.concatenate([rng.uniform(0, np.pi, 34), [0.0, 1e-10, np.pi - 1e-7, np.pi, np.pi, 2e-9]])
+    r = axes * angles[:, None]
+    R = np_exp_many(r)
+    np.testing.assert_allclose(R, np.array([np_exp(v) for v in r]), rtol=0, atol=1e-14)
+    np.testing.assert_allclose(np_log_many(R), np.array([np_log(M) for M in R]), rtol=0, atol=1e-12)
+    s = np.linspace(0, 1, 11)
+    for a, b in zip(r[:-1], r[1:]):
+        np.testing.assert_allclose(slerp_many(a, b, s), np.array([slerp(a, b, si) for si in s]), rtol=0, atol=1e-9)
