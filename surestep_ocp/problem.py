@@ -79,7 +79,7 @@ class CameraSpec:
 class SolverSpec:
     name: str = "ipopt"
     max_iter: int = 3000
-    tol: float = 1e-8
+    tol: float = 1e-6  # IPOPT tol (scaled NLP error); the constraints separately to min(tol, 1e-8)
     print_level: int = 0
     covariance: str = "auto"  # auto | full | diagonal | condensed (see ocp.py)
     hessian: str = "auto"  # auto | exact | surrogate | gauss-newton (see ocp.py)

@@ -37,6 +37,10 @@ class _Joint:
     upper: float
 
 
+_IK_FUNCS: dict[tuple, ca.Function] = {}  # (urdf, mtime, frame, offset) -> IK residual Function
+_IK_MAPS: dict[tuple, dict[int, ca.Function]] = {}  # same key -> {N: the Function mapped over N targets}
+
+
 def _se3(M: pin.SE3) -> np.ndarray:
     return np.asarray(M.homogeneous, dtype=float)
 
@@ -111,7 +115,10 @@ class Robot:
         self.frame = frame
         self.offset = np.eye(4) if offset is None else np.asarray(offset, dtype=float)
         self.frame_id = self.frame_index(frame)
-        self._ik_maps: dict[int, ca.Function] = {}
+        # IK Functions are shared by every Robot of the same file, frame and offset (a new setup per
+        # problem, e.g. per evaluation instance, would otherwise rebuild them: ~7 ms each)
+        self._ik_key = (str(self.urdf.resolve()), self.urdf.stat().st_mtime_ns, frame, self.offset.tobytes())
+        self._ik_maps = _IK_MAPS.setdefault(self._ik_key, {})
 
     # ------------------------------------------------------------------ model facts
     @property
@@ -193,8 +200,13 @@ class Robot:
         return self.fk_function()
 
     # ------------------------------------------------------------------ inverse kinematics
-    @cached_property
+    @property
     def _ik_funcs(self) -> ca.Function:
+        if self._ik_key not in _IK_FUNCS:
+            _IK_FUNCS[self._ik_key] = self._build_ik_funcs()
+        return _IK_FUNCS[self._ik_key]
+
+    def _build_ik_funcs(self) -> ca.Function:
         q = ca.SX.sym("q", self.nq)
         Tw = ca.SX.sym("Tw", 4, 4)  # target pose of the tracked frame in the URDF root frame
         T = self.fk_expr(q)
