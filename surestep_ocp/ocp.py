@@ -57,6 +57,12 @@ zig-zags near some optima. `auto` runs IPOPT with the surrogate Hessian for at m
 `solver.surrogate_max_iter` iterations and, when that has not converged, polishes with
 the exact Hessian warm-started from its primal-dual point; see `solve_ocp_warm`.
 
+With the surrogate or Gauss-Newton Hessian, IPOPT also gets the objective gradient and
+the constraint Jacobian from us (`Transcription._staged_derivatives`): small per-interval
+and per-node Functions mapped over the horizon, so that `solver.codegen` (default auto:
+when a C compiler is found) compiles each stage once, in about 2 s whatever T
+(measured at T = 20: function time per solve 22 ms interpreted, 3 ms compiled).
+
 The NLP is parametric in the camera pose (the robot base in the camera frame), the
 scales and Sigma_0, so one built solver serves every start, goal and camera pose of
 a given structure and horizon (a cache keeps it), which re-planning needs.
@@ -430,16 +436,38 @@ class Transcription:
             sigma0 = np.diag(setup.model.channel_variances(sigma0))
         return np.concatenate([setup.T_cam_base[:3, :].ravel(order="F"), scale, [trace_ref], vech(sigma0)])
 
+    def _condensed_start(self, setup: Setup, init: InitialGuess) -> tuple[np.ndarray, np.ndarray, float]:
+        """Initial point of the condensed form (joints, and their means by FK), scales, and its trace."""
+        T, q = self.T, np.asarray(init.q, float)
+        mu = np.asarray(self.poses(q.T, setup.T_cam_base[:3, :])).T
+        x0 = self.layout.join({**{f"q{t}": q[t] for t in range(T + 1)}, **{f"mu{t}": mu[t] for t in range(T + 1)}})
+        scale = np.ones(T + 1)  # unused by this form
+        return x0, scale, float(self.trace(x0, self._parameters(setup, scale, 1.0)))
+
+    def start_solution(self, setup: Setup, init: InitialGuess, method: str = "ocp") -> Solution | None:
+        """The initial guess itself as a plan, if it is feasible (every bound to 1e-9; the kinematic
+        constraints hold by construction in the condensed form); None otherwise."""
+        if self.form != "condensed":
+            return None
+        x0, scale, trace_ref = self._condensed_start(setup, init)
+        lbx, ubx = self.bounds(setup, scale)
+        violation = float(np.max(np.maximum(lbx - x0, 0) + np.maximum(x0 - ubx, 0)))
+        if violation > 1e-9:
+            return None
+        q = np.asarray(init.q, float)
+        return evaluate(setup, method, np.array([setup.pose_of(qi) for qi in q]), list(q), success=True,
+                        status="Initial_Guess_Kept", solve_time_s=0.0, iterations=0, objective=trace_ref,
+                        extras={"init": init.source, "solver": "ipopt", "covariance_form": self.form,
+                                "build_time_s": self.build_time_s, "compiled": self.codegen,
+                                "ocp_trace_final": trace_ref, "initial_trace": trace_ref,
+                                "constraint_violation": violation})
+
     def solve(self, setup: Setup, init: InitialGuess, method: str = "ocp",
               warm: WarmStart | None = None) -> tuple[Solution, WarmStart]:
         T = self.T
         t0 = time.perf_counter()  # the solve time counts the set-up of the call (initial point, scales, bounds)
         if warm is None and self.form == "condensed":  # no covariance variables: means and the trace only
-            q = np.asarray(init.q, float)
-            mu = np.asarray(self.poses(q.T, setup.T_cam_base[:3, :])).T
-            x0 = self.layout.join({**{f"q{t}": q[t] for t in range(T + 1)}, **{f"mu{t}": mu[t] for t in range(T + 1)}})
-            scale = np.ones(T + 1)  # unused by this form
-            trace_ref = float(self.trace(x0, self._parameters(setup, scale, 1.0)))
+            x0, scale, trace_ref = self._condensed_start(setup, init)
         elif warm is None:
             x0, scale = self.guess(setup, np.asarray(init.q, float))
             trace_ref = float(np.sum(np.asarray(x0[f"s{T}"])[slice(None) if self.form == "diagonal" else DIAG]))
@@ -592,8 +620,14 @@ def solve_ocp_warm(setup: Setup, init: InitialGuess, solver_options: dict | None
        each fails on some problems where the other succeeds; the barrier strategy is left
        alone when the caller or the problem file sets it).
 
+    5. If every converged point is worse than the cold start and the start is feasible (every
+       bound met; the straight line's IK normally is), the start itself is returned, status
+       `Initial_Guess_Kept` (success: a valid plan, never worse than where we began), with
+       no warm-start point (None).
+
     Every attempt is reported in `extras["attempts"]` (with `kept`); time and iterations
-    are their sums; `extras["worse_than_initial_guess"]` flags a kept point above the start.
+    are their sums; `extras["worse_than_initial_guess"]` flags a kept point above the start
+    (an infeasible start that could not be kept).
     Returns a Solution whatever IPOPT's status; check `success` (the CLI turns a failure
     into an error carrying the status).
     """
@@ -633,6 +667,14 @@ def solve_ocp_warm(setup: Setup, init: InitialGuess, solver_options: dict | None
             attempt("exact, monotone barrier", "exact", {"ipopt.mu_strategy": "monotone"}, None)
     finished = [k for k, (_, s_k, _) in enumerate(tried) if s_k.success]
     pick = min(finished, key=lambda k: tried[k][1].objective) if finished else len(tried) - 1
+    if finished and warm is None and tried[pick][1].objective > tried[pick][1].extras["initial_trace"]:
+        # Every converged point is above the (cold) start: keep the start if it is a feasible plan, rather than
+        # return a plan worse than the one we began from (measured on 4 of 100 evaluation configurations, all
+        # near a rotation of pi; see step 3). Reported as its own attempt, with status Initial_Guess_Kept.
+        start = transcription(setup, form, opts, hessian="exact").start_solution(setup, init, method)
+        if start is not None:
+            tried.append(("none: the feasible initial guess, below every converged point", start, None))
+            pick = len(tried) - 1
     sol, last = tried[pick][1], tried[pick][2]
     sol.extras["attempts"] = [{"hessian": name, "status": s_k.status, "iterations": s_k.iterations,
                                "solve_time_s": s_k.solve_time_s, "objective": s_k.objective, "kept": k == pick,
