@@ -22,7 +22,8 @@ def straight_line(x_start: np.ndarray, x_goal: np.ndarray, horizon: int) -> np.n
 
 def reachability(setup: Setup, poses: np.ndarray) -> tuple[list, dict]:
     """Joint solutions of pose-space waypoints and a summary of which are reachable."""
-    q_best, ok, res_m, res_r = setup.joints_along(poses, setup.q_start)
+    # batched Newton from the joint-space line first (as for the OCP's initial guess), then sequential IK
+    q_best, ok, res_m, res_r = setup.joints_along(poses, setup.q_start, guesses=setup.joint_line(len(poses) - 1))
     qs = [q if k else None for q, k in zip(q_best, ok)]
     info = {
         "reachable": int(ok.sum()),

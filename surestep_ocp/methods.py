@@ -61,18 +61,13 @@ def _variant(setup: Setup, components: tuple[str, ...] | None, form: str | None,
     return replace(setup, problem=replace(setup.problem, noise=noise))
 
 
-def joint_line(setup: Setup, T: int) -> np.ndarray:
-    """Joint vectors evenly spaced from the start's to the goal's (T + 1 of them)."""
-    return np.linspace(setup.q_start, setup.q_goal, T + 1)
-
-
 def ocp_initial_guess(setup: Setup, source: str = "baseline", gradient: Solution | None = None) -> InitialGuess:
     """Joint trajectory to start IPOPT from: IK of the straight line or of a gradient solution."""
     if source == "baseline":
         poses = straight_line(setup.x_start, setup.x_goal, setup.problem.horizon)
     else:
         poses = np.asarray(gradient.poses)
-    q_best, ok, _, _ = setup.joints_along(poses, setup.q_start, guesses=joint_line(setup, len(poses) - 1))
+    q_best, ok, _, _ = setup.joints_along(poses, setup.q_start, guesses=setup.joint_line(len(poses) - 1))
     note = source if ok.all() else f"{source} ({int((~ok).sum())} waypoints unreachable, best-effort IK used)"
     return InitialGuess(q_best, note)
 

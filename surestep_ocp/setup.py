@@ -81,6 +81,10 @@ class Setup:
         target = np.linalg.inv(self.T_cam_base) @ pose_to_matrix(x)
         return self.robot.inverse_kinematics(target, q0, what=what, raise_on_fail=raise_on_fail)
 
+    def joint_line(self, T: int) -> np.ndarray:
+        """Joint vectors evenly spaced from the start's to the goal's (T + 1 of them)."""
+        return np.linspace(self.q_start, self.q_goal, T + 1)
+
     def joints_along(self, poses: np.ndarray, q0: np.ndarray, tol_m: float = 1e-6, tol_rad: float = 1e-5,
                      guesses: np.ndarray | None = None):
         """IK of every waypoint, each started from the previous solution.
