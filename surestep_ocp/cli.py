@@ -33,6 +33,8 @@ def _summary(sol, base=None) -> str:
         lines.append(f"baseline    {base.trace_final:.4e}  (ratio baseline / {sol.method} = "
                      f"{base.trace_final / sol.trace_final:.2f})")
     lines.append(f"terminal    {err_m:.2e} m, {err_rad:.2e} rad from the goal")
+    if sol.extras.get("codegen_note"):
+        lines.append(f"note        solver.codegen auto: {sol.extras['codegen_note'].splitlines()[0]}")
     if sol.status == "Initial_Guess_Kept":
         lines.append("warning     every point IPOPT converged to was worse than the initial guess, which is "
                      "returned (a poor local optimum; see README, rotations near pi)")

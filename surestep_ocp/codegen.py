@@ -52,11 +52,16 @@ def compiled(fn: ca.Function) -> tuple[ca.Function, bool]:
         lib = cache_dir() / f"{name}_{key[:20]}.so"
         fresh = not lib.exists()
         if fresh:
-            lib.parent.mkdir(parents=True, exist_ok=True)
             part = lib.with_name(f"{lib.name}.{os.getpid()}.part")
-            run = subprocess.run([cc, *FLAGS, str(source), "-o", str(part)], capture_output=True, text=True, check=False)
-            if run.returncode != 0:
-                part.unlink(missing_ok=True)
-                raise SurestepError(f"solver.codegen: {cc} failed on the generated code:\n{run.stderr[-2000:]}")
-            os.replace(part, lib)
+            try:
+                lib.parent.mkdir(parents=True, exist_ok=True)
+                run = subprocess.run([cc, *FLAGS, str(source), "-o", str(part)], capture_output=True, text=True,
+                                     check=False)
+                if run.returncode != 0:
+                    part.unlink(missing_ok=True)
+                    raise SurestepError(f"solver.codegen: {cc} failed on the generated code:\n{run.stderr[-2000:]}")
+                os.replace(part, lib)
+            except OSError as exc:
+                raise SurestepError(f"solver.codegen: cannot write the compiled code to {lib.parent} ({exc}); "
+                                    "set SURESTEP_CACHE to a writable directory, or codegen: false") from None
     return ca.external(name, str(lib)), fresh

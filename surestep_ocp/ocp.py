@@ -167,7 +167,7 @@ class Transcription:
     """The multiple-shooting NLP of one structure (robot, belief model, horizon, form), built once."""
 
     def __init__(self, robot: Robot, model: BeliefModel, horizon: int, form: str, smoothness: float,
-                 options: dict, hessian: str = "exact", codegen: bool = False):
+                 options: dict, hessian: str = "exact", codegen: bool = False, codegen_required: bool = False):
         self.robot, self.model, self.T, self.form = robot, model, horizon, form
         self.scalar = form == "condensed" and model.scalar
         T, nq = horizon, robot.nq
@@ -232,12 +232,17 @@ class Transcription:
                                     "mean observation noise")
         elif codegen:
             raise SurestepError(CODEGEN_EXACT)
-        self.codegen = codegen
+        self.codegen, self.codegen_note = codegen, None
         t0 = time.perf_counter()
         if hessian != "exact":
             staged = self._staged_derivatives(pose, sigma0, trace_ref, smoothness, predicted)
             if codegen:  # measured at T = 20: function time 22 -> 3.5 ms per solve (24 iterations)
-                staged = {k: compiled(fn)[0] for k, fn in staged.items()}
+                try:
+                    staged = {k: compiled(fn)[0] for k, fn in staged.items()}
+                except SurestepError as exc:  # codegen: auto asked for "compiled if possible"
+                    if codegen_required:
+                        raise
+                    self.codegen, self.codegen_note = False, f"interpreted: {exc}"
             self.hess_lag = staged["hess_lag"]
             options = {**options, **staged}
         self.solver = ca.nlpsol("surestep_ocp", "ipopt", {"x": L.vector(), "f": f, "g": ca.vertcat(*g),
@@ -502,6 +507,7 @@ class Transcription:
                 "covariance_form": self.form,
                 "build_time_s": self.build_time_s,
                 "compiled": self.codegen,  # derivatives compiled to C (solver.codegen)
+                **({"codegen_note": self.codegen_note} if self.codegen_note else {}),
                 "ocp_trace_final": ocp_trace,
                 "initial_trace": trace_ref,  # the planner's objective at the (cold) initial guess
                 "constraint_violation": float(np.max(np.abs(np.asarray(res["g"])))),
@@ -552,10 +558,11 @@ def transcription(setup: Setup, form: str | None = None, extra_options: dict | N
     opts = solver_options(setup, extra_options)
     codegen = resolve_codegen(setup, hessian)
     key = (str(setup.robot.urdf), setup.robot.frame, setup.robot.offset.tobytes(), model.key(), model.scalar, T, form,
-           setup.problem.objective.smoothness, tuple(sorted((k, repr(v)) for k, v in opts.items())), hessian, codegen)
+           setup.problem.objective.smoothness, tuple(sorted((k, repr(v)) for k, v in opts.items())), hessian, codegen,
+           setup.problem.solver.codegen is True)
     if key not in _CACHE:
         _CACHE[key] = Transcription(setup.robot, model, T, form, setup.problem.objective.smoothness, opts, hessian,
-                                    codegen)
+                                    codegen, codegen_required=setup.problem.solver.codegen is True)
     return _CACHE[key]
 
 

@@ -277,3 +277,17 @@ def test_start_solution_only_for_a_feasible_start(short):
     moved = np.array(init.q)
     moved[-1, 0] += 1e-6  # the last node no longer reaches the goal pose
     assert tr.start_solution(short, type(init)(moved, "moved")) is None
+
+
+def test_codegen_auto_falls_back_when_the_compile_fails(short, monkeypatch, tmp_path):
+    """A compiler that fails (here `false`): with codegen auto the solve runs interpreted and says why;
+    with codegen true it is an error."""
+    monkeypatch.setenv("CC", "false")
+    monkeypatch.setenv("SURESTEP_CACHE", str(tmp_path))
+    odd = replace(short.problem, objective=replace(short.problem.objective, smoothness=0.0123))  # a new structure
+    auto = replace(short, problem=with_solver(odd, codegen="auto", hessian="surrogate"))
+    sol = solve_ocp(auto, ocp_initial_guess(auto))
+    assert sol.success and sol.extras["compiled"] is False and "failed" in sol.extras["codegen_note"]
+    forced = replace(short, problem=with_solver(odd, codegen=True, hessian="surrogate"))
+    with pytest.raises(SurestepError, match="failed on the generated code"):
+        solve_ocp(forced, ocp_initial_guess(forced))
