@@ -618,19 +618,17 @@ def solve_ocp_warm(setup: Setup, init: InitialGuess, solver_options: dict | None
        from `init`. A converged run is a KKT point of the true problem (the Hessian only
        shapes the steps), so it is returned as it is.
     2. (auto) If it stopped short, the exact Hessian, warm-started from where it stopped.
-    3. (auto) If 1-2 converged to a point worse than the (feasible) initial guess, which
-       happens when the steps cross the axis-angle cut at rotations of pi: the exact
-       Hessian from `init` too (measured on evaluation configurations 0, 36, 45 and 91:
-       the exact Hessian ended 1-12x lower); the better converged point is kept.
-    4. If nothing converged, or with `solver.hessian: exact`: the exact Hessian from
+    3. If nothing converged, or with `solver.hessian: exact`: the exact Hessian from
        `init` with the adaptive barrier update, then with the monotone one (measured:
        each fails on some problems where the other succeeds; the barrier strategy is left
        alone when the caller or the problem file sets it).
-
-    5. If every converged point is worse than the cold start and the start is feasible (every
+    4. If every converged point is worse than the cold start and the start is feasible (every
        bound met; the straight line's IK normally is), the start itself is returned, status
        `Initial_Guess_Kept` (success: a valid plan, never worse than where we began), with
-       no warm-start point (None).
+       no warm-start point (None). This happens when the steps cross the axis-angle cut at
+       rotations of pi (evaluation configurations 0, 36, 45, 91 of 100). A retry with the
+       exact Hessian from `init` used to run first: it never ended below the start there
+       (16 of 16 solves of the OCP variants) and cost 1-7 s, so it was dropped.
 
     Every attempt is reported in `extras["attempts"]` (with `kept`); time and iterations
     are their sums; `extras["worse_than_initial_guess"]` flags a kept point above the start
@@ -662,12 +660,6 @@ def solve_ocp_warm(setup: Setup, init: InitialGuess, solver_options: dict | None
         done = attempt(hessian, hessian, {"ipopt.max_iter": cap}, None)
         if not done and not forced:
             done = attempt("exact", "exact", {}, tried[-1][2])
-        worse = done and tried[-1][1].objective > tried[-1][1].extras["initial_trace"]
-        if worse and warm is None and not forced:
-            # Converged above its own (feasible) starting point: the steps crossed the axis-angle cut at
-            # rotations of pi, where the paper's orientation term is discontinuous (see the README). The
-            # exact Hessian's smaller, regularised steps measured better there; keep the better optimum.
-            done = attempt(f"exact (the {hessian} optimum was worse than the start)", "exact", {}, None) or done
     if not done and not forced:
         done = attempt("exact", "exact", {}, None)
         if not done and not pinned:
@@ -676,8 +668,7 @@ def solve_ocp_warm(setup: Setup, init: InitialGuess, solver_options: dict | None
     pick = min(finished, key=lambda k: tried[k][1].objective) if finished else len(tried) - 1
     if finished and warm is None and tried[pick][1].objective > tried[pick][1].extras["initial_trace"]:
         # Every converged point is above the (cold) start: keep the start if it is a feasible plan, rather than
-        # return a plan worse than the one we began from (measured on 4 of 100 evaluation configurations, all
-        # near a rotation of pi; see step 3). Reported as its own attempt, with status Initial_Guess_Kept.
+        # return a plan worse than the one we began from (step 4). Reported as its own attempt.
         start = transcription(setup, form, opts, hessian="exact").start_solution(setup, init, method)
         if start is not None:
             tried.append(("none: the feasible initial guess, below every converged point", start, None))

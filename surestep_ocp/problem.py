@@ -83,7 +83,7 @@ class SolverSpec:
     print_level: int = 0
     covariance: str = "auto"  # auto | full | diagonal | condensed (see ocp.py)
     hessian: str = "auto"  # auto | exact | surrogate | gauss-newton (see ocp.py)
-    surrogate_max_iter: int = 60  # surrogate iterations before the exact-Hessian polish (hessian: auto)
+    surrogate_max_iter: int = 300  # surrogate iterations before the exact-Hessian polish (hessian: auto)
     # compile the stage-wise derivatives of the surrogate / Gauss-Newton NLP to C (cached, see codegen.py):
     # True, False, or "auto" (when a C compiler is found)
     codegen: bool | str = "auto"

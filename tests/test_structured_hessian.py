@@ -223,10 +223,9 @@ def test_structured_hessians_need_the_mean_noise_form():
     assert resolve_hessian(auto, "condensed") == "exact"
 
 
-def test_an_optimum_worse_than_the_start_is_retried_then_the_start_is_kept():
+def test_an_optimum_worse_than_the_start_keeps_the_start():
     """Evaluation configuration 0 (orientations near a rotation of pi): the surrogate converges above its own
-    feasible start; the exact Hessian is tried from the start too; both converged points are worse than the
-    start, so the start (the straight line's IK, feasible) is the plan returned, and said so."""
+    feasible start, so the start (the straight line's IK, feasible) is the plan returned, and said so."""
     from surestep_ocp.configs import ConfigurationSampler, load_evaluation
 
     sampler = ConfigurationSampler(load_evaluation(DEFAULT.parent / "evaluation.yaml"))
@@ -234,7 +233,6 @@ def test_an_optimum_worse_than_the_start_is_retried_then_the_start_is_kept():
     sol = solve_ocp(setup, ocp_initial_guess(setup))
     attempts = sol.extras["attempts"]
     assert attempts[0]["hessian"] == "surrogate"
-    assert attempts[-2]["hessian"].startswith("exact (the surrogate optimum was worse")
     converged = [a["objective"] for a in attempts if a["status"] in ("Solve_Succeeded", "Solved_To_Acceptable_Level")]
     assert converged and min(converged) > sol.extras["initial_trace"]
     assert attempts[-1]["hessian"].startswith("none: the feasible initial guess") and attempts[-1]["kept"]
