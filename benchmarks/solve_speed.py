@@ -12,7 +12,7 @@ Build times (CasADi expression graphs and IPOPT set-up, paid once per structure 
 horizon and cached) are reported separately and are not in the solve times.
 
     .venv/bin/python benchmarks/solve_speed.py [--instances 20] [--horizons 10 20 40] [--codegen | --no-codegen]
-        [--tol 1e-6] [--hessian auto|exact|surrogate|gauss-newton]
+        [--tol 1e-6] [--hessian auto|exact|surrogate|gauss-newton] [--solver ipopt|newton]
 
 By default the problem's `solver.codegen` (auto: the OCP's derivatives are compiled to C
 when a C compiler is found; the compile is a build cost, reported with the builds);
@@ -57,11 +57,11 @@ def camera_nudge(setup, rng):
 
 
 def run(instances: int, horizons: list[int], seed: int, codegen: bool | None = None,
-        tol: float | None = None, hessian: str | None = None) -> tuple[str, str]:
+        tol: float | None = None, hessian: str | None = None, solver_name: str | None = None) -> tuple[str, str]:
     spec = load_evaluation(ROOT / "problems" / "evaluation.yaml")
     solver = replace(spec.base.solver, codegen=spec.base.solver.codegen if codegen is None else codegen,
                      tol=spec.base.solver.tol if tol is None else tol,
-                     hessian=hessian or spec.base.solver.hessian)
+                     hessian=hessian or spec.base.solver.hessian, name=solver_name or spec.base.solver.name)
     spec = replace(spec, base=replace(spec.base, solver=solver))
     rows, summary = [], {}
     warm_ms, builds = [], {}
@@ -106,7 +106,8 @@ def run(instances: int, horizons: list[int], seed: int, codegen: bool | None = N
     lines = ["# Solve speed: OCP against the gradient variant (same run)", "",
              (f"`.venv/bin/python benchmarks/solve_speed.py --instances {instances} --horizons "
               f"{' '.join(map(str, horizons))}{ {None: '', True: ' --codegen', False: ' --no-codegen'}[codegen]}"
-              f"{f' --tol {tol:g}' if tol is not None else ''}{f' --hessian {hessian}' if hessian else ''}`"), "",
+              f"{f' --tol {tol:g}' if tol is not None else ''}{f' --hessian {hessian}' if hessian else ''}"
+              f"{f' --solver {solver_name}' if solver_name else ''}`"), "",
              ("| T | median time OCP / gradient | share OCP Tr <= gradient Tr | median OCP time [s] "
               "| median gradient time [s] | median gradient + IK of its waypoints [s] | median OCP iterations "
               "| OCP failures | share solved by the first Hessian alone | OCP compiled | OCP builds (once) [s] |"),
@@ -136,12 +137,14 @@ def main() -> None:
     ap.add_argument("--codegen", action=argparse.BooleanOptionalAction, default=None,
                     help="compile the OCP's derivatives, or not (default: the problem's solver.codegen, auto)")
     ap.add_argument("--tol", type=float, help="IPOPT tolerance instead of the problem's solver.tol (1e-8)")
+    ap.add_argument("--solver", choices=("ipopt", "newton"),
+                    help="solver.name instead of the problem's (ipopt); newton: projected Newton, IPOPT as fallback")
     ap.add_argument("--hessian", choices=("auto", "exact", "surrogate", "gauss-newton"),
                     help="solver.hessian instead of the problem's (auto)")
     args = ap.parse_args()
-    text, last = run(args.instances, args.horizons, args.seed, args.codegen, args.tol, args.hessian)
+    text, last = run(args.instances, args.horizons, args.seed, args.codegen, args.tol, args.hessian, args.solver)
     name = ("solve_speed" + {None: "", True: "_codegen", False: "_interpreted"}[args.codegen] + (f"_tol{args.tol:g}" if args.tol else "")
-            + (f"_{args.hessian}" if args.hessian else "") + ".md")
+            + (f"_{args.hessian}" if args.hessian else "") + (f"_{args.solver}" if args.solver else "") + ".md")
     write_text_atomic(ROOT / "benchmarks" / "results" / name, text)
     print(text)
     print(last)

@@ -54,9 +54,10 @@ def _with_solver_flags(setup, args):
     if args.solver == "fatrop":
         raise SurestepError("solver 'fatrop' is not wired in: on the condensed OCP it did not converge (500 "
                             "iterations, 8 s on the default problem) and the stage-wise lifted form it needs did not "
-                            "converge with IPOPT either (README, 'The Hessian'); allowed: ipopt")
+                            "converge with IPOPT either (README, 'The Hessian'); allowed: ipopt, newton")
     spec = setup.problem.solver
-    spec = replace(spec, hessian=args.hessian or spec.hessian, codegen=spec.codegen if args.codegen is None else args.codegen)
+    spec = replace(spec, name=args.solver or spec.name, hessian=args.hessian or spec.hessian,
+                   codegen=spec.codegen if args.codegen is None else args.codegen)
     return replace(setup, problem=replace(setup.problem, solver=spec))
 
 
@@ -139,7 +140,9 @@ def cmd_show(args) -> int:
 
 
 def _solver_flags(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--solver", choices=("ipopt", "fatrop"), default="ipopt", help="NLP solver of the OCP")
+    parser.add_argument("--solver", choices=("ipopt", "newton", "fatrop"),
+                        help="OCP solver (default: the problem file's solver.name, ipopt); newton: projected "
+                             "Newton in the joints with IPOPT as the fallback (README, 'Solve speed')")
     parser.add_argument("--hessian", choices=("auto", "exact", "surrogate", "gauss-newton"),
                         help="OCP Hessian (default: the problem file's solver.hessian, auto)")
     parser.add_argument("--codegen", action=argparse.BooleanOptionalAction, default=None,

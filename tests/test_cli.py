@@ -88,8 +88,9 @@ def test_compare_writes_files_and_ocp_wins(tmp_path):
         assert (out / png).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
-def test_solver_flags_hessian_and_fatrop(tmp_path):
-    """--hessian picks the OCP Hessian (reported in the solution); --solver fatrop is a clean error, exit 2."""
+def test_solver_flags_hessian_newton_and_fatrop(tmp_path):
+    """--hessian picks the OCP Hessian (reported in the solution); --solver newton gives the same optimum;
+    --solver fatrop is a clean error, exit 2."""
     path = small_problem(tmp_path, horizon=4)
     traces = {}
     for hessian in ("exact", "surrogate", "gauss-newton"):
@@ -103,6 +104,12 @@ def test_solver_flags_hessian_and_fatrop(tmp_path):
     assert traces["surrogate"] == pytest.approx(traces["exact"], rel=1e-6)
     res = run("solve", str(path), "--solver", "fatrop")
     assert res.returncode == 2 and "fatrop" in res.stderr and "Traceback" not in res.stderr
+    out = tmp_path / "newton.json"  # --solver newton, and solver.name: newton in a file
+    res = run("solve", str(path), "--solver", "newton", "-o", str(out))
+    assert res.returncode == 0, res.stderr
+    sol = json.loads(out.read_text())
+    assert sol["solver"] == "newton" and sol["trace"][-1] == pytest.approx(traces["exact"], rel=1e-6)
+    assert run("validate", str(small_problem(tmp_path, horizon=4, solver={"name": "newton"}))).returncode == 0
     bad = small_problem(tmp_path, horizon=4, solver={"hessian": "newton"})
     res = run("validate", str(bad))
     assert res.returncode == 2 and "solver.hessian" in res.stderr and "gauss-newton" in res.stderr

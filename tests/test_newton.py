@@ -1,0 +1,88 @@
+"""The projected Newton solver (`solver.name: newton`): its gradient against finite differences, its
+optima against IPOPT's, its fallback to IPOPT, and its errors."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from surestep_ocp.belief import vech
+from surestep_ocp.errors import SurestepError
+from surestep_ocp.methods import ocp_initial_guess
+from surestep_ocp.ocp import newton_solver, solve_ocp
+from surestep_ocp.problem import load_problem
+from surestep_ocp.setup import build_setup
+
+DEFAULT = Path(__file__).resolve().parents[1] / "problems" / "needle_regrasp.yaml"
+
+
+def with_solver(setup, **kw):
+    return replace(setup, problem=replace(setup.problem, solver=replace(setup.problem.solver, **kw)))
+
+
+@pytest.fixture(scope="module")
+def short():
+    return build_setup(replace(load_problem(DEFAULT), horizon=6))
+
+
+def test_newton_gradient_matches_finite_differences(short):
+    """The assembled joint-space gradient (stage blocks scattered) is the objective's, by central differences."""
+    setup = replace(short, problem=replace(short.problem, objective=replace(short.problem.objective, smoothness=0.2)))
+    ns = newton_solver(setup)
+    q = np.asarray(ocp_initial_guess(setup).q, float)
+    rng = np.random.default_rng(1)
+    x = (q + 0.02 * rng.normal(size=q.shape)).ravel()
+    sigma0 = np.diag(setup.model.channel_variances(np.asarray(setup.problem.noise.Sigma0, float)))
+    P = np.concatenate([setup.T_cam_base[:3, :].ravel(order="F"), [3e-5], vech(sigma0)])
+    _, _, G, _ = (v.copy() for v in ns.step(x, P))
+    g = np.bincount(ns.g_index, weights=G, minlength=ns.n)
+    fd = np.zeros(ns.n)
+    for i in range(ns.n):
+        e = np.zeros(ns.n)
+        e[i] = 1e-6
+        fd[i] = (ns.f(x + e, P)[0][0] - ns.f(x - e, P)[0][0]) / 2e-6
+    assert np.max(np.abs(g - fd)) <= 1e-6 * np.max(np.abs(fd))
+
+
+@pytest.mark.parametrize("horizon", [6, 20])
+def test_newton_reaches_ipopts_optimum(horizon):
+    """Same plan as IPOPT (trace to 1e-6), terminal pose exact, start and goal joints kept, bounds met."""
+    setup = build_setup(replace(load_problem(DEFAULT), horizon=horizon))
+    init = ocp_initial_guess(setup)
+    ipopt = solve_ocp(setup, init)
+    newton = solve_ocp(with_solver(setup, name="newton"), init)
+    assert newton.success and newton.status == "Solve_Succeeded" and newton.extras["solver"] == "newton"
+    assert [a["hessian"] for a in newton.extras["attempts"]] == ["newton"]
+    assert newton.trace_final == pytest.approx(ipopt.trace_final, rel=1e-6)
+    assert newton.extras["ocp_trace_final"] == pytest.approx(newton.trace_final, rel=1e-9)
+    q = np.array(newton.q)
+    np.testing.assert_array_equal(q[0], np.asarray(init.q)[0])
+    np.testing.assert_array_equal(q[-1], np.asarray(init.q)[-1])
+    assert np.all(q >= setup.robot.lower) and np.all(q <= setup.robot.upper)
+    assert max(newton.terminal_error) <= 1e-9
+    assert min(p[2] for p in newton.poses) >= setup.problem.min_depth
+
+
+def test_newton_falls_back_to_ipopt_when_the_depth_bound_is_violated():
+    """Evaluation configuration 9 at T = 20: Newton's optimum goes below the minimum depth (a bound it does
+    not have); IPOPT then solves it from the start, with the bound, and that is the plan."""
+    from surestep_ocp.configs import ConfigurationSampler, load_evaluation
+
+    sampler = ConfigurationSampler(load_evaluation(DEFAULT.parent / "evaluation.yaml"))
+    setup = with_solver(build_setup(sampler.problem(sampler.sample(0, 9))), name="newton")
+    sol = solve_ocp(setup, ocp_initial_guess(setup))
+    attempts = sol.extras["attempts"]
+    assert attempts[0]["hessian"] == "newton" and attempts[0]["status"] == "Depth_Bound_Violated"
+    assert not attempts[0]["kept"] and len(attempts) >= 2
+    assert sol.success and sol.extras["solver"] == "ipopt"
+    assert min(p[2] for p in sol.poses) >= setup.problem.min_depth - 1e-8
+
+
+def test_newton_needs_the_surrogate_model(short):
+    expected = replace(short, problem=replace(short.problem, noise=replace(short.problem.noise,
+                                                                           observation_noise="expected")))
+    with pytest.raises(SurestepError, match="newton"):
+        solve_ocp(with_solver(expected, name="newton"), ocp_initial_guess(expected))
