@@ -117,7 +117,13 @@ class NewtonSolver:
         n = self.n = nq * (T + 1)
         rows = [np.arange(t * nq, (t + 2) * nq) for t in range(T)]
         self.g_index = np.concatenate(rows)
-        self.h_index = np.concatenate([np.tile(r, 2 * nq) * n + np.repeat(r, 2 * nq) for r in rows])
+        # the Hessian in LAPACK's lower band storage, ab[r - c, c] = H[r, c] (r >= c), half-bandwidth 2 nq - 1:
+        # block entries above the diagonal are dropped (symmetric), the others summed into their band slot
+        hr = np.concatenate([np.tile(r, 2 * nq) for r in rows])
+        hc = np.concatenate([np.repeat(r, 2 * nq) for r in rows])
+        self.band = 2 * nq
+        self.h_lower = hr >= hc
+        self.h_index = ((hr - hc) * n + hc)[self.h_lower]
         self.build_time_s = time.perf_counter() - t0
 
     def solve(self, setup: Setup, init, method: str = "ocp", tol: float = 1e-6, max_iter: int = 300) -> Solution:
@@ -146,16 +152,23 @@ class NewtonSolver:
                 break
             if it == max_iter:
                 break
-            H = np.bincount(self.h_index, weights=HB, minlength=n * n).reshape(n, n)[np.ix_(idx, idx)]
+            ab = np.bincount(self.h_index, weights=HB[self.h_lower], minlength=self.band * n).reshape(self.band, n)
+            fixed = np.ones(n, bool)
+            fixed[idx] = False
+            for k in range(1, self.band):  # rows and columns of the held variables out, identity in
+                ab[k, : n - k][fixed[: n - k] | fixed[k:]] = 0.0
+            ab[0, fixed] = 1.0
+            rhs = np.where(fixed, 0.0, -g)
             shift = shift / 4 if shift > 1e-14 else 0.0
+            scale = np.max(np.abs(ab[0, ~fixed]))
             while True:  # a diagonal shift until positive definite (IPOPT's inertia correction, in short)
                 try:
-                    L = np.linalg.cholesky(H + shift * np.eye(len(idx)))
+                    shifted = ab.copy()
+                    shifted[0, ~fixed] += shift
+                    d = scipy.linalg.solveh_banded(shifted, rhs, lower=True, check_finite=False)
                     break
                 except np.linalg.LinAlgError:
-                    shift = max(1e-8 * np.max(np.abs(np.diag(H))), 10 * shift)
-            d = np.zeros(n)
-            d[idx] = -scipy.linalg.cho_solve((L, True), g[idx])
+                    shift = max(1e-8 * scale, 10 * shift)
             alpha = 1.0
             while alpha > 1e-12:  # Armijo along the projected path
                 trial = np.clip(x + alpha * d, lo, hi)
