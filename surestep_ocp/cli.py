@@ -54,7 +54,7 @@ def _with_solver_flags(setup, args):
     if args.solver == "fatrop":
         raise SurestepError("solver 'fatrop' is not wired in: on the condensed OCP it did not converge (500 "
                             "iterations, 8 s on the default problem) and the stage-wise lifted form it needs did not "
-                            "converge with IPOPT either (README, 'The Hessian'); allowed: ipopt, newton")
+                            "converge with IPOPT either (README, 'The Hessian'); allowed: auto, ipopt, newton")
     spec = setup.problem.solver
     spec = replace(spec, name=args.solver or spec.name, hessian=args.hessian or spec.hessian,
                    codegen=spec.codegen if args.codegen is None else args.codegen)
@@ -140,7 +140,7 @@ def cmd_show(args) -> int:
 
 
 def _solver_flags(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--solver", choices=("ipopt", "newton", "fatrop"),
+    parser.add_argument("--solver", choices=("auto", "ipopt", "newton", "fatrop"),
                         help="OCP solver (default: the problem file's solver.name, ipopt); newton: projected "
                              "Newton in the joints with IPOPT as the fallback (README, 'Solve speed')")
     parser.add_argument("--hessian", choices=("auto", "exact", "surrogate", "gauss-newton"),

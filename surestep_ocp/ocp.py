@@ -610,9 +610,9 @@ def solve_ocp_warm(setup: Setup, init: InitialGuess, solver_options: dict | None
     Strategy (each attempt is IPOPT on the same NLP; they differ in the Hessian, the
     starting point and the barrier update):
 
-    With `solver.name: newton` (cold solves of the condensed scalar model): first the
-    projected Newton method of `newton.py` (no IPOPT); if it converges, that is the
-    solution. If not (a violated depth bound, which only IPOPT has, or no convergence in
+    With `solver.name: newton`, or `auto` (the default) where it applies (cold solves of the
+    condensed scalar model with `solver.hessian: auto`): first the projected Newton method
+    of `newton.py` (no IPOPT); if it converges, that is the solution. If not (a violated depth bound, which only IPOPT has, or no convergence in
     `surrogate_max_iter` iterations), IPOPT follows as below from `init`. (Starting IPOPT
     from Newton's last iterate instead was measured worse: on evaluation configuration 0
     at T = 20 it failed after 6530 iterations, 26 s.)
@@ -661,10 +661,11 @@ def solve_ocp_warm(setup: Setup, init: InitialGuess, solver_options: dict | None
 
     done = False
     forced = spec.hessian in ("surrogate", "gauss-newton")  # no exact-Hessian attempts
-    if spec.name == "newton" and warm is None:
-        if hessian == "exact" or forced:
-            raise SurestepError("solver.name: newton needs the condensed form of a scalar model with "
-                                "noise.observation_noise: mean and solver.hessian: auto; use solver.name: ipopt")
+    newton_fits = hessian != "exact" and not forced
+    if spec.name == "newton" and not newton_fits:
+        raise SurestepError("solver.name: newton needs the condensed form of a scalar model with "
+                            "noise.observation_noise: mean and solver.hessian: auto; use solver.name: auto or ipopt")
+    if spec.name in ("newton", "auto") and newton_fits and warm is None:
         first = newton_solver(setup).solve(setup, init, method, tol=spec.tol, max_iter=spec.surrogate_max_iter)
         tried.append(("newton", first, None))
         done = first.success

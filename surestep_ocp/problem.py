@@ -77,7 +77,7 @@ class CameraSpec:
 
 @dataclass(frozen=True)
 class SolverSpec:
-    name: str = "ipopt"
+    name: str = "auto"  # auto (newton where it applies, else IPOPT) | ipopt | newton (see ocp.solve_ocp_warm)
     max_iter: int = 3000
     tol: float = 1e-6  # IPOPT tol (scaled NLP error); the constraints separately to min(tol, 1e-8)
     print_level: int = 0
@@ -376,7 +376,7 @@ def _solver(rd: Reader, node: Any) -> SolverSpec:
     if not isinstance(opts, dict):
         raise rd.fail("solver.options", "expected a mapping of raw solver options")
     return SolverSpec(
-        name=rd.string(m.get("name", d.name), "solver.name", ("ipopt", "newton")),
+        name=rd.string(m.get("name", d.name), "solver.name", ("auto", "ipopt", "newton")),
         max_iter=rd.integer(m.get("max_iter", d.max_iter), "solver.max_iter", minimum=1),
         tol=rd.number(m.get("tol", d.tol), "solver.tol", positive=True),
         print_level=rd.integer(m.get("print_level", d.print_level), "solver.print_level", minimum=0),

@@ -17,9 +17,14 @@ from surestep_ocp.setup import build_setup
 DEFAULT = Path(__file__).resolve().parents[1] / "problems" / "needle_regrasp.yaml"
 
 
+def ipopt(problem):
+    """The forms are IPOPT transcriptions: the condensed reference is solved by IPOPT too."""
+    return replace(problem, solver=replace(problem.solver, name="ipopt"))
+
+
 @pytest.fixture(scope="module")
 def small():
-    setup = build_setup(replace(load_problem(DEFAULT), horizon=5))
+    setup = build_setup(ipopt(replace(load_problem(DEFAULT), horizon=5)))
     cond = solve_ocp(setup, ocp_initial_guess(setup), form="condensed")
     # the full form started at the condensed optimum: a KKT point of one is one of the other
     full = solve_ocp(setup, InitialGuess(np.array(cond.q), "condensed optimum"), form="full")
@@ -55,7 +60,7 @@ def test_diagonal_form_solves_and_matches_the_exact_ekf():
     fragile where the covariance collapses: started from the condensed optimum at T = 5 it failed
     after a change of 3e-16 rad in the start, see ocp.py; so the start here is the straight line.)
     """
-    setup = build_setup(replace(load_problem(DEFAULT), horizon=3))
+    setup = build_setup(ipopt(replace(load_problem(DEFAULT), horizon=3)))
     init = ocp_initial_guess(setup)
     cond = solve_ocp(setup, init, form="condensed")
     diag = solve_ocp(setup, init, form="diagonal")

@@ -28,7 +28,7 @@ def with_solver(problem, **kw):
 
 @pytest.fixture(scope="module")
 def short():
-    return build_setup(replace(load_problem(DEFAULT), horizon=6))
+    return build_setup(with_solver(replace(load_problem(DEFAULT), horizon=6), name="ipopt"))  # IPOPT's Hessians
 
 
 # ------------------------------------------------------------------ independent structured Hessians
@@ -171,7 +171,7 @@ def test_structured_hessians_reach_the_exact_hessians_optimum():
     prob = load_problem(DEFAULT)
     sols = {}
     for h in ("auto", "exact", "surrogate", "gauss-newton"):
-        setup = build_setup(with_solver(prob, hessian=h))
+        setup = build_setup(with_solver(prob, hessian=h, name="ipopt"))
         sols[h] = solve_ocp(setup, ocp_initial_guess(setup))
         assert sols[h].success, (h, sols[h].status)
         assert sols[h].extras["constraint_violation"] <= 1e-6
@@ -229,7 +229,7 @@ def test_an_optimum_worse_than_the_start_keeps_the_start():
     from surestep_ocp.configs import ConfigurationSampler, load_evaluation
 
     sampler = ConfigurationSampler(load_evaluation(DEFAULT.parent / "evaluation.yaml"))
-    setup = build_setup(sampler.problem(sampler.sample(0, 0)))
+    setup = build_setup(with_solver(sampler.problem(sampler.sample(0, 0)), name="ipopt"))
     sol = solve_ocp(setup, ocp_initial_guess(setup))
     attempts = sol.extras["attempts"]
     assert attempts[0]["hessian"] == "surrogate"
