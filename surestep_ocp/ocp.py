@@ -597,6 +597,13 @@ def resolve_hessian(setup: Setup, form: str) -> str:
     return choice
 
 
+def newton_applies(setup: Setup, hessian: str, forced: bool) -> bool:
+    """Whether the projected Newton solver's reformulation is exact here: the surrogate model (the condensed
+    scalar recursion with the mean noise, Hessian not forced) and exactly six joints moving the tracked frame,
+    so that the terminal pose fixes the last node's joints (locally); a redundant arm keeps IPOPT."""
+    return hessian != "exact" and not forced and len(setup.robot.supporting_joints()) == NX
+
+
 def solve_ocp(setup: Setup, init: InitialGuess, solver_options: dict | None = None,
               method: str = "ocp", form: str | None = None) -> Solution:
     """Solve the belief-space OCP from the initial joint trajectory `init` (see `solve_ocp_warm`)."""
@@ -661,10 +668,11 @@ def solve_ocp_warm(setup: Setup, init: InitialGuess, solver_options: dict | None
 
     done = False
     forced = spec.hessian in ("surrogate", "gauss-newton")  # no exact-Hessian attempts
-    newton_fits = hessian != "exact" and not forced
+    newton_fits = newton_applies(setup, hessian, forced)
     if spec.name == "newton" and not newton_fits:
         raise SurestepError("solver.name: newton needs the condensed form of a scalar model with "
-                            "noise.observation_noise: mean and solver.hessian: auto; use solver.name: auto or ipopt")
+                            "noise.observation_noise: mean, solver.hessian: auto and exactly six joints moving the "
+                            "tracked frame (the goal pose then fixes the last joints); use solver.name: auto or ipopt")
     if spec.name in ("newton", "auto") and newton_fits and warm is None:
         first = newton_solver(setup).solve(setup, init, method, tol=spec.tol, max_iter=spec.surrogate_max_iter)
         tried.append(("newton", first, None))

@@ -86,3 +86,17 @@ def test_newton_needs_the_surrogate_model(short):
                                                                            observation_noise="expected")))
     with pytest.raises(SurestepError, match="newton"):
         solve_ocp(with_solver(expected, name="newton"), ocp_initial_guess(expected))
+
+
+def test_newton_only_where_the_goal_fixes_the_last_joints(short):
+    """Seven (redundant) or five moving joints: the terminal pose does not fix q_T, so auto keeps IPOPT and an
+    explicit `newton` is an error."""
+    from types import SimpleNamespace
+
+    from surestep_ocp.ocp import newton_applies
+
+    assert newton_applies(short, "surrogate", False)
+    assert not newton_applies(short, "exact", False) and not newton_applies(short, "surrogate", True)
+    for n in (5, 7):
+        arm = SimpleNamespace(supporting_joints=lambda n=n: list(range(n)))
+        assert not newton_applies(replace(short, robot=arm), "surrogate", False)
