@@ -160,15 +160,19 @@ class NewtonSolver:
             ab[0, fixed] = 1.0
             rhs = np.where(fixed, 0.0, -g)
             shift = shift / 4 if shift > 1e-14 else 0.0
-            scale = np.max(np.abs(ab[0, ~fixed]))
-            while True:  # a diagonal shift until positive definite (IPOPT's inertia correction, in short)
+            scale = max(float(np.max(np.abs(ab[0, ~fixed]))), 1e-12)
+            d = None
+            while shift <= 1e12 * scale:  # a diagonal shift until positive definite (IPOPT's inertia correction)
                 try:
                     shifted = ab.copy()
                     shifted[0, ~fixed] += shift
                     d = scipy.linalg.solveh_banded(shifted, rhs, lower=True, check_finite=False)
                     break
-                except np.linalg.LinAlgError:
+                except (np.linalg.LinAlgError, ValueError):  # not positive definite (or not finite)
                     shift = max(1e-8 * scale, 10 * shift)
+            if d is None or not np.all(np.isfinite(d)):
+                status = "Singular_Hessian"
+                break
             alpha = 1.0
             while alpha > 1e-12:  # Armijo along the projected path
                 trial = np.clip(x + alpha * d, lo, hi)
