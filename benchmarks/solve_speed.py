@@ -90,7 +90,7 @@ def run(instances: int, horizons: list[int], seed: int, codegen: bool | None = N
                          ocp.extras["constraint_violation"], grad.solve_time_s, grad.iterations, grad.trace_final))
             if T == 20:
                 moved = camera_nudge(setup, rng)
-                again, _ = ocp_mod.solve_ocp_warm(moved, init, warm=warm)  # warm None (newton): a cold re-solve
+                again, _ = ocp_mod.solve_ocp_warm(moved, init, warm=warm)  # warm None (a kept start): cold
                 cold_resolves += warm is None
                 warm_ms.append(again.solve_time_s * 1e3)
             print(f"T={T} #{i}: ocp {ocp_time:.3f} s ({ocp.iterations} it, {ocp.status}, {ocp.extras['hessian']})"
@@ -117,8 +117,9 @@ def run(instances: int, horizons: list[int], seed: int, codegen: bool | None = N
         lines.append(f"| {T} | {s['time_ratio']:.2f} | {s['trace_share']:.2f} | {s['ocp_median_s']:.3f} | "
                      f"{s['grad_median_s']:.3f} | {s['grad_ik_median_s']:.3f} | {s['iters']:g} | {s['failures']} | "
                      f"{s['alone']:.2f} | {'yes' if s['compiled'] else 'no'} | {builds[T]:.1f} |")
-    how = ("warm-started from the previous primal-dual point" if not cold_resolves else
-           f"cold on {cold_resolves} of {len(warm_ms)} instances (no warm-start point: Newton's solutions, or a kept start)")
+    how = ("warm-started from the previous solution: IPOPT's primal-dual point or Newton's joints"
+           + ("" if not cold_resolves else f"; cold on {cold_resolves} of {len(warm_ms)} instances, where the "
+              "previous solve kept its start and has no warm-start point"))
     lines += ["", f"Warm re-solve at T = 20 after a 3 mm / 2 deg camera move ({how}): median {warm:.1f} ms.",
               f"Growth of the median OCP time from T = 20 to T = 40: {growth:.2f}x.", "",
               ("| T | instance | OCP time [s] | OCP iters | OCP status | OCP Hessian(s) | OCP Tr "

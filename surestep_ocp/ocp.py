@@ -113,6 +113,14 @@ class WarmStart:
     trace_ref: float
 
 
+@dataclass
+class NewtonWarm:
+    """A previous Newton solution's joint trajectory, to start the next Newton solve from (primal only:
+    the bound multipliers are implicit in a projected method)."""
+
+    q: np.ndarray
+
+
 class _Layout:
     """Named blocks of the decision vector (no slicing by stride)."""
 
@@ -611,7 +619,8 @@ def solve_ocp(setup: Setup, init: InitialGuess, solver_options: dict | None = No
 
 
 def solve_ocp_warm(setup: Setup, init: InitialGuess, solver_options: dict | None = None, method: str = "ocp",
-                   form: str | None = None, warm: WarmStart | None = None) -> tuple[Solution, WarmStart]:
+                   form: str | None = None, warm: WarmStart | NewtonWarm | None = None
+                   ) -> tuple[Solution, WarmStart | NewtonWarm | None]:
     """Solve the belief-space OCP; also return the primal-dual point for a later warm start.
 
     Strategy (each attempt is IPOPT on the same NLP; they differ in the Hessian, the
@@ -624,7 +633,11 @@ def solve_ocp_warm(setup: Setup, init: InitialGuess, solver_options: dict | None
     from Newton's last iterate instead was measured worse: on evaluation configuration 0
     at T = 20 it failed after 6530 iterations, 26 s.)
 
-    0. With `warm` (a previous solve's primal-dual point, e.g. before the camera moved):
+    A Newton solution returns its joints (`NewtonWarm`) as the warm start: the next Newton
+    solve starts there (the re-solve after a 3 mm / 2 degree camera move at T = 20: 4.5 ms
+    median, `benchmarks/solve_speed.py`).
+
+    0. With `warm` (a previous IPOPT solve's primal-dual point, e.g. before the camera moved):
        the exact Hessian from there (near an optimum Newton converges fast; measured at
        T = 20: 13.7 ms median, against 39.5 ms with Gauss-Newton), or the forced Hessian
        with `solver.hessian: surrogate | gauss-newton`.
@@ -657,7 +670,7 @@ def solve_ocp_warm(setup: Setup, init: InitialGuess, solver_options: dict | None
     if spec.codegen is True and hessian == "exact":
         raise SurestepError(CODEGEN_EXACT)
     pinned = "ipopt.mu_strategy" in opts or "mu_strategy" in spec.options
-    tried: list[tuple[str, Solution, WarmStart]] = []
+    tried: list[tuple[str, Solution, WarmStart | NewtonWarm | None]] = []
 
     def attempt(name: str, hess: str, extra: dict, start: WarmStart | None) -> bool:
         extra = {**extra, **WARM_OPTIONS} if start is not None else extra
@@ -673,10 +686,15 @@ def solve_ocp_warm(setup: Setup, init: InitialGuess, solver_options: dict | None
         raise SurestepError("solver.name: newton needs the condensed form of a scalar model with "
                             "noise.observation_noise: mean, solver.hessian: auto and exactly six joints moving the "
                             "tracked frame (the goal pose then fixes the last joints); use solver.name: auto or ipopt")
-    if spec.name in ("newton", "auto") and newton_fits and warm is None:
-        first = newton_solver(setup).solve(setup, init, method, tol=spec.tol, max_iter=spec.surrogate_max_iter)
-        tried.append(("newton", first, None))
+    warm_given = warm is not None
+    if spec.name in ("newton", "auto") and newton_fits and (warm is None or isinstance(warm, NewtonWarm)):
+        start = init if warm is None else InitialGuess(np.asarray(warm.q), f"warm start ({init.source})")
+        first = newton_solver(setup).solve(setup, start, method, tol=spec.tol, max_iter=spec.surrogate_max_iter)
+        tried.append(("newton" + (", warm start" if warm is not None else ""), first,
+                      NewtonWarm(np.array(first.q)) if first.success else None))
         done = first.success
+    if isinstance(warm, NewtonWarm):  # IPOPT has no multipliers from Newton: it starts cold from init
+        warm = None
     if warm is not None:  # near the optimum already: Newton's local convergence
         done = attempt(hessian if forced else "exact", hessian if forced else "exact", {}, warm)
     if not done and hessian != "exact":
@@ -704,7 +722,7 @@ def solve_ocp_warm(setup: Setup, init: InitialGuess, solver_options: dict | None
                               for k, (name, s_k, _) in enumerate(tried)]
     sol.extras["hessian"] = " + ".join(name for name, _, _ in tried)
     sol.extras["worse_than_initial_guess"] = bool(sol.objective > sol.extras["initial_trace"])
-    sol.extras["init"] = init.source if warm is None else f"warm start ({init.source})"
+    sol.extras["init"] = init.source if not warm_given else f"warm start ({init.source})"
     sol.solve_time_s = sum(s_k.solve_time_s for _, s_k, _ in tried)
     sol.iterations = sum(s_k.iterations for _, s_k, _ in tried)
     return sol, last

@@ -100,3 +100,25 @@ def test_newton_only_where_the_goal_fixes_the_last_joints(short):
     for n in (5, 7):
         arm = SimpleNamespace(supporting_joints=lambda n=n: list(range(n)))
         assert not newton_applies(replace(short, robot=arm), "surrogate", False)
+
+
+def test_newton_warm_resolve_after_a_camera_move(short):
+    """A Newton solution returns its joints as the warm start; after a small camera move the warm Newton solve
+    reaches the cold optimum, in fewer iterations."""
+    from surestep_ocp.ocp import NewtonWarm, solve_ocp_warm
+
+    setup = with_solver(short, name="auto")
+    init = ocp_initial_guess(setup)
+    first, warm = solve_ocp_warm(setup, init)
+    assert first.extras["solver"] == "newton" and isinstance(warm, NewtonWarm)
+    np.testing.assert_array_equal(warm.q, np.array(first.q))
+    D = np.eye(4)
+    D[:3, 3] = [0.002, -0.001, 0.001]
+    moved = replace(setup, camera_pose=setup.camera_pose @ D)
+    moved.x_start, moved.x_goal = moved.pose_of(setup.q_start), moved.pose_of(setup.q_goal)
+    again, _ = solve_ocp_warm(moved, init, warm=warm)
+    cold = solve_ocp(moved, ocp_initial_guess(moved))
+    assert again.success and again.extras["attempts"][0]["hessian"] == "newton, warm start"
+    assert again.extras["init"].startswith("warm start")
+    assert again.trace_final == pytest.approx(cold.trace_final, rel=1e-4)
+    assert again.iterations < cold.iterations
