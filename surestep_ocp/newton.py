@@ -34,10 +34,10 @@ import scipy.linalg
 from .belief import NV, BeliefModel, vech
 from .codegen import compiled
 from .errors import SurestepError
-from .lie import so3_log
 from .robot import Robot
 from .setup import Setup
 from .solution import Solution, evaluate
+from .surrogate import interval_terms, pose_function, recursion_weights
 
 
 class _Buffered:
@@ -65,35 +65,16 @@ class NewtonSolver:
 
     def __init__(self, robot: Robot, model: BeliefModel, horizon: int, smoothness: float, codegen: bool,
                  codegen_required: bool = False):
-        from .ocp import _scalar_trace  # the one scalar Kalman recursion (shared with the IPOPT path)
-
         t0 = time.perf_counter()
         self.robot, self.T, nq = robot, horizon, robot.nq
         T = horizon
         Tcb, ref, sigma0 = ca.SX.sym("T_cam_base", 3, 4), ca.SX.sym("trace_ref"), ca.SX.sym("sigma0", NV)
-        q = ca.SX.sym("q", nq)
-        Tq = robot.fk_expr(q)
-        pose = ca.Function("pose", [q, Tcb], [ca.vertcat(Tcb[:, :3] @ Tq[:3, 3] + Tcb[:, 3],
-                                                         so3_log(Tcb[:, :3] @ Tq[:3, :3]))])
-        Wd = [np.diag(M) for M in model.motion_matrices()]
-        Vd = [np.diag(M) for M in model.observation_matrices()]
-        nm, no = len(Wd), len(Vd)
-        cm, co = ca.SX.sym("cm", nm, T), ca.SX.sym("co", no, T)
-        S = _scalar_trace(sigma0, [sum(cm[k, t] * ca.DM(Wd[k]) for k in range(nm)) for t in range(T)],
-                          [lambda p, t=t: sum(co[k, t] * ca.DM(Vd[k]) for k in range(no)) for t in range(T)],
-                          model.noise.objective == "predicted") / ref
-        weights = ca.Function("weights", [cm, co, sigma0, ref],
-                              [S, ca.jacobian(S, ca.vec(cm)).reshape((nm, T)),
-                               ca.jacobian(S, ca.vec(co)).reshape((no, T))])
+        pose = pose_function(robot)
+        weights = recursion_weights(model, T, sigma0, ref)
         qa, qb = ca.SX.sym("qa", nq), ca.SX.sym("qb", nq)
-        a, b = pose(qa, Tcb), pose(qb, Tcb)
-        res_m = model.motion_residuals(a, b)
-        res_o = [e for e, _ in model.observation_residuals(b)]
-        coef = ca.Function("coef", [qa, qb, Tcb], [ca.vertcat(*[ca.sumsqr(e) for e in res_m]),
-                                                    ca.vertcat(*[ca.sumsqr(e) for e in res_o])])
-        wm, wo = ca.SX.sym("wm", nm), ca.SX.sym("wo", no)
-        surrogate = (sum(wm[k] * ca.sumsqr(e) for k, e in enumerate(res_m))
-                     + sum(wo[k] * ca.sumsqr(e) for k, e in enumerate(res_o)) + smoothness * ca.sumsqr(qb - qa))
+        _, coefficients, (wm, wo), weighted = interval_terms(model, pose(qa, Tcb), pose(qb, Tcb))
+        coef = ca.Function("coef", [qa, qb, Tcb], list(coefficients))
+        surrogate = weighted + smoothness * ca.sumsqr(qb - qa)
         H, g = ca.hessian(surrogate, ca.vertcat(qa, qb))
         interval = ca.Function("interval", [qa, qb, wm, wo, Tcb], [ca.densify(g), ca.densify(H)])
         Q, P = ca.MX.sym("Q", nq, T + 1), ca.MX.sym("P", 12 + 1 + NV)

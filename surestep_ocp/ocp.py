@@ -80,11 +80,11 @@ from .belief import DIAG, NV, NX, BeliefModel, unvech, vech
 from .codegen import available as compiler_available
 from .codegen import compiled
 from .errors import SurestepError
-from .lie import so3_log
 from .newton import NewtonSolver
 from .robot import Robot
 from .setup import Setup
 from .solution import Solution, evaluate
+from .surrogate import interval_terms, pose_function, recursion_weights, scalar_trace
 
 FORMS = ("auto", "full", "diagonal", "condensed")
 HESSIANS = ("exact", "surrogate", "gauss-newton")  # what a Transcription is built with (`auto` resolves to one)
@@ -157,21 +157,6 @@ def resolve_form(model: BeliefModel, form: str) -> str:
     return form
 
 
-def _scalar_trace(sigma0, motion: list, observation: list, predicted: bool):
-    """Trace after the six scalar Kalman recursions `s+ = p v / (p + v)`, `p = s + w_t`, `v = v_t(p)`.
-
-    `sigma0`: the vech parameter whose diagonal holds the channel variances; `motion[t]`: the six
-    motion noises of step t; `observation[t](p)`: the six observation noises given the prediction.
-    With `predicted`, the trace of the last prediction (before the last observation).
-    """
-    s = ca.vertcat(*[sigma0[i] for i in DIAG])
-    for w, v_of in zip(motion, observation):
-        p = s + w
-        v = v_of(p)
-        s = p * v / (p + v)
-    return ca.sum1(p if predicted else s)
-
-
 class Transcription:
     """The multiple-shooting NLP of one structure (robot, belief model, horizon, form), built once."""
 
@@ -199,10 +184,7 @@ class Transcription:
         sigma0 = ca.SX.sym("sigma0", NV)
         self.p = ca.vertcat(ca.vec(Tcb), scale, trace_ref, sigma0)
 
-        q_sym = ca.SX.sym("q", nq)
-        Tq = robot.fk_expr(q_sym)
-        R = Tcb[:, :3] @ Tq[:3, :3]
-        pose = ca.Function("pose", [q_sym, Tcb], [ca.vertcat(Tcb[:, :3] @ Tq[:3, 3] + Tcb[:, 3], so3_log(R))])
+        pose = pose_function(robot)
 
         g = [mus[t] - pose(qs[t], Tcb) for t in range(T + 1)]
         predicted = model.noise.objective == "predicted"
@@ -210,7 +192,7 @@ class Transcription:
             raise SurestepError("objective.covariance: predicted needs solver.covariance: condensed (or auto)")
         if form == "condensed":  # the covariance is shot through the EKF steps inside the objective
             if self.scalar:  # exact: six scalar Kalman recursions (in Sigma_0's eigenbasis when isotropic)
-                trace_T = _scalar_trace(
+                trace_T = scalar_trace(
                     sigma0, [ca.diag(model.motion_noise(mus[t], mus[t + 1])) for t in range(T)],
                     [lambda p, t=t: ca.diag(model.planning_noise(mus[t + 1], vech(ca.diag(p)))) for t in range(T)],
                     predicted)
@@ -244,7 +226,7 @@ class Transcription:
         self.codegen, self.codegen_note = codegen, None
         t0 = time.perf_counter()
         if hessian != "exact":
-            staged = self._staged_derivatives(pose, sigma0, trace_ref, smoothness, predicted)
+            staged = self._staged_derivatives(pose, sigma0, trace_ref, smoothness)
             if codegen:  # measured at T = 20: function time 22 -> 3.5 ms per solve (24 iterations)
                 try:
                     staged = {k: compiled(fn)[0] for k, fn in staged.items()}
@@ -258,7 +240,7 @@ class Transcription:
                                                            "p": self.p}, options)
         self.build_time_s = time.perf_counter() - t0
 
-    def _staged_derivatives(self, pose: ca.Function, sigma0, trace_ref, smoothness, predicted) -> dict:
+    def _staged_derivatives(self, pose: ca.Function, sigma0, trace_ref, smoothness) -> dict:
         """Objective gradient, constraint Jacobian and a structured Hessian of the Lagrangian, built stage-wise.
 
         The objective is S(c(mu)): S, the trace after the scalar Kalman recursions, as a function
@@ -278,24 +260,11 @@ class Transcription:
         """
         m, T, nq = self.model, self.T, self.robot.nq
         n = self.layout.vector().shape[0]
-        Wd = [np.diag(M) for M in m.motion_matrices()]
-        Vd = [np.diag(M) for M in m.observation_matrices()]
-        nm, no = len(Wd), len(Vd)
-        cm, co = ca.SX.sym("cm", nm, T), ca.SX.sym("co", no, T)
-        S = _scalar_trace(sigma0, [sum(cm[k, t] * ca.DM(Wd[k]) for k in range(nm)) for t in range(T)],
-                          [lambda p, t=t: sum(co[k, t] * ca.DM(Vd[k]) for k in range(no)) for t in range(T)],
-                          predicted) / trace_ref
-        weights = ca.Function("weights", [cm, co, sigma0, trace_ref],
-                              [S, ca.jacobian(S, ca.vec(cm)).reshape((nm, T)), ca.jacobian(S, ca.vec(co)).reshape((no, T))])
+        weights = recursion_weights(m, T, sigma0, trace_ref)
         a, b = ca.SX.sym("a", NX), ca.SX.sym("b", NX)
-        res_m = m.motion_residuals(a, b)
-        res_o = [e for e, _ in m.observation_residuals(b)]
-        coef = ca.Function("coef", [a, b], [ca.vertcat(*[ca.sumsqr(e) for e in res_m]),
-                                             ca.vertcat(*[ca.sumsqr(e) for e in res_o])])
-        wm, wo = ca.SX.sym("wm", nm), ca.SX.sym("wo", no)
+        (res_m, res_o), coefficients, (wm, wo), weighted = interval_terms(m, a, b)
+        coef = ca.Function("coef", [a, b], list(coefficients))
         ab = ca.vertcat(a, b)
-        weighted = (sum(wm[k] * ca.sumsqr(e) for k, e in enumerate(res_m))
-                    + sum(wo[k] * ca.sumsqr(e) for k, e in enumerate(res_o)))
         if self.hessian == "surrogate":  # exact curvature of the weighted coefficients
             block = ca.hessian(weighted, ab)[0]
         else:  # Gauss-Newton: the residuals' curvature dropped too

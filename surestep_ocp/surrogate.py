@@ -1,0 +1,69 @@
+"""Pieces shared by the two OCP solvers (IPOPT's structured Hessian in `ocp.py`, the projected Newton
+solver in `newton.py`): the kinematic pose map, the scalar Kalman recursion, its weights, and the
+per-interval noise coefficients whose weighted sum is the majorize-minimise surrogate.
+
+With the paper's constants the EKF is six scalar recursions, and `Tr(Sigma_T) = S(c)` with `c` the
+noise coefficients (squared norms of residuals of the means, per interval); `S` is concave and
+nondecreasing in `c`, so `sum_k dS/dc_k c_k(mu)` with the weights frozen majorises it (README,
+"The Hessian").
+"""
+
+from __future__ import annotations
+
+import casadi as ca
+import numpy as np
+
+from .belief import DIAG, BeliefModel
+from .lie import so3_log
+from .robot import Robot
+
+
+def pose_function(robot: Robot) -> ca.Function:
+    """`pose(q, T_cam_base) -> mean` (position, axis-angle) of the tracked frame in the camera frame."""
+    q, Tcb = ca.SX.sym("q", robot.nq), ca.SX.sym("T_cam_base", 3, 4)
+    Tq = robot.fk_expr(q)
+    return ca.Function("pose", [q, Tcb], [ca.vertcat(Tcb[:, :3] @ Tq[:3, 3] + Tcb[:, 3],
+                                                     so3_log(Tcb[:, :3] @ Tq[:3, :3]))])
+
+
+def scalar_trace(sigma0, motion: list, observation: list, predicted: bool):
+    """Trace after the six scalar Kalman recursions `s+ = p v / (p + v)`, `p = s + w_t`, `v = v_t(p)`.
+
+    `sigma0`: the vech parameter whose diagonal holds the channel variances; `motion[t]`: the six
+    motion noises of step t; `observation[t](p)`: the six observation noises given the prediction.
+    With `predicted`, the trace of the last prediction (before the last observation).
+    """
+    s = ca.vertcat(*[sigma0[i] for i in DIAG])
+    for w, v_of in zip(motion, observation):
+        p = s + w
+        v = v_of(p)
+        s = p * v / (p + v)
+    return ca.sum1(p if predicted else s)
+
+
+def recursion_weights(model: BeliefModel, T: int, sigma0, trace_ref) -> ca.Function:
+    """`weights(cm, co, sigma0, trace_ref) -> (S, dS/dcm, dS/dco)`: the scaled trace after the scalar
+    recursions as a function of the (motion, observation) coefficient matrices (one column per interval),
+    and its gradient, the surrogate's weights. `sigma0` and `trace_ref` are the caller's SX symbols."""
+    Wd = [np.diag(M) for M in model.motion_matrices()]
+    Vd = [np.diag(M) for M in model.observation_matrices()]
+    nm, no = len(Wd), len(Vd)
+    cm, co = ca.SX.sym("cm", nm, T), ca.SX.sym("co", no, T)
+    S = scalar_trace(sigma0, [sum(cm[k, t] * ca.DM(Wd[k]) for k in range(nm)) for t in range(T)],
+                     [lambda p, t=t: sum(co[k, t] * ca.DM(Vd[k]) for k in range(no)) for t in range(T)],
+                     model.noise.objective == "predicted") / trace_ref
+    return ca.Function("weights", [cm, co, sigma0, trace_ref],
+                       [S, ca.jacobian(S, ca.vec(cm)).reshape((nm, T)), ca.jacobian(S, ca.vec(co)).reshape((no, T))])
+
+
+def interval_terms(model: BeliefModel, a, b):
+    """For the means `a`, `b` at both ends of an interval: the residuals `(motion, observation)` whose
+    squared norms are the noise coefficients, the coefficient vectors, and the weight symbols `(wm, wo)`
+    with the weighted sum `sum_k wm_k |e_k|^2 + sum_k wo_k |e_k|^2` (the surrogate's interval term)."""
+    res_m = model.motion_residuals(a, b)
+    res_o = [e for e, _ in model.observation_residuals(b)]
+    wm, wo = ca.SX.sym("wm", len(res_m)), ca.SX.sym("wo", len(res_o))
+    coefficients = (ca.vertcat(*[ca.sumsqr(e) for e in res_m]), ca.vertcat(*[ca.sumsqr(e) for e in res_o]))
+    weighted = (sum(wm[k] * ca.sumsqr(e) for k, e in enumerate(res_m))
+                + sum(wo[k] * ca.sumsqr(e) for k, e in enumerate(res_o)))
+    return (res_m, res_o), coefficients, (wm, wo), weighted
