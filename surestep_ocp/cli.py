@@ -36,7 +36,7 @@ def _summary(sol, base=None) -> str:
     if sol.extras.get("codegen_note"):
         lines.append(f"note        solver.codegen auto: {sol.extras['codegen_note'].splitlines()[0]}")
     if sol.status == "Initial_Guess_Kept":
-        lines.append("warning     every point IPOPT converged to was worse than the initial guess, which is "
+        lines.append("warning     every point the solvers converged to was worse than the initial guess, which is "
                      "returned (a poor local optimum; see README, rotations near pi)")
     if sol.extras.get("worse_than_initial_guess"):
         lines.append("warning     the optimum found is worse than the initial guess (a poor local optimum; "

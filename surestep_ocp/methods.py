@@ -1,7 +1,7 @@
 """Method names and dispatch: every method takes a Setup and returns a Solution.
 
 Names: `baseline`, `gradient`, `gradient-no-pose-loss`, `ocp`, `ocp-from-gradient`
-(IPOPT started from the gradient solution), each optionally with an ablation suffix
+(the OCP started from the gradient solution), each optionally with an ablation suffix
 `-no-depth`, `-no-fov` or `-no-orientation` (that observation component is left out
 during optimisation; evaluation always uses all components).
 """
@@ -62,7 +62,7 @@ def _variant(setup: Setup, components: tuple[str, ...] | None, form: str | None,
 
 
 def ocp_initial_guess(setup: Setup, source: str = "baseline", gradient: Solution | None = None) -> InitialGuess:
-    """Joint trajectory to start IPOPT from: IK of the straight line or of a gradient solution."""
+    """Joint trajectory to start the OCP from: IK of the straight line or of a gradient solution."""
     if source == "baseline":
         poses = straight_line(setup.x_start, setup.x_goal, setup.problem.horizon)
     else:
