@@ -51,9 +51,7 @@ def camera_nudge(setup, rng):
     D[:3, :3] = np_exp(np.deg2rad(2.0) * axis / np.linalg.norm(axis))
     d = rng.normal(size=3)
     D[:3, 3] = 0.003 * d / np.linalg.norm(d)
-    moved = replace(setup, camera_pose=setup.camera_pose @ D)
-    moved.x_start, moved.x_goal = moved.pose_of(setup.q_start), moved.pose_of(setup.q_goal)
-    return moved
+    return setup.seen_from(setup.camera_pose @ D)
 
 
 def run(instances: int, horizons: list[int], seed: int, codegen: bool | None = None,

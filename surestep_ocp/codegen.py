@@ -39,6 +39,17 @@ def available() -> bool:
     return shutil.which(os.environ.get("CC", "gcc")) is not None
 
 
+def compiled_or_interpreted(fns: dict[str, ca.Function], required: bool) -> tuple[dict[str, ca.Function], str | None]:
+    """`fns` compiled; if compiling fails and it is not `required` (`solver.codegen: auto`), the interpreted
+    ones and a note saying why (`solver.codegen: true` keeps the error)."""
+    try:
+        return {k: compiled(fn)[0] for k, fn in fns.items()}, None
+    except SurestepError as exc:
+        if required:
+            raise
+        return fns, f"interpreted: {exc}"
+
+
 def compiled(fn: ca.Function) -> tuple[ca.Function, bool]:
     """`fn` compiled to C (same name, inputs and outputs); and whether it was compiled now (not cached)."""
     cc = compiler()

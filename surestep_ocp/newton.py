@@ -2,9 +2,10 @@
 
 With the condensed form of a scalar model the belief means are functions of the joints,
 `mu_t = pose(q_t)`; `q_0` is fixed, and the terminal equality `mu_T = x^G` with exactly six
-joints moving the tracked frame fixes `q_T` to the goal's IK solution (locally; `ocp.newton_applies`) (IPOPT's solutions keep it: measured
-`|q_T - q_goal| <= 7e-16` on 19 evaluation instances). What is left is a box-constrained
-problem in the interior joints `q_1 .. q_T-1`:
+joints moving the tracked frame fixes `q_T` to the goal's IK solution, locally
+(`ocp.newton_applies`; IPOPT's solutions keep it: measured `|q_T - q_goal| <= 7e-16` on 19
+evaluation instances). What is left is a box-constrained problem in the interior joints
+`q_1 .. q_T-1`:
 
     min f(q) = S(c(pose(q))) / S_ref + smoothness * sum |q_t+1 - q_t|^2,   q_lo <= q <= q_hi
 
@@ -32,8 +33,7 @@ import numpy as np
 import scipy.linalg
 
 from .belief import NV, BeliefModel, vech
-from .codegen import compiled
-from .errors import SurestepError
+from .codegen import compiled_or_interpreted
 from .robot import Robot
 from .setup import Setup
 from .solution import Solution, evaluate
@@ -44,7 +44,7 @@ class _Buffered:
     """A Function evaluated in place on NumPy arrays (CasADi's buffer interface)."""
 
     def __init__(self, fn: ca.Function):
-        self.fn = fn
+        self.fn = fn  # the buffer refers to it
         self.args = [np.zeros(fn.sparsity_in(i).numel()) for i in range(fn.n_in())]
         self.res = [np.zeros(fn.sparsity_out(i).nnz()) for i in range(fn.n_out())]
         self.buf, self.trigger = fn.buffer()
@@ -86,12 +86,8 @@ class NewtonSolver:
                "newton_f": ca.Function("newton_f", [Q, P], [S_x + smooth])}
         self.codegen, self.codegen_note = codegen, None
         if codegen:
-            try:
-                fns = {k: compiled(fn)[0] for k, fn in fns.items()}
-            except SurestepError as exc:  # codegen: auto asked for "compiled if possible"
-                if codegen_required:
-                    raise
-                self.codegen, self.codegen_note = False, f"interpreted: {exc}"
+            fns, self.codegen_note = compiled_or_interpreted(fns, codegen_required)
+            self.codegen = self.codegen_note is None
         self.step, self.f = _Buffered(fns["newton_step"]), _Buffered(fns["newton_f"])
         self.poses = pose.map(T + 1)
         # scatter maps: interval t covers the joint vectors of nodes t, t+1 (positions t*nq .. (t+2)*nq)
@@ -112,14 +108,13 @@ class NewtonSolver:
         T, nq, n, robot = self.T, self.robot.nq, self.n, self.robot
         sigma0 = np.diag(setup.model.channel_variances(np.asarray(setup.problem.noise.Sigma0, float)))
         P = np.concatenate([setup.T_cam_base[:3, :].ravel(order="F"), [1.0], vech(sigma0)])
-        x = np.asarray(init.q, float).T.ravel(order="F").copy()  # node-major: x[t*nq + j]
+        x = np.array(init.q, float).ravel()  # node-major: x[t*nq + j]
         lo, hi = np.tile(robot.lower, T + 1), np.tile(robot.upper, T + 1)
         free = np.zeros((T + 1, nq), bool)
         free[1:T, robot.supporting_joints()] = True
         free = free.ravel()
         start_ok = bool(np.all(x >= lo - 1e-12) and np.all(x <= hi + 1e-12)
                         and np.allclose(x[:nq], setup.q_start, atol=1e-12))
-        P[12] = 1.0
         P[12] = trace_ref = float(self.step(x, P)[0][0])  # the objective is 1 (plus smoothness) at the start
         status, it, shift = "Maximum_Iterations_Exceeded" if start_ok else "Infeasible_Start", 0, 0.0
         while start_ok and it <= max_iter:

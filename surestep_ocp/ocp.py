@@ -78,7 +78,7 @@ import numpy as np
 
 from .belief import DIAG, NV, NX, BeliefModel, unvech, vech
 from .codegen import available as compiler_available
-from .codegen import compiled
+from .codegen import compiled_or_interpreted
 from .errors import SurestepError
 from .newton import NewtonSolver
 from .robot import Robot
@@ -228,12 +228,8 @@ class Transcription:
         if hessian != "exact":
             staged = self._staged_derivatives(pose, sigma0, trace_ref, smoothness)
             if codegen:  # measured at T = 20: function time 22 -> 3.5 ms per solve (24 iterations)
-                try:
-                    staged = {k: compiled(fn)[0] for k, fn in staged.items()}
-                except SurestepError as exc:  # codegen: auto asked for "compiled if possible"
-                    if codegen_required:
-                        raise
-                    self.codegen, self.codegen_note = False, f"interpreted: {exc}"
+                staged, self.codegen_note = compiled_or_interpreted(staged, codegen_required)
+                self.codegen = self.codegen_note is None
             self.hess_lag = staged["hess_lag"]
             options = {**options, **staged}
         self.solver = ca.nlpsol("surestep_ocp", "ipopt", {"x": L.vector(), "f": f, "g": ca.vertcat(*g),
@@ -592,15 +588,15 @@ def solve_ocp_warm(setup: Setup, init: InitialGuess, solver_options: dict | None
                    ) -> tuple[Solution, WarmStart | NewtonWarm | None]:
     """Solve the belief-space OCP; also return the primal-dual point for a later warm start.
 
-    Strategy (each attempt is IPOPT on the same NLP; they differ in the Hessian, the
-    starting point and the barrier update):
+    Strategy (after the Newton solver where it applies, each attempt is IPOPT on the same
+    NLP; they differ in the Hessian, the starting point and the barrier update):
 
-    With `solver.name: newton`, or `auto` (the default) where it applies (cold solves of the
-    condensed scalar model with `solver.hessian: auto`): first the projected Newton method
-    of `newton.py` (no IPOPT); if it converges, that is the solution. If not (a violated depth bound, which only IPOPT has, or no convergence in
-    `surrogate_max_iter` iterations), IPOPT follows as below from `init`. (Starting IPOPT
-    from Newton's last iterate instead was measured worse: on evaluation configuration 0
-    at T = 20 it failed after 6530 iterations, 26 s.)
+    With `solver.name: newton`, or `auto` (the default) where it applies (`newton_applies`):
+    first the projected Newton method of `newton.py` (no IPOPT); if it converges, that is
+    the solution. If not (a violated depth bound, which only IPOPT has, or no convergence
+    in `surrogate_max_iter` iterations), IPOPT follows as below from `init`. (Starting
+    IPOPT from Newton's last iterate instead was measured worse: on evaluation
+    configuration 0 at T = 20 it failed after 6530 iterations, 26 s.)
 
     A Newton solution returns its joints (`NewtonWarm`) as the warm start: the next Newton
     solve starts there (the re-solve after a 3 mm / 2 degree camera move at T = 20: 4.5 ms
@@ -640,11 +636,12 @@ def solve_ocp_warm(setup: Setup, init: InitialGuess, solver_options: dict | None
         raise SurestepError(CODEGEN_EXACT)
     pinned = "ipopt.mu_strategy" in opts or "mu_strategy" in spec.options
     tried: list[tuple[str, Solution, WarmStart | NewtonWarm | None]] = []
+    used: list[Transcription] = []
 
     def attempt(name: str, hess: str, extra: dict, start: WarmStart | None) -> bool:
         extra = {**extra, **WARM_OPTIONS} if start is not None else extra
-        sol, reached = transcription(setup, form, {**opts, **extra}, hessian=hess).solve(setup, init, method,
-                                                                                          warm=start)
+        used.append(transcription(setup, form, {**opts, **extra}, hessian=hess))
+        sol, reached = used[-1].solve(setup, init, method, warm=start)
         tried.append((name + (", warm start" if start is not None else ""), sol, reached))
         return sol.success
 
@@ -680,7 +677,7 @@ def solve_ocp_warm(setup: Setup, init: InitialGuess, solver_options: dict | None
     if finished and warm is None and tried[pick][1].objective > tried[pick][1].extras["initial_trace"]:
         # Every converged point is above the (cold) start: keep the start if it is a feasible plan, rather than
         # return a plan worse than the one we began from (step 4). Reported as its own attempt.
-        start = transcription(setup, form, opts, hessian="exact").start_solution(setup, init, method)
+        start = used[-1].start_solution(setup, init, method) if used else None  # same start point and bounds
         if start is not None:
             tried.append(("none: the feasible initial guess, below every converged point", start, None))
             pick = len(tried) - 1

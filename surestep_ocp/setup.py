@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import cached_property
 
 import numpy as np
@@ -71,6 +71,12 @@ class Setup:
     def eval_model(self) -> BeliefModel:
         """Belief model with all components: every method is evaluated with it."""
         return self.model.evaluation_model()
+
+    def seen_from(self, camera_pose: np.ndarray) -> Setup:
+        """The same robot, joints and start/goal joints seen from another camera pose (means recomputed)."""
+        moved = replace(self, camera_pose=np.asarray(camera_pose, float))
+        moved.x_start, moved.x_goal = moved.pose_of(self.q_start), moved.pose_of(self.q_goal)
+        return moved
 
     def pose_of(self, q: np.ndarray) -> np.ndarray:
         """Camera-frame pose `[p, r]` of the tracked frame at joints `q` (Pinocchio, numeric)."""

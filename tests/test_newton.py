@@ -114,8 +114,7 @@ def test_newton_warm_resolve_after_a_camera_move(short):
     np.testing.assert_array_equal(warm.q, np.array(first.q))
     D = np.eye(4)
     D[:3, 3] = [0.002, -0.001, 0.001]
-    moved = replace(setup, camera_pose=setup.camera_pose @ D)
-    moved.x_start, moved.x_goal = moved.pose_of(setup.q_start), moved.pose_of(setup.q_goal)
+    moved = setup.seen_from(setup.camera_pose @ D)
     again, _ = solve_ocp_warm(moved, init, warm=warm)
     cold = solve_ocp(moved, ocp_initial_guess(moved))
     assert again.success and again.extras["attempts"][0]["hessian"] == "newton, warm start"
