@@ -2,7 +2,7 @@
 
     .venv/bin/python benchmarks/newton_vs_ipopt.py [--configs 100] [--seed 0]
 
-Per configuration of problems/evaluation.yaml (T = 20): both solvers from the same initial guess; prints how
+Per configuration of problems/evaluations/evaluation.yaml (T = 20): both solvers from the same initial guess; prints how
 often they reach the same plan (Tr(Sigma_T) within 1e-6 relative), a lower or a higher one, how often
 Newton needed the IPOPT fallback, and the median times. Writes benchmarks/results/newton_vs_ipopt.md.
 """
@@ -28,7 +28,7 @@ def main() -> None:
     ap.add_argument("--configs", type=int, default=100)
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args()
-    sampler = ConfigurationSampler(load_evaluation(ROOT / "problems" / "evaluation.yaml"))
+    sampler = ConfigurationSampler(load_evaluation(ROOT / "problems" / "evaluations" / "evaluation.yaml"))
     same = lower = higher = fallback = failed = 0
     t_ipopt, t_newton, rows = [], [], []
     for c in range(args.configs):

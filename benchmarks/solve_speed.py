@@ -1,6 +1,6 @@
 """Solve speed of the OCP against the paper's gradient variant, measured in the same run.
 
-For N random configurations of problems/evaluation.yaml at T in {10, 20, 40}: wall
+For N random configurations of problems/evaluations/evaluation.yaml at T in {10, 20, 40}: wall
 time, iterations and Tr(Sigma_T) of the OCP (`solve_ocp`: IPOPT with the problem's
 settings, i.e. the surrogate Hessian with the exact-Hessian polish; the OCP time
 includes the IK of its initial guess and the set-up of each IPOPT call) and of the
@@ -56,7 +56,7 @@ def camera_nudge(setup, rng):
 
 def run(instances: int, horizons: list[int], seed: int, codegen: bool | None = None,
         tol: float | None = None, hessian: str | None = None, solver_name: str | None = None) -> tuple[str, str]:
-    spec = load_evaluation(ROOT / "problems" / "evaluation.yaml")
+    spec = load_evaluation(ROOT / "problems" / "evaluations" / "evaluation.yaml")
     solver = replace(spec.base.solver, codegen=spec.base.solver.codegen if codegen is None else codegen,
                      tol=spec.base.solver.tol if tol is None else tol,
                      hessian=hessian or spec.base.solver.hessian, name=solver_name or spec.base.solver.name)

@@ -1,4 +1,4 @@
-"""Random initial configurations for the evaluation (`problems/evaluation.yaml`).
+"""Random initial configurations for the evaluation (`problems/evaluations/evaluation.yaml`).
 
 An evaluation file names a base problem (robot, camera intrinsics, noise, solver
 settings) and uniform boxes of ECM joints (the camera pose), PSM start joints and

@@ -246,7 +246,7 @@ def register(subparsers):
         "evaluate", help="noisy closed-loop rollouts of every method over random configurations (Table I)",
         description="Plan with each method on random configurations of EVAL.yaml, run noisy closed-loop rollouts "
                     "of each plan and write table.md, raw.csv, solves.csv and boxplot.png.")
-    e.add_argument("evaluation", metavar="EVAL.yaml", help="evaluation file (e.g. problems/evaluation.yaml)")
+    e.add_argument("evaluation", metavar="EVAL.yaml", help="evaluation file (e.g. problems/evaluations/evaluation.yaml)")
     e.add_argument("--configs", type=int, default=100, help="number of random configurations (default 100)")
     e.add_argument("--rollouts", type=int, default=50, help="noisy rollouts per plan and mode (default 50)")
     e.add_argument("--seed", type=int, default=0, help="seed of the configurations and rollouts (default 0)")

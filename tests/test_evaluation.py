@@ -18,7 +18,7 @@ from surestep_ocp.metrics import relative
 from surestep_ocp.rollout import METRICS
 
 REPO = Path(__file__).resolve().parents[1]
-EVAL = REPO / "problems" / "evaluation.yaml"
+EVAL = REPO / "problems" / "evaluations" / "evaluation.yaml"
 
 
 @pytest.fixture(scope="module")

@@ -71,7 +71,7 @@ def test_newton_falls_back_to_ipopt_when_the_depth_bound_is_violated():
     not have); IPOPT then solves it from the start, with the bound, and that is the plan."""
     from surestep_ocp.configs import ConfigurationSampler, load_evaluation
 
-    sampler = ConfigurationSampler(load_evaluation(DEFAULT.parent / "evaluation.yaml"))
+    sampler = ConfigurationSampler(load_evaluation(DEFAULT.parent / "evaluations" / "evaluation.yaml"))
     setup = with_solver(build_setup(sampler.problem(sampler.sample(0, 9))), name="newton")
     sol = solve_ocp(setup, ocp_initial_guess(setup))
     attempts = sol.extras["attempts"]

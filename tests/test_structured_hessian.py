@@ -227,7 +227,7 @@ def test_an_optimum_worse_than_the_start_keeps_the_start():
     feasible start, so the start (the straight line's IK, feasible) is the plan returned, and said so."""
     from surestep_ocp.configs import ConfigurationSampler, load_evaluation
 
-    sampler = ConfigurationSampler(load_evaluation(DEFAULT.parent / "evaluation.yaml"))
+    sampler = ConfigurationSampler(load_evaluation(DEFAULT.parent / "evaluations" / "evaluation.yaml"))
     setup = build_setup(with_solver(sampler.problem(sampler.sample(0, 0)), name="ipopt"))
     sol = solve_ocp(setup, ocp_initial_guess(setup))
     attempts = sol.extras["attempts"]
