@@ -10,10 +10,16 @@ As published (SURESTEP, section 5 of the method page):
   is zero and it stays at its initial value; the last step x_{T-1} -> x^G can be large);
 - loss: Tr(Sigma_T) + w (||p_T - p_{T-1}|| + angle(r_{T-1}, r_T)), w the pose-loss
   weight (paper: 1); "no pose loss" drops the bracket;
-- L-BFGS for a fixed number of iterations (paper: 50), tolerances off.
+- L-BFGS for a fixed number of iterations (paper: 50), tolerances off
+  (`gradient.optimizer: scipy`, the default: scipy's L-BFGS-B with `iterations`), or with
+  PyTorch's semantics (`gradient.optimizer: torch`, `lbfgs.py`): `steps` outer `step()`
+  calls of up to `max_iter` inner iterations each, torch's tolerances, strong Wolfe line
+  search; `gradient.preset: paper` is the reading that reproduces the paper's Table I
+  (50 `step()` calls, `trace_scale` 1e3; README, "Table I").
 
-The loss is NOT rescaled (the paper did not): Tr(Sigma_T) is ~1e-5..1e-3 while the
-pose loss is ~1e-3..1e-1, so the pose loss can dominate. The loss terms at start and
+By default the loss is NOT rescaled (the paper does not say it was): Tr(Sigma_T) is
+~1e-5..1e-3 while the pose loss is ~1e-3..1e-1, so the pose loss can dominate;
+`gradient.trace_scale` multiplies the trace. The loss terms at start and
 end and a `barely_moved` flag are put in the solution's extras so that is visible.
 The waypoints carry no reachability guarantee: each is checked by IK afterwards.
 """
@@ -45,8 +51,9 @@ def _smooth_norm(sq, eps: float):
     return ca.sqrt(sq + eps**2) - eps
 
 
-def build_loss(setup: Setup, model, pose_loss: bool, weight: float) -> tuple[ca.Function, ca.Function]:
-    """The loss of the stacked differences d (6T) as CasADi Functions.
+def build_loss(setup: Setup, model, pose_loss: bool, weight: float,
+               trace_scale: float = 1.0) -> tuple[ca.Function, ca.Function]:
+    """The loss `trace_scale Tr(Sigma_T) [+ weight pose loss]` of the stacked differences d (6T), CasADi Functions.
 
     Returns:
         (terms, loss_grad): `terms(d) -> (loss, trace, step_m, step_rad)` where step_m and
@@ -72,7 +79,7 @@ def build_loss(setup: Setup, model, pose_loss: bool, weight: float) -> tuple[ca.
     dp = xs[T][:3] - xs[T - 1][:3]
     step_m = _smooth_norm(ca.dot(dp, dp), EPS_POS)
     step_rad = _smooth_norm(angle_sq(so3_exp(xs[T - 1][3:]), so3_exp(xs[T][3:])), EPS_ANG)
-    loss = trace + weight * (step_m + step_rad) if pose_loss else trace
+    loss = trace_scale * trace + weight * (step_m + step_rad) if pose_loss else trace_scale * trace
     terms = ca.Function("gradient_loss_terms", [d], [loss, trace, step_m, step_rad],
                         ["d"], ["loss", "trace", "step_m", "step_rad"])
     loss_grad = ca.Function("gradient_loss_grad", [d], [loss, ca.gradient(loss, d)], ["d"], ["loss", "grad"])
@@ -126,7 +133,7 @@ def solve_gradient(
     d0 = np.diff(init, axis=0).ravel()
 
     t_build = time.perf_counter()
-    terms, loss_grad = build_loss(setup, model, pose_loss, spec.pose_loss_weight)
+    terms, loss_grad = build_loss(setup, model, pose_loss, spec.pose_loss_weight, spec.trace_scale)
     build_s = time.perf_counter() - t_build
 
     def fun(z):
@@ -134,28 +141,22 @@ def solve_gradient(
         return float(f), np.asarray(g, dtype=float).ravel()
 
     t0 = time.perf_counter()
-    error = None
-    try:
-        res = scipy.optimize.minimize(
-            fun, d0, jac=True, method="L-BFGS-B",
-            options={"maxiter": spec.iterations, "maxcor": spec.memory, "gtol": 0.0, "ftol": 0.0},
-        )
-        d_opt, nit, message, status_code = res.x, int(res.nit), str(res.message), int(res.status)
-    except (RuntimeError, ValueError, FloatingPointError) as exc:  # NaN from CasADi, etc.
-        error = f"{type(exc).__name__}: {exc}"
-        d_opt, nit, message, status_code = d0, 0, error, -1
+    if spec.optimizer == "torch":
+        run = _run_torch(fun, d0, spec)
+    else:
+        run = _run_scipy(fun, d0, spec)
     solve_s = time.perf_counter() - t0
+    d_opt, nit, error = run["x"], run["iterations"], run["error"]
 
     start, end = _terms_dict(terms, d0), _terms_dict(terms, d_opt)
     poses = poses_of(setup, d_opt)
     # scipy's status: 0 converged, 1 iteration/evaluation limit (the normal stop here),
     # 2 stopped otherwise (e.g. ABNORMAL line search: no further decrease found).
     finite = bool(np.isfinite(end["loss"]) and np.all(np.isfinite(poses)))
-    success = finite and error is None and status_code in (0, 1, 2) and end["loss"] <= start["loss"]
-    if status_code == 1 and nit >= spec.iterations:
-        status = f"completed {nit} iterations"
-    else:
-        status = f"stopped after {nit} of {spec.iterations} iterations: {message}"
+    success = finite and error is None and run["ok"] and end["loss"] <= start["loss"]
+    status = run["status"] if finite else f"{run['status']}; diverged (non-finite loss or waypoints)"
+    if finite and end["loss"] > start["loss"]:
+        status += f"; the loss rose from {start['loss']:.3g} to {end['loss']:.3g}"
 
     dpos = float(np.max(np.linalg.norm(poses[:, :3] - base[:, :3], axis=1)))
     dang = float(max(np_angle(a, b) for a, b in zip(poses[:, 3:], base[:, 3:])))
@@ -164,14 +165,12 @@ def solve_gradient(
     ik_s = time.perf_counter() - t_ik
     method = "gradient" if pose_loss else "gradient-no-pose-loss"
     extras = {
-        "optimiser": "scipy L-BFGS-B",
-        "scipy_message": message,
-        "scipy_status": status_code,
-        "iterations_requested": spec.iterations,
-        "memory": spec.memory,
-        "function_evaluations": int(res.nfev) if error is None else 0,
+        **run["extras"],
+        "function_evaluations": run["evaluations"],
         "pose_loss": bool(pose_loss),
         "pose_loss_weight": float(spec.pose_loss_weight),
+        "trace_scale": float(spec.trace_scale),
+        "preset": spec.preset or None,
         "components": list(components),
         "init": "straight-line baseline" if init_poses is None else "init_poses",
         "loss_start": start,
@@ -190,3 +189,63 @@ def solve_gradient(
         success=success, status=status, solve_time_s=solve_s, iterations=nit,
         objective=end["loss"], components=components, extras=extras,
     )
+
+
+def _run_scipy(fun, d0: np.ndarray, spec) -> dict:
+    """scipy's L-BFGS-B for `spec.iterations` iterations, tolerances off."""
+    try:
+        res = scipy.optimize.minimize(
+            fun, d0, jac=True, method="L-BFGS-B",
+            options={"maxiter": spec.iterations, "maxcor": spec.memory, "gtol": 0.0, "ftol": 0.0},
+        )
+    except (RuntimeError, ValueError, FloatingPointError) as exc:  # NaN from CasADi, etc.
+        error = f"{type(exc).__name__}: {exc}"
+        return {"x": d0, "iterations": 0, "evaluations": 0, "error": error, "ok": False, "status": error,
+                "extras": {"optimiser": "scipy L-BFGS-B", "scipy_message": error, "scipy_status": -1,
+                           "iterations_requested": spec.iterations, "memory": spec.memory}}
+    nit, code = int(res.nit), int(res.status)
+    # scipy's status: 0 converged, 1 iteration/evaluation limit (the normal stop here),
+    # 2 stopped otherwise (e.g. ABNORMAL line search: no further decrease found).
+    if code == 1 and nit >= spec.iterations:
+        status = f"completed {nit} iterations"
+    else:
+        status = f"stopped after {nit} of {spec.iterations} iterations: {res.message}"
+    return {"x": res.x, "iterations": nit, "evaluations": int(res.nfev), "error": None, "ok": code in (0, 1, 2),
+            "status": status,
+            "extras": {"optimiser": "scipy L-BFGS-B", "scipy_message": str(res.message), "scipy_status": code,
+                       "iterations_requested": spec.iterations, "memory": spec.memory}}
+
+
+def _run_torch(fun, d0: np.ndarray, spec) -> dict:
+    """`spec.steps` step() calls of torch.optim.LBFGS's algorithm (`lbfgs.LBFGS`); stops early on a non-finite loss."""
+    from .lbfgs import LBFGS
+
+    opt = LBFGS(d0, lr=spec.lr, max_iter=spec.max_iter, max_eval=spec.max_eval, tolerance_grad=spec.tolerance_grad,
+                tolerance_change=spec.tolerance_change, history_size=spec.history_size,
+                line_search=spec.line_search)
+    error = None
+    done = 0
+    with np.errstate(all="ignore"):
+        try:
+            for _ in range(spec.steps):
+                opt.step(fun)
+                done += 1
+                if not np.all(np.isfinite(opt.x)) or not np.isfinite(opt.steps[-1].loss_after):
+                    error = f"non-finite loss after step() {done}"
+                    break
+        except (RuntimeError, ValueError, FloatingPointError, np.linalg.LinAlgError) as exc:
+            error = f"{type(exc).__name__}: {exc}"
+    stops: dict[str, int] = {}
+    for st in opt.steps:
+        stops[st.stop] = stops.get(st.stop, 0) + 1
+    if error is None:
+        status = f"completed {done} steps ({opt.n_iter} inner iterations)"
+    else:
+        status = f"stopped after {done} of {spec.steps} steps ({opt.n_iter} inner iterations): {error}"
+    return {"x": opt.x, "iterations": opt.n_iter, "evaluations": opt.func_evals, "error": error, "ok": error is None,
+            "status": status,
+            "extras": {"optimiser": f"torch-semantics L-BFGS (lbfgs.py, line search {spec.line_search})",
+                       "steps_requested": spec.steps, "steps_done": done, "max_iter": spec.max_iter,
+                       "max_eval": opt.max_eval, "history_size": spec.history_size, "lr": spec.lr,
+                       "tolerance_grad": spec.tolerance_grad, "tolerance_change": spec.tolerance_change,
+                       "inner_iterations": opt.n_iter, "step_stops": stops}}

@@ -1,11 +1,13 @@
 """Problem files: YAML -> frozen dataclasses, validated strictly.
 
 See `problems/README.md` for the schema. Relative paths (URDFs) are resolved
-against the repository root first, then against the problem file's folder.
+against the repository root first (a source checkout), then against the data the
+installed package ships (`robots/`, `problems/`), then against the problem file's folder.
 """
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -15,11 +17,20 @@ import yaml
 
 from .belief import COMPONENTS, OBJECTIVES, OBSERVATION_NOISE_FORMS, ORIENTATION_FORMULAS, NoiseParams
 from .camera import Intrinsics
-from .errors import ProblemError
+from .errors import ProblemError, shown
 from .lie import np_exp, rpy_matrix
 from .schema import Reader
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
+# robots/ and problems/ as installed with the package (pyproject.toml maps them to surestep_ocp/data/*);
+# in a source checkout (editable install) they are at REPO_ROOT instead
+PACKAGE_DATA = Path(__file__).resolve().parent / "data"
+
+
+def data_roots() -> tuple[Path, ...]:
+    """Folders that `robots/...` and `problems/...` are resolved against: the checkout, then the package data."""
+    roots = [REPO_ROOT] if (REPO_ROOT / "pyproject.toml").is_file() and (REPO_ROOT / "robots").is_dir() else []
+    return tuple(roots + ([PACKAGE_DATA] if PACKAGE_DATA.is_dir() else []))
 
 
 @dataclass(frozen=True)
@@ -92,9 +103,31 @@ class SolverSpec:
 
 @dataclass(frozen=True)
 class GradientSpec:
-    iterations: int = 50
-    memory: int = 10
+    """The gradient variant's optimiser (see surestep_ocp/gradient.py and problems/README.md)."""
+
+    optimizer: str = "scipy"  # scipy (L-BFGS-B, `iterations`) | torch (torch.optim.LBFGS's algorithm, lbfgs.py)
+    iterations: int = 50  # scipy: L-BFGS-B iterations
+    memory: int = 10  # scipy: L-BFGS-B memory
     pose_loss_weight: float = 1.0
+    trace_scale: float = 1.0  # loss = trace_scale * Tr(Sigma_T) + pose_loss_weight * pose loss
+    steps: int = 50  # torch: outer step() calls
+    max_iter: int = 20  # torch: inner iterations per step()
+    max_eval: int | None = None  # torch: evaluations per step() (None: max_iter * 5 // 4)
+    line_search: str = "strong_wolfe"  # torch: strong_wolfe | none (torch's own default is none)
+    lr: float = 1.0
+    tolerance_grad: float = 1e-7
+    tolerance_change: float = 1e-9
+    history_size: int = 100
+    preset: str = ""
+
+
+# `gradient.preset`: values a preset sets (keys given beside it override them). `paper`: the reading that
+# reproduces the paper's Table I (README, "Table I"); `literal`: the same optimiser with the loss as written.
+GRADIENT_PRESETS = {
+    "paper": {"optimizer": "torch", "steps": 50, "max_iter": 20, "line_search": "strong_wolfe", "trace_scale": 1e3},
+    "literal": {"optimizer": "torch", "steps": 50, "max_iter": 20, "line_search": "strong_wolfe", "trace_scale": 1.0},
+    "scipy": {"optimizer": "scipy", "iterations": 50, "trace_scale": 1.0},
+}
 
 
 @dataclass(frozen=True)
@@ -121,14 +154,75 @@ class Problem:
     description: str = ""
 
 
+# Limits of what a problem (or evaluation) file may be and hold (problems/README.md, "Limits").
+MAX_HORIZON = 200  # T (a solve's time and memory grow with T; README "Limits")
+MAX_FILE_BYTES = 1_000_000
+MAX_YAML_DEPTH = 40  # nesting levels
+MAX_YAML_NODES = 100_000  # values in the file, with every alias counted as the size of what it names
+MAX_POSITION = 100.0  # [m] any position (poses, points)
+MAX_ANGLE = 1000.0  # [rad] any angle, axis-angle or joint value
+MAX_FOCAL = 1e6  # [px]
+MAX_IMAGE = 100_000  # [px] image width and height
+
+
 class _StrictLoader(yaml.SafeLoader):
-    """YAML SafeLoader that rejects a key given twice in one mapping."""
+    """YAML SafeLoader that rejects a key given twice in one mapping, bounds nesting and alias expansion,
+    and reads no YAML 1.1 base-60 numbers (`1:20` is a string, not 80); `1e-3` is a number."""
+
+    def __init__(self, stream):
+        super().__init__(stream)
+        self._depth = 0
+        self._nodes = 0
+        self._sizes: dict[int, int] = {}
+
+    def compose_node(self, parent, index):
+        event = self.peek_event()
+        self._depth += 1
+        try:
+            if self._depth > MAX_YAML_DEPTH:
+                raise yaml.composer.ComposerError(None, None, f"nested deeper than {MAX_YAML_DEPTH} levels",
+                                                  event.start_mark)
+            if isinstance(event, yaml.AliasEvent) and event.anchor in self.anchors:
+                self._nodes += _yaml_size(self.anchors[event.anchor], self._sizes)
+            else:
+                self._nodes += 1
+            if self._nodes > MAX_YAML_NODES:
+                raise yaml.composer.ComposerError(None, None, f"more than {MAX_YAML_NODES} values (aliases "
+                                                  "counted expanded)", event.start_mark)
+            return super().compose_node(parent, index)
+        finally:
+            self._depth -= 1
+
+
+def _yaml_size(node: yaml.Node, memo: dict[int, int]) -> int:
+    """Number of values a node stands for once its aliases are expanded."""
+    if id(node) not in memo:
+        if isinstance(node, yaml.SequenceNode):
+            memo[id(node)] = 1 + sum(_yaml_size(n, memo) for n in node.value)
+        elif isinstance(node, yaml.MappingNode):
+            memo[id(node)] = 1 + sum(_yaml_size(k, memo) + _yaml_size(v, memo) for k, v in node.value)
+        else:
+            memo[id(node)] = 1
+    return memo[id(node)]
+
+
+_INT = re.compile(r"""^(?:[-+]?0b[0-1_]+|[-+]?0[0-7_]+|[-+]?(?:0|[1-9][0-9_]*)|[-+]?0x[0-9a-fA-F_]+)$""", re.X)
+_FLOAT = re.compile(r"""^(?:[-+]?(?:[0-9][0-9_]*)\.[0-9_]*(?:[eE][-+]?[0-9]+)?|[-+]?[0-9][0-9_]*[eE][-+]?[0-9]+
+                    |[-+]?\.[0-9_]+(?:[eE][-+]?[0-9]+)?|[-+]?\.(?:inf|Inf|INF)|\.(?:nan|NaN|NAN))$""", re.X)
+_StrictLoader.yaml_implicit_resolvers = {
+    first: [(tag, _INT if tag.endswith(":int") else _FLOAT if tag.endswith(":float") else rx) for tag, rx in rs]
+    for first, rs in yaml.SafeLoader.yaml_implicit_resolvers.items()}
 
 
 def _no_duplicates(loader: yaml.SafeLoader, node: yaml.MappingNode, deep: bool = False):
     seen = set()
     for key_node, _ in node.value:
         key = loader.construct_object(key_node, deep=deep)
+        try:
+            hash(key)
+        except TypeError:
+            raise yaml.constructor.ConstructorError(None, None, "a key must be a name, not a list or a mapping",
+                                                    key_node.start_mark) from None
         if key in seen:
             raise yaml.constructor.ConstructorError(None, None, f"key '{key}' given twice", key_node.start_mark)
         seen.add(key)
@@ -148,21 +242,49 @@ def load_problem(path: str | Path) -> Problem:
     Raises:
         ProblemError: naming the file, the key path and what is allowed.
     """
-    path = Path(path)
+    path = find_shipped(path)
     return parse_problem(read_yaml(path), path)
+
+
+def find_shipped(path: str | Path) -> Path:
+    """`path` itself when it exists, else a shipped file of that relative name (`problems/needle_regrasp.yaml`
+    from any folder once the package is installed), else `path` unchanged (the caller reports it missing)."""
+    path = Path(path)
+    if path.is_file() or path.is_absolute():
+        return path
+    for root in data_roots():
+        if (root / path).is_file():
+            return root / path
+    return path
 
 
 def read_yaml(path: Path) -> Any:
     """Parse a YAML file strictly (duplicate keys rejected); errors are one-line ProblemErrors."""
-    if not path.is_file():
-        raise ProblemError(str(path), None, "no such file")
     try:
-        return yaml.load(path.read_text(), Loader=_StrictLoader)  # noqa: S506 (a SafeLoader subclass)
+        if not path.is_file():
+            raise ProblemError(str(path), None, "no such file" if not path.exists() else "not a regular file")
+        size = path.stat().st_size
+        if size > MAX_FILE_BYTES:
+            raise ProblemError(str(path), None, f"file of {size} bytes; at most {MAX_FILE_BYTES} are read")
+        data = path.read_bytes()
+    except OSError as exc:
+        raise ProblemError(str(path), None, f"cannot read the file ({exc.strerror or exc})") from None
+    if b"\0" in data:
+        raise ProblemError(str(path), None, f"a binary file (NUL byte at offset {data.index(0)}), not YAML text")
+    try:
+        text = data.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        raise ProblemError(str(path), None, f"not UTF-8 text (invalid byte at offset {exc.start})") from None
+    try:
+        return yaml.load(text, Loader=_StrictLoader)  # noqa: S506 (a SafeLoader subclass)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
         what = getattr(exc, "problem", None) or str(exc).splitlines()[0]
-        raise ProblemError(str(path), None, f"not valid YAML{where}: {what}") from None
+        raise ProblemError(str(path), None, f"not valid YAML{where}: {shown(what, 200)}") from None
+    except RecursionError:
+        raise ProblemError(str(path), None, f"not valid YAML: nested too deeply (at most {MAX_YAML_DEPTH} "
+                                            "levels)") from None
 
 
 def parse_problem(tree: Any, path: Path) -> Problem:
@@ -170,7 +292,7 @@ def parse_problem(tree: Any, path: Path) -> Problem:
     top = rd.mapping(tree, "", _TOP, {"robot", "camera", "start", "goal", "horizon"})
     robot = _robot(rd, top["robot"], "robot", path, default_frame="tool")
     camera = _camera(rd, top["camera"], path)
-    horizon = rd.integer(top["horizon"], "horizon", minimum=1)
+    horizon = rd.integer(top["horizon"], "horizon", minimum=1, maximum=MAX_HORIZON)
     noise = _noise(rd, top.get("noise", {}))
     cons = rd.mapping(top.get("constraints", {}), "constraints", {"min_depth"})
     obj = rd.mapping(top.get("objective", {}), "objective", {"smoothness", "covariance"})
@@ -188,8 +310,10 @@ def parse_problem(tree: Any, path: Path) -> Problem:
         goal=_endpoint(rd, top["goal"], "goal", path),
         horizon=horizon,
         noise=noise,
-        min_depth=rd.number(cons.get("min_depth", 0.03), "constraints.min_depth", positive=True),
-        objective=ObjectiveSpec(smoothness=rd.number(obj.get("smoothness", 0.0), "objective.smoothness", nonneg=True)),
+        min_depth=rd.number(cons.get("min_depth", 0.03), "constraints.min_depth", positive=True, low=1e-4,
+                            high=10.0),
+        objective=ObjectiveSpec(smoothness=rd.number(obj.get("smoothness", 0.0), "objective.smoothness", nonneg=True,
+                                                     high=1e6)),
         solver=_solver(rd, top.get("solver", {})),
         gradient=_gradient(rd, top.get("gradient", {})),
     )
@@ -210,7 +334,12 @@ def resolve_urdf(text: str) -> Path:
     if text.startswith(ERD_PREFIX):
         return example_robot_data_dir() / text[len(ERD_PREFIX):]
     p = Path(text)
-    return p if p.is_absolute() else REPO_ROOT / p
+    if p.is_absolute():
+        return p
+    for root in data_roots():
+        if (root / p).is_file():
+            return root / p
+    return REPO_ROOT / p
 
 
 def resolve_path(rd: Reader, text: Any, key: str, problem_path: Path) -> tuple[Path, str]:
@@ -221,15 +350,22 @@ def resolve_path(rd: Reader, text: Any, key: str, problem_path: Path) -> tuple[P
         if not path.is_file():
             raise rd.fail(key, f"'{text}' not found in the example-robot-data package ({example_robot_data_dir()})")
         return path, text
-    for base in (REPO_ROOT, problem_path.resolve().parent):
+    bases = (*data_roots(), problem_path.resolve().parent)
+    for base in bases:
         candidate = (base / text).resolve()
         if candidate.is_file():
-            try:
-                rel = str(candidate.relative_to(REPO_ROOT))
-            except ValueError:
-                rel = str(candidate)
-            return candidate, rel
-    raise rd.fail(key, f"file '{text}' not found (looked in {REPO_ROOT} and {problem_path.resolve().parent})")
+            return candidate, _relative_name(candidate)
+    raise rd.fail(key, f"file '{text}' not found (looked in {', '.join(str(b) for b in bases)})")
+
+
+def _relative_name(path: Path) -> str:
+    """`path` relative to the checkout or the package data (as a solution file records it), else absolute."""
+    for root in data_roots():
+        try:
+            return str(path.relative_to(root.resolve()))
+        except ValueError:
+            pass
+    return str(path)
 
 
 def _robot(rd: Reader, node: Any, key: str, path: Path, default_frame: str, joints: bool = False) -> RobotSpec:
@@ -240,11 +376,11 @@ def _robot(rd: Reader, node: Any, key: str, path: Path, default_frame: str, join
     grasp = radius = None
     if "needle" in m:
         n = rd.mapping(m["needle"], f"{key}.needle", {"radius", "grasp"}, {"radius", "grasp"})
-        radius = rd.number(n["radius"], f"{key}.needle.radius", positive=True)
+        radius = rd.number(n["radius"], f"{key}.needle.radius", positive=True, low=1e-4, high=1.0)
         grasp = _pose(rd, n["grasp"], f"{key}.needle.grasp")
     return RobotSpec(urdf=urdf, urdf_rel=rel, frame=rd.string(m.get("frame", default_frame), f"{key}.frame"),
                      base_pose=base, grasp=grasp, needle_radius=radius,
-                     joints=rd.vector(m["joints"], f"{key}.joints") if joints else None)
+                     joints=rd.vector(m["joints"], f"{key}.joints", limit=MAX_ANGLE) if joints else None)
 
 
 def _pose(rd: Reader, node: Any, key: str) -> np.ndarray:
@@ -253,7 +389,7 @@ def _pose(rd: Reader, node: Any, key: str) -> np.ndarray:
     if "matrix" in m:
         if len(m) != 1:
             raise rd.fail(key, "a 'matrix' pose takes no other keys")
-        T = rd.matrix(m["matrix"], f"{key}.matrix", 4)
+        T = rd.matrix(m["matrix"], f"{key}.matrix", 4, limit=MAX_POSITION)
         R = T[:3, :3]
         if not np.allclose(R.T @ R, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0 or not np.allclose(T[3], [0, 0, 0, 1]):
             raise rd.fail(f"{key}.matrix", "not a rigid transform (rotation must be orthonormal, last row 0 0 0 1)")
@@ -261,14 +397,14 @@ def _pose(rd: Reader, node: Any, key: str) -> np.ndarray:
     if "position" not in m:
         raise rd.fail(f"{key}.position", "missing required key")
     T = np.eye(4)
-    T[:3, 3] = rd.vector(m["position"], f"{key}.position", 3)
+    T[:3, 3] = rd.vector(m["position"], f"{key}.position", 3, limit=MAX_POSITION)
     kind = rd.one_of(m, key, ["rpy", "axis_angle", "minus_z_toward"])
     if kind == "rpy":
-        T[:3, :3] = rpy_matrix(rd.vector(m["rpy"], f"{key}.rpy", 3))
+        T[:3, :3] = rpy_matrix(rd.vector(m["rpy"], f"{key}.rpy", 3, limit=MAX_ANGLE))
     elif kind == "axis_angle":
-        T[:3, :3] = np_exp(rd.vector(m["axis_angle"], f"{key}.axis_angle", 3))
+        T[:3, :3] = np_exp(rd.vector(m["axis_angle"], f"{key}.axis_angle", 3, limit=MAX_ANGLE))
     else:
-        target = rd.vector(m["minus_z_toward"], f"{key}.minus_z_toward", 3)
+        target = rd.vector(m["minus_z_toward"], f"{key}.minus_z_toward", 3, limit=MAX_POSITION)
         d = target - T[:3, 3]
         if np.linalg.norm(d) < 1e-9:
             raise rd.fail(f"{key}.minus_z_toward", "the point must differ from the position")
@@ -286,9 +422,10 @@ def _camera(rd: Reader, node: Any, path: Path) -> CameraSpec:
                    {"fx", "fy", "cx", "cy", "width", "height"})
     k = "camera.intrinsics"
     intr = Intrinsics(
-        fx=rd.number(i["fx"], f"{k}.fx", positive=True), fy=rd.number(i["fy"], f"{k}.fy", positive=True),
-        cx=rd.number(i["cx"], f"{k}.cx"), cy=rd.number(i["cy"], f"{k}.cy"),
-        width=rd.integer(i["width"], f"{k}.width", minimum=1), height=rd.integer(i["height"], f"{k}.height", minimum=1),
+        fx=rd.number(i["fx"], f"{k}.fx", low=1.0, high=MAX_FOCAL), fy=rd.number(i["fy"], f"{k}.fy", low=1.0, high=MAX_FOCAL),
+        cx=rd.number(i["cx"], f"{k}.cx", limit=MAX_FOCAL), cy=rd.number(i["cy"], f"{k}.cy", limit=MAX_FOCAL),
+        width=rd.integer(i["width"], f"{k}.width", minimum=1, maximum=MAX_IMAGE),
+        height=rd.integer(i["height"], f"{k}.height", minimum=1, maximum=MAX_IMAGE),
     )
     kind = rd.one_of(m, "camera", ["pose", "ecm"])
     if kind == "pose":
@@ -306,10 +443,10 @@ def _moves(rd: Reader, node: Any) -> tuple[CameraMove, ...]:
     for i, item in enumerate(node):
         k = f"camera.moves[{i}]"
         mv = rd.mapping(item, k, {"step", "ecm_joints"}, {"step", "ecm_joints"})
-        step = rd.integer(mv["step"], f"{k}.step", minimum=1)
+        step = rd.integer(mv["step"], f"{k}.step", minimum=1, maximum=MAX_HORIZON)
         if out and step <= out[-1].step:
             raise rd.fail(f"{k}.step", "moves must be listed in increasing step order")
-        out.append(CameraMove(step, rd.vector(mv["ecm_joints"], f"{k}.ecm_joints")))
+        out.append(CameraMove(step, rd.vector(mv["ecm_joints"], f"{k}.ecm_joints", limit=MAX_ANGLE)))
     return tuple(out)
 
 
@@ -317,7 +454,7 @@ def _endpoint(rd: Reader, node: Any, key: str, path: Path) -> EndpointSpec:
     m = rd.mapping(node, key, {"joints", "pose", "relative"})
     kind = rd.one_of(m, key, ["joints", "pose", "relative"])
     if kind == "joints":
-        return EndpointSpec(joints=rd.vector(m["joints"], f"{key}.joints"), key=f"{key}.joints")
+        return EndpointSpec(joints=rd.vector(m["joints"], f"{key}.joints", limit=MAX_ANGLE), key=f"{key}.joints")
     if kind == "relative":
         r = rd.mapping(m["relative"], f"{key}.relative", {"arm", "pose"}, {"arm", "pose"})
         arm = _robot(rd, r["arm"], f"{key}.relative.arm", path, default_frame="tool", joints=True)
@@ -328,8 +465,8 @@ def _endpoint(rd: Reader, node: Any, key: str, path: Path) -> EndpointSpec:
 
 def _pose6(rd: Reader, node: Any, key: str) -> np.ndarray:
     p = rd.mapping(node, key, {"position", "axis_angle"}, {"position", "axis_angle"})
-    return np.concatenate([rd.vector(p["position"], f"{key}.position", 3),
-                           rd.vector(p["axis_angle"], f"{key}.axis_angle", 3)])
+    return np.concatenate([rd.vector(p["position"], f"{key}.position", 3, limit=MAX_POSITION),
+                           rd.vector(p["axis_angle"], f"{key}.axis_angle", 3, limit=MAX_ANGLE)])
 
 
 _NOISE_KEYS = {"observation_scale", "camera_W_p0", "camera_W_o0", "W_p0", "W_o0", "V_d0", "V_f0", "V_o0", "Sigma0", "depth_star", "o_star", "components",
@@ -342,19 +479,24 @@ def _noise(rd: Reader, node: Any) -> NoiseParams:
     kw: dict[str, Any] = {}
     for name in ("W_p0", "W_o0", "V_d0", "V_f0", "V_o0", "camera_W_p0", "camera_W_o0"):
         kw[name] = rd.covariance(m[name], f"noise.{name}") if name in m else getattr(d, name)
-    light = rd.number(m.get("observation_scale", 1.0), "noise.observation_scale", positive=True)
+    light = rd.number(m.get("observation_scale", 1.0), "noise.observation_scale", positive=True, low=1e-6, high=1e6)
     for name in ("V_d0", "V_f0", "V_o0"):  # dim light: every observation term scaled alike
         kw[name] = light * kw[name]
     kw["Sigma0"] = rd.covariance(m["Sigma0"], "noise.Sigma0", definite=True) if "Sigma0" in m else d.Sigma0
-    kw["depth_star"] = rd.number(m.get("depth_star", d.depth_star), "noise.depth_star", positive=True)
-    o = rd.vector(m.get("o_star", list(d.o_star)), "noise.o_star", 3)
-    if np.linalg.norm(o) == 0:
+    kw["depth_star"] = rd.number(m.get("depth_star", d.depth_star), "noise.depth_star", positive=True, low=1e-4,
+                                 high=10.0)
+    o = rd.vector(m.get("o_star", list(d.o_star)), "noise.o_star", 3, limit=MAX_ANGLE)
+    if np.linalg.norm(o) < 1e-6:
         raise rd.fail("noise.o_star", "must be a non-zero axis-angle vector (its direction is used)")
     kw["o_star"] = tuple(float(v) for v in o)
     comps = m.get("components", list(COMPONENTS))
     if not isinstance(comps, list):
         raise rd.fail("noise.components", f"expected a list drawn from {', '.join(COMPONENTS)}")
     kw["components"] = tuple(rd.string(c, f"noise.components[{i}]", COMPONENTS) for i, c in enumerate(comps))
+    if not kw["components"]:
+        raise rd.fail("noise.components", f"empty; give at least one of {', '.join(COMPONENTS)}")
+    if len(set(kw["components"])) != len(kw["components"]):
+        raise rd.fail("noise.components", "a component is listed twice")
     kw["orientation_formula"] = rd.string(m.get("orientation_formula", d.orientation_formula),
                                           "noise.orientation_formula", ORIENTATION_FORMULAS)
     kw["observation_noise"] = rd.string(m.get("observation_noise", d.observation_noise), "noise.observation_noise",
@@ -365,7 +507,7 @@ def _noise(rd: Reader, node: Any) -> NoiseParams:
 def _codegen(rd: Reader, node: Any) -> bool | str:
     if node == "auto" or isinstance(node, bool):
         return node
-    raise rd.fail("solver.codegen", f"expected true, false or auto, got {node!r}")
+    raise rd.fail("solver.codegen", f"expected true, false or auto, got {shown(node)}")
 
 
 def _solver(rd: Reader, node: Any) -> SolverSpec:
@@ -377,25 +519,90 @@ def _solver(rd: Reader, node: Any) -> SolverSpec:
         raise rd.fail("solver.options", "expected a mapping of raw solver options")
     return SolverSpec(
         name=rd.string(m.get("name", d.name), "solver.name", ("auto", "ipopt", "newton")),
-        max_iter=rd.integer(m.get("max_iter", d.max_iter), "solver.max_iter", minimum=1),
-        tol=rd.number(m.get("tol", d.tol), "solver.tol", positive=True),
-        print_level=rd.integer(m.get("print_level", d.print_level), "solver.print_level", minimum=0),
+        max_iter=rd.integer(m.get("max_iter", d.max_iter), "solver.max_iter", minimum=1, maximum=1_000_000),
+        tol=rd.number(m.get("tol", d.tol), "solver.tol", positive=True, low=1e-14, high=1.0),
+        print_level=rd.integer(m.get("print_level", d.print_level), "solver.print_level", minimum=0, maximum=12),
         covariance=rd.string(m.get("covariance", d.covariance), "solver.covariance",
                              ("auto", "full", "diagonal", "condensed")),
         hessian=rd.string(m.get("hessian", d.hessian), "solver.hessian", ("auto", "exact", "surrogate", "gauss-newton")),
         surrogate_max_iter=rd.integer(m.get("surrogate_max_iter", d.surrogate_max_iter),
-                                         "solver.surrogate_max_iter", minimum=1),
+                                         "solver.surrogate_max_iter", minimum=1, maximum=1_000_000),
         codegen=_codegen(rd, m.get("codegen", d.codegen)),
-        options=dict(opts),
+        options=_ipopt_options(rd, opts),
     )
 
 
-def _gradient(rd: Reader, node: Any) -> GradientSpec:
-    m = rd.mapping(node, "gradient", {"iterations", "memory", "pose_loss_weight"})
-    d = GradientSpec()
+def _gradient(rd: Reader, node: Any, key: str = "gradient") -> GradientSpec:
+    m = rd.mapping(node, key, set(GradientSpec.__dataclass_fields__))
+    preset = rd.string(m["preset"], f"{key}.preset", tuple(GRADIENT_PRESETS)) if "preset" in m else ""
+    d = replace(GradientSpec(), **GRADIENT_PRESETS.get(preset, {}))
+    g = lambda k: m.get(k, getattr(d, k))  # noqa: E731
+    max_eval = g("max_eval")
     return GradientSpec(
-        iterations=rd.integer(m.get("iterations", d.iterations), "gradient.iterations", minimum=1),
-        memory=rd.integer(m.get("memory", d.memory), "gradient.memory", minimum=1),
-        pose_loss_weight=rd.number(m.get("pose_loss_weight", d.pose_loss_weight), "gradient.pose_loss_weight",
-                                   nonneg=True),
+        optimizer=rd.string(g("optimizer"), f"{key}.optimizer", ("scipy", "torch")),
+        iterations=rd.integer(g("iterations"), f"{key}.iterations", minimum=1),
+        memory=rd.integer(g("memory"), f"{key}.memory", minimum=1),
+        pose_loss_weight=rd.number(g("pose_loss_weight"), f"{key}.pose_loss_weight", nonneg=True),
+        trace_scale=rd.number(g("trace_scale"), f"{key}.trace_scale", positive=True),
+        steps=rd.integer(g("steps"), f"{key}.steps", minimum=1),
+        max_iter=rd.integer(g("max_iter"), f"{key}.max_iter", minimum=1),
+        max_eval=None if max_eval is None else rd.integer(max_eval, f"{key}.max_eval", minimum=1),
+        line_search=rd.string(g("line_search"), f"{key}.line_search", ("strong_wolfe", "none")),
+        lr=rd.number(g("lr"), f"{key}.lr", positive=True),
+        tolerance_grad=rd.number(g("tolerance_grad"), f"{key}.tolerance_grad", nonneg=True),
+        tolerance_change=rd.number(g("tolerance_change"), f"{key}.tolerance_change", nonneg=True),
+        history_size=rd.integer(g("history_size"), f"{key}.history_size", minimum=1),
+        preset=preset,
     )
+
+
+def _ipopt_options(rd: Reader, opts: dict) -> dict:
+    """Raw IPOPT options: names IPOPT knows, values of the type it expects (checked by IPOPT itself)."""
+    out = {}
+    for name, value in opts.items():
+        key = f"solver.options.{shown(name)}"
+        if not isinstance(name, str) or not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", name):
+            raise rd.fail(key, "an IPOPT option name (letters, digits, _) is expected")
+        if isinstance(value, bool) or not isinstance(value, (str, int, float)):
+            raise rd.fail(key, f"expected a number or a string, got {shown(value)}")
+        if isinstance(value, int):
+            out[name] = rd.integer(value, key, minimum=-2**31, maximum=2**31 - 1)
+        elif isinstance(value, float):
+            out[name] = rd.number(value, key, limit=1e20)
+        else:
+            out[name] = value
+    problem = check_ipopt_options(out)
+    if problem:
+        raise rd.fail("solver.options", problem)
+    return out
+
+
+def check_ipopt_options(options: dict) -> str | None:
+    """None if IPOPT accepts `options` (names and value types), else a one-line reason."""
+    if not options:
+        return None
+    import casadi as ca
+
+    import os
+    import sys
+    import tempfile
+
+    x = ca.MX.sym("x")
+    sys.stdout.flush()
+    saved = os.dup(1)
+    with tempfile.TemporaryFile() as printed:  # IPOPT prints why a setting is invalid on the C stdout
+        os.dup2(printed.fileno(), 1)
+        try:
+            ca.nlpsol("check_options", "ipopt", {"x": x, "f": x**2},
+                      {"ipopt": dict(options, print_level=0, sb="yes"), "print_time": False})
+            return None
+        except RuntimeError as exc:
+            error = str(exc)
+        finally:
+            os.dup2(saved, 1)
+            os.close(saved)
+        printed.seek(0)
+        said = printed.read(4000).decode("utf-8", "replace")
+    reason = next((ln for ln in said.splitlines() if "valid setting" in ln or "Option" in ln), "") or error
+    reason = re.sub(r"^.*?\.cpp:\d+:\s*", "", reason.strip().splitlines()[-1] if reason.strip() else error)
+    return f"IPOPT refused them: {shown(reason.strip(), 200)}"
