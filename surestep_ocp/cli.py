@@ -150,8 +150,21 @@ def _solver_flags(parser: argparse.ArgumentParser) -> None:
                              "solver.codegen, auto: when a C compiler is found; cached, see README)")
 
 
+def _version() -> str:
+    """The installed distribution's version (the package's own when run from a bare checkout)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("surestep_ocp")
+    except PackageNotFoundError:
+        from . import __version__
+
+        return __version__
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="surestep", description="Uncertainty-aware trajectory optimisation (SURESTEP).")
+    p.add_argument("--version", action="version", version=f"surestep {_version()}")
     sub = p.add_subparsers(dest="command", required=True)
 
     s = sub.add_parser("solve", help="solve one problem with one method, write the solution JSON")
