@@ -10,6 +10,11 @@ Per step t -> t+1, for every rollout:
    `w ~ N(0, W(mu_t, x_t+1))` (W of the commanded step);
 3. observation: `p_z = p_true + v_p`, `R_z = exp(v_r) R_true`, all components always,
    with `v ~ N(0, V(mu_t+1|t))` in mode `model` or `v ~ N(0, V(x_true))` in mode `true`;
+   with a `Detection` (the evaluation's default), only when the true pose is detectable:
+   in front of the lens beyond `min_depth` and projecting inside the image with
+   `margin` to spare, optionally with a probability falling linearly from 1 to 0 over
+   the `falloff` band next to that border; an undetected step is a prediction only
+   (`mu = mu^-`, `Sigma = P`), in both modes;
 4. EKF (its own model, F = Q = H = R = I): predicted mean `mu^- = mu_t (+) command`
    (which is the waypoint itself), `P = Sigma + W`, `S = P + V(mu^-)`,
    innovation `y = (p_z - p^-, log(R_z R^-^T))`, `mu+ = (p^- + K y_p, exp(K y_r) R^-)`,
@@ -43,6 +48,37 @@ METRICS = ("pos_err_mean", "pos_err_std", "ori_err_mean", "ori_err_std", "trace_
 _ENTROPY_CONST = 0.5 * NX * (1 + np.log(2 * np.pi))
 
 
+@dataclass(frozen=True)
+class Detection:
+    """When the detector sees the tool (the true pose): the rest of the time the EKF only predicts.
+
+    margin: fraction of the image width / height at each border where nothing is detected
+    (the tool's features must be in the image, not only its tracked point); min_depth [m]:
+    closer to the lens (or behind it) nothing is detected; falloff: fraction of the image size
+    over which the detection probability rises linearly from 0 at that border to 1 inside
+    (0: detected with certainty everywhere inside).
+    """
+
+    margin: float = 0.02
+    min_depth: float = 0.02
+    falloff: float = 0.0
+
+    def probability(self, camera, p: np.ndarray) -> np.ndarray:
+        """(N,) detection probability of true positions p (N, 3) in the camera frame."""
+        z = p[:, 2]
+        ok = z > self.min_depth
+        zs = np.where(ok, z, 1.0)
+        u = (camera.fx * p[:, 0] / zs + camera.cx) / camera.width
+        v = (camera.fy * p[:, 1] / zs + camera.cy) / camera.height
+        # distance to the detectable region's border, in image fractions (negative outside)
+        inside = np.minimum.reduce([u - self.margin, 1 - self.margin - u, v - self.margin, 1 - self.margin - v])
+        if self.falloff > 0:
+            prob = np.clip(inside / self.falloff, 0.0, 1.0)
+        else:
+            prob = (inside >= 0).astype(float)
+        return np.where(ok, prob, 0.0)
+
+
 @dataclass
 class Rollouts:
     """N noisy rollouts of one plan; arrays are indexed by rollout first."""
@@ -57,6 +93,7 @@ class Rollouts:
     ori_err: np.ndarray  # (N,) angle(R_T^true, R^G) [rad], geodesic
     true_path: np.ndarray | None = None  # (N, T+1, 6) when kept
     estimate_path: np.ndarray | None = None  # (N, T+1, 6) when kept
+    detected: np.ndarray | None = None  # (N, T) whether step t -> t+1 had an observation
 
     @property
     def n(self) -> int:
@@ -148,6 +185,7 @@ def rollout(
     mode: str = "model",
     sample_initial: bool = False,
     keep_paths: bool = False,
+    detection: Detection | None = None,
 ) -> Rollouts:
     """Execute a plan `n` times in closed loop with sampled motion and observation noise.
 
@@ -166,6 +204,8 @@ def rollout(
             for the orientation); by default the true start is the planned start and
             Sigma0 is only the EKF's prior.
         keep_paths: also return the (N, T+1, 6) true and estimated paths.
+        detection: when the true pose gives an observation (see `Detection`); None: always.
+            With `falloff > 0`, n uniforms per step are drawn after the normals.
     """
     if mode not in MODES:
         raise ValueError(f"unknown rollout mode '{mode}'; allowed: {', '.join(MODES)}")
@@ -190,9 +230,11 @@ def rollout(
     sigma = np.tile(sigma0, (n, 1, 1))
     paths_true, paths_est = ([_pose(true_p, true_R)], [_pose(mu_p, mu_R)]) if keep_paths else (None, None)
 
+    detected = np.ones((n, len(poses) - 1), dtype=bool)
     for t in range(len(poses) - 1):
         target = np.tile(poses[t + 1], (n, 1))
         z_w, z_v = rng.standard_normal((n, NX)), rng.standard_normal((n, NX))
+        u_det = rng.random(n) if detection is not None and detection.falloff > 0 else None
         # command: from the estimate to the next waypoint; W of that step
         W = noise.motion(_pose(mu_p, mu_R), target)
         dp = poses[t + 1, :3] - mu_p
@@ -204,12 +246,22 @@ def rollout(
         pred_p, pred_R = mu_p + dp, mu_R * D
         pred = _pose(pred_p, pred_R)
         P = sigma + W
+        if detection is not None:
+            prob = detection.probability(model.camera, true_p)
+            seen = prob >= 1.0 if u_det is None else u_det < prob
+            detected[:, t] = seen
+        else:
+            seen = detected[:, t]
         V_ekf = noise.observation(pred)
-        V_real = V_ekf if mode == "model" else noise.observation(_pose(true_p, true_R))
+        if mode == "model":
+            V_real = V_ekf
+        else:  # V at an undetected true pose (e.g. behind the lens) is not used; keep it finite
+            V_real = noise.observation(np.where(seen[:, None], _pose(true_p, true_R), pred))
         v = sample_gaussian(V_real, z_v)
         z_p, z_R = true_p + v[:, :3], Rotation.from_rotvec(v[:, 3:]) * true_R
         y = np.hstack([z_p - pred_p, (z_R * pred_R.inv()).as_rotvec()])
         KT = _gain(P, P + V_ekf)  # K^T = S^-1 P (S, P symmetric); K = P S^-1
+        KT[~seen] = 0.0  # no observation: the EKF only predicts
         dx = np.einsum("nji,nj->ni", KT, y)  # K y
         mu_p, mu_R = pred_p + dx[:, :3], Rotation.from_rotvec(dx[:, 3:]) * pred_R
         post = P - np.swapaxes(KT, 1, 2) @ P
@@ -230,17 +282,19 @@ def rollout(
         ori_err=(goal_R.inv() * true_R).magnitude(),
         true_path=None if paths_true is None else np.stack(paths_true, axis=1),
         estimate_path=None if paths_est is None else np.stack(paths_est, axis=1),
+        detected=detected,
     )
 
 
 def plan_metrics(model: BeliefModel, poses: np.ndarray, goal: np.ndarray, n: int, rng, mode: str,
-                 sigma_ml: np.ndarray | None = None) -> tuple[dict[str, float], Rollouts]:
+                 sigma_ml: np.ndarray | None = None,
+                 detection: Detection | None = None) -> tuple[dict[str, float], Rollouts]:
     """The eight evaluation metrics (`METRICS`) of one plan in one rollout mode.
 
     `trace_ml` and `entropy_ml` are of the plan's own maximum-likelihood Sigma_T
     (`sigma_ml`, e.g. `Solution.sigma_final`; computed with `model.propagate` if omitted).
     """
-    ro = rollout(model, poses, goal, n, rng, mode)
+    ro = rollout(model, poses, goal, n, rng, mode, detection=detection)
     if sigma_ml is None:
         sigma_ml = model.propagate(np.asarray(poses, float))[0][-1]
     sigma_ml = np.asarray(sigma_ml, dtype=float)

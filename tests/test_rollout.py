@@ -10,7 +10,7 @@ from scipy.spatial.transform import Rotation
 
 from surestep_ocp.baseline import straight_line
 from surestep_ocp.belief import BeliefModel
-from surestep_ocp.rollout import METRICS, BatchedNoise, plan_metrics, rollout
+from surestep_ocp.rollout import METRICS, BatchedNoise, Detection, plan_metrics, rollout
 
 T = 6
 
@@ -94,3 +94,53 @@ def test_rejects_bad_arguments(default_setup, plan):
         rollout(default_setup.eval_model, plan, n=2, mode="optimistic")
     with pytest.raises(ValueError, match="shape"):
         rollout(default_setup.eval_model, plan[:, :3], n=2)
+
+
+def test_detection_probability_of_the_true_pose(default_setup):
+    """Behind or too close to the lens, or outside the image less the margin: 0; inside: 1; the falloff ramps."""
+    cam = default_setup.eval_model.camera
+    det = Detection(margin=0.05, min_depth=0.02)
+    centre = np.array([(cam.width / 2 - cam.cx) / cam.fx, (cam.height / 2 - cam.cy) / cam.fy, 1.0])
+    z = 0.15
+    def at(u_frac, v_frac=0.5, depth=z):  # camera-frame point projecting to (u, v) given as image fractions
+        return np.array([[(u_frac * cam.width - cam.cx) / cam.fx * depth, (v_frac * cam.height - cam.cy) / cam.fy
+                          * depth, depth]])
+    assert det.probability(cam, centre[None] * z)[0] == 1.0
+    assert det.probability(cam, at(0.5, depth=-0.1))[0] == 0.0  # behind the lens
+    assert det.probability(cam, at(0.5, depth=0.01))[0] == 0.0  # too close
+    assert det.probability(cam, at(0.97))[0] == 0.0 and det.probability(cam, at(0.93))[0] == 1.0
+    assert det.probability(cam, at(0.5, 0.02))[0] == 0.0
+    ramp = Detection(margin=0.05, min_depth=0.02, falloff=0.1)
+    assert ramp.probability(cam, at(0.10))[0] == pytest.approx(0.5)
+    assert ramp.probability(cam, at(0.30))[0] == 1.0
+
+
+def test_undetected_steps_only_predict(default_setup, plan):
+    """A plan entirely outside the image gives no observation: the estimate follows the waypoints and
+    Sigma_T = Sigma_0 + sum_t W(x_t, x_t+1) exactly (computed here from the model's own W), in both modes."""
+    model = default_setup.eval_model
+    out = plan.copy()
+    out[:, 0] += 0.3  # 30 cm to the right at ~15 cm depth: far outside the image
+    sigma = np.asarray(model.noise.Sigma0, float) + sum(np.asarray(model.motion_noise(out[t], out[t + 1]))
+                                                        for t in range(T))
+    for mode in ("model", "true"):
+        ro = rollout(model, out, n=5, rng=1, mode=mode, detection=Detection())
+        assert not ro.detected.any()
+        for k in range(5):
+            np.testing.assert_allclose(ro.sigma_final[k], sigma, rtol=1e-12, atol=1e-18)
+        np.testing.assert_allclose(ro.final_estimate[:, :3], np.tile(out[-1, :3], (5, 1)), atol=1e-12)
+        # without the detection model the same plan is observed at every step: a smaller covariance
+        ro_all = rollout(model, out, n=5, rng=1, mode=mode)
+        assert np.trace(ro_all.sigma_final[0]) < np.trace(sigma)
+
+
+def test_detection_changes_nothing_where_the_tool_is_always_seen(default_setup, plan):
+    """Inside the image, far from its border, the detection model leaves the rollouts as they were."""
+    model = default_setup.eval_model
+    central = plan.copy()
+    central[:, :2] *= 0.3  # the default goal is near the right border: pull the plan toward the centre
+    a = rollout(model, central, n=30, rng=4, mode="model", detection=Detection(margin=0.0))
+    b = rollout(model, central, n=30, rng=4, mode="model")
+    assert a.detected.all()
+    np.testing.assert_array_equal(a.final_true, b.final_true)
+    np.testing.assert_array_equal(a.sigma_final, b.sigma_final)
