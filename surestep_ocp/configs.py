@@ -22,10 +22,10 @@ import numpy as np
 
 from .errors import SurestepError
 from .lie import matrix_to_pose
-from .problem import EndpointSpec, Problem, find_shipped, load_problem, read_yaml, resolve_path
+from .problem import MAX_HORIZON, EndpointSpec, Problem, find_shipped, load_problem, read_yaml, resolve_path
 from .robot import Robot
 from .schema import Reader
-from .setup import Setup, build_setup
+from .setup import Setup, build_setup, load_robot
 
 _TOP = {"description", "base", "horizon", "ecm_joints", "start_joints", "goal_joints", "accept", "max_tries"}
 
@@ -85,15 +85,15 @@ def load_evaluation(path: str | Path) -> EvaluationSpec:
     top = rd.mapping(tree, "", _TOP, {"base", "start_joints", "goal_joints"})
     base_path, _ = resolve_path(rd, top["base"], "base", path)
     base = load_problem(base_path)
-    horizon = rd.integer(top.get("horizon", base.horizon), "horizon", minimum=1)
+    horizon = rd.integer(top.get("horizon", base.horizon), "horizon", minimum=1, maximum=MAX_HORIZON)
     base = replace(base, horizon=horizon)
-    robot = Robot(base.robot.urdf, base.robot.base_pose, base.robot.frame)
+    robot = load_robot(str(base_path), "robot", base.robot, moving=True)
     ecm_box = None
     if "ecm_joints" in top:
         if base.camera.ecm is None:
             raise rd.fail("ecm_joints", f"the base problem {base_path.name} gives the camera as a fixed pose; "
                                         "random camera poses need a base problem with camera.ecm")
-        ecm = Robot(base.camera.ecm.urdf, base.camera.ecm.base_pose, base.camera.ecm.frame)
+        ecm = load_robot(str(base_path), "camera.ecm", base.camera.ecm)
         ecm_box = _box(rd, top["ecm_joints"], "ecm_joints", ecm)
     acc = rd.mapping(top.get("accept", {}), "accept", {"depth", "image_margin", "min_distance"})
     depth = rd.vector(acc.get("depth", [base.min_depth, 0.25]), "accept.depth", 2)

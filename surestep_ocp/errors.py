@@ -7,9 +7,34 @@ status so nothing is hidden.
 
 from __future__ import annotations
 
+import re
+from typing import Any
+
+# Longest text echoed back from user input (a string value, a key, a file name) and longest whole message.
+ECHO_LIMIT = 80
+MESSAGE_LIMIT = 1000
+
+_CONTROL = re.compile(r"[\x00-\x1f\x7f-\x9f\u2028\u2029]+")
+
+
+def one_line(text: Any, limit: int = MESSAGE_LIMIT) -> str:
+    """`text` on one line (control characters and line breaks as one space), cut to `limit` characters."""
+    text = _CONTROL.sub(" ", str(text)).strip()
+    return text if len(text) <= limit else text[: limit - 25] + f"... ({len(text)} characters)"
+
+
+def shown(value: Any, limit: int = ECHO_LIMIT) -> str:
+    """A user-given value as echoed in a message: one line, at most `limit` characters."""
+    text = value if isinstance(value, str) else repr(value)
+    text = text.encode("unicode_escape").decode("ascii") if _CONTROL.search(text) else text
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
 
 class SurestepError(Exception):
-    """Root of all errors raised by surestep_ocp."""
+    """Root of all errors raised by surestep_ocp; its text is one line (see `one_line`)."""
+
+    def __str__(self) -> str:
+        return one_line(super().__str__())
 
 
 class ProblemError(SurestepError):
@@ -21,7 +46,7 @@ class ProblemError(SurestepError):
     def __init__(self, file: str | None, key: str | None, message: str):
         self.file = file
         self.key = key
-        where = ": ".join(part for part in (file, key) if part)
+        where = ": ".join(shown(part, 200) for part in (file, key) if part)
         super().__init__(f"{where}: {message}" if where else message)
 
 
@@ -31,7 +56,8 @@ class FrameNotFound(SurestepError):
     def __init__(self, name: str, available: list[str]):
         self.name = name
         self.available = available
-        super().__init__(f"frame '{name}' not in the model; available frames: {', '.join(available)}")
+        names = ", ".join(shown(a) for a in available[:40]) + (f", ... ({len(available)} in all)" if len(available) > 40 else "")
+        super().__init__(f"frame '{shown(name)}' not in the model; available frames: {names}")
 
 
 class UnsupportedJoint(SurestepError):

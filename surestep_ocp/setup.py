@@ -8,7 +8,7 @@ from functools import cached_property
 import numpy as np
 
 from .belief import BeliefModel
-from .errors import FrameNotFound, ProblemError, UnreachablePose
+from .errors import FrameNotFound, ProblemError, UnreachablePose, UnsupportedJoint
 from .lie import matrix_to_pose, np_exp_many, pose_to_matrix
 from .problem import EndpointSpec, Problem
 from .robot import Robot
@@ -127,6 +127,28 @@ class Setup:
         return np.array(qs), (res_m <= tol_m) & (res_r <= tol_rad), res_m, res_r
 
 
+def load_robot(file: str, key: str, spec, moving: bool = False) -> Robot:
+    """The `Robot` of a problem's robot spec at `key`; a bad URDF or frame is a ProblemError.
+
+    `moving`: the tracked frame must be moved by at least one joint (not the model's root).
+    """
+    from .outputs import quiet_fd
+
+    try:
+        with quiet_fd(2):  # urdfdom prints parse errors on stderr; the error below says it in one line
+            robot = Robot(spec.urdf, spec.base_pose, spec.frame, spec.grasp)
+    except FrameNotFound as exc:
+        raise ProblemError(file, f"{key}.frame", str(exc)) from None
+    except UnsupportedJoint as exc:
+        raise ProblemError(file, f"{key}.urdf", str(exc)) from None
+    except (ValueError, RuntimeError, OSError) as exc:  # Pinocchio's URDF parser
+        raise ProblemError(file, f"{key}.urdf", f"cannot load the URDF: {exc}") from None
+    if moving and not robot.supporting_joints():
+        raise ProblemError(file, f"{key}.frame", f"frame '{spec.frame}' is not moved by any joint (it is fixed "
+                                                 "to the model's root); name a frame on the arm's moving chain")
+    return robot
+
+
 def build_setup(problem: Problem) -> Setup:
     """Load the robot and the camera and resolve start and goal.
 
@@ -134,22 +156,14 @@ def build_setup(problem: Problem) -> Setup:
         ProblemError: frame missing, joints out of limits, goal behind the camera or unreachable.
     """
     file = str(problem.path)
-    try:
-        robot = Robot(problem.robot.urdf, problem.robot.base_pose, problem.robot.frame, problem.robot.grasp)
-    except FrameNotFound as exc:
-        raise ProblemError(file, "robot.frame", str(exc)) from None
-    except ValueError as exc:  # Pinocchio's URDF parser
-        raise ProblemError(file, "robot.urdf", f"cannot load URDF: {exc}") from None
+    robot = load_robot(file, "robot", problem.robot, moving=True)
 
     cam = problem.camera
     ecm = None
     if cam.pose is not None:
         camera_pose = cam.pose
     else:
-        try:
-            ecm = Robot(cam.ecm.urdf, cam.ecm.base_pose, cam.ecm.frame, cam.ecm.grasp)
-        except FrameNotFound as exc:
-            raise ProblemError(file, "camera.ecm.frame", str(exc)) from None
+        ecm = load_robot(file, "camera.ecm", cam.ecm)
         _check_joints(problem, ecm, cam.ecm_joints, "camera.ecm.joints")
         camera_pose = ecm.base_pose @ ecm.frame_pose(cam.ecm_joints)
         schedule = _camera_schedule(problem, ecm, camera_pose)
@@ -212,10 +226,7 @@ def _relative_goal(problem: Problem, setup: Setup, spec: EndpointSpec) -> np.nda
     """Camera-frame pose of a goal given in another arm's tracked-object frame."""
     arm = spec.relative.arm
     key = f"{spec.key}.arm"
-    try:
-        other = Robot(arm.urdf, arm.base_pose, arm.frame, arm.grasp)
-    except FrameNotFound as exc:
-        raise ProblemError(str(problem.path), f"{key}.frame", str(exc)) from None
+    other = load_robot(str(problem.path), key, arm)
     _check_joints(problem, other, arm.joints, f"{key}.joints")
     setup.other_arms.append(other)
     T_world_obj = other.base_pose @ other.frame_pose(arm.joints)
