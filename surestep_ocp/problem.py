@@ -131,6 +131,24 @@ GRADIENT_PRESETS = {
 
 
 @dataclass(frozen=True)
+class TimingSpec:
+    """How long a step lasts and how fast the tracker runs (problems/README.md, "Time in the model").
+
+    A step spans `frames = step_s * tracker_hz` tracker frames, each an observation at the step's
+    waypoint; the model folds them into one with the observation noise divided by `frames`. The
+    defaults are the paper's: a 20 Hz tracker and one observation per waypoint.
+    """
+
+    step_s: float = 0.05  # [s] duration of one step (waypoint t to t+1)
+    tracker_hz: float = 20.0  # [Hz] tracker frame rate
+
+    @property
+    def frames(self) -> int:
+        """Tracker frames (observations) per step."""
+        return int(round(self.step_s * self.tracker_hz))
+
+
+@dataclass(frozen=True)
 class ObjectiveSpec:
     smoothness: float = 0.0  # weight on sum_t ||q_t+1 - q_t||^2 [1/rad^2], relative to Tr(Sigma_T) scale
 
@@ -152,6 +170,7 @@ class Problem:
     solver: SolverSpec = SolverSpec()
     gradient: GradientSpec = GradientSpec()
     description: str = ""
+    timing: TimingSpec = TimingSpec()
 
 
 # Limits of what a problem (or evaluation) file may be and hold (problems/README.md, "Limits").
@@ -233,7 +252,7 @@ _StrictLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _n
 
 
 _TOP = {"name", "description", "robot", "camera", "start", "goal", "horizon", "noise", "constraints",
-        "objective", "solver", "gradient"}
+        "objective", "solver", "gradient", "timing"}
 
 
 def load_problem(path: str | Path) -> Problem:
@@ -293,7 +312,8 @@ def parse_problem(tree: Any, path: Path) -> Problem:
     robot = _robot(rd, top["robot"], "robot", path, default_frame="tool")
     camera = _camera(rd, top["camera"], path)
     horizon = rd.integer(top["horizon"], "horizon", minimum=1, maximum=MAX_HORIZON)
-    noise = _noise(rd, top.get("noise", {}))
+    timing = _timing(rd, top.get("timing", {}))
+    noise = _noise(rd, top.get("noise", {}), frames=timing.frames)
     cons = rd.mapping(top.get("constraints", {}), "constraints", {"min_depth"})
     obj = rd.mapping(top.get("objective", {}), "objective", {"smoothness", "covariance"})
     # which covariance the planners minimise: Sigma_T|T (the paper's) or Sigma_T|T-1, the one that
@@ -316,7 +336,25 @@ def parse_problem(tree: Any, path: Path) -> Problem:
                                                      high=1e6)),
         solver=_solver(rd, top.get("solver", {})),
         gradient=_gradient(rd, top.get("gradient", {})),
+        timing=timing,
     )
+
+
+MAX_FRAMES_PER_STEP = 10_000
+
+
+def _timing(rd: Reader, node: Any) -> TimingSpec:
+    """`timing: {step_s, tracker_hz}`; a step must span a whole number (>= 1) of tracker frames."""
+    m = rd.mapping(node, "timing", {"step_s", "tracker_hz"})
+    d = TimingSpec()
+    step = rd.number(m.get("step_s", d.step_s), "timing.step_s", positive=True, high=3600.0)
+    hz = rd.number(m.get("tracker_hz", d.tracker_hz), "timing.tracker_hz", positive=True, high=10_000.0)
+    k = step * hz
+    if abs(k - round(k)) > 1e-9 * max(1.0, k) or round(k) < 1 or round(k) > MAX_FRAMES_PER_STEP:
+        raise rd.fail("timing", f"step_s * tracker_hz = {step:g} s * {hz:g} Hz = {k:g} tracker frames per step; "
+                                f"it must be a whole number from 1 to {MAX_FRAMES_PER_STEP} (e.g. step_s 0.1 with "
+                                "tracker_hz 20: 2 frames)")
+    return TimingSpec(step_s=step, tracker_hz=hz)
 
 
 ERD_PREFIX = "example-robot-data:"
@@ -473,13 +511,16 @@ _NOISE_KEYS = {"observation_scale", "camera_W_p0", "camera_W_o0", "W_p0", "W_o0"
                "orientation_formula", "observation_noise"}
 
 
-def _noise(rd: Reader, node: Any) -> NoiseParams:
+def _noise(rd: Reader, node: Any, frames: int = 1) -> NoiseParams:
     m = rd.mapping(node, "noise", _NOISE_KEYS)
     d = NoiseParams()
     kw: dict[str, Any] = {}
     for name in ("W_p0", "W_o0", "V_d0", "V_f0", "V_o0", "camera_W_p0", "camera_W_o0"):
         kw[name] = rd.covariance(m[name], f"noise.{name}") if name in m else getattr(d, name)
     light = rd.number(m.get("observation_scale", 1.0), "noise.observation_scale", positive=True, low=1e-6, high=1e6)
+    # `frames` tracker observations per step (timing), each with covariance V, are one with V / frames
+    # (problems/README.md, "Time in the model"): applied with the light scale, to every observation term
+    light = light / frames
     for name in ("V_d0", "V_f0", "V_o0"):  # dim light: every observation term scaled alike
         kw[name] = light * kw[name]
     kw["Sigma0"] = rd.covariance(m["Sigma0"], "noise.Sigma0", definite=True) if "Sigma0" in m else d.Sigma0

@@ -147,6 +147,8 @@ def evaluate(
     if prob.robot.grasp is not None:
         robot["needle"] = {"radius": prob.robot.needle_radius, "grasp": prob.robot.grasp.tolist()}
     ext = dict(extras or {})
+    tm = prob.timing  # the file's timing (noise's V_* are already divided by frames_per_step)
+    ext.setdefault("timing", {"step_s": tm.step_s, "tracker_hz": tm.tracker_hz, "frames_per_step": tm.frames})
     arms = []
     for spec in (prob.start.relative, prob.goal.relative):
         if spec is not None:
