@@ -10,6 +10,14 @@ JSON line goes to `DIR/progress.jsonl` (so an interrupted run keeps its work and
 Randomness: configuration i uses `default_rng([seed, i])`; its rollouts in mode m
 use `default_rng([seed, i, k_m])` (k_model = 0, k_true = 1), the same generator
 state for every method (common random numbers).
+
+Rollouts observe only when the true pose is detectable (the evaluation file's
+`detection`, `rollout.Detection`); a rollout is a successful grasp when its final true
+pose is within the file's `grasp` tolerances of the goal (the simulated Table II).
+
+Where the configurations run: in this process (`--jobs 1`), a process pool
+(`--jobs N`), or an existing Dask cluster (`--scheduler ADDRESS`, dask.distributed):
+the same records, the same `progress.jsonl`, resume and progress bar in each case.
 """
 
 from __future__ import annotations
@@ -19,6 +27,7 @@ import json
 import os
 import sys
 import time
+import uuid
 from pathlib import Path
 
 import numpy as np
@@ -58,8 +67,11 @@ def evaluate_configuration(eval_path: str, seed: int, index: int, methods: tuple
     smp = _sampler(eval_path)
     cfg = smp.sample(seed, index)
     setup = smp.setup_of(cfg)
+    spec = smp.spec
     rec = {"config": index, **cfg.to_dict(), "solves": {}, "metrics": {m: {} for m in modes},
-           "pos_errors": {m: {} for m in modes}}
+           "pos_errors": {m: {} for m in modes}, "ori_errors": {m: {} for m in modes},
+           "success": {m: {} for m in modes}, "detected": {m: {} for m in modes}}
+    per_rollout = ("pos_errors", "ori_errors", "success", "detected")
     cache = {}
     for name in methods:
         t0 = time.perf_counter()
@@ -76,14 +88,19 @@ def evaluate_configuration(eval_path: str, seed: int, index: int, methods: tuple
             for mode in modes:
                 rng = np.random.default_rng([seed, index, MODES.index(mode)])
                 met, ro = plan_metrics(setup.eval_model, sol.poses, setup.x_goal, rollouts, rng, mode,
-                                       sol.sigma_final)
+                                       sol.sigma_final, detection=spec.detection)
                 rec["metrics"][mode][name] = met
                 rec["pos_errors"][mode][name] = ro.pos_err.tolist()
+                rec["ori_errors"][mode][name] = ro.ori_err.tolist()
+                ok = (ro.pos_err <= spec.grasp_position) & (ro.ori_err <= spec.grasp_angle)
+                rec["success"][mode][name] = float(np.mean(ok))
+                rec["detected"][mode][name] = float(np.mean(ro.detected)) if ro.detected is not None else 1.0
         except (ValueError, np.linalg.LinAlgError) as exc:  # e.g. NaN waypoints of a failed solve
             solve.update(evaluated=False, status=f"{sol.status}; rollout error: {exc}")
             for mode in modes:
                 rec["metrics"][mode].pop(name, None)
-                rec["pos_errors"][mode].pop(name, None)
+                for key in per_rollout:
+                    rec[key][mode].pop(name, None)
         rec["solves"][name] = solve
     return rec
 
@@ -136,8 +153,13 @@ def append_line(path: Path, obj: dict) -> None:
 
 def run_evaluation(eval_path: str | Path, out_dir: str | Path, configs: int = 100, rollouts: int = 50, seed: int = 0,
                    methods: tuple[str, ...] = DEFAULT_METHODS, modes: tuple[str, ...] = MODES, jobs: int = 1,
-                   resume: bool = False, progress: bool = True) -> str:
+                   resume: bool = False, progress: bool = True, scheduler: str | None = None) -> str:
     """Run (or continue) an evaluation and write its files; returns the table (Markdown).
+
+    `scheduler`: address of a running Dask scheduler (e.g. tcp://host:8786), or a
+    `distributed.Client` / `LocalCluster`-backed client object; the configurations then run
+    on its workers (`jobs` is ignored), which must be able to import surestep_ocp and read
+    the evaluation file at the same path.
 
     Raises:
         SurestepError: bad arguments, a bad evaluation file, or a directory holding another run.
@@ -189,7 +211,9 @@ def run_evaluation(eval_path: str | Path, out_dir: str | Path, configs: int = 10
         bar.update(1)
 
     try:
-        if jobs == 1 or len(todo) <= 1:
+        if scheduler is not None and todo:
+            _run_dask(todo, args, rest, scheduler, finish)
+        elif jobs == 1 or len(todo) <= 1:
             for i in todo:
                 finish(evaluate_configuration(*args, i, *rest))
         else:
@@ -226,6 +250,38 @@ def _run_pool(todo, args, rest, jobs, finish) -> None:
         ex.shutdown(wait=True, cancel_futures=True)
 
 
+def _run_dask(todo, args, rest, scheduler, finish) -> None:
+    """The configurations as Dask futures on an existing cluster; records handed to `finish` as they complete."""
+    try:
+        from distributed import Client, as_completed
+    except ImportError as exc:
+        raise SurestepError(f"--scheduler needs dask.distributed (pip install 'surestep_ocp[dask]'): {exc}") from None
+    own = isinstance(scheduler, str)
+    if own:
+        try:
+            client = Client(scheduler, timeout="10s", set_as_default=False)
+        except (OSError, TimeoutError, ValueError) as exc:
+            raise SurestepError(f"--scheduler {scheduler}: cannot connect to a Dask scheduler "
+                                f"({type(exc).__name__}: {exc})") from None
+    else:
+        client = scheduler
+    futures = []
+    tag = uuid.uuid4().hex[:8]
+    try:
+        # pure=False: every configuration is its own task; retries=1 rescues a worker lost mid-task
+        futures = [client.submit(evaluate_configuration, *args, i, *rest, key=f"surestep-config-{i}-{tag}",
+                                 pure=False, retries=1) for i in todo]
+        with client.as_current():
+            for fut in as_completed(futures):
+                finish(fut.result())
+    except BaseException:
+        client.cancel(futures)
+        raise
+    finally:
+        if own:
+            client.close()
+
+
 # ------------------------------------------------------------------ command line
 def cmd_evaluate(args) -> int:
     methods = DEFAULT_METHODS
@@ -234,7 +290,7 @@ def cmd_evaluate(args) -> int:
     modes = MODES if args.rollout_mode == "both" else (args.rollout_mode,)
     out = args.output_dir or str(Path("out") / f"evaluate-{Path(args.evaluation).stem}")
     table = run_evaluation(args.evaluation, out, args.configs, args.rollouts, args.seed, methods, modes, args.jobs,
-                           args.resume, progress=not args.quiet)
+                           args.resume, progress=not args.quiet, scheduler=getattr(args, "scheduler", None))
     print(table)
     print(f"\nwrote {out}/{{table.md, raw.csv, solves.csv, boxplot.png, progress.jsonl, run.json}}")
     return 0
@@ -254,6 +310,9 @@ def register(subparsers):
     e.add_argument("--methods", nargs="+", help="methods, space- or comma-separated (default: "
                    + ", ".join(DEFAULT_METHODS) + "); the baseline is always included")
     e.add_argument("--jobs", type=int, default=1, help="worker processes (default 1)")
+    e.add_argument("--scheduler", metavar="ADDRESS",
+                   help="run the configurations on an existing Dask cluster (e.g. tcp://host:8786; needs "
+                        "dask.distributed, the 'dask' extra); --jobs is then ignored")
     e.add_argument("--rollout-mode", choices=("model", "true", "both"), default="both",
                    help="where the observation noise is evaluated (default both)")
     e.add_argument("--resume", action="store_true", help="continue the run in --output-dir (skip finished configs)")

@@ -2,7 +2,14 @@
 
 A record is one line of `progress.jsonl` (see `evaluation.evaluate_configuration`):
 `metrics[mode][method][metric]` absolute values, `solves[method]` the solver's
-outcome, `pos_errors[mode][method]` the final position error of every rollout.
+outcome, `pos_errors[mode][method]` / `ori_errors[mode][method]` the final position /
+orientation error of every rollout, `success[mode][method]` the share of rollouts within
+the grasp tolerances, `detected[mode][method]` the share of steps with an observation.
+
+Statistics: every relative cell is over configurations of the per-configuration ratio to
+the baseline; beside the mean (the paper's statistic) the median and the 90th percentile,
+which heavy tails (a few rollouts far off) do not dominate. Pooled figures (absolute table,
+boxplot) are over every rollout of every configuration.
 """
 
 from __future__ import annotations
@@ -38,6 +45,43 @@ def _values(records, mode, method, metric) -> np.ndarray:
     return np.array([r["metrics"].get(mode, {}).get(method, {}).get(metric, math.nan) for r in records], float)
 
 
+# The paper's Table II (real robot, 60 needle regrasps over the four trajectory types): success rates.
+PAPER_SUCCESS = {"gradient": 0.82, "baseline": 0.18}
+ROBUST = ("pos_err_mean", "ori_err_mean", "trace_ml")  # metrics with median / p90 columns in the main table
+
+
+def _ratios(records, mode, method, metric) -> np.ndarray:
+    y, b = _values(records, mode, method, metric), _values(records, mode, "baseline", metric)
+    r = np.array([relative(yi, bi) if np.isfinite(yi) and np.isfinite(bi) else math.nan for yi, bi in zip(y, b)])
+    return r[np.isfinite(r)]
+
+
+def relative_stats(records, methods, modes) -> dict:
+    """st[mode][method][metric] = {mean, median, p90, n} of the per-configuration ratios to the baseline."""
+    out: dict = {}
+    for mode in modes:
+        out[mode] = {}
+        for m in methods:
+            out[mode][m] = {}
+            for k in METRICS:
+                r = _ratios(records, mode, m, k)
+                out[mode][m][k] = {"mean": float(np.mean(r)) if len(r) else math.nan,
+                                   "median": float(np.median(r)) if len(r) else math.nan,
+                                   "p90": float(np.percentile(r, 90)) if len(r) else math.nan, "n": len(r)}
+    return out
+
+
+def pooled(records, key: str, mode: str, method: str) -> np.ndarray:
+    """Every rollout's value of `key` (pos_errors / ori_errors) for a method and mode, all configurations."""
+    return np.array([e for r in records for e in r.get(key, {}).get(mode, {}).get(method, [])], float)
+
+
+def success_share(records, mode: str, method: str) -> tuple[float, int]:
+    """(share of rollouts within the grasp tolerances, configurations counted); equal rollouts per configuration."""
+    v = [r["success"][mode][method] for r in records if method in r.get("success", {}).get(mode, {})]
+    return (float(np.mean(v)) if v else math.nan), len(v)
+
+
 def relative_means(records, methods, modes) -> dict:
     """rel[mode][method][metric] = (mean over configurations of relative(y_c, b_c), configurations used)."""
     rel: dict = {}
@@ -69,42 +113,74 @@ def _solve_stats(records, methods) -> dict:
 
 
 def markdown(records, methods, modes, header, spec) -> str:
-    rel, st = relative_means(records, methods, modes), _solve_stats(records, methods)
+    rel, st = relative_stats(records, methods, modes), _solve_stats(records, methods)
     n = len(records)
+    det = getattr(spec, "detection", None)
+    det_text = ("every step observes (detection disabled)" if det is None else
+                f"a step observes only when the true pose is detectable: depth > {det.min_depth:g} m and inside the "
+                f"image less a {det.margin:g} margin" + (f", probability ramping over {det.falloff:g}" if det.falloff
+                                                          else "") + "; otherwise the EKF only predicts")
+    gp, ga = getattr(spec, "grasp_position", math.nan), getattr(spec, "grasp_angle", math.nan)
+    grad = spec.base.gradient
+    grad_text = (f"gradient variant: {grad.optimizer} L-BFGS"
+                 + (f", {grad.steps} step() calls of up to {grad.max_iter} iterations, line search "
+                    f"{grad.line_search}" if grad.optimizer == "torch" else f", {grad.iterations} iterations")
+                 + f", trace_scale {grad.trace_scale:g}, pose_loss_weight {grad.pose_loss_weight:g}"
+                 + (f" (preset {grad.preset})" if grad.preset else ""))
     lines = [f"# Evaluation on `{spec.path}`", "",
              f"{n} random configurations (seed {header['seed']}, base problem `{spec.base_path.name}`, horizon "
              f"T = {spec.horizon}), {header['rollouts']} noisy closed-loop rollouts per plan and rollout mode; "
-             "every plan evaluated with all observation components.", "",
+             f"every plan evaluated with all observation components; {det_text}; {grad_text}.", "",
              "**How the relative numbers are made.** For configuration c, method m and metric k, let y = the "
              "method's absolute value and b = the baseline's on the same configuration (same rollout noise "
              "draws). The per-configuration ratio is the paper's scaling (`metrics.relative`): y / b when both "
              "are positive, 1 - (y - b) / b when both are negative (entropies), undefined (excluded) for mixed "
-             "signs. Each cell is the mean of these ratios over configurations (lower is better, baseline = 1). "
+             "signs. `mean` cells are the mean of these ratios over configurations (the paper's statistic; lower "
+             "is better, baseline = 1); `med` and `p90` are their median and 90th percentile. "
              "pos/ori = final position error ||p_T^true - p^G|| and geodesic orientation error "
              "angle(R_T^true, R^G), mean and sample std over the rollouts of one configuration; Tr noisy and "
              "H noisy = Tr(Sigma_T) and Gaussian entropy of the rollouts' EKF, mean over rollouts; Tr ML and "
-             "H ML = the plan's own maximum-likelihood Sigma_T.", "",
+             "H ML = the plan's own maximum-likelihood Sigma_T. `grasp` = share of all rollouts whose final true "
+             f"pose is within {gp * 1e3:g} mm and {ga:g} rad of the goal (the simulated Table II; absolute, "
+             "not relative).", "",
              "**Failed solves** are counted in the `failed` column and are not dropped: a plan whose solver "
              "reported failure is still rolled out and averaged in; only a method that produced no plan at all "
              "(`no plan`) is left out of that configuration's averages (`n` = configurations averaged).", ""]
-    cols = [LABELS[k] for k in METRICS]
+    cols = []
+    for k in METRICS:
+        cols.append(LABELS[k] + (" mean" if k in ROBUST else ""))
+        if k in ROBUST:
+            cols += [LABELS[k].split()[0] + " med" if k != "trace_ml" else "Tr ML med",
+                     LABELS[k].split()[0] + " p90" if k != "trace_ml" else "Tr ML p90"]
+    plain = [LABELS[k] for k in METRICS]
     for mode in modes:
         lines += [f"## Rollout mode `{mode}`: {MODE_TEXT[mode]}", "",
-                  "| method | " + " | ".join(cols) + " | n | failed | no plan | solve time [s] | iters (median) |",
-                  "|---" * (len(cols) + 6) + "|"]
+                  "| method | " + " | ".join(cols) + " | grasp | n | failed | no plan | solve time [s] | "
+                  "iters (median) |", "|---" * (len(cols) + 7) + "|"]
         for m in methods:
-            cells = [_fmt(rel[mode][m][k][0]) for k in METRICS]
-            used = min(rel[mode][m][k][1] for k in METRICS)
-            lines.append(f"| {m} | " + " | ".join(cells) + f" | {used} | {st[m]['failed']} | {st[m]['no_plan']} | "
-                         f"{_fmt(st[m]['time'], '{:.2f}')} | {_fmt(st[m]['iters'], '{:.0f}')} |")
-        lines += ["", f"Beside the paper's Table I (cells: ours / paper), mode `{mode}`:", "",
-                  "| ours | paper | " + " | ".join(cols) + " |", "|---" * (len(cols) + 2) + "|"]
+            cells = []
+            for k in METRICS:
+                cells.append(_fmt(rel[mode][m][k]["mean"]))
+                if k in ROBUST:
+                    cells += [_fmt(rel[mode][m][k]["median"]), _fmt(rel[mode][m][k]["p90"])]
+            used = min(rel[mode][m][k]["n"] for k in METRICS)
+            succ, _ = success_share(records, mode, m)
+            lines.append(f"| {m} | " + " | ".join(cells) + f" | {_fmt(succ, '{:.0%}')} | {used} | "
+                         f"{st[m]['failed']} | {st[m]['no_plan']} | {_fmt(st[m]['time'], '{:.2f}')} | "
+                         f"{_fmt(st[m]['iters'], '{:.0f}')} |")
+        lines += ["", f"Beside the paper's Table I (cells: our mean / paper; the paper gives means only), "
+                      f"mode `{mode}`:", "",
+                  "| ours | paper | " + " | ".join(plain) + " |", "|---" * (len(plain) + 2) + "|"]
         for m, (label, vals) in PAPER.items():
             if m in methods:
-                cells = [f"{_fmt(rel[mode][m][k][0])} / {p:.3f}" for k, p in zip(METRICS, vals)]
+                cells = [f"{_fmt(rel[mode][m][k]['mean'])} / {p:.3f}" for k, p in zip(METRICS, vals)]
                 lines.append(f"| {m} | {label} | " + " | ".join(cells) + " |")
-        lines += ["", f"Absolute values, mean over configurations, mode `{mode}` (pos in mm, ori in mrad):", "",
-                  "| method | " + " | ".join(cols) + " |", "|---" * (len(cols) + 1) + "|"]
+        lines += ["", f"Absolute values, mode `{mode}`: means over configurations (pos in mm, ori in mrad), then "
+                      "the pooled final errors of every rollout (median, 90th percentile, maximum) and the share "
+                      "of steps with an observation:", "",
+                  "| method | " + " | ".join(plain) + " | pos med [mm] | pos p90 [mm] | pos max [mm] | "
+                  "ori med [mrad] | ori p90 [mrad] | ori max [mrad] | observed |",
+                  "|---" * (len(plain) + 8) + "|"]
         for m in methods:
             cells = []
             for k in METRICS:
@@ -117,9 +193,33 @@ def markdown(records, methods, modes, header, spec) -> str:
                     cells.append(_fmt(mean, "{:.3e}"))
                 else:
                     cells.append(_fmt(mean, "{:.2f}"))
+            for key in ("pos_errors", "ori_errors"):
+                e = pooled(records, key, mode, m) * 1e3
+                cells += [_fmt(float(np.median(e)) if len(e) else math.nan, "{:.2f}"),
+                          _fmt(float(np.percentile(e, 90)) if len(e) else math.nan, "{:.2f}"),
+                          _fmt(float(np.max(e)) if len(e) else math.nan, "{:.1f}")]
+            obs = [r["detected"][mode][m] for r in records if m in r.get("detected", {}).get(mode, {})]
+            cells.append(_fmt(float(np.mean(obs)) if obs else math.nan, "{:.1%}"))
             lines.append(f"| {m} | " + " | ".join(cells) + " |")
         lines.append("")
+    lines += table2(records, methods, modes, gp, ga)
     return "\n".join(lines)
+
+
+def table2(records, methods, modes, gp: float, ga: float) -> list[str]:
+    """The simulated Table II: grasp success share per method and rollout mode, beside the paper's real-robot rates."""
+    lines = ["## Simulated Table II: grasp success", "",
+             f"Share of rollouts whose final true pose is within {gp * 1e3:g} mm and {ga:g} rad of the goal "
+             "(over all configurations and rollouts). The paper's Table II is 60 real needle regrasps on the "
+             "dVRK over four trajectory types: SURESTEP 82 %, the straight-line baseline 18 %.", "",
+             "| method | " + " | ".join(f"grasp `{m}`" for m in modes) + " | paper (real robot) |",
+             "|---" * (len(modes) + 2) + "|"]
+    for m in methods:
+        cells = [_fmt(success_share(records, mode, m)[0], "{:.1%}") for mode in modes]
+        paper = {"gradient": "82 % (SURESTEP)", "baseline": "18 %"}.get(m, "")
+        lines.append(f"| {m} | " + " | ".join(cells) + f" | {paper} |")
+    lines.append("")
+    return lines
 
 
 def write_outputs(records, out: Path, methods, modes, header, spec) -> str:
@@ -135,6 +235,8 @@ def write_outputs(records, out: Path, methods, modes, header, spec) -> str:
                 vals = r["metrics"].get(mode, {}).get(m, {})
                 for k in METRICS:
                     w.writerow([r["config"], mode, m, k, repr(float(vals.get(k, math.nan)))])
+                for k, key in (("grasp_success", "success"), ("observed", "detected")):
+                    w.writerow([r["config"], mode, m, k, repr(float(r.get(key, {}).get(mode, {}).get(m, math.nan)))])
     write_text_atomic(out / "raw.csv", buf.getvalue())
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
@@ -163,7 +265,8 @@ def boxplot(records, methods, modes, path: Path, rollouts: int | None = None) ->
     for ax, mode in zip(axes[0], modes):
         data = [np.array([e for r in records for e in r["pos_errors"].get(mode, {}).get(m, [])]) * 1e3
                 for m in methods]
-        ax.boxplot([d if len(d) else [math.nan] for d in data], showfliers=True, flierprops={"markersize": 2})
+        ax.boxplot([d if len(d) else [math.nan] for d in data], whis=(5, 95), showfliers=True,
+                   flierprops={"markersize": 1.5, "alpha": 0.4})
         st = _solve_stats(records, methods)
         labels = [m + (f" ({st[m]['failed']} failed)" if st[m]["failed"] else "") for m in methods]
         ax.set_xticks(range(1, len(methods) + 1), labels, rotation=45, ha="right", fontsize=8)
@@ -172,7 +275,8 @@ def boxplot(records, methods, modes, path: Path, rollouts: int | None = None) ->
         ax.grid(True, axis="y", which="both", alpha=0.3)
     axes[0][0].set_ylabel("final position error ||p_T - p^G|| [mm]")
     per = f"{rollouts} rollouts" if rollouts else "rollouts"
-    fig.suptitle(f"final position errors, {len(records)} configurations x {per}, pooled")
+    fig.suptitle(f"final position errors, {len(records)} configurations x {per}, pooled "
+                 "(box: quartiles, whiskers: 5th-95th percentile, dots: the 10 % beyond)")
     fig.tight_layout()
     b = io.BytesIO()
     fig.savefig(b, format="png", dpi=110)

@@ -98,8 +98,9 @@ def test_evaluate_end_to_end_and_resume(tmp_path, monkeypatch, capsys):
     with open(out / "raw.csv") as fh:
         rows = list(csv.DictReader(fh))
     assert list(rows[0]) == ["config", "mode", "method", "metric", "value"]
-    assert len(rows) == 2 * 2 * 2 * len(METRICS)
-    assert {r["metric"] for r in rows} == set(METRICS) and {r["method"] for r in rows} == {"baseline", "gradient"}
+    assert len(rows) == 2 * 2 * 2 * (len(METRICS) + 2)
+    assert {r["metric"] for r in rows} == {*METRICS, "grasp_success", "observed"}
+    assert {r["method"] for r in rows} == {"baseline", "gradient"}
     assert all(np.isfinite(float(r["value"])) for r in rows)
     with open(out / "solves.csv") as fh:
         solves = list(csv.DictReader(fh))
@@ -108,6 +109,19 @@ def test_evaluate_end_to_end_and_resume(tmp_path, monkeypatch, capsys):
     assert (out / "boxplot.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     first = (out / "progress.jsonl").read_text().splitlines()
     assert sorted(json.loads(line)["config"] for line in first) == [0, 1]
+    # the grasp success share is the share of rollouts within both tolerances (recomputed from the errors)
+    spec = load_evaluation(EVAL)
+    for line in first:
+        rec = json.loads(line)
+        for mode in ("model", "true"):
+            for m in ("baseline", "gradient"):
+                pos, ori = np.array(rec["pos_errors"][mode][m]), np.array(rec["ori_errors"][mode][m])
+                assert len(pos) == len(ori) == 5
+                want = np.mean((pos <= spec.grasp_position) & (ori <= spec.grasp_angle))
+                assert rec["success"][mode][m] == pytest.approx(want)
+                assert 0.0 <= rec["detected"][mode][m] <= 1.0
+    for text in ("Simulated Table II", "82 %", "pos med", "Tr ML p90", "pos max [mm]"):
+        assert text in table
 
     # a finished directory is not overwritten by accident
     with pytest.raises(SurestepError, match="--resume"):
@@ -153,3 +167,44 @@ def test_bad_arguments_are_user_errors(tmp_path):
         _run(["evaluate", str(EVAL), "--rollouts", "1", "--output-dir", str(tmp_path / "b"), "--quiet"])
     with pytest.raises(ProblemError, match="no such file"):
         _run(["evaluate", str(tmp_path / "nope.yaml"), "--output-dir", str(tmp_path / "c"), "--quiet"])
+
+
+def test_robust_statistics_are_numpys():
+    """Median and 90th percentile of the per-configuration ratios beside their mean; pooled rollout errors."""
+    ys = [1.0, 2.0, 3.0, 10.0, 4.0]
+    recs = [{"metrics": {"model": {"baseline": {k: 2.0 for k in METRICS}, "x": {k: y for k in METRICS}}},
+             "pos_errors": {"model": {"x": [y, 2 * y]}}, "success": {"model": {"x": 0.5 if y < 5 else 0.0}}}
+            for y in ys]
+    st = evaluation_report.relative_stats(recs, ("baseline", "x"), ("model",))["model"]["x"]["pos_err_mean"]
+    r = np.array(ys) / 2.0
+    assert st == {"mean": pytest.approx(r.mean()), "median": pytest.approx(np.median(r)),
+                  "p90": pytest.approx(np.percentile(r, 90)), "n": 5}
+    assert st["median"] < st["mean"]  # one heavy configuration pulls the mean, not the median
+    pooled = evaluation_report.pooled(recs, "pos_errors", "model", "x")
+    assert sorted(pooled) == sorted(ys + [2 * y for y in ys])
+    assert evaluation_report.success_share(recs, "model", "x") == (pytest.approx(0.4), 5)
+
+
+def test_evaluation_file_detection_grasp_and_gradient_keys(tmp_path):
+    """`detection`, `grasp` and `gradient` (over the base problem's) are read strictly, with stated defaults."""
+    spec = load_evaluation(EVAL)
+    assert spec.detection is not None and spec.grasp_position == 0.005 and spec.grasp_angle == 0.2
+    tree = yaml.safe_load(EVAL.read_text())
+    tree["base"] = str((EVAL.parent / tree["base"]).resolve())
+    tree.update(detection={"margin": 0.05, "falloff": 0.1}, grasp={"position": 0.003}, gradient={"preset": "paper"})
+    path = tmp_path / "e.yaml"
+    path.write_text(yaml.safe_dump(tree))
+    spec = load_evaluation(path)
+    assert (spec.detection.margin, spec.detection.falloff, spec.grasp_position) == (0.05, 0.1, 0.003)
+    assert spec.base.gradient.optimizer == "torch" and spec.base.gradient.trace_scale == 1e3
+    tree["detection"] = {"enabled": False}
+    path.write_text(yaml.safe_dump(tree))
+    assert load_evaluation(path).detection is None
+    for bad, key in (({"detection": {"margin": 0.3, "falloff": 0.3}}, "detection"),
+                     ({"grasp": {"angle": -1}}, "grasp.angle"), ({"gradient": {"preset": "x"}}, "gradient.preset"),
+                     ({"detection": {"radius": 1}}, "radius")):
+        t = {**tree, **bad}
+        path.write_text(yaml.safe_dump(t))
+        with pytest.raises(ProblemError) as exc:
+            load_evaluation(path)
+        assert "e.yaml" in str(exc.value) and key in str(exc.value)
