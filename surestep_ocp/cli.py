@@ -1,4 +1,4 @@
-"""Command line: `surestep solve|compare|replan|evaluate|validate|show`.
+"""Command line: `surestep solve|compare|replan|evaluate|sweep|validate|show`.
 
 User errors (bad problem files, unknown methods, unreachable poses) print one line
 and exit 2; a solver that fails prints its status and exits 1.
@@ -205,6 +205,9 @@ def build_parser() -> argparse.ArgumentParser:
     from .evaluation import register as register_evaluate
 
     register_evaluate(sub)
+    from .sweep import register as register_sweep
+
+    register_sweep(sub)
     return p
 
 

@@ -45,6 +45,7 @@ EPS_POS = 1e-6  # [m]
 EPS_ANG = 1e-6  # [rad]
 BARELY_MOVED_M = 1e-3  # [m]  max waypoint position change vs the baseline
 BARELY_MOVED_RAD = 1e-2  # [rad] max waypoint orientation change vs the baseline
+FAR_M = 10.0  # [m] waypoints this far from the camera are not checked by IK (a diverged optimiser)
 
 
 def _smooth_norm(sq, eps: float):
@@ -161,7 +162,13 @@ def solve_gradient(
     dpos = float(np.max(np.linalg.norm(poses[:, :3] - base[:, :3], axis=1)))
     dang = float(max(np_angle(a, b) for a, b in zip(poses[:, 3:], base[:, 3:])))
     t_ik = time.perf_counter()
-    qs, info = reachability(setup, poses)
+    if finite and np.max(np.abs(poses[:, :3])) < FAR_M:
+        qs, info = reachability(setup, poses)
+    else:  # a diverged run (e.g. torch's fixed step without line search): no IK on absurd waypoints
+        far = ~np.all(np.isfinite(poses), axis=1) | (np.max(np.abs(poses[:, :3]), axis=1) >= FAR_M)
+        qs = [None] * len(poses)
+        info = {"reachable": 0, "unreachable": len(poses), "ik_residual_m": [], "ik_residual_rad": [],
+                "note": f"not checked: {int(far.sum())} waypoints non-finite or beyond {FAR_M:g} m"}
     ik_s = time.perf_counter() - t_ik
     method = "gradient" if pose_loss else "gradient-no-pose-loss"
     extras = {

@@ -208,3 +208,29 @@ def test_evaluation_file_detection_grasp_and_gradient_keys(tmp_path):
         with pytest.raises(ProblemError) as exc:
             load_evaluation(path)
         assert "e.yaml" in str(exc.value) and key in str(exc.value)
+
+
+def test_sweep_expands_into_runs(tmp_path):
+    """A sweep file's runs and grid become evaluate runs with their own derived files and a summary."""
+    from surestep_ocp.sweep import load_sweep, run_sweep
+
+    sweep = tmp_path / "s.yaml"
+    sweep.write_text(yaml.safe_dump({
+        "evaluation": str(EVAL), "configs": 1, "rollouts": 2, "rollout_mode": "true", "methods": ["baseline"],
+        "runs": [{"name": "noisy", "noise": {"V_f0": 0.04}}],
+        "grid": {"detection.falloff": [0.0, 0.1]}}))
+    s = load_sweep(sweep)
+    assert [r["name"] for r in s["runs"]] == ["noisy", "detection.falloff=0.0", "detection.falloff=0.1"]
+    table = run_sweep(sweep, tmp_path / "out", progress=False)
+    for name in ("noisy", "detection.falloff=0.0", "detection.falloff=0.1"):
+        assert (tmp_path / "out" / name / "table.md").is_file()
+        assert f"| {name} | true | baseline | 1.000 |" in table
+    assert load_evaluation(tmp_path / "out" / "detection.falloff=0.1" / "evaluation.yaml").detection.falloff == 0.1
+    noisy = load_evaluation(tmp_path / "out" / "noisy" / "evaluation.yaml")
+    assert noisy.base.noise.V_f0 == pytest.approx(0.04 * np.eye(6)) or np.allclose(noisy.base.noise.V_f0, 0.04)
+    for bad, key in (({"runs": [{"name": "a"}, {"name": "a"}]}, "runs[1].name"), ({"colour": 1}, "colour"),
+                     ({"runs": []}, "runs")):
+        sweep.write_text(yaml.safe_dump({"evaluation": str(EVAL), **bad}))
+        with pytest.raises(ProblemError) as exc:
+            load_sweep(sweep)
+        assert key in str(exc.value)
