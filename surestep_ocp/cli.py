@@ -1,4 +1,4 @@
-"""Command line: `surestep solve|compare|replan|evaluate|sweep|validate|show`.
+"""Command line: `surestep solve|compare|replan|evaluate|sweep|validate|show|export`.
 
 User errors (bad problem files, unknown methods, unreachable poses) print one line
 and exit 2; a solver that fails prints its status and exits 1.
@@ -89,7 +89,8 @@ def cmd_compare(args) -> int:
     sols = run_comparison(setup, methods, progress=lambda m: print(f"solving: {m}", file=sys.stderr, flush=True))
     table = write_comparison(sols, Path(args.output_dir), args.problem)
     print(table)
-    print(f"\nwrote {args.output_dir}/{{<method>.json, comparison.md, comparison.json, trace.png, path.png}}")
+    print(f"\nwrote {args.output_dir}/{{<method>.json, comparison.md, comparison.json, trace.png, path.png, "
+          "motion.png}")
     failed = [s.method for s in sols if not s.success]
     if failed:
         print(f"failed: {', '.join(failed)}", file=sys.stderr)
@@ -203,8 +204,10 @@ def build_parser() -> argparse.ArgumentParser:
     w.set_defaults(func=cmd_show)
 
     from .evaluation import register as register_evaluate
+    from .export import register as register_export
 
     register_evaluate(sub)
+    register_export(sub)
     from .sweep import register as register_sweep
 
     register_sweep(sub)

@@ -21,11 +21,27 @@ def run_comparison(setup: Setup, methods: tuple[str, ...] = COMPARE_METHODS, pro
         if progress:
             progress(name)
         cache[name] = run_method(setup, name, cache)
-    return [cache[m] for m in methods]
+    sols = [cache[m] for m in methods]
+    for s in sols:
+        attach_motion_limits(setup, s)
+    return sols
+
+
+def attach_motion_limits(setup: Setup, sol: Solution) -> None:
+    """Record the plan's motion-limit report (limits.plan_report) in `sol.extras["motion_limits"]`."""
+    from .limits import motion_limits, plan_report
+
+    if any(q is None for q in sol.q):
+        sol.extras["motion_limits"] = {"skipped": "a waypoint has no IK solution (see reachability)"}
+        return
+    lim = motion_limits(setup.robot.urdf, setup.robot.joint_names)
+    sol.extras["motion_limits"] = plan_report(setup.robot, np.array(sol.q, float), setup.problem.timing.step_s,
+                                              lim, tool_frame=setup.robot.frame)
 
 
 def write_comparison(solutions: list[Solution], out_dir: Path, problem_path: str) -> str:
-    """Write `<method>.json`, `comparison.md`, `comparison.json`, `trace.png`, `path.png`; return the table."""
+    """Write `<method>.json`, `comparison.md`, `comparison.json`, `trace.png`, `path.png`, `motion.png`; return
+    the tables (the comparison, then the motion limits at the planned pace)."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     for s in solutions:
@@ -37,10 +53,40 @@ def write_comparison(solutions: list[Solution], out_dir: Path, problem_path: str
             "Every method evaluated by the same EKF (all observation components) along its own waypoints; "
             "`rel.` is relative to the straight-line baseline with the paper's scaling (lower is better).\n\n"
             f"{table}\n")
+    limits_text = limits_table(solutions)
+    if limits_text:
+        text += f"\n{limits_text}\n"
     write_text_atomic(out_dir / "comparison.md", text)
     _plot_trace(solutions, out_dir / "trace.png")
     _plot_paths(solutions, out_dir / "path.png")
-    return table
+    urdf = _robot_urdf(solutions)
+    if urdf is not None:
+        from .plots_motion import plot_plans
+
+        plot_plans(solutions, urdf, out_dir / "motion.png")
+    return table + (f"\n\n{limits_text}" if limits_text else "")
+
+
+def _robot_urdf(solutions: list[Solution]):
+    from .problem import resolve_urdf
+
+    p = resolve_urdf(str(solutions[0].robot.get("urdf", ""))) if solutions else None
+    return p if p is not None and p.is_file() else None
+
+
+def limits_table(solutions: list[Solution]) -> str:
+    """Markdown: each method's motion limits at the planned pace (README "Export"; not enforced by the planners)."""
+    from .limits import markdown_rows, summary_row
+
+    reps = [(s.method, s.extras.get("motion_limits")) for s in solutions]
+    rows = [summary_row(m, r) for m, r in reps if isinstance(r, dict) and "violations" in r]
+    if not rows:
+        return ""
+    step = next(r for _, r in reps if isinstance(r, dict) and "step_s" in r)["step_s"]
+    skipped = [m for m, r in reps if isinstance(r, dict) and "skipped" in r]
+    note = f" (not checked: {', '.join(skipped)}, unreachable waypoints)" if skipped else ""
+    return (f"Motion limits at the planned pace ({step:g} s per step; reported, not enforced by the planners; "
+            f"`surestep export` retimes a plan within the joint limits){note}:\n\n{markdown_rows(rows)}")
 
 
 COLOURS = {"baseline": "#7f7f7f", "gradient": "#ff7f0e", "gradient-no-pose-loss": "#d62728",
