@@ -81,6 +81,7 @@ class NoiseParams:
     objective: str = "posterior"  # planners minimise Tr(Sigma_T|T) (posterior) or Tr(Sigma_T|T-1) (predicted)
     camera_W_p0: np.ndarray = field(default_factory=lambda: 1e-3 * np.eye(NX))  # per camera move [1/m^2 scale]
     camera_W_o0: np.ndarray = field(default_factory=lambda: 1e-3 * np.eye(NX))
+    V_min: np.ndarray = field(default_factory=lambda: np.zeros((NX, NX)))  # observation noise floor (PSD)
 
 
 def _identity_jacobians() -> ca.Function:
@@ -124,7 +125,7 @@ class BeliefModel:
         noise matrix is diagonal, and so is every predicted and posterior covariance.
         """
         n = self.noise
-        mats = [n.W_p0, n.W_o0, n.V_d0, n.V_f0, n.V_o0, n.Sigma0]
+        mats = [n.W_p0, n.W_o0, n.V_d0, n.V_f0, n.V_o0, n.V_min, n.Sigma0]
         return self.identity_maps and all(np.count_nonzero(M - np.diag(np.diag(M))) == 0 for M in mats)
 
     @property
@@ -135,7 +136,7 @@ class BeliefModel:
         covariance: from any Sigma_0 the EKF runs as six scalar recursions on its eigenvalues.
         """
         n = self.noise
-        mats = [n.W_p0, n.W_o0, n.V_d0, n.V_f0, n.V_o0]
+        mats = [n.W_p0, n.W_o0, n.V_d0, n.V_f0, n.V_o0, n.V_min]
         return self.identity_maps and all(np.array_equal(M, M[0, 0] * np.eye(NX)) for M in mats)
 
     @property
@@ -143,15 +144,44 @@ class BeliefModel:
         """Whether the covariance recursion is exactly six independent scalar Kalman recursions."""
         return self.diagonal or self.isotropic
 
+    @cached_property
+    def constant_maps(self) -> tuple[np.ndarray, ...] | None:
+        """(F, Q, H, R) as NumPy arrays when they do not depend on the means (identity maps always), else None."""
+        if self.identity_maps:
+            return tuple(np.eye(NX) for _ in range(4))
+        x0, x1 = ca.SX.sym("x0", NX), ca.SX.sym("x1", NX)
+        out = self.jacobians(x0, x1)
+        if any(ca.depends_on(M, ca.vertcat(x0, x1)) for M in out):
+            return None
+        return tuple(np.asarray(ca.evalf(M)) for M in out)
+
+    @property
+    def structured(self) -> bool:
+        """Whether Tr(Sigma_T) is a function S(c) of the scalar noise coefficients alone, concave and
+        nondecreasing: constant F, Q, H, R and the mean observation noise (any SPD base matrices).
+
+        The posterior `P - P H^T (H P H^T + R V R^T)^-1 H P` is a Schur complement, jointly concave and
+        nondecreasing in (P, V); the predict step is affine in (Sigma, W); each noise matrix is
+        `sum_k c_k M_k` with constant M_k >= 0. So the surrogate Hessian and the Newton solver apply.
+        """
+        return self.noise.observation_noise == "mean" and self.constant_maps is not None
+
     def channel_variances(self, sigma0: np.ndarray) -> np.ndarray:
         """The six scalar recursions' initial variances: Sigma_0's diagonal, or its eigenvalues (isotropic)."""
         sigma0 = np.asarray(sigma0, float)
         return np.diag(sigma0) if self.diagonal else np.linalg.eigvalsh(sigma0)
 
+    def recursion_sigma0(self, sigma0: np.ndarray) -> np.ndarray:
+        """vech of the initial covariance as the condensed recursion takes it: the channel variances on the
+        diagonal for a scalar model, Sigma_0 itself otherwise."""
+        sigma0 = np.asarray(sigma0, float)
+        return vech(np.diag(self.channel_variances(sigma0)) if self.scalar else sigma0)
+
     def key(self) -> tuple:
         """Hashable identity of the model's constants (for caching built solvers)."""
         n = self.noise
-        mats = tuple(np.asarray(getattr(n, k), float).tobytes() for k in ("W_p0", "W_o0", "V_d0", "V_f0", "V_o0"))
+        mats = tuple(np.asarray(getattr(n, k), float).tobytes() for k in ("W_p0", "W_o0", "V_d0", "V_f0", "V_o0",
+                                                                           "V_min"))
         return (mats, n.depth_star, tuple(n.o_star), self.components, n.orientation_formula, n.observation_noise,
                 n.objective,
                 tuple(self.camera.to_dict().items()), self.identity_maps or id(self.jacobians))
@@ -226,7 +256,7 @@ class BeliefModel:
 
     def observation_noise_expr(self, x, P=None):
         """V(x) = sum of the selected depth, field-of-view and orientation terms (see coefficients)."""
-        V = ca.SX.zeros(NX, NX) if isinstance(x, ca.SX) else ca.MX.zeros(NX, NX)
+        V = ca.DM(self.noise.V_min) + (ca.SX.zeros(NX, NX) if isinstance(x, ca.SX) else ca.MX.zeros(NX, NX))
         for c, M in zip(self.observation_coefficients(x, P), self.observation_matrices()):
             V += c * ca.DM(M)
         return V

@@ -32,7 +32,7 @@ import casadi as ca
 import numpy as np
 import scipy.linalg
 
-from .belief import NV, BeliefModel, vech
+from .belief import NV, BeliefModel
 from .codegen import compiled_or_interpreted
 from .robot import Robot
 from .setup import Setup
@@ -106,8 +106,8 @@ class NewtonSolver:
     def solve(self, setup: Setup, init, method: str = "ocp", tol: float = 1e-6, max_iter: int = 300) -> Solution:
         t0 = time.perf_counter()
         T, nq, n, robot = self.T, self.robot.nq, self.n, self.robot
-        sigma0 = np.diag(setup.model.channel_variances(np.asarray(setup.problem.noise.Sigma0, float)))
-        P = np.concatenate([setup.T_cam_base[:3, :].ravel(order="F"), [1.0], vech(sigma0)])
+        sigma0 = setup.model.recursion_sigma0(setup.problem.noise.Sigma0)
+        P = np.concatenate([setup.T_cam_base[:3, :].ravel(order="F"), [1.0], sigma0])
         x = np.array(init.q, float).ravel()  # node-major: x[t*nq + j]
         lo, hi = np.tile(robot.lower, T + 1), np.tile(robot.upper, T + 1)
         free = np.zeros((T + 1, nq), bool)

@@ -150,7 +150,7 @@ def resolve_form(model: BeliefModel, form: str) -> str:
     if form not in FORMS:
         raise SurestepError(f"unknown covariance form '{form}'; allowed: {', '.join(FORMS)}")
     if form == "auto":
-        return "condensed" if model.scalar else "full"
+        return "condensed" if model.scalar or model.structured else "full"
     if form == "diagonal" and not model.diagonal:
         raise SurestepError("solver.covariance: the diagonal form is exact only with identity motion/observation "
                             "maps and diagonal base covariances; use full, condensed or auto")
@@ -218,9 +218,9 @@ class Transcription:
         if hessian not in HESSIANS:
             raise SurestepError(f"unknown Hessian '{hessian}'; allowed: {', '.join(HESSIANS)}")
         if hessian != "exact":
-            if form != "condensed" or not model.scalar or model.noise.observation_noise != "mean":
-                raise SurestepError(f"the {hessian} Hessian needs the condensed form of a scalar model with the "
-                                    "mean observation noise")
+            if form != "condensed" or not model.structured:
+                raise SurestepError(f"the {hessian} Hessian needs the condensed form of a model with constant "
+                                    "motion/observation maps and the mean observation noise")
         elif codegen:
             raise SurestepError(CODEGEN_EXACT)
         self.codegen, self.codegen_note = codegen, None
@@ -411,9 +411,9 @@ class Transcription:
 
     def _parameters(self, setup: Setup, scale: np.ndarray, trace_ref: float) -> np.ndarray:
         sigma0 = np.asarray(setup.problem.noise.Sigma0, float)
-        if self.scalar:  # the scalar recursions start from their channel variances (the trace is the same)
-            sigma0 = np.diag(setup.model.channel_variances(sigma0))
-        return np.concatenate([setup.T_cam_base[:3, :].ravel(order="F"), scale, [trace_ref], vech(sigma0)])
+        # the scalar recursions start from their channel variances (the trace is the same)
+        s0 = setup.model.recursion_sigma0(sigma0) if self.form == "condensed" else vech(sigma0)
+        return np.concatenate([setup.T_cam_base[:3, :].ravel(order="F"), scale, [trace_ref], s0])
 
     def _condensed_start(self, setup: Setup, init: InitialGuess) -> tuple[np.ndarray, np.ndarray, float]:
         """Initial point of the condensed form (joints, and their means by FK), scales, and its trace."""
@@ -561,7 +561,7 @@ def resolve_hessian(setup: Setup, form: str) -> str:
     with the exact Hessian if needed) and the exact Hessian elsewhere.
     """
     choice, model = setup.problem.solver.hessian, setup.model
-    possible = form == "condensed" and model.scalar and model.noise.observation_noise == "mean"
+    possible = form == "condensed" and model.structured
     if choice in ("surrogate", "gauss-newton") and not possible:
         raise SurestepError(f"solver.hessian: {choice} needs the condensed covariance form of a scalar model "
                             "with noise.observation_noise: mean; use exact or auto")
@@ -649,8 +649,8 @@ def solve_ocp_warm(setup: Setup, init: InitialGuess, solver_options: dict | None
     forced = spec.hessian in ("surrogate", "gauss-newton")  # no exact-Hessian attempts
     newton_fits = newton_applies(setup, hessian, forced)
     if spec.name == "newton" and not newton_fits:
-        raise SurestepError("solver.name: newton needs the condensed form of a scalar model with "
-                            "noise.observation_noise: mean, solver.hessian: auto and exactly six joints moving the "
+        raise SurestepError("solver.name: newton needs the condensed form of a model with constant motion and "
+                            "observation maps, noise.observation_noise: mean, solver.hessian: auto and exactly six joints moving the "
                             "tracked frame (the goal pose then fixes the last joints); use solver.name: auto or ipopt")
     warm_given = warm is not None
     if spec.name in ("newton", "auto") and newton_fits and (warm is None or isinstance(warm, NewtonWarm)):

@@ -13,7 +13,7 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
-from .belief import DIAG, BeliefModel
+from .belief import DIAG, NV, BeliefModel, trace_vech, unvech, vech
 from .lie import so3_log
 from .robot import Robot
 
@@ -41,17 +41,48 @@ def scalar_trace(sigma0, motion: list, observation: list, predicted: bool):
     return ca.sum1(p if predicted else s)
 
 
+def kalman_stage(model: BeliefModel) -> ca.Function:
+    """One step of the matrix Kalman recursion with the model's constant maps (F, Q, H, R), as a function of the
+    noise coefficients: `(sigma, c) -> (sigma+, sigma_pred)` (vech), with `W = sum_k c_k W_k`,
+    `V = V_min + sum_k c_k V_k`, `P = F Sigma F^T + Q W Q^T`, `Sigma+ = P - P H^T (H P H^T + R V R^T)^-1 H P`
+    (symmetrised). `c` holds the motion coefficients first, then the observation ones."""
+    F, Q, H, R = (ca.DM(M) for M in model.constant_maps)
+    Wm, Vm = model.motion_matrices(), model.observation_matrices()
+    s, c = ca.SX.sym("sigma", NV), ca.SX.sym("c", len(Wm) + len(Vm))
+    W = sum(c[k] * ca.DM(M) for k, M in enumerate(Wm))
+    V = ca.DM(model.noise.V_min) + sum(c[len(Wm) + k] * ca.DM(M) for k, M in enumerate(Vm))
+    P = F @ unvech(s) @ F.T + Q @ W @ Q.T
+    HP = H @ P
+    post = P - HP.T @ ca.solve(H @ P @ H.T + R @ V @ R.T, HP)  # K^T = S^-1 H P
+    return ca.Function("kalman_stage", [s, c], [vech(0.5 * (post + post.T)), vech(P)], ["sigma", "c"],
+                       ["sigma_next", "sigma_pred"])
+
+
 def recursion_weights(model: BeliefModel, T: int, sigma0, trace_ref) -> ca.Function:
-    """`weights(cm, co, sigma0, trace_ref) -> (S, dS/dcm, dS/dco)`: the scaled trace after the scalar
+    """`weights(cm, co, sigma0, trace_ref) -> (S, dS/dcm, dS/dco)`: the scaled trace after the Kalman
     recursions as a function of the (motion, observation) coefficient matrices (one column per interval),
-    and its gradient, the surrogate's weights. `sigma0` and `trace_ref` are the caller's SX symbols."""
-    Wd = [np.diag(M) for M in model.motion_matrices()]
-    Vd = [np.diag(M) for M in model.observation_matrices()]
-    nm, no = len(Wd), len(Vd)
+    and its gradient, the surrogate's weights. `sigma0` and `trace_ref` are the caller's SX symbols
+    (`BeliefModel.recursion_sigma0` gives sigma0's value).
+
+    A scalar model runs six scalar recursions; any other structured model (`BeliefModel.structured`:
+    constant maps, any SPD base matrices) the 6x6 matrix recursion, concave and nondecreasing in c too.
+    """
+    Wm, Vm = model.motion_matrices(), model.observation_matrices()
+    nm, no = len(Wm), len(Vm)
     cm, co = ca.SX.sym("cm", nm, T), ca.SX.sym("co", no, T)
-    S = scalar_trace(sigma0, [sum(cm[k, t] * ca.DM(Wd[k]) for k in range(nm)) for t in range(T)],
-                     [lambda p, t=t: sum(co[k, t] * ca.DM(Vd[k]) for k in range(no)) for t in range(T)],
-                     model.noise.objective == "predicted") / trace_ref
+    floor = model.noise.V_min
+    predicted = model.noise.objective == "predicted"
+    if model.scalar:
+        Wd, Vd = [ca.DM(np.diag(M)) for M in Wm], [ca.DM(np.diag(M)) for M in Vm]
+        S = scalar_trace(sigma0, [sum(cm[k, t] * Wd[k] for k in range(nm)) for t in range(T)],
+                         [lambda p, t=t: ca.DM(np.diag(floor)) + sum(co[k, t] * Vd[k] for k in range(no))
+                          for t in range(T)], predicted)
+    else:  # stage-wise (mapaccum): the generated code holds one Kalman step whatever T
+        cm, co = ca.MX.sym("cm", nm, T), ca.MX.sym("co", no, T)
+        sigma0, trace_ref = ca.MX.sym("sigma0", NV), ca.MX.sym("trace_ref")
+        post, pred = kalman_stage(model).mapaccum("kalman_roll", T)(sigma0, ca.vertcat(cm, co))
+        S = trace_vech((pred if predicted else post)[:, T - 1])
+    S = S / trace_ref
     return ca.Function("weights", [cm, co, sigma0, trace_ref],
                        [S, ca.jacobian(S, ca.vec(cm)).reshape((nm, T)), ca.jacobian(S, ca.vec(co)).reshape((no, T))])
 
