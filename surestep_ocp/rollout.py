@@ -186,6 +186,7 @@ def rollout(
     sample_initial: bool = False,
     keep_paths: bool = False,
     detection: Detection | None = None,
+    changes: list | None = None,
 ) -> Rollouts:
     """Execute a plan `n` times in closed loop with sampled motion and observation noise.
 
@@ -193,7 +194,7 @@ def rollout(
         model: the belief model of the EKF and of the noise (use all components:
             `Setup.eval_model`); only identity motion/observation maps are supported.
         poses: (T+1, 6) planned waypoints, camera frame; `poses[0]` is the start.
-        goal: (6,) goal pose for the errors (default: the last waypoint).
+        goal: (6,) goal pose for the errors (default: the last waypoint), in the last step's camera frame.
         n: number of rollouts.
         rng: a NumPy Generator or a seed. Per step the draws are, in this order,
             `n x 6` normals for w and `n x 6` for v (after `n x 6` for the initial
@@ -206,6 +207,13 @@ def rollout(
         keep_paths: also return the (N, T+1, 6) true and estimated paths.
         detection: when the true pose gives an observation (see `Detection`); None: always.
             With `falloff > 0`, n uniforms per step are drawn after the normals.
+        changes: camera moves (Types 3 and 4; `Setup.camera_changes()`): entry t (4x4 or None)
+            maps camera-t to camera-(t+1) coordinates and applies before the step t -> t+1;
+            `poses` are then each in their own step's camera frame (`Setup.in_step_frames`).
+            At a move, true pose and estimate are re-expressed in the new frame, the EKF adds
+            the camera's own motion noise `|t|^2 camera_W_p0 + angle^2 camera_W_o0` to Sigma
+            (rotated with it), and the true pose is perturbed by a draw of that noise (n x 6
+            normals, drawn before the step's own).
     """
     if mode not in MODES:
         raise ValueError(f"unknown rollout mode '{mode}'; allowed: {', '.join(MODES)}")
@@ -232,6 +240,18 @@ def rollout(
 
     detected = np.ones((n, len(poses) - 1), dtype=bool)
     for t in range(len(poses) - 1):
+        if changes is not None and changes[t] is not None:
+            Dc = np.asarray(changes[t], float)
+            R_D, t_D = Rotation.from_matrix(Dc[:3, :3]), Dc[:3, 3]
+            Wc = (t_D @ t_D) * np.asarray(model.noise.camera_W_p0, float) + \
+                R_D.magnitude() ** 2 * np.asarray(model.noise.camera_W_o0, float)
+            wc = sample_gaussian(np.broadcast_to(Wc, (n, NX, NX)), rng.standard_normal((n, NX)))
+            true_p = R_D.apply(true_p) + t_D + wc[:, :3]
+            true_R = Rotation.from_rotvec(wc[:, 3:]) * R_D * true_R
+            mu_p, mu_R = R_D.apply(mu_p) + t_D, R_D * mu_R
+            F = np.zeros((NX, NX))
+            F[:3, :3] = F[3:, 3:] = Dc[:3, :3]  # left-perturbation errors rotate with the frame
+            sigma = F @ sigma @ F.T + Wc
         target = np.tile(poses[t + 1], (n, 1))
         z_w, z_v = rng.standard_normal((n, NX)), rng.standard_normal((n, NX))
         u_det = rng.random(n) if detection is not None and detection.falloff > 0 else None

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -144,3 +145,46 @@ def test_detection_changes_nothing_where_the_tool_is_always_seen(default_setup, 
     assert a.detected.all()
     np.testing.assert_array_equal(a.final_true, b.final_true)
     np.testing.assert_array_equal(a.sigma_final, b.sigma_final)
+
+
+@pytest.fixture(scope="module")
+def moving():
+    """Type 4 (the camera moves four times) at T = 20 and its straight-line plan in each step's camera frame."""
+    from surestep_ocp.problem import load_problem
+    from surestep_ocp.setup import build_setup
+
+    setup = build_setup(load_problem(Path(__file__).resolve().parents[1] / "problems" / "type4_camera_moves.yaml"))
+    plan = setup.in_step_frames(straight_line(setup.x_start, setup.x_goal, setup.problem.horizon))
+    return setup, plan
+
+
+def test_camera_moves_without_noise_follow_the_plan(moving):
+    """Zero noise (camera noise too): true and estimated poses are the plan's, frame by frame, through the moves."""
+    setup, plan = moving
+    z = np.zeros((6, 6))
+    noise = dataclasses.replace(setup.problem.noise, W_p0=z, W_o0=z, V_d0=z, V_f0=z, V_o0=z, camera_W_p0=z,
+                                camera_W_o0=z)
+    model = BeliefModel(noise, setup.problem.camera.intrinsics)
+    changes = setup.camera_changes()
+    assert sum(c is not None for c in changes) == 4
+    ro = rollout(model, plan, n=3, rng=0, mode="true", keep_paths=True, changes=changes)
+    for path in (ro.true_path, ro.estimate_path):
+        assert np.abs(path[:, :, :3] - plan[:, :3]).max() < 1e-12
+    assert ro.pos_err.max() < 1e-12
+
+
+def test_camera_moves_match_the_ml_covariance(moving):
+    """Model mode through the moves: the rollouts' EKF covariance stays near the plan's maximum-likelihood
+    Sigma_T (BeliefModel.propagate with the camera changes, an independent CasADi implementation), and the
+    spread of the true errors matches it (filter consistency through the moves)."""
+    setup, plan = moving
+    model, changes = setup.eval_model, setup.camera_changes()
+    ro = rollout(model, plan, n=2000, rng=7, mode="model", changes=changes, sample_initial=True)
+    ml = model.propagate(plan, changes)[0][-1]
+    ekf = ro.sigma_final.mean(axis=0)
+    assert abs(np.trace(ekf) / np.trace(ml) - 1) < 0.2
+    e = ro.final_error
+    assert abs(np.trace(e.T @ e / len(e)) / np.trace(ekf) - 1) < 0.15
+    # no moves given: a different (smaller-noise) result, so the moves are not ignored
+    still = rollout(model, plan, n=2000, rng=7, mode="model", sample_initial=True)
+    assert not np.allclose(still.sigma_final.mean(axis=0), ekf)
