@@ -6,7 +6,7 @@ STAMP  := $(VENV)/.installed-stamp
 PROBLEM ?= problems/needle_regrasp.yaml
 OUT    ?= out
 
-.PHONY: run test install browser compiler clean
+.PHONY: run test install browser compiler clean package-check
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -36,6 +36,24 @@ compiler:
 
 test: $(STAMP) browser compiler
 	$(PY) -m pytest -n 2 -q
+
+# The installable package from scratch: a wheel built from a clean clone of HEAD, installed with its
+# dependencies from the package index into a fresh venv, solves a problem file copied to another folder.
+# (Slow: it downloads and installs every dependency; `make test` runs a lighter version of it.)
+PKG_TMP ?= /tmp/surestep-package-check
+package-check:
+	rm -rf $(PKG_TMP) && mkdir -p $(PKG_TMP)/elsewhere
+	git clone -q . $(PKG_TMP)/clone
+	$(PYTHON) -m venv $(PKG_TMP)/venv
+	$(PKG_TMP)/venv/bin/python -m pip install --quiet --upgrade pip build
+	cd $(PKG_TMP)/clone && $(PKG_TMP)/venv/bin/python -m build --wheel --outdir $(PKG_TMP)/dist >/dev/null
+	$(PKG_TMP)/venv/bin/python -m pip install --quiet $(PKG_TMP)/dist/surestep_ocp-*.whl
+	cp problems/needle_regrasp.yaml $(PKG_TMP)/elsewhere/copied.yaml
+	cd $(PKG_TMP)/elsewhere && $(PKG_TMP)/venv/bin/surestep --version && \
+	  $(PKG_TMP)/venv/bin/surestep validate problems/needle_regrasp.yaml && \
+	  $(PKG_TMP)/venv/bin/surestep solve copied.yaml --method ocp --output ocp.json && \
+	  $(PKG_TMP)/venv/bin/surestep export ocp.json --format ros2 --output ocp.yaml
+	@echo "package-check: ok ($(PKG_TMP))"
 
 clean:
 	rm -rf $(VENV) $(OUT)

@@ -153,7 +153,6 @@ def _grid(ss: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def time_parametrise(q: np.ndarray, step_s: float, limits: MotionLimits,
                      rate_hz: float = DEFAULT_RATE_HZ) -> Trajectory:
     """The time-optimal trajectory through the waypoints `q` ((T+1, n)) within `limits` (module docstring)."""
-    import toppra
     import toppra.algorithm as algo
     import toppra.constraint as constraint
 

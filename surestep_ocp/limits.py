@@ -196,10 +196,12 @@ def summary_row(method: str, report: dict) -> dict:
         "method": method,
         "max velocity / limit": f"{report['velocity_ratio'][jv]:.2f} ({names[jv]})",
         "max accel. / limit": f"{report['acceleration_ratio'][ja]:.1f} ({names[ja]})",
-        "tool speed [mm/s]": f"{1e3 * report['peak_tool_speed_m_s']:.0f} / {1e3 * report['limits']['tool_speed_m_s']:.0f}",
+        "tool speed [mm/s]": f"{1e3 * report['peak_tool_speed_m_s']:.0f} / "
+                             f"{1e3 * report['limits']['tool_speed_m_s']:.0f}",
         "tool rotation [rad/s]": f"{report['peak_tool_rotation_rad_s']:.2f} / "
                                  f"{report['limits']['tool_rotation_rad_s']:.2f}",
-        "min RCM distance [mm]": "-" if rcm is None else f"{1e3 * rcm:.1f} / {1e3 * report['limits']['rcm_min_distance_m']:.0f}",
+        "min RCM distance [mm]": "-" if rcm is None else
+                                 f"{1e3 * rcm:.1f} / {1e3 * report['limits']['rcm_min_distance_m']:.0f}",
         "violations": str(len(report["violations"])),
     }
 
