@@ -184,12 +184,29 @@ MAX_FOCAL = 1e6  # [px]
 MAX_IMAGE = 100_000  # [px] image width and height
 
 
-class _StrictLoader(yaml.SafeLoader):
-    """YAML SafeLoader that rejects a key given twice in one mapping, bounds nesting and alias expansion,
+try:  # libyaml's scanner and parser (6x faster); the composer below stays in Python (it bounds the tree)
+    from yaml._yaml import CParser as _Parser
+except ImportError:  # pragma: no cover - PyYAML without libyaml
+    from yaml.parser import Parser as _Parser
+    from yaml.reader import Reader as _YamlReader
+    from yaml.scanner import Scanner as _Scanner
+
+    class _Parser(_YamlReader, _Scanner, _Parser):  # type: ignore[no-redef]
+        def __init__(self, stream):
+            _YamlReader.__init__(self, stream)
+            _Scanner.__init__(self)
+            _Parser.__init__(self)
+
+
+class _StrictLoader(yaml.composer.Composer, _Parser, yaml.constructor.SafeConstructor, yaml.resolver.Resolver):
+    """A YAML safe loader that rejects a key given twice in one mapping, bounds nesting and alias expansion,
     and reads no YAML 1.1 base-60 numbers (`1:20` is a string, not 80); `1e-3` is a number."""
 
     def __init__(self, stream):
-        super().__init__(stream)
+        _Parser.__init__(self, stream)
+        yaml.composer.Composer.__init__(self)
+        yaml.constructor.SafeConstructor.__init__(self)
+        yaml.resolver.Resolver.__init__(self)
         self._depth = 0
         self._nodes = 0
         self._sizes: dict[int, int] = {}

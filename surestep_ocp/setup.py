@@ -214,6 +214,7 @@ def _endpoint(problem: Problem, setup: Setup, spec: EndpointSpec, seed: np.ndarr
         x = np.asarray(spec.pose, float) if spec.relative is None else _relative_goal(problem, setup, spec)
         x = matrix_to_pose(pose_to_matrix(x))  # normalise the angle into [0, pi]
         _check_depth(problem, spec, x)
+        _check_reach(problem, setup, spec, x)
         try:
             q, _, _ = setup.joints_for(x, seed, what=f"the pose at {spec.key}")
         except UnreachablePose as exc:
@@ -231,6 +232,32 @@ def _relative_goal(problem: Problem, setup: Setup, spec: EndpointSpec) -> np.nda
     setup.other_arms.append(other)
     T_world_obj = other.base_pose @ other.frame_pose(arm.joints)
     return matrix_to_pose(np.linalg.inv(setup.camera_pose) @ T_world_obj @ pose_to_matrix(spec.relative.pose))
+
+
+def reach_bound(robot: Robot) -> float:
+    """An upper bound [m] on the distance from the URDF root to the tracked object: the lengths of the
+    chain's joint placements, prismatic travels and frame offsets added up (inf for unbounded travel)."""
+    f = robot.model.frames[robot.frame_id]
+    total = float(np.linalg.norm(f.placement.translation) + np.linalg.norm(robot.offset[:3, 3]))
+    jid = int(f.parentJoint)
+    while jid > 0:
+        j = robot._joints[jid - 1]
+        total += float(np.linalg.norm(j.placement[:3, 3]))
+        if j.prismatic:
+            total += max(abs(j.lower), abs(j.upper)) * float(np.linalg.norm(j.axis))
+        jid = int(robot.model.parents[jid])
+    return total
+
+
+def _check_reach(problem: Problem, setup: Setup, spec: EndpointSpec, x: np.ndarray) -> None:
+    """A pose farther from the arm's root than the arm can reach is refused at once (the IK would search
+    for seconds to say the same)."""
+    p = (np.linalg.inv(setup.T_cam_base) @ pose_to_matrix(x))[:3, 3]
+    bound = reach_bound(setup.robot)
+    if np.isfinite(bound) and np.linalg.norm(p) > bound + 1e-9:
+        raise ProblemError(str(problem.path), spec.key,
+                           f"not reachable: the position is {np.linalg.norm(p):.4f} m from the arm's URDF "
+                           f"root, beyond its reach of at most {bound:.4f} m")
 
 
 def _check_depth(problem: Problem, spec: EndpointSpec, x: np.ndarray) -> None:
