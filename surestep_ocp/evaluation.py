@@ -188,6 +188,7 @@ def run_evaluation(eval_path: str | Path, out_dir: str | Path, configs: int = 10
     elif not resume and prog.is_file() and prog.stat().st_size > 0:
         raise SurestepError(f"{out} already holds a run (progress.jsonl); pass --resume to continue it "
                             "or choose another --output-dir")
+    client, own_client = _dask_client(scheduler) if scheduler is not None else (None, False)  # fail before writing
     write_json_atomic(out / "run.json", header)
     done = read_progress(prog) if resume else {}
     if not resume:
@@ -211,8 +212,8 @@ def run_evaluation(eval_path: str | Path, out_dir: str | Path, configs: int = 10
         bar.update(1)
 
     try:
-        if scheduler is not None and todo:
-            _run_dask(todo, args, rest, scheduler, finish)
+        if client is not None and todo:
+            _run_dask(todo, args, rest, client, finish)
         elif jobs == 1 or len(todo) <= 1:
             for i in todo:
                 finish(evaluate_configuration(*args, i, *rest))
@@ -225,6 +226,8 @@ def run_evaluation(eval_path: str | Path, out_dir: str | Path, configs: int = 10
         raise
     finally:
         bar.close()
+        if own_client:
+            client.close()
     records = [done[i] for i in range(configs)]
     return write_outputs(records, out, methods, modes, header, spec)
 
@@ -250,21 +253,28 @@ def _run_pool(todo, args, rest, jobs, finish) -> None:
         ex.shutdown(wait=True, cancel_futures=True)
 
 
-def _run_dask(todo, args, rest, scheduler, finish) -> None:
-    """The configurations as Dask futures on an existing cluster; records handed to `finish` as they complete."""
+DASK_CONNECT_TIMEOUT = "10s"
+
+
+def _dask_client(scheduler):
+    """(client, whether we opened it) for a scheduler address, or a `distributed.Client` passed in."""
     try:
-        from distributed import Client, as_completed
+        from distributed import Client
     except ImportError as exc:
         raise SurestepError(f"--scheduler needs dask.distributed (pip install 'surestep_ocp[dask]'): {exc}") from None
-    own = isinstance(scheduler, str)
-    if own:
-        try:
-            client = Client(scheduler, timeout="10s", set_as_default=False)
-        except (OSError, TimeoutError, ValueError) as exc:
-            raise SurestepError(f"--scheduler {scheduler}: cannot connect to a Dask scheduler "
-                                f"({type(exc).__name__}: {exc})") from None
-    else:
-        client = scheduler
+    if not isinstance(scheduler, str):
+        return scheduler, False
+    try:
+        return Client(scheduler, timeout=DASK_CONNECT_TIMEOUT, set_as_default=False), True
+    except (OSError, TimeoutError, ValueError) as exc:
+        raise SurestepError(f"--scheduler {scheduler}: cannot connect to a Dask scheduler "
+                            f"({type(exc).__name__}: {exc})") from None
+
+
+def _run_dask(todo, args, rest, client, finish) -> None:
+    """The configurations as Dask futures on the client's cluster; records handed to `finish` as they complete."""
+    from distributed import as_completed
+
     futures = []
     tag = uuid.uuid4().hex[:8]
     try:
@@ -277,9 +287,6 @@ def _run_dask(todo, args, rest, scheduler, finish) -> None:
     except BaseException:
         client.cancel(futures)
         raise
-    finally:
-        if own:
-            client.close()
 
 
 # ------------------------------------------------------------------ command line

@@ -46,7 +46,9 @@ def test_dask_gives_the_process_pools_numbers_and_resumes(tmp_path, cluster):
     assert (out / "raw.csv").read_text() == (tmp_path / "local" / "raw.csv").read_text()
 
 
-def test_unreachable_scheduler_is_a_user_error(tmp_path):
+def test_unreachable_scheduler_is_a_user_error(tmp_path, monkeypatch):
+    monkeypatch.setattr(evaluation, "DASK_CONNECT_TIMEOUT", "1s")
     with pytest.raises(SurestepError, match="cannot connect"):
         evaluation.run_evaluation(EVAL, tmp_path / "x", configs=1, rollouts=2, methods=("baseline",),
                                   progress=False, scheduler="tcp://127.0.0.1:9")
+    assert not (tmp_path / "x" / "run.json").exists()  # refused before anything was written
