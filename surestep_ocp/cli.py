@@ -20,6 +20,30 @@ def _load(path: str):
     return build_setup(load_problem(path))
 
 
+def _inputs(setup, problem_path: str) -> list:
+    """The files a command reads (an output must not replace any of them)."""
+    prob = setup.problem
+    files = [problem_path, prob.robot.urdf]
+    if prob.camera.ecm is not None:
+        files.append(prob.camera.ecm.urdf)
+    files += [spec.arm.urdf for spec in (prob.start.relative, prob.goal.relative) if spec is not None]
+    return files
+
+
+# Above this horizon a solve is announced on stderr with what it may cost (README, "Limits").
+LONG_HORIZON = 60
+
+
+def _long_work_note(setup) -> None:
+    T = setup.problem.horizon
+    if T > LONG_HORIZON:
+        from .problem import MAX_HORIZON
+
+        print(f"note: horizon T = {T} (at most {MAX_HORIZON}): the first OCP solve at a new horizon compiles its "
+              f"derivatives, up to about {20 + 0.55 * T:.0f} s (measured: 46 s at T = 50, 130 s at T = 200; "
+              "cached afterwards, README 'Limits'); Ctrl-C stops", file=sys.stderr, flush=True)
+
+
 def _summary(sol, base=None) -> str:
     err_m, err_rad = sol.terminal_error
     lines = [
@@ -30,8 +54,8 @@ def _summary(sol, base=None) -> str:
         f"Tr(Sigma_T) {sol.trace_final:.4e}",
     ]
     if base is not None and base is not sol:
-        lines.append(f"baseline    {base.trace_final:.4e}  (ratio baseline / {sol.method} = "
-                     f"{base.trace_final / sol.trace_final:.2f})")
+        ratio = f"{base.trace_final / sol.trace_final:.2f}" if sol.trace_final > 0 else "undefined, Tr = 0"
+        lines.append(f"baseline    {base.trace_final:.4e}  (ratio baseline / {sol.method} = {ratio})")
     lines.append(f"terminal    {err_m:.2e} m, {err_rad:.2e} rad from the goal")
     if sol.extras.get("codegen_note"):
         lines.append(f"note        solver.codegen auto: {sol.extras['codegen_note'].splitlines()[0]}")
@@ -64,15 +88,22 @@ def _with_solver_flags(setup, args):
 def cmd_solve(args) -> int:
     from .methods import run_method
 
+    from .outputs import check_finite, check_output_file
+
     setup = _with_solver_flags(_load(args.problem), args)
+    if args.output:  # before the work: a bad output path must not cost a solve
+        check_output_file(args.output, _inputs(setup, args.problem), "the solution")
     method = args.method
     if method == "ocp" and args.init == "gradient":
         method = "ocp-from-gradient"
+    _long_work_note(setup)
     sol = run_method(setup, method)
     base = run_method(setup, "baseline") if method != "baseline" else sol
+    check_finite(sol.to_dict(), f"the {method} solution")
+    summary = _summary(sol, base)
     if args.output:
         sol.save(args.output)
-    print(_summary(sol, base))
+    print(summary)
     if args.output:
         print(f"wrote       {args.output}")
     if not sol.success:
@@ -84,9 +115,22 @@ def cmd_compare(args) -> int:
     from .compare import run_comparison, write_comparison
     from .methods import COMPARE_METHODS
 
+    from .methods import parse_method
+    from .outputs import check_finite, check_output_dir, check_output_file
+
     setup = _with_solver_flags(_load(args.problem), args)
     methods = tuple(args.methods) if args.methods else COMPARE_METHODS
+    for m in methods:
+        parse_method(m)
+    inputs = _inputs(setup, args.problem)
+    out = check_output_dir(args.output_dir, inputs, "the comparison")
+    for name in [f"{m}.json" for m in methods] + ["comparison.json", "comparison.md", "trace.png", "path.png",
+                                                   "motion.png"]:
+        check_output_file(out / name, inputs, "the comparison")
+    _long_work_note(setup)
     sols = run_comparison(setup, methods, progress=lambda m: print(f"solving: {m}", file=sys.stderr, flush=True))
+    for s in sols:
+        check_finite(s.to_dict(), f"the {s.method} solution")
     table = write_comparison(sols, Path(args.output_dir), args.problem)
     print(table)
     print(f"\nwrote {args.output_dir}/{{<method>.json, comparison.md, comparison.json, trace.png, path.png, "
@@ -101,7 +145,11 @@ def cmd_compare(args) -> int:
 def cmd_replan(args) -> int:
     from .replan import replan
 
+    from .outputs import check_output_dir
+
     setup = _load(args.problem)
+    check_output_dir(args.output_dir, _inputs(setup, args.problem), "the re-planning")
+    _long_work_note(setup)
     res = replan(setup, Path(args.output_dir), progress=lambda k: print(f"re-planning after the camera move at "
                                                                         f"step {k}", file=sys.stderr, flush=True))
     print(res["table"])
@@ -215,8 +263,14 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    """Run a command; user errors are one line and exit 2, solver failures exit 1, Ctrl-C exits 130, a
+    closed output pipe (`| head -1`) ends quietly (141, as killed by SIGPIPE)."""
+    import os
+
+    from .errors import one_line
+
     try:
+        args = build_parser().parse_args(argv)
         return args.func(args)
     except SolverError as exc:
         print(f"surestep: {exc}", file=sys.stderr)
@@ -225,7 +279,37 @@ def main(argv: list[str] | None = None) -> int:
         print(f"surestep: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
+        _say("surestep: interrupted")
         return 130
+    except BrokenPipeError:
+        try:  # nothing more reaches the reader; keep the interpreter's final flush quiet as well
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        except (OSError, ValueError):
+            pass
+        return 141
+    except MemoryError:
+        _say("surestep: out of memory (a smaller horizon, fewer configurations or rollouts need less)")
+        return 2
+    except OSError as exc:  # the file system refused a read or write the checks could not foresee
+        where = f"{exc.filename}: " if getattr(exc, "filename", None) else ""
+        _say(f"surestep: {one_line(where)}{one_line(exc.strerror or exc)}")
+        return 2
+    except Exception as exc:  # noqa: BLE001 - a bug: one line unless asked for the traceback
+        if os.environ.get("SURESTEP_TRACEBACK"):
+            raise
+        import traceback
+
+        last = traceback.extract_tb(exc.__traceback__)[-1]
+        _say(f"surestep: internal error: {type(exc).__name__}: {one_line(exc, 300)} "
+             f"(at {Path(last.filename).name}:{last.lineno}; SURESTEP_TRACEBACK=1 shows the traceback)")
+        return 1
+
+
+def _say(text: str) -> None:
+    try:
+        print(text, file=sys.stderr, flush=True)
+    except (OSError, ValueError):
+        pass
 
 
 if __name__ == "__main__":

@@ -25,7 +25,7 @@ def one_line(text: Any, limit: int = MESSAGE_LIMIT) -> str:
 
 def shown(value: Any, limit: int = ECHO_LIMIT) -> str:
     """A user-given value as echoed in a message: one line, at most `limit` characters."""
-    text = value if isinstance(value, str) else repr(value)
+    text = value if isinstance(value, str) else str(value) if isinstance(value, BaseException) else repr(value)
     text = text.encode("unicode_escape").decode("ascii") if _CONTROL.search(text) else text
     return text if len(text) <= limit else text[: limit - 3] + "..."
 

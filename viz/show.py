@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import argparse
+import json
+import math
 import signal
 import tempfile
 import threading
@@ -10,6 +12,8 @@ import time
 import webbrowser
 from pathlib import Path
 from typing import Sequence, Union
+
+from surestep_ocp.errors import SurestepError, shown
 
 from .scene import build_scene, write_static_html
 from .solutions import Solution, load_solutions
@@ -22,8 +26,129 @@ def as_solutions(target: Target) -> list[Solution]:
     if isinstance(target, dict):
         return [target]
     if isinstance(target, (str, Path)):
-        return load_solutions(Path(target))
+        path = Path(target)
+        name = shown(str(path), 200)
+        try:
+            sols = load_solutions(path)
+        except FileNotFoundError as exc:
+            raise SurestepError(f"{name}: {shown(exc.strerror or str(exc), 200)}") from None
+        except UnicodeDecodeError as exc:
+            raise SurestepError(f"{name}: not a solution file (not UTF-8 text: invalid byte at offset "
+                                f"{exc.start})") from None
+        except json.JSONDecodeError as exc:
+            what = "empty" if not exc.doc.strip() else f"not valid JSON at line {exc.lineno}, column {exc.colno}: {exc.msg}"
+            raise SurestepError(f"{name}: not a solution file ({what})") from None
+        except (ValueError, RecursionError) as exc:
+            raise SurestepError(f"{name}: not a solution file ({shown(str(exc), 200)})") from None
+        except OSError as exc:
+            raise SurestepError(f"{name}: cannot read it ({exc.strerror or exc})") from None
+        if not sols:
+            raise SurestepError(f"{name}: holds no solution (a JSON object with 'poses')")
+        for sol in sols:
+            check_solution(sol)
+        return sols
     return list(target)
+
+
+def _numbers(value, shape: tuple[int, ...]) -> bool:
+    """Whether `value` is a nested list of finite numbers of exactly this shape."""
+    if not shape:
+        return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+    return (isinstance(value, list) and len(value) == shape[0]
+            and all(_numbers(v, shape[1:]) for v in value))
+
+
+def check_solution(sol: Solution) -> None:
+    """Raise a one-line SurestepError unless `sol` has what the scene reads, of the right shapes."""
+    src = shown(str(sol.get("_source", "a solution")), 200)
+
+    def bad(key: str, what: str):
+        return SurestepError(f"{src}: not a usable solution file: '{key}' {what}")
+
+    poses = sol.get("poses")
+    if not isinstance(poses, list) or not poses:
+        raise bad("poses", "must be a non-empty list of [px, py, pz, rx, ry, rz] (or null)")
+    for t, p in enumerate(poses):
+        if p is not None and not _numbers(p, (6,)):
+            raise bad(f"poses[{t}]", "must be 6 finite numbers or null")
+    for key, shape in (("camera_pose", (4, 4)), ("goal", (6,))):
+        if key not in sol:
+            raise bad(key, "is missing")
+        if not _numbers(sol[key], shape):
+            raise bad(key, f"must be {'x'.join(map(str, shape))} finite numbers")
+    cam = sol.get("camera")
+    if not isinstance(cam, dict) or not all(_numbers(cam.get(k), ()) for k in ("fx", "fy", "cx", "cy", "width",
+                                                                                  "height")):
+        raise bad("camera", "must hold the finite numbers fx, fy, cx, cy, width, height")
+    if cam["fx"] <= 0 or cam["fy"] <= 0 or cam["width"] < 1 or cam["height"] < 1:
+        raise bad("camera", "needs fx, fy > 0 and width, height >= 1")
+    if not isinstance(sol.get("method", ""), str):
+        raise bad("method", "must be a string")
+    for key, shape in (("sigma", (6, 6)), ("camera_poses", (4, 4))):
+        seq = sol.get(key)
+        if seq is None:
+            continue
+        if not isinstance(seq, list) or any(v is not None and not _numbers(v, shape) for v in seq):
+            raise bad(key, f"must be a list of {'x'.join(map(str, shape))} finite numbers (or null)")
+    if sol.get("camera_poses") is not None and len(sol["camera_poses"]) not in (0, len(poses)):
+        raise bad("camera_poses", f"must hold one pose per waypoint ({len(poses)})")
+    q = sol.get("q")
+    if q is not None and (not isinstance(q, list) or any(v is not None and not (
+            isinstance(v, list) and all(_numbers(x, ()) for x in v)) for v in q)):
+        raise bad("q", "must be a list of joint vectors (or null)")
+    names = sol.get("joint_names")
+    if names is not None and (not isinstance(names, list) or not all(isinstance(n, str) for n in names)):
+        raise bad("joint_names", "must be a list of strings")
+    for key in ("robot", "ecm"):
+        arm = sol.get(key)
+        if arm is None:
+            continue
+        if not isinstance(arm, dict) or not isinstance(arm.get("urdf", ""), str) or not isinstance(
+                arm.get("frame", ""), str):
+            raise bad(key, "must be a mapping with the strings urdf and frame")
+        if "base_pose" in arm and not _numbers(arm["base_pose"], (4, 4)):
+            raise bad(f"{key}.base_pose", "must be 4x4 finite numbers")
+    arms = sol.get("other_arms")
+    if arms is not None and (not isinstance(arms, list) or not all(isinstance(a, dict) for a in arms)):
+        raise bad("other_arms", "must be a list of mappings")
+
+
+def _checked_outputs(sols: Sequence[Solution], *outputs) -> None:
+    """Output files checked before any work (never one of the solution files read)."""
+    from surestep_ocp.outputs import check_output_file
+
+    inputs = [s.get("_source") for s in sols if isinstance(s, dict)]
+    for out in outputs:
+        if out is not None:
+            check_output_file(out, inputs, "the page" if str(out).endswith((".html", ".htm")) else "the output")
+
+
+def _scene_errors(sols: Sequence[Solution]):
+    """A solution file that passes `check_solution` but still breaks the scene: one line, not a traceback."""
+    import contextlib
+
+    import sys
+    import warnings
+
+    from surestep_ocp.outputs import quiet_fd
+
+    @contextlib.contextmanager
+    def guard():
+        try:
+            # C libraries (urdfdom) print parse errors on stderr: silenced; Python warnings (a robot that
+            # cannot be drawn) are collected and said on one line each afterwards
+            with warnings.catch_warnings(record=True) as caught, quiet_fd(2):
+                warnings.simplefilter("always")
+                yield
+        except (KeyError, TypeError, ValueError, IndexError, AttributeError, ZeroDivisionError) as exc:
+            srcs = ", ".join(shown(str(s.get("_source", "?")), 100) for s in sols[:3] if isinstance(s, dict))
+            raise SurestepError(f"{srcs or 'the solutions'}: not a usable solution file "
+                                f"({type(exc).__name__}: {shown(str(exc), 200)})") from None
+        finally:
+            for w in caught if "caught" in locals() else []:
+                print(f"warning: {shown(str(w.message), 300)}", file=sys.stderr)
+
+    return guard()
 
 
 def serve(
@@ -84,18 +209,22 @@ def show(
         screenshot_size: (width, height) of the PNG [px].
     """
     sols = list(solutions) if solutions is not None else as_solutions(target)
+    _checked_outputs(sols, html, screenshot)
     if screenshot is not None:
-        return _screenshot(sols, Path(screenshot), html, screenshot_size, open_browser,
-                           repo_root=repo_root, animate=animate, endoscope=endoscope_view)
+        with _scene_errors(sols):
+            return _screenshot(sols, Path(screenshot), html, screenshot_size, open_browser,
+                               repo_root=repo_root, animate=animate, endoscope=endoscope_view)
     if html is not None:
         out = Path(html)
-        info = write_static_html(sols, out, repo_root=repo_root, animate=animate,
-                                 endoscope=endoscope_view)
+        with _scene_errors(sols):
+            info = write_static_html(sols, out, repo_root=repo_root, animate=animate,
+                                     endoscope=endoscope_view)
         print(f"wrote {out} ({', '.join(info.paths)})")
         if open_browser:
             webbrowser.open(out.resolve().as_uri(), new=2)
         return 0
-    vis, info = serve(sols, open_browser, endoscope_view, repo_root, animate)
+    with _scene_errors(sols):
+        vis, info = serve(sols, open_browser, endoscope_view, repo_root, animate)
     print(f"Meshcat scene ({', '.join(info.paths)}) at {vis.url()}")
     if block:
         print("Serving; press Ctrl-C to stop.")
