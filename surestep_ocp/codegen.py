@@ -4,7 +4,8 @@ The cache directory is `$SURESTEP_CACHE`, else `~/.cache/surestep_ocp`. A librar
 carries a hash of its C source, the compiler flags and the CasADi version, so a change in
 the problem's structure (robot, horizon, noise constants) compiles anew and an unchanged
 one is loaded in milliseconds. Libraries are written to a temporary name and renamed, so
-concurrent processes never load a half-written file.
+concurrent processes never load a half-written file, and each is loaded only after its SHA-256
+matches the checksum stored beside it (`<lib>.so.sha256`); a corrupt or truncated one is rebuilt.
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ import hashlib
 import os
 import shutil
 import subprocess
+import sys
 import tempfile
 from pathlib import Path
 
@@ -50,8 +52,40 @@ def compiled_or_interpreted(fns: dict[str, ca.Function], required: bool) -> tupl
         return fns, f"interpreted: {exc}"
 
 
+def _digest(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def _checksum_file(lib: Path) -> Path:
+    return lib.with_name(lib.name + ".sha256")
+
+
+def verified(lib: Path) -> str | None:
+    """None if the cached library `lib` matches the SHA-256 stored beside it, else why not."""
+    try:
+        stored = _checksum_file(lib).read_text().strip()
+    except FileNotFoundError:
+        return "it has no checksum beside it"
+    except (OSError, UnicodeDecodeError) as exc:
+        return f"its checksum cannot be read ({exc})"
+    try:
+        actual = _digest(lib)
+    except OSError as exc:
+        return f"it cannot be read ({exc.strerror or exc})"
+    return None if actual == stored else "its content does not match its checksum (corrupt or truncated)"
+
+
+def _note(text: str) -> None:
+    print(f"note: solver.codegen: {text}", file=sys.stderr, flush=True)
+
+
 def compiled(fn: ca.Function) -> tuple[ca.Function, bool]:
-    """`fn` compiled to C (same name, inputs and outputs); and whether it was compiled now (not cached)."""
+    """`fn` compiled to C (same name, inputs and outputs); and whether it was compiled now (not cached).
+
+    A cached library is loaded only when its SHA-256 matches the checksum file written beside it when
+    it was built (`<lib>.so.sha256`); otherwise it is rebuilt, with a note on stderr (a truncated shared
+    library loaded as such kills the process with SIGBUS).
+    """
     cc = compiler()
     name = fn.name()
     with tempfile.TemporaryDirectory() as tmp:
@@ -62,17 +96,40 @@ def compiled(fn: ca.Function) -> tuple[ca.Function, bool]:
         key = hashlib.sha256(source.read_bytes() + " ".join(FLAGS).encode() + ca.__version__.encode()).hexdigest()
         lib = cache_dir() / f"{name}_{key[:20]}.so"
         fresh = not lib.exists()
+        if not fresh:
+            problem = verified(lib)
+            if problem is not None:  # (no checksum: built by an older version; rebuilt without a note)
+                if not problem.startswith("it has no checksum"):
+                    _note(f"the cached {lib.name} was not loaded: {problem}; rebuilding it")
+                fresh = True
         if fresh:
-            part = lib.with_name(f"{lib.name}.{os.getpid()}.part")
-            try:
-                lib.parent.mkdir(parents=True, exist_ok=True)
-                run = subprocess.run([cc, *FLAGS, str(source), "-o", str(part)], capture_output=True, text=True,
-                                     check=False)
-                if run.returncode != 0:
-                    part.unlink(missing_ok=True)
-                    raise SurestepError(f"solver.codegen: {cc} failed on the generated code:\n{run.stderr[-2000:]}")
-                os.replace(part, lib)
-            except OSError as exc:
-                raise SurestepError(f"solver.codegen: cannot write the compiled code to {lib.parent} ({exc}); "
-                                    "set SURESTEP_CACHE to a writable directory, or codegen: false") from None
-    return ca.external(name, str(lib)), fresh
+            _build(cc, source, lib)
+    try:
+        return ca.external(name, str(lib)), fresh
+    except RuntimeError as exc:
+        raise SurestepError(f"solver.codegen: cannot load the compiled {lib} ({str(exc).strip().splitlines()[-1]})"
+                            ) from None
+
+
+def _build(cc: str, source: Path, lib: Path) -> None:
+    """Compile `source` into `lib` with its checksum beside it (both written to temporary names, then renamed;
+    compiled in the source's folder by relative name, so the library's bytes do not depend on the temp path)."""
+    part = lib.with_name(f"{lib.name}.{os.getpid()}.part")
+    check = _checksum_file(lib)
+    check_part = check.with_name(f"{check.name}.{os.getpid()}.part")
+    try:
+        lib.parent.mkdir(parents=True, exist_ok=True)
+        run = subprocess.run([cc, *FLAGS, source.name, "-o", str(part.resolve())], capture_output=True, text=True,
+                             check=False, cwd=source.parent)
+        if run.returncode != 0:
+            part.unlink(missing_ok=True)
+            raise SurestepError(f"solver.codegen: {cc} failed on the generated code: "
+                                f"{' '.join(run.stderr.split())[-300:]}")
+        check_part.write_text(_digest(part) + "\n")
+        os.replace(check_part, check)
+        os.replace(part, lib)
+    except OSError as exc:
+        part.unlink(missing_ok=True)
+        check_part.unlink(missing_ok=True)
+        raise SurestepError(f"solver.codegen: cannot write the compiled code to {lib.parent} ({exc.strerror or exc}); "
+                            "set SURESTEP_CACHE to a writable directory, or codegen: false") from None
