@@ -148,7 +148,7 @@ def markdown(records, methods, modes, header, spec) -> str:
              "(`no plan`) is left out of that configuration's averages (`n` = configurations averaged).", ""]
     cols = []
     for k in METRICS:
-        cols.append(LABELS[k] + (" mean" if k in ROBUST else ""))
+        cols.append("Tr ML mean" if k == "trace_ml" else LABELS[k])
         if k in ROBUST:
             cols += [LABELS[k].split()[0] + " med" if k != "trace_ml" else "Tr ML med",
                      LABELS[k].split()[0] + " p90" if k != "trace_ml" else "Tr ML p90"]
