@@ -138,7 +138,7 @@ def load_evaluation(path: str | Path) -> EvaluationSpec:
         goal_joints=_box(rd, top["goal_joints"], "goal_joints", robot),
         depth=(float(depth[0]), float(depth[1])), image_margin=margin,
         min_distance=rd.number(acc.get("min_distance", 0.0), "accept.min_distance", nonneg=True),
-        max_tries=rd.integer(top.get("max_tries", 10000), "max_tries", minimum=1),
+        max_tries=rd.integer(top.get("max_tries", 10000), "max_tries", minimum=1, maximum=100_000),
         description=rd.string(top.get("description", ""), "description"),
         detection=detection,
         grasp_position=rd.number(grasp.get("position", GRASP_POSITION_M), "grasp.position", positive=True),

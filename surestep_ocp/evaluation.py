@@ -37,6 +37,10 @@ from .evaluation_report import write_outputs
 from .rollout import MODES
 from .solution import _jsonable, write_json_atomic, write_text_atomic
 
+MAX_CONFIGS = 100_000
+MAX_ROLLOUTS = 100_000
+MAX_JOBS = 256
+
 DEFAULT_METHODS = ("baseline", "gradient", "gradient-no-pose-loss", "gradient-no-depth", "gradient-no-fov",
                    "gradient-no-orientation", "ocp", "ocp-no-depth", "ocp-no-fov", "ocp-no-orientation")
 
@@ -119,20 +123,47 @@ def _fingerprint(spec) -> str:
     return h.hexdigest()[:16]
 
 
+def _record_problem(rec) -> str | None:
+    """None if `rec` has the structure `evaluate_configuration` writes, else what is wrong."""
+    if not isinstance(rec, dict):
+        return f"a JSON {type(rec).__name__}, not an object"
+    if isinstance(rec.get("config"), bool) or not isinstance(rec.get("config"), int) or rec["config"] < 0:
+        return "no 'config' index (an integer >= 0)"
+    solves = rec.get("solves")
+    if not isinstance(solves, dict) or not all(isinstance(v, dict) and isinstance(v.get("success"), bool)
+                                               for v in solves.values()):
+        return "'solves' is not a mapping of method -> {success, ...}"
+    for key in ("metrics", "pos_errors"):
+        if not isinstance(rec.get(key), dict) or not all(isinstance(v, dict) for v in rec[key].values()):
+            return f"'{key}' is not a mapping of mode -> method -> values"
+    return None
+
+
 def read_progress(path: Path) -> dict[int, dict]:
-    """Finished configurations of `progress.jsonl`; a torn last line (interrupted write) is dropped."""
+    """Finished configurations of `progress.jsonl`; a torn last line (interrupted write) is dropped.
+
+    Raises:
+        SurestepError: a line that is JSON but not a record of an evaluation (named by its number).
+    """
     done: dict[int, dict] = {}
     if not path.is_file():
         return done
-    lines = path.read_text().splitlines()
+    try:
+        lines = path.read_text(encoding="utf-8").splitlines()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise SurestepError(f"{path}: cannot read the progress record ({exc}); use another --output-dir") from None
     good = []
-    for line in lines:
+    for n, line in enumerate(lines, 1):
         try:
             rec = json.loads(line)
-            done[int(rec["config"])] = rec
-            good.append(line)
-        except (ValueError, KeyError, TypeError):
-            continue
+        except (ValueError, RecursionError):
+            continue  # a torn (interrupted) write
+        problem = _record_problem(rec)
+        if problem is not None:
+            raise SurestepError(f"{path}: line {n} is not a record of this evaluation ({problem}); remove the "
+                                "line, or run without --resume into another --output-dir")
+        done[rec["config"]] = rec
+        good.append(line)
     if len(good) != len(lines):  # rewrite without the torn line so appends start on a fresh line
         write_text_atomic(path, "".join(g + "\n" for g in good))
     return done
@@ -169,18 +200,34 @@ def run_evaluation(eval_path: str | Path, out_dir: str | Path, configs: int = 10
 
     if configs < 1 or rollouts < 2 or jobs < 1:
         raise SurestepError(f"need --configs >= 1, --rollouts >= 2, --jobs >= 1 (got {configs}, {rollouts}, {jobs})")
+    for flag, value, most in (("--configs", configs, MAX_CONFIGS), ("--rollouts", rollouts, MAX_ROLLOUTS),
+                              ("--jobs", jobs, MAX_JOBS)):
+        if value > most:
+            raise SurestepError(f"{flag} {value}: at most {most}")
+    if not 0 <= seed < 2**63:
+        raise SurestepError(f"--seed {seed}: expected an integer in [0, 2^63)")
     for m in methods:
         parse_method(m)
     methods = tuple(dict.fromkeys(("baseline", *methods)))  # the baseline is the reference of the table
     eval_path = str(eval_path)
     spec = load_evaluation(eval_path)
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    from .outputs import check_output_dir, check_output_file
+
+    inputs = (spec.path, spec.base_path)
+    out = check_output_dir(out_dir, inputs, "the evaluation")
+    for name in ("run.json", "progress.jsonl", "table.md", "raw.csv", "solves.csv", "boxplot.png"):
+        check_output_file(out / name, inputs, "the evaluation")
     prog = out / "progress.jsonl"
     header = {"evaluation": str(Path(eval_path).resolve()), "fingerprint": _fingerprint(spec), "seed": seed,
               "rollouts": rollouts, "methods": list(methods), "modes": list(modes), "horizon": spec.horizon}
     if resume and (out / "run.json").is_file():
-        old = json.loads((out / "run.json").read_text())
+        try:
+            old = json.loads((out / "run.json").read_text(encoding="utf-8"))
+        except (OSError, ValueError, RecursionError) as exc:
+            raise SurestepError(f"{out / 'run.json'}: not a run record ({exc}); use another --output-dir") from None
+        if not isinstance(old, dict):
+            raise SurestepError(f"{out / 'run.json'}: not a run record (a JSON {type(old).__name__}, not an object); "
+                                "use another --output-dir")
         diff = [k for k in header if k != "evaluation" and old.get(k) != header[k]]
         if diff:
             raise SurestepError(f"{out}: --resume of a run with other settings ({', '.join(diff)}: "

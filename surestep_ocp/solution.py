@@ -66,7 +66,12 @@ class Solution:
         return d
 
     def save(self, path: str | Path) -> Path:
-        return write_json_atomic(path, self.to_dict())
+        """Write the solution (atomically); NaN or Infinity anywhere in it is an error naming the key."""
+        from .outputs import check_finite
+
+        d = self.to_dict()
+        check_finite(d, f"the {self.method} solution")
+        return write_json_atomic(path, d)
 
     @classmethod
     def load(cls, path: str | Path) -> Solution:
@@ -81,16 +86,29 @@ def write_json_atomic(path: str | Path, obj: Any) -> Path:
 
 
 def write_text_atomic(path: str | Path, text: str | bytes) -> Path:
+    """Write `text` whole or not at all: a temporary file beside `path`, renamed over it. Never replaces a
+    directory, a device or another non-regular file; a file-system refusal is a one-line SurestepError."""
+    from .errors import SurestepError, shown
+    from .outputs import check_replaceable
+
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    check_replaceable(path)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    except OSError as exc:
+        raise SurestepError(f"{shown(str(path), 200)}: cannot write it ({exc.strerror or exc})") from None
     umask = os.umask(0)
     os.umask(umask)
     os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600; give the file the usual permissions
     try:
         with os.fdopen(fd, "wb" if isinstance(text, bytes) else "w") as fh:
             fh.write(text)
+        check_replaceable(path)  # again: it may have changed while the text was written
         os.replace(tmp, path)
+    except OSError as exc:
+        Path(tmp).unlink(missing_ok=True)
+        raise SurestepError(f"{shown(str(path), 200)}: cannot write it ({exc.strerror or exc})") from None
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
