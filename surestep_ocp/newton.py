@@ -40,6 +40,9 @@ from .solution import Solution, evaluate
 from .surrogate import interval_terms, pose_function, recursion_weights
 
 
+EXACT_BELOW = 1e-3  # projected gradient (objective 1 at the start) below which Newton tries the exact Hessian
+
+
 class _Buffered:
     """A Function evaluated in place on NumPy arrays (CasADi's buffer interface)."""
 
@@ -82,13 +85,32 @@ class NewtonSolver:
         S_x, w_m, w_o = weights(*coef.map(T)(Q[:, :T], Q[:, 1:], Tc), s0, r)
         G, HB = interval.map(T)(Q[:, :T], Q[:, 1:], w_m, w_o, Tc)
         smooth = smoothness * ca.sumsqr(Q[:, 1:] - Q[:, :T])
+        # S's own curvature in the coefficients (dense, 5T x 5T, negative semidefinite) and the coefficients'
+        # Jacobians per interval: the exact Hessian is the surrogate's plus C^T (d2S/dc2) C (the end-game)
+        # (one Hessian-vector product of S, forward over the recursion's reverse sweep, mapped over the unit
+        # directions: the generated code holds one sweep; a symbolic dense Hessian did not compile in minutes)
+        cm, co = ca.MX.sym("cm", *w_m.shape), ca.MX.sym("co", *w_o.shape)
+        nc = w_m.numel() + w_o.numel()
+        _, dm, do = weights(cm, co, s0, r)
+        direction = ca.MX.sym("dc", nc)
+        hvp = ca.Function("hvp", [cm, co, P, direction],
+                          [ca.jtimes(ca.vertcat(ca.vec(dm), ca.vec(do)), ca.vertcat(ca.vec(cm), ca.vec(co)), direction)])
+        CM, CO = ca.MX.sym("CM", *w_m.shape), ca.MX.sym("CO", *w_o.shape)
+        curv = ca.Function("curv", [CM, CO, P], [hvp.map(nc)(CM, CO, P, ca.DM.eye(nc))])
+        coef_jac = ca.Function("coef_jac", [qa, qb, Tcb], [ca.densify(ca.jacobian(ca.vertcat(*coefficients),
+                                                                                    ca.vertcat(qa, qb)))])
         fns = {"newton_step": ca.Function("newton_step", [Q, P], [S_x, S_x + smooth, G, HB]),
-               "newton_f": ca.Function("newton_f", [Q, P], [S_x + smooth])}
+               "newton_f": ca.Function("newton_f", [Q, P], [S_x + smooth]),
+               "newton_curv": ca.Function("newton_curv", [Q, P], [
+                   ca.densify(curv(*coef.map(T)(Q[:, :T], Q[:, 1:], Tc), P)),
+                   coef_jac.map(T)(Q[:, :T], Q[:, 1:], Tc)])}
+        self.nm, self.no = w_m.shape[0], w_o.shape[0]
         self.codegen, self.codegen_note = codegen, None
         if codegen:
             fns, self.codegen_note = compiled_or_interpreted(fns, codegen_required)
             self.codegen = self.codegen_note is None
         self.step, self.f = _Buffered(fns["newton_step"]), _Buffered(fns["newton_f"])
+        self.curv = _Buffered(fns["newton_curv"])
         self.poses = pose.map(T + 1)
         # scatter maps: interval t covers the joint vectors of nodes t, t+1 (positions t*nq .. (t+2)*nq)
         n = self.n = nq * (T + 1)
@@ -101,6 +123,14 @@ class NewtonSolver:
         self.band = 2 * nq
         self.h_lower = hr >= hc
         self.h_index = ((hr - hc) * n + hc)[self.h_lower]
+        self.h_full = hr * n + hc  # the same entries in a dense n x n matrix (both triangles)
+        # the coefficient Jacobians (nc x 2nq per interval, column-major) into C (nc T x n): coefficient k of
+        # interval t is row k + nm t (motion) or nm T + (k - nm) + no t (observation), as d2S/dc2 orders them
+        nm, no = self.nm, self.no
+        c_row = [[k + nm * t if k < nm else nm * T + (k - nm) + no * t for k in range(nm + no)] for t in range(T)]
+        self.nc = (nm + no) * T
+        self.c_index = np.array([c_row[t][k] * n + rows[t][j] for t in range(T) for j in range(2 * nq)
+                                 for k in range(nm + no)])
         self.build_time_s = time.perf_counter() - t0
 
     def solve(self, setup: Setup, init, method: str = "ocp", tol: float = 1e-6, max_iter: int = 300) -> Solution:
@@ -117,6 +147,7 @@ class NewtonSolver:
                         and np.allclose(x[:nq], setup.q_start, atol=1e-12))
         P[12] = trace_ref = float(self.step(x, P)[0][0])  # the objective is 1 (plus smoothness) at the start
         status, it, shift = "Maximum_Iterations_Exceeded" if start_ok else "Infeasible_Start", 0, 0.0
+        exact_steps = 0
         while start_ok and it <= max_iter:
             _, f_val, G, HB = self.step(x, P)
             f_val = float(f_val[0])
@@ -128,27 +159,14 @@ class NewtonSolver:
                 break
             if it == max_iter:
                 break
-            ab = np.bincount(self.h_index, weights=HB[self.h_lower], minlength=self.band * n).reshape(self.band, n)
-            fixed = np.ones(n, bool)
-            fixed[idx] = False
-            for k in range(1, self.band):  # rows and columns of the held variables out, identity in
-                ab[k, : n - k][fixed[: n - k] | fixed[k:]] = 0.0
-            ab[0, fixed] = 1.0
-            rhs = np.where(fixed, 0.0, -g)
-            shift = shift / 4 if shift > 1e-14 else 0.0
-            scale = max(float(np.max(np.abs(ab[0, ~fixed]))), 1e-12)
-            d = None
-            while shift <= 1e12 * scale:  # a diagonal shift until positive definite (IPOPT's inertia correction)
-                try:
-                    shifted = ab.copy()
-                    shifted[0, ~fixed] += shift
-                    d = scipy.linalg.solveh_banded(shifted, rhs, lower=True, check_finite=False)
+            d = self._exact_step(x, P, HB, g, idx) if np.max(np.abs(g[idx]), initial=0.0) <= EXACT_BELOW else None
+            exact_steps += d is not None
+            if d is None:
+                d = self._surrogate_step(HB, g, idx, shift)
+                if d is None:
+                    status = "Singular_Hessian"
                     break
-                except (np.linalg.LinAlgError, ValueError):  # not positive definite (or not finite)
-                    shift = max(1e-8 * scale, 10 * shift)
-            if d is None or not np.all(np.isfinite(d)):
-                status = "Singular_Hessian"
-                break
+                d, shift = d
             alpha = 1.0
             while alpha > 1e-12:  # Armijo along the projected path
                 trial = np.clip(x + alpha * d, lo, hi)
@@ -159,6 +177,53 @@ class NewtonSolver:
                 status = "Line_Search_Failed"
                 break
             x, it = trial, it + 1
+        return self._solution(setup, method, init, x, P, trace_ref, status, it, exact_steps, t0)
+
+    def _exact_step(self, x, P, HB, g, idx) -> np.ndarray | None:
+        """Newton's step with the exact Hessian (the surrogate's plus S's own curvature C^T d2S/dc2 C) on the free
+        variables, or None where it is not positive definite there."""
+        n = self.n
+        Hs, CJ = self.curv(x, P)
+        C = np.zeros(self.nc * n)
+        C[self.c_index] = CJ
+        C = C.reshape(self.nc, n)
+        H = np.bincount(self.h_full, weights=HB, minlength=n * n).reshape(n, n)
+        H += C.T @ Hs.reshape(self.nc, self.nc, order="F") @ C
+        try:
+            factor = scipy.linalg.cho_factor(H[np.ix_(idx, idx)], check_finite=False)
+        except (np.linalg.LinAlgError, ValueError):
+            return None
+        d = np.zeros(n)
+        d[idx] = scipy.linalg.cho_solve(factor, -g[idx], check_finite=False)
+        return d if np.all(np.isfinite(d)) else None
+
+    def _surrogate_step(self, HB, g, idx, shift):
+        """The step with the surrogate Hessian (banded), shifted until positive definite; (d, shift) or None."""
+        n = self.n
+        ab = np.bincount(self.h_index, weights=HB[self.h_lower], minlength=self.band * n).reshape(self.band, n)
+        fixed = np.ones(n, bool)
+        fixed[idx] = False
+        for k in range(1, self.band):  # rows and columns of the held variables out, identity in
+            ab[k, : n - k][fixed[: n - k] | fixed[k:]] = 0.0
+        ab[0, fixed] = 1.0
+        rhs = np.where(fixed, 0.0, -g)
+        shift = shift / 4 if shift > 1e-14 else 0.0
+        scale = max(float(np.max(np.abs(ab[0, ~fixed]))), 1e-12)
+        d = None
+        while shift <= 1e12 * scale:  # a diagonal shift until positive definite (IPOPT's inertia correction)
+            try:
+                shifted = ab.copy()
+                shifted[0, ~fixed] += shift
+                d = scipy.linalg.solveh_banded(shifted, rhs, lower=True, check_finite=False)
+                break
+            except (np.linalg.LinAlgError, ValueError):  # not positive definite (or not finite)
+                shift = max(1e-8 * scale, 10 * shift)
+        if d is None or not np.all(np.isfinite(d)):
+            return None
+        return d, shift
+
+    def _solution(self, setup, method, init, x, P, trace_ref, status, it, exact_steps, t0) -> Solution:
+        T, nq = self.T, self.robot.nq
         q = x.reshape(T + 1, nq)
         mu = np.asarray(self.poses(q.T, setup.T_cam_base[:3, :])).T
         terminal = float(np.max(np.abs(mu[T] - setup.x_goal)))
@@ -171,7 +236,7 @@ class NewtonSolver:
             setup, method, np.array([setup.pose_of(qi) for qi in q]), list(q),
             success=status == "Solve_Succeeded", status=status, solve_time_s=solve_s, iterations=it,
             objective=f_val * trace_ref,
-            extras={"init": init.source, "solver": "newton", "covariance_form": "condensed",
+            extras={"init": init.source, "solver": "newton", "covariance_form": "condensed", "exact_steps": exact_steps,
                     "build_time_s": self.build_time_s, "compiled": self.codegen,
                     **({"codegen_note": self.codegen_note} if self.codegen_note else {}),
                     "ocp_trace_final": trace * trace_ref, "initial_trace": trace_ref,

@@ -79,11 +79,13 @@ import numpy as np
 from .belief import DIAG, NV, NX, BeliefModel, unvech, vech
 from .codegen import available as compiler_available
 from .codegen import compiled_or_interpreted
+from .lifted import LiftedTranscription
 from .errors import SurestepError
 from .newton import NewtonSolver
 from .robot import Robot
 from .setup import Setup
 from .solution import Solution, evaluate
+from .stages import assemble, entries, smoothness_matrix
 from .surrogate import interval_terms, pose_function, recursion_weights, scalar_trace
 
 FORMS = ("auto", "full", "diagonal", "condensed")
@@ -281,40 +283,7 @@ class Transcription:
         ab_idx = [np.concatenate([mu_idx[t], mu_idx[t + 1]]) for t in range(T)]
         g_idx = [np.arange(NX * t, NX * (t + 1)) for t in range(T + 1)]
 
-        def entries(pairs):  # (row, column) of each entry of each stage's dense (rows x cols) output
-            r = np.concatenate([np.tile(ri, len(ci)) for ri, ci in pairs])
-            c = np.concatenate([np.repeat(ci, len(ri)) for ri, ci in pairs])
-            return r, c
-
-        D = np.zeros((n, n))  # smoothness * sum |q_t+1 - q_t|^2 = x^T D x / 2 (constant curvature)
-        for t in range(T) if smoothness > 0 else ():
-            for i, j, sign in ((q_idx[t], q_idx[t], 1), (q_idx[t + 1], q_idx[t + 1], 1), (q_idx[t], q_idx[t + 1], -1),
-                               (q_idx[t + 1], q_idx[t], -1)):
-                D[np.ix_(i, j)] += 2 * smoothness * sign * np.eye(nq)
-
-        def assemble(shape, parts, constant=None):
-            """Sparsity of the sum of scattered stage parts [(rows, cols)], plus the scatter matrices."""
-            keep = [np.ones(len(r), bool) if shape[0] != shape[1] else r <= c for r, c in parts]
-            rows = [r[k] for (r, _), k in zip(parts, keep)]
-            cols = [c[k] for (_, c), k in zip(parts, keep)]
-            if constant is not None:
-                cr, cc = np.nonzero(constant)
-                rows.append(cr)
-                cols.append(cc)
-            pairs = sorted(set(zip(np.concatenate(rows).tolist(), np.concatenate(cols).tolist())),
-                           key=lambda rc: (rc[1], rc[0]))
-            sp = ca.Sparsity.triplet(*shape, [r for r, _ in pairs], [c for _, c in pairs])
-            nz = {(int(r), int(c)): k for k, (r, c) in enumerate(zip(sp.row(), sp.get_col()))}
-            scatters = []
-            for (r, c), k in zip(parts, keep):
-                src = np.flatnonzero(k)
-                dst = [nz[(int(r[i]), int(c[i]))] for i in src]
-                scatters.append(ca.DM(ca.Sparsity.triplet(sp.nnz(), len(r), dst, src.tolist()), 1.0))
-            const = np.zeros(sp.nnz())
-            if constant is not None:
-                for r, c in zip(cr, cc):
-                    const[nz[(int(r), int(c))]] = constant[r, c]
-            return sp, scatters, ca.DM(const)
+        D = smoothness_matrix(n, q_idx, smoothness)
 
         X, P = ca.MX.sym("x", n), ca.MX.sym("p", self.p.shape[0])
         lam_f, lam_g = ca.MX.sym("lam_f"), ca.MX.sym("lam_g", self.ng)
@@ -534,7 +503,10 @@ def transcription(setup: Setup, form: str | None = None, extra_options: dict | N
     key = (str(setup.robot.urdf), setup.robot.frame, setup.robot.offset.tobytes(), model.key(), model.scalar, T, form,
            setup.problem.objective.smoothness, tuple(sorted((k, repr(v)) for k, v in opts.items())), hessian, codegen,
            setup.problem.solver.codegen is True)
-    if key not in _CACHE:
+    if key not in _CACHE and form == "full" and hessian == "surrogate":  # the lifted form's structured Hessian
+        _CACHE[key] = LiftedTranscription(setup.robot, model, T, setup.problem.objective.smoothness, opts, codegen,
+                                          codegen_required=setup.problem.solver.codegen is True)
+    elif key not in _CACHE:
         _CACHE[key] = Transcription(setup.robot, model, T, form, setup.problem.objective.smoothness, opts, hessian,
                                     codegen, codegen_required=setup.problem.solver.codegen is True)
     return _CACHE[key]
@@ -562,19 +534,21 @@ def resolve_hessian(setup: Setup, form: str) -> str:
     """
     choice, model = setup.problem.solver.hessian, setup.model
     possible = form == "condensed" and model.structured
+    if form == "full" and model.structured and model.noise.objective == "posterior" and choice in ("auto", "surrogate"):
+        return "surrogate"  # the lifted form's structured Hessian (lifted.py)
     if choice in ("surrogate", "gauss-newton") and not possible:
-        raise SurestepError(f"solver.hessian: {choice} needs the condensed covariance form of a scalar model "
-                            "with noise.observation_noise: mean; use exact or auto")
+        raise SurestepError(f"solver.hessian: {choice} needs a model with constant motion/observation maps and "
+                            "noise.observation_noise: mean (gauss-newton: the condensed form); use exact or auto")
     if choice == "auto":
         return "surrogate" if possible else "exact"
     return choice
 
 
-def newton_applies(setup: Setup, hessian: str, forced: bool) -> bool:
+def newton_applies(setup: Setup, form: str, hessian: str, forced: bool) -> bool:
     """Whether the projected Newton solver's reformulation is exact here: the surrogate model (the condensed
     scalar recursion with the mean noise, Hessian not forced) and exactly six joints moving the tracked frame,
     so that the terminal pose fixes the last node's joints (locally); a redundant arm keeps IPOPT."""
-    return hessian != "exact" and not forced and len(setup.robot.supporting_joints()) == NX
+    return form == "condensed" and hessian != "exact" and not forced and len(setup.robot.supporting_joints()) == NX
 
 
 def solve_ocp(setup: Setup, init: InitialGuess, solver_options: dict | None = None,
@@ -645,9 +619,17 @@ def solve_ocp_warm(setup: Setup, init: InitialGuess, solver_options: dict | None
         tried.append((name + (", warm start" if start is not None else ""), sol, reached))
         return sol.success
 
+    pre, cold = None, init
+    if form == "full" and hessian == "surrogate" and warm is None:
+        # The lifted NLP starts at the condensed solution (joints; means, covariances and multipliers follow):
+        # from the straight line IPOPT's filter accepted first steps whose covariances left the recursion and the
+        # PSD cone (lifted.py), although the step in the joints equals the condensed one.
+        pre = solve_ocp_warm(setup, init, solver_options, method, "condensed")[0]
+        if pre.success:
+            init = InitialGuess(np.array(pre.q), f"condensed solution ({init.source})")
     done = False
     forced = spec.hessian in ("surrogate", "gauss-newton")  # no exact-Hessian attempts
-    newton_fits = newton_applies(setup, hessian, forced)
+    newton_fits = newton_applies(setup, form, hessian, forced)
     if spec.name == "newton" and not newton_fits:
         raise SurestepError("solver.name: newton needs the condensed form of a model with constant motion and "
                             "observation maps, noise.observation_noise: mean, solver.hessian: auto and exactly six joints moving the "
@@ -661,12 +643,13 @@ def solve_ocp_warm(setup: Setup, init: InitialGuess, solver_options: dict | None
         done = first.success
     if isinstance(warm, NewtonWarm):  # IPOPT has no multipliers from Newton: it starts cold from init
         warm = None
-    if warm is not None:  # near the optimum already: Newton's local convergence
-        done = attempt(hessian if forced else "exact", hessian if forced else "exact", {}, warm)
+    if warm is not None:  # near the optimum already: Newton's local convergence (the lifted form: its own Hessian)
+        hess = hessian if forced or form == "full" else "exact"
+        done = attempt(hess, hess, {}, warm)
     if not done and hessian != "exact":
         cap = spec.max_iter if forced else min(spec.surrogate_max_iter, spec.max_iter)
         done = attempt(hessian, hessian, {"ipopt.max_iter": cap}, None)
-        if not done and not forced:
+        if not done and not forced and form == "condensed":  # polish from the point reached (same variables)
             done = attempt("exact", "exact", {}, tried[-1][2])
     if not done and not forced:
         done = attempt("exact", "exact", {}, None)
@@ -674,7 +657,12 @@ def solve_ocp_warm(setup: Setup, init: InitialGuess, solver_options: dict | None
             attempt("exact, monotone barrier", "exact", {"ipopt.mu_strategy": "monotone"}, None)
     finished = [k for k, (_, s_k, _) in enumerate(tried) if s_k.success]
     pick = min(finished, key=lambda k: tried[k][1].objective) if finished else len(tried) - 1
-    if finished and warm is None and tried[pick][1].objective > tried[pick][1].extras["initial_trace"]:
+    smooth0 = setup.problem.objective.smoothness * float(np.sum(np.diff(np.asarray(cold.q, float), axis=0) ** 2))
+
+    def start_objective(s_k: Solution) -> float:  # the planner's objective at the cold start (trace + smoothness)
+        return s_k.extras["initial_trace"] * (1 + smooth0)
+
+    if finished and warm is None and tried[pick][1].objective > start_objective(tried[pick][1]):
         # Every converged point is above the (cold) start: keep the start if it is a feasible plan, rather than
         # return a plan worse than the one we began from (step 4). Reported as its own attempt.
         start = used[-1].start_solution(setup, init, method) if used else None  # same start point and bounds
@@ -687,10 +675,20 @@ def solve_ocp_warm(setup: Setup, init: InitialGuess, solver_options: dict | None
                                "compiled": s_k.extras["compiled"]}
                               for k, (name, s_k, _) in enumerate(tried)]
     sol.extras["hessian"] = " + ".join(name for name, _, _ in tried)
-    sol.extras["worse_than_initial_guess"] = bool(sol.objective > sol.extras["initial_trace"])
+    sol.extras["initial_objective"] = start_objective(sol)
+    sol.extras["worse_than_initial_guess"] = bool(sol.objective > sol.extras["initial_objective"])
     sol.extras["init"] = init.source if not warm_given else f"warm start ({init.source})"
     sol.solve_time_s = sum(s_k.solve_time_s for _, s_k, _ in tried)
     sol.iterations = sum(s_k.iterations for _, s_k, _ in tried)
+    if pre is not None:  # the condensed solve that started the lifted one: reported, and counted in time
+        sol.extras["condensed_start"] = {"status": pre.status, "iterations": pre.iterations, "solver":
+                                         pre.extras.get("solver"), "solve_time_s": pre.solve_time_s,
+                                         "objective": pre.objective}
+        sol.extras["initial_trace"] = pre.extras["initial_trace"]
+        sol.extras["initial_objective"] = pre.extras["initial_objective"]
+        sol.extras["worse_than_initial_guess"] = bool(sol.objective > sol.extras["initial_objective"])
+        sol.solve_time_s += pre.solve_time_s
+        sol.iterations += pre.iterations
     return sol, last
 
 

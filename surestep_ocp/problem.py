@@ -525,7 +525,7 @@ def _pose6(rd: Reader, node: Any, key: str) -> np.ndarray:
 
 
 _NOISE_KEYS = {"observation_scale", "camera_W_p0", "camera_W_o0", "W_p0", "W_o0", "V_d0", "V_f0", "V_o0", "Sigma0", "depth_star", "o_star", "components",
-               "orientation_formula", "observation_noise"}
+               "orientation_formula", "observation_noise", "V_min"}
 
 
 def _noise(rd: Reader, node: Any, frames: int = 1) -> NoiseParams:
@@ -538,7 +538,9 @@ def _noise(rd: Reader, node: Any, frames: int = 1) -> NoiseParams:
     # `frames` tracker observations per step (timing), each with covariance V, are one with V / frames
     # (problems/README.md, "Time in the model"): applied with the light scale, to every observation term
     light = light / frames
-    for name in ("V_d0", "V_f0", "V_o0"):  # dim light: every observation term scaled alike
+    # the observation noise floor (no detector is perfect): PSD, scalar or 6x6, scaled like the terms
+    kw["V_min"] = rd.covariance(m["V_min"], "noise.V_min") if "V_min" in m else d.V_min
+    for name in ("V_d0", "V_f0", "V_o0", "V_min"):  # dim light: every observation term scaled alike
         kw[name] = light * kw[name]
     kw["Sigma0"] = rd.covariance(m["Sigma0"], "noise.Sigma0", definite=True) if "Sigma0" in m else d.Sigma0
     kw["depth_star"] = rd.number(m.get("depth_star", d.depth_star), "noise.depth_star", positive=True, low=1e-4,

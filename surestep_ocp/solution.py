@@ -134,7 +134,7 @@ def _cov_json(M: np.ndarray):
 
 def noise_dict(setup: Setup) -> dict:
     n = setup.problem.noise
-    d = {k: _cov_json(getattr(n, k)) for k in ("W_p0", "W_o0", "V_d0", "V_f0", "V_o0", "Sigma0")}
+    d = {k: _cov_json(getattr(n, k)) for k in ("W_p0", "W_o0", "V_d0", "V_f0", "V_o0", "V_min", "Sigma0")}
     d.update(depth_star=n.depth_star, o_star=list(n.o_star), components=list(setup.model.components),
              orientation_formula=n.orientation_formula)
     return d

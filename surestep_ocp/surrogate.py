@@ -13,7 +13,7 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
-from .belief import DIAG, NV, BeliefModel, trace_vech, unvech, vech
+from .belief import DIAG, NV, NX, BeliefModel, trace_vech, unvech, vech
 from .lie import so3_log
 from .robot import Robot
 
@@ -56,6 +56,29 @@ def kalman_stage(model: BeliefModel) -> ca.Function:
     post = P - HP.T @ ca.solve(H @ P @ H.T + R @ V @ R.T, HP)  # K^T = S^-1 H P
     return ca.Function("kalman_stage", [s, c], [vech(0.5 * (post + post.T)), vech(P)], ["sigma", "c"],
                        ["sigma_next", "sigma_pred"])
+
+
+def kalman_stage_jacobian(model: BeliefModel) -> ca.Function:
+    """`(sigma, c) -> d sigma+ / d(sigma, c)` (21 x (21 + nc)) of `kalman_stage`, by the first-order
+    perturbation of the Riccati update at the Kalman gain, `d Sigma+ = A dP A^T + K R dV R^T K^T` with
+    `A = I - K H` (the gain's own variation drops out, it is optimal): each column a congruence of one
+    base matrix. AD through the symbolic 6x6 solve gave 47k instructions against about 10k here."""
+    F, Q, H, R = (ca.DM(M) for M in model.constant_maps)
+    Wm, Vm = model.motion_matrices(), model.observation_matrices()
+    s, c = ca.SX.sym("sigma", NV), ca.SX.sym("c", len(Wm) + len(Vm))
+    W = sum(c[k] * ca.DM(M) for k, M in enumerate(Wm))
+    V = ca.DM(model.noise.V_min) + sum(c[len(Wm) + k] * ca.DM(M) for k, M in enumerate(Vm))
+    P = F @ unvech(s) @ F.T + Q @ W @ Q.T
+    K = ca.solve(H @ P @ H.T + R @ V @ R.T, H @ P).T
+    A = ca.DM.eye(NX) - K @ H
+    B, AQ, KR = A @ F, A @ Q, K @ R
+    cols = []
+    for j in range(NX):  # vech order: column-major lower triangle
+        for i in range(j, NX):
+            E = B[:, i] @ B[:, j].T
+            cols.append(vech(E + E.T) if i != j else vech(E))
+    cols += [vech(AQ @ ca.DM(M) @ AQ.T) for M in Wm] + [vech(KR @ ca.DM(M) @ KR.T) for M in Vm]
+    return ca.Function("kalman_stage_jac", [s, c], [ca.horzcat(*cols)], ["sigma", "c"], ["jac"])
 
 
 def recursion_weights(model: BeliefModel, T: int, sigma0, trace_ref) -> ca.Function:

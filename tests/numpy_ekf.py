@@ -49,7 +49,7 @@ def observation_noise(
     x = np.asarray(x, float)
     p, r = x[:3], x[3:]
     o = np.asarray(noise.o_star, float)
-    V = np.zeros((6, 6))
+    V = np.array(getattr(noise, "V_min", np.zeros((6, 6))), float)  # the noise floor (0 in the paper)
     if "depth" in components:
         V += (p[2] - noise.depth_star) ** 2 * np.asarray(noise.V_d0)
     if "fov" in components:

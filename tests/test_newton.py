@@ -95,11 +95,11 @@ def test_newton_only_where_the_goal_fixes_the_last_joints(short):
 
     from surestep_ocp.ocp import newton_applies
 
-    assert newton_applies(short, "surrogate", False)
-    assert not newton_applies(short, "exact", False) and not newton_applies(short, "surrogate", True)
+    assert newton_applies(short, "condensed", "surrogate", False)
+    assert not newton_applies(short, "condensed", "exact", False) and not newton_applies(short, "condensed", "surrogate", True)
     for n in (5, 7):
         arm = SimpleNamespace(supporting_joints=lambda n=n: list(range(n)))
-        assert not newton_applies(replace(short, robot=arm), "surrogate", False)
+        assert not newton_applies(replace(short, robot=arm), "condensed", "surrogate", False)
 
 
 def test_newton_warm_resolve_after_a_camera_move(short):

@@ -93,6 +93,5 @@ def test_isotropic_noise_with_a_full_sigma0_runs_scalar_recursions_on_its_eigenv
     aniso = build_setup(replace(prob, horizon=6, noise=replace(prob.noise, Sigma0=sigma0,
                                                                W_p0=np.diag([1e-3, 2e-3, 1e-3, 1e-3, 1e-3, 1e-3]))))
     assert not aniso.model.scalar and aniso.model.structured and resolve_form(aniso.model, "auto") == "condensed"
-    expected = build_setup(replace(prob, horizon=6, noise=replace(prob.noise, W_p0=aniso.problem.noise.W_p0,
-                                                                  observation_noise="expected")))
+    expected = build_setup(replace(prob, horizon=6, noise=replace(aniso.problem.noise, observation_noise="expected")))
     assert not expected.model.structured and resolve_form(expected.model, "auto") == "full"
