@@ -648,10 +648,14 @@ def check_ipopt_options(options: dict) -> str | None:
     import tempfile
 
     x = ca.MX.sym("x")
+    import io
+
     sys.stdout.flush()
-    saved = os.dup(1)
-    with tempfile.TemporaryFile() as printed:  # IPOPT prints why a setting is invalid on the C stdout
+    saved, python_out, caught = os.dup(1), sys.stdout, io.StringIO()
+    # IPOPT says why a setting is invalid on stdout: CasADi's (Python's sys.stdout) or the C one
+    with tempfile.TemporaryFile() as printed:
         os.dup2(printed.fileno(), 1)
+        sys.stdout = caught
         try:
             ca.nlpsol("check_options", "ipopt", {"x": x, "f": x**2},
                       {"ipopt": dict(options, print_level=0, sb="yes"), "print_time": False})
@@ -659,10 +663,11 @@ def check_ipopt_options(options: dict) -> str | None:
         except RuntimeError as exc:
             error = str(exc)
         finally:
+            sys.stdout = python_out
             os.dup2(saved, 1)
             os.close(saved)
         printed.seek(0)
-        said = printed.read(4000).decode("utf-8", "replace")
+        said = caught.getvalue()[:4000] + "\n" + printed.read(4000).decode("utf-8", "replace")
     reason = next((ln for ln in said.splitlines() if "valid setting" in ln or "Option" in ln), "") or error
     reason = re.sub(r"^.*?\.cpp:\d+:\s*", "", reason.strip().splitlines()[-1] if reason.strip() else error)
     return f"IPOPT refused them: {shown(reason.strip(), 200)}"

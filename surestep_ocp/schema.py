@@ -59,12 +59,12 @@ class Reader:
             raise self.fail(key, f"must be > 0, got {value:g}")
         if nonneg and value < 0:
             raise self.fail(key, f"must be >= 0, got {value:g}")
-        if abs(value) > limit:
-            raise self.fail(key, f"magnitude must be at most {limit:g}, got {value:g}")
         if (low is not None and value < low) or (high is not None and value > high):
             lo = "" if low is None else f"{low:g} <= "
             hi = "" if high is None else f" <= {high:g}"
             raise self.fail(key, f"must be in the range {lo}value{hi}, got {value:g}")
+        if abs(value) > limit:
+            raise self.fail(key, f"magnitude must be at most {limit:g}, got {value:g}")
         return value
 
     def integer(self, node: Any, key: str, minimum: int | None = None, maximum: int | None = MAX_INTEGER) -> int:
