@@ -102,14 +102,18 @@ def load_evaluation(path: str | Path) -> EvaluationSpec:
     base = replace(base, horizon=horizon)
     if "gradient" in top:  # replaces the base problem's gradient section (e.g. {preset: paper})
         base = replace(base, gradient=_gradient(rd, top["gradient"]))
-    det = rd.mapping(top.get("detection", {}), "detection", {"enabled", "margin", "min_depth", "falloff"})
+    det = rd.mapping(top.get("detection", {}), "detection", {"enabled", "margin", "min_depth", "max_depth",
+                                                              "falloff"})
     detection = None
     if rd.boolean(det.get("enabled", True), "detection.enabled"):
         d0 = Detection()
         detection = Detection(
             margin=rd.number(det.get("margin", d0.margin), "detection.margin", nonneg=True),
             min_depth=rd.number(det.get("min_depth", d0.min_depth), "detection.min_depth", nonneg=True),
+            max_depth=rd.number(det.get("max_depth", d0.max_depth), "detection.max_depth", positive=True),
             falloff=rd.number(det.get("falloff", d0.falloff), "detection.falloff", nonneg=True))
+        if detection.max_depth <= detection.min_depth:
+            raise rd.fail("detection.max_depth", f"must exceed detection.min_depth ({detection.min_depth:g} m)")
         if detection.margin + detection.falloff >= 0.5:
             raise rd.fail("detection", f"margin + falloff must be < 0.5 (fractions of the image size), got "
                                        f"{detection.margin:g} + {detection.falloff:g}")

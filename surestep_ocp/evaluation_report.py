@@ -117,9 +117,10 @@ def markdown(records, methods, modes, header, spec) -> str:
     n = len(records)
     det = getattr(spec, "detection", None)
     det_text = ("every step observes (detection disabled)" if det is None else
-                f"a step observes only when the true pose is detectable: depth > {det.min_depth:g} m and inside the "
-                f"image less a {det.margin:g} margin" + (f", probability ramping over {det.falloff:g}" if det.falloff
-                                                          else "") + "; otherwise the EKF only predicts")
+                f"a step observes only when the true pose is detectable: depth in ({det.min_depth:g}, "
+                f"{det.max_depth:g}) m and inside the image less a {det.margin:g} margin"
+                + (f", probability ramping over {det.falloff:g}" if det.falloff else "")
+                + ", and the measurement too (gating); otherwise the EKF only predicts")
     gp, ga = getattr(spec, "grasp_position", math.nan), getattr(spec, "grasp_angle", math.nan)
     grad = spec.base.gradient
     grad_text = (f"gradient variant: {grad.optimizer} L-BFGS"

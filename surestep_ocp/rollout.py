@@ -54,19 +54,22 @@ class Detection:
 
     margin: fraction of the image width / height at each border where nothing is detected
     (the tool's features must be in the image, not only its tracked point); min_depth [m]:
-    closer to the lens (or behind it) nothing is detected; falloff: fraction of the image size
-    over which the detection probability rises linearly from 0 at that border to 1 inside
-    (0: detected with certainty everywhere inside).
+    closer to the lens (or behind it) nothing is detected; max_depth [m]: nor beyond it (out
+    of focus, too small); falloff: fraction of the image size over which the detection
+    probability rises linearly from 0 at that border to 1 inside (0: detected with certainty
+    everywhere inside). A detector reports a pose it sees: a measurement that itself falls
+    outside that region (the sampled noise put it there) is no detection either (gating).
     """
 
     margin: float = 0.02
     min_depth: float = 0.02
+    max_depth: float = 0.30
     falloff: float = 0.0
 
     def probability(self, camera, p: np.ndarray) -> np.ndarray:
         """(N,) detection probability of true positions p (N, 3) in the camera frame."""
         z = p[:, 2]
-        ok = z > self.min_depth
+        ok = (z > self.min_depth) & (z < self.max_depth)
         zs = np.where(ok, z, 1.0)
         u = (camera.fx * p[:, 0] / zs + camera.cx) / camera.width
         v = (camera.fy * p[:, 1] / zs + camera.cy) / camera.height
@@ -279,6 +282,9 @@ def rollout(
             V_real = noise.observation(np.where(seen[:, None], _pose(true_p, true_R), pred))
         v = sample_gaussian(V_real, z_v)
         z_p, z_R = true_p + v[:, :3], Rotation.from_rotvec(v[:, 3:]) * true_R
+        if detection is not None:  # gating: a reported position outside the detectable region is no detection
+            seen = seen & (detection.probability(model.camera, z_p) > 0)
+            detected[:, t] = seen
         y = np.hstack([z_p - pred_p, (z_R * pred_R.inv()).as_rotvec()])
         KT = _gain(P, P + V_ekf)  # K^T = S^-1 P (S, P symmetric); K = P S^-1
         KT[~seen] = 0.0  # no observation: the EKF only predicts

@@ -136,8 +136,10 @@ def test_undetected_steps_only_predict(default_setup, plan):
 
 
 def test_detection_changes_nothing_where_the_tool_is_always_seen(default_setup, plan):
-    """Inside the image, far from its border, the detection model leaves the rollouts as they were."""
-    model = default_setup.eval_model
+    """Inside the image, far from its border, the detection model leaves the rollouts as they were (without the
+    orientation and depth terms, whose centimetre position noise carries some measurements out of the image)."""
+    noise = dataclasses.replace(default_setup.problem.noise, V_o0=np.zeros((6, 6)), V_d0=np.zeros((6, 6)))
+    model = BeliefModel(noise, default_setup.problem.camera.intrinsics)
     central = plan.copy()
     central[:, :2] *= 0.3  # the default goal is near the right border: pull the plan toward the centre
     a = rollout(model, central, n=30, rng=4, mode="model", detection=Detection(margin=0.0))
@@ -188,3 +190,23 @@ def test_camera_moves_match_the_ml_covariance(moving):
     # no moves given: a different (smaller-noise) result, so the moves are not ignored
     still = rollout(model, plan, n=2000, rng=7, mode="model", sample_initial=True)
     assert not np.allclose(still.sigma_final.mean(axis=0), ekf)
+
+
+def test_measurements_outside_the_image_are_no_detection(default_setup, plan):
+    """Gating: with an absurd FOV noise the sampled measurements mostly land outside the image, and those steps
+    are predictions only (a camera cannot report a detection outside its own image); max_depth bounds depth."""
+    noise = dataclasses.replace(default_setup.problem.noise, V_f0=1e3 * np.eye(6))
+    model = BeliefModel(noise, default_setup.problem.camera.intrinsics)
+    central = plan.copy()
+    central[:, :2] *= 0.3
+    ro = rollout(model, central, n=200, rng=2, mode="model", detection=Detection(margin=0.0))
+    assert ro.detected.mean() < 0.6
+    # every undetected step of a rollout that never saw the tool left its covariance at the prediction
+    never = ~ro.detected.any(axis=1)
+    assert never.any()
+    sigma = np.asarray(model.noise.Sigma0, float) + sum(np.asarray(model.motion_noise(central[t], central[t + 1]))
+                                                        for t in range(T))
+    np.testing.assert_allclose(ro.sigma_final[never], np.broadcast_to(sigma, (never.sum(), 6, 6)), rtol=1e-12,
+                               atol=1e-18)
+    cam = model.camera
+    assert Detection(max_depth=0.3).probability(cam, np.array([[0.0, 0.0, 0.35]]))[0] == 0.0
