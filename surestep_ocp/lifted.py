@@ -142,8 +142,9 @@ class LiftedTranscription:
         roll = stage.mapaccum("lifted_roll", T)(S0, self.coef.map(T)(M[:, :T], M[:, 1:]))[0]
         self.roll = ca.Function("lifted_rollout", [M, S0], [roll])
         self.poses = pose.map(T + 1)
+        # the initial multipliers are always given (the adjoint recursion, or a warm start's): IPOPT uses them
         self.solver = ca.nlpsol("surestep_lifted", "ipopt", {"x": X, "f": f, "g": g, "p": P},
-                                {**options, **staged})
+                                {**options, "ipopt.warm_start_init_point": "yes", **staged})
         self.build_time_s = time.perf_counter() - t0
 
     # ------------------------------------------------------------------ one solve

@@ -133,7 +133,10 @@ class NewtonSolver:
                                  for k in range(nm + no)])
         self.build_time_s = time.perf_counter() - t0
 
-    def solve(self, setup: Setup, init, method: str = "ocp", tol: float = 1e-6, max_iter: int = 300) -> Solution:
+    def solve(self, setup: Setup, init, method: str = "ocp", tol: float = 1e-6, max_iter: int = 300,
+              verbose: bool = False) -> Solution:
+        """Projected Newton from `init`: converged when the projected gradient's inf-norm is at most `tol` (the
+        objective is 1 at the start), at most `max_iter` iterations; `verbose` prints one line per iteration."""
         t0 = time.perf_counter()
         T, nq, n, robot = self.T, self.robot.nq, self.n, self.robot
         sigma0 = setup.model.recursion_sigma0(setup.problem.noise.Sigma0)
@@ -159,8 +162,12 @@ class NewtonSolver:
                 break
             if it == max_iter:
                 break
-            d = self._exact_step(x, P, HB, g, idx) if np.max(np.abs(g[idx]), initial=0.0) <= EXACT_BELOW else None
+            pg = np.max(np.abs(g[idx]), initial=0.0)
+            d = self._exact_step(x, P, HB, g, idx) if pg <= EXACT_BELOW else None
             exact_steps += d is not None
+            if verbose:
+                print(f"newton {it:4d}  f {f_val:.10e}  |pg| {pg:.2e}  free {idx.size:4d}  "
+                      f"{'exact' if d is not None else 'surrogate'}", flush=True)
             if d is None:
                 d = self._surrogate_step(HB, g, idx, shift)
                 if d is None:

@@ -52,7 +52,8 @@ def test_newton_reaches_ipopts_optimum(horizon):
     """Same plan as IPOPT (trace to 1e-6), terminal pose exact, start and goal joints kept, bounds met."""
     setup = build_setup(replace(load_problem(DEFAULT), horizon=horizon))
     init = ocp_initial_guess(setup)
-    ipopt = solve_ocp(setup, init)
+    ipopt = solve_ocp(with_solver(setup, name="ipopt"), init)  # another solver (auto would run Newton)
+    assert ipopt.extras["solver"] == "ipopt" and "newton" not in ipopt.extras["hessian"]
     newton = solve_ocp(with_solver(setup, name="newton"), init)
     assert newton.success and newton.status == "Solve_Succeeded" and newton.extras["solver"] == "newton"
     assert [a["hessian"] for a in newton.extras["attempts"]] == ["newton"]
@@ -121,3 +122,16 @@ def test_newton_warm_resolve_after_a_camera_move(short):
     assert again.extras["init"].startswith("warm start")
     assert again.trace_final == pytest.approx(cold.trace_final, rel=1e-4)
     assert again.iterations < cold.iterations
+
+
+def test_kept_start_names_the_solvers_that_ran_and_smoothness_counts():
+    """With `objective.smoothness: 50` IPOPT's converged plan on the default problem is far below the start in the
+    objective it minimises (trace plus smoothness): it is returned, not replaced by the straight line (the old
+    check compared that objective with the bare trace). A kept start names the solvers that ran."""
+    prob = load_problem(DEFAULT)
+    setup = build_setup(replace(prob, objective=replace(prob.objective, smoothness=50.0),
+                                solver=replace(prob.solver, name="ipopt")))
+    sol = solve_ocp(setup, ocp_initial_guess(setup))
+    assert sol.success and sol.status != "Initial_Guess_Kept", sol.extras["hessian"]
+    assert sol.objective < sol.extras["initial_objective"]
+    assert not sol.extras["worse_than_initial_guess"]
