@@ -211,8 +211,17 @@ def _version() -> str:
         return __version__
 
 
+class _OneLineParser(argparse.ArgumentParser):
+    """argparse with its usage errors on one line (exit 2), like every other user error."""
+
+    def error(self, message: str):
+        from .errors import one_line
+
+        self.exit(2, f"{self.prog}: error: {one_line(message, 500)} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="surestep", description="Uncertainty-aware trajectory optimisation (SURESTEP).")
+    p = _OneLineParser(prog="surestep", description="Uncertainty-aware trajectory optimisation (SURESTEP).")
     p.add_argument("--version", action="version", version=f"surestep {_version()}")
     sub = p.add_subparsers(dest="command", required=True)
 

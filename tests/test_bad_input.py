@@ -391,3 +391,16 @@ print(fresh, float(g([1, 2, 3])[1]))
 def test_surestep_errors_are_one_line():
     err = SurestepError("first line\nsecond line\r\nthird")
     assert str(err) == "first line second line third"
+
+
+@pytest.mark.parametrize("argv, words", [
+    (["solve"], "required: problem"),
+    (["evaluate", "x.yaml", "--configs", "ten"], "invalid int value"),
+    (["frobnicate"], "invalid choice"),
+])
+def test_usage_errors_are_one_line(capsys, argv, words):
+    with pytest.raises(SystemExit) as info:
+        cli.main(argv)
+    _, err = capsys.readouterr()
+    assert info.value.code == 2
+    assert len(err.strip().splitlines()) == 1 and words in err, err
