@@ -11,19 +11,20 @@ with `Phi(Sigma, c) = P - P H^T (H P H^T + R V R^T)^-1 H P`, `P = F Sigma F^T + 
 `W = sum_k c_k W_k`, `V = V_min + sum_k c_k V_k` and `c` the scalar noise coefficients (squared
 residuals of the means). Objective: `scale_T Tr(s_T) / Tr_ref` (linear) plus the joint smoothness.
 
-Why it is fast: `Tr(Sigma_T)` along the shooting constraints is `S(c)`, concave and nondecreasing in the
-coefficients (`BeliefModel.structured`), and its curvature in c is what makes the exact Hessian of
-the Lagrangian indefinite (IPOPT then regularises and crawls: 400-2000 iterations measured). The
-structured Hessian is the condensed surrogate's, `sum_k w_tk Hess c_k(mu_t, mu_t+1)` with the weights
-`w = dS/dc` of the recursion along the current means (`surrogate.recursion_weights`), plus the
-kinematic curvature: block diagonal in the intervals' means, zero in the covariance block (the
-shooting constraints, Jacobian -I in s_t+1, determine it), cost linear in T. At a KKT point these
-weights equal `(dPhi_t/dc)^T lam_t` of the multipliers, so the Hessian is the Lagrangian's without
-the concave part of `lam . Phi`; it only shapes the steps, a converged point is a KKT point of the
-lifted NLP. (Weights from IPOPT's multipliers, local to each interval, were tried first: from the
-initial multipliers the first steps were unbounded and the covariance left the PSD cone.) Every
-derivative is one small Function per interval or node, mapped and scattered (`stages.py`), compiled
-with `solver.codegen`.
+The Hessian: `Tr(Sigma_T)` along the shooting constraints is `S(c)`, concave and nondecreasing in the
+coefficients (`BeliefModel.structured`); its curvature in c makes the exact Hessian of the Lagrangian
+indefinite. The structured Hessian is the condensed surrogate's, `sum_k w_tk Hess c_k(mu_t, mu_t+1)`
+with the weights `w = dS/dc` of the recursion along the current means (`surrogate.recursion_weights`),
+plus the kinematic curvature; zero in the covariance block (the shooting constraints, Jacobian -I in
+s_t+1, determine it). At a KKT point these weights equal `(dPhi_t/dc)^T lam_t`, so it is the
+Lagrangian's Hessian without the concave part of `lam . Phi`; a converged point is a KKT point of the
+lifted NLP. Every derivative is one small Function per interval or node, mapped and scattered
+(`stages.py`), compiled with `solver.codegen`.
+
+Where it converges: near a solution (the strategy in `ocp.py` starts it at the condensed solution, with
+the adjoint recursion's multipliers). From the straight line IPOPT's filter accepts first steps whose
+covariances are far from the recursion; the trace variable goes negative and it does not recover
+(README, "General belief models and the lifted form").
 """
 
 from __future__ import annotations
@@ -40,6 +41,7 @@ from .robot import Robot
 from .setup import Setup
 from .solution import Solution, evaluate
 from .stages import assemble, entries, smoothness_matrix
+from .transcription import WarmStart
 from .surrogate import interval_terms, kalman_stage, kalman_stage_jacobian, pose_function, recursion_weights
 
 
@@ -189,8 +191,6 @@ class LiftedTranscription:
         return lo.ravel(order="F"), hi.ravel(order="F")
 
     def solve(self, setup: Setup, init, method: str = "ocp", warm=None):
-        from .ocp import WarmStart
-
         T, nq = self.T, self.robot.nq
         t0 = time.perf_counter()
         if warm is None:

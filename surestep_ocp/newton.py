@@ -41,6 +41,9 @@ from .surrogate import interval_terms, pose_function, recursion_weights
 
 
 EXACT_BELOW = 1e-3  # projected gradient (objective 1 at the start) below which Newton tries the exact Hessian
+# The exact Hessian is dense (S couples every interval): its cost grows as n^3, so above this many joint variables
+# (T of about 56 for the PSM) Newton keeps the banded surrogate, whose cost is linear in T.
+EXACT_MAX_N = 400
 
 
 class _Buffered:
@@ -163,7 +166,7 @@ class NewtonSolver:
             if it == max_iter:
                 break
             pg = np.max(np.abs(g[idx]), initial=0.0)
-            d = self._exact_step(x, P, HB, g, idx) if pg <= EXACT_BELOW else None
+            d = self._exact_step(x, P, HB, g, idx) if pg <= EXACT_BELOW and n <= EXACT_MAX_N else None
             exact_steps += d is not None
             if verbose:
                 print(f"newton {it:4d}  f {f_val:.10e}  |pg| {pg:.2e}  free {idx.size:4d}  "
