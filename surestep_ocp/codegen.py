@@ -75,6 +75,9 @@ def verified(lib: Path) -> str | None:
     return None if actual == stored else "its content does not match its checksum (corrupt or truncated)"
 
 
+_ANNOUNCED = False  # the compile note is said once per process
+
+
 def _note(text: str) -> None:
     print(f"note: solver.codegen: {text}", file=sys.stderr, flush=True)
 
@@ -103,6 +106,10 @@ def compiled(fn: ca.Function) -> tuple[ca.Function, bool]:
                     _note(f"the cached {lib.name} was not loaded: {problem}; rebuilding it")
                 fresh = True
         if fresh:
+            global _ANNOUNCED
+            if not _ANNOUNCED:  # long work made visible: seconds per structure, minutes on a loaded machine
+                _note(f"compiling derivatives to C (a new problem structure or horizon; cached in {lib.parent})")
+                _ANNOUNCED = True
             _build(cc, source, lib)
     try:
         return ca.external(name, str(lib)), fresh
