@@ -103,17 +103,20 @@ class NewtonSolver:
         coef_jac = ca.Function("coef_jac", [qa, qb, Tcb], [ca.densify(ca.jacobian(ca.vertcat(*coefficients),
                                                                                     ca.vertcat(qa, qb)))])
         fns = {"newton_step": ca.Function("newton_step", [Q, P], [S_x, S_x + smooth, G, HB]),
-               "newton_f": ca.Function("newton_f", [Q, P], [S_x + smooth]),
-               "newton_curv": ca.Function("newton_curv", [Q, P], [
-                   ca.densify(curv(*coef.map(T)(Q[:, :T], Q[:, 1:], Tc), P)),
-                   coef_jac.map(T)(Q[:, :T], Q[:, 1:], Tc)])}
+               "newton_f": ca.Function("newton_f", [Q, P], [S_x + smooth])}
+        if model.scalar and nq * (T + 1) <= EXACT_MAX_N:
+            fns["newton_curv"] = ca.Function("newton_curv", [Q, P], [
+                ca.densify(curv(*coef.map(T)(Q[:, :T], Q[:, 1:], Tc), P)), coef_jac.map(T)(Q[:, :T], Q[:, 1:], Tc)])
         self.nm, self.no = w_m.shape[0], w_o.shape[0]
+        # S's curvature costs nc T Hessian-vector products: cheap for the scalar recursion (1.8 ms at T = 20),
+        # not for the 6x6 one (0.36 s measured), where Newton keeps the surrogate throughout
+        self.exact_ok = model.scalar and nq * (T + 1) <= EXACT_MAX_N
         self.codegen, self.codegen_note = codegen, None
         if codegen:
             fns, self.codegen_note = compiled_or_interpreted(fns, codegen_required)
             self.codegen = self.codegen_note is None
         self.step, self.f = _Buffered(fns["newton_step"]), _Buffered(fns["newton_f"])
-        self.curv = _Buffered(fns["newton_curv"])
+        self.curv = _Buffered(fns["newton_curv"]) if "newton_curv" in fns else None
         self.poses = pose.map(T + 1)
         # scatter maps: interval t covers the joint vectors of nodes t, t+1 (positions t*nq .. (t+2)*nq)
         n = self.n = nq * (T + 1)
@@ -166,7 +169,7 @@ class NewtonSolver:
             if it == max_iter:
                 break
             pg = np.max(np.abs(g[idx]), initial=0.0)
-            d = self._exact_step(x, P, HB, g, idx) if pg <= EXACT_BELOW and n <= EXACT_MAX_N else None
+            d = self._exact_step(x, P, HB, g, idx) if pg <= EXACT_BELOW and self.exact_ok else None
             exact_steps += d is not None
             if verbose:
                 print(f"newton {it:4d}  f {f_val:.10e}  |pg| {pg:.2e}  free {idx.size:4d}  "

@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from .errors import SurestepError
+from .limits import enforce as enforce_limits
 from .setup import Setup
 from .solution import Solution
 from .solver_setup import (LIFTED_FROM_CONDENSED, WARM_OPTIONS, cached_transcriptions, newton_applies,
@@ -44,6 +45,11 @@ def solve_ocp_warm(setup: Setup, init: InitialGuess, solver_options: dict | None
     IPOPT from Newton's last iterate instead was measured worse: on evaluation
     configuration 0 at T = 20 it failed after 6530 iterations, 26 s.)
 
+    The lifted form (`full` with the structured Hessian, `lifted.py`) is started at the condensed
+    solution (solved first by this same strategy, reported as `condensed_start` and counted in the
+    time); where the condensed solve kept its start, that plan is returned (the lifted NLP does not
+    converge from a non-stationary point). A lifted warm start re-solves the lifted NLP directly.
+
     A Newton solution returns its joints (`NewtonWarm`) as the warm start: the next Newton
     solve starts there (the re-solve after a 3 mm / 2 degree camera move at T = 20: 4.5 ms
     median, `benchmarks/solve_speed.py`).
@@ -68,6 +74,12 @@ def solve_ocp_warm(setup: Setup, init: InitialGuess, solver_options: dict | None
        rotations of pi (evaluation configurations 0, 36, 45, 91 of 100). A retry with the
        exact Hessian from `init` used to run first: it never ended below the start there
        (16 of 16 solves of the OCP variants) and cost 1-7 s, so it was dropped.
+
+    With `limits.enforce: true` the IPOPT transcriptions carry the motion limits as constraints (the condensed
+    and gain-lifted ones; `transcription.py`); Newton's box-constrained form cannot, so a converged Newton plan
+    is checked against them (`limits.enforce`) and one that breaks a limit hands over to IPOPT like a violated
+    depth bound. The returned plan is checked last: one over a limit is not a success (status
+    `Motion_Limits_Violated`, the solver's status in `extras["solver_status"]`).
 
     Every attempt is reported in `extras["attempts"]` (with `kept`); time and iterations
     are their sums; `extras["worse_than_initial_guess"]` flags a kept point above the start
@@ -97,6 +109,10 @@ def solve_ocp_warm(setup: Setup, init: InitialGuess, solver_options: dict | None
         # from the straight line IPOPT's filter accepted first steps whose covariances left the recursion and the
         # PSD cone (lifted.py), although the step in the joints equals the condensed one.
         pre = solve_ocp_warm(setup, init, solver_options, method, "condensed")[0]
+        if pre.status == "Initial_Guess_Kept":  # no stationary point to start the lifted NLP from: the same plan
+            pre.extras["lifted"] = ("not run: the condensed solve kept its start, where the lifted NLP does not "
+                                    "converge (README, 'General belief models and the lifted form')")
+            return pre, None
         if pre.success:
             init = InitialGuess(np.array(pre.q), f"condensed solution ({init.source})")
     done = False
@@ -112,6 +128,7 @@ def solve_ocp_warm(setup: Setup, init: InitialGuess, solver_options: dict | None
         first = newton_solver(setup).solve(setup, start, method, tol=spec.tol,
                                            max_iter=min(spec.surrogate_max_iter, spec.max_iter),
                                            verbose=spec.print_level > 0)
+        enforce_limits(setup, first)  # Newton has no step constraints: a plan over an enforced limit goes to IPOPT
         tried.append(("newton" + (", warm start" if warm is not None else ""), first,
                       NewtonWarm(np.array(first.q)) if first.success else None))
         done = first.success
@@ -166,4 +183,6 @@ def solve_ocp_warm(setup: Setup, init: InitialGuess, solver_options: dict | None
         sol.extras["worse_than_initial_guess"] = bool(sol.objective > sol.extras["initial_objective"])
         sol.solve_time_s += pre.solve_time_s
         sol.iterations += pre.iterations
+    if enforce_limits(setup, sol) and not sol.success:
+        last = None  # no warm start from a plan that breaks a limit
     return sol, last

@@ -41,6 +41,27 @@ def scalar_trace(sigma0, motion: list, observation: list, predicted: bool):
     return ca.sum1(p if predicted else s)
 
 
+def spd_solve(S, B):
+    """`S^-1 B` for a symmetric positive definite SX matrix S, by a Cholesky factorisation written out in
+    elementary operations (870 instructions for 6x6 against 1580 for `casadi.solve`'s symbolic QR)."""
+    n = S.shape[0]
+    L = [[None] * n for _ in range(n)]
+    for j in range(n):
+        L[j][j] = ca.sqrt(S[j, j] - sum(L[j][k] ** 2 for k in range(j)))
+        for i in range(j + 1, n):
+            L[i][j] = (S[i, j] - sum(L[i][k] * L[j][k] for k in range(j))) / L[j][j]
+    cols = []
+    for c in range(B.shape[1]):
+        y = [None] * n
+        for i in range(n):
+            y[i] = (B[i, c] - sum(L[i][k] * y[k] for k in range(i))) / L[i][i]
+        x = [None] * n
+        for i in reversed(range(n)):
+            x[i] = (y[i] - sum(L[k][i] * x[k] for k in range(i + 1, n))) / L[i][i]
+        cols.append(ca.vertcat(*x))
+    return ca.horzcat(*cols)
+
+
 def kalman_stage(model: BeliefModel) -> ca.Function:
     """One step of the matrix Kalman recursion with the model's constant maps (F, Q, H, R), as a function of the
     noise coefficients: `(sigma, c) -> (sigma+, sigma_pred)` (vech), with `W = sum_k c_k W_k`,
@@ -53,7 +74,7 @@ def kalman_stage(model: BeliefModel) -> ca.Function:
     V = ca.DM(model.noise.V_min) + sum(c[len(Wm) + k] * ca.DM(M) for k, M in enumerate(Vm))
     P = F @ unvech(s) @ F.T + Q @ W @ Q.T
     HP = H @ P
-    post = P - HP.T @ ca.solve(H @ P @ H.T + R @ V @ R.T, HP)  # K^T = S^-1 H P
+    post = P - HP.T @ spd_solve(H @ P @ H.T + R @ V @ R.T, HP)  # K^T = S^-1 H P
     return ca.Function("kalman_stage", [s, c], [vech(0.5 * (post + post.T)), vech(P)], ["sigma", "c"],
                        ["sigma_next", "sigma_pred"])
 
@@ -69,7 +90,7 @@ def kalman_stage_jacobian(model: BeliefModel) -> ca.Function:
     W = sum(c[k] * ca.DM(M) for k, M in enumerate(Wm))
     V = ca.DM(model.noise.V_min) + sum(c[len(Wm) + k] * ca.DM(M) for k, M in enumerate(Vm))
     P = F @ unvech(s) @ F.T + Q @ W @ Q.T
-    K = ca.solve(H @ P @ H.T + R @ V @ R.T, H @ P).T
+    K = spd_solve(H @ P @ H.T + R @ V @ R.T, H @ P).T
     A = ca.DM.eye(NX) - K @ H
     B, AQ, KR = A @ F, A @ Q, K @ R
     cols = []
