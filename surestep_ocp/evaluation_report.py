@@ -247,11 +247,12 @@ def write_outputs(records, out: Path, methods, modes, header, spec) -> str:
             s = r["solves"][m]
             w.writerow([r["config"], m, s["success"], s["status"], f"{s['solve_time_s']:.4f}", s["iterations"]])
     write_text_atomic(out / "solves.csv", buf.getvalue())
-    boxplot(records, methods, modes, out / "boxplot.png", header.get("rollouts"))
+    gp = getattr(spec, "grasp_position", None)
+    boxplot(records, methods, modes, out / "boxplot.png", header.get("rollouts"), gp * 1e3 if gp else None)
     return table
 
 
-def boxplot(records, methods, modes, path: Path, rollouts: int | None = None) -> None:
+def boxplot(records, methods, modes, path: Path, rollouts: int | None = None, grasp_mm: float | None = None) -> None:
     """Final position errors [mm] of every rollout of every configuration, per method and mode.
 
     Tick labels count the method's failed solves (their plans are in the boxes too).
@@ -272,12 +273,15 @@ def boxplot(records, methods, modes, path: Path, rollouts: int | None = None) ->
         labels = [m + (f" ({st[m]['failed']} failed)" if st[m]["failed"] else "") for m in methods]
         ax.set_xticks(range(1, len(methods) + 1), labels, rotation=45, ha="right", fontsize=8)
         ax.set_yscale("log")
+        if grasp_mm:
+            ax.axhline(grasp_mm, color="tab:green", linestyle="--", linewidth=1)
         ax.set_title(f"rollout mode '{mode}'")
         ax.grid(True, axis="y", which="both", alpha=0.3)
     axes[0][0].set_ylabel("final position error ||p_T - p^G|| [mm]")
     per = f"{rollouts} rollouts" if rollouts else "rollouts"
-    fig.suptitle(f"final position errors, {len(records)} configurations x {per}, pooled "
-                 "(box: quartiles, whiskers: 5th-95th percentile, dots: the 10 % beyond)")
+    fig.suptitle(f"final position errors, {len(records)} configurations x {per}, pooled\n"
+                 "box: quartiles, whiskers: 5th-95th percentile, dots: the 10 % beyond"
+                 + ("; dashed: grasp tolerance" if grasp_mm else ""), fontsize=10)
     fig.tight_layout()
     b = io.BytesIO()
     fig.savefig(b, format="png", dpi=110)
