@@ -28,15 +28,20 @@ def run_comparison(setup: Setup, methods: tuple[str, ...] = COMPARE_METHODS, pro
 
 
 def attach_motion_limits(setup: Setup, sol: Solution) -> None:
-    """Record the plan's motion-limit report (limits.plan_report) in `sol.extras["motion_limits"]`."""
-    from .limits import motion_limits, plan_report
+    """Record the plan's motion-limit report (limits.plan_report, with the problem's `limits:` overrides) in
+    `sol.extras["motion_limits"]` (with `limits.enforce: true` also a failure over a limit, `limits.enforce`)."""
+    from .limits import enforce, plan_report, problem_limits
 
     if any(q is None for q in sol.q):
         sol.extras["motion_limits"] = {"skipped": "a waypoint has no IK solution (see reachability)"}
+        if setup.problem.limits.enforce:
+            enforce(setup, sol)
         return
-    lim = motion_limits(setup.robot.urdf, setup.robot.joint_names)
+    if setup.problem.limits.enforce:
+        enforce(setup, sol)
+        return
     sol.extras["motion_limits"] = plan_report(setup.robot, np.array(sol.q, float), setup.problem.timing.step_s,
-                                              lim, tool_frame=setup.robot.frame)
+                                              problem_limits(setup), tool_frame=setup.robot.frame)
 
 
 def write_comparison(solutions: list[Solution], out_dir: Path, problem_path: str) -> str:
@@ -85,7 +90,11 @@ def limits_table(solutions: list[Solution]) -> str:
     step = next(r for _, r in reps if isinstance(r, dict) and "step_s" in r)["step_s"]
     skipped = [m for m, r in reps if isinstance(r, dict) and "skipped" in r]
     note = f" (not checked: {', '.join(skipped)}, unreachable waypoints)" if skipped else ""
-    return (f"Motion limits at the planned pace ({step:g} s per step; reported, not enforced by the planners; "
+    enforced = any(isinstance(r, dict) and r.get("enforced") for _, r in reps)
+    how = ("enforced (`limits.enforce: true`: the OCP's constraints; a plan over a limit is a failure, "
+           "status Motion_Limits_Violated)" if enforced else
+           "reported, not enforced (`limits.enforce: false`)")
+    return (f"Motion limits at the planned pace ({step:g} s per step; {how}; "
             f"`surestep export` retimes a plan within the joint limits){note}:\n\n{markdown_rows(rows)}")
 
 

@@ -1,7 +1,9 @@
-"""Motion limits of a plan: what a dVRK would refuse or struggle with, REPORTED (not enforced).
+"""Motion limits of a plan: what a dVRK would refuse or struggle with; reported, and enforced on request.
 
-The planners do not honour these limits (issue 14: the solvers are another piece of work); this
-module measures a plan against them at its planned pace, one step per `timing.step_s`:
+A problem's `limits:` section (problems/README.md, "Motion limits") gives overrides; with
+`limits.enforce: true` the OCP (IPOPT's condensed transcription) carries them as constraints, and
+every method's plan that breaks one is not a success (`enforce`, status `Motion_Limits_Violated`).
+This module measures a plan against them at its planned pace, one step per `timing.step_s`:
 
 - joint velocity `|q_t+1 - q_t| / step_s` against the URDF's `<limit velocity=...>`;
 - joint acceleration `|v_t - v_t-1| / step_s`, the plan starting and ending at rest, against
@@ -37,6 +39,9 @@ RCM_MIN_DISTANCE_M = 0.045  # [m] saw SafeDistanceFromRCM (reference section 1c)
 RCM_FRAME = "roll_link"  # PSM DH frame 4: the end of the shaft (wrist-pitch axis)
 RCM_ROOT = "psm_rcm"  # the PSM URDF's root link, centred on the RCM
 JAW = "jaw"
+INSERTION = "insertion"  # the PSM's prismatic joint along the shaft (through the RCM)
+REL_TOL = 1e-6  # a value counts as over its limit beyond limit * (1 + REL_TOL) (IPOPT meets bounds to ~1e-8)
+VIOLATED = "Motion_Limits_Violated"
 
 
 def urdf_velocity_limits(urdf: str | Path) -> dict[str, float]:
@@ -90,7 +95,7 @@ def parse_overrides(items: list[str] | None, what: str) -> dict[str, float]:
 
 def motion_limits(urdf: str | Path, joint_names: list[str], velocity: dict[str, float] | None = None,
                   acceleration: dict[str, float] | None = None, tool_speed: float | None = None,
-                  tool_rotation: float | None = None) -> MotionLimits:
+                  tool_rotation: float | None = None, rcm_min_distance: float | None = None) -> MotionLimits:
     """The limits for a plan of `joint_names`: the URDF's velocities and the default accelerations,
     with the given overrides (by joint name). Unknown override names are an error listing the joints."""
     names = list(joint_names)
@@ -124,7 +129,67 @@ def motion_limits(urdf: str | Path, joint_names: list[str], velocity: dict[str, 
     return MotionLimits(tuple(names), np.array(v), np.array(a),
                         TOOL_SPEED_M_S if tool_speed is None else tool_speed,
                         TOOL_ROTATION_RAD_S if tool_rotation is None else tool_rotation,
+                        RCM_MIN_DISTANCE_M if rcm_min_distance is None else rcm_min_distance,
                         sources={"velocity": src_v, "acceleration": src_a})
+
+
+def is_psm(robot) -> bool:
+    """A dVRK PSM: the URDF's root is the RCM and the shaft's end frame exists (the RCM distance applies)."""
+    return RCM_FRAME in robot.frame_names and robot.model.frames[1].name == RCM_ROOT
+
+
+def problem_limits(setup) -> MotionLimits:
+    """The limits of a Setup's plan: the defaults with the problem file's `limits:` overrides."""
+    spec = setup.problem.limits
+    return motion_limits(setup.robot.urdf, setup.robot.joint_names, dict(spec.joint_velocity),
+                         dict(spec.joint_acceleration), spec.tool_speed, spec.tool_rotation_speed, spec.rcm_distance)
+
+
+def rcm_insertion_bound(robot, rcm_min_distance: float) -> tuple[int, float] | None:
+    """(index of the insertion joint, its lower bound) that keeps the end of the shaft `rcm_min_distance` from
+    the RCM; None if the robot is not a PSM.
+
+    Derivation: yaw and pitch rotate about the RCM and the insertion joint translates along the shaft, whose
+    axis passes through the RCM; roll turns about that axis. So the shaft's end (frame `roll_link`, the wrist
+    pitch axis) lies on the axis at the signed distance `s(q) = q_insertion + s_0` from the RCM, whatever the
+    other joints (`s_0` = -0.0156 m for the Classic LND, reference section 1c: the wrist-pitch axis is at
+    `q3 - 0.0156`), and `|s| >= d` on the branch the insertion limits allow (s > 0) is `q_insertion >= d - s_0`.
+    `s_0` is read from the robot's own kinematics (FK at two insertions) and the linearity is checked."""
+    if not is_psm(robot) or INSERTION not in robot.joint_names:
+        return None
+    j = robot.joint_names.index(INSERTION)
+    q = np.clip(np.zeros(robot.nq), robot.lower, robot.upper)
+    pts = []
+    for ins in (robot.lower[j], robot.upper[j]):
+        q[j] = ins
+        pts.append(robot.frame_pose(q, RCM_FRAME)[:3, 3])
+    axis = (pts[1] - pts[0]) / (robot.upper[j] - robot.lower[j])
+    if abs(np.linalg.norm(axis) - 1) > 1e-9 or np.linalg.norm(np.cross(pts[0], axis)) > 1e-9:
+        raise SurestepError(f"{robot.urdf}: the insertion joint does not move the shaft's end along a line "
+                            "through the RCM; the RCM distance cannot be a bound on the insertion")
+    s0 = float(np.dot(pts[0], axis)) - robot.lower[j]
+    return j, rcm_min_distance - s0
+
+
+def enforce(setup, sol, limits: MotionLimits | None = None) -> dict:
+    """With `limits.enforce: true`: check the plan of `sol` (a Solution), record the report in
+    `sol.extras["motion_limits"]`, and turn a successful solution that breaks a limit into a failure with
+    status `Motion_Limits_Violated` (the solver's own status kept as `extras["solver_status"]`; a failed
+    solution keeps its status).
+    Returns the report (an empty dict when the limits are not enforced)."""
+    if not setup.problem.limits.enforce:
+        return {}
+    if any(q is None for q in sol.q):
+        rep = {"skipped": "a waypoint has no IK solution (see reachability)", "ok": False}
+    else:
+        rep = plan_report(setup.robot, np.array(sol.q, float), setup.problem.timing.step_s,
+                          limits or problem_limits(setup), tool_frame=setup.robot.frame)
+    rep["enforced"] = True
+    sol.extras["motion_limits"] = rep
+    if not rep["ok"] and sol.success:  # a failure keeps its own status (the report says what it breaks)
+        sol.extras["solver_status"] = sol.status
+        sol.success, sol.status = False, VIOLATED
+    return rep
 
 
 def rotation_angle(Ra: np.ndarray, Rb: np.ndarray) -> float:
@@ -155,18 +220,18 @@ def plan_report(robot, q: np.ndarray, step_s: float, limits: MotionLimits, tool_
     violations = []
     for kind, values, lim in (("joint_velocity", vel, limits.velocity), ("joint_acceleration", acc,
                                                                        limits.acceleration)):
-        over = np.argwhere(np.abs(values) > lim * (1 + 1e-9))
+        over = np.argwhere(np.abs(values) > lim * (1 + REL_TOL))
         for t, j in over:
             violations.append({"kind": kind, "step": int(t), "joint": limits.joint_names[j],
                                "value": float(values[t, j]), "limit": float(lim[j])})
     for kind, values, lim in (("tool_speed", dp, limits.tool_speed), ("tool_rotation", dr, limits.tool_rotation)):
-        for t in np.flatnonzero(values > lim * (1 + 1e-9)):
+        for t in np.flatnonzero(values > lim * (1 + REL_TOL)):
             violations.append({"kind": kind, "step": int(t), "value": float(values[t]), "limit": float(lim)})
     rcm = None
-    if RCM_FRAME in robot.frame_names and robot.model.frames[1].name == RCM_ROOT:
+    if is_psm(robot):
         dist = np.array([np.linalg.norm(robot.frame_pose(qi, RCM_FRAME)[:3, 3]) for qi in q])
         rcm = float(dist.min())
-        for t in np.flatnonzero(dist < limits.rcm_min_distance - 1e-12):
+        for t in np.flatnonzero(dist < limits.rcm_min_distance * (1 - REL_TOL)):
             violations.append({"kind": "rcm_distance", "step": int(t), "value": float(dist[t]),
                                "limit": float(limits.rcm_min_distance)})
     peak_v, peak_a = np.abs(vel).max(axis=0), np.abs(acc).max(axis=0)

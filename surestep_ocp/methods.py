@@ -15,6 +15,7 @@ import numpy as np
 from .baseline import solve_baseline, straight_line
 from .belief import COMPONENTS
 from .errors import SurestepError
+from .limits import enforce as enforce_limits
 from .ocp import InitialGuess, solve_ocp
 from .setup import Setup
 from .solution import Solution
@@ -92,5 +93,6 @@ def run_method(setup: Setup, name: str, cache: dict[str, Solution] | None = None
         suffix = name[len(base):]
         grad = (cache or {}).get("gradient" + suffix) or run_method(setup, "gradient" + suffix, cache)
         sol = solve_ocp(s, ocp_initial_guess(s, "gradient", grad), solver_options)
+    enforce_limits(s, sol)  # limits.enforce: true: a plan over a limit is not a success, whichever method made it
     sol.method = name
     return sol

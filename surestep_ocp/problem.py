@@ -149,6 +149,21 @@ class TimingSpec:
 
 
 @dataclass(frozen=True)
+class LimitsSpec:
+    """`limits:` motion limits of a plan (problems/README.md, "Motion limits"). With `enforce: false` (the
+    default) they are only reported; with `true` the OCP honours them as constraints and a plan that breaks
+    one is not a success. None: the default (`limits.py`: URDF velocities, the dVRK's accelerations, 0.1 m/s,
+    pi/2 rad/s, 45 mm from the RCM)."""
+
+    enforce: bool = False
+    joint_velocity: tuple[tuple[str, float], ...] = ()  # per-joint overrides [rad/s or m/s]
+    joint_acceleration: tuple[tuple[str, float], ...] = ()  # [rad/s^2 or m/s^2]
+    tool_speed: float | None = None  # [m/s]
+    tool_rotation_speed: float | None = None  # [rad/s]
+    rcm_distance: float | None = None  # [m] (PSM only)
+
+
+@dataclass(frozen=True)
 class ObjectiveSpec:
     smoothness: float = 0.0  # weight on sum_t ||q_t+1 - q_t||^2 [1/rad^2], relative to Tr(Sigma_T) scale
 
@@ -171,6 +186,7 @@ class Problem:
     gradient: GradientSpec = GradientSpec()
     description: str = ""
     timing: TimingSpec = TimingSpec()
+    limits: LimitsSpec = LimitsSpec()
 
 
 # Limits of what a problem (or evaluation) file may be and hold (problems/README.md, "Limits").
@@ -269,7 +285,7 @@ _StrictLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _n
 
 
 _TOP = {"name", "description", "robot", "camera", "start", "goal", "horizon", "noise", "constraints",
-        "objective", "solver", "gradient", "timing"}
+        "objective", "solver", "gradient", "timing", "limits"}
 
 
 def load_problem(path: str | Path) -> Problem:
@@ -354,6 +370,7 @@ def parse_problem(tree: Any, path: Path) -> Problem:
         solver=_solver(rd, top.get("solver", {})),
         gradient=_gradient(rd, top.get("gradient", {})),
         timing=timing,
+        limits=_limits(rd, top.get("limits", {}), robot),
     )
 
 
@@ -372,6 +389,31 @@ def _timing(rd: Reader, node: Any) -> TimingSpec:
                                 f"it must be a whole number from 1 to {MAX_FRAMES_PER_STEP} (e.g. step_s 0.1 with "
                                 "tracker_hz 20: 2 frames)")
     return TimingSpec(step_s=step, tracker_hz=hz)
+
+
+def _limits(rd: Reader, node: Any, robot: RobotSpec) -> LimitsSpec:
+    """`limits: {enforce, joint_velocity: {JOINT: v}, joint_acceleration: {JOINT: a}, tool_speed,
+    tool_rotation_speed, rcm_distance}`; joint names are checked against the URDF's moving joints."""
+    from .limits import urdf_velocity_limits
+
+    m = rd.mapping(node, "limits", {"enforce", "joint_velocity", "joint_acceleration", "tool_speed",
+                                    "tool_rotation_speed", "rcm_distance"})
+    joints = None
+    per_joint = {}
+    for key in ("joint_velocity", "joint_acceleration"):
+        sub = rd.mapping(m.get(key, {}), f"limits.{key}", set(m.get(key) or {}) if isinstance(m.get(key), dict)
+                         else set())
+        if sub and joints is None:
+            joints = set(urdf_velocity_limits(robot.urdf))
+        for name, value in sub.items():
+            if str(name) not in joints:
+                raise rd.fail(f"limits.{key}.{name}", f"no moving joint '{shown(str(name))}' in {robot.urdf_rel}; "
+                                                      f"allowed: {', '.join(sorted(joints))}")
+            sub[name] = rd.number(value, f"limits.{key}.{name}", positive=True, high=1e6)
+        per_joint[key] = tuple(sorted((str(k), float(v)) for k, v in sub.items()))
+    opt = {k: (None if k not in m else rd.number(m[k], f"limits.{k}", positive=True, high=hi))
+           for k, hi in (("tool_speed", 100.0), ("tool_rotation_speed", 1000.0), ("rcm_distance", 10.0))}
+    return LimitsSpec(enforce=rd.boolean(m.get("enforce", False), "limits.enforce"), **per_joint, **opt)
 
 
 ERD_PREFIX = "example-robot-data:"

@@ -1,7 +1,8 @@
 """Which transcription and solver run, with which IPOPT options, and the caches of built solvers.
 
 A built NLP (and its compiled derivatives) is kept per structure: robot, belief model, horizon, form,
-smoothness, options, Hessian and codegen; a new start, goal, camera pose or Sigma_0 reuses it.
+smoothness, options, Hessian, codegen and the enforced motion limits (with the step time); a new start, goal,
+camera pose or Sigma_0 reuses it.
 """
 
 from __future__ import annotations
@@ -65,16 +66,34 @@ def transcription(setup: Setup, form: str | None = None, extra_options: dict | N
     T = setup.problem.horizon if horizon is None else horizon
     opts = solver_options(setup, extra_options)
     codegen = resolve_codegen(setup, hessian)
+    limits = enforced_limits(setup)
     key = (str(setup.robot.urdf), setup.robot.frame, setup.robot.offset.tobytes(), model.key(), model.scalar, T, form,
            setup.problem.objective.smoothness, tuple(sorted((k, repr(v)) for k, v in opts.items())), hessian, codegen,
-           setup.problem.solver.codegen is True)
+           setup.problem.solver.codegen is True, limits_key(limits))
     if key not in _CACHE and form == "full" and hessian == "surrogate":  # the lifted form's structured Hessian
         _CACHE[key] = LiftedTranscription(setup.robot, model, T, setup.problem.objective.smoothness, opts, codegen,
                                           codegen_required=setup.problem.solver.codegen is True)
     elif key not in _CACHE:
         _CACHE[key] = Transcription(setup.robot, model, T, form, setup.problem.objective.smoothness, opts, hessian,
-                                    codegen, codegen_required=setup.problem.solver.codegen is True)
+                                    codegen, codegen_required=setup.problem.solver.codegen is True, limits=limits)
     return _CACHE[key]
+
+
+def enforced_limits(setup: Setup):
+    """(step_s, MotionLimits) when the problem enforces its motion limits (`limits.enforce: true`), else None."""
+    if not setup.problem.limits.enforce:
+        return None
+    from .limits import problem_limits
+
+    return setup.problem.timing.step_s, problem_limits(setup)
+
+
+def limits_key(limits) -> tuple | None:
+    if limits is None:
+        return None
+    dt, lim = limits
+    return (dt, tuple(lim.joint_names), lim.velocity.tobytes(), lim.acceleration.tobytes(), lim.tool_speed,
+            lim.tool_rotation, lim.rcm_min_distance)
 
 
 def resolve_codegen(setup: Setup, hessian: str) -> bool:

@@ -16,6 +16,16 @@ value, plus an optional joint-step smoothness term. The covariance forms (`solve
 The NLP is parametric in the camera pose (the robot base in the camera frame), the scales and Sigma_0, so
 one built solver serves every start, goal and camera pose of a given structure and horizon
 (`solver_setup.transcription` caches it). Measurements: README, "How the OCP is built", and docs/solvers.md.
+
+With `limits` (a problem's `limits.enforce: true`, `limits.py`) the NLP also carries the motion limits, each
+row normalised by its limit (so every bound is 1): joint velocities `(q_t+1 - q_t) / (dt v_max)` and
+accelerations `(q_t+1 - 2 q_t + q_t-1) / (dt^2 a_max)` of the moving joints, linear, with the plan at rest
+before q_0 and after q_T (q_-1 = q_0, q_T+1 = q_T: a plan is a motion from rest to rest, as `limits.py`
+reports it and `surestep export` runs it); per interval the tool's squared translation
+`|p(q_t+1) - p(q_t)|^2 / (v_tool dt)^2` and its rotation `(3 - tr(R_t^T R_t+1)) / (2 - 2 cos(w_tool dt))`
+(the angle between the two orientations is at most `w_tool dt` exactly when this is at most 1), with the
+frame's FK (no needle offset); and the RCM distance as a lower bound on the PSM's insertion joint
+(`limits.rcm_insertion_bound`).
 """
 
 from __future__ import annotations
@@ -29,6 +39,7 @@ import numpy as np
 from .belief import DIAG, NV, NX, BeliefModel, unvech, vech
 from .codegen import compiled_or_interpreted
 from .errors import SurestepError
+from .limits import MotionLimits
 from .robot import Robot
 from .setup import Setup
 from .solution import Solution, evaluate
@@ -110,8 +121,10 @@ class Transcription:
     """The multiple-shooting NLP of one structure (robot, belief model, horizon, form), built once."""
 
     def __init__(self, robot: Robot, model: BeliefModel, horizon: int, form: str, smoothness: float,
-                 options: dict, hessian: str = "exact", codegen: bool = False, codegen_required: bool = False):
+                 options: dict, hessian: str = "exact", codegen: bool = False, codegen_required: bool = False,
+                 limits: tuple[float, MotionLimits] | None = None):
         self.robot, self.model, self.T, self.form = robot, model, horizon, form
+        self.limits = limits  # (step_s, MotionLimits) enforced as constraints, or None
         self.scalar = form == "condensed" and model.scalar
         T, nq = horizon, robot.nq
         ns = NX if form == "diagonal" else NV
@@ -162,6 +175,8 @@ class Transcription:
         f = trace_T / trace_ref
         if smoothness > 0:
             f += smoothness * sum(ca.sumsqr(qs[t + 1] - qs[t]) for t in range(T))
+        self.ng_eq = ca.vertcat(*g).shape[0]  # the equality rows; the limit rows (if any) follow
+        self._limit_rows(L.vector(), qs, g)
         self.ng = ca.vertcat(*g).shape[0]
         self.hessian, self.hess_lag = hessian, None
         if hessian not in HESSIANS:
@@ -184,6 +199,74 @@ class Transcription:
         self.solver = ca.nlpsol("surestep_ocp", "ipopt", {"x": L.vector(), "f": f, "g": ca.vertcat(*g),
                                                            "p": self.p}, options)
         self.build_time_s = time.perf_counter() - t0
+
+    def _limit_rows(self, x: ca.SX, qs: list, g: list) -> None:
+        """Append the motion-limit rows (module docstring) to `g`: the linear ones `A x` (A constant), then
+        per interval the tool's normalised translation and rotation (`self.tool_rows`, of (q_t, q_t+1))."""
+        self.n_lin = self.n_tool = 0
+        self.A, self.tool_rows, self.rcm_bound, self.limit_g = None, None, None, None
+        if self.limits is None:
+            return
+        from .limits import rcm_insertion_bound
+
+        dt, lim = self.limits
+        T, nq, n = self.T, self.robot.nq, x.shape[0]
+        idx = self._q_index()
+        mov = self.robot.supporting_joints()
+        rows, cols, vals = [], [], []
+        r = 0
+        for t in range(T):  # velocity over step t
+            for j in mov:
+                rows += [r, r]
+                cols += [idx[t + 1][j], idx[t][j]]
+                vals += [1 / (dt * lim.velocity[j]), -1 / (dt * lim.velocity[j])]
+                r += 1
+        for t in range(T + 1):  # acceleration at waypoint t, at rest before q_0 and after q_T
+            for j in mov:
+                c = 1 / (dt * dt * lim.acceleration[j])
+                coef = {}
+                if t < T:
+                    coef[idx[t + 1][j]] = coef.get(idx[t + 1][j], 0) + c
+                    coef[idx[t][j]] = coef.get(idx[t][j], 0) - c
+                if t > 0:
+                    coef[idx[t][j]] = coef.get(idx[t][j], 0) - c
+                    coef[idx[t - 1][j]] = coef.get(idx[t - 1][j], 0) + c
+                for col, v in coef.items():
+                    rows.append(r)
+                    cols.append(col)
+                    vals.append(v)
+                r += 1
+        self.n_lin = r
+        self.A = np.zeros((r, n))
+        np.add.at(self.A, (rows, cols), vals)
+        qa, qb = ca.SX.sym("qa", nq), ca.SX.sym("qb", nq)
+        Ta, Tb = self.robot.fk_expr(qa, self.robot.frame), self.robot.fk_expr(qb, self.robot.frame)
+        out = [ca.sumsqr(Tb[:3, 3] - Ta[:3, 3]) / (lim.tool_speed * dt) ** 2]
+        if lim.tool_rotation * dt < np.pi:  # else any rotation is within the limit
+            out.append((3 - ca.sum1(ca.sum2(Ta[:3, :3] * Tb[:3, :3]))) / (2 - 2 * np.cos(lim.tool_rotation * dt)))
+        self.tool_rows = ca.Function("tool_rows", [qa, qb], [ca.vertcat(*out)])
+        self.n_tool = len(out) * T
+        lin = ca.mtimes(ca.sparsify(ca.DM(self.A)), x)
+        tool = ca.vec(self.tool_rows.map(T)(ca.horzcat(*qs[:T]), ca.horzcat(*qs[1:])))
+        g += [lin, tool]
+        self.limit_g = ca.Function("limit_g", [x], [ca.vertcat(lin, tool)])
+        self.rcm_bound = rcm_insertion_bound(self.robot, lim.rcm_min_distance)
+
+    def _q_index(self) -> list[np.ndarray]:
+        offsets = dict(zip((name for name, _, _ in self.layout.blocks),
+                           np.cumsum([0] + [size for _, size, _ in self.layout.blocks])))
+        return [np.arange(offsets[f"q{t}"], offsets[f"q{t}"] + self.robot.nq) for t in range(self.T + 1)]
+
+    def g_bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """lbg, ubg: the equalities at 0, every normalised limit row at most 1 (the linear ones at least -1)."""
+        lo = np.concatenate([np.zeros(self.ng_eq), -np.ones(self.n_lin), np.full(self.n_tool, -np.inf)])
+        hi = np.concatenate([np.zeros(self.ng_eq), np.ones(self.n_lin + self.n_tool)])
+        return lo, hi
+
+    def _violation(self, g: np.ndarray) -> float:
+        """Largest violation of the constraint rows (the equalities' |g|, the limit rows' excess over 1)."""
+        lo, hi = self.g_bounds()
+        return float(np.max(np.maximum(lo - g, 0) + np.maximum(g - hi, 0))) if len(g) else 0.0
 
     def _staged_derivatives(self, pose: ca.Function, sigma0, trace_ref, smoothness) -> dict:
         """Objective gradient, constraint Jacobian and a structured Hessian of the Lagrangian, built stage-wise.
@@ -250,15 +333,40 @@ class Transcription:
             grad = ca.densify(grad) + ca.mtimes(ca.DM(D), X)
         grad_f = ca.Function("nlp_grad_f", [X, P], [S_x + smooth_f, ca.densify(grad)], ["x", "p"], ["f", "grad"])
 
-        jac_sp, (sc_q, sc_mu), _ = assemble((self.ng, n), [entries(list(zip(g_idx, q_idx))),
-                                                          entries(list(zip(g_idx, mu_idx)))])
-        J_nz = ca.mtimes(sc_q, ca.vec(Jq)) + ca.mtimes(sc_mu, ca.DM(np.tile(np.eye(NX).ravel(order="F"), T + 1)))
+        jac_parts = [entries(list(zip(g_idx, q_idx))), entries(list(zip(g_idx, mu_idx)))]
+        hess_parts = [entries([(i, i) for i in ab_idx]), entries([(i, i) for i in q_idx])]
         g_x = ca.vec(mus - ca.Function("poses", [q, Tcb], [pose(q, Tcb)]).map(T + 1)(qs, Tcb_x))
-        jac_g = ca.Function("nlp_jac_g", [X, P], [g_x, ca.MX(jac_sp, J_nz)], ["x", "p"], ["g", "jac"])
+        lin_const, g_lim = None, []
+        if self.limits is not None:  # the limit rows: A x (constant Jacobian), then the tool rows per interval
+            k = self.n_tool // T
+            qab = ca.vertcat(q, ca.SX.sym("qb", nq))
+            rows_ab = self.tool_rows(qab[:nq], qab[nq:])
+            lam_k = ca.SX.sym("lam_k", k)
+            tool_jac = ca.Function("tool_jac", [qab], [ca.densify(ca.jacobian(rows_ab, qab))])
+            tool_hess = ca.Function("tool_hess", [qab, lam_k], [ca.densify(ca.hessian(ca.dot(lam_k, rows_ab), qab)[0])])
+            qq_idx = [np.concatenate([q_idx[t], q_idx[t + 1]]) for t in range(T)]
+            t_idx = [self.ng_eq + self.n_lin + np.arange(k * t, k * (t + 1)) for t in range(T)]
+            jac_parts.append(entries(list(zip(t_idx, qq_idx))))
+            hess_parts.append(entries([(i, i) for i in qq_idx]))
+            lin_const = np.zeros((self.ng, n))
+            lin_const[self.ng_eq:self.ng_eq + self.n_lin] = self.A
+            qab_x = ca.vertcat(qs[:, :T], qs[:, 1:])
+            Jt = tool_jac.map(T)(qab_x)
+            Ht = tool_hess.map(T)(qab_x, ca.reshape(lam_g[self.ng_eq + self.n_lin:], k, T))
+            A_sp = ca.sparsify(ca.DM(self.A))
+            g_lim = [ca.mtimes(A_sp, X), ca.vec(self.tool_rows.map(T)(qs[:, :T], qs[:, 1:]))]
+        jac_sp, sc_j, jconst = assemble((self.ng, n), jac_parts, lin_const)
+        J_nz = ca.mtimes(sc_j[0], ca.vec(Jq)) + ca.mtimes(sc_j[1], ca.DM(np.tile(np.eye(NX).ravel(order="F"), T + 1)))
+        if self.limits is not None:
+            J_nz += jconst + ca.mtimes(sc_j[2], ca.vec(Jt))
+        jac_g = ca.Function("nlp_jac_g", [X, P], [ca.vertcat(g_x, *g_lim), ca.MX(jac_sp, J_nz)], ["x", "p"],
+                            ["g", "jac"])
 
-        hess_sp, (sc_b, sc_k), const = assemble((n, n), [entries([(i, i) for i in ab_idx]),
-                                                         entries([(i, i) for i in q_idx])], np.triu(D))
+        hess_sp, sc_h, const = assemble((n, n), hess_parts, np.triu(D))
+        sc_b, sc_k = sc_h[:2]
         H_nz = lam_f * (ca.mtimes(sc_b, ca.vec(B)) + const) + ca.mtimes(sc_k, ca.vec(K))
+        if self.limits is not None:
+            H_nz += ca.mtimes(sc_h[2], ca.vec(Ht))
         hess_lag = ca.Function("nlp_hess_l", [X, P, lam_f, lam_g], [ca.MX(hess_sp, H_nz)],
                                ["x", "p", "lam_f", "lam_g"], ["hess"])
         return {"grad_f": grad_f, "jac_g": jac_g, "hess_lag": hess_lag}
@@ -307,6 +415,8 @@ class Transcription:
             for j in range(nq):
                 if t == 0 or j not in movable:
                     ql[j] = qh[j] = setup.q_start[j]
+                elif self.rcm_bound is not None and j == self.rcm_bound[0]:  # the RCM distance (limits)
+                    ql[j] = min(max(ql[j], self.rcm_bound[1]), qh[j])
             lo[f"q{t}"], hi[f"q{t}"] = ql, qh
             ml, mh = np.full(NX, -np.inf), np.full(NX, np.inf)
             ml[2] = prob.min_depth
@@ -347,6 +457,9 @@ class Transcription:
         x0, scale, trace_ref = self._condensed_start(setup, init)
         lbx, ubx = self.bounds(setup, scale)
         violation = float(np.max(np.maximum(lbx - x0, 0) + np.maximum(x0 - ubx, 0)))
+        if self.limit_g is not None:  # the motion limits too (the kinematic rows hold by construction)
+            violation = max(violation, self._violation(np.concatenate(
+                [np.zeros(self.ng_eq), np.asarray(self.limit_g(x0)).ravel()])))
         if violation > 1e-9:
             return None
         q = np.asarray(init.q, float)
@@ -373,7 +486,8 @@ class Transcription:
             x0, scale, trace_ref = warm.x, warm.scale, warm.trace_ref
         lbx, ubx = self.bounds(setup, scale)
         p = self._parameters(setup, scale, trace_ref)
-        args = dict(x0=x0, lbx=lbx, ubx=ubx, lbg=0.0, ubg=0.0, p=p)
+        lbg, ubg = self.g_bounds()
+        args = dict(x0=x0, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg, p=p)
         if warm is not None:
             args.update(lam_x0=warm.lam_x, lam_g0=warm.lam_g)
         res = self.solver(**args)
@@ -400,7 +514,7 @@ class Transcription:
                 **({"codegen_note": self.codegen_note} if self.codegen_note else {}),
                 "ocp_trace_final": ocp_trace,
                 "initial_trace": trace_ref,  # the planner's objective at the (cold) initial guess
-                "constraint_violation": float(np.max(np.abs(np.asarray(res["g"])))),
+                "constraint_violation": self._violation(np.asarray(res["g"]).ravel()),
             },
         )
         return sol, WarmStart(np.asarray(res["x"]).ravel(), np.asarray(res["lam_x"]).ravel(),
