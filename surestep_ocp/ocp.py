@@ -119,6 +119,10 @@ def solve_ocp_warm(setup: Setup, init: InitialGuess, solver_options: dict | None
             init = InitialGuess(np.array(pre.q), f"condensed solution ({init.source})")
     done = False
     forced = spec.hessian in ("surrogate", "gauss-newton")  # no exact-Hessian attempts
+    # The exact Hessian of the 6x6 recursion is unrolled and interpreted: seconds per iteration (evaluation
+    # configuration 45 with a correlated V_d0: 1009 iterations, 94 s, to keep the start anyway). For such models the
+    # fallbacks stop at the structured Hessian, and a feasible start is kept when nothing converged below it.
+    costly = setup.model.structured and not setup.model.scalar
     newton_fits = newton_applies(setup, form, hessian, forced)
     if spec.name == "newton" and not newton_fits:
         raise SurestepError("solver.name: newton needs the condensed form of a model with constant motion and "
@@ -143,14 +147,16 @@ def solve_ocp_warm(setup: Setup, init: InitialGuess, solver_options: dict | None
         cap = spec.max_iter if forced else min(spec.surrogate_max_iter, spec.max_iter)
         near = LIFTED_FROM_CONDENSED if pre is not None and pre.success and not pinned else {}
         done = attempt("lifted" if form == "full" else hessian, hessian, {"ipopt.max_iter": cap, **near}, None)
+        if not done and near:  # the small monotone barrier did not settle: the adaptive update from the same point
+            done = attempt("lifted, adaptive barrier", hessian, {"ipopt.max_iter": cap}, None)
         # With enforced motion limits, IPOPT's infeasibility verdict is the limits' (the Hessian only shapes the
         # steps): the exact-Hessian attempts ended infeasible too (evaluation configurations 1, 2, 4 at step_s
         # 0.05: 9 of 9 attempts, 5-8 s each), so none follow; and they are capped at surrogate_max_iter (one that
         # did not converge ran 3 x 3000 iterations, 265 s).
         done = done or (limited and tried[-1][1].status == "Infeasible_Problem_Detected")
-        if not done and not forced and form == "condensed":  # polish from the point reached (same variables)
+        if not done and not forced and form == "condensed" and not costly:  # polish from the point reached
             done = attempt("exact", "exact", exact_cap, tried[-1][2])
-    if not done and not forced:
+    if not done and not forced and not costly:
         done = attempt("exact", "exact", exact_cap, None)
         if not done and not pinned:
             attempt("exact, monotone barrier", "exact", {"ipopt.mu_strategy": "monotone", **exact_cap}, None)
@@ -161,14 +167,16 @@ def solve_ocp_warm(setup: Setup, init: InitialGuess, solver_options: dict | None
     def start_objective(s_k: Solution) -> float:  # the planner's objective at the cold start (trace + smoothness)
         return s_k.extras["initial_trace"] * (1 + smooth0)
 
-    if finished and warm is None and tried[pick][1].objective > start_objective(tried[pick][1]):
+    if warm is None and ((finished and tried[pick][1].objective > start_objective(tried[pick][1]))
+                         or (costly and not finished and tried)):
         # Every converged point is above the (cold) start: keep the start if it is a feasible plan, rather than
         # return a plan worse than the one we began from (step 4). Reported as its own attempt.
         start = used[-1].start_solution(setup, init, method) if used else None  # same start point and bounds
         if start is not None:
             ran = sorted({s_k.extras["solver"] for _, s_k, _ in tried})
-            start.extras["solver"] = f"none (the initial guess; {', '.join(ran)} converged above it)"
-            tried.append(("none: the feasible initial guess, below every converged point", start, None))
+            start.extras["solver"] = f"none (the initial guess; {', '.join(ran)} did not end below it)"
+            tried.append(("none: the feasible initial guess, below every converged point" if finished else
+                          "none: the feasible initial guess (no attempt converged)", start, None))
             pick = len(tried) - 1
     sol, last = tried[pick][1], tried[pick][2]
     sol.extras["attempts"] = [{"hessian": name, "status": s_k.status, "iterations": s_k.iterations,
