@@ -146,7 +146,10 @@ class LiftedTranscription:
         self.poses = pose.map(T + 1)
         # the initial multipliers are always given (the adjoint recursion, or a warm start's): IPOPT uses them
         self.solver = ca.nlpsol("surestep_lifted", "ipopt", {"x": X, "f": f, "g": g, "p": P},
-                                {**options, "ipopt.warm_start_init_point": "yes", **staged})
+                                {**options, "ipopt.warm_start_init_point": "yes", **staged,
+                                 # a trial point whose covariance is not PD has no Cholesky factor (NaN): IPOPT
+                                 # shortens the step, which is its answer; no warning per evaluation
+                                 "show_eval_warnings": False})
         self.build_time_s = time.perf_counter() - t0
 
     # ------------------------------------------------------------------ one solve
