@@ -168,9 +168,11 @@ def solve_ocp_warm(setup: Setup, init: InitialGuess, solver_options: dict | None
         return s_k.extras["initial_trace"] * (1 + smooth0)
 
     if warm is None and ((finished and tried[pick][1].objective > start_objective(tried[pick][1]))
-                         or (costly and not finished and tried)):
+                         or ((costly or limited) and not finished and tried)):
         # Every converged point is above the (cold) start: keep the start if it is a feasible plan, rather than
         # return a plan worse than the one we began from (step 4). Reported as its own attempt.
+        # With enforced limits also when nothing converged and the start meets every limit (evaluation configurations
+        # 0, 36, 45, 91 at step_s 0.2: the straight line is within the limits, IPOPT stops at its iteration caps).
         start = used[-1].start_solution(setup, init, method) if used else None  # same start point and bounds
         if start is not None:
             ran = sorted({s_k.extras["solver"] for _, s_k, _ in tried})
