@@ -41,9 +41,11 @@ from .surrogate import interval_terms, pose_function, recursion_weights
 
 
 EXACT_BELOW = 1e-3  # projected gradient (objective 1 at the start) below which Newton tries the exact Hessian
-# The exact Hessian is dense (S couples every interval): its cost grows as n^3, so above this many joint variables
-# (T of about 56 for the PSM) Newton keeps the banded surrogate, whose cost is linear in T.
-EXACT_MAX_N = 400
+# The exact Hessian is dense (S couples every interval): its cost grows as n^3 and its curvature's as T^2, so above
+# this many joint variables (T of about 27 for the PSM) Newton keeps the banded surrogate, linear in T. (With 400,
+# i.e. T = 40 included, the T = 40 median of benchmarks/solve_speed.py rose from 0.79 to 1.04 of the gradient
+# variant's: two dense steps cost more than the surrogate iterations they save.)
+EXACT_MAX_N = 200
 
 
 class _Buffered:
