@@ -22,9 +22,17 @@ import numpy as np
 
 from .errors import SurestepError
 from .lie import matrix_to_pose
-from .problem import MAX_HORIZON, EndpointSpec, Problem, find_shipped, load_problem, read_yaml, resolve_path
+from .problem import (
+    MAX_HORIZON,
+    EndpointSpec,
+    Problem,
+    _gradient,
+    find_shipped,
+    load_problem,
+    read_yaml,
+    resolve_path,
+)
 from .robot import Robot
-from .problem import _gradient
 from .rollout import Detection
 from .schema import Reader
 from .setup import Setup, build_setup, load_robot

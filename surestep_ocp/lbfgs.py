@@ -32,8 +32,8 @@ against scipy's L-BFGS-B on the same problems. Computations are in float64
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable
 
 import numpy as np
 

@@ -14,8 +14,8 @@ from surestep_ocp.errors import SurestepError
 distributed = pytest.importorskip("distributed")  # in the test extra; skipped only where it is not installed
 
 REPO = Path(__file__).resolve().parents[1]
-EVAL = next((p for p in (REPO / "problems" / "evaluations" / "evaluation.yaml", REPO / "problems" / "evaluation.yaml")
-             if p.is_file()))
+EVAL = next(p for p in (REPO / "problems" / "evaluations" / "evaluation.yaml", REPO / "problems" / "evaluation.yaml")
+             if p.is_file())
 
 
 def _run(argv: list[str]) -> int:

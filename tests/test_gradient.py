@@ -4,8 +4,8 @@ import dataclasses
 from pathlib import Path
 
 import numpy as np
-import yaml
 import pytest
+import yaml
 
 from surestep_ocp.baseline import solve_baseline, straight_line
 from surestep_ocp.gradient import build_loss, solve_gradient
