@@ -39,9 +39,9 @@ from .codegen import compiled_or_interpreted
 from .errors import SurestepError
 from .robot import Robot
 from .setup import Setup
-from .solution import Solution, evaluate
+from .solution import Solution
 from .stages import assemble, entries, smoothness_matrix
-from .transcription import WarmStart
+from .transcription import ipopt_solution
 from .surrogate import interval_terms, kalman_stage, kalman_stage_jacobian, pose_function, recursion_weights
 
 
@@ -210,28 +210,10 @@ class LiftedTranscription:
             args.update(zip(("lam_g0", "lam_x0"), self.multipliers(x0, p)))
         res = self.solver(**args)
         solve_s = time.perf_counter() - t0
-        stats = self.solver.stats()
         Z = np.asarray(res["x"]).reshape(self.nz, T + 1, order="F")
-        q = Z[:nq, :].T.copy()
-        poses = np.array([setup.pose_of(qi) for qi in q])  # Pinocchio FK of the solution's joints
-        sol = evaluate(
-            setup, method, poses, list(q),
-            success=bool(stats["success"]), status=str(stats["return_status"]), solve_time_s=solve_s,
-            iterations=int(stats["iter_count"]), objective=float(res["f"]) * trace_ref,
-            extras={
-                "init": init.source if warm is None else f"warm start ({init.source})",
-                "solver": "ipopt",
-                "covariance_form": "full (lifted, structured Hessian)",
-                "build_time_s": self.build_time_s,
-                "compiled": self.codegen,
-                **({"codegen_note": self.codegen_note} if self.codegen_note else {}),
-                "ocp_trace_final": float(scale[T] * np.trace(unvech(Z[nq + NX:, T]))),
-                "initial_trace": trace_ref,
-                "constraint_violation": float(np.max(np.abs(np.asarray(res["g"])))),
-            },
-        )
-        return sol, WarmStart(np.asarray(res["x"]).ravel(), np.asarray(res["lam_x"]).ravel(),
-                              np.asarray(res["lam_g"]).ravel(), scale, trace_ref)
+        return ipopt_solution(self, setup, method, init, warm, Z[:nq, :].T.copy(), res, solve_s, scale, trace_ref,
+                              float(scale[T] * np.trace(unvech(Z[nq + NX:, T]))),
+                              float(np.max(np.abs(np.asarray(res["g"])))), "full (lifted, structured Hessian)")
 
     def start_solution(self, setup: Setup, init, method: str = "ocp") -> Solution | None:
         """Not offered by the lifted form (the condensed form keeps a feasible start)."""

@@ -62,19 +62,25 @@ def spd_solve(S, B):
     return ca.horzcat(*cols)
 
 
-def kalman_stage(model: BeliefModel) -> ca.Function:
-    """One step of the matrix Kalman recursion with the model's constant maps (F, Q, H, R), as a function of the
-    noise coefficients: `(sigma, c) -> (sigma+, sigma_pred)` (vech), with `W = sum_k c_k W_k`,
-    `V = V_min + sum_k c_k V_k`, `P = F Sigma F^T + Q W Q^T`, `Sigma+ = P - P H^T (H P H^T + R V R^T)^-1 H P`
-    (symmetrised). `c` holds the motion coefficients first, then the observation ones."""
+def _stage_symbols(model: BeliefModel):
+    """Symbols `sigma` (vech), `c` (motion coefficients, then observation ones), the prediction
+    `P = F Sigma F^T + Q W Q^T`, the gain `K = P H^T (H P H^T + R V R^T)^-1` with `W = sum_k c_k W_k`,
+    `V = V_min + sum_k c_k V_k`, and the constant maps."""
     F, Q, H, R = (ca.DM(M) for M in model.constant_maps)
     Wm, Vm = model.motion_matrices(), model.observation_matrices()
     s, c = ca.SX.sym("sigma", NV), ca.SX.sym("c", len(Wm) + len(Vm))
     W = sum(c[k] * ca.DM(M) for k, M in enumerate(Wm))
     V = ca.DM(model.noise.V_min) + sum(c[len(Wm) + k] * ca.DM(M) for k, M in enumerate(Vm))
     P = F @ unvech(s) @ F.T + Q @ W @ Q.T
-    HP = H @ P
-    post = P - HP.T @ spd_solve(H @ P @ H.T + R @ V @ R.T, HP)  # K^T = S^-1 H P
+    K = spd_solve(H @ P @ H.T + R @ V @ R.T, H @ P).T
+    return s, c, P, K, (F, Q, H, R), (Wm, Vm)
+
+
+def kalman_stage(model: BeliefModel) -> ca.Function:
+    """One step of the matrix Kalman recursion with the model's constant maps (F, Q, H, R), as a function of the
+    noise coefficients: `(sigma, c) -> (sigma+, sigma_pred)` (vech), `Sigma+ = P - K H P` (symmetrised)."""
+    s, c, P, K, (_, _, H, _), _ = _stage_symbols(model)
+    post = P - K @ H @ P
     return ca.Function("kalman_stage", [s, c], [vech(0.5 * (post + post.T)), vech(P)], ["sigma", "c"],
                        ["sigma_next", "sigma_pred"])
 
@@ -83,14 +89,8 @@ def kalman_stage_jacobian(model: BeliefModel) -> ca.Function:
     """`(sigma, c) -> d sigma+ / d(sigma, c)` (21 x (21 + nc)) of `kalman_stage`, by the first-order
     perturbation of the Riccati update at the Kalman gain, `d Sigma+ = A dP A^T + K R dV R^T K^T` with
     `A = I - K H` (the gain's own variation drops out, it is optimal): each column a congruence of one
-    base matrix. AD through the symbolic 6x6 solve gave 47k instructions against about 10k here."""
-    F, Q, H, R = (ca.DM(M) for M in model.constant_maps)
-    Wm, Vm = model.motion_matrices(), model.observation_matrices()
-    s, c = ca.SX.sym("sigma", NV), ca.SX.sym("c", len(Wm) + len(Vm))
-    W = sum(c[k] * ca.DM(M) for k, M in enumerate(Wm))
-    V = ca.DM(model.noise.V_min) + sum(c[len(Wm) + k] * ca.DM(M) for k, M in enumerate(Vm))
-    P = F @ unvech(s) @ F.T + Q @ W @ Q.T
-    K = spd_solve(H @ P @ H.T + R @ V @ R.T, H @ P).T
+    base matrix. AD through the symbolic 6x6 solve gave 47k instructions against about 4k here."""
+    s, c, _, K, (F, Q, H, R), (Wm, Vm) = _stage_symbols(model)
     A = ca.DM.eye(NX) - K @ H
     B, AQ, KR = A @ F, A @ Q, K @ R
     cols = []

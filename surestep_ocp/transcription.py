@@ -492,33 +492,42 @@ class Transcription:
             args.update(lam_x0=warm.lam_x, lam_g0=warm.lam_g)
         res = self.solver(**args)
         solve_s = time.perf_counter() - t0
-        stats = self.solver.stats()
         vals = self.layout.split(np.asarray(res["x"]).ravel())
         q = np.array([vals[f"q{t}"] for t in range(T + 1)])
-        poses = np.array([setup.pose_of(qi) for qi in q])  # Pinocchio FK of the solution's joints
         if self.form == "condensed":
             ocp_trace = float(res["f"]) * trace_ref
         else:
             sT = vals[f"s{T}"] * scale[T]
             ocp_trace = float(np.sum(sT) if self.form == "diagonal" else np.trace(unvech(sT)))
-        sol = evaluate(
-            setup, method, poses, list(q),
-            success=bool(stats["success"]), status=str(stats["return_status"]), solve_time_s=solve_s,
-            iterations=int(stats["iter_count"]), objective=float(res["f"]) * trace_ref,
-            extras={
-                "init": init.source if warm is None else f"warm start ({init.source})",
-                "solver": "ipopt",
-                "covariance_form": self.form,
-                "build_time_s": self.build_time_s,
-                "compiled": self.codegen,  # derivatives compiled to C (solver.codegen)
-                **({"codegen_note": self.codegen_note} if self.codegen_note else {}),
-                "ocp_trace_final": ocp_trace,
-                "initial_trace": trace_ref,  # the planner's objective at the (cold) initial guess
-                "constraint_violation": self._violation(np.asarray(res["g"]).ravel()),
-            },
-        )
-        return sol, WarmStart(np.asarray(res["x"]).ravel(), np.asarray(res["lam_x"]).ravel(),
-                              np.asarray(res["lam_g"]).ravel(), scale, trace_ref)
+        return ipopt_solution(self, setup, method, init, warm, q, res, solve_s, scale, trace_ref, ocp_trace,
+                              self._violation(np.asarray(res["g"]).ravel()), self.form)
+
+
+def ipopt_solution(tr, setup: Setup, method: str, init, warm, q: np.ndarray, res: dict, solve_s: float,
+                   scale: np.ndarray, trace_ref: float, ocp_trace: float, violation: float,
+                   form: str) -> tuple[Solution, WarmStart]:
+    """The Solution of one IPOPT solve of transcription `tr` (the exact EKF re-evaluates the plan from the
+    Pinocchio FK of its joints), and its primal-dual point as a warm start."""
+    stats = tr.solver.stats()
+    poses = np.array([setup.pose_of(qi) for qi in q])
+    sol = evaluate(
+        setup, method, poses, list(q),
+        success=bool(stats["success"]), status=str(stats["return_status"]), solve_time_s=solve_s,
+        iterations=int(stats["iter_count"]), objective=float(res["f"]) * trace_ref,
+        extras={
+            "init": init.source if warm is None else f"warm start ({init.source})",
+            "solver": "ipopt",
+            "covariance_form": form,
+            "build_time_s": tr.build_time_s,
+            "compiled": tr.codegen,  # derivatives compiled to C (solver.codegen)
+            **({"codegen_note": tr.codegen_note} if tr.codegen_note else {}),
+            "ocp_trace_final": ocp_trace,
+            "initial_trace": trace_ref,  # the planner's objective at the (cold) initial guess
+            "constraint_violation": violation,
+        },
+    )
+    return sol, WarmStart(np.asarray(res["x"]).ravel(), np.asarray(res["lam_x"]).ravel(),
+                          np.asarray(res["lam_g"]).ravel(), scale, trace_ref)
 
 
 CODEGEN_EXACT = ("solver.codegen: true compiles the stage-wise derivatives of the surrogate and Gauss-Newton "
