@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import io
 from pathlib import Path
 
 import numpy as np
@@ -103,18 +102,15 @@ COLOURS = {"baseline": "#7f7f7f", "gradient": "#ff7f0e", "gradient-no-pose-loss"
 
 
 def _figure():
-    import matplotlib
+    from .plots_motion import pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
+    return pyplot()
 
 
 def _save(fig, path: Path) -> None:
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=110)
-    write_text_atomic(path, buf.getvalue())
+    from .plots_motion import save_png
+
+    save_png(fig, path, dpi=110)
 
 
 def _plot_trace(solutions: list[Solution], path: Path) -> None:

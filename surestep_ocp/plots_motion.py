@@ -29,7 +29,8 @@ def colour_of(method: str, order: list[str] | None = None) -> str:
     return _FALLBACK[others.index(method) % len(_FALLBACK)] if method in others else _FALLBACK[0]
 
 
-def _plt():
+def pyplot():
+    """matplotlib.pyplot on the Agg backend (no display needed)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -38,9 +39,10 @@ def _plt():
     return plt
 
 
-def _save(fig, path: Path) -> Path:
+def save_png(fig, path: Path, dpi: int = 90) -> Path:
+    """`fig` as a PNG at `path`, written whole or not at all."""
     buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=90)
+    fig.savefig(buf, format="png", dpi=dpi)
     return write_text_atomic(path, buf.getvalue())
 
 
@@ -74,7 +76,7 @@ def plot_plans(solutions: list, urdf: str | Path, path: Path) -> Path | None:
             and "velocity_ratio" in s.extras["motion_limits"]]
     if not sols:
         return None
-    plt = _plt()
+    plt = pyplot()
     names = list(sols[0].extras["motion_limits"]["limits"]["joint_names"])
     lo, hi = _joint_limits(urdf, names)
     vmax = np.asarray(sols[0].extras["motion_limits"]["limits"]["velocity"])
@@ -99,7 +101,7 @@ def plot_plans(solutions: list, urdf: str | Path, path: Path) -> Path | None:
     fig.suptitle(f"plans at their planned pace ({sols[0].extras['motion_limits']['step_s']:g} s per step): "
                  "joints against their limits, tool speed", fontsize=9)
     fig.tight_layout()
-    out = _save(fig, path)
+    out = save_png(fig, path)
     plt.close(fig)
     return out
 
@@ -139,7 +141,7 @@ def tool_speeds(urdf: str | Path, frame: str, times: np.ndarray, q: np.ndarray) 
 
 def plot_trajectory(traj, sol: dict, urdf: str | Path, path: Path) -> Path:
     """`<stem>_motion.png` for `surestep export`: the exported trajectory against its limits."""
-    plt = _plt()
+    plt = pyplot()
     names = traj.joint_names
     lo, hi = _joint_limits(urdf, names)
     fig, axes = _axes(plt, len(names))
@@ -158,6 +160,6 @@ def plot_trajectory(traj, sol: dict, urdf: str | Path, path: Path) -> Path:
     fig.suptitle(f"{sol.get('method', 'plan')} exported: {traj.duration:.2f} s (planned "
                  f"{traj.step_s * (len(traj.waypoint_times) - 1):.2f} s), dots: the planned waypoints", fontsize=9)
     fig.tight_layout()
-    out = _save(fig, path)
+    out = save_png(fig, path)
     plt.close(fig)
     return out
