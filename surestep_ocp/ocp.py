@@ -14,6 +14,7 @@ from .errors import SurestepError
 from .limits import enforce as enforce_limits
 from .setup import Setup
 from .solution import Solution
+from .solver_setup import solver_options as solver_setup_options
 from .solver_setup import (LIFTED_FROM_CONDENSED, WARM_OPTIONS, cached_transcriptions, newton_applies,
                            newton_solver, resolve_codegen, resolve_hessian, transcription)
 from .transcription import (CODEGEN_EXACT, FORMS, HESSIANS, InitialGuess, NewtonWarm, Transcription, WarmStart,
@@ -200,6 +201,61 @@ def solve_ocp_warm(setup: Setup, init: InitialGuess, solver_options: dict | None
         sol.extras["worse_than_initial_guess"] = bool(sol.objective > sol.extras["initial_objective"])
         sol.solve_time_s += pre.solve_time_s
         sol.iterations += pre.iterations
+    if costly and form == "condensed" and warm is None and not limited and newton_fits and spec.name != "ipopt":
+        sol, last = _second_start(setup, cold, sol, last, solver_options, method)
     if enforce_limits(setup, sol) and not sol.success:
         last = None  # no warm start from a plan that breaks a limit
+    return sol, last
+
+
+def diagonal_model_setup(setup: Setup) -> Setup:
+    """The same setup with every base covariance replaced by its diagonal: a scalar model, cheap to solve."""
+    from dataclasses import replace
+
+    n = setup.problem.noise
+    diag = {k: np.diag(np.diag(np.asarray(getattr(n, k), float)))
+            for k in ("W_p0", "W_o0", "V_d0", "V_f0", "V_o0", "V_min", "Sigma0")}
+    return replace(setup, problem=replace(setup.problem, noise=replace(n, **diag)))
+
+
+def _second_start(setup: Setup, cold: InitialGuess, sol: Solution, last, solver_options, method: str):
+    """A 6x6-recursion model also starts Newton from the plan of its diagonal approximation (a scalar model,
+    solved in a few ms) and keeps the better converged plan. Measured on 100 evaluation configurations:
+    from the straight line alone 1-4 % of the optima were above the paper plan evaluated in the same model."""
+    approx = solve_ocp_warm(diagonal_model_setup(setup), cold, solver_options, method, "condensed")[0]
+    record = {"status": approx.status, "iterations": approx.iterations, "solve_time_s": approx.solve_time_s}
+    extra_time, extra_it = approx.solve_time_s, approx.iterations
+    if approx.success and approx.status != "Initial_Guess_Kept":
+        spec = setup.problem.solver
+        second = newton_solver(setup).solve(setup, InitialGuess(np.array(approx.q), "diagonal model's plan"),
+                                            method, tol=spec.tol, max_iter=min(spec.surrogate_max_iter,
+                                                                                 spec.max_iter))
+        record.update(newton_status=second.status, newton_iterations=second.iterations,
+                      newton_objective=second.objective)
+        extra_time += second.solve_time_s
+        extra_it += second.iterations
+        if not second.success and second.status == "Maximum_Iterations_Exceeded" and second.objective < sol.objective:
+            # Newton's surrogate converges linearly on the 6x6 recursion; a better unfinished point is finished by
+            # IPOPT (same surrogate Hessian, with the depth bound)
+            tr = transcription(setup, "condensed", solver_setup_options(setup, solver_options), hessian="surrogate")
+            second, _ = tr.solve(setup, InitialGuess(np.array(second.q), "Newton from the diagonal model's plan"),
+                                 method)
+            record.update(ipopt_status=second.status, ipopt_iterations=second.iterations)
+            extra_time += second.solve_time_s
+            extra_it += second.iterations
+        if second.success and (not sol.success or second.objective < sol.objective * (1 - 1e-9)):
+            for key in ("attempts", "initial_trace", "initial_objective"):
+                second.extras[key] = sol.extras[key]
+            second.extras["attempts"] = [{**a, "kept": False} for a in sol.extras["attempts"]] + [
+                {"hessian": f"{second.extras['solver']} from the diagonal model's plan", "status": second.status,
+                 "iterations": second.iterations, "solve_time_s": second.solve_time_s,
+                 "objective": second.objective, "kept": True, "compiled": second.extras["compiled"]}]
+            second.extras["hessian"] = sol.extras["hessian"] + f" + {second.extras['solver']} from the diagonal model's plan"
+            second.extras["init"] = sol.extras["init"]
+            second.extras["worse_than_initial_guess"] = bool(second.objective > second.extras["initial_objective"])
+            second.solve_time_s, second.iterations = sol.solve_time_s, sol.iterations
+            sol, last = second, NewtonWarm(np.array(second.q)) if second.extras["solver"] == "newton" else None
+    sol.extras["second_start"] = record
+    sol.solve_time_s += extra_time
+    sol.iterations += extra_it
     return sol, last
