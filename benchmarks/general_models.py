@@ -111,7 +111,7 @@ def main() -> None:
             if setup.model.scalar and form == "auto":  # its own diagonal approximation: the same solve
                 r["worse_diag"].append(False)
             else:  # the diagonal approximation's condensed plan (the fast scalar path) evaluated in this model
-                approx = diagonal_model_setup(variant(base, noise, "auto"))
+                approx = diagonal_model_setup(build_setup(variant(base, noise, "auto")))
                 dplan = solve_ocp(approx, ocp_initial_guess(approx))
                 dref = float(np.trace(setup.eval_model.propagate(np.array(dplan.poses))[0][-1]))
                 r["worse_diag"].append(sol.trace_final > dref * (1 + 1e-6))
