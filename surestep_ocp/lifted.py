@@ -33,6 +33,7 @@ import time
 
 import casadi as ca
 import numpy as np
+import scipy.sparse.linalg
 
 from .belief import DIAG, NV, NX, BeliefModel, unvech, vech
 from .codegen import compiled_or_interpreted
@@ -79,7 +80,6 @@ class LiftedTranscription:
         Jsc = kalman_stage_jacobian(model)(sc0 * s, c) / sc1  # d g / d(Sigma, c)
         Jab = ca.mtimes(Jsc[:, NV:], ca.jacobian(c, ca.vertcat(a, b)))
         interval_jac = ca.Function("lifted_jac", [a, b, s, sc0, sc1], [ca.densify(ca.horzcat(Jab, sc0 * Jsc[:, :NV]))])
-        coef_mo = ca.Function("lifted_coef_mo", [a, b], list(coefficients))
         interval_hess = ca.Function("lifted_hess", [a, b, wm, wo],
                                     [ca.densify(ca.hessian(weighted, ca.vertcat(a, b))[0])])
         q, lk, Tcb = ca.SX.sym("q", nq), ca.SX.sym("lk", NX), ca.SX.sym("T_cam_base", 3, 4)
@@ -126,8 +126,9 @@ class LiftedTranscription:
             entries([(np.concatenate([mu_idx[t], mu_idx[t + 1]]),) * 2 for t in range(T)]),
             entries([(i, i) for i in q_idx])], np.triu(D))
         lam_kin = ca.reshape(lam_g[:NX * (T + 1)], NX, T + 1)
+        C, nm = self.coef.map(T)(mus[:, :T], mus[:, 1:]), wm.shape[0]  # motion coefficients, then observation
         _, w_m, w_o = recursion_weights(model, T, ca.SX.sym("sigma0", NV), ca.SX.sym("trace_ref"))(
-            *coef_mo.map(T)(mus[:, :T], mus[:, 1:]), P[14 + T:], ref)
+            C[:nm, :], C[nm:, :], P[14 + T:], ref)
         H_nz = (lam_f * (const + ca.mtimes(h_int, ca.vec(interval_hess.map(T)(mus[:, :T], mus[:, 1:], w_m, w_o))))
                 + ca.mtimes(h_q, ca.vec(node_hess.map(T + 1)(qs, lam_kin, Tc))))
         hess_lag = ca.Function("lifted_hess_l", [X, P, lam_f, lam_g], [ca.MX(hess_sp, H_nz)],
@@ -169,9 +170,6 @@ class LiftedTranscription:
         recursion, solved backwards as one sparse triangular system), and `lam_x = -(grad f + J^T lam_g)`, the
         bound multipliers that make it stationary in every variable (exact at a KKT point of the condensed
         form, whose joints are the same)."""
-        import scipy.sparse
-        import scipy.sparse.linalg
-
         _, J = self.jac_g(x, p)
         _, grad = self.grad_f(x, p)
         J, grad = ca.DM(J).sparse(), np.asarray(grad).ravel()

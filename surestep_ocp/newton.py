@@ -92,27 +92,13 @@ class NewtonSolver:
         smooth = smoothness * ca.sumsqr(Q[:, 1:] - Q[:, :T])
         # S's own curvature in the coefficients (dense, 5T x 5T, negative semidefinite) and the coefficients'
         # Jacobians per interval: the exact Hessian is the surrogate's plus C^T (d2S/dc2) C (the end-game)
-        # (one Hessian-vector product of S, forward over the recursion's reverse sweep, mapped over the unit
-        # directions: the generated code holds one sweep; a symbolic dense Hessian did not compile in minutes)
-        cm, co = ca.MX.sym("cm", *w_m.shape), ca.MX.sym("co", *w_o.shape)
-        nc = w_m.numel() + w_o.numel()
-        _, dm, do = weights(cm, co, s0, r)
-        direction = ca.MX.sym("dc", nc)
-        hvp = ca.Function("hvp", [cm, co, P, direction],
-                          [ca.jtimes(ca.vertcat(ca.vec(dm), ca.vec(do)), ca.vertcat(ca.vec(cm), ca.vec(co)), direction)])
-        CM, CO = ca.MX.sym("CM", *w_m.shape), ca.MX.sym("CO", *w_o.shape)
-        curv = ca.Function("curv", [CM, CO, P], [hvp.map(nc)(CM, CO, P, ca.DM.eye(nc))])
-        coef_jac = ca.Function("coef_jac", [qa, qb, Tcb], [ca.densify(ca.jacobian(ca.vertcat(*coefficients),
-                                                                                    ca.vertcat(qa, qb)))])
         fns = {"newton_step": ca.Function("newton_step", [Q, P], [S_x, S_x + smooth, G, HB]),
                "newton_f": ca.Function("newton_f", [Q, P], [S_x + smooth])}
-        if model.scalar and nq * (T + 1) <= EXACT_MAX_N:
-            fns["newton_curv"] = ca.Function("newton_curv", [Q, P], [
-                ca.densify(curv(*coef.map(T)(Q[:, :T], Q[:, 1:], Tc), P)), coef_jac.map(T)(Q[:, :T], Q[:, 1:], Tc)])
         self.nm, self.no = w_m.shape[0], w_o.shape[0]
         # S's curvature costs nc T Hessian-vector products: cheap for the scalar recursion (1.8 ms at T = 20),
         # not for the 6x6 one (0.36 s measured), where Newton keeps the surrogate throughout
-        self.exact_ok = model.scalar and nq * (T + 1) <= EXACT_MAX_N
+        if model.scalar and nq * (T + 1) <= EXACT_MAX_N:
+            fns["newton_curv"] = self._curvature(weights, coef, coefficients, qa, qb, Tcb, Q, P, w_m, w_o)
         self.codegen, self.codegen_note = codegen, None
         if codegen:
             fns, self.codegen_note = compiled_or_interpreted(fns, codegen_required)
@@ -140,6 +126,25 @@ class NewtonSolver:
         self.c_index = np.array([c_row[t][k] * n + rows[t][j] for t in range(T) for j in range(2 * nq)
                                  for k in range(nm + no)])
         self.build_time_s = time.perf_counter() - t0
+
+    def _curvature(self, weights, coef, coefficients, qa, qb, Tcb, Q, P, w_m, w_o) -> ca.Function:
+        """`(Q, P) -> (d2S/dc2, coefficient Jacobians per interval)`: the exact Hessian is the surrogate's plus
+        C^T (d2S/dc2) C (the end-game). One Hessian-vector product of S, forward over the recursion's reverse
+        sweep, mapped over the unit directions: the generated code holds one sweep (a symbolic dense Hessian did
+        not compile in minutes)."""
+        T, Tc, s0, r = self.T, ca.reshape(P[:12], 3, 4), P[13:], P[12]
+        cm, co = ca.MX.sym("cm", *w_m.shape), ca.MX.sym("co", *w_o.shape)
+        nc = w_m.numel() + w_o.numel()
+        _, dm, do = weights(cm, co, s0, r)
+        direction = ca.MX.sym("dc", nc)
+        hvp = ca.Function("hvp", [cm, co, P, direction],
+                          [ca.jtimes(ca.vertcat(ca.vec(dm), ca.vec(do)), ca.vertcat(ca.vec(cm), ca.vec(co)), direction)])
+        CM, CO = ca.MX.sym("CM", *w_m.shape), ca.MX.sym("CO", *w_o.shape)
+        curv = ca.Function("curv", [CM, CO, P], [hvp.map(nc)(CM, CO, P, ca.DM.eye(nc))])
+        coef_jac = ca.Function("coef_jac", [qa, qb, Tcb], [ca.densify(ca.jacobian(ca.vertcat(*coefficients),
+                                                                                    ca.vertcat(qa, qb)))])
+        return ca.Function("newton_curv", [Q, P], [ca.densify(curv(*coef.map(T)(Q[:, :T], Q[:, 1:], Tc), P)),
+                                                   coef_jac.map(T)(Q[:, :T], Q[:, 1:], Tc)])
 
     def solve(self, setup: Setup, init, method: str = "ocp", tol: float = 1e-6, max_iter: int = 300,
               verbose: bool = False) -> Solution:
@@ -171,7 +176,7 @@ class NewtonSolver:
             if it == max_iter:
                 break
             pg = np.max(np.abs(g[idx]), initial=0.0)
-            d = self._exact_step(x, P, HB, g, idx) if pg <= EXACT_BELOW and self.exact_ok else None
+            d = self._exact_step(x, P, HB, g, idx) if pg <= EXACT_BELOW and self.curv is not None else None
             exact_steps += d is not None
             if verbose:
                 print(f"newton {it:4d}  f {f_val:.10e}  |pg| {pg:.2e}  free {idx.size:4d}  "

@@ -14,7 +14,6 @@ from .errors import SurestepError
 from .limits import enforce as enforce_limits
 from .setup import Setup
 from .solution import Solution
-from .solver_setup import solver_options as solver_setup_options
 from .solver_setup import (LIFTED_FROM_CONDENSED, WARM_OPTIONS, cached_transcriptions, newton_applies,
                            newton_solver, resolve_codegen, resolve_hessian, transcription)
 from .transcription import (CODEGEN_EXACT, FORMS, HESSIANS, InitialGuess, NewtonWarm, Transcription, WarmStart,
@@ -237,7 +236,7 @@ def _second_start(setup: Setup, cold: InitialGuess, sol: Solution, last, solver_
         if not second.success and second.status == "Maximum_Iterations_Exceeded" and second.objective < sol.objective:
             # Newton's surrogate converges linearly on the 6x6 recursion; a better unfinished point is finished by
             # IPOPT (same surrogate Hessian, with the depth bound)
-            tr = transcription(setup, "condensed", solver_setup_options(setup, solver_options), hessian="surrogate")
+            tr = transcription(setup, "condensed", solver_options, hessian="surrogate")
             second, _ = tr.solve(setup, InitialGuess(np.array(second.q), "Newton from the diagonal model's plan"),
                                  method)
             record.update(ipopt_status=second.status, ipopt_iterations=second.iterations)
