@@ -1,9 +1,9 @@
 """Method names and dispatch: every method takes a Setup and returns a Solution.
 
-Names: `baseline`, `gradient`, `gradient-no-pose-loss`, `ocp`, `ocp-from-gradient`
+Names (`method_names`): `baseline`, `gradient`, `gradient-no-pose-loss`, `ocp`, `ocp-from-gradient`
 (the OCP started from the gradient solution), each optionally with an ablation suffix
 `-no-depth`, `-no-fov` or `-no-orientation` (that observation component is left out
-during optimisation; evaluation always uses all components).
+during optimisation; evaluation always uses all components), then `-expected`, then `-predicted`.
 """
 
 from __future__ import annotations
@@ -16,39 +16,26 @@ from .baseline import solve_baseline, straight_line
 from .belief import COMPONENTS
 from .errors import SurestepError
 from .limits import enforce as enforce_limits
+from .method_names import BASE_METHODS, split_name
 from .ocp import InitialGuess, solve_ocp
 from .setup import Setup
 from .solution import Solution
 
-BASE_METHODS = ("baseline", "gradient", "gradient-no-pose-loss", "ocp", "ocp-from-gradient")
-ABLATIONS = {f"-no-{c}": c for c in COMPONENTS}
-COMPARE_METHODS = ("baseline", "gradient", "gradient-no-pose-loss", "ocp", "ocp-from-gradient")
+COMPARE_METHODS = BASE_METHODS
 
 
 def parse_method(name: str) -> tuple[str, tuple[str, ...] | None, str | None, str | None]:
     """Split a method name into (base, components or None, observation-noise form or None, objective or None).
 
     A trailing `-predicted` minimises Tr(Sigma_T|T-1); before it, `-expected` plans with the
-    belief-aware observation noise (section 8).
+    belief-aware observation noise (section 8). The grammar is `method_names.split_name`'s.
     """
-    form = objective = None
-    if name.endswith("-predicted"):
-        name, objective = name[: -len("-predicted")], "predicted"
-    if name.endswith("-expected"):
-        name, form = name[: -len("-expected")], "expected"
-    base, comps = _parse_base(name)
-    return base, comps, form, objective
-
-
-def _parse_base(name: str) -> tuple[str, tuple[str, ...] | None]:
-    for suffix, comp in ABLATIONS.items():
-        if name.endswith(suffix) and name[: -len(suffix)] in BASE_METHODS:
-            return name[: -len(suffix)], tuple(c for c in COMPONENTS if c != comp)
-    if name in BASE_METHODS:
-        return name, None
-    allowed = ", ".join(BASE_METHODS)
-    raise SurestepError(f"unknown method '{name}'; allowed: {allowed} (optionally with -no-depth, -no-fov, "
-                        "-no-orientation, then -expected, then -predicted)")
+    try:
+        base, ablated, expected, predicted = split_name(name)
+    except ValueError as exc:
+        raise SurestepError(str(exc)) from None
+    comps = None if ablated is None else tuple(c for c in COMPONENTS if c != ablated)
+    return base, comps, "expected" if expected else None, "predicted" if predicted else None
 
 
 def _variant(setup: Setup, components: tuple[str, ...] | None, form: str | None,
