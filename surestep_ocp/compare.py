@@ -6,9 +6,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .camera import Intrinsics
-from .metrics import comparison_rows, markdown_table
 from .methods import COMPARE_METHODS, run_method
+from .metrics import comparison_rows, markdown_table
+from .plots_compare import write_figures
 from .setup import Setup
 from .solution import Solution, write_json_atomic, write_text_atomic
 
@@ -61,8 +61,7 @@ def write_comparison(solutions: list[Solution], out_dir: Path, problem_path: str
     if limits_text:
         text += f"\n{limits_text}\n"
     write_text_atomic(out_dir / "comparison.md", text)
-    _plot_trace(solutions, out_dir / "trace.png")
-    _plot_paths(solutions, out_dir / "path.png")
+    write_figures(solutions, out_dir)
     urdf = _robot_urdf(solutions)
     if urdf is not None:
         from .plots_motion import plot_plans
@@ -95,63 +94,3 @@ def limits_table(solutions: list[Solution]) -> str:
            "reported, not enforced (`limits.enforce: false`)")
     return (f"Motion limits at the planned pace ({step:g} s per step; {how}; "
             f"`surestep export` retimes a plan within the joint limits){note}:\n\n{markdown_rows(rows)}")
-
-
-COLOURS = {"baseline": "#7f7f7f", "gradient": "#ff7f0e", "gradient-no-pose-loss": "#d62728",
-           "ocp": "#1f77b4", "ocp-from-gradient": "#2ca02c"}
-
-
-def _figure():
-    from .plots_motion import pyplot
-
-    return pyplot()
-
-
-def _save(fig, path: Path) -> None:
-    from .plots_motion import save_png
-
-    save_png(fig, path, dpi=110)
-
-
-def _plot_trace(solutions: list[Solution], path: Path) -> None:
-    plt = _figure()
-    fig, ax = plt.subplots(figsize=(7, 4.2))
-    for s in solutions:
-        ax.semilogy(range(len(s.trace)), s.trace, "o-", ms=3, label=s.method, color=COLOURS.get(s.method))
-    ax.set_xlabel("step t")
-    ax.set_ylabel("Tr(Σ_t|t)")
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend()
-    fig.tight_layout()
-    _save(fig, path)
-    plt.close(fig)
-
-
-def _plot_paths(solutions: list[Solution], path: Path) -> None:
-    plt = _figure()
-    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4.2))
-    intr = Intrinsics(**solutions[0].camera)
-    ax1.add_patch(plt.Rectangle((0, 0), intr.width, intr.height, fill=False, color="k"))
-    for s in solutions:
-        P = np.asarray(s.poses)
-        uv = intr.project(P[:, :3])
-        c = COLOURS.get(s.method)
-        ax1.plot(uv[:, 0], uv[:, 1], "o-", ms=3, color=c, label=s.method)
-        ax2.plot(range(len(P)), P[:, 2] * 1e3, "o-", ms=3, color=c, label=s.method)
-    g = np.asarray(solutions[0].goal)
-    gu = intr.project(g[:3])
-    ax1.plot(*gu, "k*", ms=12, label="goal")
-    ax1.plot(intr.width / 2, intr.height / 2, "k+", ms=12)
-    ax1.set_xlim(-0.1 * intr.width, 1.1 * intr.width)
-    ax1.set_ylim(1.1 * intr.height, -0.1 * intr.height)
-    ax1.set_aspect("equal")
-    ax1.set_title("image-plane projection [px]")
-    ax1.legend(fontsize=7)
-    ax2.axhline(float(solutions[0].noise["depth_star"]) * 1e3, color="k", ls="--", lw=1, label="d*")
-    ax2.set_xlabel("step t")
-    ax2.set_ylabel("depth z [mm]")
-    ax2.set_title("depth along the path")
-    ax2.legend(fontsize=7)
-    fig.tight_layout()
-    _save(fig, path)
-    plt.close(fig)

@@ -262,13 +262,19 @@ def boxplot(records, methods, modes, path: Path, rollouts: int | None = None, gr
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    from .styles import styles_of
+
     fig, axes = plt.subplots(1, len(modes), figsize=(1.0 + 0.75 * len(methods) * len(modes), 4.6), squeeze=False,
                              sharey=True)
     for ax, mode in zip(axes[0], modes):
         data = [np.array([e for r in records for e in r["pos_errors"].get(mode, {}).get(m, [])]) * 1e3
                 for m in methods]
-        ax.boxplot([d if len(d) else [math.nan] for d in data], whis=(5, 95), showfliers=True,
-                   flierprops={"markersize": 1.5, "alpha": 0.4})
+        boxes = ax.boxplot([d if len(d) else [math.nan] for d in data], whis=(5, 95), showfliers=True,
+                           patch_artist=True, medianprops={"color": "k"},
+                           flierprops={"markersize": 1.5, "alpha": 0.4})
+        for box, st in zip(boxes["boxes"], styles_of(methods).values()):  # colour, line style, hollow: as in the plots
+            box.set(facecolor=st.colour, alpha=0.6, edgecolor="k", linewidth=1.1, linestyle=st.linestyle,
+                    hatch=None if st.filled else "//")
         st = _solve_stats(records, methods)
         labels = [m + (f" ({st[m]['failed']} failed)" if st[m]["failed"] else "") for m in methods]
         ax.set_xticks(range(1, len(methods) + 1), labels, rotation=45, ha="right", fontsize=8)
@@ -280,7 +286,7 @@ def boxplot(records, methods, modes, path: Path, rollouts: int | None = None, gr
     axes[0][0].set_ylabel("final position error ||p_T - p^G|| [mm]")
     per = f"{rollouts} rollouts" if rollouts else "rollouts"
     fig.suptitle(f"final position errors, {len(records)} configurations x {per}, pooled\n"
-                 "box: quartiles, whiskers: 5th-95th percentile, dots: the 10 % beyond"
+                 "box: quartiles (line: median), whiskers: 5th-95th percentile, dots: the 10 % beyond"
                  + ("; dashed: grasp tolerance" if grasp_mm else ""), fontsize=10)
     fig.tight_layout()
     b = io.BytesIO()

@@ -1,7 +1,7 @@
 """Pictures to look at before running a robot: joints against their limits, the tool's speed over time.
 
 `plot_plans` (written by `surestep compare` as `motion.png`): every method's plan at its planned
-pace (waypoint t at t * step_s), one colour per method as in `compare.py`. `plot_trajectory`
+pace (waypoint t at t * step_s), each method in its `styles` look. `plot_trajectory`
 (written by `surestep export` as `<stem>_motion.png`): the exported trajectory, its waypoints
 marked. Both: one panel per joint with its position limits (dashed) and, in a second column, its
 velocity against the velocity limit; last row the tool's translation and rotation speed.
@@ -15,18 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from .solution import write_text_atomic
-
-_FALLBACK = ("#9467bd", "#8c564b", "#e377c2", "#17becf", "#bcbd22", "#aec7e8", "#ffbb78", "#98df8a")
-
-
-def colour_of(method: str, order: list[str] | None = None) -> str:
-    """The method's colour in `compare.COLOURS`; other methods get a fixed colour by their position."""
-    from .compare import COLOURS
-
-    if method in COLOURS:
-        return COLOURS[method]
-    others = [m for m in (order or [method]) if m not in COLOURS]
-    return _FALLBACK[others.index(method) % len(_FALLBACK)] if method in others else _FALLBACK[0]
+from .styles import style_of, styles_of
 
 
 def pyplot():
@@ -81,20 +70,21 @@ def plot_plans(solutions: list, urdf: str | Path, path: Path) -> Path | None:
     lo, hi = _joint_limits(urdf, names)
     vmax = np.asarray(sols[0].extras["motion_limits"]["limits"]["velocity"])
     fig, axes = _axes(plt, len(names))
-    order = [s.method for s in sols]
+    styles = styles_of([s.method for s in sols])
     for s in sols:
         rep = s.extras["motion_limits"]
         dt = rep["step_s"]
         q = np.asarray(s.q, float)
         t = dt * np.arange(len(q))
         tm = dt * (np.arange(len(q) - 1) + 0.5)
-        c = colour_of(s.method, order)
+        st = styles[s.method]
+        steps = {"where": "mid", "lw": 0.5 * st.width, "color": st.colour, "linestyle": st.linestyle, "alpha": 0.85}
         v = np.diff(q, axis=0) / dt
         for j in range(len(names)):
-            axes[j, 0].plot(t, q[:, j], "o-", ms=2, lw=1, color=c, label=s.method)
-            axes[j, 1].step(tm, v[:, j], where="mid", lw=1, color=c)
-        axes[-1, 0].step(tm, 1e3 * np.asarray(rep["tool_speed_per_step_m_s"]), where="mid", color=c, label=s.method)
-        axes[-1, 1].step(tm, rep["tool_rotation_per_step_rad_s"], where="mid", color=c)
+            axes[j, 0].plot(t, q[:, j], **st.line(ms=0.5 * st.size, lw=0.5 * st.width, label=s.method))
+            axes[j, 1].step(tm, v[:, j], **steps)
+        axes[-1, 0].step(tm, 1e3 * np.asarray(rep["tool_speed_per_step_m_s"]), **steps)
+        axes[-1, 1].step(tm, rep["tool_rotation_per_step_rad_s"], **steps)
     lim = sols[0].extras["motion_limits"]["limits"]
     _decorate(axes, names, lo, hi, vmax, 1e3 * lim["tool_speed_m_s"], lim["tool_rotation_rad_s"])
     axes[0, 0].legend(fontsize=6, ncol=2)
@@ -145,7 +135,7 @@ def plot_trajectory(traj, sol: dict, urdf: str | Path, path: Path) -> Path:
     names = traj.joint_names
     lo, hi = _joint_limits(urdf, names)
     fig, axes = _axes(plt, len(names))
-    c = colour_of(str(sol.get("method", "")))
+    c = style_of(str(sol.get("method", ""))).colour
     t = traj.times
     for j in range(len(names)):
         axes[j, 0].plot(t, traj.q[:, j], lw=1, color=c)
