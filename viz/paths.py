@@ -9,7 +9,9 @@ Nodes, under the given parent (normally `/meshcat/paths`):
 
 Ellipsoids are semi-transparent in the method's colour. Their opacity falls as
 they grow (large, uncertain ones are faint, small ones solid) so that
-overlapping paths stay readable; ones larger than `hide_above` start hidden.
+overlapping paths stay readable; ones larger than `hide_above` start hidden, and
+a path drawn with `ellipsoids_shown` shows only that many (the last node's and
+evenly spaced ones before it), the rest start hidden.
 """
 
 from __future__ import annotations
@@ -54,7 +56,7 @@ class PathInfo:
     axes: np.ndarray  # (M, 3, 3) ellipsoid axes (columns) in the world frame
     line_node: str
     ellipsoid_nodes: list[str]
-    hidden: list[str]  # ellipsoid nodes that start hidden (larger than hide_above)
+    hidden: list[str]  # ellipsoid nodes that start hidden (larger than hide_above, or thinned out)
 
 
 def ellipsoid_opacity(max_radius: float) -> float:
@@ -67,11 +69,14 @@ def ellipsoid_opacity(max_radius: float) -> float:
 
 def draw_path(parent, sol: Solution, color: tuple[float, float, float],
               hide_above: float = np.inf, priority: int = 0,
-              tube_radius: float = style.TUBE_RADIUS) -> PathInfo:
+              tube_radius: float = style.TUBE_RADIUS, ellipsoids_shown: int | None = None,
+              opacity_scale: float = 1.0) -> PathInfo:
     """Draw one solution's path under `parent[method]` and return what was drawn.
 
     `priority`: where tubes coincide, the path with the higher priority is on top (a
     thicker `tube_radius` [m] wins where tubes run along each other but differ slightly).
+    `ellipsoids_shown`: at most this many ellipsoids start visible (None: all), each at
+    `opacity_scale` times its usual opacity; the others are drawn hidden.
     """
     m = sol["method"]
     node = parent[m]
@@ -85,19 +90,20 @@ def draw_path(parent, sol: Solution, color: tuple[float, float, float],
     cams = node_camera_poses(sol)
     covs = position_covariances(sol)
     radii, axes, enodes, hidden = [], [], [], []
-    for t, p in zip(nodes, pts):
+    stride = 1 if ellipsoids_shown is None else -(-len(nodes) // max(ellipsoids_shown, 1))
+    for i, (t, p) in enumerate(zip(nodes, pts)):
         if t >= len(covs) or covs[t] is None:
             continue
         r, V = covariance_ellipsoid(covs[t], cams[t][:3, :3], style.N_SIGMA)
         T = np.eye(4)
         T[:3, :3], T[:3, 3] = V, p
         e = node["ellipsoids"][str(t)]
-        mat = mg.MeshPhongMaterial(color=style.rgb_int(color), opacity=ellipsoid_opacity(r.max()),
+        mat = mg.MeshPhongMaterial(color=style.rgb_int(color), opacity=opacity_scale * ellipsoid_opacity(r.max()),
                                    depthWrite=False, side=0)
         e.set_object(mg.Ellipsoid(np.maximum(r, 1e-6).tolist()), mat)
         e.set_transform(T)
         path = f"{base}/ellipsoids/{t}"
-        if r.max() > hide_above:
+        if r.max() > hide_above or (len(nodes) - 1 - i) % stride:
             e.set_property("visible", False)
             hidden.append(path)
         radii.append(r), axes.append(V), enodes.append(path)

@@ -48,6 +48,7 @@ var surestepCommands = [
 surestepCommands.forEach(surestepCommand);
 </script>
 <script id="embedded-json"></script>
+{overlay}
 </body>
 </html>
 """
@@ -121,13 +122,14 @@ class RecordingWindow:
             out.append(self.animation)
         return out
 
-    def get_scene(self, title: str = "SURESTEP trajectories") -> str:
-        """Standalone HTML page (viewer JavaScript inlined) showing the recorded scene."""
+    def get_scene(self, title: str = "SURESTEP trajectories", overlay: str = "") -> str:
+        """Standalone HTML page (viewer JavaScript inlined) showing the recorded scene, with `overlay`
+        (HTML, e.g. a legend) over the viewer."""
         lines = ",\n".join('"' + base64.b64encode(c).decode("ascii") + '"' for c in self.commands())
         viewer_js = _VIEWER_JS.read_text(encoding="utf-8")
         # A literal "</script>" inside the bundle would end the script element early.
         viewer_js = viewer_js.replace("</script>", "<\\/script>")
-        return _HTML.format(title=title, viewer_js=viewer_js, commands=lines)
+        return _HTML.format(title=title, viewer_js=viewer_js, commands=lines, overlay=overlay)
 
     def open(self) -> "RecordingWindow":
         """No browser to open for an offline recording; present for API compatibility."""

@@ -10,9 +10,14 @@ Scene tree (under Meshcat's `/meshcat` root), readable as a legend:
     /meshcat/camera/{frustum,footprint,footprint_fill,triad}   animated if it moves
     /meshcat/camera_history/<k>/frustum  faint, one per distinct `camera_poses` pose
     /meshcat/goal/{triad,marker}
+    /meshcat/start/marker              the tool's start position (black sphere)
     /meshcat/paths/<method>/{line,tube}
     /meshcat/paths/<method>/ellipsoids/<t>   3-sigma position ellipsoid of node t
-                                             (see paths.py for opacity and hiding)
+                                             (see paths.py for opacity and hiding; paths the
+                                             arm does not follow show a few, fainter)
+
+The static page (`write_static_html`) carries a legend (legend.py): each method's
+colour, the start, the goal, the ellipsoids and the camera.
 
 Everything is drawn in the world frame [m]; camera-frame data are mapped with
 the solution's `camera_pose` (per node with `camera_poses`). The `/meshcat` node's
@@ -36,9 +41,10 @@ from meshcat.animation import Animation
 from . import style
 from .arms import Needle, animate_arm, arm_q, draw_needle, draw_other_arms, first_q, load_arm
 from .camera import animate_camera, depth_star, draw_camera
+from .legend import legend_html
 from .paths import PathInfo, draw_path
 from .recorder import recording_visualizer
-from .solutions import Solution, camera_pose, order_methods, world_pose
+from .solutions import Solution, camera_pose, order_methods, world_points, world_pose
 from .timeline import Timeline
 from .view import CameraView, overview, set_camera_view, set_endoscope_view
 
@@ -64,6 +70,7 @@ class SceneInfo:
     camera_history: list[np.ndarray] = field(default_factory=list)  # distinct 4x4 camera poses
     camera_switch_steps: list[int] = field(default_factory=list)  # steps where the camera moves
     goal: np.ndarray | None = None  # 4x4 world goal pose
+    start: np.ndarray | None = None  # (3,) world start position of the animated method's tool
     view: CameraView | None = None
     n_frames: int = 0  # animation frames
 
@@ -116,6 +123,20 @@ def _draw_goal(vis, sol: Solution, info: SceneInfo) -> None:
     vis["goal"]["marker"].set_object(mg.Sphere(style.GOAL_RADIUS), mat)
     info.goal = G
     info.nodes += [f"{ROOT}/goal/triad", f"{ROOT}/goal/marker"]
+
+
+def _draw_start(vis, sol: Solution, info: SceneInfo) -> None:
+    """The tool's start position as a small black sphere."""
+    pts = world_points(sol)
+    if not len(pts):
+        return
+    T = np.eye(4)
+    T[:3, 3] = pts[0]
+    vis["start"].set_transform(T)
+    vis["start"]["marker"].set_object(mg.Sphere(style.START_RADIUS),
+                                      mg.MeshPhongMaterial(color=style.rgb_int(style.START_COLOR)))
+    info.start = pts[0]
+    info.nodes.append(f"{ROOT}/start/marker")
 
 
 def _draw_arms(vis, scene, main: Solution, info: SceneInfo, load, robot_color, timeline) -> None:
@@ -197,12 +218,15 @@ def build_scene(
     info.frustum, info.footprint, info.nodes = cam.frustum, cam.footprint, cam.nodes
     info.camera_history, info.camera_switch_steps = cam.history, cam.switch_steps
     _draw_goal(scene, main, info)
+    _draw_start(scene, main, info)
     if hide_above is None:  # ellipsoids wider than the image at d* start hidden
         hide_above = 0.5 * float(np.linalg.norm(info.footprint[2] - info.footprint[0]))
     for k, (sol, color) in enumerate(zip(sols, style.method_colors(methods).values())):
         wide = style.ANIMATED_TUBE_SCALE if sol is main else 1.0  # the arm's path on top
         p = draw_path(scene["paths"], sol, color, hide_above, priority=len(sols) - k,
-                      tube_radius=wide * style.TUBE_RADIUS)
+                      tube_radius=wide * style.TUBE_RADIUS,
+                      ellipsoids_shown=None if sol is main else style.OTHER_ELLIPSOIDS,
+                      opacity_scale=1.0 if sol is main else style.OTHER_ELLIPSOID_OPACITY)
         info.paths[p.method] = p
         info.nodes += [p.line_node, f"{ROOT}/paths/{p.method}/tube", *p.ellipsoid_nodes]
     _draw_arms(vis, scene, main, info, _loader(repo_root, main), robot_color,
@@ -223,7 +247,7 @@ def build_scene(
 def write_static_html(
     solutions: Sequence[Solution], path: Path | str, repo_root: Path | None = None, **kwargs
 ) -> SceneInfo:
-    """Build the scene offline (no server) and write it as one standalone HTML file.
+    """Build the scene offline (no server) and write it as one standalone HTML file with a legend.
 
     The file is written atomically: to a temporary file in the same folder, then
     `os.replace`d. `kwargs` go to `build_scene` (animate, endoscope, robot_color, ...).
@@ -231,7 +255,7 @@ def write_static_html(
     path = Path(path)
     vis, window = recording_visualizer()
     info = build_scene(solutions, repo_root=repo_root, vis=vis, **kwargs)
-    html = window.get_scene()
+    html = window.get_scene(overlay=legend_html(info))
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:

@@ -1,26 +1,24 @@
-"""Colours and sizes of the visualisation (one place, so tests and legend agree)."""
+"""Colours and sizes of the 3D scene (one place, so tests and legend agree); method colours are the PNGs'."""
 
 from __future__ import annotations
 
-from typing import Sequence
+from collections.abc import Sequence
 
-# Fixed colour per method (RGB in [0, 1]); unknown methods take the palette in order.
-METHOD_COLORS: dict[str, tuple[float, float, float]] = {
-    "baseline": (0.839, 0.153, 0.157),  # red
-    "gradient": (1.000, 0.498, 0.055),  # orange
-    "ocp": (0.122, 0.467, 0.706),  # blue
-    "ocp-replanned": (0.090, 0.170, 0.420),  # navy (`surestep replan`'s executed plan)
-}
-PALETTE: tuple[tuple[float, float, float], ...] = (
-    (0.580, 0.404, 0.741),  # purple
-    (0.549, 0.337, 0.294),  # brown
-    (0.090, 0.745, 0.812),  # cyan
-    (0.737, 0.741, 0.133),  # olive
-    (0.890, 0.467, 0.761),  # pink
-    (0.000, 0.400, 0.400),  # dark teal
-    (0.600, 0.100, 0.400),  # plum
+from surestep_ocp.styles import (
+    BASE_STYLES,
+    GOAL_COLOUR,
+    REPLAN_STYLES,
+    START_COLOUR,
+    rgb_of,
+    style_of,
+    styles_of,
 )
-GOAL_COLOR: tuple[float, float, float] = (0.85, 0.10, 0.75)  # magenta
+
+# Method colours come from surestep_ocp.styles (the PNGs use the same table); RGB in [0, 1].
+METHOD_COLORS: dict[str, tuple[float, float, float]] = {
+    m: style_of(m).rgb for m in (*BASE_STYLES, *REPLAN_STYLES)}
+GOAL_COLOR: tuple[float, float, float] = rgb_of(GOAL_COLOUR)  # magenta, as in the PNGs
+START_COLOR: tuple[float, float, float] = rgb_of(START_COLOUR)
 CAMERA_COLOR: tuple[float, float, float] = (0.25, 0.25, 0.25)  # frustum lines
 FOOTPRINT_COLOR: tuple[float, float, float] = (0.35, 0.35, 0.40)  # image rectangle at d*
 NEEDLE_COLOR: tuple[float, float, float] = (0.50, 0.52, 0.57)  # steel (silver, darkened)
@@ -31,10 +29,13 @@ TUBE_RADIUS = 0.0008  # [m] radius of the drawn path tubes
 ANIMATED_TUBE_SCALE = 1.25  # the animated method's tube is this much thicker (on top)
 NODE_RADIUS = 0.0012  # [m] radius of the small spheres at path nodes
 GOAL_RADIUS = 0.0025  # [m] radius of the goal sphere
+START_RADIUS = 0.0018  # [m] radius of the start sphere
 TRIAD_SCALE = 0.012  # [m] axis length of the goal and camera triads
 ELLIPSOID_OPACITY = 0.3  # opacity of the 3-sigma ellipsoids up to ELLIPSOID_REF_RADIUS
 ELLIPSOID_REF_RADIUS = 0.006  # [m] larger ellipsoids get fainter (opacity ~ 1 / radius)
 ELLIPSOID_MIN_OPACITY = 0.04
+OTHER_ELLIPSOIDS = 4  # paths the arm does not follow show at most this many ellipsoids (the last among them) ...
+OTHER_ELLIPSOID_OPACITY = 0.5  # ... at this fraction of the opacity, so they do not hide the other paths
 NEEDLE_TUBE_RADIUS = 0.00025  # [m] the needle is drawn 0.5 mm thick
 NEEDLE_SWEEP_DEG = 270.0  # the needle is drawn as a 3/4 circle
 CAMERA_HISTORY_OPACITY = (0.12, 0.35)  # frusta of earlier camera poses: first .. last
@@ -42,16 +43,8 @@ N_SIGMA = 3.0  # ellipsoid radii are N_SIGMA * sqrt(eigenvalue)
 
 
 def method_colors(methods: Sequence[str]) -> dict[str, tuple[float, float, float]]:
-    """Colour of each method: the fixed ones by name, others from PALETTE in order."""
-    out: dict[str, tuple[float, float, float]] = {}
-    k = 0
-    for m in methods:
-        if m in METHOD_COLORS:
-            out[m] = METHOD_COLORS[m]
-        else:
-            out[m] = PALETTE[k % len(PALETTE)]
-            k += 1
-    return out
+    """Colour of each method (`surestep_ocp.styles`: fixed by name, others from its palette in order)."""
+    return {m: st.rgb for m, st in styles_of(methods).items()}
 
 
 def rgb_int(rgb: Sequence[float]) -> int:
