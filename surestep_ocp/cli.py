@@ -75,10 +75,6 @@ def _with_solver_flags(setup, args):
     """The setup with the command line's solver settings (--solver, --hessian, --codegen) over the file's."""
     from dataclasses import replace
 
-    if args.solver == "fatrop":
-        raise SurestepError("solver 'fatrop' is not wired in: on the condensed OCP it did not converge (500 "
-                            "iterations, 8 s on the default problem) and the stage-wise lifted form it needs did not "
-                            "converge with IPOPT either (README, 'The Hessian'); allowed: auto, ipopt, newton")
     spec = setup.problem.solver
     spec = replace(spec, name=args.solver or spec.name, hessian=args.hessian or spec.hessian,
                    codegen=spec.codegen if args.codegen is None else args.codegen)
@@ -90,12 +86,11 @@ def cmd_solve(args) -> int:
 
     from .outputs import check_finite, check_output_file
 
+    method = _with_init(args.method, args.init)
+    _check_ocp_flags([method], args, "--method")
     setup = _with_solver_flags(_load(args.problem), args)
     if args.output:  # before the work: a bad output path must not cost a solve
         check_output_file(args.output, _inputs(setup, args.problem), "the solution")
-    method = args.method
-    if method == "ocp" and args.init == "gradient":
-        method = "ocp-from-gradient"
     _long_work_note(setup)
     sol = run_method(setup, method)
     base = run_method(setup, "baseline") if method != "baseline" else sol
@@ -115,13 +110,11 @@ def cmd_compare(args) -> int:
     from .compare import run_comparison, write_comparison
     from .methods import COMPARE_METHODS
 
-    from .methods import parse_method
     from .outputs import check_finite, check_output_dir, check_output_file
 
-    setup = _with_solver_flags(_load(args.problem), args)
     methods = tuple(args.methods) if args.methods else COMPARE_METHODS
-    for m in methods:
-        parse_method(m)
+    _check_ocp_flags(methods, args, "--methods")
+    setup = _with_solver_flags(_load(args.problem), args)
     inputs = _inputs(setup, args.problem)
     out = check_output_dir(args.output_dir, inputs, "the comparison")
     for name in [f"{m}.json" for m in methods] + ["comparison.json", "comparison.md", "trace.png", "path.png",
@@ -188,15 +181,58 @@ def cmd_show(args) -> int:
                 screenshot=Path(args.screenshot) if args.screenshot else None) or 0
 
 
+OCP_FLAGS = ("solver", "hessian", "codegen")  # act on the OCP only (method_names.OCP_METHODS)
+
+
 def _solver_flags(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--solver", choices=("auto", "ipopt", "newton", "fatrop"),
-                        help="OCP solver (default: the problem file's solver.name, ipopt); newton: projected "
-                             "Newton in the joints with IPOPT as the fallback (README, 'Solve speed')")
+    """--solver, --hessian, --codegen: the OCP's settings over the problem file's `solver:` section."""
+    from .problem import SolverSpec
+
+    d = SolverSpec()
+    parser.add_argument("--solver", choices=("auto", "ipopt", "newton"),
+                        help=f"OCP solver (default: the problem file's solver.name, else {d.name}: projected Newton "
+                             "in the joints where it applies, IPOPT as its fallback; README, 'Solve speed'); "
+                             "OCP methods only")
     parser.add_argument("--hessian", choices=("auto", "exact", "surrogate", "gauss-newton"),
-                        help="OCP Hessian (default: the problem file's solver.hessian, auto)")
+                        help=f"OCP Hessian (default: the problem file's solver.hessian, else {d.hessian}); "
+                             "OCP methods only")
     parser.add_argument("--codegen", action=argparse.BooleanOptionalAction, default=None,
                         help="compile the OCP's stage-wise derivatives to C, or not (default: the problem file's "
-                             "solver.codegen, auto: when a C compiler is found; cached, see README)")
+                             f"solver.codegen, else {d.codegen}: when a C compiler is found; cached, see README); "
+                             "OCP methods only")
+
+
+def _method_name(name: str) -> str:
+    """argparse type of a method name: unknown names are a usage error listing the grammar."""
+    from .method_names import split_name
+
+    try:
+        split_name(name)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    return name
+
+
+def _with_init(method: str, init: str | None) -> str:
+    """The method `--init` asks for: `--init gradient` turns ocp (or a variant) into ocp-from-gradient."""
+    from .method_names import split_name
+
+    if init is None:
+        return method
+    if split_name(method)[0] != "ocp":
+        raise SurestepError(f"--init applies to --method ocp and its variants only, not to '{method}' "
+                            "(ocp-from-gradient already starts from the gradient solution)")
+    return "ocp-from-gradient" + method[len("ocp"):] if init == "gradient" else method
+
+
+def _check_ocp_flags(methods, args, flag: str) -> None:
+    """An OCP flag (--solver, --hessian, --codegen) with no OCP method to act on is an error."""
+    from .method_names import OCP_METHODS, split_name
+
+    given = [f"--{n}" for n in OCP_FLAGS if getattr(args, n, None) is not None]
+    if given and not any(split_name(m)[0] in OCP_METHODS for m in methods):
+        raise SurestepError(f"{', '.join(given)} applies to the OCP methods only ({', '.join(OCP_METHODS)} and "
+                            f"their variants); {flag} {' '.join(methods)} has none")
 
 
 def _version() -> str:
@@ -221,24 +257,27 @@ class _OneLineParser(argparse.ArgumentParser):
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from .method_names import BASE_METHODS, grammar
+
     p = _OneLineParser(prog="surestep", description="Uncertainty-aware trajectory optimisation (SURESTEP).")
     p.add_argument("--version", action="version", version=f"surestep {_version()}")
     sub = p.add_subparsers(dest="command", required=True)
 
     s = sub.add_parser("solve", help="solve one problem with one method, write the solution JSON")
-    s.add_argument("problem")
-    s.add_argument("--method", default="ocp", help="baseline | gradient | gradient-no-pose-loss | ocp "
-                   "(suffix -no-depth/-no-fov/-no-orientation for ablations)")
-    s.add_argument("--init", choices=("baseline", "gradient"), default="baseline",
-                   help="initial guess of the OCP (gradient = the hybrid)")
+    s.add_argument("problem", help="problem YAML (problems/README.md)")
+    s.add_argument("--method", default="ocp", type=_method_name, help=f"{grammar()} (default ocp)")
+    s.add_argument("--init", choices=("baseline", "gradient"),
+                   help="initial guess of --method ocp (or a variant): the straight line (the default) or the "
+                        "gradient solution (= --method ocp-from-gradient); an error with any other method")
     _solver_flags(s)
-    s.add_argument("--output", "-o", help="solution JSON to write")
+    s.add_argument("--output", "-o", help="solution JSON to write (default: none, the summary only)")
     s.set_defaults(func=cmd_solve)
 
     c = sub.add_parser("compare", help="run every method on one problem and compare them")
-    c.add_argument("problem")
-    c.add_argument("--output-dir", required=True)
-    c.add_argument("--methods", nargs="+", help="subset of methods (default: all)")
+    c.add_argument("problem", help="problem YAML (problems/README.md)")
+    c.add_argument("--output-dir", required=True, help="folder for <method>.json, the tables and the plots")
+    c.add_argument("--methods", nargs="+", type=_method_name, metavar="METHOD",
+                   help=f"methods to run (default: {' '.join(BASE_METHODS)}); each {grammar()}")
     _solver_flags(c)
     c.set_defaults(func=cmd_compare)
 
@@ -248,13 +287,15 @@ def build_parser() -> argparse.ArgumentParser:
     r.set_defaults(func=cmd_replan)
 
     v = sub.add_parser("validate", help="check problem files")
-    v.add_argument("problems", nargs="+")
+    v.add_argument("problems", nargs="+", metavar="PROBLEM", help="problem YAML files to check")
     v.set_defaults(func=cmd_validate)
 
     w = sub.add_parser("show", help="Meshcat view of a problem, a solution or a comparison directory")
-    w.add_argument("target")
+    w.add_argument("target", help="a solution JSON, a folder of them (surestep compare's output) or a problem "
+                                   "YAML (its baseline is solved and shown)")
     w.add_argument("--open", action="store_true", help="open a browser")
-    w.add_argument("--html", help="write a self-contained static HTML file instead of serving")
+    w.add_argument("--html", help="write a self-contained static HTML file (with a legend) instead of serving "
+                                  "(default: serve live Meshcat on loopback until Ctrl-C)")
     w.add_argument("--screenshot", metavar="PNG",
                    help="render the static HTML with headless Chromium and write it as a PNG")
     w.add_argument("--endoscope-view", action="store_true", help="look through the endoscope")
