@@ -27,6 +27,7 @@ T = 20 where IPOPT's own work is 0.43 ms (README, "Solve speed").
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
 
 import casadi as ca
 import numpy as np
@@ -150,6 +151,12 @@ class NewtonSolver:
               verbose: bool = False) -> Solution:
         """Projected Newton from `init`: converged when the projected gradient's inf-norm is at most `tol` (the
         objective is 1 at the start), at most `max_iter` iterations; `verbose` prints one line per iteration."""
+        return self._solution(setup, method, init, self.run(setup, init, tol, max_iter, verbose))
+
+    def run(self, setup: Setup, init, tol: float = 1e-6, max_iter: int = 300, verbose: bool = False,
+            exact_below: float = EXACT_BELOW) -> NewtonRun:
+        """`solve` without the evaluation of its plan (the re-planning loop evaluates it faster, planner.py);
+        exact Hessian steps once the projected gradient is at most `exact_below` (inf: from a warm start on)."""
         t0 = time.perf_counter()
         T, nq, n, robot = self.T, self.robot.nq, self.n, self.robot
         sigma0 = setup.model.recursion_sigma0(setup.problem.noise.Sigma0)
@@ -176,7 +183,7 @@ class NewtonSolver:
             if it == max_iter:
                 break
             pg = np.max(np.abs(g[idx]), initial=0.0)
-            d = self._exact_step(x, P, HB, g, idx) if pg <= EXACT_BELOW and self.curv is not None else None
+            d = self._exact_step(x, P, HB, g, idx) if pg <= exact_below and self.curv is not None else None
             exact_steps += d is not None
             if verbose:
                 print(f"newton {it:4d}  f {f_val:.10e}  |pg| {pg:.2e}  free {idx.size:4d}  "
@@ -197,7 +204,7 @@ class NewtonSolver:
                 status = "Line_Search_Failed"
                 break
             x, it = trial, it + 1
-        return self._solution(setup, method, init, x, P, trace_ref, status, it, exact_steps, t0)
+        return self._end(setup, x, P, trace_ref, status, it, exact_steps, t0)
 
     def _exact_step(self, x, P, HB, g, idx) -> np.ndarray | None:
         """Newton's step with the exact Hessian (the surrogate's plus S's own curvature C^T d2S/dc2 C) on the free
@@ -242,7 +249,7 @@ class NewtonSolver:
             return None
         return d, shift
 
-    def _solution(self, setup, method, init, x, P, trace_ref, status, it, exact_steps, t0) -> Solution:
+    def _end(self, setup, x, P, trace_ref, status, it, exact_steps, t0) -> NewtonRun:
         T, nq = self.T, self.robot.nq
         q = x.reshape(T + 1, nq)
         mu = np.asarray(self.poses(q.T, setup.T_cam_base[:3, :])).T
@@ -252,13 +259,37 @@ class NewtonSolver:
             status = "Depth_Bound_Violated" if depth > 0 else "Terminal_Pose_Not_Met"
         solve_s = time.perf_counter() - t0
         trace, f_val = (float(v[0]) for v in self.step(x, P)[:2])
+        return NewtonRun(q, mu, status, it, exact_steps, f_val * trace_ref, trace * trace_ref, trace_ref,
+                         max(terminal, depth), solve_s)
+
+    def _solution(self, setup, method, init, r: NewtonRun) -> Solution:
         return evaluate(
-            setup, method, np.array([setup.pose_of(qi) for qi in q]), list(q),
-            success=status == "Solve_Succeeded", status=status, solve_time_s=solve_s, iterations=it,
-            objective=f_val * trace_ref,
-            extras={"init": init.source, "solver": "newton", "covariance_form": "condensed", "exact_steps": exact_steps,
-                    "build_time_s": self.build_time_s, "compiled": self.codegen,
+            setup, method, np.array([setup.pose_of(qi) for qi in r.q]), list(r.q),
+            success=r.success, status=r.status, solve_time_s=r.solve_time_s, iterations=r.iterations,
+            objective=r.objective,
+            extras={"init": init.source, "solver": "newton", "covariance_form": "condensed",
+                    "exact_steps": r.exact_steps, "build_time_s": self.build_time_s, "compiled": self.codegen,
                     **({"codegen_note": self.codegen_note} if self.codegen_note else {}),
-                    "ocp_trace_final": trace * trace_ref, "initial_trace": trace_ref,
-                    "constraint_violation": max(terminal, depth)},
+                    "ocp_trace_final": r.trace, "initial_trace": r.initial_trace,
+                    "constraint_violation": r.violation},
         )
+
+
+@dataclass
+class NewtonRun:
+    """Where a projected Newton run ended, before its plan is evaluated (`NewtonSolver.run`)."""
+
+    q: np.ndarray  # (T+1, nq) joints
+    mu: np.ndarray  # (T+1, 6) planned means [m, rad], camera frame
+    status: str
+    iterations: int
+    exact_steps: int
+    objective: float  # Tr(Sigma_T) of the planning model plus smoothness
+    trace: float  # Tr(Sigma_T) of the planning model
+    initial_trace: float  # at the initial guess
+    violation: float  # terminal pose [m or rad] or depth bound [m]
+    solve_time_s: float
+
+    @property
+    def success(self) -> bool:
+        return self.status == "Solve_Succeeded"
