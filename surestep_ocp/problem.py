@@ -187,6 +187,77 @@ class Problem:
     description: str = ""
     timing: TimingSpec = TimingSpec()
     limits: LimitsSpec = LimitsSpec()
+    source: Any = field(default=None, repr=False, compare=False)  # the YAML tree it was read from
+
+    # Changed copies (the Python API). Each edits the tree the problem was read from and reads it again with the
+    # file's own checks, so a bad value is a ProblemError naming the file and the key (e.g. `goal.pose.position`).
+    def with_start(self, *, pose=None, joints=None) -> Problem:
+        """Start at a tool `pose` `[px, py, pz, rx, ry, rz]` (camera frame: position [m], axis-angle [rad]) or
+        at `joints` [rad; m for the insertion]."""
+        return self.with_sections(start=self._endpoint_tree("start", pose, joints))
+
+    def with_goal(self, *, pose=None, joints=None) -> Problem:
+        """Goal at a tool `pose` `[px, py, pz, rx, ry, rz]` (camera frame, [m] and [rad]) or at `joints`."""
+        return self.with_sections(goal=self._endpoint_tree("goal", pose, joints))
+
+    def with_camera_pose(self, matrix) -> Problem:
+        """The camera fixed at `matrix` (4x4, camera in world, position [m]; OpenCV axes: z forward), in place
+        of the ECM. A goal given in the camera frame stays there (it moves with the camera)."""
+        camera = {k: v for k, v in self._tree().get("camera", {}).items() if k not in ("pose", "ecm")}
+        return self.with_sections(camera={**camera, "pose": {"matrix": matrix}})
+
+    def with_noise(self, **values) -> Problem:
+        """Noise constants replaced, as the file's `noise:` keys take them: `Sigma0` (scalar or 6x6 [m^2, rad^2]),
+        `W_p0`, `W_o0`, `V_d0`, `V_f0`, `V_o0`, `V_min`, `depth_star` [m], `o_star` [rad], `components`, ..."""
+        return self.with_sections(noise={**self._tree().get("noise", {}), **values})
+
+    def with_horizon(self, steps: int) -> Problem:
+        """`steps` steps (T; T + 1 waypoints, `timing.step_s` [s] each)."""
+        return self.with_sections(horizon=steps)
+
+    def with_solver(self, **values) -> Problem:
+        """Solver settings replaced (`name`: auto | newton | ipopt, `hessian`, `tol`, `max_iter`, `codegen`, ...)."""
+        return self.with_sections(solver={**self._tree().get("solver", {}), **values})
+
+    def with_sections(self, **sections) -> Problem:
+        """Top-level sections of the problem file replaced (`name=`, `timing=`, `limits=`, ...), read again."""
+        return parse_problem({**self._tree(), **_plain(sections)}, self.path)
+
+    def _tree(self) -> dict:
+        if not isinstance(self.source, dict):
+            raise ProblemError(str(self.path), None, "this Problem was not read from a file or a dict (load_problem, "
+                                                     "problem_from_dict), so it cannot be changed by with_*")
+        return self.source
+
+    def _endpoint_tree(self, key: str, pose, joints) -> dict:
+        """A `start:` / `goal:` section of a pose [px, py, pz, rx, ry, rz] or joint values."""
+        tree = {} if joints is None else {"joints": joints}
+        pose = _plain(pose)
+        if isinstance(pose, list):
+            if len(pose) != 6:
+                raise ProblemError(str(self.path), f"{key}.pose", "expected 6 numbers [px, py, pz, rx, ry, rz] "
+                                   f"(position [m], axis-angle [rad]), got {len(pose)}")
+            tree["pose"] = {"position": pose[:3], "axis_angle": pose[3:]}
+        elif pose is not None:
+            tree["pose"] = pose  # a mapping {position, axis_angle}, or what the reader says is wrong
+        return tree
+
+
+def _plain(value: Any) -> Any:
+    """NumPy arrays and scalars as the lists and numbers a YAML file gives."""
+    if isinstance(value, dict):
+        return {k: _plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return _plain(value.tolist())
+    return value.item() if isinstance(value, np.generic) else value
+
+
+def problem_from_dict(tree: dict, path: str | Path = "<python>") -> Problem:
+    """A problem built in Python: `tree` as a problem file's YAML would give it (problems/README.md), NumPy
+    arrays allowed. Relative URDF paths resolve as for a file in the current folder; errors name `path`."""
+    return parse_problem(_plain(tree), Path(path))
 
 
 # Limits of what a problem (or evaluation) file may be and hold (problems/README.md, "Limits").
@@ -371,6 +442,7 @@ def parse_problem(tree: Any, path: Path) -> Problem:
         gradient=_gradient(rd, top.get("gradient", {})),
         timing=timing,
         limits=_limits(rd, top.get("limits", {}), robot),
+        source=tree,
     )
 
 

@@ -59,6 +59,39 @@ class Solution:
     def entropy_final(self) -> float:
         return entropy(np.asarray(self.sigma_final))
 
+    # ----------------------------------------------------------- arrays (the public API)
+    @property
+    def joints(self) -> np.ndarray:
+        """(T+1, nq) joint values [rad, or m for prismatic joints] in `joint_names` order; NaN rows where a
+        pose-space waypoint has no IK solution."""
+        return np.array([[np.nan] * len(self.joint_names) if q is None else q for q in self.q], float)
+
+    @property
+    def positions(self) -> np.ndarray:
+        """(T+1, 3) tool positions [m] in the camera frame (of each waypoint's step when the camera moves)."""
+        return np.asarray(self.poses, float)[:, :3]
+
+    @property
+    def orientations(self) -> np.ndarray:
+        """(T+1, 3) tool orientations as axis-angle vectors [rad], same frame as `positions`."""
+        return np.asarray(self.poses, float)[:, 3:]
+
+    @property
+    def pose_matrices(self) -> np.ndarray:
+        """(T+1, 4, 4) tool poses (rotation, position [m]) in the camera frame."""
+        return np.array([pose_to_matrix(x) for x in self.poses])
+
+    @property
+    def covariances(self) -> np.ndarray:
+        """(T+1, 6, 6) EKF covariances Sigma_t|t of (position [m], orientation [rad]): blocks in m^2, m rad,
+        rad^2; the evaluation's model (every observation component)."""
+        return np.asarray(self.sigma, float)
+
+    @property
+    def times(self) -> np.ndarray:
+        """(T+1,) time [s] of each waypoint from the start (`timing.step_s` per step)."""
+        return np.arange(self.horizon + 1) * float(self.extras.get("timing", {}).get("step_s", 0.05))
+
     def to_dict(self) -> dict:
         d = asdict(self)
         extras = d.pop("extras")
@@ -153,10 +186,15 @@ def evaluate(
     objective: float,
     components: tuple[str, ...] | None = None,
     extras: dict | None = None,
+    sigma: np.ndarray | None = None,
 ) -> Solution:
-    """The single evaluation every method goes through: the EKF with all components along `poses`."""
+    """The single evaluation every method goes through: the EKF with all components along `poses`.
+
+    `sigma`: the (T+1, 6, 6) covariances of that EKF along `poses` when the caller has them already (the
+    re-planning loop propagates them in one compiled call, planner.py; a fixed camera only).
+    """
     poses = setup.in_step_frames(np.asarray(poses, dtype=float))  # planned in the first camera frame
-    sig, _ = setup.eval_model.propagate(poses, setup.camera_changes())
+    sig = setup.eval_model.propagate(poses, setup.camera_changes())[0] if sigma is None else np.asarray(sigma)
     prob = setup.problem
     noise = noise_dict(setup)
     if components is not None:
