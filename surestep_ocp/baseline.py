@@ -6,18 +6,19 @@ import time
 
 import numpy as np
 
-from .lie import slerp_many
+from .lie import continued_along, slerp_many
 from .setup import Setup
 from .solution import Solution, evaluate
 
 
 def straight_line(x_start: np.ndarray, x_goal: np.ndarray, horizon: int) -> np.ndarray:
-    """(T+1, 6) waypoints from start to goal, evenly spaced in position and in angle."""
+    """(T+1, 6) waypoints from start to goal, evenly spaced in position and in angle (the shortest rotation),
+    the rotation vector continued along them from the start's (it may end on the goal's other side)."""
     s = np.linspace(0.0, 1.0, horizon + 1)
     p = (1 - s)[:, None] * x_start[:3] + s[:, None] * x_goal[:3]
     r = slerp_many(x_start[3:], x_goal[3:], s)
     r[0], r[-1] = x_start[3:], x_goal[3:]
-    return np.hstack([p, r])
+    return np.hstack([p, continued_along(r)])
 
 
 def reachability(setup: Setup, poses: np.ndarray) -> tuple[list, dict]:

@@ -18,7 +18,7 @@ import casadi as ca
 import numpy as np
 
 from .camera import Intrinsics
-from .lie import angle_sq, so3_exp, so3_log
+from .lie import _SMALL, angle_sq, so3_exp, so3_log
 
 COMPONENTS = ("depth", "fov", "orientation")
 ORIENTATION_FORMULAS = ("cosine", "geodesic")
@@ -28,12 +28,14 @@ NX = 6
 NV = NX * (NX + 1) // 2  # 21
 _TRIL = [(i, j) for j in range(NX) for i in range(j, NX)]  # vech order: column-major lower triangle
 DIAG = [k for k, (i, j) in enumerate(_TRIL) if i == j]  # positions of the diagonal in vech
-# Guard of |r| in the paper's cosine formula, cos = r.o* / (sqrt(|r|^2 + g) |o*|) [rad^2]. The formula is
-# undefined at r = 0, and near it the direction of r is free: an optimiser found that a rotation of
-# 1e-4 rad about o*'s axis makes the orientation noise vanish (measured: an OCP optimum whose true
-# trace was 16x the straight line's on an evaluation configuration). With g = (0.05 rad)^2 small
-# rotations see the full orientation noise; beyond 0.5 rad the guard changes cos by < 0.5 %.
-COSINE_GUARD = 0.05**2
+# The default guard g of |r| in the paper's cosine formula, cos = r.o* / (sqrt(|r|^2 + g^2) |o*|), as its square
+# [rad^2] (`NoiseParams.cosine_guard` is g [rad]). The formula is undefined at r = 0, and near it the direction of
+# r is free: an optimiser found that a rotation of 1e-4 rad about o*'s axis makes the orientation noise vanish
+# (an OCP optimum whose true trace was 16x the straight line's). With g = 0.05 rad small rotations see the full
+# orientation noise; beyond 0.5 rad the guard changes cos by < 0.5 %.
+DEFAULT_COSINE_GUARD = 0.05  # [rad]
+DEFAULT_CUT_BAND = 0.2  # [rad] (see `paper_cosine`)
+COSINE_GUARD = DEFAULT_COSINE_GUARD**2
 
 
 def vech(M):
@@ -82,6 +84,36 @@ class NoiseParams:
     camera_W_p0: np.ndarray = field(default_factory=lambda: 1e-3 * np.eye(NX))  # per camera move [1/m^2 scale]
     camera_W_o0: np.ndarray = field(default_factory=lambda: 1e-3 * np.eye(NX))
     V_min: np.ndarray = field(default_factory=lambda: np.zeros((NX, NX)))  # observation noise floor (PSD)
+    cosine_guard: float = DEFAULT_COSINE_GUARD  # [rad] g in the cosine formula; 0: the paper's formula (r != 0)
+    cut_band: float = DEFAULT_CUT_BAND  # [rad] below pi where the cosine fades to 0 (`paper_cosine`); 0: a jump
+
+
+def paper_cosine(r, o_star, guard: float, band: float):
+    """The paper's `cos = r.o* / (|r| |o*|)` as a function of the rotation (CasADi), from any of its vectors r.
+
+    r is read as its rotation's principal vector r_p (angle in [0, pi]), so both sheets of the double cover
+    give the same value; the guard g [rad] makes it `r_p.o* / (sqrt(|r_p|^2 + g^2) |o*|)` (defined at r = 0);
+    within `band` [rad] below pi it fades to 0 at pi by a smoothstep in the quaternion's w, where the paper's
+    formula jumps (r_p and -r_p are the same rotation there): continuous on SO(3), smooth in the joints (the
+    NLP's means are continued vectors, `Robot.camera_pose`), the paper's own value at angles up to pi - band.
+    """
+    th2 = ca.dot(r, r)
+    small = th2 < _SMALL
+    th = ca.sqrt(ca.if_else(small, 1.0, th2))
+    w = ca.if_else(small, 1 - th2 / 8, ca.cos(0.5 * th))  # the quaternion (w, v) of exp(r), v = k r
+    k = ca.if_else(small, 0.5 - th2 / 48, ca.sin(0.5 * th) / th)
+    v = k * r
+    aw, s2 = ca.fabs(w), ca.dot(v, v)
+    vsmall = ca.logic_and(s2 < _SMALL, aw > 0.5)
+    sv = ca.sqrt(ca.if_else(vsmall, 1.0, ca.fmax(s2, 1e-300)))
+    f = ca.if_else(vsmall, 2 / aw - 2 * s2 / (3 * aw**3), 2 * ca.atan2(sv, aw) / sv)  # |r_p| / |v|
+    if band > 0:  # sign(w), the side of the cut, smoothed: odd, 1 beyond w_b = sin(band / 2), C1
+        u = w / float(np.sin(0.5 * band))
+        side = ca.if_else(ca.fabs(u) >= 1, ca.sign(u), 0.5 * (3 * u - u**3))
+    else:
+        side = ca.sign(w)
+    norm = ca.sqrt(ca.fmax(f**2 * s2 + guard**2, 1e-300))  # sqrt(|r_p|^2 + g^2); cos = 0 at r = 0 unguarded
+    return side * f * ca.dot(v, ca.DM(o_star)) / (norm * float(np.linalg.norm(o_star)))
 
 
 def _identity_jacobians() -> ca.Function:
@@ -183,7 +215,7 @@ class BeliefModel:
         mats = tuple(np.asarray(getattr(n, k), float).tobytes() for k in ("W_p0", "W_o0", "V_d0", "V_f0", "V_o0",
                                                                            "V_min"))
         return (mats, n.depth_star, tuple(n.o_star), self.components, n.orientation_formula, n.observation_noise,
-                n.objective,
+                n.objective, n.cosine_guard, n.cut_band,
                 tuple(self.camera.to_dict().items()), self.identity_maps or id(self.jacobians))
 
     def with_components(self, components: tuple[str, ...]) -> BeliefModel:
@@ -239,7 +271,7 @@ class BeliefModel:
         if "orientation" in self.components:
             o = ca.DM(n.o_star)
             if n.orientation_formula == "cosine":
-                cos = ca.dot(r, o) / (ca.sqrt(ca.dot(r, r) + COSINE_GUARD) * float(np.linalg.norm(n.o_star)))
+                cos = paper_cosine(r, n.o_star, n.cosine_guard, n.cut_band)
             else:  # geodesic: cosine of the angle between the rotations
                 cos = 0.5 * (ca.trace(so3_exp(r).T @ so3_exp(o)) - 1)
             out.append((1 - cos, 3))

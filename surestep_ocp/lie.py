@@ -3,6 +3,13 @@
 Axis-angle vectors `r` [rad] parametrise rotations, `R = exp(r)`. The symbolic
 maps avoid the 0/0 at the identity with a Taylor branch evaluated on a safe
 argument (so automatic differentiation never meets a NaN in the unused branch).
+
+Orientation means are continued along the motion (README, "Orientation"): a unit
+quaternion `(w, x, y, z)` (the double cover of SO(3)) is continuous along any joint
+path, and its log `r = 2 atan2(|v|, w) v / |v|` (angle in [0, 2 pi)) is the rotation
+vector an EKF adding increments to `r` carries. It equals the principal vector while
+the angle stays below pi and continues smoothly beyond it, where the principal vector
+jumps to the other side of the ball.
 """
 
 from __future__ import annotations
@@ -54,7 +61,70 @@ def angle_sq(Ra, Rb):
     return ca.dot(r, r)
 
 
+def quat_mul(a, b):
+    """Hamilton product of two quaternions `(w, x, y, z)` (CasADi or NumPy 4-vectors)."""
+    va, vb = a[1:], b[1:]
+    if isinstance(a, np.ndarray) and isinstance(b, np.ndarray):
+        return np.concatenate([[a[0] * b[0] - va @ vb], a[0] * vb + b[0] * va + np.cross(va, vb)])
+    return ca.vertcat(a[0] * b[0] - ca.dot(va, vb), a[0] * vb + b[0] * va + ca.cross(va, vb))
+
+
+def quat_rotvec(Q):
+    """Rotation vector of a unit quaternion (CasADi), angle `2 atan2(|v|, w)` in [0, 2 pi).
+
+    Smooth except at `Q = (-1, 0, 0, 0)` (a full turn): the chart of the double cover, with
+    no cut at pi.
+    """
+    w, v = Q[0], Q[1:]
+    s2 = ca.dot(v, v)
+    small = ca.logic_and(s2 < _SMALL, w > 0)
+    safe = ca.if_else(small, 1.0, ca.fmax(s2, 1e-300))
+    s = ca.sqrt(safe)
+    f = ca.if_else(small, 2 / w - 2 * s2 / (3 * w**3), 2 * ca.atan2(s, w) / s)
+    return f * v
+
+
 # ---------------------------------------------------------------- NumPy versions
+
+
+def np_quat(r: np.ndarray) -> np.ndarray:
+    """(N, 4) quaternions `(w, x, y, z)` of (N, 3) rotation vectors, any angle (w < 0 beyond pi)."""
+    r = np.asarray(r, dtype=float).reshape(-1, 3)
+    th = np.linalg.norm(r, axis=1)
+    small = th < 1e-8
+    k = np.where(small, 0.5 - th**2 / 48, np.sin(0.5 * th) / np.where(small, 1.0, th))
+    return np.hstack([np.cos(0.5 * th)[:, None], k[:, None] * r])
+
+
+def np_quat_rotvec(Q: np.ndarray) -> np.ndarray:
+    """(N, 3) rotation vectors of (N, 4) unit quaternions, angle `2 atan2(|v|, w)` in [0, 2 pi]."""
+    Q = np.asarray(Q, dtype=float).reshape(-1, 4)
+    s = np.linalg.norm(Q[:, 1:], axis=1)
+    small = s < 1e-9
+    f = np.where(small, 2 / np.where(small, Q[:, 0], 1.0), 2 * np.arctan2(s, Q[:, 0]) / np.where(small, 1.0, s))
+    return f[:, None] * Q[:, 1:]
+
+
+def continued(r: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """(N, 3) rotation vectors of the rotations `exp(r_i)`, each continued to the side of `reference_i`
+    (the representative whose quaternion is nearest the reference's): the vector an EKF near that
+    reference carries, e.g. a rollout's estimate near its planned waypoint."""
+    Q, ref = np_quat(r), np_quat(np.broadcast_to(reference, np.shape(np.asarray(r).reshape(-1, 3))))
+    return np_quat_rotvec(np.where((np.sum(Q * ref, axis=1) < 0)[:, None], -Q, Q))
+
+
+def continued_along(r: np.ndarray) -> np.ndarray:
+    """(N, 3) rotation vectors of the rotations `exp(r_i)`, continued along the sequence from `r_0` (kept):
+    each quaternion on the side of its predecessor's (steps below pi), so no vector jumps at the cut."""
+    Q = np_quat(r)
+    for i in range(1, len(Q)):
+        if Q[i] @ Q[i - 1] < 0:
+            Q[i] = -Q[i]
+    out = np_quat_rotvec(Q)
+    out[0] = np.asarray(r, float).reshape(-1, 3)[0]
+    return out
+
+
 
 
 def np_exp(r: np.ndarray) -> np.ndarray:

@@ -38,7 +38,7 @@ import scipy.sparse.linalg
 from .belief import DIAG, NV, NX, BeliefModel, unvech, vech
 from .codegen import compiled_or_interpreted
 from .errors import SurestepError
-from .robot import Robot
+from .robot import CAMERA_PARAMETERS, Robot
 from .setup import Setup
 from .solution import Solution
 from .stages import assemble, entries, smoothness_matrix
@@ -65,7 +65,7 @@ class LiftedTranscription:
         self.nz = nz = nq + NX + NV  # per node: q, mu, s
         self.n = n = nz * (T + 1)
         self.ng = NX * (T + 1) + NV * T
-        self.n_p = 12 + (T + 1) + 1 + NV
+        self.n_p = CAMERA_PARAMETERS + (T + 1) + 1 + NV
         pose = pose_function(robot)
         stage = kalman_stage(model)
 
@@ -82,7 +82,7 @@ class LiftedTranscription:
         interval_jac = ca.Function("lifted_jac", [a, b, s, sc0, sc1], [ca.densify(ca.horzcat(Jab, sc0 * Jsc[:, :NV]))])
         interval_hess = ca.Function("lifted_hess", [a, b, wm, wo],
                                     [ca.densify(ca.hessian(weighted, ca.vertcat(a, b))[0])])
-        q, lk, Tcb = ca.SX.sym("q", nq), ca.SX.sym("lk", NX), ca.SX.sym("T_cam_base", 3, 4)
+        q, lk, Tcb = ca.SX.sym("q", nq), ca.SX.sym("lk", NX), ca.SX.sym("camera", CAMERA_PARAMETERS)
         node_jac = ca.Function("lifted_node_jac", [q, Tcb], [ca.densify(-ca.jacobian(pose(q, Tcb), q))])
         node_hess = ca.Function("lifted_node_hess", [q, lk, Tcb],
                                 [ca.densify(ca.hessian(-ca.dot(lk, pose(q, Tcb)), q)[0])])
@@ -101,7 +101,8 @@ class LiftedTranscription:
         lam_f, lam_g = ca.MX.sym("lam_f"), ca.MX.sym("lam_g", self.ng)
         Z = ca.reshape(X, nz, T + 1)
         qs, mus, ss = Z[:nq, :], Z[nq:nq + NX, :], Z[nq + NX:, :]
-        Tc, scale, ref = ca.reshape(P[:12], 3, 4), P[12:13 + T], P[13 + T]
+        c0 = CAMERA_PARAMETERS
+        Tc, scale, ref = P[:c0], P[c0:c0 + T + 1], P[c0 + T + 1]
         sc_a, sc_b = ca.reshape(scale[:T], 1, T), ca.reshape(scale[1:], 1, T)
         args = (mus[:, :T], mus[:, 1:], ss[:, :T], sc_a, sc_b)
         g_kin = ca.vec(mus - pose.map(T + 1)(qs, Tc))
@@ -128,7 +129,7 @@ class LiftedTranscription:
         lam_kin = ca.reshape(lam_g[:NX * (T + 1)], NX, T + 1)
         C, nm = self.coef.map(T)(mus[:, :T], mus[:, 1:]), wm.shape[0]  # motion coefficients, then observation
         _, w_m, w_o = recursion_weights(model, T, ca.SX.sym("sigma0", NV), ca.SX.sym("trace_ref"))(
-            C[:nm, :], C[nm:, :], P[14 + T:], ref)
+            C[:nm, :], C[nm:, :], P[c0 + T + 2:], ref)
         H_nz = (lam_f * (const + ca.mtimes(h_int, ca.vec(interval_hess.map(T)(mus[:, :T], mus[:, 1:], w_m, w_o))))
                 + ca.mtimes(h_q, ca.vec(node_hess.map(T + 1)(qs, lam_kin, Tc))))
         hess_lag = ca.Function("lifted_hess_l", [X, P, lam_f, lam_g], [ca.MX(hess_sp, H_nz)],
@@ -157,7 +158,7 @@ class LiftedTranscription:
     def _start(self, setup: Setup, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
         """Consistent initial point (joints, means by FK, covariances by the recursion), scales, initial trace."""
         T = self.T
-        mu = np.asarray(self.poses(q.T, setup.T_cam_base[:3, :]))  # 6 x T+1
+        mu = np.asarray(self.poses(q.T, setup.camera_parameter()))  # 6 x T+1
         s0 = vech(np.asarray(setup.problem.noise.Sigma0, float))
         S = np.hstack([s0[:, None], np.asarray(self.roll(mu, s0))])  # 21 x T+1
         tr = S[DIAG, :].sum(axis=0)
@@ -199,7 +200,7 @@ class LiftedTranscription:
         else:
             x0, scale, trace_ref = warm.x, warm.scale, warm.trace_ref
         lbx, ubx = self.bounds(setup, scale)
-        p = np.concatenate([setup.T_cam_base[:3, :].ravel(order="F"), scale, [trace_ref],
+        p = np.concatenate([setup.camera_parameter(), scale, [trace_ref],
                             setup.model.recursion_sigma0(setup.problem.noise.Sigma0)])  # for the Hessian's weights
         args = dict(x0=x0, lbx=lbx, ubx=ubx, lbg=0.0, ubg=0.0, p=p)
         if warm is not None:

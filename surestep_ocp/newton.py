@@ -35,7 +35,7 @@ import scipy.linalg
 
 from .belief import NV, BeliefModel
 from .codegen import compiled_or_interpreted
-from .robot import Robot
+from .robot import CAMERA_PARAMETERS, Robot
 from .setup import Setup
 from .solution import Solution, evaluate
 from .surrogate import interval_terms, pose_function, recursion_weights
@@ -77,7 +77,7 @@ class NewtonSolver:
         t0 = time.perf_counter()
         self.robot, self.T, nq = robot, horizon, robot.nq
         T = horizon
-        Tcb, ref, sigma0 = ca.SX.sym("T_cam_base", 3, 4), ca.SX.sym("trace_ref"), ca.SX.sym("sigma0", NV)
+        Tcb, ref, sigma0 = ca.SX.sym("camera", CAMERA_PARAMETERS), ca.SX.sym("trace_ref"), ca.SX.sym("sigma0", NV)
         pose = pose_function(robot)
         weights = recursion_weights(model, T, sigma0, ref)
         qa, qb = ca.SX.sym("qa", nq), ca.SX.sym("qb", nq)
@@ -86,8 +86,8 @@ class NewtonSolver:
         surrogate = weighted + smoothness * ca.sumsqr(qb - qa)
         H, g = ca.hessian(surrogate, ca.vertcat(qa, qb))
         interval = ca.Function("interval", [qa, qb, wm, wo, Tcb], [ca.densify(g), ca.densify(H)])
-        Q, P = ca.MX.sym("Q", nq, T + 1), ca.MX.sym("P", 12 + 1 + NV)
-        Tc, r, s0 = ca.reshape(P[:12], 3, 4), P[12], P[13:]
+        Q, P = ca.MX.sym("Q", nq, T + 1), ca.MX.sym("P", CAMERA_PARAMETERS + 1 + NV)  # camera, trace_ref, sigma0
+        Tc, r, s0 = P[:CAMERA_PARAMETERS], P[CAMERA_PARAMETERS], P[CAMERA_PARAMETERS + 1:]
         S_x, w_m, w_o = weights(*coef.map(T)(Q[:, :T], Q[:, 1:], Tc), s0, r)
         G, HB = interval.map(T)(Q[:, :T], Q[:, 1:], w_m, w_o, Tc)
         smooth = smoothness * ca.sumsqr(Q[:, 1:] - Q[:, :T])
@@ -133,7 +133,7 @@ class NewtonSolver:
         C^T (d2S/dc2) C (the end-game). One Hessian-vector product of S, forward over the recursion's reverse
         sweep, mapped over the unit directions: the generated code holds one sweep (a symbolic dense Hessian did
         not compile in minutes)."""
-        T, Tc, s0, r = self.T, ca.reshape(P[:12], 3, 4), P[13:], P[12]
+        T, Tc, s0, r = self.T, P[:CAMERA_PARAMETERS], P[CAMERA_PARAMETERS + 1:], P[CAMERA_PARAMETERS]
         cm, co = ca.MX.sym("cm", *w_m.shape), ca.MX.sym("co", *w_o.shape)
         nc = w_m.numel() + w_o.numel()
         _, dm, do = weights(cm, co, s0, r)
@@ -160,7 +160,7 @@ class NewtonSolver:
         t0 = time.perf_counter()
         T, nq, n, robot = self.T, self.robot.nq, self.n, self.robot
         sigma0 = setup.model.recursion_sigma0(setup.problem.noise.Sigma0)
-        P = np.concatenate([setup.T_cam_base[:3, :].ravel(order="F"), [1.0], sigma0])
+        P = np.concatenate([setup.camera_parameter(), [1.0], sigma0])
         x = np.array(init.q, float).ravel()  # node-major: x[t*nq + j]
         lo, hi = np.tile(robot.lower, T + 1), np.tile(robot.upper, T + 1)
         free = np.zeros((T + 1, nq), bool)
@@ -168,7 +168,7 @@ class NewtonSolver:
         free = free.ravel()
         start_ok = bool(np.all(x >= lo - 1e-12) and np.all(x <= hi + 1e-12)
                         and np.allclose(x[:nq], setup.q_start, atol=1e-12))
-        P[12] = trace_ref = float(self.step(x, P)[0][0])  # the objective is 1 (plus smoothness) at the start
+        P[CAMERA_PARAMETERS] = trace_ref = float(self.step(x, P)[0][0])  # the objective is 1 (plus smoothness) at the start
         status, it, shift = "Maximum_Iterations_Exceeded" if start_ok else "Infeasible_Start", 0, 0.0
         exact_steps = 0
         while start_ok and it <= max_iter:
@@ -252,7 +252,7 @@ class NewtonSolver:
     def _end(self, setup, x, P, trace_ref, status, it, exact_steps, t0) -> NewtonRun:
         T, nq = self.T, self.robot.nq
         q = x.reshape(T + 1, nq)
-        mu = np.asarray(self.poses(q.T, setup.T_cam_base[:3, :])).T
+        mu = np.asarray(self.poses(q.T, setup.camera_parameter())).T
         terminal = float(np.max(np.abs(mu[T] - setup.x_goal)))
         depth = float(max(0.0, setup.problem.min_depth - mu[:, 2].min()))
         if status == "Solve_Succeeded" and (depth > 0 or terminal > 1e-9):

@@ -639,7 +639,7 @@ def _pose6(rd: Reader, node: Any, key: str) -> np.ndarray:
 
 
 _NOISE_KEYS = {"observation_scale", "camera_W_p0", "camera_W_o0", "W_p0", "W_o0", "V_d0", "V_f0", "V_o0", "Sigma0", "depth_star", "o_star", "components",
-               "orientation_formula", "observation_noise", "V_min"}
+               "orientation_formula", "observation_noise", "V_min", "cosine_guard", "cut_band"}
 
 
 def _noise(rd: Reader, node: Any, frames: int = 1) -> NoiseParams:
@@ -675,6 +675,8 @@ def _noise(rd: Reader, node: Any, frames: int = 1) -> NoiseParams:
                                           "noise.orientation_formula", ORIENTATION_FORMULAS)
     kw["observation_noise"] = rd.string(m.get("observation_noise", d.observation_noise), "noise.observation_noise",
                                         OBSERVATION_NOISE_FORMS)
+    kw["cosine_guard"] = rd.number(m.get("cosine_guard", d.cosine_guard), "noise.cosine_guard", low=0.0, high=1.0)
+    kw["cut_band"] = rd.number(m.get("cut_band", d.cut_band), "noise.cut_band", low=0.0, high=1.0)
     return NoiseParams(**kw)
 
 

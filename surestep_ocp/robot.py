@@ -20,9 +20,12 @@ import casadi as ca
 import numpy as np
 import pinocchio as pin
 from scipy.optimize import least_squares
+from scipy.spatial.transform import Rotation
 
 from .errors import FrameNotFound, UnreachablePose, UnsupportedJoint
-from .lie import np_log, so3_exp, so3_log
+from .lie import np_log, quat_mul, quat_rotvec, so3_exp, so3_log
+
+CAMERA_PARAMETERS = 16  # the camera parameter of `Robot.camera_pose`: vec(T_cam_base[:3, :]), then its quaternion
 
 
 @dataclass(frozen=True)
@@ -39,6 +42,12 @@ class _Joint:
 
 _IK_FUNCS: dict[tuple, ca.Function] = {}  # (urdf, mtime, frame, offset) -> IK residual Function
 _IK_MAPS: dict[tuple, dict[int, ca.Function]] = {}  # same key -> {N: the Function mapped over N targets}
+
+
+def _quat_of(R: np.ndarray) -> ca.DM:
+    """Quaternion `(w, x, y, z)` of a constant rotation matrix (either sign; used as a fixed factor)."""
+    x, y, z, w = Rotation.from_matrix(np.asarray(R, float)).as_quat()
+    return ca.DM([w, x, y, z])
 
 
 def _se3(M: pin.SE3) -> np.ndarray:
@@ -170,6 +179,14 @@ class Robot:
         T = _se3(self.data.oMf[fid])
         return T if frame is not None else T @ self.offset
 
+    def frame_jacobian(self, q: np.ndarray, frame: str) -> np.ndarray:
+        """6 x nq Jacobian of `frame` (Pinocchio, LOCAL_WORLD_ALIGNED): rows 0-2 map the joint rates to
+        the velocity of the frame's origin, rows 3-5 to its angular velocity, both in the root's axes;
+        one column per joint value (a continuous joint's angle rate)."""
+        fid = self.frame_index(frame)
+        return np.asarray(pin.computeFrameJacobian(self.model, self.data, self.to_pinocchio(np.asarray(q, float)),
+                                                   fid, pin.LOCAL_WORLD_ALIGNED), dtype=float)
+
     # ------------------------------------------------------------------ symbolic FK
     def fk_expr(self, q: ca.SX, frame: str | None = None) -> ca.SX:
         """4x4 symbolic pose of `frame` (default: the tracked object) in the URDF root frame."""
@@ -186,6 +203,48 @@ class Robot:
             T = T @ ca.DM(j.placement) @ _joint_motion(j, q[jid - 1])
         T = T @ ca.DM(_se3(f.placement))
         return T if frame is not None else T @ ca.DM(self.offset)
+
+    def fk_quaternion_expr(self, q: ca.SX) -> ca.SX:
+        """Unit quaternion `(w, x, y, z)` of the tracked object's orientation in the URDF root frame (CasADi).
+
+        The product of the joints' half-angle quaternions and the constant placements' (fixed signs):
+        a smooth function of the joints whose sign is continuous along every joint path (the double
+        cover), where a quaternion taken from the rotation matrix must pick a sign.
+        """
+        f = self.model.frames[self.frame_id]
+        chain = []
+        jid = int(f.parentJoint)
+        while jid > 0:
+            chain.append(jid)
+            jid = int(self.model.parents[jid])
+        Q = _quat_of(np.eye(3))
+        for jid in reversed(chain):
+            j = self._joints[jid - 1]
+            Q = quat_mul(Q, _quat_of(j.placement[:3, :3]))
+            if not j.prismatic:
+                Q = quat_mul(Q, ca.vertcat(ca.cos(0.5 * q[jid - 1]), ca.sin(0.5 * q[jid - 1]) * ca.DM(j.axis)))
+        return quat_mul(quat_mul(Q, _quat_of(_se3(f.placement)[:3, :3])), _quat_of(self.offset[:3, :3]))
+
+    @cached_property
+    def fk_quaternion(self) -> ca.Function:
+        """`fk_quaternion(q) -> Q` of `fk_quaternion_expr` (built once)."""
+        q = ca.SX.sym("q", self.nq)
+        return ca.Function("fk_quaternion", [q], [self.fk_quaternion_expr(q)], ["q"], ["Q"])
+
+    @cached_property
+    def camera_pose(self) -> ca.Function:
+        """`pose(q, camera) -> mean` (position [m], rotation vector [rad]) of the tracked object in the camera
+        frame; `camera` (CAMERA_PARAMETERS) is vec of the root's 3x4 pose in the camera frame, then that
+        rotation's quaternion with the sign that makes the start's angle at most pi (`Setup.camera_parameter`).
+
+        The rotation vector is the log of the FK quaternion (`lie.quat_rotvec`): continued along the joints,
+        no cut at pi.
+        """
+        q, cam = ca.SX.sym("q", self.nq), ca.SX.sym("camera", CAMERA_PARAMETERS)
+        Tcb, Tq = cam[:12].reshape((3, 4)), self.fk_expr(q)
+        r = quat_rotvec(quat_mul(cam[12:], self.fk_quaternion_expr(q)))
+        return ca.Function("pose", [q, cam], [ca.vertcat(Tcb[:, :3] @ Tq[:3, 3] + Tcb[:, 3], r)], ["q", "camera"],
+                           ["mean"])
 
     def fk_function(self, frame: str | None = None) -> ca.Function:
         """CasADi Function `fk_<frame>(q) -> (p[3], R[3x3])` in the URDF root frame."""

@@ -6,10 +6,11 @@ from dataclasses import dataclass, field, replace
 from functools import cached_property
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from .belief import BeliefModel
 from .errors import FrameNotFound, ProblemError, UnreachablePose, UnsupportedJoint
-from .lie import matrix_to_pose, np_exp_many, pose_to_matrix
+from .lie import continued, matrix_to_pose, np_exp_many, pose_to_matrix, quat_mul
 from .problem import EndpointSpec, Problem
 from .robot import Robot
 
@@ -78,9 +79,25 @@ class Setup:
         moved.x_start, moved.x_goal = moved.pose_of(self.q_start), moved.pose_of(self.q_goal)
         return moved
 
+    def camera_parameter(self) -> np.ndarray:
+        """The `camera` parameter of `Robot.camera_pose`: the root's pose in the camera frame and its quaternion,
+        signed so that the start's rotation vector is the principal one (angle at most pi)."""
+        Tcb = self.T_cam_base
+        x, y, z, w = Rotation.from_matrix(Tcb[:3, :3]).as_quat()
+        Qc = np.array([w, x, y, z])
+        if quat_mul(Qc, np.asarray(self.robot.fk_quaternion(self.q_start)).ravel())[0] < 0:
+            Qc = -Qc
+        return np.concatenate([Tcb[:3, :].ravel(order="F"), Qc])
+
+    def poses_of(self, q: np.ndarray) -> np.ndarray:
+        """(N, 6) camera-frame means `[p, r]` at the joint vectors `q` (N, nq): the rotation vector continued
+        along the joints from the start's (README, "Orientation"); exp(r) is Pinocchio's rotation (tested)."""
+        q = np.atleast_2d(np.asarray(q, float))
+        return np.asarray(self.robot.camera_pose.map(len(q))(q.T, self.camera_parameter())).T
+
     def pose_of(self, q: np.ndarray) -> np.ndarray:
-        """Camera-frame pose `[p, r]` of the tracked frame at joints `q` (Pinocchio, numeric)."""
-        return matrix_to_pose(self.T_cam_base @ self.robot.frame_pose(q))
+        """Camera-frame mean `[p, r]` of the tracked frame at joints `q` (see `poses_of`)."""
+        return self.poses_of(q)[0]
 
     def joints_for(self, x: np.ndarray, q0: np.ndarray, what: str = "pose", raise_on_fail: bool = True):
         """IK of a camera-frame pose: (q, residual [m], residual [rad])."""
@@ -173,8 +190,15 @@ def build_setup(problem: Problem) -> Setup:
         setup.camera_schedule = schedule
     mid = np.where(np.isfinite(robot.lower), 0.5 * (robot.lower + robot.upper), 0.0)
     setup.q_start, setup.x_start = _endpoint(problem, setup, problem.start, mid)
+    setup.x_start = _continued_at(setup, setup.x_start, setup.q_start)  # the principal vector
     setup.q_goal, setup.x_goal = _endpoint(problem, setup, problem.goal, setup.q_start)
+    setup.x_goal = _continued_at(setup, setup.x_goal, setup.q_goal)
     return setup
+
+
+def _continued_at(setup: Setup, x: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """The pose `x` with its rotation vector continued to the side of the mean at joints `q` (same rotation)."""
+    return np.concatenate([x[:3], continued(x[3:], setup.pose_of(q)[3:])[0]])
 
 
 def _camera_schedule(problem: Problem, ecm: Robot, first: np.ndarray) -> list[np.ndarray]:

@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 
 from .belief import entropy
-from .lie import matrix_to_pose, np_angle, pose_to_matrix
+from .lie import matrix_to_pose, np_angle, np_exp_many, np_log_many, pose_to_matrix
 from .setup import Setup
 
 
@@ -169,7 +169,7 @@ def noise_dict(setup: Setup) -> dict:
     n = setup.problem.noise
     d = {k: _cov_json(getattr(n, k)) for k in ("W_p0", "W_o0", "V_d0", "V_f0", "V_o0", "V_min", "Sigma0")}
     d.update(depth_star=n.depth_star, o_star=list(n.o_star), components=list(setup.model.components),
-             orientation_formula=n.orientation_formula)
+             orientation_formula=n.orientation_formula, cosine_guard=n.cosine_guard, cut_band=n.cut_band)
     return d
 
 
@@ -193,7 +193,10 @@ def evaluate(
     `sigma`: the (T+1, 6, 6) covariances of that EKF along `poses` when the caller has them already (the
     re-planning loop propagates them in one compiled call, planner.py; a fixed camera only).
     """
-    poses = setup.in_step_frames(np.asarray(poses, dtype=float))  # planned in the first camera frame
+    poses = np.array(poses, dtype=float)
+    beyond = np.linalg.norm(poses[:, 3:], axis=1) > np.pi  # principal vectors (the OCP's are continued)
+    poses[beyond, 3:] = np_log_many(np_exp_many(poses[beyond, 3:]))
+    poses = setup.in_step_frames(poses)  # planned in the first camera frame
     sig = setup.eval_model.propagate(poses, setup.camera_changes())[0] if sigma is None else np.asarray(sigma)
     prob = setup.problem
     noise = noise_dict(setup)

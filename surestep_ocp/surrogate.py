@@ -14,16 +14,12 @@ import casadi as ca
 import numpy as np
 
 from .belief import DIAG, NV, NX, BeliefModel, trace_vech, unvech, vech
-from .lie import so3_log
 from .robot import Robot
 
 
 def pose_function(robot: Robot) -> ca.Function:
-    """`pose(q, T_cam_base) -> mean` (position, axis-angle) of the tracked frame in the camera frame."""
-    q, Tcb = ca.SX.sym("q", robot.nq), ca.SX.sym("T_cam_base", 3, 4)
-    Tq = robot.fk_expr(q)
-    return ca.Function("pose", [q, Tcb], [ca.vertcat(Tcb[:, :3] @ Tq[:3, 3] + Tcb[:, 3],
-                                                     so3_log(Tcb[:, :3] @ Tq[:3, :3]))])
+    """`pose(q, camera) -> mean` of the tracked frame in the camera frame (`Robot.camera_pose`)."""
+    return robot.camera_pose
 
 
 def scalar_trace(sigma0, motion: list, observation: list, predicted: bool):

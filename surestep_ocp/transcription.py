@@ -40,7 +40,7 @@ from .belief import DIAG, NV, NX, BeliefModel, unvech, vech
 from .codegen import compiled_or_interpreted
 from .errors import SurestepError
 from .limits import MotionLimits
-from .robot import Robot
+from .robot import CAMERA_PARAMETERS, Robot
 from .setup import Setup
 from .solution import Solution, evaluate
 from .stages import assemble, entries, smoothness_matrix
@@ -140,7 +140,7 @@ class Transcription:
             if t < T:
                 Ks.append(L.add(f"K{t}", NX * NX if form == "full" else NX))
         # Parameters: robot base in the camera frame (3x4), covariance scales, trace reference.
-        Tcb = ca.SX.sym("T_cam_base", 3, 4)
+        Tcb = ca.SX.sym("camera", CAMERA_PARAMETERS)
         scale = ca.SX.sym("scale", T + 1)
         trace_ref = ca.SX.sym("trace_ref")
         sigma0 = ca.SX.sym("sigma0", NV)
@@ -300,7 +300,7 @@ class Transcription:
             block += sum(2 * wo[k] * ca.mtimes(ca.jacobian(e, ab).T, ca.jacobian(e, ab)) for k, e in enumerate(res_o))
         interval_grad = ca.Function("interval_grad", [a, b, wm, wo], [ca.densify(ca.gradient(weighted, ab))])
         interval_hess = ca.Function("interval_hess", [a, b, wm, wo], [ca.densify(block)])
-        q, lam, Tcb = ca.SX.sym("q", nq), ca.SX.sym("lam", NX), ca.SX.sym("T_cam_base", 3, 4)
+        q, lam, Tcb = ca.SX.sym("q", nq), ca.SX.sym("lam", NX), ca.SX.sym("camera", CAMERA_PARAMETERS)
         # g_t = mu_t - pose(q_t): Jacobian -d pose/dq (and I in the mean); curvature -Hess(lam . pose)
         node_jac = ca.Function("node_jac", [q, Tcb], [ca.densify(-ca.jacobian(pose(q, Tcb), q))])
         node_hess = ca.Function("node_hess", [q, lam, Tcb], [ca.densify(ca.hessian(-ca.dot(lam, pose(q, Tcb)), q)[0])])
@@ -317,7 +317,7 @@ class Transcription:
 
         X, P = ca.MX.sym("x", n), ca.MX.sym("p", self.p.shape[0])
         lam_f, lam_g = ca.MX.sym("lam_f"), ca.MX.sym("lam_g", self.ng)
-        Tcb_x, sigma0_x, ref_x = ca.Function("params", [self.p], [self.p[:12].reshape((3, 4)), sigma0, trace_ref])(P)
+        Tcb_x, sigma0_x, ref_x = ca.Function("params", [self.p], [self.p[:CAMERA_PARAMETERS], sigma0, trace_ref])(P)
         mus = ca.horzcat(*[X[i[0]:i[0] + NX] for i in mu_idx])
         qs = ca.horzcat(*[X[i[0]:i[0] + nq] for i in q_idx])
         S_x, w_m, w_o = weights(*coef.map(T)(mus[:, :T], mus[:, 1:]), sigma0_x, ref_x)
@@ -439,12 +439,12 @@ class Transcription:
         sigma0 = np.asarray(setup.problem.noise.Sigma0, float)
         # the scalar recursions start from their channel variances (the trace is the same)
         s0 = setup.model.recursion_sigma0(sigma0) if self.form == "condensed" else vech(sigma0)
-        return np.concatenate([setup.T_cam_base[:3, :].ravel(order="F"), scale, [trace_ref], s0])
+        return np.concatenate([setup.camera_parameter(), scale, [trace_ref], s0])
 
     def _condensed_start(self, setup: Setup, init: InitialGuess) -> tuple[np.ndarray, np.ndarray, float]:
         """Initial point of the condensed form (joints, and their means by FK), scales, and its trace."""
         T, q = self.T, np.asarray(init.q, float)
-        mu = np.asarray(self.poses(q.T, setup.T_cam_base[:3, :])).T
+        mu = np.asarray(self.poses(q.T, setup.camera_parameter())).T
         x0 = self.layout.join({**{f"q{t}": q[t] for t in range(T + 1)}, **{f"mu{t}": mu[t] for t in range(T + 1)}})
         scale = np.ones(T + 1)  # unused by this form
         return x0, scale, float(self.trace(x0, self._parameters(setup, scale, 1.0)))

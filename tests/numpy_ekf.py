@@ -39,12 +39,14 @@ def image_offset(p, camera) -> tuple[float, float]:
 
 
 def observation_noise(
-    x, noise, camera, components=ALL_COMPONENTS, formula="cosine", guard: float = 0.0
+    x, noise, camera, components=ALL_COMPONENTS, formula="cosine", guard: float = 0.0, band: float = 0.0
 ) -> np.ndarray:
     """V(x) = depth + field-of-view + orientation terms (those in `components`).
 
     `guard` [rad^2] is added under the square root of |r|^2 in the cosine formula (undefined at
-    r = 0, section 4: "guard it"); 0 gives the paper's formula exactly.
+    r = 0, section 4: "guard it"); 0 gives the paper's formula exactly. The cosine is taken of the
+    principal rotation vector (angle in [0, pi], scipy's); `band` [rad] > 0 fades it to 0 over the
+    angles (pi - band, pi] by the smoothstep (3u - u^3) / 2, u = cos(angle / 2) / sin(band / 2).
     """
     x = np.asarray(x, float)
     p, r = x[:3], x[3:]
@@ -57,7 +59,10 @@ def observation_noise(
         V += (du**2 + dv**2) * np.asarray(noise.V_f0)
     if "orientation" in components:
         if formula == "cosine":  # the paper's cosine between the axis-angle vectors
+            r = Rotation.from_rotvec(r).as_rotvec()  # the principal vector
             cos = float(r @ o) / (np.sqrt(r @ r + guard) * np.linalg.norm(o))
+            u = np.cos(0.5 * np.linalg.norm(r)) / np.sin(0.5 * band) if band > 0 else 1.0
+            cos *= 1.0 if u >= 1 else 0.5 * (3 * u - u**3)
         elif formula == "geodesic":
             cos = np.cos(geodesic_angle(r, o))
         else:
@@ -75,14 +80,15 @@ def ekf_step(sigma, W, V, F=I6, Q=I6, H=I6, R=I6):
 
 
 def propagate(
-    poses, noise, camera, components=ALL_COMPONENTS, formula=None, jacobians=None, guard=0.0
+    poses, noise, camera, components=ALL_COMPONENTS, formula=None, jacobians=None, guard=0.0, band=None
 ):
     """Posterior covariances (T+1, 6, 6) and predicted ones (T, 6, 6) along `poses` (T+1, 6).
 
     `jacobians(x0, x1) -> (F, Q, H, R)` (NumPy arrays); identity when omitted.
-    `formula` defaults to `noise.orientation_formula`.
+    `formula` defaults to `noise.orientation_formula`, `band` to `noise.cut_band` (0 if absent).
     """
     formula = formula or getattr(noise, "orientation_formula", "cosine")
+    band = getattr(noise, "cut_band", 0.0) if band is None else band
     poses = np.asarray(poses, float)
     sig = np.asarray(noise.Sigma0, float)
     sigmas, preds = [sig], []
@@ -90,7 +96,7 @@ def propagate(
         x0, x1 = poses[t], poses[t + 1]
         F, Q, H, R = jacobians(x0, x1) if jacobians is not None else (I6, I6, I6, I6)
         W = motion_noise(x0, x1, noise)
-        V = observation_noise(x1, noise, camera, components, formula, guard)
+        V = observation_noise(x1, noise, camera, components, formula, guard, band)
         sig, P = ekf_step(sig, W, V, F, Q, H, R)
         sigmas.append(sig)
         preds.append(P)

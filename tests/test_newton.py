@@ -36,7 +36,7 @@ def test_newton_gradient_matches_finite_differences(short):
     rng = np.random.default_rng(1)
     x = (q + 0.02 * rng.normal(size=q.shape)).ravel()
     sigma0 = np.diag(setup.model.channel_variances(np.asarray(setup.problem.noise.Sigma0, float)))
-    P = np.concatenate([setup.T_cam_base[:3, :].ravel(order="F"), [3e-5], vech(sigma0)])
+    P = np.concatenate([setup.camera_parameter(), [3e-5], vech(sigma0)])
     _, _, G, _ = (v.copy() for v in ns.step(x, P))
     g = np.bincount(ns.g_index, weights=G, minlength=ns.n)
     fd = np.zeros(ns.n)
@@ -68,12 +68,12 @@ def test_newton_reaches_ipopts_optimum(horizon):
 
 
 def test_newton_falls_back_to_ipopt_when_the_depth_bound_is_violated():
-    """Evaluation configuration 9 at T = 20: Newton's optimum goes below the minimum depth (a bound it does
+    """Evaluation configuration 39 at T = 20: Newton's optimum goes below the minimum depth (a bound it does
     not have); IPOPT then solves it from the start, with the bound, and that is the plan."""
     from surestep_ocp.configs import ConfigurationSampler, load_evaluation
 
     sampler = ConfigurationSampler(load_evaluation(DEFAULT.parent / "evaluations" / "evaluation.yaml"))
-    setup = with_solver(build_setup(sampler.problem(sampler.sample(0, 9))), name="newton")
+    setup = with_solver(build_setup(sampler.problem(sampler.sample(0, 39))), name="newton")
     sol = solve_ocp(setup, ocp_initial_guess(setup))
     attempts = sol.extras["attempts"]
     assert attempts[0]["hessian"] == "newton" and attempts[0]["status"] == "Depth_Bound_Violated"

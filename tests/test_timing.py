@@ -32,7 +32,7 @@ def sequential_ekf(poses, noise, camera, k, H=None, R=None):
     out = [sig]
     for t in range(len(poses) - 1):
         P = sig + ref.motion_noise(poses[t], poses[t + 1], noise)
-        V = ref.observation_noise(poses[t + 1], noise, camera, guard=COSINE_GUARD)
+        V = ref.observation_noise(poses[t + 1], noise, camera, guard=COSINE_GUARD, band=noise.cut_band)
         for _ in range(k):  # the k frames of the step, each observed with the file's own V
             S = H @ P @ H.T + R @ V @ R.T
             K = P @ H.T @ np.linalg.inv(S)
