@@ -11,10 +11,10 @@ from pathlib import Path
 
 import casadi as ca
 import numpy as np
+import numpy_ekf as ref
 import pytest
 from scipy.spatial.transform import Rotation
 
-import numpy_ekf as ref
 from surestep_ocp.baseline import solve_baseline
 from surestep_ocp.belief import BeliefModel, NoiseParams
 from surestep_ocp.configs import ConfigurationSampler, load_evaluation
