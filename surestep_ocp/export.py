@@ -5,16 +5,23 @@ The planned waypoints `q_0..q_T` become a path in joint space, `q(s)` with `q(i 
 stays between its two values and never leaves its position limits). toppra (time-optimal path
 parametrisation, Pham & Pham 2018) then finds the fastest `s(t)` within the joint velocity limits
 (the URDF's `<limit velocity=...>`) and acceleration limits (`limits.DEFAULT_ACCELERATION`, the
-dVRK's `move_jp` defaults; both overridable per joint), starting and ending at rest, and never
-faster than the plan's own pace (the model's observations per step assume it): `s` itself is a
-last, virtual joint with velocity limit 1, so each step takes at least `step_s`, longer only where
-a limit needs it.
+dVRK's `move_jp` defaults; both overridable per joint) and the tool's translation and rotation
+speed, starting and ending at rest, and never faster than the plan's own pace (the model's
+observations per step assume it): `s` itself is a last, virtual joint with velocity limit 1, so
+each step takes at least `step_s`, longer only where a limit needs it. The tool's speed along the
+path is `|J_v(q(s)) q'(s)| s_dot` (Pinocchio's frame Jacobian), so its bound is one on `s_dot`
+per grid point (`_ToolSpeedConstraint`).
 
-toppra enforces the limits at its grid points; the trajectory is then sampled (every 1/rate s and
-at every waypoint's time) and checked against the true limits between them too; if a sample is
-over a limit, toppra is re-run with the limits scaled down (0.98, 0.95, ...), and the scale used is
-reported. The six arm joints (every joint but `jaw` for other robots) and the jaw are separate
-channels. Files are written atomically (temporary file and rename).
+The limits are those the plan was made with (the solution's recorded `limits`: the problem's
+`limits:` section resolved against the URDF and the defaults; older files without it: the
+defaults), with the command line's overrides on top; the output says where each value came from.
+
+toppra enforces the limits at its grid points; the trajectory is then checked against the true
+limits between them and at every sample written (every 1/rate s and every waypoint's time); if
+a family of limits (joint velocities, joint accelerations, tool speeds) is exceeded, toppra runs
+again with that family's limits scaled down by the overshoot, and the scales used are reported.
+The six arm joints (every joint but `jaw` for other robots) and the jaw are separate channels.
+Files are written atomically (temporary file and rename).
 """
 
 from __future__ import annotations
@@ -36,12 +43,15 @@ from .solution import write_json_atomic, write_text_atomic
 FORMATS = ("csv", "json", "ros2")
 DEFAULT_RATE_HZ = 100.0
 DEFAULT_STEP_S = 0.05  # the paper's pace when a solution file records no timing (timing.step_s default)
-SCALES = (1.0, 0.98, 0.95, 0.9, 0.85, 0.8, 0.7, 0.6, 0.5)  # of the limits handed to toppra, until the check passes
+MAX_TRIES = 12  # toppra runs, each with the limits over which the last one went scaled down
+SCALE_MARGIN = 0.995  # a family's next scale: this over its peak ratio to the limit, times its last scale
 GRID_PER_STEP = 8  # toppra grid points per planned step (plus both sides of every waypoint)
 CHECK_PER_INTERVAL = 6  # samples per toppra grid interval in the limit check
 FORMAT_ID = "surestep-joint-trajectory/1"
 CLOCK_ACCELERATION = 100.0  # [1/s] bound on s-ddot (not binding in practice: the joints' limits are)
 PRE_KNOT = 1e-6  # grid point this fraction of a step before each waypoint
+POSITION_TOL = 1e-6  # [relative] a waypoint this far beyond a position limit is clipped onto it, further is an error
+COMMAND_LINE = "command line"  # the source of a limit given by an export flag
 
 
 @dataclass
@@ -56,10 +66,12 @@ class Trajectory:
     waypoint_times: np.ndarray  # (T+1,) time at which waypoint i is passed
     waypoint_rows: np.ndarray  # (T+1,) row index of waypoint i in the samples
     limits: MotionLimits
-    scale: float  # of the limits given to toppra (1: the limits themselves)
+    scales: dict[str, float]  # of each family of limits given to toppra (1: the limits themselves)
     step_s: float
     peak_velocity_ratio: np.ndarray  # over the dense check
     peak_acceleration_ratio: np.ndarray
+    peak_tool_ratio: tuple[float, float] | None = None  # translation, rotation speed / limit (dense check)
+    tool_frame: str | None = None
 
     @property
     def duration(self) -> float:
@@ -92,12 +104,35 @@ def load_solution(path: str | Path) -> dict:
     return d
 
 
-def step_of(sol: dict, override: float | None) -> float:
+def step_of(sol: dict, override: float | None) -> tuple[float, str]:
+    """Seconds per planned step and where that value came from."""
     if override is not None:
         if not (math.isfinite(override) and override > 0):
             raise SurestepError(f"--step-s must be a positive number of seconds, got {override:g}")
-        return float(override)
-    return float((sol.get("timing") or {}).get("step_s", DEFAULT_STEP_S))
+        return float(override), "command line (--step-s)"
+    timing = sol.get("timing") or {}
+    if "step_s" in timing:
+        return float(timing["step_s"]), "solution (timing.step_s)"
+    return DEFAULT_STEP_S, "default (the solution records no timing)"
+
+
+def limits_of(sol: dict, urdf: Path, velocity: dict | None = None, acceleration: dict | None = None,
+              tool_speed: float | None = None, tool_rotation: float | None = None) -> MotionLimits:
+    """The limits to export within: those the solution records (its problem's `limits:`), else the
+    defaults for its URDF (files written before solutions recorded them); the overrides on top."""
+    rec = sol.get("limits")
+    names = list(sol["joint_names"])
+    if isinstance(rec, dict) and "velocity" in rec:
+        base = MotionLimits.from_dict(rec)
+        if list(base.joint_names) != names:
+            raise SurestepError(f"recorded limits are for joints {', '.join(base.joint_names)}, the plan's are "
+                                f"{', '.join(names)}")
+        base = base.overridden()  # a copy
+        base.sources["recorded"] = "solution (the problem's limits: resolved when it was planned)"
+    else:
+        base = motion_limits(urdf, names)
+        base.sources["recorded"] = "none: defaults (the solution records no limits)"
+    return base.overridden(velocity, acceleration, tool_speed, tool_rotation, label=COMMAND_LINE)
 
 
 class _PchipPath:
@@ -136,6 +171,42 @@ class _PchipPath:
         return self(s, 2)
 
 
+class _ToolSpeed:
+    """The tool's translation and rotation speed per unit path speed along a path: `|J_v(q(s)) q'(s)|`
+    and `|J_w(q(s)) q'(s)|` (Pinocchio's frame Jacobian), and the bound they put on `s_dot`."""
+
+    def __init__(self, robot, frame: str, limits: MotionLimits):
+        self.robot, self.frame = robot, frame
+        self.vmax = np.array([limits.tool_speed, limits.tool_rotation])
+
+    def rates(self, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
+        """(N, 2): translation [m/s] and rotation [rad/s] speed of the tool at joints q (N, n) moving at qd."""
+        twist = np.einsum("kij,kj->ki", np.array([self.robot.frame_jacobian(qk, self.frame) for qk in q]), qd)
+        return np.column_stack([np.linalg.norm(twist[:, :3], axis=1), np.linalg.norm(twist[:, 3:], axis=1)])
+
+    def constraint(self, path, scale: float):
+        """A toppra velocity constraint: `s_dot^2 <= min_i (scale * vmax_i / rate_i(s))^2` at every grid point."""
+        from toppra.constraint import DiscretizationType, LinearConstraint
+
+        tool, n = self, self.robot.nq
+
+        class _ToolSpeedConstraint(LinearConstraint):
+            def __init__(self):
+                super().__init__()
+                self.dof = path.dof
+                self.discretization_type = DiscretizationType.Collocation
+                self._format_string = f"    Tool speed limit: {tool.vmax} x {scale:g}\n"
+
+            def compute_constraint_params(self, path_, gridpoints):
+                r = tool.rates(path_(gridpoints, 0)[:, :n], path_(gridpoints, 1)[:, :n])
+                with np.errstate(divide="ignore"):
+                    x_max = np.min((scale * tool.vmax / r) ** 2, axis=1)
+                xbound = np.column_stack([np.zeros(len(gridpoints)), np.minimum(x_max, 1e12)])
+                return None, None, None, None, None, None, xbound
+
+        return _ToolSpeedConstraint()
+
+
 def _grid(ss: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """toppra grid points: each step split in GRID_PER_STEP, plus a point just before every interior
     waypoint (PCHIP's second derivative jumps there); and the index of each waypoint in the grid."""
@@ -150,9 +221,36 @@ def _grid(ss: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return grid, idx
 
 
-def time_parametrise(q: np.ndarray, step_s: float, limits: MotionLimits,
-                     rate_hz: float = DEFAULT_RATE_HZ) -> Trajectory:
-    """The time-optimal trajectory through the waypoints `q` ((T+1, n)) within `limits` (module docstring)."""
+def _sample_times(duration: float, wp_t: np.ndarray, rate_hz: float) -> np.ndarray:
+    """Every 1/rate_hz s and every waypoint's time (exactly; a uniform sample on one: one row)."""
+    times = np.union1d(np.arange(0.0, duration, 1.0 / rate_hz), wp_t)
+    times = times[np.concatenate([[True], np.diff(times) > 1e-9])]
+    for t in wp_t:
+        times[np.argmin(np.abs(times - t))] = t
+    return times
+
+
+def within_position_limits(q: np.ndarray, robot) -> tuple[np.ndarray, float]:
+    """The waypoints clipped into the URDF's position limits, and by how much at most. A solver meets its
+    bounds to a tolerance (IPOPT: about 1e-8 relative), a controller refuses a target beyond a limit; a
+    waypoint further out than POSITION_TOL is an error."""
+    lo, hi = robot.lower, robot.upper
+    out = np.clip(q, lo, hi)
+    excess = np.abs(out - q)
+    tol = POSITION_TOL * np.maximum(1.0, np.abs(np.where(q < lo, lo, hi)))
+    bad = np.argwhere(excess > tol)
+    if len(bad):
+        i, j = bad[0]
+        raise SurestepError(f"q[{i}] {robot.joint_names[j]} = {q[i, j]:.6g} is beyond its position limits "
+                            f"[{lo[j]:.6g}, {hi[j]:.6g}]")
+    return out, float(excess.max())
+
+
+def time_parametrise(q: np.ndarray, step_s: float, limits: MotionLimits, rate_hz: float = DEFAULT_RATE_HZ,
+                     robot=None, tool_frame: str | None = None) -> Trajectory:
+    """The time-optimal trajectory through the waypoints `q` ((T+1, n)) within `limits` (module docstring);
+    with `robot` (a `surestep_ocp.robot.Robot` of the plan's joints) and `tool_frame`, within the tool's
+    translation and rotation speed limits too."""
     import toppra.algorithm as algo
     import toppra.constraint as constraint
 
@@ -165,34 +263,41 @@ def time_parametrise(q: np.ndarray, step_s: float, limits: MotionLimits,
     grid, wp_idx = _grid(ss)
     clock_v = 1.0  # [path s per s]: the path parameter's own limit, the planned pace
     clock_a = CLOCK_ACCELERATION
-    for scale in SCALES:
-        vmax = np.append(scale * limits.velocity, clock_v)
-        amax = np.append(scale * limits.acceleration, clock_a)
-        inst = algo.TOPPRA([constraint.JointVelocityConstraint(np.column_stack([-vmax, vmax])),
-                            constraint.JointAccelerationConstraint(np.column_stack([-amax, amax]))],
-                           path, gridpoints=grid, parametrizer="ParametrizeConstAccel")
+    tool = None if robot is None else _ToolSpeed(robot, tool_frame or robot.frame, limits)
+    tool_ratio = None
+    scales = np.ones(3)  # of the joint velocity, joint acceleration and tool speed limits handed to toppra
+    for _ in range(MAX_TRIES):
+        vmax = np.append(scales[0] * limits.velocity, clock_v)
+        amax = np.append(scales[1] * limits.acceleration, clock_a)
+        cons = [constraint.JointVelocityConstraint(np.column_stack([-vmax, vmax])),
+                constraint.JointAccelerationConstraint(np.column_stack([-amax, amax]))]
+        if tool is not None:
+            cons.append(tool.constraint(path, scales[2]))
+        inst = algo.TOPPRA(cons, path, gridpoints=grid, parametrizer="ParametrizeConstAccel")
         traj = inst.compute_trajectory(0.0, 0.0)
         if traj is None:
+            scales *= 0.9
             continue
         ts_grid = np.asarray(traj._ts, float)  # time of each grid point (ParametrizeConstAccel)
         wp_t = ts_grid[wp_idx]
         # the dense check: CHECK_PER_INTERVAL samples inside every grid interval, both ends from inside
         u = np.linspace(0.0, 1.0, CHECK_PER_INTERVAL + 1)
         u[0], u[-1] = 1e-9, 1 - 1e-9
-        tc = (ts_grid[:-1, None] + np.diff(ts_grid)[:, None] * u[None, :]).ravel()
+        times = _sample_times(float(ts_grid[-1]), wp_t, rate_hz)  # and the samples written
+        tc = np.concatenate([(ts_grid[:-1, None] + np.diff(ts_grid)[:, None] * u[None, :]).ravel(), times])
         n = q.shape[1]
         vr = np.max(np.abs(traj(tc, 1)[:, :n]) / limits.velocity, axis=0)
         ar = np.max(np.abs(traj(tc, 2)[:, :n]) / limits.acceleration, axis=0)
-        if vr.max() <= 1.0 and ar.max() <= 1.0:
+        if tool is not None:
+            tool_ratio = tuple(np.max(tool.rates(traj(tc, 0)[:, :n], traj(tc, 1)[:, :n]) / tool.vmax, axis=0))
+        peaks = np.array([vr.max(), ar.max(), 0.0 if tool_ratio is None else max(tool_ratio)])
+        if np.all(peaks <= 1.0):
             break
+        over = peaks > 1.0  # those families over their limit between the grid points: their scale down
+        scales[over] *= np.minimum(0.99, SCALE_MARGIN / peaks[over])
     else:
-        raise SurestepError(f"toppra found no trajectory within the limits (tried the limits scaled by "
-                            f"{', '.join(f'{s:g}' for s in SCALES)})")
-    duration = float(ts_grid[-1])
-    times = np.union1d(np.arange(0.0, duration, 1.0 / rate_hz), wp_t)
-    times = times[np.concatenate([[True], np.diff(times) > 1e-9])]  # a uniform sample on a waypoint time: one row
-    for i, t in enumerate(wp_t):  # keep the waypoint times exactly
-        times[np.argmin(np.abs(times - t))] = t
+        raise SurestepError(f"toppra found no trajectory within the limits in {MAX_TRIES} tries (the limits "
+                            f"handed to it scaled down to {', '.join(f'{x:.3g}' for x in scales)})")
     rows = np.searchsorted(times, wp_t)
     n = q.shape[1]
     Q, QD, QDD = traj(times, 0)[:, :n], traj(times, 1)[:, :n], traj(times, 2)[:, :n]
@@ -201,7 +306,10 @@ def time_parametrise(q: np.ndarray, step_s: float, limits: MotionLimits,
     if err > 1e-9 * max(1.0, float(np.max(np.abs(q)))):
         raise SurestepError(f"internal: the trajectory misses a waypoint by {err:.2e}")  # never expected
     Q[rows] = q  # the waypoints themselves (differ from toppra's evaluation by rounding only, checked above)
-    return Trajectory(list(limits.joint_names), times, Q, QD, QDD, wp_t, rows, limits, scale, step_s, vr, ar)
+    return Trajectory(list(limits.joint_names), times, Q, QD, QDD, wp_t, rows, limits,
+                      dict(zip(("joint_velocity", "joint_acceleration", "tool_speed"), scales.tolist())), step_s, vr,
+                      ar, None if tool_ratio is None else (float(tool_ratio[0]), float(tool_ratio[1])),
+                      None if tool is None else tool.frame)
 
 
 # ------------------------------------------------------------------------------------------ writers
@@ -220,9 +328,12 @@ def to_json(traj: Trajectory, meta: dict) -> dict:
         "duration_s": traj.duration,
         "planned_duration_s": traj.step_s * (len(traj.waypoint_times) - 1),
         "limits": traj.limits.to_dict(),
-        "limit_scale": traj.scale,
+        "limit_scales": traj.scales,
         "peak_velocity_ratio": dict(zip(traj.joint_names, traj.peak_velocity_ratio.tolist())),
         "peak_acceleration_ratio": dict(zip(traj.joint_names, traj.peak_acceleration_ratio.tolist())),
+        "tool_frame": traj.tool_frame,
+        "peak_tool_speed_ratio": None if traj.peak_tool_ratio is None else traj.peak_tool_ratio[0],
+        "peak_tool_rotation_ratio": None if traj.peak_tool_ratio is None else traj.peak_tool_ratio[1],
         "waypoints": [{"index": i, "time_s": float(t), "planned_time_s": i * traj.step_s, "row": int(r)}
                       for i, (t, r) in enumerate(zip(traj.waypoint_times, traj.waypoint_rows))],
         "joint_names": [traj.joint_names[i] for i in arm],
@@ -312,8 +423,10 @@ def write(traj: Trajectory, fmt: str, output: Path, meta: dict) -> list[Path]:
 # ------------------------------------------------------------------------------------------ command
 def export_solution(solution: str | Path, fmt: str, output: str | Path, *, rate_hz: float = DEFAULT_RATE_HZ,
                     step_s: float | None = None, velocity: dict | None = None,
-                    acceleration: dict | None = None, plot: bool = True) -> tuple[Trajectory, list[Path]]:
+                    acceleration: dict | None = None, tool_speed: float | None = None,
+                    tool_rotation: float | None = None, plot: bool = True) -> tuple[Trajectory, list[Path]]:
     from .problem import resolve_urdf
+    from .robot import Robot
 
     if fmt not in FORMATS:
         raise SurestepError(f"unknown format '{fmt}'; allowed: {', '.join(FORMATS)}")
@@ -321,12 +434,22 @@ def export_solution(solution: str | Path, fmt: str, output: str | Path, *, rate_
     urdf = resolve_urdf(str(sol["robot"].get("urdf", "")))
     if not urdf.is_file():
         raise SurestepError(f"{solution}: robot.urdf '{sol['robot'].get('urdf')}' not found ({urdf})")
-    limits = motion_limits(urdf, sol["joint_names"], velocity, acceleration)
-    step = step_of(sol, step_s)
-    traj = time_parametrise(np.array(sol["q"], float), step, limits, rate_hz)
+    for flag, x in (("--tool-speed", tool_speed), ("--tool-rotation-speed", tool_rotation)):
+        if x is not None and not (math.isfinite(x) and x > 0):
+            raise SurestepError(f"{flag} must be a positive number, got {x:g}")
+    limits = limits_of(sol, urdf, velocity, acceleration, tool_speed, tool_rotation)
+    step, step_source = step_of(sol, step_s)
+    frame = str(sol["robot"].get("frame") or "tool")
+    robot = Robot(urdf, frame=frame)
+    if robot.joint_names != list(sol["joint_names"]):
+        raise SurestepError(f"{solution}: joint_names {', '.join(sol['joint_names'])} are not those of {urdf}")
+    q, clipped = within_position_limits(np.array(sol["q"], float), robot)
+    traj = time_parametrise(q, step, limits, rate_hz, robot=robot, tool_frame=frame)
     output = Path(output)
     meta = {"source": str(solution), "method": sol.get("method"), "problem": sol.get("problem"),
-            "robot": {"urdf": sol["robot"].get("urdf"), "frame": sol["robot"].get("frame")}}
+            "robot": {"urdf": sol["robot"].get("urdf"), "frame": sol["robot"].get("frame")},
+            "step_s_source": step_source, "limits_enforced_in_plan": (sol.get("limits") or {}).get("enforce"),
+            "waypoints_clipped_by": clipped}
     files = write(traj, fmt, output, meta)
     if plot:
         from .plots_motion import plot_trajectory
@@ -344,9 +467,16 @@ def summary(traj: Trajectory) -> str:
         f"velocity    peak {traj.peak_velocity_ratio[jv]:.3f} of the limit ({traj.joint_names[jv]})",
         f"accel.      peak {traj.peak_acceleration_ratio[ja]:.3f} of the limit ({traj.joint_names[ja]})",
     ]
-    if traj.scale < 1:
-        lines.append(f"note        toppra was given the limits scaled by {traj.scale:g} so that the samples "
-                     "between its grid points stay within them")
+    if traj.peak_tool_ratio is not None:
+        lim = traj.limits
+        lines.append(f"tool        peak {traj.peak_tool_ratio[0]:.3f} of {1e3 * lim.tool_speed:g} mm/s, "
+                     f"{traj.peak_tool_ratio[1]:.3f} of {lim.tool_rotation:.3g} rad/s ({traj.tool_frame})")
+    lines.append(f"limits      {traj.limits.sources.get('recorded', '')}")
+    low = {k: v for k, v in traj.scales.items() if v < 1}
+    if low:
+        scaled = ", ".join(f"{v:.3g} ({k})" for k, v in low.items())
+        lines.append(f"note        toppra was given the limits scaled by {scaled} so that the samples between its "
+                     "grid points stay within them")
     return "\n".join(lines)
 
 
@@ -354,7 +484,8 @@ def cmd_export(args) -> int:
     traj, files = export_solution(
         args.solution, args.format, args.output, rate_hz=args.rate, step_s=args.step_s,
         velocity=parse_overrides(args.velocity_limit, "--velocity-limit"),
-        acceleration=parse_overrides(args.acceleration_limit, "--acceleration-limit"), plot=not args.no_plot)
+        acceleration=parse_overrides(args.acceleration_limit, "--acceleration-limit"),
+        tool_speed=args.tool_speed, tool_rotation=args.tool_rotation_speed, plot=not args.no_plot)
     print(summary(traj))
     for f in files:
         print(f"wrote       {f}")
@@ -363,7 +494,7 @@ def cmd_export(args) -> int:
 
 def register(sub) -> None:
     """The `export` subcommand (surestep_ocp/cli.py)."""
-    e = sub.add_parser("export", help="time-parametrise a solution's joint plan within the joint limits "
+    e = sub.add_parser("export", help="time-parametrise a solution's joint plan within its motion limits "
                                       "and write it as CSV, JSON or a ROS 2 JointTrajectory (YAML)")
     e.add_argument("solution", metavar="SOLUTION.json")
     e.add_argument("--format", required=True, choices=FORMATS)
@@ -373,9 +504,14 @@ def register(sub) -> None:
     e.add_argument("--step-s", type=float, help="seconds per planned step (default: the solution's "
                    "timing.step_s, else 0.05)")
     e.add_argument("--velocity-limit", action="append", metavar="JOINT=V",
-                   help="override a joint's velocity limit [rad/s or m/s] (default: the URDF's); repeatable")
+                   help="override a joint's velocity limit [rad/s or m/s] (default: the solution's recorded "
+                        "limits, i.e. its problem's limits: section, else the URDF's); repeatable")
     e.add_argument("--acceleration-limit", action="append", metavar="JOINT=A",
-                   help="override a joint's acceleration limit [rad/s^2 or m/s^2] (default: the dVRK's "
-                        "move_jp values, README 'Export'); repeatable")
+                   help="override a joint's acceleration limit [rad/s^2 or m/s^2] (default: the solution's "
+                        "recorded limits, else the dVRK's move_jp values, README 'Export'); repeatable")
+    e.add_argument("--tool-speed", type=float, metavar="M_S",
+                   help="override the tool's translation speed limit [m/s] (default: the recorded one, else 0.1)")
+    e.add_argument("--tool-rotation-speed", type=float, metavar="RAD_S",
+                   help="override the tool's rotation speed limit [rad/s] (default: the recorded one, else pi/2)")
     e.add_argument("--no-plot", action="store_true", help="do not write <stem>_motion.png beside the output")
     e.set_defaults(func=cmd_export)

@@ -42,11 +42,18 @@ JAW = "jaw"
 INSERTION = "insertion"  # the PSM's prismatic joint along the shaft (through the RCM)
 REL_TOL = 1e-6  # a value counts as over its limit beyond limit * (1 + REL_TOL) (IPOPT meets bounds to ~1e-8)
 VIOLATED = "Motion_Limits_Violated"
+PROBLEM_SOURCE = "problem file"  # the source of a limit set by the problem's `limits:` section
+
+
+_URDF_VELOCITIES: dict[tuple[str, int], dict[str, float]] = {}  # (path, mtime) -> limits: every solution records them
 
 
 def urdf_velocity_limits(urdf: str | Path) -> dict[str, float]:
     """`<limit velocity=...>` of every revolute, prismatic or continuous joint of a URDF, by joint name."""
     try:
+        key = (str(Path(urdf).resolve()), Path(urdf).stat().st_mtime_ns)
+        if key in _URDF_VELOCITIES:
+            return dict(_URDF_VELOCITIES[key])
         root = ET.parse(str(urdf)).getroot()
     except (OSError, ET.ParseError) as exc:
         raise SurestepError(f"{urdf}: cannot read the URDF's velocity limits ({exc})") from None
@@ -56,7 +63,8 @@ def urdf_velocity_limits(urdf: str | Path) -> dict[str, float]:
             lim = j.find("limit")
             if lim is not None and lim.get("velocity") is not None:
                 out[j.get("name")] = float(lim.get("velocity"))
-    return out
+    _URDF_VELOCITIES[key] = out
+    return dict(out)
 
 
 @dataclass(frozen=True)
@@ -77,6 +85,41 @@ class MotionLimits:
                 "tool_rotation_rad_s": self.tool_rotation, "rcm_min_distance_m": self.rcm_min_distance,
                 "sources": dict(self.sources)}
 
+    @classmethod
+    def from_dict(cls, d: dict) -> MotionLimits:
+        """The limits `to_dict` wrote (a solution's recorded `limits`); a malformed one is a SurestepError."""
+        try:
+            names = tuple(str(n) for n in d["joint_names"])
+            v, a = np.array(d["velocity"], float), np.array(d["acceleration"], float)
+            tool = [float(d[k]) for k in ("tool_speed_m_s", "tool_rotation_rad_s", "rcm_min_distance_m")]
+        except (KeyError, TypeError, ValueError) as exc:
+            raise SurestepError(f"malformed recorded limits ({exc.__class__.__name__}: {exc})") from None
+        if v.shape != (len(names),) or a.shape != v.shape or not (np.all(v > 0) and np.all(a > 0)) \
+                or not all(math.isfinite(x) and x > 0 for x in tool):
+            raise SurestepError("malformed recorded limits (one positive velocity and acceleration per joint, "
+                                "positive tool speeds and RCM distance)")
+        return cls(names, v, a, *tool, sources=dict(d.get("sources") or {}))
+
+    def overridden(self, velocity: dict[str, float] | None = None, acceleration: dict[str, float] | None = None,
+                   tool_speed: float | None = None, tool_rotation: float | None = None,
+                   label: str = "override") -> MotionLimits:
+        """These limits with the given per-joint and tool overrides, their sources marked `label`."""
+        names = list(self.joint_names)
+        _check_names(names, velocity, acceleration)
+        src = {k: dict(v) if isinstance(v, dict) else v for k, v in self.sources.items()}
+        vel, acc = self.velocity.copy(), self.acceleration.copy()
+        for key, over, arr in (("velocity", velocity, vel), ("acceleration", acceleration, acc)):
+            for n, x in (over or {}).items():
+                arr[names.index(n)] = x
+                src.setdefault(key, {})[n] = label
+        out = {}
+        for key, x in (("tool_speed", tool_speed), ("tool_rotation", tool_rotation)):
+            if x is not None:
+                out[key] = x
+                src[key] = label
+        return MotionLimits(self.joint_names, vel, acc, out.get("tool_speed", self.tool_speed),
+                            out.get("tool_rotation", self.tool_rotation), self.rcm_min_distance, sources=src)
+
 
 def parse_overrides(items: list[str] | None, what: str) -> dict[str, float]:
     """`NAME=VALUE` pairs from the command line; a bad one is a one-line error naming it."""
@@ -93,24 +136,30 @@ def parse_overrides(items: list[str] | None, what: str) -> dict[str, float]:
     return out
 
 
-def motion_limits(urdf: str | Path, joint_names: list[str], velocity: dict[str, float] | None = None,
-                  acceleration: dict[str, float] | None = None, tool_speed: float | None = None,
-                  tool_rotation: float | None = None, rcm_min_distance: float | None = None) -> MotionLimits:
-    """The limits for a plan of `joint_names`: the URDF's velocities and the default accelerations,
-    with the given overrides (by joint name). Unknown override names are an error listing the joints."""
-    names = list(joint_names)
+def _check_names(names: list[str], velocity: dict | None, acceleration: dict | None) -> None:
     for label, over in (("velocity", velocity), ("acceleration", acceleration)):
         unknown = sorted(set(over or {}) - set(names))
         if unknown:
             raise SurestepError(f"{label} limit for unknown joint(s) {', '.join(unknown)}; "
                                 f"allowed: {', '.join(names)}")
+
+
+def motion_limits(urdf: str | Path, joint_names: list[str], velocity: dict[str, float] | None = None,
+                  acceleration: dict[str, float] | None = None, tool_speed: float | None = None,
+                  tool_rotation: float | None = None, rcm_min_distance: float | None = None,
+                  label: str = "override") -> MotionLimits:
+    """The limits for a plan of `joint_names`: the URDF's velocities and the default accelerations,
+    with the given overrides (by joint name; their sources marked `label`). Unknown override names are
+    an error listing the joints."""
+    names = list(joint_names)
+    _check_names(names, velocity, acceleration)
     urdf_v = urdf_velocity_limits(urdf)
     dvrk = set(names) <= set(DEFAULT_ACCELERATION)  # the PSM's joints: the dVRK's own defaults
     v, a, src_v, src_a = [], [], {}, {}
     for n in names:
         if velocity and n in velocity:
             v.append(velocity[n])
-            src_v[n] = "override"
+            src_v[n] = label
         elif n in urdf_v and urdf_v[n] > 0:
             v.append(urdf_v[n])
             src_v[n] = "urdf"
@@ -119,18 +168,21 @@ def motion_limits(urdf: str | Path, joint_names: list[str], velocity: dict[str, 
                                 f"(--velocity-limit {n}=VALUE)")
         if acceleration and n in acceleration:
             a.append(acceleration[n])
-            src_a[n] = "override"
+            src_a[n] = label
         elif dvrk:
             a.append(DEFAULT_ACCELERATION[n])
             src_a[n] = "dVRK move_jp default"
         else:
             a.append(DEFAULT_ACCEL_PER_VELOCITY * v[-1])
             src_a[n] = f"{DEFAULT_ACCEL_PER_VELOCITY:g}/s x velocity limit"
+    src = {"velocity": src_v, "acceleration": src_a}
+    for key, x in (("tool_speed", tool_speed), ("tool_rotation", tool_rotation), ("rcm_min_distance", rcm_min_distance)):
+        src[key] = "default" if x is None else label
     return MotionLimits(tuple(names), np.array(v), np.array(a),
                         TOOL_SPEED_M_S if tool_speed is None else tool_speed,
                         TOOL_ROTATION_RAD_S if tool_rotation is None else tool_rotation,
                         RCM_MIN_DISTANCE_M if rcm_min_distance is None else rcm_min_distance,
-                        sources={"velocity": src_v, "acceleration": src_a})
+                        sources=src)
 
 
 def is_psm(robot) -> bool:
@@ -142,7 +194,18 @@ def problem_limits(setup) -> MotionLimits:
     """The limits of a Setup's plan: the defaults with the problem file's `limits:` overrides."""
     spec = setup.problem.limits
     return motion_limits(setup.robot.urdf, setup.robot.joint_names, dict(spec.joint_velocity),
-                         dict(spec.joint_acceleration), spec.tool_speed, spec.tool_rotation_speed, spec.rcm_distance)
+                         dict(spec.joint_acceleration), spec.tool_speed, spec.tool_rotation_speed, spec.rcm_distance,
+                         label=PROBLEM_SOURCE)
+
+
+def recorded_limits(setup) -> dict:
+    """What a solution file records of the limits it was planned with (key `limits`, read by `surestep
+    export`): `enforce` and the resolved limits with their sources; for a robot without URDF velocity
+    limits, `enforce` and the reason instead."""
+    try:
+        return {"enforce": bool(setup.problem.limits.enforce), **problem_limits(setup).to_dict()}
+    except SurestepError as exc:
+        return {"enforce": bool(setup.problem.limits.enforce), "unavailable": str(exc)}
 
 
 def rcm_insertion_bound(robot, rcm_min_distance: float) -> tuple[int, float] | None:

@@ -13,6 +13,7 @@ import numpy as np
 
 from .belief import entropy
 from .lie import matrix_to_pose, np_angle, np_exp_many, np_log_many, pose_to_matrix
+from .limits import recorded_limits
 from .setup import Setup
 
 
@@ -208,6 +209,7 @@ def evaluate(
     ext = dict(extras or {})
     tm = prob.timing  # the file's timing (noise's V_* are already divided by frames_per_step)
     ext.setdefault("timing", {"step_s": tm.step_s, "tracker_hz": tm.tracker_hz, "frames_per_step": tm.frames})
+    ext.setdefault("limits", recorded_limits(setup))  # what `surestep export` honours (README "Export")
     arms = []
     for spec in (prob.start.relative, prob.goal.relative):
         if spec is not None:

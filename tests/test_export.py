@@ -4,6 +4,8 @@ The limits come from the URDF (parsed here with ElementTree) and from this file'
 dVRK's move_jp accelerations; the checks use only the file's numbers: the reported velocities and
 accelerations, and finite differences of the positions and velocities (the mean of a derivative
 over an interval is bounded by its maximum, so a trajectory within its limits passes them exactly).
+The tool's speed is computed here with Pinocchio directly (FK of the samples' positions, finite
+differences; and the frame Jacobian times the reported velocities).
 """
 
 from __future__ import annotations
@@ -12,9 +14,11 @@ import csv
 import json
 import math
 import xml.etree.ElementTree as ET
+from itertools import pairwise
 from pathlib import Path
 
 import numpy as np
+import pinocchio as pin
 import pytest
 import yaml
 
@@ -28,6 +32,7 @@ ARM = ["yaw", "pitch", "insertion", "roll", "wrist_pitch", "wrist_yaw"]
 ACCEL = {"yaw": math.radians(90), "pitch": math.radians(90), "insertion": 0.2, "roll": math.radians(720),
          "wrist_pitch": math.radians(720), "wrist_yaw": math.radians(720), "jaw": math.radians(720)}
 REL = 1e-6  # relative tolerance on a limit
+TOOL_SPEED, TOOL_ROTATION = 0.1, math.pi / 2  # [m/s, rad/s] the default tool limits (README "Export")
 
 
 def urdf_limits(path=PSM):
@@ -87,9 +92,13 @@ def read_csv(path):
     return cols
 
 
+def safe_load(path):
+    return yaml.load(Path(path).read_text(), Loader=getattr(yaml, "CSafeLoader", yaml.SafeLoader))  # libyaml: 50x
+
+
 def read_ros2(path):
-    arm = yaml.safe_load(Path(path).read_text())
-    jaw = yaml.safe_load(Path(path).with_name(Path(path).stem + "_jaw" + Path(path).suffix).read_text())
+    arm = safe_load(path)
+    jaw = safe_load(Path(path).with_name(Path(path).stem + "_jaw" + Path(path).suffix))
     for msg, names in ((arm, ARM), (jaw, ["jaw"])):
         assert set(msg) == {"header", "joint_names", "points"}
         assert msg["header"] == {"stamp": {"sec": 0, "nanosec": 0}, "frame_id": ""}
@@ -107,14 +116,15 @@ def read_ros2(path):
     return cols
 
 
-def check_limits(c):
-    """Positions, velocities, accelerations and their finite differences within the limits; at rest at both ends."""
+def check_limits(c, velocity=None, acceleration=None):
+    """Positions, velocities, accelerations and their finite differences within the limits (URDF and ACCEL,
+    with `velocity` / `acceleration` {joint: limit} in their place); at rest at both ends."""
     t, q, v, a = c["t"], c["positions"], c["velocities"], c["accelerations"]
     assert t[0] == 0.0 and np.all(np.diff(t) > 0)
     lo = np.array([LIMITS[n][0] for n in c["names"]])
     hi = np.array([LIMITS[n][1] for n in c["names"]])
-    vmax = np.array([LIMITS[n][2] for n in c["names"]])
-    amax = np.array([ACCEL[n] for n in c["names"]])
+    vmax = np.array([(velocity or {}).get(n, LIMITS[n][2]) for n in c["names"]])
+    amax = np.array([(acceleration or {}).get(n, ACCEL[n]) for n in c["names"]])
     assert np.all(q >= lo - 1e-12) and np.all(q <= hi + 1e-12)
     assert np.all(np.abs(v) <= vmax * (1 + REL)), np.max(np.abs(v) / vmax)
     assert np.all(np.abs(a) <= amax * (1 + REL)), np.max(np.abs(a) / amax)
@@ -128,9 +138,44 @@ def check_limits(c):
     assert np.max(np.abs(np.diff(q, axis=0) - trap)) <= 0.02 * np.max(vmax * dt[:, 0].max())
 
 
+def tool_speeds(c, frame="tool", urdf=PSM):
+    """The tool's speed from the samples, by Pinocchio: (chord translation [m/s], chord rotation [rad/s]) between
+    consecutive samples (FK of the positions), and (translation, rotation) at each sample from the frame
+    Jacobian times the reported velocities."""
+    model = pin.buildModelFromUrdf(str(urdf))
+    data = model.createData()
+    assert [model.names[i] for i in range(1, model.njoints)] == c["names"] and model.nq == len(c["names"])
+    fid = model.getFrameId(frame)
+    poses, inst = [], []
+    for qk, vk in zip(c["positions"], c["velocities"]):
+        pin.framesForwardKinematics(model, data, qk)
+        poses.append(data.oMf[fid].copy())
+        J = pin.computeFrameJacobian(model, data, qk, fid, pin.LOCAL_WORLD_ALIGNED)
+        inst.append([np.linalg.norm(J[:3] @ vk), np.linalg.norm(J[3:] @ vk)])
+    dt = np.diff(c["t"])
+    chord_v = np.array([np.linalg.norm(b.translation - a.translation) for a, b in pairwise(poses)]) / dt
+    chord_w = np.array([np.linalg.norm(pin.log3(a.rotation.T @ b.rotation)) for a, b in pairwise(poses)]) / dt
+    return (chord_v, chord_w), np.array(inst)
+
+
+def check_tool(c, frame="tool", speed=TOOL_SPEED, rotation=TOOL_ROTATION):
+    """The tool's translation and rotation speed within their limits; returns the peak ratios."""
+    (chord_v, chord_w), inst = tool_speeds(c, frame)
+    assert chord_v.max() <= speed * (1 + REL), chord_v.max()
+    assert chord_w.max() <= rotation * (1 + REL), chord_w.max()
+    assert inst[:, 0].max() <= speed * (1 + REL), inst[:, 0].max()
+    assert inst[:, 1].max() <= rotation * (1 + REL), inst[:, 1].max()
+    return inst[:, 0].max() / speed, inst[:, 1].max() / rotation
+
+
 def check_waypoints(c, sol, waypoint_times):
-    """Every planned waypoint is a sample at its stated time, never earlier than the planned pace."""
+    """Every planned waypoint is a sample at its stated time, never earlier than the planned pace (a waypoint
+    a solver's tolerance beyond a position limit: on the limit)."""
     q = np.array(sol["q"])
+    lo = np.array([LIMITS[n][0] for n in c["names"]])
+    hi = np.array([LIMITS[n][1] for n in c["names"]])
+    assert np.abs(np.clip(q, lo, hi) - q).max() <= 1e-6
+    q = np.clip(q, lo, hi)
     step = sol["timing"]["step_s"]
     assert len(waypoint_times) == len(q)
     assert waypoint_times[0] == 0.0 and abs(waypoint_times[-1] - c["t"][-1]) <= 1e-9  # ros2: whole nanoseconds
@@ -147,6 +192,7 @@ def test_json_export_within_limits_through_every_waypoint(plans, tmp_path, which
     assert export(plans[which], "json", out) == 0
     c = read_json(out)
     check_limits(c)
+    check_tool(c)
     sol = json.loads(Path(plans[which]).read_text())
     check_waypoints(c, sol, c["waypoint_times"])
     assert (tmp_path / "traj_motion.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
@@ -186,7 +232,51 @@ def test_overridden_limits_are_honoured(plans, tmp_path):
     assert np.max(np.abs(c["accelerations"][:, k])) <= 0.2 * (1 + REL)
     assert np.max(np.abs(c["velocities"][:, k])) >= 0.05  # and the bound is used, not just met by a crawl
     d = json.loads(out.read_text())
-    assert d["limits"]["sources"]["velocity"]["yaw"] == "override"
+    assert d["limits"]["sources"]["velocity"]["yaw"] == "command line"
+    assert d["limits"]["sources"]["velocity"]["pitch"] == "urdf"
+
+
+def test_the_problems_limits_are_honoured_and_flags_override_them(write_problem, tmp_path):
+    """A plan made with a `limits:` section (not enforced: the plan ignores them, the export does not) records
+    them; the export honours them without flags, the flags override them, and the file says which is which."""
+    path = write_problem(lambda t: t.update(limits={"joint_velocity": {"yaw": 0.3}, "tool_speed": 0.05,
+                                                     "tool_rotation_speed": 1.0}), "slow")
+    sol = tmp_path / "ocp.json"
+    assert main(["solve", str(path), "--method", "ocp", "--output", str(sol)]) == 0
+    rec = json.loads(sol.read_text())["limits"]
+    assert rec["enforce"] is False and rec["tool_speed_m_s"] == 0.05 and rec["velocity"][0] == 0.3
+    assert export(sol, "json", tmp_path / "a.json", "--no-plot") == 0
+    c = read_json(tmp_path / "a.json")
+    check_limits(c, velocity={"yaw": 0.3})
+    assert max(check_tool(c, speed=0.05, rotation=1.0)) >= 0.5  # the bound is used
+    d = json.loads((tmp_path / "a.json").read_text())
+    src = d["limits"]["sources"]
+    assert src["velocity"]["yaw"] == src["tool_speed"] == src["tool_rotation"] == "problem file"
+    assert src["velocity"]["pitch"] == "urdf" and src["recorded"].startswith("solution")
+    assert d["step_s_source"] == "solution (timing.step_s)" and d["limits_enforced_in_plan"] is False
+    assert export(sol, "json", tmp_path / "b.json", "--no-plot", "--tool-speed", "0.03",
+                  "--velocity-limit", "yaw=0.2") == 0
+    c = read_json(tmp_path / "b.json")
+    check_limits(c, velocity={"yaw": 0.2})
+    check_tool(c, speed=0.03, rotation=1.0)
+    src = json.loads((tmp_path / "b.json").read_text())["limits"]["sources"]
+    assert src["velocity"]["yaw"] == src["tool_speed"] == "command line" and src["tool_rotation"] == "problem file"
+    assert c["t"][-1] > read_json(tmp_path / "a.json")["t"][-1]
+
+
+def test_a_solution_without_recorded_limits_gets_the_defaults(plans, tmp_path):
+    """Solution files written before they recorded their limits (and timing) export within the defaults."""
+    sol = json.loads(Path(plans["ocp"]).read_text())
+    del sol["limits"], sol["timing"]
+    old = tmp_path / "old.json"
+    old.write_text(json.dumps(sol))
+    assert export(old, "csv", tmp_path / "o.csv", "--no-plot") == 0
+    c = read_csv(tmp_path / "o.csv")
+    check_limits(c)
+    check_tool(c)
+    assert export(old, "json", tmp_path / "o.json", "--no-plot") == 0
+    d = json.loads((tmp_path / "o.json").read_text())
+    assert d["limits"]["sources"]["recorded"].startswith("none") and d["step_s_source"].startswith("default")
 
 
 @pytest.mark.parametrize(("args", "needle"), [
@@ -194,6 +284,7 @@ def test_overridden_limits_are_honoured(plans, tmp_path):
     (["--velocity-limit", "yaw=-1"], "yaw=-1"),
     (["--acceleration-limit", "yaw"], "JOINT=VALUE"),
     (["--step-s", "0"], "--step-s"),
+    (["--tool-speed", "-0.1"], "--tool-speed"),
     (["--rate", "0"], "--rate"),
 ])
 def test_bad_options_are_one_line_errors(plans, tmp_path, capsys, args, needle):
@@ -219,3 +310,53 @@ def test_bad_solution_files_are_one_line_errors(plans, tmp_path, capsys):
         export(plans["baseline"], "xml", tmp_path / "o.xml")
     assert exc.value.code == 2 and "csv" in capsys.readouterr().err
     assert not (tmp_path / "o.csv").exists()
+
+
+READERS = {"json": read_json, "csv": read_csv, "ros2": read_ros2}
+SUFFIX = {"json": ".json", "csv": ".csv", "ros2": ".yaml"}
+
+
+def test_every_evaluation_configuration_exports_within_every_limit(tmp_path):
+    """Issue 14's criterion: the OCP plan of each of the 100 evaluation configurations (seed 0), exported in
+    turn as JSON, CSV and ROS 2 and read back, is within every joint position, velocity and acceleration
+    limit and the tool's speed limits (computed here), and passes every waypoint at its stated time."""
+    from surestep_ocp.configs import ConfigurationSampler, load_evaluation
+
+    sampler = ConfigurationSampler(load_evaluation(REPO / "problems" / "evaluations" / "evaluation.yaml"))
+    peaks = []
+    for i in range(100):
+        sol_path = run_method(sampler.setup_of(sampler.sample(0, i)), "ocp").save(tmp_path / f"c{i}.json")
+        sol = json.loads(sol_path.read_text())
+        fmt = ("json", "csv", "ros2")[i % 3]
+        out = tmp_path / f"c{i}{SUFFIX[fmt]}"
+        assert export(sol_path, fmt, out, "--no-plot") == 0, i
+        c = READERS[fmt](out)
+        check_limits(c)
+        peaks.append(check_tool(c, sol["robot"]["frame"]))
+        check_waypoints(c, sol, c["waypoint_times"] if fmt != "ros2" else ros2_waypoint_times(out, c["t"]))
+    assert np.max(peaks) >= 0.9  # the tool's limits bind somewhere
+
+
+def ros2_waypoint_times(path, t):
+    """The ros2 form states the waypoints' times (to the microsecond) in its header comment: the samples at them."""
+    head = Path(path).read_text().splitlines()[1]
+    stated = np.array([float(x) for x in head.split("[s]:", 1)[1].split(",")])
+    k = np.array([int(np.argmin(np.abs(t - ti))) for ti in stated])
+    assert np.all(np.abs(t[k] - stated) <= 1e-6)
+    return t[k]
+
+
+def test_a_waypoint_beyond_a_position_limit(plans, tmp_path, capsys):
+    """A solver's tolerance beyond a limit (1e-8 rad) is clipped onto it, and said; 0.1 rad is a one-line error."""
+    sol = json.loads(Path(plans["baseline"]).read_text())
+    lower = LIMITS["roll"][0]
+    for i, (dq, code) in enumerate(((-1e-8, 0), (-0.1, 2))):
+        sol["q"][5][3] = lower + dq
+        f = tmp_path / f"s{i}.json"
+        f.write_text(json.dumps(sol))
+        assert export(f, "json", tmp_path / f"o{i}.json", "--no-plot") == code
+    d = json.loads((tmp_path / "o0.json").read_text())
+    assert d["waypoints_clipped_by"] == pytest.approx(1e-8, rel=1e-3)
+    check_limits(read_json(tmp_path / "o0.json"))
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "q[5] roll" in err[0] and not (tmp_path / "o1.json").exists()
