@@ -18,7 +18,8 @@ _EXPORTS = {
     "solve": "api", "Solution": "solution", "Planner": "planner", "SimulatedTracker": "tracker",
     "SurestepError": "errors", "ProblemError": "errors", "METHODS": "methods",
 }
-__all__ = sorted(_EXPORTS)
+__all__ = ["METHODS", "Planner", "Problem", "ProblemError", "SimulatedTracker", "Solution", "SurestepError",
+           "load_problem", "problem_from_dict", "solve"]
 
 
 def __getattr__(name: str):

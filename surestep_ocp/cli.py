@@ -140,12 +140,15 @@ def cmd_replan(args) -> int:
 
     from .outputs import check_output_dir
 
-    setup = _load(args.problem)
+    setup = _with_solver_flags(_load(args.problem), args)
     check_output_dir(args.output_dir, _inputs(setup, args.problem), "the re-planning")
     _long_work_note(setup)
     res = replan(setup, Path(args.output_dir), progress=lambda k: print(f"re-planning after the camera move at "
                                                                         f"step {k}", file=sys.stderr, flush=True))
     print(res["table"])
+    built = ", ".join(f"T={n}" for n in sorted(res["builds"]))
+    print(f"\nbuild time  {res['build_time_s']:.2f} s ({len(res['builds'])} solvers: {built or 'none timed apart'})")
+    print(f"solve time  {res['solve_time_s']:.3f} s (the first plan and {len(res['plans'])} re-plans, without builds)")
     print(f"\nwrote {args.output_dir}/{{baseline, ocp-once, ocp-replanned, ocp-replan-<step>}}.json, replan.md")
     return 0
 
@@ -284,6 +287,7 @@ def build_parser() -> argparse.ArgumentParser:
     r = sub.add_parser("replan", help="plan, then re-plan after every camera move (problems with camera.moves)")
     r.add_argument("problem")
     r.add_argument("--output-dir", required=True)
+    _solver_flags(r)
     r.set_defaults(func=cmd_replan)
 
     v = sub.add_parser("validate", help="check problem files")

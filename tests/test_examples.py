@@ -1,0 +1,30 @@
+"""Every script in examples/ runs (small horizons), writing into a temporary folder."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.mark.parametrize(("script", "extra", "wrote"), [
+    ("solve_and_plot.py", ["--horizon", "6"], "solve_and_plot.png"),
+    ("replan_loop.py", ["--horizon", "6"], None),
+    ("batch_evaluation.py", ["--horizon", "6", "--methods", "baseline", "ocp"], "batch.csv"),
+])
+def test_example_runs(tmp_path, script, extra, wrote):
+    args = [sys.executable, str(ROOT / "examples" / script), *extra]
+    if wrote:
+        args += ["--output-dir", str(tmp_path)]
+    run = subprocess.run(args, check=False, cwd=ROOT, capture_output=True, text=True, timeout=900,
+                         env={**os.environ, "MPLBACKEND": "Agg"})
+    assert run.returncode == 0, run.stderr[-2000:]
+    if wrote:
+        assert (tmp_path / wrote).stat().st_size > 0
+    else:
+        assert "re-plan median" in run.stdout
