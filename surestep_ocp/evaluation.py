@@ -88,6 +88,9 @@ def evaluate_configuration(eval_path: str, seed: int, index: int, methods: tuple
         cache[name] = sol
         solve = {"success": sol.success, "status": sol.status, "solve_time_s": sol.solve_time_s,
                  "iterations": sol.iterations, "evaluated": True}
+        if sol.status == "Initial_Guess_Kept":  # why: what every solver attempt ended with
+            solve["kept_start"] = "; ".join(f"{a.get('hessian', '?')}: {a.get('status', '?')}"
+                                            for a in sol.extras.get("attempts", [])) or sol.extras.get("solver", "")
         try:
             for mode in modes:
                 rng = np.random.default_rng([seed, index, MODES.index(mode)])

@@ -107,6 +107,7 @@ def _solve_stats(records, methods) -> dict:
     for m in methods:
         s = [r["solves"][m] for r in records if m in r["solves"]]
         st[m] = {"failed": sum(not x["success"] for x in s), "no_plan": sum(not x["evaluated"] for x in s),
+                 "kept": sum("kept_start" in x for x in s),
                  "time": float(np.mean([x["solve_time_s"] for x in s])) if s else math.nan,
                  "iters": float(np.median([x["iterations"] for x in s])) if s else math.nan}
     return st
@@ -128,6 +129,8 @@ def markdown(records, methods, modes, header, spec) -> str:
                     f"{grad.line_search}" if grad.optimizer == "torch" else f", {grad.iterations} iterations")
                  + f", trace_scale {grad.trace_scale:g}, pose_loss_weight {grad.pose_loss_weight:g}"
                  + (f" (preset {grad.preset})" if grad.preset else ""))
+    kept = [f"configuration {r['config']} ({m}: {r['solves'][m]['kept_start']})" for r in records
+            for m in methods if "kept_start" in r["solves"].get(m, {})]
     lines = [f"# Evaluation on `{spec.path}`", "",
              f"{n} random configurations (seed {header['seed']}, base problem `{spec.base_path.name}`, horizon "
              f"T = {spec.horizon}), {header['rollouts']} noisy closed-loop rollouts per plan and rollout mode; "
@@ -146,7 +149,9 @@ def markdown(records, methods, modes, header, spec) -> str:
              "not relative).", "",
              "**Failed solves** are counted in the `failed` column and are not dropped: a plan whose solver "
              "reported failure is still rolled out and averaged in; only a method that produced no plan at all "
-             "(`no plan`) is left out of that configuration's averages (`n` = configurations averaged).", ""]
+             "(`no plan`) is left out of that configuration's averages (`n` = configurations averaged).", "",
+             "`kept start`: the OCP's solvers ended above the straight line they started from, which is then the "
+             "plan; the attempts' statuses say why: " + ("; ".join(kept) if kept else "none") + ".", ""]
     cols = []
     for k in METRICS:
         cols.append("Tr ML mean" if k == "trace_ml" else LABELS[k])
@@ -156,8 +161,8 @@ def markdown(records, methods, modes, header, spec) -> str:
     plain = [LABELS[k] for k in METRICS]
     for mode in modes:
         lines += [f"## Rollout mode `{mode}`: {MODE_TEXT[mode]}", "",
-                  "| method | " + " | ".join(cols) + " | grasp | n | failed | no plan | solve time [s] | "
-                  "iters (median) |", "|---" * (len(cols) + 7) + "|"]
+                  "| method | " + " | ".join(cols) + " | grasp | n | failed | no plan | kept start | solve time [s] | "
+                  "iters (median) |", "|---" * (len(cols) + 8) + "|"]
         for m in methods:
             cells = []
             for k in METRICS:
@@ -167,8 +172,8 @@ def markdown(records, methods, modes, header, spec) -> str:
             used = min(rel[mode][m][k]["n"] for k in METRICS)
             succ, _ = success_share(records, mode, m)
             lines.append(f"| {m} | " + " | ".join(cells) + f" | {_fmt(succ, '{:.0%}')} | {used} | "
-                         f"{st[m]['failed']} | {st[m]['no_plan']} | {_fmt(st[m]['time'], '{:.2f}')} | "
-                         f"{_fmt(st[m]['iters'], '{:.0f}')} |")
+                         f"{st[m]['failed']} | {st[m]['no_plan']} | {st[m]['kept']} | "
+                         f"{_fmt(st[m]['time'], '{:.2f}')} | {_fmt(st[m]['iters'], '{:.0f}')} |")
         lines += ["", f"Beside the paper's Table I (cells: our mean / paper; the paper gives means only), "
                       f"mode `{mode}`:", "",
                   "| ours | paper | " + " | ".join(plain) + " |", "|---" * (len(plain) + 2) + "|"]
