@@ -163,7 +163,7 @@ def _cov_json(M: np.ndarray):
     """A scalar when the matrix is a multiple of the identity, else the 6x6 list."""
     M = np.asarray(M)
     s = M[0, 0]
-    return float(s) if np.allclose(M, s * np.eye(len(M)), rtol=0, atol=0) else M.tolist()
+    return float(s) if np.array_equal(M, s * np.eye(len(M))) else M.tolist()
 
 
 def noise_dict(setup: Setup) -> dict:
