@@ -26,6 +26,7 @@ import numpy as np
 from .belief import NV, NX, BeliefModel, unvech, vech
 from .errors import SurestepError
 from .methods import ocp_initial_guess
+from .newton import EXACT_BELOW
 from .ocp import (
     InitialGuess,
     newton_applies,
@@ -98,7 +99,7 @@ class Planner:
             raise SurestepError(f"replan: step {step} is not in [{self.step}, {self.horizon - 1}] (the current plan "
                                 f"starts at waypoint {self.step}; the goal is waypoint {self.horizon})")
         mean, cov = _estimate(mean, covariance)
-        base = self._seen_from(camera_pose)
+        base, moved = self._seen_from(camera_pose)
         seed = self._q[step - self.step]
         q, ok, res_m, res_rad = base.joints_along(mean[None], seed, guesses=seed[None])
         if not ok[0]:
@@ -113,9 +114,11 @@ class Planner:
         sol = None
         if built is not None:
             spec = prob.solver
-            # near the optimum already: Newton's exact steps from the first (the surrogate's converge linearly)
+            # From a tracker update the previous plan is near the optimum: Newton's exact steps from the first (the
+            # surrogate's converge linearly: 20 iterations where 3 exact ones do). After a camera move it is not, and
+            # the exact Hessian is often indefinite there: the usual switch (type4_camera_moves: 2-5x faster).
             run = built[0].run(sub, warm, tol=spec.tol, max_iter=min(spec.surrogate_max_iter, spec.max_iter),
-                               exact_below=np.inf)
+                               exact_below=EXACT_BELOW if moved else np.inf)
             if run.success:
                 sig = np.asarray(built[1](run.mu.T, vech(cov))).T[:, _UNVECH]
                 sol = evaluate(sub, "ocp-replan", run.mu, list(run.q), success=True, status=run.status,
@@ -141,14 +144,16 @@ class Planner:
             self.builds[n] = time.perf_counter() - t0
         return self._solvers[n]
 
-    def _seen_from(self, camera_pose) -> Setup:
+    def _seen_from(self, camera_pose) -> tuple[Setup, bool]:
+        """The setup seen from `camera_pose` (None: the last one), and whether the camera moved since the last plan."""
+        moved = False
         if camera_pose is not None:
             C = np.asarray(camera_pose, float)
             if C.shape != (4, 4) or not np.all(np.isfinite(C)):
                 raise SurestepError(f"replan: camera_pose must be a finite 4x4 matrix, got shape {C.shape}")
             if C.tobytes() != self._camera[0]:
-                self._camera = (C.tobytes(), self.setup.seen_from(C))
-        return self._camera[1]
+                self._camera, moved = (C.tobytes(), self.setup.seen_from(C)), True
+        return self._camera[1], moved
 
 
 def _estimate(mean, covariance) -> tuple[np.ndarray, np.ndarray]:
