@@ -28,3 +28,16 @@ def test_example_runs(tmp_path, script, extra, wrote):
         assert (tmp_path / wrote).stat().st_size > 0
     else:
         assert "re-plan median" in run.stdout
+
+
+def test_readme_python_api_script_runs(tmp_path):
+    """The README's "Python API" script, copied as a user would (at T = 6), runs from another folder."""
+    text = (ROOT / "README.md").read_text()
+    start = text.index("```python\n", text.index("### Python API")) + len("```python\n")
+    script = text[start:text.index("```", start)].replace("with_horizon(20)", "with_horizon(6)")
+    assert "with_horizon(6)" in script
+    (tmp_path / "api.py").write_text(script)
+    run = subprocess.run([sys.executable, "api.py"], check=False, cwd=tmp_path, capture_output=True, text=True,
+                         timeout=900)
+    assert run.returncode == 0, run.stderr[-2000:]
+    assert "Solve_Succeeded" in run.stdout
