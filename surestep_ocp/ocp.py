@@ -62,6 +62,8 @@ def solve_ocp_warm(setup: Setup, init: InitialGuess, solver_options: dict | None
        at most `solver.surrogate_max_iter` iterations (auto) or `solver.max_iter` (forced)
        from `init`. A converged run is a KKT point of the true problem (the Hessian only
        shapes the steps), so it is returned as it is.
+       If it ended "infeasible" (`FALSE_VERDICTS`; the start meets every bound, so the barrier's restoration
+       failed, not the problem), the same Hessian with the monotone barrier update from `init`.
     2. (auto) If it stopped short, the exact Hessian, warm-started from where it stopped.
     3. If nothing converged, or with `solver.hessian: exact`: the exact Hessian from
        `init` with the adaptive barrier update, then with the monotone one (measured:
@@ -70,10 +72,9 @@ def solve_ocp_warm(setup: Setup, init: InitialGuess, solver_options: dict | None
     4. If every converged point is worse than the cold start and the start is feasible (every
        bound met; the straight line's IK normally is), the start itself is returned, status
        `Initial_Guess_Kept` (success: a valid plan, never worse than where we began), with
-       no warm-start point (None). This happens when the steps cross the axis-angle cut at
-       rotations of pi (evaluation configurations 0, 36, 45, 91 of 100). A retry with the
-       exact Hessian from `init` used to run first: it never ended below the start there
-       (16 of 16 solves of the OCP variants) and cost 1-7 s, so it was dropped.
+       no warm-start point (None). With the paper's cosine exactly (`noise.cut_band: 0`, a jump at
+       rotations of pi) this happens on evaluation configurations 36, 45 and 91 of 100; with the
+       default fade none of the 100 keeps its start (README, "Orientation").
 
     With `limits.enforce: true` the IPOPT transcriptions carry the motion limits as constraints (the condensed
     and gain-lifted ones; `transcription.py`); Newton's box-constrained form cannot, so a converged Newton plan
@@ -149,6 +150,12 @@ def solve_ocp_warm(setup: Setup, init: InitialGuess, solver_options: dict | None
         done = attempt("lifted" if form == "full" else hessian, hessian, {"ipopt.max_iter": cap, **near}, None)
         if not done and near:  # the small monotone barrier did not settle: the adaptive update from the same point
             done = attempt("lifted, adaptive barrier", hessian, {"ipopt.max_iter": cap}, None)
+        if not done and not near and not pinned and not limited and tried[-1][1].status in FALSE_VERDICTS:
+            # "infeasible" from a start that meets every bound (the straight line's IK) is the adaptive barrier's
+            # restoration failing, not the problem: the monotone barrier with the same cheap Hessian first (evaluation
+            # configuration 73 at T = 40: 37 iterations, 0.07 s, where the exact-Hessian fallbacks took 920, 34 s)
+            done = attempt(f"{hessian}, monotone barrier", hessian, {"ipopt.max_iter": cap,
+                                                                     "ipopt.mu_strategy": "monotone"}, None)
         # With enforced motion limits, IPOPT's infeasibility verdict is the limits' (the Hessian only shapes the
         # steps): the exact-Hessian attempts ended infeasible too (evaluation configurations 1, 2, 4 at step_s
         # 0.05: 9 of 9 attempts, 5-8 s each), so none follow; and they are capped at surrogate_max_iter (one that
@@ -208,6 +215,8 @@ def solve_ocp_warm(setup: Setup, init: InitialGuess, solver_options: dict | None
 
 
 SECOND_START_ITER = 60
+# IPOPT statuses that, from a feasible start, say more about the barrier's path than about the problem
+FALSE_VERDICTS = ("Infeasible_Problem_Detected", "Restoration_Failed", "Error_In_Step_Computation")
 
 
 def diagonal_model_setup(setup: Setup) -> Setup:

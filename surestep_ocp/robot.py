@@ -246,6 +246,13 @@ class Robot:
         return ca.Function("pose", [q, cam], [ca.vertcat(Tcb[:, :3] @ Tq[:3, 3] + Tcb[:, 3], r)], ["q", "camera"],
                            ["mean"])
 
+    def camera_poses(self, n: int) -> ca.Function:
+        """`camera_pose` mapped over n joint vectors (columns), built once per n."""
+        maps = self.__dict__.setdefault("_camera_pose_maps", {})
+        if n not in maps:
+            maps[n] = self.camera_pose.map(n)
+        return maps[n]
+
     def fk_function(self, frame: str | None = None) -> ca.Function:
         """CasADi Function `fk_<frame>(q) -> (p[3], R[3x3])` in the URDF root frame."""
         name = frame or self.frame

@@ -82,18 +82,23 @@ class Setup:
     def camera_parameter(self) -> np.ndarray:
         """The `camera` parameter of `Robot.camera_pose`: the root's pose in the camera frame and its quaternion,
         signed so that the start's rotation vector is the principal one (angle at most pi)."""
-        Tcb = self.T_cam_base
-        x, y, z, w = Rotation.from_matrix(Tcb[:3, :3]).as_quat()
-        Qc = np.array([w, x, y, z])
-        if quat_mul(Qc, np.asarray(self.robot.fk_quaternion(self.q_start)).ravel())[0] < 0:
-            Qc = -Qc
-        return np.concatenate([Tcb[:3, :].ravel(order="F"), Qc])
+        key = (np.asarray(self.camera_pose, float).tobytes(), np.asarray(self.q_start, float).tobytes())
+        cache = self.__dict__.setdefault("_camera_parameter", {})  # per instance: camera and start may be reassigned
+        if key not in cache:
+            Tcb = self.T_cam_base
+            x, y, z, w = Rotation.from_matrix(Tcb[:3, :3]).as_quat()
+            Qc = np.array([w, x, y, z])
+            if quat_mul(Qc, np.asarray(self.robot.fk_quaternion(self.q_start)).ravel())[0] < 0:
+                Qc = -Qc
+            cache.clear()
+            cache[key] = np.concatenate([Tcb[:3, :].ravel(order="F"), Qc])
+        return cache[key].copy()
 
     def poses_of(self, q: np.ndarray) -> np.ndarray:
         """(N, 6) camera-frame means `[p, r]` at the joint vectors `q` (N, nq): the rotation vector continued
         along the joints from the start's (README, "Orientation"); exp(r) is Pinocchio's rotation (tested)."""
         q = np.atleast_2d(np.asarray(q, float))
-        return np.asarray(self.robot.camera_pose.map(len(q))(q.T, self.camera_parameter())).T
+        return np.asarray(self.robot.camera_poses(len(q))(q.T, self.camera_parameter())).T
 
     def pose_of(self, q: np.ndarray) -> np.ndarray:
         """Camera-frame mean `[p, r]` of the tracked frame at joints `q` (see `poses_of`)."""
