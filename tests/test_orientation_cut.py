@@ -156,7 +156,7 @@ def test_gradient_variant_near_pi(sampler):
 def test_rollouts_near_pi_see_the_plans_noise(sampler):
     """Configuration 0's straight line runs through pi; with every noise scaled by 1e-10 the rollouts' EKF stays
     on the waypoints, so its final covariance is the plan's (a sign flip of the cosine at the cut would change
-    the orientation noise by a factor of up to 9)."""
+    the orientation noise by (1 + cos)^2 / (1 - cos)^2)."""
     setup = _setup(sampler, 0)
     base = solve_baseline(setup)
     n = setup.eval_model.noise

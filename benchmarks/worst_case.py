@@ -1,0 +1,108 @@
+"""The OCP's slowest configurations beside its median, on every configuration of the evaluation, with the gradient
+variant's time measured in the same run.
+
+    .venv/bin/python benchmarks/worst_case.py [--configs 100] [--seed 0] [--horizons 20 40]
+
+Per horizon, each configuration of problems/evaluations/evaluation.yaml is solved with the default strategy
+(`solve_ocp` from the straight line's IK; builds are cached and not counted) and by the gradient variant. Reported:
+median, 95th percentile and worst OCP time, worst / median, the five slowest configurations with the attempts that
+ran, how many kept their start (and why), and the trace of every plan against the straight line's. Each plan's
+trace is checked against tests/numpy_ekf.py (an independent NumPy EKF on the stored poses). BLAS one thread.
+Writes benchmarks/results/worst_case.md; the last line is
+`worst_case: T=<T> median_ms=<ms> worst_ms=<ms> worst_over_median=<x> kept=<n> ...` per horizon.
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+import argparse  # noqa: E402
+import sys  # noqa: E402
+from dataclasses import replace  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+from surestep_ocp.baseline import solve_baseline  # noqa: E402
+from surestep_ocp.configs import ConfigurationSampler, load_evaluation  # noqa: E402
+from surestep_ocp.gradient import solve_gradient  # noqa: E402
+from surestep_ocp.methods import ocp_initial_guess  # noqa: E402
+from surestep_ocp.ocp import solve_ocp  # noqa: E402
+from surestep_ocp.setup import build_setup  # noqa: E402
+from surestep_ocp.solution import write_text_atomic  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "tests"))
+import numpy_ekf  # noqa: E402
+
+
+def ekf_trace(setup, poses) -> float:
+    n = setup.problem.noise
+    return float(np.trace(numpy_ekf.propagate(np.asarray(poses), n, setup.problem.camera.intrinsics,
+                                              guard=n.cosine_guard**2)[0][-1]))
+
+
+def run(sampler, seed: int, configs: int, T: int) -> dict:
+    rows = []
+    for c in range(configs):
+        setup = build_setup(replace(sampler.problem(sampler.sample(seed, c)), horizon=T))
+        base = solve_baseline(setup)
+        sol = solve_ocp(setup, ocp_initial_guess(setup))
+        grad = solve_gradient(setup)
+        attempts = "; ".join(f"{a['hessian']}: {a['status']} ({a['iterations']} it)" for a in sol.extras["attempts"])
+        rows.append({"c": c, "ms": sol.solve_time_s * 1e3, "grad_ms": grad.solve_time_s * 1e3, "status": sol.status,
+                     "ratio": sol.trace_final / base.trace_final, "attempts": attempts,
+                     "ekf": abs(ekf_trace(setup, sol.poses) / sol.trace_final - 1)})
+        print(f"T={T} {c:3d} {sol.status} {rows[-1]['ms']:.1f} ms (gradient {rows[-1]['grad_ms']:.1f} ms) "
+              f"Tr/baseline {rows[-1]['ratio']:.3f} | {attempts}", flush=True)
+    return {"T": T, "rows": rows}
+
+
+def summary(r: dict) -> tuple[list[str], str]:
+    rows, T = r["rows"], r["T"]
+    t = np.array([x["ms"] for x in rows])
+    g = np.array([x["grad_ms"] for x in rows])
+    med, worst = float(np.median(t)), float(t.max())
+    kept = [x for x in rows if x["status"] == "Initial_Guess_Kept"]
+    failed = [x for x in rows if x["status"] not in ("Solve_Succeeded", "Initial_Guess_Kept")]
+    slow = sorted(rows, key=lambda x: -x["ms"])[:5]
+    lines = [f"## T = {T}", "",
+             f"OCP: median {med:.1f} ms, p95 {np.percentile(t, 95):.1f} ms, worst {worst:.1f} ms "
+             f"(worst / median {worst / med:.1f}); gradient variant median {np.median(g):.1f} ms, worst {g.max():.1f} ms "
+             f"(OCP / gradient, medians: {med / np.median(g):.2f}). Tr(Sigma_T) / straight line: median "
+             f"{np.median([x['ratio'] for x in rows]):.3f}, worst {max(x['ratio'] for x in rows):.3f}. "
+             f"Kept their start: {len(kept)}; failed: {len(failed)}; largest relative difference from the NumPy "
+             f"EKF's trace: {max(x['ekf'] for x in rows):.1e}.", "",
+             "| slowest | time [ms] | status | attempts |", "|---|---|---|---|",
+             *[f"| {x['c']} | {x['ms']:.1f} | {x['status']} | {x['attempts']} |" for x in slow], ""]
+    if kept or failed:
+        lines += ["Kept or failed: " + "; ".join(f"{x['c']}: {x['status']} ({x['attempts']})" for x in kept + failed), ""]
+    last = (f"T={T} median_ms={med:.1f} worst_ms={worst:.1f} worst_over_median={worst / med:.1f} kept={len(kept)} "
+            f"failed={len(failed)} ratio_vs_gradient={med / np.median(g):.2f}")
+    return lines, last
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--configs", type=int, default=100)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--horizons", type=int, nargs="*", default=[20, 40])
+    args = ap.parse_args()
+    sampler = ConfigurationSampler(load_evaluation(ROOT / "problems" / "evaluations" / "evaluation.yaml"))
+    lines, lasts = ["# The OCP's worst case beside its median", "",
+                    f"`.venv/bin/python benchmarks/worst_case.py --configs {args.configs} --seed {args.seed} --horizons "
+                    f"{' '.join(map(str, args.horizons))}` (OPENBLAS_NUM_THREADS=1; builds cached, not counted).", ""], []
+    for T in args.horizons:
+        block, last = summary(run(sampler, args.seed, args.configs, T))
+        lines += block
+        lasts.append(last)
+    text = "\n".join(lines + ["worst_case: " + " | ".join(lasts)]) + "\n"
+    write_text_atomic(ROOT / "benchmarks" / "results" / "worst_case.md", text)
+    print(text)
+
+
+if __name__ == "__main__":
+    main()
