@@ -25,6 +25,7 @@ from scipy.spatial.transform import Rotation
 from .errors import FrameNotFound, UnreachablePose, UnsupportedJoint
 from .lie import np_log, quat_mul, quat_rotvec, so3_exp, so3_log
 
+FLIP_W = 0.9  # `camera_pose`: a continued vector's quaternion with w below -FLIP_W is flipped
 CAMERA_PARAMETERS = 16  # the camera parameter of `Robot.camera_pose`: vec(T_cam_base[:3, :]), then its quaternion
 
 
@@ -242,7 +243,10 @@ class Robot:
         """
         q, cam = ca.SX.sym("q", self.nq), ca.SX.sym("camera", CAMERA_PARAMETERS)
         Tcb, Tq = cam[:12].reshape((3, 4)), self.fk_expr(q)
-        r = quat_rotvec(quat_mul(cam[12:], self.fk_quaternion_expr(q)))
+        Q = quat_mul(cam[12:], self.fk_quaternion_expr(q))
+        # near a full turn (w = -1) the log is singular: past angles of 2 acos(-FLIP_W) (5.4 rad) the other vector of
+        # the same rotation (every noise term is a function of the rotation; only the mean's coordinates jump)
+        r = quat_rotvec(ca.if_else(Q[0] < -FLIP_W, -Q, Q))
         return ca.Function("pose", [q, cam], [ca.vertcat(Tcb[:, :3] @ Tq[:3, 3] + Tcb[:, 3], r)], ["q", "camera"],
                            ["mean"])
 

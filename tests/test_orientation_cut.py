@@ -74,6 +74,22 @@ def test_means_are_continued_along_the_joints_through_pi(sampler):
         np.testing.assert_allclose(x[:3], T[:3, 3], atol=1e-12)
 
 
+def test_means_are_finite_and_pinocchios_over_the_whole_joint_box(sampler):
+    """Random joints in the limits (the roll joint turns 9 rad): every mean is finite, its rotation Pinocchio's, its
+    angle at most 2 acos(-0.9) (past it the other vector of the rotation: no log at a full turn)."""
+    setup = _setup(sampler, 0)
+    rng = np.random.default_rng(5)
+    lo, hi = setup.robot.lower, setup.robot.upper
+    q = lo + (hi - lo) * rng.random((400, setup.robot.nq))
+    means = setup.poses_of(q)
+    assert np.all(np.isfinite(means))
+    assert np.max(np.linalg.norm(means[:, 3:], axis=1)) <= 2 * np.arccos(-0.9) + 1e-9
+    assert np.max(np.linalg.norm(means[:, 3:], axis=1)) > np.pi + 1.0  # the continued sheet is used
+    for qi, x in zip(q[:50], means[:50]):
+        R = (setup.T_cam_base @ setup.robot.frame_pose(qi))[:3, :3]
+        np.testing.assert_allclose(Rotation.from_rotvec(x[3:]).as_matrix(), R, atol=1e-10)
+
+
 def test_the_cosine_term_is_a_function_of_the_rotation():
     """Angles in [3.0, pi]: both vectors of one rotation give one V, that of the NumPy EKF (principal vector,
     the fade over the last `cut_band` rad); V is continuous across pi, and its derivative matches central
