@@ -1,9 +1,13 @@
 """Run `surestep compare` on every scenario file and print one table of Tr(Sigma_T) per method.
 
-    .venv/bin/python benchmarks/scenarios.py [--output-dir out/scenarios] [--reuse]
+    .venv/bin/python benchmarks/scenarios.py [--output-dir out/scenarios] [--reuse] [--limits [--step-s S]]
 
 `--reuse` only reads existing `<dir>/<scenario>/comparison.json` files.
-Writes benchmarks/results/scenarios.md.
+`--limits`: each scenario with `limits: {enforce: true}` (the default limits) at `--step-s` seconds per
+step (default: the file's, 0.05) with one observation per waypoint (`tracker_hz = 1 / step_s`), written
+beside the results as `<dir>/<scenario>.yaml`; a plan that breaks a limit is a failure (every method
+but the OCP: they do not honour limits). Writes benchmarks/results/scenarios.md (with --limits
+scenarios_limits_step<S>.md).
 """
 
 from __future__ import annotations
@@ -13,6 +17,8 @@ import json
 import subprocess
 import sys
 from pathlib import Path
+
+import yaml
 
 from surestep_ocp.solution import write_text_atomic
 
@@ -26,23 +32,45 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--output-dir", default=str(ROOT / "out" / "scenarios"))
     ap.add_argument("--reuse", action="store_true")
+    ap.add_argument("--limits", action="store_true", help="enforce the motion limits (module docstring)")
+    ap.add_argument("--step-s", type=float, help="seconds per step with --limits (default: the file's)")
     args = ap.parse_args()
-    out = Path(args.output_dir)
+    suffix = "" if not args.limits else f"_limits_step{args.step_s or 0.05:g}"
+    out = Path(args.output_dir + suffix)
     head = "| scenario | " + " | ".join(f"{m} Tr(Σ_T)" for m in METHODS) + " | OCP / baseline | OCP time [s] |"
     lines = [head, "|" + "---|" * (len(METHODS) + 3)]
     for name in SCENARIOS:
         d = out / name
+        problem = ROOT / "problems" / f"{name}.yaml"
+        if args.limits:
+            problem = with_limits(problem, out / f"{name}.yaml", args.step_s)
         if not args.reuse:
-            subprocess.run([sys.executable, "-m", "surestep_ocp.cli", "compare", str(ROOT / "problems" / f"{name}.yaml"),
+            subprocess.run([sys.executable, "-m", "surestep_ocp.cli", "compare", str(problem),
                             "--output-dir", str(d)], check=False)
         rows = {r["method"]: r for r in json.loads((d / "comparison.json").read_text())["methods"]}
         cells = [f"{rows[m]['trace_final']:.2e}" + ("" if rows[m]["success"] else " (failed)") for m in METHODS]
         ocp = rows["ocp"]
         lines.append(f"| {name} | " + " | ".join(cells) +
                      f" | {ocp['trace_final'] / rows['baseline']['trace_final']:.3f} | {ocp['solve_time_s']:.2f} |")
+    if args.limits:
+        lines = [f"Limits enforced (`limits: {{enforce: true}}`, default limits) at step_s {args.step_s or 0.05:g} s, "
+                 "one observation per waypoint; `(failed)`: the plan breaks a limit or the solver found none "
+                 "within them. Machine shared with other jobs (2 cores).", "",
+                 f"`.venv/bin/python benchmarks/scenarios.py --limits{f' --step-s {args.step_s:g}' if args.step_s else ''}`",
+                 "", *lines]
     text = "\n".join(lines) + "\n"
-    write_text_atomic(ROOT / "benchmarks" / "results" / "scenarios.md", text)
+    write_text_atomic(ROOT / "benchmarks" / "results" / f"scenarios{suffix}.md", text)
     print(text)
+
+
+def with_limits(problem: Path, dest: Path, step_s: float | None) -> Path:
+    """`problem` with `limits: {enforce: true}` (and the pace `step_s`, one observation per waypoint) at `dest`."""
+    tree = yaml.safe_load(problem.read_text())
+    tree["limits"] = {**(tree.get("limits") or {}), "enforce": True}
+    if step_s is not None:
+        tree["timing"] = {"step_s": step_s, "tracker_hz": 1.0 / step_s}
+    dest.parent.mkdir(parents=True, exist_ok=True)
+    return write_text_atomic(dest, yaml.safe_dump(tree, sort_keys=False))
 
 
 if __name__ == "__main__":

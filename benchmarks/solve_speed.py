@@ -12,7 +12,12 @@ Build times (CasADi expression graphs and IPOPT set-up, paid once per structure 
 horizon and cached) are reported separately and are not in the solve times.
 
     .venv/bin/python benchmarks/solve_speed.py [--instances 20] [--horizons 10 20 40] [--codegen | --no-codegen]
-        [--tol 1e-6] [--hessian auto|exact|surrogate|gauss-newton] [--solver ipopt|newton]
+        [--tol 1e-6] [--hessian auto|exact|surrogate|gauss-newton] [--solver ipopt|newton] [--limits [--step-s S]]
+
+`--limits`: the OCP with `limits.enforce: true` (the default limits, README "Motion limits"), at
+`--step-s` seconds per step (default 0.05) with one observation per waypoint (`tracker_hz = 1 /
+step_s`, the paper's belief model at any pace, as benchmarks/limits_cost.py); the gradient variant
+does not honour limits (its plan is only checked, and fails them). Writes solve_speed_limits*.md.
 
 By default the problem's `solver.codegen` (auto: the OCP's derivatives are compiled to C
 when a C compiler is found; the compile is a build cost, reported with the builds);
@@ -38,6 +43,7 @@ from surestep_ocp.configs import ConfigurationSampler, load_evaluation
 from surestep_ocp.gradient import solve_gradient
 from surestep_ocp.lie import np_exp
 from surestep_ocp.methods import ocp_initial_guess
+from surestep_ocp.problem import LimitsSpec, TimingSpec
 from surestep_ocp.setup import build_setup
 from surestep_ocp.solution import write_text_atomic
 
@@ -55,12 +61,17 @@ def camera_nudge(setup, rng):
 
 
 def run(instances: int, horizons: list[int], seed: int, codegen: bool | None = None,
-        tol: float | None = None, hessian: str | None = None, solver_name: str | None = None) -> tuple[str, str]:
+        tol: float | None = None, hessian: str | None = None, solver_name: str | None = None,
+        step_s: float | None = None) -> tuple[str, str]:
+    """`step_s` given: the limits enforced at that pace (module docstring)."""
     spec = load_evaluation(ROOT / "problems" / "evaluations" / "evaluation.yaml")
     solver = replace(spec.base.solver, codegen=spec.base.solver.codegen if codegen is None else codegen,
                      tol=spec.base.solver.tol if tol is None else tol,
                      hessian=hessian or spec.base.solver.hessian, name=solver_name or spec.base.solver.name)
     spec = replace(spec, base=replace(spec.base, solver=solver))
+    if step_s is not None:
+        spec = replace(spec, base=replace(spec.base, limits=LimitsSpec(enforce=True),
+                                          timing=TimingSpec(step_s=step_s, tracker_hz=1.0 / step_s)))
     rows, summary = [], {}
     warm_ms, builds, cold_resolves = [], {}, 0
     rng = np.random.default_rng(seed)
@@ -68,12 +79,19 @@ def run(instances: int, horizons: list[int], seed: int, codegen: bool | None = N
         spec_T = replace(spec, base=replace(spec.base, horizon=T), horizon=T)
         sampler = ConfigurationSampler(spec_T)
         ratios, wins, t_ocp, t_grad, fails, alone, iters, t_grad_ik = [], 0, [], [], 0, 0, [], []
+        t_free, tr_vs_free = [], []
         for i in range(instances):
-            setup = build_setup(sampler.problem(sampler.sample(seed, i)))
+            problem = sampler.problem(sampler.sample(seed, i))
+            setup = build_setup(problem)
             t0 = time.perf_counter()
             init = ocp_initial_guess(setup)
             init_s = time.perf_counter() - t0
             ocp, warm = ocp_mod.solve_ocp_warm(setup, init)
+            if step_s is not None:  # the unconstrained OCP beside it, same start and pace
+                free = ocp_mod.solve_ocp(build_setup(replace(problem, limits=LimitsSpec(enforce=False))), init)
+                t_free.append(free.solve_time_s + init_s)
+                if ocp.success and free.success:
+                    tr_vs_free.append(ocp.trace_final / free.trace_final)
             grad = solve_gradient(setup, pose_loss=True)
             ocp_time = ocp.solve_time_s + init_s  # the IK of the initial guess is part of the OCP's work
             ratios.append(ocp_time / grad.solve_time_s)
@@ -99,14 +117,23 @@ def run(instances: int, horizons: list[int], seed: int, codegen: bool | None = N
                       "ocp_median_s": statistics.median(t_ocp), "grad_median_s": statistics.median(t_grad),
                       "failures": fails, "alone": alone / instances, "iters": statistics.median(iters),
                       "grad_ik_median_s": statistics.median(t_grad_ik),
-                      "compiled": any(tr.codegen for tr in ocp_mod.cached_transcriptions() if tr.T == T)}
+                      "compiled": any(tr.codegen for tr in ocp_mod.cached_transcriptions() if tr.T == T),
+                      "free_median_s": statistics.median(t_free) if t_free else float("nan"),
+                      "tr_vs_free": statistics.geometric_mean(tr_vs_free) if tr_vs_free else float("nan"),
+                      "n_vs_free": len(tr_vs_free)}
     growth = (summary[40]["ocp_median_s"] / summary[20]["ocp_median_s"]) if {20, 40} <= set(summary) else float("nan")
     warm = statistics.median(warm_ms) if warm_ms else float("nan")
     lines = ["# Solve speed: OCP against the gradient variant (same run)", "",
              (f"`.venv/bin/python benchmarks/solve_speed.py --instances {instances} --horizons "
               f"{' '.join(map(str, horizons))}{ {None: '', True: ' --codegen', False: ' --no-codegen'}[codegen]}"
               f"{f' --tol {tol:g}' if tol is not None else ''}{f' --hessian {hessian}' if hessian else ''}"
-              f"{f' --solver {solver_name}' if solver_name else ''}`"), "",
+              f"{f' --solver {solver_name}' if solver_name else ''}"
+              f"{f' --limits --step-s {step_s:g}' if step_s is not None else ''}`"), "",
+             *([] if step_s is None else [
+                 f"Limits enforced (`limits.enforce: true`, default limits) at step_s {step_s:g} s with one "
+                 "observation per waypoint; a failure is a plan that does not meet them (mostly "
+                 "Infeasible_Problem_Detected). The gradient variant does not honour them. Machine shared with "
+                 "other jobs (2 cores).", ""]),
              ("| T | median time OCP / gradient | share OCP Tr <= gradient Tr | median OCP time [s] "
               "| median gradient time [s] | median gradient + IK of its waypoints [s] | median OCP iterations "
               "| OCP failures | share solved by the first Hessian alone | OCP compiled | OCP builds (once) [s] |"),
@@ -115,6 +142,13 @@ def run(instances: int, horizons: list[int], seed: int, codegen: bool | None = N
         lines.append(f"| {T} | {s['time_ratio']:.2f} | {s['trace_share']:.2f} | {s['ocp_median_s']:.3f} | "
                      f"{s['grad_median_s']:.3f} | {s['grad_ik_median_s']:.3f} | {s['iters']:g} | {s['failures']} | "
                      f"{s['alone']:.2f} | {'yes' if s['compiled'] else 'no'} | {builds[T]:.1f} |")
+    if step_s is not None:
+        lines += ["", "The unconstrained OCP in the same run (same configurations, start and pace):", "",
+                  "| T | median OCP time, enforced [s] | unconstrained [s] | enforced / unconstrained | "
+                  "Tr enforced / unconstrained, geo. mean (both converged) |", "|---|---|---|---|---|"]
+        lines += [f"| {T} | {s['ocp_median_s']:.3f} | {s['free_median_s']:.3f} | "
+                  f"{s['ocp_median_s'] / s['free_median_s']:.1f} | {s['tr_vs_free']:.2f} ({s['n_vs_free']}) |"
+                  for T, s in summary.items()]
     how = ("warm-started from the previous solution: IPOPT's primal-dual point or Newton's joints"
            + ("" if not cold_resolves else f"; cold on {cold_resolves} of {len(warm_ms)} instances, where the "
               "previous solve kept its start and has no warm-start point"))
@@ -143,10 +177,15 @@ def main() -> None:
                     help="solver.name instead of the problem's (ipopt); newton: projected Newton, IPOPT as fallback")
     ap.add_argument("--hessian", choices=("auto", "exact", "surrogate", "gauss-newton"),
                     help="solver.hessian instead of the problem's (auto)")
+    ap.add_argument("--limits", action="store_true", help="the OCP with the motion limits enforced")
+    ap.add_argument("--step-s", type=float, default=0.05, help="seconds per step with --limits (default 0.05)")
     args = ap.parse_args()
-    text, last = run(args.instances, args.horizons, args.seed, args.codegen, args.tol, args.hessian, args.solver)
+    step = args.step_s if args.limits else None
+    text, last = run(args.instances, args.horizons, args.seed, args.codegen, args.tol, args.hessian, args.solver,
+                     step)
     name = ("solve_speed" + {None: "", True: "_codegen", False: "_interpreted"}[args.codegen] + (f"_tol{args.tol:g}" if args.tol else "")
-            + (f"_{args.hessian}" if args.hessian else "") + (f"_{args.solver}" if args.solver else "") + ".md")
+            + (f"_{args.hessian}" if args.hessian else "") + (f"_{args.solver}" if args.solver else "")
+            + (f"_limits_step{step:g}" if step is not None else "") + ".md")
     write_text_atomic(ROOT / "benchmarks" / "results" / name, text)
     print(text)
     print(last)
