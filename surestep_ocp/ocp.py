@@ -63,7 +63,8 @@ def solve_ocp_warm(setup: Setup, init: InitialGuess, solver_options: dict | None
        from `init`. A converged run is a KKT point of the true problem (the Hessian only
        shapes the steps), so it is returned as it is.
        If it ended "infeasible" (`FALSE_VERDICTS`; the start meets every bound, so the barrier's restoration
-       failed, not the problem), the same Hessian with the monotone barrier update from `init`.
+       failed, not the problem), the same Hessian with the monotone barrier update from `init`; after a
+       Newton plan below the depth bound, the monotone barrier from the first.
     2. (auto) If it stopped short, the exact Hessian, warm-started from where it stopped.
     3. If nothing converged, or with `solver.hessian: exact`: the exact Hessian from
        `init` with the adaptive barrier update, then with the monotone one (measured:
@@ -147,10 +148,16 @@ def solve_ocp_warm(setup: Setup, init: InitialGuess, solver_options: dict | None
     if not done and hessian != "exact":
         cap = spec.max_iter if forced else min(spec.surrogate_max_iter, spec.max_iter)
         near = LIFTED_FROM_CONDENSED if pre is not None and pre.success and not pinned else {}
-        done = attempt("lifted" if form == "full" else hessian, hessian, {"ipopt.max_iter": cap, **near}, None)
+        # Newton's plan went below the depth bound: the bound is active at the optimum, where the monotone barrier
+        # is the robust choice (configuration 73 at T = 40: 37 iterations where the adaptive one declared the
+        # problem infeasible after 215; the other depth fallbacks of T = 20 and 40 converge either way)
+        depth = {} if pinned or not tried or tried[0][1].status != "Depth_Bound_Violated" else {
+            "ipopt.mu_strategy": "monotone"}
+        done = attempt("lifted" if form == "full" else hessian + (", monotone barrier" if depth else ""), hessian,
+                       {"ipopt.max_iter": cap, **near, **depth}, None)
         if not done and near:  # the small monotone barrier did not settle: the adaptive update from the same point
             done = attempt("lifted, adaptive barrier", hessian, {"ipopt.max_iter": cap}, None)
-        if not done and not near and not pinned and not limited and tried[-1][1].status in FALSE_VERDICTS:
+        if not done and not (near or depth or pinned or limited) and tried[-1][1].status in FALSE_VERDICTS:
             # "infeasible" from a start that meets every bound (the straight line's IK) is the adaptive barrier's
             # restoration failing, not the problem: the monotone barrier with the same cheap Hessian first (evaluation
             # configuration 73 at T = 40: 37 iterations, 0.07 s, where the exact-Hessian fallbacks took 920, 34 s)

@@ -12,25 +12,53 @@ import numpy_ekf as ref
 from surestep_ocp.baseline import solve_baseline
 from surestep_ocp.configs import ConfigurationSampler, load_evaluation
 from surestep_ocp.methods import ocp_initial_guess
-from surestep_ocp.ocp import FALSE_VERDICTS, solve_ocp
+from surestep_ocp.ocp import solve_ocp
+from surestep_ocp.problem import load_problem
 from surestep_ocp.setup import build_setup
 
-EVALUATION = Path(__file__).resolve().parents[1] / "problems" / "evaluations" / "evaluation.yaml"
+DEFAULT = Path(__file__).resolve().parents[1] / "problems" / "needle_regrasp.yaml"
+EVALUATION = DEFAULT.parent / "evaluations" / "evaluation.yaml"
 
 
-def test_a_false_infeasibility_verdict_is_retried_with_the_monotone_barrier():
-    """Evaluation configuration 73 at T = 40: Newton's plan goes below the depth bound, IPOPT with the surrogate
-    Hessian and the adaptive barrier then reports the problem infeasible although its start (the straight line's IK)
-    meets every bound; the monotone barrier with the same Hessian converges, and no exact-Hessian attempt runs. The
-    plan meets the bound and is below the straight line, by the NumPy EKF."""
+def _configuration_73(solver: str):
     sampler = ConfigurationSampler(load_evaluation(EVALUATION))
     prob = replace(sampler.problem(sampler.sample(0, 73)), horizon=40)
-    setup = build_setup(replace(prob, solver=replace(prob.solver, codegen=False)))
+    return build_setup(replace(prob, solver=replace(prob.solver, codegen=False, name=solver)))
+
+
+def test_a_false_infeasibility_verdict_is_retried_with_the_monotone_barrier(monkeypatch):
+    """IPOPT alone on the default problem (T = 6), its first attempt made to end "infeasible" (as the adaptive barrier
+    did on evaluation configuration 73 at T = 40, compiled): the monotone barrier with the same Hessian runs next,
+    and no exact-Hessian attempt; its plan is IPOPT's own optimum, below the straight line."""
+    import surestep_ocp.transcription as tr
+
+    setup = build_setup(replace(load_problem(DEFAULT), horizon=6))
+    setup = replace(setup, problem=replace(setup.problem, solver=replace(setup.problem.solver, name="ipopt")))
+    plain = solve_ocp(setup, ocp_initial_guess(setup))
+    real, calls = tr.Transcription.solve, []
+
+    def first_infeasible(self, *args, **kw):
+        sol, reached = real(self, *args, **kw)
+        calls.append(sol.status)
+        if len(calls) == 1:
+            sol.status, sol.success = "Infeasible_Problem_Detected", False
+        return sol, reached
+
+    monkeypatch.setattr(tr.Transcription, "solve", first_infeasible)
     sol = solve_ocp(setup, ocp_initial_guess(setup))
     names = [(a["hessian"], a["status"]) for a in sol.extras["attempts"]]
-    assert names[0] == ("newton", "Depth_Bound_Violated")
-    assert names[1][0] == "surrogate" and names[1][1] in FALSE_VERDICTS
-    assert names[2] == ("surrogate, monotone barrier", "Solve_Succeeded") and len(names) == 3
+    assert names == [("surrogate", "Infeasible_Problem_Detected"), ("surrogate, monotone barrier", "Solve_Succeeded")]
+    assert sol.trace_final == pytest.approx(plain.trace_final, rel=1e-5)
+    assert sol.trace_final < solve_baseline(setup).trace_final
+
+
+def test_a_depth_violation_by_newton_goes_to_the_monotone_barrier():
+    """The same configuration with the default solver: Newton's plan goes below the depth bound, IPOPT runs with the
+    monotone barrier at once. The plan meets the bound and is below the straight line, by the NumPy EKF."""
+    setup = _configuration_73("auto")
+    sol = solve_ocp(setup, ocp_initial_guess(setup))
+    names = [(a["hessian"], a["status"]) for a in sol.extras["attempts"]]
+    assert names == [("newton", "Depth_Bound_Violated"), ("surrogate, monotone barrier", "Solve_Succeeded")]
     poses = np.asarray(sol.poses)
     assert poses[:, 2].min() >= setup.problem.min_depth - 1e-8
     n = setup.problem.noise
