@@ -35,57 +35,15 @@ def solve_ocp_warm(setup: Setup, init: InitialGuess, solver_options: dict | None
                    ) -> tuple[Solution, WarmStart | NewtonWarm | None]:
     """Solve the belief-space OCP; also return the primal-dual point for a later warm start.
 
-    Strategy (after the Newton solver where it applies, each attempt is IPOPT on the same
-    NLP; they differ in the Hessian, the starting point and the barrier update):
+    Newton first where it applies (`newton_applies`), then IPOPT attempts on the same NLP that differ in
+    the Hessian (surrogate, then exact), the start (`init`, `warm`, or where the last attempt stopped) and
+    the barrier update (adaptive, then monotone); the lifted form starts at the condensed solution. A feasible
+    start is returned (`Initial_Guess_Kept`) when every converged point is worse, so the plan is never worse
+    than where it began. With `limits.enforce` the returned plan is checked against the motion limits
+    (`Motion_Limits_Violated` otherwise). The order and why, with measurements: docs/hessian_and_newton.md,
+    "Fallbacks: the order of attempts".
 
-    With `solver.name: newton`, or `auto` (the default) where it applies (`newton_applies`):
-    first the projected Newton method of `newton.py` (no IPOPT); if it converges, that is
-    the solution. If not (a violated depth bound, which only IPOPT has, or no convergence
-    in `surrogate_max_iter` iterations), IPOPT follows as below from `init`. (Starting
-    IPOPT from Newton's last iterate instead was measured worse: on evaluation
-    configuration 0 at T = 20 it failed after 6530 iterations, 26 s.)
-
-    The lifted form (`full` with the structured Hessian, `lifted.py`) is started at the condensed
-    solution (solved first by this same strategy, reported as `condensed_start` and counted in the
-    time); where the condensed solve kept its start, that plan is returned (the lifted NLP does not
-    converge from a non-stationary point). A lifted warm start re-solves the lifted NLP directly.
-
-    A Newton solution returns its joints (`NewtonWarm`) as the warm start: the next Newton
-    solve starts there (the re-solve after a 3 mm / 2 degree camera move at T = 20: 4.5 ms
-    median, `benchmarks/solve_speed.py`).
-
-    0. With `warm` (a previous IPOPT solve's primal-dual point, e.g. before the camera moved):
-       the exact Hessian from there (near an optimum Newton converges fast; measured at
-       T = 20: 13.7 ms median, against 39.5 ms with Gauss-Newton), or the forced Hessian
-       with `solver.hessian: surrogate | gauss-newton`.
-    1. With the surrogate Hessian (`solver.hessian: auto` or `surrogate`) or Gauss-Newton:
-       at most `solver.surrogate_max_iter` iterations (auto) or `solver.max_iter` (forced)
-       from `init`. A converged run is a KKT point of the true problem (the Hessian only
-       shapes the steps), so it is returned as it is.
-       If it ended "infeasible" (`FALSE_VERDICTS`; the start meets every bound, so the barrier's restoration
-       failed, not the problem), the same Hessian with the monotone barrier update from `init`; after a
-       Newton plan below the depth bound, the monotone barrier from the first.
-    2. (auto) If it stopped short, the exact Hessian, warm-started from where it stopped.
-    3. If nothing converged, or with `solver.hessian: exact`: the exact Hessian from
-       `init` with the adaptive barrier update, then with the monotone one (measured:
-       each fails on some problems where the other succeeds; the barrier strategy is left
-       alone when the caller or the problem file sets it).
-    4. If every converged point is worse than the cold start and the start is feasible (every
-       bound met; the straight line's IK normally is), the start itself is returned, status
-       `Initial_Guess_Kept` (success: a valid plan, never worse than where we began), with
-       no warm-start point (None). With the paper's cosine exactly (`noise.cut_band: 0`, a jump at
-       rotations of pi) this happens on evaluation configurations 36, 45 and 91 of 100; with the
-       default fade none of the 100 keeps its start (README, "Orientation").
-
-    With `limits.enforce: true` the IPOPT transcriptions carry the motion limits as constraints (the condensed
-    and gain-lifted ones; `transcription.py`); Newton's box-constrained form cannot, so a converged Newton plan
-    is checked against them (`limits.enforce`) and one that breaks a limit hands over to IPOPT like a violated
-    depth bound. The returned plan is checked last: one over a limit is not a success (status
-    `Motion_Limits_Violated`, the solver's status in `extras["solver_status"]`).
-
-    Every attempt is reported in `extras["attempts"]` (with `kept`); time and iterations
-    are their sums; `extras["worse_than_initial_guess"]` flags a kept point above the start
-    (an infeasible start that could not be kept).
+    Every attempt is reported in `extras["attempts"]` (with `kept`); time and iterations are their sums.
     Returns a Solution whatever IPOPT's status; check `success` (the CLI turns a failure
     into an error carrying the status).
     """
