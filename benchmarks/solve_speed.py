@@ -14,7 +14,7 @@ horizon and cached) are reported separately and are not in the solve times.
     .venv/bin/python benchmarks/solve_speed.py [--instances 20] [--horizons 10 20 40] [--codegen | --no-codegen]
         [--tol 1e-6] [--hessian auto|exact|surrogate|gauss-newton] [--solver ipopt|newton] [--limits [--step-s S]]
 
-`--limits`: the OCP with `limits.enforce: true` (the default limits, README "Motion limits"), at
+`--limits`: the OCP with `limits.enforce: true` (the default limits, docs/motion_limits_and_export.md, "Motion limits"), at
 `--step-s` seconds per step (default 0.05) with one observation per waypoint (`tracker_hz = 1 /
 step_s`, the paper's belief model at any pace, as benchmarks/limits_cost.py); the gradient variant
 does not honour limits (its plan is only checked, and fails them). Writes solve_speed_limits*.md.

@@ -30,7 +30,7 @@ def _inputs(setup, problem_path: str) -> list:
     return files
 
 
-# Above this horizon a solve is announced on stderr with what it may cost (README, "Limits").
+# Above this horizon a solve is announced on stderr with what it may cost (problems/README.md, "Limits").
 LONG_HORIZON = 60
 
 
@@ -41,7 +41,7 @@ def _long_work_note(setup) -> None:
 
         print(f"note: horizon T = {T} (at most {MAX_HORIZON}): the first OCP solve at a new horizon compiles its "
               f"derivatives, up to about {20 + 0.55 * T:.0f} s (measured: 46 s at T = 50, 130 s at T = 200; "
-              "cached afterwards, README 'Limits'); Ctrl-C stops", file=sys.stderr, flush=True)
+              "cached afterwards, problems/README.md 'Limits'); Ctrl-C stops", file=sys.stderr, flush=True)
 
 
 def _summary(sol, base=None) -> str:
@@ -61,10 +61,10 @@ def _summary(sol, base=None) -> str:
         lines.append(f"note        solver.codegen auto: {sol.extras['codegen_note'].splitlines()[0]}")
     if sol.status == "Initial_Guess_Kept":
         lines.append("warning     every point the solvers converged to was worse than the initial guess, which is "
-                     "returned (a poor local optimum; see README, rotations near pi)")
+                     "returned (a poor local optimum; see docs/orientation.md)")
     if sol.extras.get("worse_than_initial_guess"):
         lines.append("warning     the optimum found is worse than the initial guess (a poor local optimum; "
-                     "see README, rotations near pi)")
+                     "see docs/orientation.md)")
     unreachable = sum(q is None for q in sol.q)
     if unreachable:
         lines.append(f"reachable   {len(sol.q) - unreachable}/{len(sol.q)} waypoints (IK)")
@@ -194,14 +194,14 @@ def _solver_flags(parser: argparse.ArgumentParser) -> None:
     d = SolverSpec()
     parser.add_argument("--solver", choices=("auto", "ipopt", "newton"),
                         help=f"OCP solver (default: the problem file's solver.name, else {d.name}: projected Newton "
-                             "in the joints where it applies, IPOPT as its fallback; README, 'Solve speed'); "
+                             "in the joints where it applies, IPOPT as its fallback; docs/solve_speed.md); "
                              "OCP methods only")
     parser.add_argument("--hessian", choices=("auto", "exact", "surrogate", "gauss-newton"),
                         help=f"OCP Hessian (default: the problem file's solver.hessian, else {d.hessian}); "
                              "OCP methods only")
     parser.add_argument("--codegen", action=argparse.BooleanOptionalAction, default=None,
                         help="compile the OCP's stage-wise derivatives to C, or not (default: the problem file's "
-                             f"solver.codegen, else {d.codegen}: when a C compiler is found; cached, see README); "
+                             f"solver.codegen, else {d.codegen}: when a C compiler is found; cached, see docs/hessian_and_newton.md); "
                              "OCP methods only")
 
 

@@ -78,7 +78,7 @@ def _robot_urdf(solutions: list[Solution]):
 
 
 def limits_table(solutions: list[Solution]) -> str:
-    """Markdown: each method's motion limits at the planned pace (README "Export"; not enforced by the planners)."""
+    """Markdown: each method's motion limits at the planned pace (docs/motion_limits_and_export.md; not enforced by the planners)."""
     from .limits import markdown_rows, summary_row
 
     reps = [(s.method, s.extras.get("motion_limits")) for s in solutions]

@@ -40,7 +40,7 @@ from .setup import Setup, build_setup, load_robot
 _TOP = {"description", "base", "horizon", "ecm_joints", "start_joints", "goal_joints", "accept", "max_tries",
         "gradient", "detection", "grasp"}
 
-# Grasp tolerances of the simulated Table II (README, "Table II"): the final true pose counts as a successful
+# Grasp tolerances of the simulated Table II (docs/evaluation.md, "Table II"): the final true pose counts as a successful
 # regrasp within these of the goal. 5 mm: half the Large Needle Driver's 10.2 mm jaw (wrist-yaw pivot to tip),
 # so the needle's wire still lands between the jaws, and under half the 11.5 mm needle radius; 0.2 rad: the
 # jaw tip then moves 10.2 mm x 0.2 = 2 mm, inside that budget.

@@ -508,7 +508,7 @@ def register(sub) -> None:
                         "limits, i.e. its problem's limits: section, else the URDF's); repeatable")
     e.add_argument("--acceleration-limit", action="append", metavar="JOINT=A",
                    help="override a joint's acceleration limit [rad/s^2 or m/s^2] (default: the solution's "
-                        "recorded limits, else the dVRK's move_jp values, README 'Export'); repeatable")
+                        "recorded limits, else the dVRK's move_jp values, docs/motion_limits_and_export.md); repeatable")
     e.add_argument("--tool-speed", type=float, metavar="M_S",
                    help="override the tool's translation speed limit [m/s] (default: the recorded one, else 0.1)")
     e.add_argument("--tool-rotation-speed", type=float, metavar="RAD_S",

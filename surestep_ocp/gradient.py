@@ -15,7 +15,7 @@ As published (SURESTEP, section 5 of the method page):
   PyTorch's semantics (`gradient.optimizer: torch`, `lbfgs.py`): `steps` outer `step()`
   calls of up to `max_iter` inner iterations each, torch's tolerances, strong Wolfe line
   search; `gradient.preset: paper` is the reading that reproduces the paper's Table I
-  (50 `step()` calls, `trace_scale` 1e3; README, "Table I").
+  (50 `step()` calls, `trace_scale` 1e3; docs/evaluation.md, "Table I").
 
 By default the loss is NOT rescaled (the paper does not say it was): Tr(Sigma_T) is
 ~1e-5..1e-3 while the pose loss is ~1e-3..1e-1, so the pose loss can dominate;

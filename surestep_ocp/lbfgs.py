@@ -2,7 +2,7 @@
 
 The paper ran "L-BFGS, 50 iterations" in PyTorch. What that means depends on
 torch's optimiser, which differs from scipy's L-BFGS-B in ways that change the
-result (see the README's Table I section):
+result (see docs/evaluation.md, "Table I"):
 
 - `step(closure)` is an *outer* call: it evaluates the loss and gradient once, then
   runs up to `max_iter` inner L-BFGS iterations (default 20), stopping early when

@@ -4,7 +4,7 @@ Axis-angle vectors `r` [rad] parametrise rotations, `R = exp(r)`. The symbolic
 maps avoid the 0/0 at the identity with a Taylor branch evaluated on a safe
 argument (so automatic differentiation never meets a NaN in the unused branch).
 
-Orientation means are continued along the motion (README, "Orientation"): a unit
+Orientation means are continued along the motion (docs/orientation.md): a unit
 quaternion `(w, x, y, z)` (the double cover of SO(3)) is continuous along any joint
 path, and its log `r = 2 atan2(|v|, w) v / |v|` (angle in [0, 2 pi)) is the rotation
 vector an EKF adding increments to `r` carries. It equals the principal vector while

@@ -24,7 +24,7 @@ lifted NLP. Every derivative is one small Function per interval or node, mapped 
 Where it converges: near a solution (the strategy in `ocp.py` starts it at the condensed solution, with
 the adjoint recursion's multipliers). From the straight line IPOPT's filter accepts first steps whose
 covariances are far from the recursion; the trace variable goes negative and it does not recover
-(README, "General belief models and the lifted form").
+(docs/general_models.md).
 """
 
 from __future__ import annotations

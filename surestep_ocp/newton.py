@@ -21,7 +21,7 @@ The minimum-depth bound is not in this formulation: it is checked at the end, an
 violation is a failure, after which `solve_ocp_warm` runs IPOPT (which has the bound).
 Every evaluation is one call of a stage-wise Function (compiled with `solver.codegen`)
 through CasADi's buffer interface (no conversions), so an iteration costs about 0.3 ms at
-T = 20 where IPOPT's own work is 0.43 ms (README, "Solve speed").
+T = 20 where IPOPT's own work is 0.43 ms (docs/solve_speed.md).
 """
 
 from __future__ import annotations

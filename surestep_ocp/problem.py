@@ -122,7 +122,7 @@ class GradientSpec:
 
 
 # `gradient.preset`: values a preset sets (keys given beside it override them). `paper`: the reading that
-# reproduces the paper's Table I (README, "Table I"); `literal`: the same optimiser with the loss as written.
+# reproduces the paper's Table I (docs/evaluation.md, "Table I"); `literal`: the same optimiser with the loss as written.
 GRADIENT_PRESETS = {
     "paper": {"optimizer": "torch", "steps": 50, "max_iter": 20, "line_search": "strong_wolfe", "trace_scale": 1e3},
     "literal": {"optimizer": "torch", "steps": 50, "max_iter": 20, "line_search": "strong_wolfe", "trace_scale": 1.0},
@@ -261,7 +261,7 @@ def problem_from_dict(tree: dict, path: str | Path = "<python>") -> Problem:
 
 
 # Limits of what a problem (or evaluation) file may be and hold (problems/README.md, "Limits").
-MAX_HORIZON = 200  # T (a solve's time and memory grow with T; README "Limits")
+MAX_HORIZON = 200  # T (a solve's time and memory grow with T; problems/README.md "Limits")
 MAX_FILE_BYTES = 1_000_000
 MAX_YAML_DEPTH = 40  # nesting levels
 MAX_YAML_NODES = 100_000  # values in the file, with every alias counted as the size of what it names

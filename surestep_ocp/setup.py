@@ -96,7 +96,7 @@ class Setup:
 
     def poses_of(self, q: np.ndarray) -> np.ndarray:
         """(N, 6) camera-frame means `[p, r]` at the joint vectors `q` (N, nq): the rotation vector continued
-        along the joints from the start's (README, "Orientation"); exp(r) is Pinocchio's rotation (tested)."""
+        along the joints from the start's (docs/orientation.md); exp(r) is Pinocchio's rotation (tested)."""
         q = np.atleast_2d(np.asarray(q, float))
         return np.asarray(self.robot.camera_poses(len(q))(q.T, self.camera_parameter())).T
 

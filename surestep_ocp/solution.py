@@ -19,7 +19,7 @@ from .setup import Setup
 
 @dataclass
 class Solution:
-    """A planned trajectory and its evaluation (see README, "The solution file")."""
+    """A planned trajectory and its evaluation (see docs/solution_file.md)."""
 
     method: str
     problem: str
@@ -209,7 +209,7 @@ def evaluate(
     ext = dict(extras or {})
     tm = prob.timing  # the file's timing (noise's V_* are already divided by frames_per_step)
     ext.setdefault("timing", {"step_s": tm.step_s, "tracker_hz": tm.tracker_hz, "frames_per_step": tm.frames})
-    ext.setdefault("limits", recorded_limits(setup))  # what `surestep export` honours (README "Export")
+    ext.setdefault("limits", recorded_limits(setup))  # what `surestep export` honours (docs/motion_limits_and_export.md, "Export")
     arms = []
     for spec in (prob.start.relative, prob.goal.relative):
         if spec is not None:

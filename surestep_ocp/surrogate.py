@@ -4,7 +4,7 @@ per-interval noise coefficients whose weighted sum is the majorize-minimise surr
 
 With the paper's constants the EKF is six scalar recursions, and `Tr(Sigma_T) = S(c)` with `c` the
 noise coefficients (squared norms of residuals of the means, per interval); `S` is concave and
-nondecreasing in `c`, so `sum_k dS/dc_k c_k(mu)` with the weights frozen majorises it (README,
+nondecreasing in `c`, so `sum_k dS/dc_k c_k(mu)` with the weights frozen majorises it (docs/hessian_and_newton.md,
 "The Hessian").
 """
 

@@ -15,7 +15,7 @@ value, plus an optional joint-step smoothness term. The covariance forms (`solve
 
 The NLP is parametric in the camera pose (the robot base in the camera frame), the scales and Sigma_0, so
 one built solver serves every start, goal and camera pose of a given structure and horizon
-(`solver_setup.transcription` caches it). Measurements: README, "How the OCP is built", and docs/solvers.md.
+(`solver_setup.transcription` caches it). Measurements: docs/method.md and docs/hessian_and_newton.md.
 
 With `limits` (a problem's `limits.enforce: true`, `limits.py`) the NLP also carries the motion limits, each
 row normalised by its limit (so every bound is 1): joint velocities `(q_t+1 - q_t) / (dt v_max)` and

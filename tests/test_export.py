@@ -32,7 +32,7 @@ ARM = ["yaw", "pitch", "insertion", "roll", "wrist_pitch", "wrist_yaw"]
 ACCEL = {"yaw": math.radians(90), "pitch": math.radians(90), "insertion": 0.2, "roll": math.radians(720),
          "wrist_pitch": math.radians(720), "wrist_yaw": math.radians(720), "jaw": math.radians(720)}
 REL = 1e-6  # relative tolerance on a limit
-TOOL_SPEED, TOOL_ROTATION = 0.1, math.pi / 2  # [m/s, rad/s] the default tool limits (README "Export")
+TOOL_SPEED, TOOL_ROTATION = 0.1, math.pi / 2  # [m/s, rad/s] the default tool limits (docs/motion_limits_and_export.md)
 
 
 def urdf_limits(path=PSM):

@@ -109,7 +109,7 @@ def test_lifted_form_converges_back_to_the_condensed_optimum(name):
     """The lifted NLP (vech(Sigma_t) per node, the Kalman step as shooting constraint, IPOPT) started from the
     condensed optimum with the interior joints moved by up to 3 mrad converges back to the same optimum, and its
     own covariance variables agree with the NumPy EKF along its poses. (Its basin is that small: from 10 mrad, or
-    from the straight line, IPOPT does not converge; README, "The lifted form".)"""
+    from the straight line, IPOPT does not converge; docs/general_models.md.)"""
     setup = build_setup(problem(8, **MODELS.get(name, {})))
     cond = solve_ocp(setup, ocp_initial_guess(setup))
     q = np.array(cond.q)

@@ -1,7 +1,7 @@
 """Browser test: headless Chromium renders the static HTML (WebGL via SwiftShader).
 
 Skipped when no Chromium is installed (`make browser` installs it). Uses the same
-`viz.screenshot.screenshot_html` as `surestep show --screenshot` (the README
+`viz.screenshot.screenshot_html` as `surestep show --screenshot` (the docs/
 images). Checks the screenshot for pixels of every path colour and of the arm's
 colour, that two different solution sets give different pictures, and that the
 screenshot function refuses a blank page.

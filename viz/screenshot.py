@@ -1,6 +1,6 @@
 """Screenshot a static Meshcat HTML page with headless Chromium (WebGL via SwiftShader).
 
-Used by `surestep show --screenshot PNG` and by the browser test, so the README
+Used by `surestep show --screenshot PNG` and by the browser test, so the docs/
 images come from the same code the test checks.
 """
 
