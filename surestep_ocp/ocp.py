@@ -73,7 +73,7 @@ def solve_ocp_warm(setup: Setup, init: InitialGuess, solver_options: dict | None
         pre = solve_ocp_warm(setup, init, solver_options, method, "condensed")[0]
         if pre.status == "Initial_Guess_Kept":  # no stationary point to start the lifted NLP from: the same plan
             pre.extras["lifted"] = ("not run: the condensed solve kept its start, where the lifted NLP does not "
-                                    "converge (README, 'General belief models and the lifted form')")
+                                    "converge (docs/general_models.md)")
             return pre, None
         if pre.success:
             init = InitialGuess(np.array(pre.q), f"condensed solution ({init.source})")
