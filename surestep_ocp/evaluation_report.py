@@ -234,15 +234,18 @@ def write_outputs(records, out: Path, methods, modes, header, spec) -> str:
     write_text_atomic(out / "table.md", table + "\n")
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
-    w.writerow(["config", "mode", "method", "metric", "value"])
+    # a method without a plan (or whose rollouts failed) has empty values and its status in `missing`, not a NaN
+    w.writerow(["config", "mode", "method", "metric", "value", "missing"])
     for r in records:
         for mode in modes:
             for m in methods:
                 vals = r["metrics"].get(mode, {}).get(m, {})
+                why = "" if vals else r["solves"].get(m, {}).get("status", "not run")
                 for k in METRICS:
-                    w.writerow([r["config"], mode, m, k, repr(float(vals.get(k, math.nan)))])
+                    w.writerow([r["config"], mode, m, k, repr(float(vals[k])) if k in vals else "", why])
                 for k, key in (("grasp_success", "success"), ("observed", "detected")):
-                    w.writerow([r["config"], mode, m, k, repr(float(r.get(key, {}).get(mode, {}).get(m, math.nan)))])
+                    v = r.get(key, {}).get(mode, {}).get(m)
+                    w.writerow([r["config"], mode, m, k, "" if v is None else repr(float(v)), why])
     write_text_atomic(out / "raw.csv", buf.getvalue())
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")

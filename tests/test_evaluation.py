@@ -97,7 +97,8 @@ def test_evaluate_end_to_end_and_resume(tmp_path, monkeypatch, capsys):
         assert text in table
     with open(out / "raw.csv") as fh:
         rows = list(csv.DictReader(fh))
-    assert list(rows[0]) == ["config", "mode", "method", "metric", "value"]
+    assert list(rows[0]) == ["config", "mode", "method", "metric", "value", "missing"]
+    assert all(r["missing"] == "" for r in rows)
     assert len(rows) == 2 * 2 * 2 * (len(METRICS) + 2)
     assert {r["metric"] for r in rows} == {*METRICS, "grasp_success", "observed"}
     assert {r["method"] for r in rows} == {"baseline", "gradient"}
@@ -234,3 +235,22 @@ def test_sweep_expands_into_runs(tmp_path):
         with pytest.raises(ProblemError) as exc:
             load_sweep(sweep)
         assert key in str(exc.value)
+
+
+def test_raw_csv_says_why_a_value_is_missing(tmp_path):
+    """A method that produced no plan has empty values in raw.csv and the solver's status beside them (no NaN)."""
+    from surestep_ocp.evaluation_report import write_outputs
+
+    out = tmp_path / "run"
+    assert _run(["evaluate", str(EVAL), "--rollouts", "3", "--seed", "0", "--output-dir", str(out), "--configs", "1",
+                 "--methods", "baseline", "--quiet", "--rollout-mode", "model"]) == 0
+    rec = json.loads((out / "progress.jsonl").read_text().splitlines()[0])
+    rec["solves"]["ocp"] = {"success": False, "status": "error: UnreachablePose: no IK", "solve_time_s": 0.1,
+                            "iterations": 0, "evaluated": False}
+    header = json.loads((out / "run.json").read_text())
+    write_outputs([rec], out, ["baseline", "ocp"], ["model"], header, load_evaluation(EVAL))
+    with open(out / "raw.csv") as fh:
+        rows = list(csv.DictReader(fh))
+    missing = [r for r in rows if r["method"] == "ocp"]
+    assert missing and all(r["value"] == "" and r["missing"] == "error: UnreachablePose: no IK" for r in missing)
+    assert all(r["missing"] == "" and np.isfinite(float(r["value"])) for r in rows if r["method"] == "baseline")
