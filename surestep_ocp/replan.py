@@ -17,6 +17,7 @@ from .belief import unvech, vech
 from .errors import SurestepError
 from .lie import matrix_to_pose
 from .methods import run_method
+from .outputs import check_finite
 from .planner import Planner
 from .setup import Setup
 from .solution import Solution, evaluate, write_json_atomic, write_text_atomic
@@ -71,7 +72,10 @@ def replan(setup: Setup, out_dir: Path, progress=None) -> dict:
                         status=f"{len(plans)} re-plans", solve_time_s=total_time, iterations=total_iter,
                         objective=np.nan, extras={"replans_at_steps": [int(p.method.rsplit('-', 1)[1]) for p in plans]})
     executed.objective = executed.trace_final
-    for sol in (baseline, once, executed, *plans):
+    solutions = (baseline, once, executed, *plans)
+    for sol in solutions:  # every solution checked before any file is written: the set is written whole or not at all
+        check_finite(sol.to_dict(), f"the {sol.method} solution")
+    for sol in solutions:
         sol.save(out_dir / f"{sol.method}.json")
     rows = [(s.method, s.trace_final, s.terminal_error[0], s.solve_time_s, s.iterations)
             for s in (baseline, once, executed)]
