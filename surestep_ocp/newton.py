@@ -47,6 +47,9 @@ EXACT_BELOW = 1e-3  # projected gradient (objective 1 at the start) below which 
 # i.e. T = 40 included, the T = 40 median of benchmarks/solve_speed.py rose from 0.79 to 1.04 of the gradient
 # variant's: two dense steps cost more than the surrogate iterations they save.)
 EXACT_MAX_N = 200
+# Newton stops as "Stalled" when the objective fell by less than STALL_DECREASE (relative) over STALL_WINDOW iterations
+# (a warm re-plan with exact steps ran its 300-iteration cap in 1 s this way, where the fallback took 50 ms)
+STALL_WINDOW, STALL_DECREASE = 10, 1e-10
 
 
 class _Buffered:
@@ -170,10 +173,14 @@ class NewtonSolver:
                         and np.allclose(x[:nq], setup.q_start, atol=1e-12))
         P[CAMERA_PARAMETERS] = trace_ref = float(self.step(x, P)[0][0])  # the objective is 1 (plus smoothness) at the start
         status, it, shift = "Maximum_Iterations_Exceeded" if start_ok else "Infeasible_Start", 0, 0.0
-        exact_steps = 0
+        exact_steps, history = 0, []
         while start_ok and it <= max_iter:
             _, f_val, G, HB = self.step(x, P)
             f_val = float(f_val[0])
+            history.append(f_val)
+            if len(history) > STALL_WINDOW and history[-STALL_WINDOW - 1] - f_val <= STALL_DECREASE * abs(f_val):
+                status = "Stalled"  # not converged, and not getting there: the caller's fallback, not the cap
+                break
             g = np.bincount(self.g_index, weights=G, minlength=n)
             held = ((x <= lo) & (g > 0)) | ((x >= hi) & (g < 0))
             idx = np.flatnonzero(free & ~held)

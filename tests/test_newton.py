@@ -135,3 +135,19 @@ def test_kept_start_names_the_solvers_that_ran_and_smoothness_counts():
     assert sol.success and sol.status != "Initial_Guess_Kept", sol.extras["hessian"]
     assert sol.objective < sol.extras["initial_objective"]
     assert not sol.extras["worse_than_initial_guess"]
+
+
+def test_newton_stops_when_it_stalls(short):
+    """From its own optimum with tol 0 (unreachable) Newton cannot decrease the objective: it stops as 'Stalled'
+    after its window of iterations instead of running to max_iter, and hands over (not a success)."""
+    from surestep_ocp.newton import STALL_WINDOW
+    from surestep_ocp.solver_setup import newton_solver
+    from surestep_ocp.transcription import InitialGuess
+
+    solver = newton_solver(short)
+    opt = solver.run(short, ocp_initial_guess(short), tol=1e-6)
+    assert opt.status == "Solve_Succeeded"
+    stalled = solver.run(short, InitialGuess(opt.q, "its optimum"), tol=0.0, max_iter=300)
+    assert stalled.status == "Stalled" and not stalled.success
+    assert stalled.iterations <= STALL_WINDOW + 2
+    assert stalled.trace == pytest.approx(opt.trace, rel=1e-9)
