@@ -117,8 +117,13 @@ class Planner:
             # From a tracker update the previous plan is near the optimum: Newton's exact steps from the first (the
             # surrogate's converge linearly: 20 iterations where 3 exact ones do). After a camera move it is not, and
             # the exact Hessian is often indefinite there: the usual switch (type4_camera_moves: 2-5x faster).
-            run = built[0].run(sub, warm, tol=spec.tol, max_iter=min(spec.surrogate_max_iter, spec.max_iter),
-                               exact_below=EXACT_BELOW if moved else np.inf)
+            # A run that stalls with exact steps from the first gets the usual switch from the same start next (the
+            # worst re-plan of benchmarks/replan_rate.py: 72 ms through the whole strategy, about 35 ms this way).
+            for exact_below in (EXACT_BELOW,) if moved else (np.inf, EXACT_BELOW):
+                run = built[0].run(sub, warm, tol=spec.tol, max_iter=min(spec.surrogate_max_iter, spec.max_iter),
+                                   exact_below=exact_below)
+                if run.status not in ("Stalled", "Maximum_Iterations_Exceeded", "Line_Search_Failed"):
+                    break  # converged, or a failure the switch does not change (a depth bound, an infeasible start)
             if run.success:
                 sig = np.asarray(built[1](run.mu.T, vech(cov))).T[:, _UNVECH]
                 sol = evaluate(sub, "ocp-replan", run.mu, list(run.q), success=True, status=run.status,
