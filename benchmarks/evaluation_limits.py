@@ -21,7 +21,7 @@ from pathlib import Path
 
 import yaml
 
-from surestep_ocp.solution import write_text_atomic
+from surestep_ocp.output.solution import write_text_atomic
 
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "out" / "evaluation_limits"

@@ -1,8 +1,8 @@
 """The OCP's plans against the motion limits, at their planned pace and exported (`surestep export`).
 
 For configurations 0..N-1 of problems/evaluations/evaluation.yaml (seed 0, T = 20): the OCP plan
-(default solver), its limit report at the planned pace (surestep_ocp.limits.plan_report), then the
-exported trajectory (surestep_ocp.export.time_parametrise, within the joint and the tool's speed
+(default solver), its limit report at the planned pace (surestep_ocp.model.limits.plan_report), then the
+exported trajectory (surestep_ocp.output.export.time_parametrise, within the joint and the tool's speed
 limits), checked here from its samples alone: positions within the URDF limits, |dq/dt| and |dv/dt|
 between samples within the velocity and acceleration limits, the tool's translation and rotation
 between samples (FK) within its speed limits, every waypoint a sample. Writes
@@ -19,11 +19,11 @@ from pathlib import Path
 
 import numpy as np
 
-from surestep_ocp.configs import ConfigurationSampler, load_evaluation
-from surestep_ocp.export import time_parametrise, within_position_limits
-from surestep_ocp.limits import motion_limits, plan_report
-from surestep_ocp.methods import run_method
-from surestep_ocp.plots_motion import tool_speeds
+from surestep_ocp.evaluation.configs import ConfigurationSampler, load_evaluation
+from surestep_ocp.output.export import time_parametrise, within_position_limits
+from surestep_ocp.model.limits import motion_limits, plan_report
+from surestep_ocp.solvers.methods import run_method
+from surestep_ocp.output.plots_motion import tool_speeds
 
 ROOT = Path(__file__).resolve().parents[1]
 

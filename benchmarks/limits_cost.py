@@ -20,13 +20,13 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
-from surestep_ocp.configs import ConfigurationSampler, load_evaluation
-from surestep_ocp.limits import plan_report, problem_limits
-from surestep_ocp.methods import ocp_initial_guess, run_method
-from surestep_ocp.ocp import solve_ocp
-from surestep_ocp.problem import LimitsSpec, TimingSpec
-from surestep_ocp.setup import build_setup
-from surestep_ocp.solution import write_text_atomic
+from surestep_ocp.evaluation.configs import ConfigurationSampler, load_evaluation
+from surestep_ocp.model.limits import plan_report, problem_limits
+from surestep_ocp.solvers.methods import ocp_initial_guess, run_method
+from surestep_ocp.solvers.ocp import solve_ocp
+from surestep_ocp.problem.problem import LimitsSpec, TimingSpec
+from surestep_ocp.problem.setup import build_setup
+from surestep_ocp.output.solution import write_text_atomic
 
 ROOT = Path(__file__).resolve().parents[1]
 

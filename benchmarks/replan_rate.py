@@ -25,10 +25,10 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from surestep_ocp.configs import ConfigurationSampler, load_evaluation
+from surestep_ocp.evaluation.configs import ConfigurationSampler, load_evaluation
 from surestep_ocp.errors import SurestepError
-from surestep_ocp.planner import Planner
-from surestep_ocp.tracker import SimulatedTracker
+from surestep_ocp.solvers.planner import Planner
+from surestep_ocp.evaluation.tracker import SimulatedTracker
 
 
 def main() -> int:

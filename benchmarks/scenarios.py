@@ -20,7 +20,7 @@ from pathlib import Path
 
 import yaml
 
-from surestep_ocp.solution import write_text_atomic
+from surestep_ocp.output.solution import write_text_atomic
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENARIOS = ["needle_regrasp", "type1_easy", "type1_medium", "type1_hard", "type2_needle_arm_moves",

@@ -38,14 +38,14 @@ from pathlib import Path
 
 import numpy as np
 
-from surestep_ocp import ocp as ocp_mod
-from surestep_ocp.configs import ConfigurationSampler, load_evaluation
-from surestep_ocp.gradient import solve_gradient
-from surestep_ocp.lie import np_exp
-from surestep_ocp.methods import ocp_initial_guess
-from surestep_ocp.problem import LimitsSpec, TimingSpec
-from surestep_ocp.setup import build_setup
-from surestep_ocp.solution import write_text_atomic
+from surestep_ocp.solvers import ocp as ocp_mod
+from surestep_ocp.evaluation.configs import ConfigurationSampler, load_evaluation
+from surestep_ocp.solvers.gradient import solve_gradient
+from surestep_ocp.model.lie import np_exp
+from surestep_ocp.solvers.methods import ocp_initial_guess
+from surestep_ocp.problem.problem import LimitsSpec, TimingSpec
+from surestep_ocp.problem.setup import build_setup
+from surestep_ocp.output.solution import write_text_atomic
 
 ROOT = Path(__file__).resolve().parents[1]
 

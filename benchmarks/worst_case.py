@@ -26,13 +26,13 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from surestep_ocp.baseline import solve_baseline  # noqa: E402
-from surestep_ocp.configs import ConfigurationSampler, load_evaluation  # noqa: E402
-from surestep_ocp.gradient import solve_gradient  # noqa: E402
-from surestep_ocp.methods import ocp_initial_guess  # noqa: E402
-from surestep_ocp.ocp import solve_ocp  # noqa: E402
-from surestep_ocp.setup import build_setup  # noqa: E402
-from surestep_ocp.solution import write_text_atomic  # noqa: E402
+from surestep_ocp.solvers.baseline import solve_baseline  # noqa: E402
+from surestep_ocp.evaluation.configs import ConfigurationSampler, load_evaluation  # noqa: E402
+from surestep_ocp.solvers.gradient import solve_gradient  # noqa: E402
+from surestep_ocp.solvers.methods import ocp_initial_guess  # noqa: E402
+from surestep_ocp.solvers.ocp import solve_ocp  # noqa: E402
+from surestep_ocp.problem.setup import build_setup  # noqa: E402
+from surestep_ocp.output.solution import write_text_atomic  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))

@@ -14,9 +14,9 @@ Names are imported on first use, so `import surestep_ocp` stays light (the CLI s
 __version__ = "0.1.0"
 
 _EXPORTS = {
-    "load_problem": "problem", "problem_from_dict": "problem", "Problem": "problem",
-    "solve": "api", "Solution": "solution", "Planner": "planner", "SimulatedTracker": "tracker",
-    "SurestepError": "errors", "ProblemError": "errors", "METHODS": "methods",
+    "load_problem": "problem.problem", "problem_from_dict": "problem.problem", "Problem": "problem.problem",
+    "solve": "api", "Solution": "output.solution", "Planner": "solvers.planner", "SimulatedTracker": "evaluation.tracker",
+    "SurestepError": "errors", "ProblemError": "errors", "METHODS": "solvers.methods",
 }
 __all__ = ["METHODS", "Planner", "Problem", "ProblemError", "SimulatedTracker", "Solution", "SurestepError",
            "load_problem", "problem_from_dict", "solve"]

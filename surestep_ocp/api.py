@@ -8,8 +8,8 @@
 
 from __future__ import annotations
 
-from .problem import Problem
-from .solution import Solution
+from .problem.problem import Problem
+from .output.solution import Solution
 
 
 def solve(problem: Problem, method: str = "ocp") -> Solution:
@@ -20,7 +20,7 @@ def solve(problem: Problem, method: str = "ocp") -> Solution:
     a solver failure returns a Solution with its `status`. Raises ProblemError (naming the key) when the
     problem cannot be set up (an unreachable goal, joints outside their limits).
     """
-    from .methods import run_method
-    from .setup import build_setup
+    from .solvers.methods import run_method
+    from .problem.setup import build_setup
 
     return run_method(build_setup(problem), method)

@@ -14,8 +14,8 @@ from .errors import SolverError, SurestepError
 
 
 def _load(path: str):
-    from .problem import load_problem
-    from .setup import build_setup
+    from .problem.problem import load_problem
+    from .problem.setup import build_setup
 
     return build_setup(load_problem(path))
 
@@ -37,7 +37,7 @@ LONG_HORIZON = 60
 def _long_work_note(setup) -> None:
     T = setup.problem.horizon
     if T > LONG_HORIZON:
-        from .problem import MAX_HORIZON
+        from .problem.problem import MAX_HORIZON
 
         print(f"note: horizon T = {T} (at most {MAX_HORIZON}): the first OCP solve at a new horizon compiles its "
               f"derivatives, up to about {20 + 0.55 * T:.0f} s (measured: 46 s at T = 50, 130 s at T = 200; "
@@ -82,9 +82,9 @@ def _with_solver_flags(setup, args):
 
 
 def cmd_solve(args) -> int:
-    from .methods import run_method
+    from .solvers.methods import run_method
 
-    from .outputs import check_finite, check_output_file
+    from .output.outputs import check_finite, check_output_file
 
     method = _with_init(args.method, args.init)
     _check_ocp_flags([method], args, "--method")
@@ -107,10 +107,10 @@ def cmd_solve(args) -> int:
 
 
 def cmd_compare(args) -> int:
-    from .compare import run_comparison, write_comparison
-    from .methods import COMPARE_METHODS
+    from .output.compare import run_comparison, write_comparison
+    from .solvers.methods import COMPARE_METHODS
 
-    from .outputs import check_finite, check_output_dir, check_output_file
+    from .output.outputs import check_finite, check_output_dir, check_output_file
 
     methods = tuple(args.methods) if args.methods else COMPARE_METHODS
     _check_ocp_flags(methods, args, "--methods")
@@ -136,9 +136,9 @@ def cmd_compare(args) -> int:
 
 
 def cmd_replan(args) -> int:
-    from .replan import replan
+    from .solvers.replan import replan
 
-    from .outputs import check_output_dir
+    from .output.outputs import check_output_dir
 
     setup = _with_solver_flags(_load(args.problem), args)
     check_output_dir(args.output_dir, _inputs(setup, args.problem), "the re-planning")
@@ -175,7 +175,7 @@ def cmd_show(args) -> int:
         raise SurestepError(f"{target}: no such file or directory")
     solutions = None
     if target.suffix in (".yaml", ".yml"):
-        from .methods import run_method
+        from .solvers.methods import run_method
 
         setup = _load(str(target))
         solutions = [run_method(setup, "baseline").to_dict()]
@@ -189,7 +189,7 @@ OCP_FLAGS = ("solver", "hessian", "codegen")  # act on the OCP only (method_name
 
 def _solver_flags(parser: argparse.ArgumentParser) -> None:
     """--solver, --hessian, --codegen: the OCP's settings over the problem file's `solver:` section."""
-    from .problem import SolverSpec
+    from .problem.problem import SolverSpec
 
     d = SolverSpec()
     parser.add_argument("--solver", choices=("auto", "ipopt", "newton"),
@@ -207,7 +207,7 @@ def _solver_flags(parser: argparse.ArgumentParser) -> None:
 
 def _method_name(name: str) -> str:
     """argparse type of a method name: unknown names are a usage error listing the grammar."""
-    from .method_names import split_name
+    from .solvers.method_names import split_name
 
     try:
         split_name(name)
@@ -218,7 +218,7 @@ def _method_name(name: str) -> str:
 
 def _with_init(method: str, init: str | None) -> str:
     """The method `--init` asks for: `--init gradient` turns ocp (or a variant) into ocp-from-gradient."""
-    from .method_names import split_name
+    from .solvers.method_names import split_name
 
     if init is None:
         return method
@@ -230,7 +230,7 @@ def _with_init(method: str, init: str | None) -> str:
 
 def _check_ocp_flags(methods, args, flag: str) -> None:
     """An OCP flag (--solver, --hessian, --codegen) with no OCP method to act on is an error."""
-    from .method_names import OCP_METHODS, split_name
+    from .solvers.method_names import OCP_METHODS, split_name
 
     given = [f"--{n}" for n in OCP_FLAGS if getattr(args, n, None) is not None]
     if given and not any(split_name(m)[0] in OCP_METHODS for m in methods):
@@ -260,7 +260,7 @@ class _OneLineParser(argparse.ArgumentParser):
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from .method_names import BASE_METHODS, grammar
+    from .solvers.method_names import BASE_METHODS, grammar
 
     p = _OneLineParser(prog="surestep", description="Uncertainty-aware trajectory optimisation (SURESTEP).")
     p.add_argument("--version", action="version", version=f"surestep {_version()}")
@@ -305,12 +305,12 @@ def build_parser() -> argparse.ArgumentParser:
     w.add_argument("--endoscope-view", action="store_true", help="look through the endoscope")
     w.set_defaults(func=cmd_show)
 
-    from .evaluation import register as register_evaluate
-    from .export import register as register_export
+    from .evaluation.evaluation import register as register_evaluate
+    from .output.export import register as register_export
 
     register_evaluate(sub)
     register_export(sub)
-    from .sweep import register as register_sweep
+    from .evaluation.sweep import register as register_sweep
 
     register_sweep(sub)
     return p

@@ -23,7 +23,7 @@ def default_problem_tree() -> dict:
 @pytest.fixture(scope="session")
 def default_problem():
     """The default problem, loaded once per session (a frozen dataclass: safe to share)."""
-    from surestep_ocp.problem import load_problem
+    from surestep_ocp.problem.problem import load_problem
 
     return load_problem(DEFAULT_PROBLEM)
 
@@ -35,7 +35,7 @@ def default_setup(default_problem):
     Shared: tests must not mutate it (use `dataclasses.replace` on the problem and
     `build_setup` for a variant).
     """
-    from surestep_ocp.setup import build_setup
+    from surestep_ocp.problem.setup import build_setup
 
     return build_setup(default_problem)
 

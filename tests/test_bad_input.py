@@ -22,8 +22,8 @@ import yaml
 
 from surestep_ocp import cli
 from surestep_ocp.errors import ProblemError, SurestepError
-from surestep_ocp.problem import MAX_HORIZON, load_problem
-from surestep_ocp.setup import build_setup
+from surestep_ocp.problem.problem import MAX_HORIZON, load_problem
+from surestep_ocp.problem.setup import build_setup
 
 REPO = Path(__file__).resolve().parents[1]
 DEFAULT = REPO / "problems" / "needle_regrasp.yaml"
@@ -61,7 +61,7 @@ def write(tmp_path: Path, edit=None, name: str = "p.yaml", text: str | None = No
 @pytest.fixture()
 def no_work(monkeypatch):
     """`run_method` that fails the test: the command must stop before any solve."""
-    import surestep_ocp.methods as methods
+    import surestep_ocp.solvers.methods as methods
 
     def forbidden(*args, **kwargs):
         raise AssertionError("the work started before the bad input was refused")
@@ -126,8 +126,8 @@ def test_replan_output_dir_under_a_file_is_refused_before_the_work(tmp_path, cap
 
 def test_a_non_finite_solution_is_not_written(tmp_path, default_setup):
     """NaN in a solution: an error naming the key that diverged, and no file."""
-    from surestep_ocp.baseline import solve_baseline
-    from surestep_ocp.outputs import NonFinite
+    from surestep_ocp.solvers.baseline import solve_baseline
+    from surestep_ocp.output.outputs import NonFinite
 
     sol = solve_baseline(default_setup)
     sol.trace[3] = math.nan
@@ -221,7 +221,7 @@ def test_plain_exponents_are_numbers(tmp_path):
 
 # ------------------------------------------------------------------ show
 def _solution(tmp_path, default_setup) -> Path:
-    from surestep_ocp.baseline import solve_baseline
+    from surestep_ocp.solvers.baseline import solve_baseline
 
     out = tmp_path / "sol.json"
     solve_baseline(default_setup).save(out)
@@ -356,13 +356,13 @@ def test_a_corrupt_cached_library_is_rebuilt_with_a_note(tmp_path):
     In a subprocess: loading a truncated shared library can kill the process (SIGBUS).
     """
     pytest.importorskip("casadi")
-    from surestep_ocp.codegen import available
+    from surestep_ocp.solvers.codegen import available
 
     if not available():
         pytest.skip("no C compiler")
     script = """
 import casadi as ca
-from surestep_ocp import codegen
+from surestep_ocp.solvers import codegen
 x = ca.SX.sym("x", 3)
 g, fresh = codegen.compiled(ca.Function("fuzz_cache_probe", [x], [ca.sin(x) * x]))
 print(fresh, float(g([1, 2, 3])[1]))

@@ -1,4 +1,4 @@
-"""The CasADi belief model (surestep_ocp.belief) against a plain NumPy EKF (tests/numpy_ekf.py).
+"""The CasADi belief model (surestep_ocp.model.belief) against a plain NumPy EKF (tests/numpy_ekf.py).
 
 The NumPy EKF is written from surestep_method.md sections 3-4 only; it shares no
 code with the package (rotations from scipy, textbook EKF step).
@@ -13,7 +13,7 @@ import numpy as np
 import numpy_ekf as ref
 import pytest
 
-from surestep_ocp.belief import (
+from surestep_ocp.model.belief import (
     COSINE_GUARD,
     COMPONENTS,
     NV,
@@ -24,7 +24,7 @@ from surestep_ocp.belief import (
     unvech,
     vech,
 )
-from surestep_ocp.camera import Intrinsics
+from surestep_ocp.model.camera import Intrinsics
 
 CAMERA = Intrinsics(
     fx=768.98551924, fy=768.98551924, cx=292.8861567, cy=291.61479526, width=640, height=480

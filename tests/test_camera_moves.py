@@ -8,12 +8,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from surestep_ocp.belief import BeliefModel, NoiseParams, unvech, vech
-from surestep_ocp.camera import Intrinsics
-from surestep_ocp.lie import matrix_to_pose, np_exp, pose_to_matrix
-from surestep_ocp.problem import CameraMove, load_problem
-from surestep_ocp.replan import replan
-from surestep_ocp.setup import build_setup
+from surestep_ocp.model.belief import BeliefModel, NoiseParams, unvech, vech
+from surestep_ocp.model.camera import Intrinsics
+from surestep_ocp.model.lie import matrix_to_pose, np_exp, pose_to_matrix
+from surestep_ocp.problem.problem import CameraMove, load_problem
+from surestep_ocp.solvers.replan import replan
+from surestep_ocp.problem.setup import build_setup
 
 PROBLEMS = Path(__file__).resolve().parents[1] / "problems"
 CAMERA = Intrinsics(fx=769.0, fy=769.0, cx=320.0, cy=240.0, width=640, height=480)

@@ -118,7 +118,7 @@ def test_solver_flags_hessian_newton_and_fatrop(tmp_path):
     assert res.returncode == 2 and "solver.name" in res.stderr and "ipopt" in res.stderr
 
 
-@pytest.mark.skipif(not __import__("surestep_ocp.codegen").codegen.available(), reason="no C compiler on this machine")
+@pytest.mark.skipif(not __import__("surestep_ocp.solvers.codegen").solvers.codegen.available(), reason="no C compiler on this machine")
 def test_codegen_compiles_once_and_gives_the_same_plan(tmp_path):
     """--codegen: the compiled derivatives give the VM's plan; the second run loads the cached libraries."""
     path = small_problem(tmp_path, horizon=3)

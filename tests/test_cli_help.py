@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 
 from surestep_ocp.cli import build_parser, main
-from surestep_ocp.method_names import ABLATIONS, BASE_METHODS, EXPECTED, PREDICTED
+from surestep_ocp.solvers.method_names import ABLATIONS, BASE_METHODS, EXPECTED, PREDICTED
 
 REPO = Path(__file__).resolve().parents[1]
 DEFAULT = REPO / "problems" / "needle_regrasp.yaml"
@@ -45,7 +45,7 @@ def test_every_stated_default_is_argparses(monkeypatch):
 
 def test_solver_flag_defaults_are_the_solver_specs(monkeypatch, write_problem):
     """--solver/--hessian/--codegen state SolverSpec's defaults; every offered --solver is one a problem accepts."""
-    from surestep_ocp.problem import SolverSpec, load_problem
+    from surestep_ocp.problem.problem import SolverSpec, load_problem
 
     d = SolverSpec()
     text = help_text(subparsers()["solve"], monkeypatch)
@@ -63,7 +63,7 @@ def test_help_lists_every_method_name_from_the_registry(monkeypatch):
         for part in (*BASE_METHODS, *ABLATIONS, EXPECTED, PREDICTED):
             assert part in text, (cmd, part)
     assert "(default: " + " ".join(BASE_METHODS) + ")" in help_text(subparsers()["compare"], monkeypatch)
-    from surestep_ocp.methods import COMPARE_METHODS
+    from surestep_ocp.solvers.methods import COMPARE_METHODS
 
     assert COMPARE_METHODS == BASE_METHODS
 

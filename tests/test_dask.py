@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from surestep_ocp import evaluation
+from surestep_ocp.evaluation import evaluation
 from surestep_ocp.errors import SurestepError
 
 distributed = pytest.importorskip("distributed")  # in the test extra; skipped only where it is not installed

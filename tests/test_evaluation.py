@@ -1,4 +1,4 @@
-"""Random configurations (surestep_ocp.configs) and the `evaluate` runner (surestep_ocp.evaluation)."""
+"""Random configurations (surestep_ocp.evaluation.configs) and the `evaluate` runner (surestep_ocp.evaluation.evaluation)."""
 
 from __future__ import annotations
 
@@ -11,11 +11,13 @@ import numpy as np
 import pytest
 import yaml
 
-from surestep_ocp import evaluation, evaluation_report
-from surestep_ocp.configs import ConfigurationSampler, load_evaluation
+from surestep_ocp.evaluation import evaluation
+
+from surestep_ocp.evaluation import evaluation_report
+from surestep_ocp.evaluation.configs import ConfigurationSampler, load_evaluation
 from surestep_ocp.errors import ProblemError, SurestepError
-from surestep_ocp.metrics import relative
-from surestep_ocp.rollout import METRICS
+from surestep_ocp.evaluation.metrics import relative
+from surestep_ocp.evaluation.rollout import METRICS
 
 REPO = Path(__file__).resolve().parents[1]
 EVAL = REPO / "problems" / "evaluations" / "evaluation.yaml"
@@ -213,7 +215,7 @@ def test_evaluation_file_detection_grasp_and_gradient_keys(tmp_path):
 
 def test_sweep_expands_into_runs(tmp_path):
     """A sweep file's runs and grid become evaluate runs with their own derived files and a summary."""
-    from surestep_ocp.sweep import load_sweep, run_sweep
+    from surestep_ocp.evaluation.sweep import load_sweep, run_sweep
 
     sweep = tmp_path / "s.yaml"
     sweep.write_text(yaml.safe_dump({
@@ -239,7 +241,7 @@ def test_sweep_expands_into_runs(tmp_path):
 
 def test_raw_csv_says_why_a_value_is_missing(tmp_path):
     """A method that produced no plan has empty values in raw.csv and the solver's status beside them (no NaN)."""
-    from surestep_ocp.evaluation_report import write_outputs
+    from surestep_ocp.evaluation.evaluation_report import write_outputs
 
     out = tmp_path / "run"
     assert _run(["evaluate", str(EVAL), "--rollouts", "3", "--seed", "0", "--output-dir", str(out), "--configs", "1",

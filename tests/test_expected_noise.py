@@ -8,8 +8,8 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from surestep_ocp.belief import BeliefModel, NoiseParams, vech
-from surestep_ocp.camera import Intrinsics
+from surestep_ocp.model.belief import BeliefModel, NoiseParams, vech
+from surestep_ocp.model.camera import Intrinsics
 
 CAMERA = Intrinsics(fx=768.98551924, fy=768.98551924, cx=292.8861567, cy=291.61479526, width=640, height=480)
 X = np.array([0.03, -0.02, 0.12, 0.5, 0.3, 1.4])  # a tool pose off the ideal one [m, rad]
@@ -95,8 +95,8 @@ def test_expected_noise_never_vanishes_while_uncertain():
 def predicted_setup():
     from pathlib import Path
 
-    from surestep_ocp.problem import load_problem
-    from surestep_ocp.setup import build_setup
+    from surestep_ocp.problem.problem import load_problem
+    from surestep_ocp.problem.setup import build_setup
 
     p = load_problem(Path(__file__).resolve().parents[1] / "problems" / "needle_regrasp.yaml")
     return build_setup(replace(p, horizon=6, noise=replace(p.noise, objective="predicted")))
@@ -105,7 +105,7 @@ def predicted_setup():
 @pytest.mark.parametrize("method", ["gradient-no-pose-loss", "ocp"])
 def test_predicted_objective_is_the_covariance_before_the_last_update(predicted_setup, method):
     """`objective.covariance: predicted` minimises Tr(Sigma_T|T-1), as the exact EKF computes it."""
-    from surestep_ocp.methods import run_method
+    from surestep_ocp.solvers.methods import run_method
 
     sol = run_method(predicted_setup, method)
     _, pred = predicted_setup.eval_model.propagate(np.array(sol.poses))
@@ -117,7 +117,7 @@ def test_unknown_objective_is_a_problem_error(tmp_path):
     from pathlib import Path
 
     from surestep_ocp.errors import ProblemError
-    from surestep_ocp.problem import load_problem
+    from surestep_ocp.problem.problem import load_problem
 
     text = (Path(__file__).resolve().parents[1] / "problems" / "needle_regrasp.yaml").read_text()
     path = tmp_path / "bad.yaml"

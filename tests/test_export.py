@@ -23,7 +23,7 @@ import pytest
 import yaml
 
 from surestep_ocp.cli import main
-from surestep_ocp.methods import run_method
+from surestep_ocp.solvers.methods import run_method
 
 REPO = Path(__file__).resolve().parents[1]
 PSM = REPO / "robots" / "psm.urdf"
@@ -51,9 +51,9 @@ LIMITS = urdf_limits()
 def plans(tmp_path_factory):
     """The default problem's OCP and straight-line plans, and an evaluation configuration whose OCP plan
     turns the roll joint by most of its range in one step (issue 14, configuration 72)."""
-    from surestep_ocp.configs import ConfigurationSampler, load_evaluation
-    from surestep_ocp.problem import load_problem
-    from surestep_ocp.setup import build_setup
+    from surestep_ocp.evaluation.configs import ConfigurationSampler, load_evaluation
+    from surestep_ocp.problem.problem import load_problem
+    from surestep_ocp.problem.setup import build_setup
 
     d = tmp_path_factory.mktemp("plans")
     setup = build_setup(load_problem(REPO / "problems" / "needle_regrasp.yaml"))
@@ -320,7 +320,7 @@ def test_every_evaluation_configuration_exports_within_every_limit(tmp_path):
     """Issue 14's criterion: the OCP plan of each of the 100 evaluation configurations (seed 0), exported in
     turn as JSON, CSV and ROS 2 and read back, is within every joint position, velocity and acceleration
     limit and the tool's speed limits (computed here), and passes every waypoint at its stated time."""
-    from surestep_ocp.configs import ConfigurationSampler, load_evaluation
+    from surestep_ocp.evaluation.configs import ConfigurationSampler, load_evaluation
 
     sampler = ConfigurationSampler(load_evaluation(REPO / "problems" / "evaluations" / "evaluation.yaml"))
     peaks = []

@@ -9,12 +9,12 @@ import numpy as np
 import pytest
 
 import numpy_ekf as ref
-from surestep_ocp.baseline import solve_baseline
-from surestep_ocp.configs import ConfigurationSampler, load_evaluation
-from surestep_ocp.methods import ocp_initial_guess
-from surestep_ocp.ocp import solve_ocp
-from surestep_ocp.problem import load_problem
-from surestep_ocp.setup import build_setup
+from surestep_ocp.solvers.baseline import solve_baseline
+from surestep_ocp.evaluation.configs import ConfigurationSampler, load_evaluation
+from surestep_ocp.solvers.methods import ocp_initial_guess
+from surestep_ocp.solvers.ocp import solve_ocp
+from surestep_ocp.problem.problem import load_problem
+from surestep_ocp.problem.setup import build_setup
 
 DEFAULT = Path(__file__).resolve().parents[1] / "problems" / "needle_regrasp.yaml"
 EVALUATION = DEFAULT.parent / "evaluations" / "evaluation.yaml"
@@ -30,7 +30,7 @@ def test_a_false_infeasibility_verdict_is_retried_with_the_monotone_barrier(monk
     """IPOPT alone on the default problem (T = 6), its first attempt made to end "infeasible" (as the adaptive barrier
     did on evaluation configuration 73 at T = 40, compiled): the monotone barrier with the same Hessian runs next,
     and no exact-Hessian attempt; its plan is IPOPT's own optimum, below the straight line."""
-    import surestep_ocp.transcription as tr
+    import surestep_ocp.solvers.transcription as tr
 
     setup = build_setup(replace(load_problem(DEFAULT), horizon=6))
     setup = replace(setup, problem=replace(setup.problem, solver=replace(setup.problem.solver, name="ipopt")))

@@ -12,8 +12,8 @@ import re
 import numpy as np
 import pytest
 
-from surestep_ocp.method_names import BASE_METHODS, REPLAN_METHODS, all_names
-from surestep_ocp.styles import known, style_of, styles_of
+from surestep_ocp.solvers.method_names import BASE_METHODS, REPLAN_METHODS, all_names
+from surestep_ocp.output.styles import known, style_of, styles_of
 
 UNIT = re.compile(r"\[[^\]]+\]")
 
@@ -30,9 +30,9 @@ def test_every_method_name_has_its_own_style():
 
 def test_registry_is_what_the_code_runs():
     """The style registry's names are the ones `run_method` parses, compare and evaluate run."""
-    from surestep_ocp.belief import COMPONENTS
-    from surestep_ocp.evaluation import DEFAULT_METHODS
-    from surestep_ocp.methods import COMPARE_METHODS, parse_method
+    from surestep_ocp.model.belief import COMPONENTS
+    from surestep_ocp.evaluation.evaluation import DEFAULT_METHODS
+    from surestep_ocp.solvers.methods import COMPARE_METHODS, parse_method
 
     names = all_names()
     for m in names:
@@ -53,7 +53,7 @@ def test_scene_colours_are_the_png_colours():
 @pytest.fixture(scope="module")
 def solutions(default_setup):
     """The default problem's baseline under five method names, ocp and ocp-from-gradient coinciding."""
-    from surestep_ocp.methods import run_method
+    from surestep_ocp.solvers.methods import run_method
 
     base = run_method(default_setup, "baseline")
     out = []
@@ -78,7 +78,7 @@ def _lines(ax, label):
 
 def test_trace_figure_splits_position_and_orientation(solutions):
     """Two panels in m^2 and rad^2 whose sum is the solution's Tr(Sigma_t|t)."""
-    from surestep_ocp.plots_compare import trace_figure
+    from surestep_ocp.output.plots_compare import trace_figure
 
     fig = trace_figure(solutions)
     pos, ori = _data_axes(fig)
@@ -91,7 +91,7 @@ def test_trace_figure_splits_position_and_orientation(solutions):
 
 def test_path_figure_axes_units_markers_and_legend(solutions):
     """Labelled axes with units; start, goal, image centre and border explained; coinciding methods look apart."""
-    from surestep_ocp.plots_compare import path_figure
+    from surestep_ocp.output.plots_compare import path_figure
 
     fig = path_figure(solutions)
     img, depth = _data_axes(fig)

@@ -26,11 +26,11 @@ hypothesis = pytest.importorskip("hypothesis")
 from hypothesis import HealthCheck, given, settings  # noqa: E402
 from hypothesis import strategies as st  # noqa: E402
 
-from surestep_ocp.configs import load_evaluation  # noqa: E402
+from surestep_ocp.evaluation.configs import load_evaluation  # noqa: E402
 from surestep_ocp.errors import ProblemError  # noqa: E402
-from surestep_ocp.problem import load_problem  # noqa: E402
-from surestep_ocp.robot import Robot  # noqa: E402
-from surestep_ocp.setup import build_setup  # noqa: E402
+from surestep_ocp.problem.problem import load_problem  # noqa: E402
+from surestep_ocp.model.robot import Robot  # noqa: E402
+from surestep_ocp.problem.setup import build_setup  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 PROBLEM_FILES = sorted((REPO / "problems").glob("*.yaml"))

@@ -16,12 +16,12 @@ import numpy as np
 import pytest
 from numpy_ekf import ekf_step, propagate
 
-from surestep_ocp.belief import COSINE_GUARD
-from surestep_ocp.methods import ocp_initial_guess
-from surestep_ocp.ocp import InitialGuess, resolve_form, solve_ocp, transcription
-from surestep_ocp.problem import load_problem
-from surestep_ocp.setup import build_setup
-from surestep_ocp.surrogate import recursion_weights
+from surestep_ocp.model.belief import COSINE_GUARD
+from surestep_ocp.solvers.methods import ocp_initial_guess
+from surestep_ocp.solvers.ocp import InitialGuess, resolve_form, solve_ocp, transcription
+from surestep_ocp.problem.problem import load_problem
+from surestep_ocp.problem.setup import build_setup
+from surestep_ocp.solvers.surrogate import recursion_weights
 
 DEFAULT = Path(__file__).resolve().parents[1] / "problems" / "needle_regrasp.yaml"
 
@@ -140,8 +140,8 @@ def test_second_start_never_ends_above_the_diagonal_models_plan():
     path): the returned plan's trace, by the NumPy EKF, is at most that plan's evaluated in the same model.
     Evaluation configurations 9 and 38 with the correlated depth noise (from the straight line alone Newton
     ended 1.11x and 1.26x above the paper plan there, measured)."""
-    from surestep_ocp.configs import ConfigurationSampler, load_evaluation
-    from surestep_ocp.ocp import diagonal_model_setup
+    from surestep_ocp.evaluation.configs import ConfigurationSampler, load_evaluation
+    from surestep_ocp.solvers.ocp import diagonal_model_setup
 
     sampler = ConfigurationSampler(load_evaluation(DEFAULT.parent / "evaluations" / "evaluation.yaml"))
     for c in (9, 38):

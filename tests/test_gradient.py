@@ -1,4 +1,4 @@
-"""The paper's gradient-descent variant (surestep_ocp.gradient) on a short horizon of the default problem."""
+"""The paper's gradient-descent variant (surestep_ocp.solvers.gradient) on a short horizon of the default problem."""
 
 import dataclasses
 from pathlib import Path
@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 import yaml
 
-from surestep_ocp.baseline import solve_baseline, straight_line
-from surestep_ocp.gradient import build_loss, solve_gradient
-from surestep_ocp.problem import load_problem
-from surestep_ocp.setup import build_setup
+from surestep_ocp.solvers.baseline import solve_baseline, straight_line
+from surestep_ocp.solvers.gradient import build_loss, solve_gradient
+from surestep_ocp.problem.problem import load_problem
+from surestep_ocp.problem.setup import build_setup
 
 PROBLEM = Path(__file__).resolve().parents[1] / "problems" / "needle_regrasp.yaml"
 HORIZON = 8
@@ -103,7 +103,7 @@ def test_ablation_without_orientation(setup):
 
 
 def _with_gradient(setup, **kw):
-    from surestep_ocp.problem import GradientSpec
+    from surestep_ocp.problem.problem import GradientSpec
 
     spec = dataclasses.replace(GradientSpec(), **kw)
     return dataclasses.replace(setup, problem=dataclasses.replace(setup.problem, gradient=spec))
@@ -150,7 +150,7 @@ def test_torch_semantics_optimiser(setup):
 def test_paper_preset_moves_where_the_literal_reading_stalls(setup, baseline):
     """With the pose loss as written (trace ~1e-5, pose loss ~1e-2) torch's absolute tolerance_change stops
     L-BFGS once the clip step is gone; weighting the trace by 1e3 (the paper preset) lowers the trace."""
-    from surestep_ocp.problem import GRADIENT_PRESETS
+    from surestep_ocp.problem.problem import GRADIENT_PRESETS
 
     literal = solve_gradient(_with_gradient(setup, **GRADIENT_PRESETS["literal"]))
     paper = solve_gradient(_with_gradient(setup, **GRADIENT_PRESETS["paper"]))

@@ -1,4 +1,4 @@
-"""Symbolic kinematics (surestep_ocp.robot, surestep_ocp.lie) against Pinocchio and scipy.
+"""Symbolic kinematics (surestep_ocp.model.robot, surestep_ocp.model.lie) against Pinocchio and scipy.
 
 Robot.fk_function walks the Pinocchio model to build a CasADi expression; every
 check here compares it with Pinocchio's own numeric kinematics (frame poses and
@@ -17,9 +17,9 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from surestep_ocp.errors import FrameNotFound
-from surestep_ocp.lie import (angle_sq, np_angle, np_exp, np_exp_many, np_log, np_log_many, slerp, slerp_many, so3_exp,
+from surestep_ocp.model.lie import (angle_sq, np_angle, np_exp, np_exp_many, np_log, np_log_many, slerp, slerp_many, so3_exp,
                               so3_log)
-from surestep_ocp.robot import Robot
+from surestep_ocp.model.robot import Robot
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 PSM_URDF = REPO_ROOT / "robots" / "psm.urdf"
@@ -382,7 +382,7 @@ def test_angle_sq_matches_numpy(lie_functions):
         )
 
 
-# Bug (surestep_ocp/lie.py, so3_log): the Taylor branch is selected by |sin(theta)|^2 < 1e-12,
+# Bug (surestep_ocp/model/lie.py, so3_log): the Taylor branch is selected by |sin(theta)|^2 < 1e-12,
 # which holds near theta = 0 AND near theta = pi. For theta in (pi - 1e-6, pi) the symbolic log
 # returns sin(theta) * axis (norm < 1e-6) instead of theta * axis (norm ~ pi), although its
 # docstring promises angles in [0, pi). angle_sq inherits it: a rotation by pi - 1e-7 has

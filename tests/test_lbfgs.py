@@ -1,4 +1,4 @@
-"""surestep_ocp.lbfgs (torch.optim.LBFGS's algorithm in NumPy) against L-BFGS's known behaviour and scipy."""
+"""surestep_ocp.solvers.lbfgs (torch.optim.LBFGS's algorithm in NumPy) against L-BFGS's known behaviour and scipy."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import scipy.optimize
 
-from surestep_ocp.lbfgs import LBFGS, cubic_minimiser, minimize, strong_wolfe
+from surestep_ocp.solvers.lbfgs import LBFGS, cubic_minimiser, minimize, strong_wolfe
 
 
 def quadratic(n: int = 6, seed: int = 0):

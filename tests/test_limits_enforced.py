@@ -17,13 +17,13 @@ import numpy as np
 import numpy_ekf as ref
 import pytest
 
-from surestep_ocp.belief import COSINE_GUARD
-from surestep_ocp.configs import ConfigurationSampler, load_evaluation
+from surestep_ocp.model.belief import COSINE_GUARD
+from surestep_ocp.evaluation.configs import ConfigurationSampler, load_evaluation
 from surestep_ocp.errors import ProblemError
-from surestep_ocp.methods import ocp_initial_guess, run_method
-from surestep_ocp.ocp import transcription
-from surestep_ocp.problem import LimitsSpec, load_problem
-from surestep_ocp.setup import build_setup
+from surestep_ocp.solvers.methods import ocp_initial_guess, run_method
+from surestep_ocp.solvers.ocp import transcription
+from surestep_ocp.problem.problem import LimitsSpec, load_problem
+from surestep_ocp.problem.setup import build_setup
 
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT = ROOT / "problems" / "needle_regrasp.yaml"

@@ -9,12 +9,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from surestep_ocp.belief import vech
+from surestep_ocp.model.belief import vech
 from surestep_ocp.errors import SurestepError
-from surestep_ocp.methods import ocp_initial_guess
-from surestep_ocp.ocp import newton_solver, solve_ocp
-from surestep_ocp.problem import load_problem
-from surestep_ocp.setup import build_setup
+from surestep_ocp.solvers.methods import ocp_initial_guess
+from surestep_ocp.solvers.ocp import newton_solver, solve_ocp
+from surestep_ocp.problem.problem import load_problem
+from surestep_ocp.problem.setup import build_setup
 
 DEFAULT = Path(__file__).resolve().parents[1] / "problems" / "needle_regrasp.yaml"
 
@@ -70,7 +70,7 @@ def test_newton_reaches_ipopts_optimum(horizon):
 def test_newton_falls_back_to_ipopt_when_the_depth_bound_is_violated():
     """Evaluation configuration 39 at T = 20: Newton's optimum goes below the minimum depth (a bound it does
     not have); IPOPT then solves it from the start, with the bound, and that is the plan."""
-    from surestep_ocp.configs import ConfigurationSampler, load_evaluation
+    from surestep_ocp.evaluation.configs import ConfigurationSampler, load_evaluation
 
     sampler = ConfigurationSampler(load_evaluation(DEFAULT.parent / "evaluations" / "evaluation.yaml"))
     setup = with_solver(build_setup(sampler.problem(sampler.sample(0, 39))), name="newton")
@@ -94,7 +94,7 @@ def test_newton_only_where_the_goal_fixes_the_last_joints(short):
     explicit `newton` is an error."""
     from types import SimpleNamespace
 
-    from surestep_ocp.ocp import newton_applies
+    from surestep_ocp.solvers.ocp import newton_applies
 
     assert newton_applies(short, "condensed", "surrogate", False)
     assert not newton_applies(short, "condensed", "exact", False) and not newton_applies(short, "condensed", "surrogate", True)
@@ -106,7 +106,7 @@ def test_newton_only_where_the_goal_fixes_the_last_joints(short):
 def test_newton_warm_resolve_after_a_camera_move(short):
     """A Newton solution returns its joints as the warm start; after a small camera move the warm Newton solve
     reaches the cold optimum, in fewer iterations."""
-    from surestep_ocp.ocp import NewtonWarm, solve_ocp_warm
+    from surestep_ocp.solvers.ocp import NewtonWarm, solve_ocp_warm
 
     setup = with_solver(short, name="auto")
     init = ocp_initial_guess(setup)
@@ -140,9 +140,9 @@ def test_kept_start_names_the_solvers_that_ran_and_smoothness_counts():
 def test_newton_stops_when_it_stalls(short):
     """From its own optimum with tol 0 (unreachable) Newton cannot decrease the objective: it stops as 'Stalled'
     after its window of iterations instead of running to max_iter, and hands over (not a success)."""
-    from surestep_ocp.newton import STALL_WINDOW
-    from surestep_ocp.solver_setup import newton_solver
-    from surestep_ocp.transcription import InitialGuess
+    from surestep_ocp.solvers.newton import STALL_WINDOW
+    from surestep_ocp.solvers.solver_setup import newton_solver
+    from surestep_ocp.solvers.transcription import InitialGuess
 
     solver = newton_solver(short)
     opt = solver.run(short, ocp_initial_guess(short), tol=1e-6)

@@ -12,16 +12,16 @@ import json
 
 import numpy as np
 
-from surestep_ocp.belief import COSINE_GUARD
+from surestep_ocp.model.belief import COSINE_GUARD
 import numpy_ekf as ref
 import pinocchio as pin
 import pytest
 from scipy.spatial.transform import Rotation
 
-from surestep_ocp.baseline import solve_baseline, straight_line
-from surestep_ocp.ocp import InitialGuess, solve_ocp
-from surestep_ocp.setup import build_setup
-from surestep_ocp.solution import Solution
+from surestep_ocp.solvers.baseline import solve_baseline, straight_line
+from surestep_ocp.solvers.ocp import InitialGuess, solve_ocp
+from surestep_ocp.problem.setup import build_setup
+from surestep_ocp.output.solution import Solution
 
 T = 8
 GUARD = COSINE_GUARD  # [rad^2] the package's guard of |r| in the cosine formula (section 4: "guard it")

@@ -8,11 +8,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from surestep_ocp.belief import COSINE_GUARD
-from surestep_ocp.methods import ocp_initial_guess
-from surestep_ocp.ocp import InitialGuess, resolve_form, solve_ocp
-from surestep_ocp.problem import load_problem
-from surestep_ocp.setup import build_setup
+from surestep_ocp.model.belief import COSINE_GUARD
+from surestep_ocp.solvers.methods import ocp_initial_guess
+from surestep_ocp.solvers.ocp import InitialGuess, resolve_form, solve_ocp
+from surestep_ocp.problem.problem import load_problem
+from surestep_ocp.problem.setup import build_setup
 
 DEFAULT = Path(__file__).resolve().parents[1] / "problems" / "needle_regrasp.yaml"
 

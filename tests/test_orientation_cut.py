@@ -15,15 +15,15 @@ import numpy_ekf as ref
 import pytest
 from scipy.spatial.transform import Rotation
 
-from surestep_ocp.baseline import solve_baseline
-from surestep_ocp.belief import BeliefModel, NoiseParams
-from surestep_ocp.configs import ConfigurationSampler, load_evaluation
+from surestep_ocp.solvers.baseline import solve_baseline
+from surestep_ocp.model.belief import BeliefModel, NoiseParams
+from surestep_ocp.evaluation.configs import ConfigurationSampler, load_evaluation
 from surestep_ocp.errors import ProblemError
-from surestep_ocp.methods import ocp_initial_guess, run_method
-from surestep_ocp.ocp import solve_ocp
-from surestep_ocp.problem import load_problem
-from surestep_ocp.rollout import rollout
-from surestep_ocp.setup import build_setup
+from surestep_ocp.solvers.methods import ocp_initial_guess, run_method
+from surestep_ocp.solvers.ocp import solve_ocp
+from surestep_ocp.problem.problem import load_problem
+from surestep_ocp.evaluation.rollout import rollout
+from surestep_ocp.problem.setup import build_setup
 
 DEFAULT = Path(__file__).resolve().parents[1] / "problems" / "needle_regrasp.yaml"
 EVALUATION = DEFAULT.parent / "evaluations" / "evaluation.yaml"

@@ -18,8 +18,8 @@ from pathlib import Path
 
 import pytest
 
-from surestep_ocp import problem as problem_mod
-from surestep_ocp.problem import find_shipped, load_problem
+from surestep_ocp.problem import problem as problem_mod
+from surestep_ocp.problem.problem import find_shipped, load_problem
 
 REPO = Path(__file__).resolve().parents[1]
 

@@ -11,9 +11,9 @@ import numpy_ekf as ref
 import pytest
 
 import surestep_ocp as ss
-from surestep_ocp.belief import COSINE_GUARD
-from surestep_ocp.ocp import InitialGuess, solve_ocp
-from surestep_ocp.setup import build_setup
+from surestep_ocp.model.belief import COSINE_GUARD
+from surestep_ocp.solvers.ocp import InitialGuess, solve_ocp
+from surestep_ocp.problem.setup import build_setup
 
 T = 8
 

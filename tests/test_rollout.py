@@ -1,4 +1,4 @@
-"""Noisy closed-loop rollouts (surestep_ocp.rollout): exactness without noise, EKF consistency with noise."""
+"""Noisy closed-loop rollouts (surestep_ocp.evaluation.rollout): exactness without noise, EKF consistency with noise."""
 
 from __future__ import annotations
 
@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from surestep_ocp.baseline import straight_line
-from surestep_ocp.belief import BeliefModel
-from surestep_ocp.rollout import METRICS, BatchedNoise, Detection, plan_metrics, rollout
+from surestep_ocp.solvers.baseline import straight_line
+from surestep_ocp.model.belief import BeliefModel
+from surestep_ocp.evaluation.rollout import METRICS, BatchedNoise, Detection, plan_metrics, rollout
 
 T = 6
 
@@ -152,8 +152,8 @@ def test_detection_changes_nothing_where_the_tool_is_always_seen(default_setup, 
 @pytest.fixture(scope="module")
 def moving():
     """Type 4 (the camera moves four times) at T = 20 and its straight-line plan in each step's camera frame."""
-    from surestep_ocp.problem import load_problem
-    from surestep_ocp.setup import build_setup
+    from surestep_ocp.problem.problem import load_problem
+    from surestep_ocp.problem.setup import build_setup
 
     setup = build_setup(load_problem(Path(__file__).resolve().parents[1] / "problems" / "type4_camera_moves.yaml"))
     plan = setup.in_step_frames(straight_line(setup.x_start, setup.x_goal, setup.problem.horizon))

@@ -9,10 +9,10 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from surestep_ocp.lie import pose_to_matrix
-from surestep_ocp.methods import run_method
-from surestep_ocp.problem import load_problem
-from surestep_ocp.setup import build_setup
+from surestep_ocp.model.lie import pose_to_matrix
+from surestep_ocp.solvers.methods import run_method
+from surestep_ocp.problem.problem import load_problem
+from surestep_ocp.problem.setup import build_setup
 
 PROBLEMS = Path(__file__).resolve().parents[1] / "problems"
 

@@ -11,13 +11,13 @@ import pytest
 from numpy_ekf import image_offset
 from scipy.spatial.transform import Rotation
 
-from surestep_ocp.baseline import solve_baseline
-from surestep_ocp.belief import COSINE_GUARD
+from surestep_ocp.solvers.baseline import solve_baseline
+from surestep_ocp.model.belief import COSINE_GUARD
 from surestep_ocp.errors import SurestepError
-from surestep_ocp.methods import ocp_initial_guess
-from surestep_ocp.ocp import solve_ocp, solve_ocp_warm, transcription
-from surestep_ocp.problem import load_problem
-from surestep_ocp.setup import build_setup
+from surestep_ocp.solvers.methods import ocp_initial_guess
+from surestep_ocp.solvers.ocp import solve_ocp, solve_ocp_warm, transcription
+from surestep_ocp.problem.problem import load_problem
+from surestep_ocp.problem.setup import build_setup
 
 DEFAULT = Path(__file__).resolve().parents[1] / "problems" / "needle_regrasp.yaml"
 
@@ -177,7 +177,7 @@ def test_structured_hessians_reach_the_exact_hessians_optimum():
         assert sols[h].extras["constraint_violation"] <= 1e-6
         assert np.max(np.abs(np.array(sols[h].poses[-1]) - setup.x_goal)) <= 1e-6
     # the planner's objective at its initial point (the straight line) is the baseline's exact-EKF trace
-    from surestep_ocp.baseline import solve_baseline
+    from surestep_ocp.solvers.baseline import solve_baseline
 
     base = solve_baseline(build_setup(prob)).trace_final
     for h in sols:
@@ -217,7 +217,7 @@ def test_structured_hessians_need_the_mean_noise_form():
         solve_ocp(setup, ocp_initial_guess(setup))
     # auto picks the exact Hessian there
     auto = build_setup(with_solver(prob, hessian="auto"))
-    from surestep_ocp.ocp import resolve_hessian
+    from surestep_ocp.solvers.ocp import resolve_hessian
 
     assert resolve_hessian(auto, "condensed") == "exact"
 
@@ -226,7 +226,7 @@ def test_an_optimum_worse_than_the_start_keeps_the_start():
     """Evaluation configuration 36 with the paper's cosine exactly (`cut_band: 0`: a jump where its straight line
     passes through a rotation of pi): the surrogate converges above its own feasible start, so the start (the
     straight line's IK, feasible) is the plan returned, and said so."""
-    from surestep_ocp.configs import ConfigurationSampler, load_evaluation
+    from surestep_ocp.evaluation.configs import ConfigurationSampler, load_evaluation
 
     sampler = ConfigurationSampler(load_evaluation(DEFAULT.parent / "evaluations" / "evaluation.yaml"))
     prob = sampler.problem(sampler.sample(0, 36))
@@ -251,7 +251,7 @@ def test_an_optimum_worse_than_the_start_keeps_the_start():
 def test_codegen_auto_follows_the_compiler(short, monkeypatch):
     """solver.codegen auto: compiled when a C compiler is found, not when none is; true without a
     compiler, or true with the exact Hessian, is an error (not a silent fallback)."""
-    from surestep_ocp.ocp import resolve_codegen
+    from surestep_ocp.solvers.ocp import resolve_codegen
 
     auto = replace(short, problem=with_solver(short.problem, codegen="auto"))
     forced = replace(short, problem=with_solver(short.problem, codegen=True, hessian="exact"))

@@ -15,12 +15,12 @@ import numpy as np
 import numpy_ekf as ref
 import pytest
 
-from surestep_ocp.baseline import straight_line
-from surestep_ocp.belief import COSINE_GUARD
+from surestep_ocp.solvers.baseline import straight_line
+from surestep_ocp.model.belief import COSINE_GUARD
 from surestep_ocp.errors import ProblemError
-from surestep_ocp.methods import run_method
-from surestep_ocp.problem import TimingSpec, load_problem
-from surestep_ocp.setup import build_setup
+from surestep_ocp.solvers.methods import run_method
+from surestep_ocp.problem.problem import TimingSpec, load_problem
+from surestep_ocp.problem.setup import build_setup
 
 
 def sequential_ekf(poses, noise, camera, k, H=None, R=None):

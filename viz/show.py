@@ -115,7 +115,7 @@ def check_solution(sol: Solution) -> None:
 
 def _checked_outputs(sols: Sequence[Solution], *outputs) -> None:
     """Output files checked before any work (never one of the solution files read)."""
-    from surestep_ocp.outputs import check_output_file
+    from surestep_ocp.output.outputs import check_output_file
 
     inputs = [s.get("_source") for s in sols if isinstance(s, dict)]
     for out in outputs:
@@ -130,7 +130,7 @@ def _scene_errors(sols: Sequence[Solution]):
     import sys
     import warnings
 
-    from surestep_ocp.outputs import quiet_fd
+    from surestep_ocp.output.outputs import quiet_fd
 
     @contextlib.contextmanager
     def guard():

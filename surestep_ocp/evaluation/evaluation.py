@@ -1,0 +1,378 @@
+"""`surestep evaluate`: the paper's Table I protocol over random configurations.
+
+For each configuration (see `configs.py`) every method plans once; every plan is
+then executed by N noisy closed-loop rollouts per rollout mode (`rollout.py`),
+all evaluated with every observation component. Per finished configuration one
+JSON line goes to `DIR/progress.jsonl` (so an interrupted run keeps its work and
+`--resume` continues it); at the end `table.md`, `raw.csv`, `solves.csv` and
+`boxplot.png` are written from all finished configurations (`evaluation_report.py`).
+
+Randomness: configuration i uses `default_rng([seed, i])`; its rollouts in mode m
+use `default_rng([seed, i, k_m])` (k_model = 0, k_true = 1), the same generator
+state for every method (common random numbers).
+
+Rollouts observe only when the true pose is detectable (the evaluation file's
+`detection`, `rollout.Detection`); a rollout is a successful grasp when its final true
+pose is within the file's `grasp` tolerances of the goal (the simulated Table II).
+
+Where the configurations run: in this process (`--jobs 1`), a process pool
+(`--jobs N`), or an existing Dask cluster (`--scheduler ADDRESS`, dask.distributed):
+the same records, the same `progress.jsonl`, resume and progress bar in each case.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import sys
+import time
+import uuid
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import SurestepError
+from .evaluation_report import write_outputs
+from .rollout import MODES
+from ..output.solution import _jsonable, write_json_atomic, write_text_atomic
+
+MAX_CONFIGS = 100_000
+MAX_ROLLOUTS = 100_000
+MAX_JOBS = 256
+
+DEFAULT_METHODS = ("baseline", "gradient", "gradient-no-pose-loss", "gradient-no-depth", "gradient-no-fov",
+                   "gradient-no-orientation", "ocp", "ocp-no-depth", "ocp-no-fov", "ocp-no-orientation")
+
+# ------------------------------------------------------------------ one configuration (worker side)
+_SAMPLERS: dict = {}
+
+
+def _sampler(eval_path: str):
+    from .configs import ConfigurationSampler, load_evaluation
+
+    key = str(Path(eval_path).resolve())
+    if key not in _SAMPLERS:
+        _SAMPLERS[key] = ConfigurationSampler(load_evaluation(eval_path))
+    return _SAMPLERS[key]
+
+
+def evaluate_configuration(eval_path: str, seed: int, index: int, methods: tuple[str, ...], rollouts: int,
+                           modes: tuple[str, ...]) -> dict:
+    """Plan with every method on configuration `index` and roll each plan out; a JSON-able record.
+
+    Picklable arguments only (each process builds its own set-up and solvers). A method
+    that raises is recorded with its error (no plan, no metrics); a plan whose solver
+    reports failure is still rolled out, and flagged.
+    """
+    from ..solvers.methods import run_method
+    from .rollout import plan_metrics
+
+    smp = _sampler(eval_path)
+    cfg = smp.sample(seed, index)
+    setup = smp.setup_of(cfg)
+    spec = smp.spec
+    rec = {"config": index, **cfg.to_dict(), "solves": {}, "metrics": {m: {} for m in modes},
+           "pos_errors": {m: {} for m in modes}, "ori_errors": {m: {} for m in modes},
+           "success": {m: {} for m in modes}, "detected": {m: {} for m in modes}}
+    per_rollout = ("pos_errors", "ori_errors", "success", "detected")
+    cache = {}
+    for name in methods:
+        t0 = time.perf_counter()
+        try:
+            sol = run_method(setup, name, cache)
+        except Exception as exc:  # noqa: BLE001 - recorded in solves.csv and counted in the table
+            rec["solves"][name] = {"success": False, "status": f"error: {type(exc).__name__}: {exc}",
+                                   "solve_time_s": time.perf_counter() - t0, "iterations": 0, "evaluated": False}
+            continue
+        cache[name] = sol
+        solve = {"success": sol.success, "status": sol.status, "solve_time_s": sol.solve_time_s,
+                 "iterations": sol.iterations, "evaluated": True}
+        if sol.status == "Initial_Guess_Kept":  # why: what every solver attempt ended with
+            solve["kept_start"] = "; ".join(f"{a.get('hessian', '?')}: {a.get('status', '?')}"
+                                            for a in sol.extras.get("attempts", [])) or sol.extras.get("solver", "")
+        try:
+            for mode in modes:
+                rng = np.random.default_rng([seed, index, MODES.index(mode)])
+                met, ro = plan_metrics(setup.eval_model, sol.poses, setup.x_goal, rollouts, rng, mode,
+                                       sol.sigma_final, detection=spec.detection)
+                rec["metrics"][mode][name] = met
+                rec["pos_errors"][mode][name] = ro.pos_err.tolist()
+                rec["ori_errors"][mode][name] = ro.ori_err.tolist()
+                ok = (ro.pos_err <= spec.grasp_position) & (ro.ori_err <= spec.grasp_angle)
+                rec["success"][mode][name] = float(np.mean(ok))
+                rec["detected"][mode][name] = float(np.mean(ro.detected)) if ro.detected is not None else 1.0
+        except (ValueError, np.linalg.LinAlgError) as exc:  # e.g. NaN waypoints of a failed solve
+            solve.update(evaluated=False, status=f"{sol.status}; rollout error: {exc}")
+            for mode in modes:
+                rec["metrics"][mode].pop(name, None)
+                for key in per_rollout:
+                    rec[key][mode].pop(name, None)
+        rec["solves"][name] = solve
+    return rec
+
+
+def _worker_init() -> None:
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent handles Ctrl-C and stops the workers
+
+
+# ------------------------------------------------------------------ the run (parent side)
+def _fingerprint(spec) -> str:
+    h = hashlib.sha256()
+    for p in (spec.path, spec.base_path):
+        h.update(Path(p).read_bytes())
+    return h.hexdigest()[:16]
+
+
+def _record_problem(rec) -> str | None:
+    """None if `rec` has the structure `evaluate_configuration` writes, else what is wrong."""
+    if not isinstance(rec, dict):
+        return f"a JSON {type(rec).__name__}, not an object"
+    if isinstance(rec.get("config"), bool) or not isinstance(rec.get("config"), int) or rec["config"] < 0:
+        return "no 'config' index (an integer >= 0)"
+    solves = rec.get("solves")
+    if not isinstance(solves, dict) or not all(isinstance(v, dict) and isinstance(v.get("success"), bool)
+                                               for v in solves.values()):
+        return "'solves' is not a mapping of method -> {success, ...}"
+    for key in ("metrics", "pos_errors"):
+        if not isinstance(rec.get(key), dict) or not all(isinstance(v, dict) for v in rec[key].values()):
+            return f"'{key}' is not a mapping of mode -> method -> values"
+    return None
+
+
+def read_progress(path: Path) -> dict[int, dict]:
+    """Finished configurations of `progress.jsonl`; a torn last line (interrupted write) is dropped.
+
+    Raises:
+        SurestepError: a line that is JSON but not a record of an evaluation (named by its number).
+    """
+    done: dict[int, dict] = {}
+    if not path.is_file():
+        return done
+    try:
+        lines = path.read_text(encoding="utf-8").splitlines()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise SurestepError(f"{path}: cannot read the progress record ({exc}); use another --output-dir") from None
+    good = []
+    for n, line in enumerate(lines, 1):
+        try:
+            rec = json.loads(line)
+        except (ValueError, RecursionError):
+            continue  # a torn (interrupted) write
+        problem = _record_problem(rec)
+        if problem is not None:
+            raise SurestepError(f"{path}: line {n} is not a record of this evaluation ({problem}); remove the "
+                                "line, or run without --resume into another --output-dir")
+        done[rec["config"]] = rec
+        good.append(line)
+    if len(good) != len(lines):  # rewrite without the torn line so appends start on a fresh line
+        write_text_atomic(path, "".join(g + "\n" for g in good))
+    return done
+
+
+def append_line(path: Path, obj: dict) -> None:
+    """Append one JSON line with a single O_APPEND write, then fsync."""
+    data = (json.dumps(obj, default=_jsonable) + "\n").encode()
+    fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
+    try:
+        view = memoryview(data)
+        while view:
+            view = view[os.write(fd, view):]
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def run_evaluation(eval_path: str | Path, out_dir: str | Path, configs: int = 100, rollouts: int = 50, seed: int = 0,
+                   methods: tuple[str, ...] = DEFAULT_METHODS, modes: tuple[str, ...] = MODES, jobs: int = 1,
+                   resume: bool = False, progress: bool = True, scheduler: str | None = None) -> str:
+    """Run (or continue) an evaluation and write its files; returns the table (Markdown).
+
+    `scheduler`: address of a running Dask scheduler (e.g. tcp://host:8786), or a
+    `distributed.Client` / `LocalCluster`-backed client object; the configurations then run
+    on its workers (`jobs` is ignored), which must be able to import surestep_ocp and read
+    the evaluation file at the same path.
+
+    Raises:
+        SurestepError: bad arguments, a bad evaluation file, or a directory holding another run.
+    """
+    from .configs import load_evaluation
+    from ..solvers.methods import parse_method
+
+    if configs < 1 or rollouts < 2 or jobs < 1:
+        raise SurestepError(f"need --configs >= 1, --rollouts >= 2, --jobs >= 1 (got {configs}, {rollouts}, {jobs})")
+    for flag, value, most in (("--configs", configs, MAX_CONFIGS), ("--rollouts", rollouts, MAX_ROLLOUTS),
+                              ("--jobs", jobs, MAX_JOBS)):
+        if value > most:
+            raise SurestepError(f"{flag} {value}: at most {most}")
+    if not 0 <= seed < 2**63:
+        raise SurestepError(f"--seed {seed}: expected an integer in [0, 2^63)")
+    for m in methods:
+        parse_method(m)
+    methods = tuple(dict.fromkeys(("baseline", *methods)))  # the baseline is the reference of the table
+    eval_path = str(eval_path)
+    spec = load_evaluation(eval_path)
+    from ..output.outputs import check_output_dir, check_output_file
+
+    inputs = (spec.path, spec.base_path)
+    out = check_output_dir(out_dir, inputs, "the evaluation")
+    for name in ("run.json", "progress.jsonl", "table.md", "raw.csv", "solves.csv", "boxplot.png"):
+        check_output_file(out / name, inputs, "the evaluation")
+    prog = out / "progress.jsonl"
+    header = {"evaluation": str(Path(eval_path).resolve()), "fingerprint": _fingerprint(spec), "seed": seed,
+              "rollouts": rollouts, "methods": list(methods), "modes": list(modes), "horizon": spec.horizon}
+    if resume and (out / "run.json").is_file():
+        try:
+            old = json.loads((out / "run.json").read_text(encoding="utf-8"))
+        except (OSError, ValueError, RecursionError) as exc:
+            raise SurestepError(f"{out / 'run.json'}: not a run record ({exc}); use another --output-dir") from None
+        if not isinstance(old, dict):
+            raise SurestepError(f"{out / 'run.json'}: not a run record (a JSON {type(old).__name__}, not an object); "
+                                "use another --output-dir")
+        diff = [k for k in header if k != "evaluation" and old.get(k) != header[k]]
+        if diff:
+            raise SurestepError(f"{out}: --resume of a run with other settings ({', '.join(diff)}: "
+                                f"{', '.join(f'{old.get(k)} vs {header[k]}' for k in diff)}); use another --output-dir")
+    elif not resume and prog.is_file() and prog.stat().st_size > 0:
+        raise SurestepError(f"{out} already holds a run (progress.jsonl); pass --resume to continue it "
+                            "or choose another --output-dir")
+    client, own_client = _dask_client(scheduler) if scheduler is not None else (None, False)  # fail before writing
+    write_json_atomic(out / "run.json", header)
+    done = read_progress(prog) if resume else {}
+    if not resume:
+        write_text_atomic(prog, "")
+    todo = [i for i in range(configs) if i not in done]
+    args = (eval_path, seed)
+    rest = (methods, rollouts, modes)
+
+    from tqdm import tqdm
+
+    bar = tqdm(total=configs, initial=configs - len(todo), desc="configurations", unit="config", file=sys.stderr,
+               disable=not progress, dynamic_ncols=True, mininterval=0.5)
+    failed = sum(not s["success"] for i in range(configs) if i in done for s in done[i]["solves"].values())
+
+    def finish(rec: dict) -> None:
+        nonlocal failed
+        append_line(prog, rec)
+        done[rec["config"]] = rec
+        failed += sum(not s["success"] for s in rec["solves"].values())
+        bar.set_postfix(failed_solves=failed)
+        bar.update(1)
+
+    try:
+        if client is not None and todo:
+            _run_dask(todo, args, rest, client, finish)
+        elif jobs == 1 or len(todo) <= 1:
+            for i in todo:
+                finish(evaluate_configuration(*args, i, *rest))
+        else:
+            _run_pool(todo, args, rest, jobs, finish)
+    except KeyboardInterrupt:
+        bar.close()
+        print(f"\ninterrupted: {len(done)} of {configs} configurations kept in {prog}; "
+              "continue with the same command plus --resume", file=sys.stderr)
+        raise
+    finally:
+        bar.close()
+        if own_client:
+            client.close()
+    records = [done[i] for i in range(configs)]
+    return write_outputs(records, out, methods, modes, header, spec)
+
+
+def _run_pool(todo, args, rest, jobs, finish) -> None:
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+
+    ex = ProcessPoolExecutor(max_workers=min(jobs, len(todo)), mp_context=multiprocessing.get_context("spawn"),
+                             initializer=_worker_init)
+    futures = []
+    try:
+        futures = [ex.submit(evaluate_configuration, *args, i, *rest) for i in todo]
+        for fut in as_completed(futures):
+            finish(fut.result())
+    except BaseException:
+        for f in futures:
+            f.cancel()
+        for p in list((getattr(ex, "_processes", None) or {}).values()):
+            p.terminate()
+        raise
+    finally:
+        ex.shutdown(wait=True, cancel_futures=True)
+
+
+DASK_CONNECT_TIMEOUT = "10s"
+
+
+def _dask_client(scheduler):
+    """(client, whether we opened it) for a scheduler address, or a `distributed.Client` passed in."""
+    try:
+        from distributed import Client
+    except ImportError as exc:
+        raise SurestepError(f"--scheduler needs dask.distributed (pip install 'surestep_ocp[dask]'): {exc}") from None
+    if not isinstance(scheduler, str):
+        return scheduler, False
+    try:
+        return Client(scheduler, timeout=DASK_CONNECT_TIMEOUT, set_as_default=False), True
+    except (OSError, TimeoutError, ValueError) as exc:
+        raise SurestepError(f"--scheduler {scheduler}: cannot connect to a Dask scheduler "
+                            f"({type(exc).__name__}: {exc})") from None
+
+
+def _run_dask(todo, args, rest, client, finish) -> None:
+    """The configurations as Dask futures on the client's cluster; records handed to `finish` as they complete."""
+    from distributed import as_completed
+
+    futures = []
+    tag = uuid.uuid4().hex[:8]
+    try:
+        # pure=False: every configuration is its own task; retries=1 rescues a worker lost mid-task
+        futures = [client.submit(evaluate_configuration, *args, i, *rest, key=f"surestep-config-{i}-{tag}",
+                                 pure=False, retries=1) for i in todo]
+        with client.as_current():
+            for fut in as_completed(futures):
+                finish(fut.result())
+    except BaseException:
+        client.cancel(futures)
+        raise
+
+
+# ------------------------------------------------------------------ command line
+def cmd_evaluate(args) -> int:
+    methods = DEFAULT_METHODS
+    if args.methods:
+        methods = tuple(m for a in args.methods for m in a.split(",") if m)
+    modes = MODES if args.rollout_mode == "both" else (args.rollout_mode,)
+    out = args.output_dir or str(Path("out") / f"evaluate-{Path(args.evaluation).stem}")
+    table = run_evaluation(args.evaluation, out, args.configs, args.rollouts, args.seed, methods, modes, args.jobs,
+                           args.resume, progress=not args.quiet, scheduler=getattr(args, "scheduler", None))
+    print(table)
+    print(f"\nwrote {out}/{{table.md, raw.csv, solves.csv, boxplot.png, progress.jsonl, run.json}}")
+    return 0
+
+
+def register(subparsers):
+    """Add the `evaluate` subcommand to an argparse subparsers object; returns its parser."""
+    e = subparsers.add_parser(
+        "evaluate", help="noisy closed-loop rollouts of every method over random configurations (Table I)",
+        description="Plan with each method on random configurations of EVAL.yaml, run noisy closed-loop rollouts "
+                    "of each plan and write table.md, raw.csv, solves.csv and boxplot.png.")
+    e.add_argument("evaluation", metavar="EVAL.yaml", help="evaluation file (e.g. problems/evaluations/evaluation.yaml)")
+    e.add_argument("--configs", type=int, default=100, help="number of random configurations (default 100)")
+    e.add_argument("--rollouts", type=int, default=50, help="noisy rollouts per plan and mode (default 50)")
+    e.add_argument("--seed", type=int, default=0, help="seed of the configurations and rollouts (default 0)")
+    e.add_argument("--output-dir", help="output directory (default out/evaluate-<EVAL stem>)")
+    e.add_argument("--methods", nargs="+", help="methods, space- or comma-separated (default: "
+                   + ", ".join(DEFAULT_METHODS) + "); the baseline is always included")
+    e.add_argument("--jobs", type=int, default=1, help="worker processes (default 1)")
+    e.add_argument("--scheduler", metavar="ADDRESS",
+                   help="run the configurations on an existing Dask cluster (e.g. tcp://host:8786; needs "
+                        "dask.distributed, the 'dask' extra); --jobs is then ignored")
+    e.add_argument("--rollout-mode", choices=("model", "true", "both"), default="both",
+                   help="where the observation noise is evaluated (default both)")
+    e.add_argument("--resume", action="store_true", help="continue the run in --output-dir (skip finished configs)")
+    e.add_argument("--quiet", action="store_true", help="no progress bar")
+    e.set_defaults(func=cmd_evaluate)
+    return e

@@ -1,0 +1,331 @@
+"""Noisy closed-loop rollouts of a planned trajectory (method page, section 7).
+
+A plan is its waypoints `x_0..x_T` (camera frame, `x = (p, r)`, axis-angle `r`).
+N rollouts of one plan run together as arrays (a loop over time steps only).
+Per step t -> t+1, for every rollout:
+
+1. command: the step from the current estimate `mu_t` to the waypoint `x_t+1`,
+   `dp = p_t+1 - p_mu`, `D = R_mu^T R_t+1` (a body-frame rotation step);
+2. motion: `p_true += dp + w_p`, `R_true <- exp(w_r) R_true D`, with
+   `w ~ N(0, W(mu_t, x_t+1))` (W of the commanded step);
+3. observation: `p_z = p_true + v_p`, `R_z = exp(v_r) R_true`, all components always,
+   with `v ~ N(0, V(mu_t+1|t))` in mode `model` or `v ~ N(0, V(x_true))` in mode `true`;
+   with a `Detection` (the evaluation's default), only when the true pose is detectable:
+   in front of the lens beyond `min_depth` and projecting inside the image with
+   `margin` to spare, optionally with a probability falling linearly from 1 to 0 over
+   the `falloff` band next to that border; an undetected step is a prediction only
+   (`mu = mu^-`, `Sigma = P`), in both modes;
+4. EKF (its own model, F = Q = H = R = I): predicted mean `mu^- = mu_t (+) command`
+   (which is the waypoint itself), `P = Sigma + W`, `S = P + V(mu^-)`,
+   innovation `y = (p_z - p^-, log(R_z R^-^T))`, `mu+ = (p^- + K y_p, exp(K y_r) R^-)`,
+   `Sigma+ = sym(P - P S^-1 P)` (the same formula as `BeliefModel.step`).
+
+Pose arithmetic: positions add; rotations compose, and the orientation part of every
+error (noise, innovation, estimate error) is the axis-angle vector of a *left*
+(camera-frame) perturbation, `R_a = exp(e) R_b`. In those error coordinates the
+commanded step leaves the error unchanged and noises add to first order, so the
+EKF's identity maps are exact for positions and first-order exact for orientations
+(the noises here are milliradians). `final_error` uses the same coordinates,
+`(p_true - p_mu, log(R_true R_mu^T))`, so its covariance is comparable with Sigma_T.
+
+The noise models are the belief model's own CasADi Functions (`motion_noise`,
+`observation_noise`) evaluated on all rollouts at once with `Function.map(N)`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import casadi as ca
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from ..model.belief import NX, BeliefModel
+
+MODES = ("model", "true")
+METRICS = ("pos_err_mean", "pos_err_std", "ori_err_mean", "ori_err_std", "trace_noisy", "trace_ml",
+           "entropy_noisy", "entropy_ml")
+_ENTROPY_CONST = 0.5 * NX * (1 + np.log(2 * np.pi))
+
+
+@dataclass(frozen=True)
+class Detection:
+    """When the detector sees the tool (the true pose): the rest of the time the EKF only predicts.
+
+    margin: fraction of the image width / height at each border where nothing is detected
+    (the tool's features must be in the image, not only its tracked point); min_depth [m]:
+    closer to the lens (or behind it) nothing is detected; max_depth [m]: nor beyond it (out
+    of focus, too small); falloff: fraction of the image size over which the detection
+    probability rises linearly from 0 at that border to 1 inside (0: detected with certainty
+    everywhere inside). A detector reports a pose it sees: a measurement that itself falls
+    outside that region (the sampled noise put it there) is no detection either (gating).
+    """
+
+    margin: float = 0.02
+    min_depth: float = 0.02
+    max_depth: float = 0.30
+    falloff: float = 0.0
+
+    def probability(self, camera, p: np.ndarray) -> np.ndarray:
+        """(N,) detection probability of true positions p (N, 3) in the camera frame."""
+        z = p[:, 2]
+        ok = (z > self.min_depth) & (z < self.max_depth)
+        zs = np.where(ok, z, 1.0)
+        u = (camera.fx * p[:, 0] / zs + camera.cx) / camera.width
+        v = (camera.fy * p[:, 1] / zs + camera.cy) / camera.height
+        # distance to the detectable region's border, in image fractions (negative outside)
+        inside = np.minimum.reduce([u - self.margin, 1 - self.margin - u, v - self.margin, 1 - self.margin - v])
+        if self.falloff > 0:
+            prob = np.clip(inside / self.falloff, 0.0, 1.0)
+        else:
+            prob = (inside >= 0).astype(float)
+        return np.where(ok, prob, 0.0)
+
+
+@dataclass
+class Rollouts:
+    """N noisy rollouts of one plan; arrays are indexed by rollout first."""
+
+    mode: str
+    goal: np.ndarray  # (6,) the goal x^G
+    final_true: np.ndarray  # (N, 6) true pose at T, (p, axis-angle)
+    final_estimate: np.ndarray  # (N, 6) EKF mean at T
+    final_error: np.ndarray  # (N, 6) (p_true - p_mu, log(R_true R_mu^T)) at T
+    sigma_final: np.ndarray  # (N, 6, 6) EKF posterior covariance at T
+    pos_err: np.ndarray  # (N,) ||p_T^true - p^G|| [m]
+    ori_err: np.ndarray  # (N,) angle(R_T^true, R^G) [rad], geodesic
+    true_path: np.ndarray | None = None  # (N, T+1, 6) when kept
+    estimate_path: np.ndarray | None = None  # (N, T+1, 6) when kept
+    detected: np.ndarray | None = None  # (N, T) whether step t -> t+1 had an observation
+
+    @property
+    def n(self) -> int:
+        return len(self.pos_err)
+
+    @property
+    def trace(self) -> np.ndarray:
+        """(N,) Tr(Sigma_T) of each rollout's EKF."""
+        return np.trace(self.sigma_final, axis1=1, axis2=2)
+
+    @property
+    def entropy(self) -> np.ndarray:
+        """(N,) Gaussian entropy [nats] of each rollout's Sigma_T (-inf if not positive definite)."""
+        sign, logdet = np.linalg.slogdet(self.sigma_final)
+        return np.where(sign > 0, _ENTROPY_CONST + 0.5 * logdet, -np.inf)
+
+    def summary(self) -> dict[str, float]:
+        """Mean and sample standard deviation (ddof=1) of the final errors; mean Tr(Sigma_T) and entropy."""
+        ddof = 1 if self.n > 1 else 0
+        return {
+            "pos_err_mean": float(np.mean(self.pos_err)),
+            "pos_err_std": float(np.std(self.pos_err, ddof=ddof)),
+            "ori_err_mean": float(np.mean(self.ori_err)),
+            "ori_err_std": float(np.std(self.ori_err, ddof=ddof)),
+            "trace_noisy": float(np.mean(self.trace)),
+            "entropy_noisy": float(np.mean(self.entropy)),
+        }
+
+
+class BatchedNoise:
+    """The model's noise Functions mapped over N poses at once (CasADi `Function.map`)."""
+
+    def __init__(self, model: BeliefModel, n: int):
+        self.n = n
+        self._W = model.motion_noise.map(n)
+        self._V = model.observation_noise.map(n)
+
+    def _unstack(self, out) -> np.ndarray:
+        # map() concatenates the N 6x6 outputs horizontally: (6, 6N) -> (N, 6, 6)
+        return np.asarray(out).reshape(NX, self.n, NX).transpose(1, 0, 2)
+
+    def motion(self, x0: np.ndarray, x1: np.ndarray) -> np.ndarray:
+        """(N, 6, 6) W of the steps x0[k] -> x1[k] ((N, 6) each)."""
+        return self._unstack(self._W(x0.T, x1.T))
+
+    def observation(self, x: np.ndarray) -> np.ndarray:
+        """(N, 6, 6) V at the poses x ((N, 6))."""
+        return self._unstack(self._V(x.T))
+
+
+def sample_gaussian(cov: np.ndarray, z: np.ndarray) -> np.ndarray:
+    """Samples of N(0, cov[k]) from standard normals z (N, 6); cov may be singular (PSD)."""
+    lam, U = np.linalg.eigh(0.5 * (cov + np.swapaxes(cov, 1, 2)))
+    L = U * np.sqrt(np.clip(lam, 0.0, None))[:, None, :]
+    return np.einsum("nij,nj->ni", L, z)
+
+
+def has_identity_maps(model: BeliefModel) -> bool:
+    """Whether the model's F, Q, H, R are the constant identity (checked symbolically).
+
+    (`BeliefModel.identity_maps` is False for models made by `with_components`, which
+    pass the identity Jacobian Function on explicitly.)
+    """
+    if model.identity_maps:
+        return True
+    x0, x1 = ca.SX.sym("x0", NX), ca.SX.sym("x1", NX)
+    mats = model.jacobians(x0, x1)
+    return all(M.is_constant() and np.array_equal(np.asarray(ca.DM(M)), np.eye(NX)) for M in mats)
+
+
+def _pose(p: np.ndarray, R: Rotation) -> np.ndarray:
+    return np.hstack([p, R.as_rotvec()])
+
+
+def _gain(P: np.ndarray, S: np.ndarray) -> np.ndarray:
+    """K^T = S^-1 P for a stack; pseudo-inverse where S is singular (e.g. all noise constants 0)."""
+    try:
+        return np.linalg.solve(S, P)
+    except np.linalg.LinAlgError:
+        return np.linalg.pinv(S, hermitian=True) @ P
+
+
+def rollout(
+    model: BeliefModel,
+    poses: np.ndarray,
+    goal: np.ndarray | None = None,
+    n: int = 50,
+    rng: np.random.Generator | int | None = 0,
+    mode: str = "model",
+    sample_initial: bool = False,
+    keep_paths: bool = False,
+    detection: Detection | None = None,
+    changes: list | None = None,
+) -> Rollouts:
+    """Execute a plan `n` times in closed loop with sampled motion and observation noise.
+
+    Args:
+        model: the belief model of the EKF and of the noise (use all components:
+            `Setup.eval_model`); only identity motion/observation maps are supported.
+        poses: (T+1, 6) planned waypoints, camera frame; `poses[0]` is the start.
+        goal: (6,) goal pose for the errors (default: the last waypoint), in the last step's camera frame.
+        n: number of rollouts.
+        rng: a NumPy Generator or a seed. Per step the draws are, in this order,
+            `n x 6` normals for w and `n x 6` for v (after `n x 6` for the initial
+            error if `sample_initial`), so plans of the same horizon given the same seed
+            see the same normal draws (common random numbers across methods).
+        mode: `model` (v ~ N(0, V(mu_t|t-1))) or `true` (v ~ N(0, V(x_true))).
+        sample_initial: draw the true start from N(poses[0], Sigma0) (left perturbation
+            for the orientation); by default the true start is the planned start and
+            Sigma0 is only the EKF's prior.
+        keep_paths: also return the (N, T+1, 6) true and estimated paths.
+        detection: when the true pose gives an observation (see `Detection`); None: always.
+            With `falloff > 0`, n uniforms per step are drawn after the normals.
+        changes: camera moves (Types 3 and 4; `Setup.camera_changes()`): entry t (4x4 or None)
+            maps camera-t to camera-(t+1) coordinates and applies before the step t -> t+1;
+            `poses` are then each in their own step's camera frame (`Setup.in_step_frames`).
+            At a move, true pose and estimate are re-expressed in the new frame, the EKF adds
+            the camera's own motion noise `|t|^2 camera_W_p0 + angle^2 camera_W_o0` to Sigma
+            (rotated with it), and the true pose is perturbed by a draw of that noise (n x 6
+            normals, drawn before the step's own).
+    """
+    if mode not in MODES:
+        raise ValueError(f"unknown rollout mode '{mode}'; allowed: {', '.join(MODES)}")
+    if not has_identity_maps(model):
+        raise ValueError("rollouts support belief models with identity motion and observation maps only")
+    poses = np.asarray(poses, dtype=float)
+    if poses.ndim != 2 or poses.shape[1] != NX or len(poses) < 2:
+        raise ValueError(f"poses must have shape (T+1, {NX}) with T >= 1, got {poses.shape}")
+    goal = poses[-1] if goal is None else np.asarray(goal, dtype=float)
+    rng = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
+    noise = BatchedNoise(model, n)
+    waypoints = Rotation.from_rotvec(poses[:, 3:])
+
+    mu_p = np.tile(poses[0, :3], (n, 1))
+    mu_R = Rotation.from_rotvec(np.tile(poses[0, 3:], (n, 1)))
+    sigma0 = np.asarray(model.noise.Sigma0, dtype=float)
+    if sample_initial:
+        e0 = sample_gaussian(np.broadcast_to(sigma0, (n, NX, NX)), rng.standard_normal((n, NX)))
+        true_p, true_R = mu_p + e0[:, :3], Rotation.from_rotvec(e0[:, 3:]) * mu_R
+    else:
+        true_p, true_R = mu_p.copy(), mu_R
+    sigma = np.tile(sigma0, (n, 1, 1))
+    paths_true, paths_est = ([_pose(true_p, true_R)], [_pose(mu_p, mu_R)]) if keep_paths else (None, None)
+
+    detected = np.ones((n, len(poses) - 1), dtype=bool)
+    for t in range(len(poses) - 1):
+        if changes is not None and changes[t] is not None:
+            Dc = np.asarray(changes[t], float)
+            R_D, t_D = Rotation.from_matrix(Dc[:3, :3]), Dc[:3, 3]
+            Wc = (t_D @ t_D) * np.asarray(model.noise.camera_W_p0, float) + \
+                R_D.magnitude() ** 2 * np.asarray(model.noise.camera_W_o0, float)
+            wc = sample_gaussian(np.broadcast_to(Wc, (n, NX, NX)), rng.standard_normal((n, NX)))
+            true_p = R_D.apply(true_p) + t_D + wc[:, :3]
+            true_R = Rotation.from_rotvec(wc[:, 3:]) * R_D * true_R
+            mu_p, mu_R = R_D.apply(mu_p) + t_D, R_D * mu_R
+            F = np.zeros((NX, NX))
+            F[:3, :3] = F[3:, 3:] = Dc[:3, :3]  # left-perturbation errors rotate with the frame
+            sigma = F @ sigma @ F.T + Wc
+        target = np.tile(poses[t + 1], (n, 1))
+        z_w, z_v = rng.standard_normal((n, NX)), rng.standard_normal((n, NX))
+        u_det = rng.random(n) if detection is not None and detection.falloff > 0 else None
+        # command: from the estimate to the next waypoint; W of that step
+        W = noise.motion(_pose(mu_p, mu_R), target)
+        dp = poses[t + 1, :3] - mu_p
+        D = mu_R.inv() * waypoints[t + 1]
+        w = sample_gaussian(W, z_w)
+        true_p = true_p + dp + w[:, :3]
+        true_R = Rotation.from_rotvec(w[:, 3:]) * true_R * D
+        # EKF predict (identity maps): the predicted mean is the commanded waypoint
+        pred_p, pred_R = mu_p + dp, mu_R * D
+        pred = _pose(pred_p, pred_R)
+        P = sigma + W
+        if detection is not None:
+            prob = detection.probability(model.camera, true_p)
+            seen = prob >= 1.0 if u_det is None else u_det < prob
+            detected[:, t] = seen
+        else:
+            seen = detected[:, t]
+        V_ekf = noise.observation(pred)
+        if mode == "model":
+            V_real = V_ekf
+        else:  # V at an undetected true pose (e.g. behind the lens) is not used; keep it finite
+            V_real = noise.observation(np.where(seen[:, None], _pose(true_p, true_R), pred))
+        v = sample_gaussian(V_real, z_v)
+        z_p, z_R = true_p + v[:, :3], Rotation.from_rotvec(v[:, 3:]) * true_R
+        if detection is not None:  # gating: a reported position outside the detectable region is no detection
+            seen = seen & (detection.probability(model.camera, z_p) > 0)
+            detected[:, t] = seen
+        y = np.hstack([z_p - pred_p, (z_R * pred_R.inv()).as_rotvec()])
+        KT = _gain(P, P + V_ekf)  # K^T = S^-1 P (S, P symmetric); K = P S^-1
+        KT[~seen] = 0.0  # no observation: the EKF only predicts
+        dx = np.einsum("nji,nj->ni", KT, y)  # K y
+        mu_p, mu_R = pred_p + dx[:, :3], Rotation.from_rotvec(dx[:, 3:]) * pred_R
+        post = P - np.swapaxes(KT, 1, 2) @ P
+        sigma = 0.5 * (post + np.swapaxes(post, 1, 2))
+        if keep_paths:
+            paths_true.append(_pose(true_p, true_R))
+            paths_est.append(_pose(mu_p, mu_R))
+
+    goal_R = Rotation.from_rotvec(goal[3:])
+    return Rollouts(
+        mode=mode,
+        goal=goal,
+        final_true=_pose(true_p, true_R),
+        final_estimate=_pose(mu_p, mu_R),
+        final_error=np.hstack([true_p - mu_p, (true_R * mu_R.inv()).as_rotvec()]),
+        sigma_final=sigma,
+        pos_err=np.linalg.norm(true_p - goal[:3], axis=1),
+        ori_err=(goal_R.inv() * true_R).magnitude(),
+        true_path=None if paths_true is None else np.stack(paths_true, axis=1),
+        estimate_path=None if paths_est is None else np.stack(paths_est, axis=1),
+        detected=detected,
+    )
+
+
+def plan_metrics(model: BeliefModel, poses: np.ndarray, goal: np.ndarray, n: int, rng, mode: str,
+                 sigma_ml: np.ndarray | None = None,
+                 detection: Detection | None = None) -> tuple[dict[str, float], Rollouts]:
+    """The eight evaluation metrics (`METRICS`) of one plan in one rollout mode.
+
+    `trace_ml` and `entropy_ml` are of the plan's own maximum-likelihood Sigma_T
+    (`sigma_ml`, e.g. `Solution.sigma_final`; computed with `model.propagate` if omitted).
+    """
+    ro = rollout(model, poses, goal, n, rng, mode, detection=detection)
+    if sigma_ml is None:
+        sigma_ml = model.propagate(np.asarray(poses, float))[0][-1]
+    sigma_ml = np.asarray(sigma_ml, dtype=float)
+    out = ro.summary()
+    sign, logdet = np.linalg.slogdet(sigma_ml)
+    out["trace_ml"] = float(np.trace(sigma_ml))
+    out["entropy_ml"] = float(_ENTROPY_CONST + 0.5 * logdet) if sign > 0 else float("-inf")
+    return {k: out[k] for k in METRICS}, ro

@@ -1,0 +1,96 @@
+"""`surestep compare`: every method on one problem, side by side (files, table, plots)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from ..solvers.methods import COMPARE_METHODS, run_method
+from ..evaluation.metrics import comparison_rows, markdown_table
+from .plots_compare import write_figures
+from ..problem.setup import Setup
+from .solution import Solution, write_json_atomic, write_text_atomic
+
+
+def run_comparison(setup: Setup, methods: tuple[str, ...] = COMPARE_METHODS, progress=None) -> list[Solution]:
+    """Solve with each method in turn (a gradient solution is reused by `ocp-from-gradient`)."""
+    cache: dict[str, Solution] = {}
+    for name in methods:
+        if progress:
+            progress(name)
+        cache[name] = run_method(setup, name, cache)
+    sols = [cache[m] for m in methods]
+    for s in sols:
+        attach_motion_limits(setup, s)
+    return sols
+
+
+def attach_motion_limits(setup: Setup, sol: Solution) -> None:
+    """Record the plan's motion-limit report (limits.plan_report, with the problem's `limits:` overrides) in
+    `sol.extras["motion_limits"]` (with `limits.enforce: true` also a failure over a limit, `limits.enforce`)."""
+    from ..model.limits import enforce, plan_report, problem_limits
+
+    if any(q is None for q in sol.q):
+        sol.extras["motion_limits"] = {"skipped": "a waypoint has no IK solution (see reachability)"}
+        if setup.problem.limits.enforce:
+            enforce(setup, sol)
+        return
+    if setup.problem.limits.enforce:
+        enforce(setup, sol)
+        return
+    sol.extras["motion_limits"] = plan_report(setup.robot, np.array(sol.q, float), setup.problem.timing.step_s,
+                                              problem_limits(setup), tool_frame=setup.robot.frame)
+
+
+def write_comparison(solutions: list[Solution], out_dir: Path, problem_path: str) -> str:
+    """Write `<method>.json`, `comparison.md`, `comparison.json`, `trace.png`, `path.png`, `motion.png`; return
+    the tables (the comparison, then the motion limits at the planned pace)."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    for s in solutions:
+        s.save(out_dir / f"{s.method}.json")
+    rows = comparison_rows(solutions)
+    table = markdown_table(rows)
+    write_json_atomic(out_dir / "comparison.json", {"problem": problem_path, "methods": rows})
+    text = (f"# Comparison on `{problem_path}`\n\n"
+            "Every method evaluated by the same EKF (all observation components) along its own waypoints; "
+            "`rel.` is relative to the straight-line baseline with the paper's scaling (lower is better).\n\n"
+            f"{table}\n")
+    limits_text = limits_table(solutions)
+    if limits_text:
+        text += f"\n{limits_text}\n"
+    write_text_atomic(out_dir / "comparison.md", text)
+    write_figures(solutions, out_dir)
+    urdf = _robot_urdf(solutions)
+    if urdf is not None:
+        from .plots_motion import plot_plans
+
+        plot_plans(solutions, urdf, out_dir / "motion.png")
+    return table + (f"\n\n{limits_text}" if limits_text else "")
+
+
+def _robot_urdf(solutions: list[Solution]):
+    from ..problem.problem import resolve_urdf
+
+    p = resolve_urdf(str(solutions[0].robot.get("urdf", ""))) if solutions else None
+    return p if p is not None and p.is_file() else None
+
+
+def limits_table(solutions: list[Solution]) -> str:
+    """Markdown: each method's motion limits at the planned pace (docs/motion_limits_and_export.md; not enforced by the planners)."""
+    from ..model.limits import markdown_rows, summary_row
+
+    reps = [(s.method, s.extras.get("motion_limits")) for s in solutions]
+    rows = [summary_row(m, r) for m, r in reps if isinstance(r, dict) and "violations" in r]
+    if not rows:
+        return ""
+    step = next(r for _, r in reps if isinstance(r, dict) and "step_s" in r)["step_s"]
+    skipped = [m for m, r in reps if isinstance(r, dict) and "skipped" in r]
+    note = f" (not checked: {', '.join(skipped)}, unreachable waypoints)" if skipped else ""
+    enforced = any(isinstance(r, dict) and r.get("enforced") for _, r in reps)
+    how = ("enforced (`limits.enforce: true`: the OCP's constraints; a plan over a limit is a failure, "
+           "status Motion_Limits_Violated)" if enforced else
+           "reported, not enforced (`limits.enforce: false`)")
+    return (f"Motion limits at the planned pace ({step:g} s per step; {how}; "
+            f"`surestep export` retimes a plan within the joint limits){note}:\n\n{markdown_rows(rows)}")

@@ -1,0 +1,177 @@
+"""Where commands may write: output files and folders checked before the work starts.
+
+A command's outputs are checked up front (`check_output_file`, `check_output_dir`) and
+written whole or not at all (`solution.write_text_atomic`: a temporary file beside the
+target, renamed over it). An output may replace a regular file, never one of the
+command's inputs (the same file under any name), a directory, a device or another
+special file; its folder must exist or be creatable, and be writable. Every refusal is a
+one-line `SurestepError` (exit 2).
+
+Also here: `check_finite`, which refuses to write NaN or Infinity (naming the key that
+diverged), and `quiet_fd`, which keeps C libraries' chatter off the terminal.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import os
+import stat
+import tempfile
+from collections.abc import Iterable, Iterator
+from pathlib import Path
+from typing import Any
+
+from ..errors import SolverError, SurestepError, shown
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return False
+
+
+def _probe_writable(folder: Path, what: str) -> None:
+    """Create and delete a temporary file in `folder` (the one sure test of writability)."""
+    try:
+        fd, tmp = tempfile.mkstemp(dir=folder, prefix=".surestep-probe-")
+        os.close(fd)
+        os.unlink(tmp)
+    except OSError as exc:
+        raise SurestepError(f"{shown(str(folder), 200)}: cannot write {what} there "
+                            f"({exc.strerror or exc})") from None
+
+
+def _nearest_existing(folder: Path) -> Path:
+    p = folder
+    while not p.exists() and p != p.parent:
+        p = p.parent
+    return p
+
+
+def check_output_file(path: str | Path, inputs: Iterable[str | Path] = (), what: str = "the output") -> Path:
+    """Check, before any work, that `path` can be written whole and replaces nothing it must not.
+
+    Creates the missing parent folders (so the check is the real one).
+    """
+    path = Path(path)
+    name = shown(str(path), 200)
+    if str(path) == "" or path.name in ("", ".", ".."):
+        raise SurestepError(f"'{name}': {what} must be a file name")
+    for inp in inputs:
+        if inp is not None and _same_file(path, Path(inp)):
+            raise SurestepError(f"{name}: {what} would overwrite the input {shown(str(inp), 200)}; "
+                                "choose another file")
+    if path.exists() or path.is_symlink():
+        try:
+            mode = path.stat().st_mode
+        except OSError as exc:
+            raise SurestepError(f"{name}: cannot use it as {what} ({exc.strerror or exc})") from None
+        if stat.S_ISDIR(mode):
+            raise SurestepError(f"{name}: is a directory; {what} must be a file")
+        if not stat.S_ISREG(mode):
+            raise SurestepError(f"{name}: not a regular file (a device, pipe or socket); {what} is only written "
+                                "to a new or regular file")
+        if path.is_symlink():
+            raise SurestepError(f"{name}: is a symbolic link; {what} would replace the link, not its target; "
+                                "give the target's path")
+    parent = path.parent
+    existing = _nearest_existing(parent)
+    if not existing.is_dir():
+        raise SurestepError(f"{name}: {shown(str(existing), 200)} is not a directory")
+    try:
+        parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise SurestepError(f"{name}: cannot create the folder {shown(str(parent), 200)} "
+                            f"({exc.strerror or exc})") from None
+    _probe_writable(parent, what)
+    return path
+
+
+def check_output_dir(path: str | Path, inputs: Iterable[str | Path] = (), what: str = "the output") -> Path:
+    """Check, before any work, that `path` is (or can be created as) a writable directory; create it."""
+    path = Path(path)
+    name = shown(str(path), 200)
+    if str(path) == "":
+        raise SurestepError(f"'': {what} directory must be named")
+    if path.exists() and not path.is_dir():
+        raise SurestepError(f"{name}: exists and is not a directory; {what} directory must be a directory")
+    existing = _nearest_existing(path)
+    if not existing.is_dir():
+        raise SurestepError(f"{name}: {shown(str(existing), 200)} is not a directory")
+    for inp in inputs:
+        if inp is not None and _same_file(path, Path(inp)):
+            raise SurestepError(f"{name}: is an input of this command; choose another directory")
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise SurestepError(f"{name}: cannot create {what} directory ({exc.strerror or exc})") from None
+    _probe_writable(path, what)
+    return path
+
+
+def check_replaceable(path: Path) -> None:
+    """Refuse to rename a file over `path` when it is a directory or not a regular file (last-moment check)."""
+    try:
+        mode = os.lstat(path).st_mode
+    except FileNotFoundError:
+        return
+    except OSError as exc:
+        raise SurestepError(f"{shown(str(path), 200)}: cannot write it ({exc.strerror or exc})") from None
+    if stat.S_ISDIR(mode):
+        raise SurestepError(f"{shown(str(path), 200)}: is a directory; not replaced")
+    if not (stat.S_ISREG(mode) or stat.S_ISLNK(mode)):
+        raise SurestepError(f"{shown(str(path), 200)}: not a regular file (a device, pipe or socket); not replaced")
+
+
+class NonFinite(SolverError):
+    """A computation produced NaN or Infinity; nothing holding it is written."""
+
+    def __init__(self, what: str, where: str, value: float):
+        self.where = where
+        super().__init__(what, "diverged", message=f"{where} is {value} (nothing is written with a non-finite "
+                                                    "number; the inputs are likely too extreme for the model)")
+
+
+def first_non_finite(obj: Any, path: str = "") -> tuple[str, float] | None:
+    """The key path and value of the first NaN or Infinity in a JSON-like tree (numpy arrays included)."""
+    stack = [(path, obj)]
+    while stack:
+        where, o = stack.pop()
+        if isinstance(o, float):
+            if not math.isfinite(o):
+                return where or "<value>", o
+        elif isinstance(o, dict):
+            stack.extend((f"{where}.{k}" if where else str(k), v) for k, v in reversed(list(o.items())))
+        elif isinstance(o, (list, tuple)):
+            stack.extend((f"{where}[{i}]", v) for i, v in reversed(list(enumerate(o))))
+        elif hasattr(o, "dtype") and hasattr(o, "tolist"):
+            stack.append((where, o.tolist()))
+        elif hasattr(o, "item") and hasattr(o, "dtype"):
+            stack.append((where, o.item()))
+    return None
+
+
+def check_finite(obj: Any, what: str) -> None:
+    """Raise `NonFinite` naming the first key of `obj` holding NaN or Infinity."""
+    bad = first_non_finite(obj)
+    if bad is not None:
+        raise NonFinite(what, *bad)
+
+
+@contextlib.contextmanager
+def quiet_fd(fd: int = 2) -> Iterator[None]:
+    """Silence a file descriptor (C libraries printing to stderr) for the duration of the block."""
+    try:
+        saved = os.dup(fd)
+    except OSError:  # no such descriptor: nothing to silence
+        yield
+        return
+    try:
+        with open(os.devnull, "wb") as null:
+            os.dup2(null.fileno(), fd)
+            yield
+    finally:
+        os.dup2(saved, fd)
+        os.close(saved)

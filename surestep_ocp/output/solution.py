@@ -1,0 +1,251 @@
+"""One `Solution` type for every method, evaluated by one function, saved as JSON atomically."""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..model.belief import entropy
+from ..model.lie import matrix_to_pose, np_angle, np_exp_many, np_log_many, pose_to_matrix
+from ..model.limits import recorded_limits
+from ..problem.setup import Setup
+
+
+@dataclass
+class Solution:
+    """A planned trajectory and its evaluation (see docs/solution_file.md)."""
+
+    method: str
+    problem: str
+    success: bool
+    status: str
+    solve_time_s: float
+    iterations: int
+    horizon: int
+    joint_names: list[str]
+    q: list[list[float] | None]
+    poses: list[list[float]]
+    goal: list[float]
+    camera: dict
+    camera_pose: list[list[float]]
+    robot: dict
+    noise: dict
+    trace: list[float]
+    sigma: list[list[list[float]]]
+    sigma_final: list[list[float]]
+    objective: float
+    extras: dict[str, Any] = field(default_factory=dict)
+
+    # ----------------------------------------------------------- derived numbers
+    @property
+    def trace_final(self) -> float:
+        return float(self.trace[-1])
+
+    @property
+    def terminal_error(self) -> tuple[float, float]:
+        """Distance [m] and angle [rad] between the plan's last waypoint and the goal (first camera frame)."""
+        x, g = np.asarray(self.poses[-1]), np.asarray(self.goal)
+        if "camera_poses" in self.extras:  # poses are in their own step's camera frame
+            C = [np.asarray(c) for c in self.extras["camera_poses"]]
+            x = matrix_to_pose(np.linalg.inv(C[0]) @ C[-1] @ pose_to_matrix(x))
+        return float(np.linalg.norm(x[:3] - g[:3])), np_angle(x[3:], g[3:])
+
+    @property
+    def entropy_final(self) -> float:
+        return entropy(np.asarray(self.sigma_final))
+
+    # ----------------------------------------------------------- arrays (the public API)
+    @property
+    def joints(self) -> np.ndarray:
+        """(T+1, nq) joint values [rad, or m for prismatic joints] in `joint_names` order; NaN rows where a
+        pose-space waypoint has no IK solution."""
+        return np.array([[np.nan] * len(self.joint_names) if q is None else q for q in self.q], float)
+
+    @property
+    def positions(self) -> np.ndarray:
+        """(T+1, 3) tool positions [m] in the camera frame (of each waypoint's step when the camera moves)."""
+        return np.asarray(self.poses, float)[:, :3]
+
+    @property
+    def orientations(self) -> np.ndarray:
+        """(T+1, 3) tool orientations as axis-angle vectors [rad], same frame as `positions`."""
+        return np.asarray(self.poses, float)[:, 3:]
+
+    @property
+    def pose_matrices(self) -> np.ndarray:
+        """(T+1, 4, 4) tool poses (rotation, position [m]) in the camera frame."""
+        return np.array([pose_to_matrix(x) for x in self.poses])
+
+    @property
+    def covariances(self) -> np.ndarray:
+        """(T+1, 6, 6) EKF covariances Sigma_t|t of (position [m], orientation [rad]): blocks in m^2, m rad,
+        rad^2; the evaluation's model (every observation component)."""
+        return np.asarray(self.sigma, float)
+
+    @property
+    def times(self) -> np.ndarray:
+        """(T+1,) time [s] of each waypoint from the start (`timing.step_s` per step)."""
+        return np.arange(self.horizon + 1) * float(self.extras.get("timing", {}).get("step_s", 0.05))
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        extras = d.pop("extras")
+        d.update(extras)
+        return d
+
+    def save(self, path: str | Path) -> Path:
+        """Write the solution (atomically); NaN or Infinity anywhere in it is an error naming the key."""
+        from .outputs import check_finite
+
+        d = self.to_dict()
+        check_finite(d, f"the {self.method} solution")
+        return write_json_atomic(path, d)
+
+    @classmethod
+    def load(cls, path: str | Path) -> Solution:
+        d = json.loads(Path(path).read_text())
+        names = set(cls.__dataclass_fields__) - {"extras"}
+        return cls(**{k: d[k] for k in names}, extras={k: v for k, v in d.items() if k not in names})
+
+
+def write_json_atomic(path: str | Path, obj: Any) -> Path:
+    """Write JSON to a temporary file beside `path`, then rename it over `path`."""
+    return write_text_atomic(path, json.dumps(obj, indent=1, default=_jsonable) + "\n")
+
+
+def write_text_atomic(path: str | Path, text: str | bytes) -> Path:
+    """Write `text` whole or not at all: a temporary file beside `path`, renamed over it. Never replaces a
+    directory, a device or another non-regular file; a file-system refusal is a one-line SurestepError."""
+    from ..errors import SurestepError, shown
+    from .outputs import check_replaceable
+
+    path = Path(path)
+    check_replaceable(path)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    except OSError as exc:
+        raise SurestepError(f"{shown(str(path), 200)}: cannot write it ({exc.strerror or exc})") from None
+    umask = os.umask(0)
+    os.umask(umask)
+    os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600; give the file the usual permissions
+    try:
+        with os.fdopen(fd, "wb" if isinstance(text, bytes) else "w") as fh:
+            fh.write(text)
+        check_replaceable(path)  # again: it may have changed while the text was written
+        os.replace(tmp, path)
+    except OSError as exc:
+        Path(tmp).unlink(missing_ok=True)
+        raise SurestepError(f"{shown(str(path), 200)}: cannot write it ({exc.strerror or exc})") from None
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return path
+
+
+def _jsonable(o: Any):
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, (np.floating, np.integer)):
+        return o.item()
+    if isinstance(o, Path):
+        return str(o)
+    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
+
+
+def _cov_json(M: np.ndarray):
+    """A scalar when the matrix is a multiple of the identity, else the 6x6 list."""
+    M = np.asarray(M)
+    s = M[0, 0]
+    return float(s) if np.array_equal(M, s * np.eye(len(M))) else M.tolist()
+
+
+def noise_dict(setup: Setup) -> dict:
+    n = setup.problem.noise
+    d = {k: _cov_json(getattr(n, k)) for k in ("W_p0", "W_o0", "V_d0", "V_f0", "V_o0", "V_min", "Sigma0")}
+    d.update(depth_star=n.depth_star, o_star=list(n.o_star), components=list(setup.model.components),
+             orientation_formula=n.orientation_formula, cosine_guard=n.cosine_guard, cut_band=n.cut_band)
+    return d
+
+
+def evaluate(
+    setup: Setup,
+    method: str,
+    poses: np.ndarray,
+    q: list[np.ndarray | None],
+    *,
+    success: bool,
+    status: str,
+    solve_time_s: float,
+    iterations: int,
+    objective: float,
+    components: tuple[str, ...] | None = None,
+    extras: dict | None = None,
+    sigma: np.ndarray | None = None,
+) -> Solution:
+    """The single evaluation every method goes through: the EKF with all components along `poses`.
+
+    `sigma`: the (T+1, 6, 6) covariances of that EKF along `poses` when the caller has them already (the
+    re-planning loop propagates them in one compiled call, planner.py; a fixed camera only).
+    """
+    poses = np.array(poses, dtype=float)
+    beyond = np.linalg.norm(poses[:, 3:], axis=1) > np.pi  # principal vectors (the OCP's are continued)
+    poses[beyond, 3:] = np_log_many(np_exp_many(poses[beyond, 3:]))
+    poses = setup.in_step_frames(poses)  # planned in the first camera frame
+    sig = setup.eval_model.propagate(poses, setup.camera_changes())[0] if sigma is None else np.asarray(sigma)
+    prob = setup.problem
+    noise = noise_dict(setup)
+    if components is not None:
+        noise["components"] = list(components)
+    robot = {"urdf": prob.robot.urdf_rel, "frame": prob.robot.frame, "base_pose": setup.robot.base_pose.tolist()}
+    if prob.robot.grasp is not None:
+        robot["needle"] = {"radius": prob.robot.needle_radius, "grasp": prob.robot.grasp.tolist()}
+    ext = dict(extras or {})
+    tm = prob.timing  # the file's timing (noise's V_* are already divided by frames_per_step)
+    ext.setdefault("timing", {"step_s": tm.step_s, "tracker_hz": tm.tracker_hz, "frames_per_step": tm.frames})
+    ext.setdefault("limits", recorded_limits(setup))  # what `surestep export` honours (docs/motion_limits_and_export.md, "Export")
+    arms = []
+    for spec in (prob.start.relative, prob.goal.relative):
+        if spec is not None:
+            a = spec.arm
+            arm = {"urdf": a.urdf_rel, "frame": a.frame, "base_pose": a.base_pose.tolist(),
+                   "q": [float(v) for v in a.joints]}
+            if a.grasp is not None:
+                arm["needle"] = {"radius": a.needle_radius, "grasp": a.grasp.tolist()}
+            arms.append(arm)
+    if arms:
+        ext.setdefault("other_arms", arms)
+    if setup.camera_schedule:
+        ext.setdefault("camera_poses", [C.tolist() for C in setup.camera_schedule])
+    if setup.ecm is not None:
+        ext.setdefault("ecm", {"urdf": prob.camera.ecm.urdf_rel, "frame": prob.camera.ecm.frame,
+                               "q": list(map(float, prob.camera.ecm_joints)),
+                               "base_pose": setup.ecm.base_pose.tolist()})
+    return Solution(
+        method=method,
+        problem=str(prob.path),
+        success=bool(success),
+        status=str(status),
+        solve_time_s=float(solve_time_s),
+        iterations=int(iterations),
+        horizon=len(poses) - 1,
+        joint_names=setup.robot.joint_names,
+        q=[None if qi is None else [float(v) for v in qi] for qi in q],
+        poses=poses.tolist(),
+        goal=setup.x_goal.tolist(),
+        camera=prob.camera.intrinsics.to_dict(),
+        camera_pose=setup.camera_pose.tolist(),
+        robot=robot,
+        noise=noise,
+        trace=[float(np.trace(s)) for s in sig],
+        sigma=sig.tolist(),
+        sigma_final=sig[-1].tolist(),
+        objective=float(objective),
+        extras=ext,
+    )

@@ -1,0 +1,46 @@
+"""The straight-line baseline: position linear, orientation by slerp, no optimisation."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from ..model.lie import continued_along, slerp_many
+from ..problem.setup import Setup
+from ..output.solution import Solution, evaluate
+
+
+def straight_line(x_start: np.ndarray, x_goal: np.ndarray, horizon: int) -> np.ndarray:
+    """(T+1, 6) waypoints from start to goal, evenly spaced in position and in angle (the shortest rotation),
+    the rotation vector continued along them from the start's (it may end on the goal's other side)."""
+    s = np.linspace(0.0, 1.0, horizon + 1)
+    p = (1 - s)[:, None] * x_start[:3] + s[:, None] * x_goal[:3]
+    r = slerp_many(x_start[3:], x_goal[3:], s)
+    r[0], r[-1] = x_start[3:], x_goal[3:]
+    return np.hstack([p, continued_along(r)])
+
+
+def reachability(setup: Setup, poses: np.ndarray) -> tuple[list, dict]:
+    """Joint solutions of pose-space waypoints and a summary of which are reachable."""
+    # batched Newton from the joint-space line first (as for the OCP's initial guess), then sequential IK
+    q_best, ok, res_m, res_r = setup.joints_along(poses, setup.q_start, guesses=setup.joint_line(len(poses) - 1))
+    qs = [q if k else None for q, k in zip(q_best, ok)]
+    info = {
+        "reachable": int(ok.sum()),
+        "unreachable": int((~ok).sum()),
+        "ik_residual_m": res_m.tolist(),
+        "ik_residual_rad": res_r.tolist(),
+    }
+    return qs, info
+
+
+def solve_baseline(setup: Setup) -> Solution:
+    t0 = time.perf_counter()
+    poses = straight_line(setup.x_start, setup.x_goal, setup.problem.horizon)
+    elapsed = time.perf_counter() - t0
+    qs, info = reachability(setup, poses)
+    sol = evaluate(setup, "baseline", poses, qs, success=True, status="not optimised", solve_time_s=elapsed,
+                   iterations=0, objective=np.nan, extras={"reachability": info})
+    sol.objective = sol.trace_final
+    return sol

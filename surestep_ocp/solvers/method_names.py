@@ -1,0 +1,45 @@
+"""The method names `surestep` accepts: a base method, then optional suffixes (the one registry).
+
+`methods.run_method` dispatches on these names, `styles` gives every one of them a look and the CLI's
+help lists them from here, so a new method or suffix is added in one place. Kept free of the solvers
+so that the plots and the 3D scene can read it cheaply.
+"""
+
+from __future__ import annotations
+
+from itertools import product
+
+from ..model.belief import COMPONENTS
+
+BASE_METHODS = ("baseline", "gradient", "gradient-no-pose-loss", "ocp", "ocp-from-gradient")
+OCP_METHODS = ("ocp", "ocp-from-gradient")  # the bases the OCP solver flags (--solver, --hessian, ...) act on
+ABLATIONS = {f"-no-{c}": c for c in COMPONENTS}  # that observation component left out while planning
+EXPECTED = "-expected"  # plan with the observation noise expected under the belief
+PREDICTED = "-predicted"  # minimise Tr(Sigma_T|T-1)
+REPLAN_METHODS = ("ocp-once", "ocp-replanned")  # written by `surestep replan`, with ocp-replan-<step>
+
+
+def split_name(name: str) -> tuple[str, str | None, bool, bool]:
+    """(base, ablated component or None, -expected?, -predicted?) of a method name; ValueError if unknown."""
+    rest = name
+    predicted = rest.endswith(PREDICTED)
+    rest = rest[: -len(PREDICTED)] if predicted else rest
+    expected = rest.endswith(EXPECTED)
+    rest = rest[: -len(EXPECTED)] if expected else rest
+    for suffix, comp in ABLATIONS.items():
+        if rest.endswith(suffix) and rest[: -len(suffix)] in BASE_METHODS:
+            return rest[: -len(suffix)], comp, expected, predicted
+    if rest in BASE_METHODS:
+        return rest, None, expected, predicted
+    raise ValueError(f"unknown method '{name}'; allowed: {grammar()}")
+
+
+def grammar() -> str:
+    """The accepted names in one line (for help texts and error messages)."""
+    return (f"{' | '.join(BASE_METHODS)}, optionally followed by {' | '.join(ABLATIONS)}, "
+            f"then {EXPECTED}, then {PREDICTED}")
+
+
+def all_names() -> list[str]:
+    """Every name `split_name` accepts, grouped by base method."""
+    return [b + a + e + p for b, a, e, p in product(BASE_METHODS, ("", *ABLATIONS), ("", EXPECTED), ("", PREDICTED))]

@@ -1,0 +1,85 @@
+"""Method names and dispatch: every method takes a Setup and returns a Solution.
+
+Names (`method_names`): `baseline`, `gradient`, `gradient-no-pose-loss`, `ocp`, `ocp-from-gradient`
+(the OCP started from the gradient solution), each optionally with an ablation suffix
+`-no-depth`, `-no-fov` or `-no-orientation` (that observation component is left out
+during optimisation; evaluation always uses all components), then `-expected`, then `-predicted`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from .baseline import solve_baseline, straight_line
+from ..model.belief import COMPONENTS
+from ..errors import SurestepError
+from ..model.limits import enforce as enforce_limits
+from .method_names import BASE_METHODS, split_name
+from .ocp import InitialGuess, solve_ocp
+from ..problem.setup import Setup
+from ..output.solution import Solution
+
+COMPARE_METHODS = BASE_METHODS
+
+
+def parse_method(name: str) -> tuple[str, tuple[str, ...] | None, str | None, str | None]:
+    """Split a method name into (base, components or None, observation-noise form or None, objective or None).
+
+    A trailing `-predicted` minimises Tr(Sigma_T|T-1); before it, `-expected` plans with the
+    belief-aware observation noise (section 8). The grammar is `method_names.split_name`'s.
+    """
+    try:
+        base, ablated, expected, predicted = split_name(name)
+    except ValueError as exc:
+        raise SurestepError(str(exc)) from None
+    comps = None if ablated is None else tuple(c for c in COMPONENTS if c != ablated)
+    return base, comps, "expected" if expected else None, "predicted" if predicted else None
+
+
+def _variant(setup: Setup, components: tuple[str, ...] | None, form: str | None,
+             objective: str | None = None) -> Setup:
+    """The same setup planning with other observation components, noise form or objective."""
+    if components is None and form is None and objective is None:
+        return setup
+    noise = setup.problem.noise
+    noise = replace(noise, components=components or noise.components, observation_noise=form or
+                    noise.observation_noise, objective=objective or noise.objective)
+    return replace(setup, problem=replace(setup.problem, noise=noise))
+
+
+def ocp_initial_guess(setup: Setup, source: str = "baseline", gradient: Solution | None = None) -> InitialGuess:
+    """Joint trajectory to start the OCP from: IK of the straight line or of a gradient solution."""
+    if source == "baseline":
+        poses = straight_line(setup.x_start, setup.x_goal, setup.problem.horizon)
+    else:
+        poses = np.asarray(gradient.poses)
+    q_best, ok, _, _ = setup.joints_along(poses, setup.q_start, guesses=setup.joint_line(len(poses) - 1))
+    note = source if ok.all() else f"{source} ({int((~ok).sum())} waypoints unreachable, best-effort IK used)"
+    return InitialGuess(q_best, note)
+
+
+def run_method(setup: Setup, name: str, cache: dict[str, Solution] | None = None,
+               solver_options: dict | None = None) -> Solution:
+    """Solve `setup` with the named method (see module docstring).
+
+    `cache` (method name -> Solution) lets `ocp-from-gradient` reuse a gradient solution.
+    """
+    base, comps, form, objective = parse_method(name)
+    s = _variant(setup, comps, form, objective)
+    if base == "baseline":
+        sol = solve_baseline(s)
+    elif base in ("gradient", "gradient-no-pose-loss"):
+        from .gradient import solve_gradient
+
+        sol = solve_gradient(s, pose_loss=(base == "gradient"), components=comps)
+    elif base == "ocp":
+        sol = solve_ocp(s, ocp_initial_guess(s), solver_options)
+    else:  # ocp-from-gradient
+        suffix = name[len(base):]
+        grad = (cache or {}).get("gradient" + suffix) or run_method(setup, "gradient" + suffix, cache)
+        sol = solve_ocp(s, ocp_initial_guess(s, "gradient", grad), solver_options)
+    enforce_limits(s, sol)  # limits.enforce: true: a plan over a limit is not a success, whichever method made it
+    sol.method = name
+    return sol

@@ -1,0 +1,302 @@
+"""A projected Newton solver for the condensed OCP with the surrogate Hessian (`solver.name: newton`).
+
+With the condensed form of a scalar model the belief means are functions of the joints,
+`mu_t = pose(q_t)`; `q_0` is fixed, and the terminal equality `mu_T = x^G` with exactly six
+joints moving the tracked frame fixes `q_T` to the goal's IK solution, locally
+(`ocp.newton_applies`; IPOPT's solutions keep it: measured `|q_T - q_goal| <= 7e-16` on 19
+evaluation instances). What is left is a box-constrained problem in the interior joints
+`q_1 .. q_T-1`:
+
+    min f(q) = S(c(pose(q))) / S_ref + smoothness * sum |q_t+1 - q_t|^2,   q_lo <= q <= q_hi
+
+solved by a projected Newton method (Bertsekas 1982): the Hessian is the surrogate's (the
+exact Hessian of `sum_k dS/dc_k c_k(pose(q))` with the weights frozen, the same majorant as
+`solver.hessian: surrogate`, here with the kinematics' curvature by the chain rule; block
+tridiagonal in the nodes), on the free joints (a joint at a bound with the gradient pushing
+out is held); a Cholesky factorisation with a diagonal shift when it is not positive
+definite; an Armijo backtracking search along the projected path. Converged when the
+projected gradient is below `solver.tol` (inf-norm; the objective is 1 at the start).
+
+The minimum-depth bound is not in this formulation: it is checked at the end, and a
+violation is a failure, after which `solve_ocp_warm` runs IPOPT (which has the bound).
+Every evaluation is one call of a stage-wise Function (compiled with `solver.codegen`)
+through CasADi's buffer interface (no conversions), so an iteration costs about 0.3 ms at
+T = 20 where IPOPT's own work is 0.43 ms (docs/solve_speed.md).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import casadi as ca
+import numpy as np
+import scipy.linalg
+
+from ..model.belief import NV, BeliefModel
+from .codegen import compiled_or_interpreted
+from ..model.robot import CAMERA_PARAMETERS, Robot
+from ..problem.setup import Setup
+from ..output.solution import Solution, evaluate
+from .surrogate import interval_terms, pose_function, recursion_weights
+
+
+EXACT_BELOW = 1e-3  # projected gradient (objective 1 at the start) below which Newton tries the exact Hessian
+# The exact Hessian is dense (S couples every interval): its cost grows as n^3 and its curvature's as T^2, so above
+# this many joint variables (T of about 27 for the PSM) Newton keeps the banded surrogate, linear in T. (With 400,
+# i.e. T = 40 included, the T = 40 median of benchmarks/solve_speed.py rose from 0.79 to 1.04 of the gradient
+# variant's: two dense steps cost more than the surrogate iterations they save.)
+EXACT_MAX_N = 200
+# Newton stops as "Stalled" when the objective fell by less than STALL_DECREASE (relative) over STALL_WINDOW iterations
+# (a warm re-plan with exact steps ran its 300-iteration cap in 1 s this way, where the fallback took 50 ms)
+STALL_WINDOW, STALL_DECREASE = 10, 1e-10
+
+
+class _Buffered:
+    """A Function evaluated in place on NumPy arrays (CasADi's buffer interface)."""
+
+    def __init__(self, fn: ca.Function):
+        self.fn = fn  # the buffer refers to it
+        self.args = [np.zeros(fn.sparsity_in(i).numel()) for i in range(fn.n_in())]
+        self.res = [np.zeros(fn.sparsity_out(i).nnz()) for i in range(fn.n_out())]
+        self.buf, self.trigger = fn.buffer()
+        for i, a in enumerate(self.args):
+            self.buf.set_arg(i, memoryview(a))
+        for i, r in enumerate(self.res):
+            self.buf.set_res(i, memoryview(r))
+
+    def __call__(self, *args) -> list[np.ndarray]:
+        for dst, src in zip(self.args, args):
+            dst[:] = np.ravel(src, order="F")
+        self.trigger()
+        return self.res
+
+
+class NewtonSolver:
+    """The joint-space problem of one structure (robot, model, horizon, smoothness), built once."""
+
+    def __init__(self, robot: Robot, model: BeliefModel, horizon: int, smoothness: float, codegen: bool,
+                 codegen_required: bool = False):
+        t0 = time.perf_counter()
+        self.robot, self.T, nq = robot, horizon, robot.nq
+        T = horizon
+        Tcb, ref, sigma0 = ca.SX.sym("camera", CAMERA_PARAMETERS), ca.SX.sym("trace_ref"), ca.SX.sym("sigma0", NV)
+        pose = pose_function(robot)
+        weights = recursion_weights(model, T, sigma0, ref)
+        qa, qb = ca.SX.sym("qa", nq), ca.SX.sym("qb", nq)
+        _, coefficients, (wm, wo), weighted = interval_terms(model, pose(qa, Tcb), pose(qb, Tcb))
+        coef = ca.Function("coef", [qa, qb, Tcb], list(coefficients))
+        surrogate = weighted + smoothness * ca.sumsqr(qb - qa)
+        H, g = ca.hessian(surrogate, ca.vertcat(qa, qb))
+        interval = ca.Function("interval", [qa, qb, wm, wo, Tcb], [ca.densify(g), ca.densify(H)])
+        Q, P = ca.MX.sym("Q", nq, T + 1), ca.MX.sym("P", CAMERA_PARAMETERS + 1 + NV)  # camera, trace_ref, sigma0
+        Tc, r, s0 = P[:CAMERA_PARAMETERS], P[CAMERA_PARAMETERS], P[CAMERA_PARAMETERS + 1:]
+        S_x, w_m, w_o = weights(*coef.map(T)(Q[:, :T], Q[:, 1:], Tc), s0, r)
+        G, HB = interval.map(T)(Q[:, :T], Q[:, 1:], w_m, w_o, Tc)
+        smooth = smoothness * ca.sumsqr(Q[:, 1:] - Q[:, :T])
+        # S's own curvature in the coefficients (dense, 5T x 5T, negative semidefinite) and the coefficients'
+        # Jacobians per interval: the exact Hessian is the surrogate's plus C^T (d2S/dc2) C (the end-game)
+        fns = {"newton_step": ca.Function("newton_step", [Q, P], [S_x, S_x + smooth, G, HB]),
+               "newton_f": ca.Function("newton_f", [Q, P], [S_x + smooth])}
+        self.nm, self.no = w_m.shape[0], w_o.shape[0]
+        # S's curvature costs nc T Hessian-vector products: cheap for the scalar recursion (1.8 ms at T = 20),
+        # not for the 6x6 one (0.36 s measured), where Newton keeps the surrogate throughout
+        if model.scalar and nq * (T + 1) <= EXACT_MAX_N:
+            fns["newton_curv"] = self._curvature(weights, coef, coefficients, qa, qb, Tcb, Q, P, w_m, w_o)
+        self.codegen, self.codegen_note = codegen, None
+        if codegen:
+            fns, self.codegen_note = compiled_or_interpreted(fns, codegen_required)
+            self.codegen = self.codegen_note is None
+        self.step, self.f = _Buffered(fns["newton_step"]), _Buffered(fns["newton_f"])
+        self.curv = _Buffered(fns["newton_curv"]) if "newton_curv" in fns else None
+        self.poses = pose.map(T + 1)
+        # scatter maps: interval t covers the joint vectors of nodes t, t+1 (positions t*nq .. (t+2)*nq)
+        n = self.n = nq * (T + 1)
+        rows = [np.arange(t * nq, (t + 2) * nq) for t in range(T)]
+        self.g_index = np.concatenate(rows)
+        # the Hessian in LAPACK's lower band storage, ab[r - c, c] = H[r, c] (r >= c), half-bandwidth 2 nq - 1:
+        # block entries above the diagonal are dropped (symmetric), the others summed into their band slot
+        hr = np.concatenate([np.tile(r, 2 * nq) for r in rows])
+        hc = np.concatenate([np.repeat(r, 2 * nq) for r in rows])
+        self.band = 2 * nq
+        self.h_lower = hr >= hc
+        self.h_index = ((hr - hc) * n + hc)[self.h_lower]
+        self.h_full = hr * n + hc  # the same entries in a dense n x n matrix (both triangles)
+        # the coefficient Jacobians (nc x 2nq per interval, column-major) into C (nc T x n): coefficient k of
+        # interval t is row k + nm t (motion) or nm T + (k - nm) + no t (observation), as d2S/dc2 orders them
+        nm, no = self.nm, self.no
+        c_row = [[k + nm * t if k < nm else nm * T + (k - nm) + no * t for k in range(nm + no)] for t in range(T)]
+        self.nc = (nm + no) * T
+        self.c_index = np.array([c_row[t][k] * n + rows[t][j] for t in range(T) for j in range(2 * nq)
+                                 for k in range(nm + no)])
+        self.build_time_s = time.perf_counter() - t0
+
+    def _curvature(self, weights, coef, coefficients, qa, qb, Tcb, Q, P, w_m, w_o) -> ca.Function:
+        """`(Q, P) -> (d2S/dc2, coefficient Jacobians per interval)`: the exact Hessian is the surrogate's plus
+        C^T (d2S/dc2) C (the end-game). One Hessian-vector product of S, forward over the recursion's reverse
+        sweep, mapped over the unit directions: the generated code holds one sweep (a symbolic dense Hessian did
+        not compile in minutes)."""
+        T, Tc, s0, r = self.T, P[:CAMERA_PARAMETERS], P[CAMERA_PARAMETERS + 1:], P[CAMERA_PARAMETERS]
+        cm, co = ca.MX.sym("cm", *w_m.shape), ca.MX.sym("co", *w_o.shape)
+        nc = w_m.numel() + w_o.numel()
+        _, dm, do = weights(cm, co, s0, r)
+        direction = ca.MX.sym("dc", nc)
+        hvp = ca.Function("hvp", [cm, co, P, direction],
+                          [ca.jtimes(ca.vertcat(ca.vec(dm), ca.vec(do)), ca.vertcat(ca.vec(cm), ca.vec(co)), direction)])
+        CM, CO = ca.MX.sym("CM", *w_m.shape), ca.MX.sym("CO", *w_o.shape)
+        curv = ca.Function("curv", [CM, CO, P], [hvp.map(nc)(CM, CO, P, ca.DM.eye(nc))])
+        coef_jac = ca.Function("coef_jac", [qa, qb, Tcb], [ca.densify(ca.jacobian(ca.vertcat(*coefficients),
+                                                                                    ca.vertcat(qa, qb)))])
+        return ca.Function("newton_curv", [Q, P], [ca.densify(curv(*coef.map(T)(Q[:, :T], Q[:, 1:], Tc), P)),
+                                                   coef_jac.map(T)(Q[:, :T], Q[:, 1:], Tc)])
+
+    def solve(self, setup: Setup, init, method: str = "ocp", tol: float = 1e-6, max_iter: int = 300,
+              verbose: bool = False) -> Solution:
+        """Projected Newton from `init`: converged when the projected gradient's inf-norm is at most `tol` (the
+        objective is 1 at the start), at most `max_iter` iterations; `verbose` prints one line per iteration."""
+        return self._solution(setup, method, init, self.run(setup, init, tol, max_iter, verbose))
+
+    def run(self, setup: Setup, init, tol: float = 1e-6, max_iter: int = 300, verbose: bool = False,
+            exact_below: float = EXACT_BELOW) -> NewtonRun:
+        """`solve` without the evaluation of its plan (the re-planning loop evaluates it faster, planner.py);
+        exact Hessian steps once the projected gradient is at most `exact_below` (inf: from a warm start on)."""
+        t0 = time.perf_counter()
+        T, nq, n, robot = self.T, self.robot.nq, self.n, self.robot
+        sigma0 = setup.model.recursion_sigma0(setup.problem.noise.Sigma0)
+        P = np.concatenate([setup.camera_parameter(), [1.0], sigma0])
+        x = np.array(init.q, float).ravel()  # node-major: x[t*nq + j]
+        lo, hi = np.tile(robot.lower, T + 1), np.tile(robot.upper, T + 1)
+        free = np.zeros((T + 1, nq), bool)
+        free[1:T, robot.supporting_joints()] = True
+        free = free.ravel()
+        start_ok = bool(np.all(x >= lo - 1e-12) and np.all(x <= hi + 1e-12)
+                        and np.allclose(x[:nq], setup.q_start, atol=1e-12))
+        P[CAMERA_PARAMETERS] = trace_ref = float(self.step(x, P)[0][0])  # the objective is 1 (plus smoothness) at the start
+        status, it, shift = "Maximum_Iterations_Exceeded" if start_ok else "Infeasible_Start", 0, 0.0
+        exact_steps, history = 0, []
+        while start_ok and it <= max_iter:
+            _, f_val, G, HB = self.step(x, P)
+            f_val = float(f_val[0])
+            history.append(f_val)
+            if len(history) > STALL_WINDOW and history[-STALL_WINDOW - 1] - f_val <= STALL_DECREASE * abs(f_val):
+                status = "Stalled"  # not converged, and not getting there: the caller's fallback, not the cap
+                break
+            g = np.bincount(self.g_index, weights=G, minlength=n)
+            held = ((x <= lo) & (g > 0)) | ((x >= hi) & (g < 0))
+            idx = np.flatnonzero(free & ~held)
+            if np.max(np.abs(g[idx]), initial=0.0) <= tol:
+                status = "Solve_Succeeded"
+                break
+            if it == max_iter:
+                break
+            pg = np.max(np.abs(g[idx]), initial=0.0)
+            d = self._exact_step(x, P, HB, g, idx) if pg <= exact_below and self.curv is not None else None
+            exact_steps += d is not None
+            if verbose:
+                print(f"newton {it:4d}  f {f_val:.10e}  |pg| {pg:.2e}  free {idx.size:4d}  "
+                      f"{'exact' if d is not None else 'surrogate'}", flush=True)
+            if d is None:
+                d = self._surrogate_step(HB, g, idx, shift)
+                if d is None:
+                    status = "Singular_Hessian"
+                    break
+                d, shift = d
+            alpha = 1.0
+            while alpha > 1e-12:  # Armijo along the projected path
+                trial = np.clip(x + alpha * d, lo, hi)
+                if float(self.f(trial, P)[0][0]) <= f_val + 1e-4 * g @ (trial - x):
+                    break
+                alpha /= 2
+            else:
+                status = "Line_Search_Failed"
+                break
+            x, it = trial, it + 1
+        return self._end(setup, x, P, trace_ref, status, it, exact_steps, t0)
+
+    def _exact_step(self, x, P, HB, g, idx) -> np.ndarray | None:
+        """Newton's step with the exact Hessian (the surrogate's plus S's own curvature C^T d2S/dc2 C) on the free
+        variables, or None where it is not positive definite there."""
+        n = self.n
+        Hs, CJ = self.curv(x, P)
+        C = np.zeros(self.nc * n)
+        C[self.c_index] = CJ
+        C = C.reshape(self.nc, n)
+        H = np.bincount(self.h_full, weights=HB, minlength=n * n).reshape(n, n)
+        H += C.T @ Hs.reshape(self.nc, self.nc, order="F") @ C
+        try:
+            factor = scipy.linalg.cho_factor(H[np.ix_(idx, idx)], check_finite=False)
+        except (np.linalg.LinAlgError, ValueError):
+            return None
+        d = np.zeros(n)
+        d[idx] = scipy.linalg.cho_solve(factor, -g[idx], check_finite=False)
+        return d if np.all(np.isfinite(d)) else None
+
+    def _surrogate_step(self, HB, g, idx, shift):
+        """The step with the surrogate Hessian (banded), shifted until positive definite; (d, shift) or None."""
+        n = self.n
+        ab = np.bincount(self.h_index, weights=HB[self.h_lower], minlength=self.band * n).reshape(self.band, n)
+        fixed = np.ones(n, bool)
+        fixed[idx] = False
+        for k in range(1, self.band):  # rows and columns of the held variables out, identity in
+            ab[k, : n - k][fixed[: n - k] | fixed[k:]] = 0.0
+        ab[0, fixed] = 1.0
+        rhs = np.where(fixed, 0.0, -g)
+        shift = shift / 4 if shift > 1e-14 else 0.0
+        scale = max(float(np.max(np.abs(ab[0, ~fixed]))), 1e-12)
+        d = None
+        while shift <= 1e12 * scale:  # a diagonal shift until positive definite (IPOPT's inertia correction)
+            try:
+                shifted = ab.copy()
+                shifted[0, ~fixed] += shift
+                d = scipy.linalg.solveh_banded(shifted, rhs, lower=True, check_finite=False)
+                break
+            except (np.linalg.LinAlgError, ValueError):  # not positive definite (or not finite)
+                shift = max(1e-8 * scale, 10 * shift)
+        if d is None or not np.all(np.isfinite(d)):
+            return None
+        return d, shift
+
+    def _end(self, setup, x, P, trace_ref, status, it, exact_steps, t0) -> NewtonRun:
+        T, nq = self.T, self.robot.nq
+        q = x.reshape(T + 1, nq)
+        mu = np.asarray(self.poses(q.T, setup.camera_parameter())).T
+        terminal = float(np.max(np.abs(mu[T] - setup.x_goal)))
+        depth = float(max(0.0, setup.problem.min_depth - mu[:, 2].min()))
+        if status == "Solve_Succeeded" and (depth > 0 or terminal > 1e-9):
+            status = "Depth_Bound_Violated" if depth > 0 else "Terminal_Pose_Not_Met"
+        solve_s = time.perf_counter() - t0
+        trace, f_val = (float(v[0]) for v in self.step(x, P)[:2])
+        return NewtonRun(q, mu, status, it, exact_steps, f_val * trace_ref, trace * trace_ref, trace_ref,
+                         max(terminal, depth), solve_s)
+
+    def _solution(self, setup, method, init, r: NewtonRun) -> Solution:
+        return evaluate(
+            setup, method, np.array([setup.pose_of(qi) for qi in r.q]), list(r.q),
+            success=r.success, status=r.status, solve_time_s=r.solve_time_s, iterations=r.iterations,
+            objective=r.objective,
+            extras={"init": init.source, "solver": "newton", "covariance_form": "condensed",
+                    "exact_steps": r.exact_steps, "build_time_s": self.build_time_s, "compiled": self.codegen,
+                    **({"codegen_note": self.codegen_note} if self.codegen_note else {}),
+                    "ocp_trace_final": r.trace, "initial_trace": r.initial_trace,
+                    "constraint_violation": r.violation},
+        )
+
+
+@dataclass
+class NewtonRun:
+    """Where a projected Newton run ended, before its plan is evaluated (`NewtonSolver.run`)."""
+
+    q: np.ndarray  # (T+1, nq) joints
+    mu: np.ndarray  # (T+1, 6) planned means [m, rad], camera frame
+    status: str
+    iterations: int
+    exact_steps: int
+    objective: float  # Tr(Sigma_T) of the planning model plus smoothness
+    trace: float  # Tr(Sigma_T) of the planning model
+    initial_trace: float  # at the initial guess
+    violation: float  # terminal pose [m or rad] or depth bound [m]
+    solve_time_s: float
+
+    @property
+    def success(self) -> bool:
+        return self.status == "Solve_Succeeded"

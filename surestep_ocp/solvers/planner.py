@@ -1,0 +1,183 @@
+"""A re-planning handle for a tracker loop: the OCP's solvers built once, each plan warm-started from the last.
+
+At every tracker frame the tool's estimate (mean pose and 6x6 covariance, camera frame) and the camera pose
+come in, and the rest of the motion to the same goal is planned again over the steps left: the horizon
+shrinks by one step per waypoint reached, so the goal is reached at the planned time.
+
+The horizon shrinks without building an NLP per re-plan: one projected Newton solver per number of steps
+left, built once (all of them when the Planner is made, by default) and kept. A single NLP of fixed T with the
+executed steps pinned or padded was not used: a padded step still observes the tool, which changes Tr(Sigma_T),
+so its plan would not be the one a cold solve of the remaining problem finds. A plan is evaluated by one
+compiled call (the EKF over the steps left) instead of a CasADi call per step.
+
+Where the projected Newton solver does not apply (IPOPT's models, enforced motion limits, 6x6 recursions) or
+does not converge, a re-plan runs `solve_ocp_warm`'s whole strategy from the previous plan instead (its NLPs
+are cached per horizon too, but built inside the solve).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import replace
+
+import casadi as ca
+import numpy as np
+
+from ..model.belief import NV, NX, BeliefModel, unvech, vech
+from ..errors import SurestepError
+from .methods import ocp_initial_guess
+from .newton import EXACT_BELOW
+from .ocp import (
+    InitialGuess,
+    newton_applies,
+    newton_solver,
+    resolve_form,
+    resolve_hessian,
+    solve_ocp_warm,
+)
+from ..problem.problem import Problem
+from ..problem.setup import Setup, build_setup
+from ..output.solution import Solution, evaluate
+
+_UNVECH = unvech(np.arange(NV, dtype=float)).astype(int)  # (6, 6) positions of each entry in vech
+
+
+class Planner:
+    """Plans a problem once, then re-plans from each new tracker estimate over the steps left.
+
+    Args:
+        problem: a Problem (or a built Setup); its camera moves, if any, are ignored (give the camera pose to
+            `replan`).
+        prebuild: build the solvers of every remaining horizon now (else the first one now, the others when
+            first needed); their build times are in `builds`, never in a plan's time (the IPOPT path builds its
+            NLPs inside the solve).
+    """
+
+    def __init__(self, problem: Problem | Setup, prebuild: bool = True):
+        setup = problem if isinstance(problem, Setup) else build_setup(problem)
+        prob = setup.problem
+        self.setup = replace(setup, problem=replace(prob, camera=replace(prob.camera, moves=())), camera_schedule=[])
+        self.horizon = prob.horizon
+        self.builds: dict[int, float] = {}  # steps left -> seconds spent building its solver and evaluator
+        self._solvers: dict[int, tuple] = {}
+        spec, form = prob.solver, resolve_form(self.setup.model, prob.solver.covariance)
+        self.fast = (spec.name in ("auto", "newton") and not prob.limits.enforce and self.setup.model.scalar
+                     and newton_applies(self.setup, form, resolve_hessian(self.setup, form),
+                                        spec.hessian in ("surrogate", "gauss-newton")))
+        for n in (range(self.horizon, 0, -1) if prebuild else [self.horizon]) if self.fast else ():
+            self._solver(n)  # timed apart from the solves
+        self.plan, _ = solve_ocp_warm(self.setup, ocp_initial_guess(self.setup))
+        self.step = 0  # the waypoint the current plan starts at
+        self._q = np.array(self.plan.q, float)
+        self._camera = (self.setup.camera_pose.tobytes(), self.setup)
+
+    @property
+    def build_time_s(self) -> float:
+        """Seconds spent building solvers so far (not counted in any plan's time)."""
+        return sum(self.builds.values())
+
+    def replan(self, mean, covariance, camera_pose=None, step: int | None = None) -> Solution:
+        """The plan from the tracker's estimate to the goal over the steps left.
+
+        Args:
+            mean: (6,) the tool's estimated pose `[px, py, pz, rx, ry, rz]` (position [m], axis-angle [rad]) in
+                the camera frame.
+            covariance: (6, 6) its covariance [m^2, m rad, rad^2], the plan's Sigma_0.
+            camera_pose: (4, 4) camera in world [m] (default: as in the last call). The goal stays where it is
+                in the world (its joints are kept).
+            step: the waypoint index the tool is at now (default: one more than the last plan's start); the plan
+                has `horizon - step` steps.
+
+        Returns:
+            A Solution starting at waypoint `step` (its `horizon` is the steps left); `extras["replan"]` has the
+            time of the whole call without builds (`time_s`) and the solver that made it. A successful one
+            becomes `plan` (and `step`); after a failure (check `success`) the previous plan stays current.
+        """
+        t0, builds_before = time.perf_counter(), self.build_time_s
+        step = self.step + 1 if step is None else int(step)
+        if not self.step <= step < self.horizon:
+            raise SurestepError(f"replan: step {step} is not in [{self.step}, {self.horizon - 1}] (the current plan "
+                                f"starts at waypoint {self.step}; the goal is waypoint {self.horizon})")
+        mean, cov = _estimate(mean, covariance)
+        base, moved = self._seen_from(camera_pose)
+        seed = self._q[step - self.step]
+        q, ok, res_m, res_rad = base.joints_along(mean[None], seed, guesses=seed[None])
+        if not ok[0]:
+            raise SurestepError(f"replan: the tracker's mean {np.round(mean, 4).tolist()} is not reachable (IK "
+                                f"residual {res_m[0] * 1e3:.3f} mm, {res_rad[0]:.4f} rad)")
+        n = self.horizon - step
+        prob = base.problem
+        sub = replace(base, problem=replace(prob, horizon=n, noise=replace(prob.noise, Sigma0=cov)), q_start=q[0])
+        sub.x_start, sub.x_goal = sub.pose_of(q[0]), sub.pose_of(sub.q_goal)  # the goal's as seen from this start
+        warm = InitialGuess(np.vstack([q[:1], self._q[step - self.step + 1:]]), "previous plan")
+        built = self._solver(n) if self.fast and sub.model.scalar else None
+        sol = None
+        if built is not None:
+            spec = prob.solver
+            # From a tracker update the previous plan is near the optimum: Newton's exact steps from the first (the
+            # surrogate's converge linearly: 20 iterations where 3 exact ones do). After a camera move it is not, and
+            # the exact Hessian is often indefinite there: the usual switch (type4_camera_moves: 2-5x faster).
+            # A run that stalls with exact steps from the first gets the usual switch from the same start next (the
+            # worst re-plan of benchmarks/replan_rate.py: 72 ms through the whole strategy, about 35 ms this way).
+            for exact_below in (EXACT_BELOW,) if moved else (np.inf, EXACT_BELOW):
+                run = built[0].run(sub, warm, tol=spec.tol, max_iter=min(spec.surrogate_max_iter, spec.max_iter),
+                                   exact_below=exact_below)
+                if run.status not in ("Stalled", "Maximum_Iterations_Exceeded", "Line_Search_Failed"):
+                    break  # converged, or a failure the switch does not change (a depth bound, an infeasible start)
+            if run.success:
+                sig = np.asarray(built[1](run.mu.T, vech(cov))).T[:, _UNVECH]
+                sol = evaluate(sub, "ocp-replan", run.mu, list(run.q), success=True, status=run.status,
+                               solve_time_s=run.solve_time_s, iterations=run.iterations, objective=run.objective,
+                               sigma=sig, extras={"solver": "newton", "init": warm.source,
+                                                  "initial_trace": run.initial_trace, "warm_start_q": warm.q})
+        if sol is None:  # IPOPT's models, or Newton did not converge: the whole strategy from the previous plan
+            sol = solve_ocp_warm(sub, warm, method="ocp-replan")[0]
+            sol.extras["warm_start_q"] = warm.q
+        built_s = sum(self.builds.values()) - builds_before
+        sol.extras["replan"] = {"step": step, "time_s": time.perf_counter() - t0 - built_s,
+                                "solver": sol.extras.get("solver"), "build_time_s": built_s}
+        if sol.success:  # else the previous plan stays current
+            self.plan, self.step, self._q = sol, step, np.array(sol.q, float)
+        return sol
+
+    def _solver(self, n: int) -> tuple:
+        """(projected Newton solver, compiled EKF over n steps) for n steps left, built on first use."""
+        if n not in self._solvers:
+            t0 = time.perf_counter()
+            sub = replace(self.setup, problem=replace(self.setup.problem, horizon=n))
+            self._solvers[n] = (newton_solver(sub), _propagation(self.setup.eval_model, n))
+            self.builds[n] = time.perf_counter() - t0
+        return self._solvers[n]
+
+    def _seen_from(self, camera_pose) -> tuple[Setup, bool]:
+        """The setup seen from `camera_pose` (None: the last one), and whether the camera moved since the last plan."""
+        moved = False
+        if camera_pose is not None:
+            C = np.asarray(camera_pose, float)
+            if C.shape != (4, 4) or not np.all(np.isfinite(C)):
+                raise SurestepError(f"replan: camera_pose must be a finite 4x4 matrix, got shape {C.shape}")
+            if C.tobytes() != self._camera[0]:
+                self._camera, moved = (C.tobytes(), self.setup.seen_from(C)), True
+        return self._camera[1], moved
+
+
+def _estimate(mean, covariance) -> tuple[np.ndarray, np.ndarray]:
+    """The tracker's mean (6,) and covariance (6, 6, symmetrised), checked."""
+    mean, cov = np.asarray(mean, float), np.asarray(covariance, float)
+    if mean.shape != (NX,) or not np.all(np.isfinite(mean)):
+        raise SurestepError(f"replan: mean must be 6 finite numbers [px, py, pz, rx, ry, rz], got shape {mean.shape}")
+    if cov.shape != (NX, NX) or not np.all(np.isfinite(cov)):
+        raise SurestepError(f"replan: covariance must be a finite 6x6 matrix, got shape {cov.shape}")
+    cov = 0.5 * (cov + cov.T)
+    if np.linalg.eigvalsh(cov)[0] <= 0:
+        raise SurestepError("replan: covariance must be positive definite")
+    return mean, cov
+
+
+def _propagation(model: BeliefModel, n: int) -> ca.Function:
+    """`(means (6, n+1), vech(Sigma_0)) -> vech(Sigma_t|t) (21, n+1)`: the model's EKF step unrolled (one call)."""
+    X, s0 = ca.SX.sym("X", NX, n + 1), ca.SX.sym("sigma0", NV)
+    out = [s0]
+    for t in range(n):
+        out.append(model.step(X[:, t], X[:, t + 1], out[-1]))
+    return ca.Function("propagation", [X, s0], [ca.horzcat(*out)])
