@@ -133,7 +133,7 @@ def mutated_tree(draw):
     done = []
     for _ in range(draw(st.integers(1, 3))):
         every = paths(tree)
-        op = draw(st.sampled_from(["delete", "add", "replace", "extreme", "scale", "covariance"]))
+        op = draw(st.sampled_from(["delete", "add", "replace", "extreme", "scale", "covariance", "noise_scalar"]))
         if op == "delete":
             path = draw(st.sampled_from(every))
             parent = get(tree, path[:-1])
@@ -167,6 +167,13 @@ def mutated_tree(draw):
             factor = draw(st.sampled_from([1e-300, 1e-12, -1.0, 0.0, 1e6, 1e12, 1e300]))
             value = get(tree, path)
             get(tree, path[:-1])[path[-1]] = value * factor if abs(value) < 1e300 else value
+        elif op == "noise_scalar":  # the scalar model parameters, present in the file or not
+            path = ("noise", draw(st.sampled_from(["cosine_guard", "cut_band", "depth_star", "observation_scale"])))
+            tree.setdefault("noise", {})
+            if not isinstance(tree["noise"], dict):
+                continue
+            tree["noise"][path[1]] = draw(st.one_of(bad_value(), st.sampled_from(EXTREME),
+                                                    st.sampled_from([-0.1, 0.0, 0.2, 1.0, 1.5, 3.2])))
         else:
             path = ("noise", draw(st.sampled_from(["W_p0", "W_o0", "V_d0", "V_f0", "V_o0", "Sigma0",
                                                    "camera_W_p0", "camera_W_o0"])))
