@@ -328,7 +328,7 @@ def test_every_evaluation_configuration_exports_within_every_limit(tmp_path):
         sol_path = run_method(sampler.setup_of(sampler.sample(0, i)), "ocp").save(tmp_path / f"c{i}.json")
         sol = json.loads(sol_path.read_text())
         fmt = ("json", "csv", "ros2")[i % 3]
-        out = tmp_path / f"c{i}{SUFFIX[fmt]}"
+        out = tmp_path / f"c{i}_trajectory{SUFFIX[fmt]}"  # not the solution file itself (c{i}.json)
         assert export(sol_path, fmt, out, "--no-plot") == 0, i
         c = READERS[fmt](out)
         check_limits(c)
@@ -360,3 +360,25 @@ def test_a_waypoint_beyond_a_position_limit(plans, tmp_path, capsys):
     check_limits(read_json(tmp_path / "o0.json"))
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "q[5] roll" in err[0] and not (tmp_path / "o1.json").exists()
+
+
+def test_export_never_overwrites_its_inputs(plans, tmp_path, capsys):
+    """The solution itself, the URDF it names, or a folder as --output, or a ros2 jaw file landing on the solution:
+    exit 2 in one line before any work, the inputs unchanged."""
+    src = tmp_path / "plan.json"
+    src.write_text(Path(plans["ocp"]).read_text())
+    before = src.read_bytes()
+    from surestep_ocp.problem.problem import resolve_urdf
+
+    urdf = resolve_urdf(json.loads(before)["robot"]["urdf"])
+    urdf_before = urdf.read_bytes()
+    for out in (src, urdf, tmp_path):
+        capsys.readouterr()
+        code = main(["export", str(src), "--format", "csv", "--output", str(out)])
+        err = capsys.readouterr().err.strip()
+        assert code == 2 and len(err.splitlines()) == 1, err
+    # ros2 writes <stem>_jaw<suffix> beside the output: the solution named like that is refused too
+    jaw_named = tmp_path / "arm_jaw.json"
+    jaw_named.write_bytes(before)
+    assert main(["export", str(jaw_named), "--format", "ros2", "--output", str(tmp_path / "arm.json")]) == 2
+    assert src.read_bytes() == before and jaw_named.read_bytes() == before and urdf.read_bytes() == urdf_before

@@ -38,6 +38,7 @@ import numpy as np
 
 from ..errors import SurestepError
 from ..model.limits import JAW, MotionLimits, motion_limits, parse_overrides
+from .outputs import check_output_file
 from .solution import write_json_atomic, write_text_atomic
 
 FORMATS = ("csv", "json", "ros2")
@@ -437,6 +438,11 @@ def export_solution(solution: str | Path, fmt: str, output: str | Path, *, rate_
     for flag, x in (("--tool-speed", tool_speed), ("--tool-rotation-speed", tool_rotation)):
         if x is not None and not (math.isfinite(x) and x > 0):
             raise SurestepError(f"{flag} must be a positive number, got {x:g}")
+    output = Path(output)
+    targets = [output] + ([jaw_path(output)] if fmt == "ros2" else []) + (
+        [output.with_name(f"{output.stem}_motion.png")] if plot else [])
+    for path in targets:  # before any work: never the solution or the URDF read here, never a folder or a device
+        check_output_file(path, inputs=[solution, urdf], what="the export")
     limits = limits_of(sol, urdf, velocity, acceleration, tool_speed, tool_rotation)
     step, step_source = step_of(sol, step_s)
     frame = str(sol["robot"].get("frame") or "tool")
@@ -445,7 +451,6 @@ def export_solution(solution: str | Path, fmt: str, output: str | Path, *, rate_
         raise SurestepError(f"{solution}: joint_names {', '.join(sol['joint_names'])} are not those of {urdf}")
     q, clipped = within_position_limits(np.array(sol["q"], float), robot)
     traj = time_parametrise(q, step, limits, rate_hz, robot=robot, tool_frame=frame)
-    output = Path(output)
     meta = {"source": str(solution), "method": sol.get("method"), "problem": sol.get("problem"),
             "robot": {"urdf": sol["robot"].get("urdf"), "frame": sol["robot"].get("frame")},
             "step_s_source": step_source, "limits_enforced_in_plan": (sol.get("limits") or {}).get("enforce"),
