@@ -84,18 +84,8 @@ def success_share(records, mode: str, method: str) -> tuple[float, int]:
 
 def relative_means(records, methods, modes) -> dict:
     """rel[mode][method][metric] = (mean over configurations of relative(y_c, b_c), configurations used)."""
-    rel: dict = {}
-    for mode in modes:
-        rel[mode] = {}
-        for m in methods:
-            rel[mode][m] = {}
-            for k in METRICS:
-                y, b = _values(records, mode, m, k), _values(records, mode, "baseline", k)
-                r = np.array([relative(yi, bi) if np.isfinite(yi) and np.isfinite(bi) else math.nan
-                              for yi, bi in zip(y, b)])
-                ok = np.isfinite(r)
-                rel[mode][m][k] = (float(np.mean(r[ok])) if ok.any() else math.nan, int(ok.sum()))
-    return rel
+    st = relative_stats(records, methods, modes)
+    return {mode: {m: {k: (v["mean"], v["n"]) for k, v in st[mode][m].items()} for m in methods} for mode in modes}
 
 
 def _fmt(v: float, f: str = "{:.3f}") -> str:
