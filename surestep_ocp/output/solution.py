@@ -174,6 +174,15 @@ def noise_dict(setup: Setup) -> dict:
     return d
 
 
+def _principal(poses: np.ndarray) -> np.ndarray:
+    """(N, 6) poses with every rotation vector beyond pi replaced by the principal one of the same rotation (the
+    OCP's means and the setup's goal are continued vectors, docs/orientation.md); the others untouched."""
+    poses = np.array(poses, dtype=float)
+    beyond = np.linalg.norm(poses[:, 3:], axis=1) > np.pi
+    poses[beyond, 3:] = np_log_many(np_exp_many(poses[beyond, 3:]))
+    return poses
+
+
 def evaluate(
     setup: Setup,
     method: str,
@@ -195,9 +204,7 @@ def evaluate(
     re-planning loop propagates them in one compiled call, planner.py; a fixed camera only).
     """
     poses = np.array(poses, dtype=float)
-    beyond = np.linalg.norm(poses[:, 3:], axis=1) > np.pi  # principal vectors (the OCP's are continued)
-    poses[beyond, 3:] = np_log_many(np_exp_many(poses[beyond, 3:]))
-    poses = setup.in_step_frames(poses)  # planned in the first camera frame
+    poses = setup.in_step_frames(_principal(poses))  # planned in the first camera frame
     sig = setup.eval_model.propagate(poses, setup.camera_changes())[0] if sigma is None else np.asarray(sigma)
     prob = setup.problem
     noise = noise_dict(setup)
@@ -238,7 +245,7 @@ def evaluate(
         joint_names=setup.robot.joint_names,
         q=[None if qi is None else [float(v) for v in qi] for qi in q],
         poses=poses.tolist(),
-        goal=setup.x_goal.tolist(),
+        goal=_principal(setup.x_goal[None])[0].tolist(),
         camera=prob.camera.intrinsics.to_dict(),
         camera_pose=setup.camera_pose.tolist(),
         robot=robot,
