@@ -382,3 +382,28 @@ def test_export_never_overwrites_its_inputs(plans, tmp_path, capsys):
     jaw_named.write_bytes(before)
     assert main(["export", str(jaw_named), "--format", "ros2", "--output", str(tmp_path / "arm.json")]) == 2
     assert src.read_bytes() == before and jaw_named.read_bytes() == before and urdf.read_bytes() == urdf_before
+
+
+@pytest.mark.parametrize("case", ["urdf_not_urdf", "robot_not_mapping", "frame_unknown", "limits_other_form",
+                                  "limits_not_mapping", "step_negative", "step_string"])
+def test_malformed_solution_files_are_one_line_errors(plans, tmp_path, capsys, case):
+    """Solution files edited by hand or by another tool: each a one-line exit-2 error naming the file and the key
+    (each of these ended in an internal error or exported silently with default limits before)."""
+    d = json.loads(Path(plans["ocp"]).read_text())
+    junk = tmp_path / "junk.urdf"
+    junk.write_text("not a urdf\n")
+    edit = {"urdf_not_urdf": lambda: d["robot"].update(urdf=str(junk)),
+            "robot_not_mapping": lambda: d.update(robot="psm"),
+            "frame_unknown": lambda: d["robot"].update(frame="no_such_frame"),
+            "limits_other_form": lambda: d.update(limits={"enforce": True, "joint_velocity": {"yaw": 1.0}}),
+            "limits_not_mapping": lambda: d.update(limits=[1, 2]),
+            "step_negative": lambda: d.update(timing={"step_s": -0.05}),
+            "step_string": lambda: d.update(timing={"step_s": "fast"})}
+    edit[case]()
+    src = tmp_path / "plan.json"
+    src.write_text(json.dumps(d))
+    capsys.readouterr()
+    code = main(["export", str(src), "--format", "csv", "--output", str(tmp_path / "out.csv"), "--no-plot"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1 and "plan.json" in err, err
+    assert not (tmp_path / "out.csv").exists()

@@ -36,9 +36,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import SurestepError
+from ..errors import SurestepError, shown
 from ..model.limits import JAW, MotionLimits, motion_limits, parse_overrides
-from .outputs import check_output_file
+from .outputs import check_output_file, quiet_fd
 from .solution import write_json_atomic, write_text_atomic
 
 FORMATS = ("csv", "json", "ros2")
@@ -102,6 +102,20 @@ def load_solution(path: str | Path) -> dict:
         if not isinstance(qi, list) or len(qi) != len(names) or not all(
                 isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in qi):
             raise SurestepError(f"{p}: q[{i}] must be {len(names)} finite numbers ({', '.join(names)})")
+    robot = d["robot"]
+    if not isinstance(robot, dict) or not isinstance(robot.get("urdf"), str) or not robot["urdf"] or \
+            not isinstance(robot.get("frame", "tool"), (str, type(None))):
+        raise SurestepError(f"{p}: key 'robot' must be a mapping with 'urdf' (a path) and optionally 'frame' (a name)")
+    for key in ("limits", "timing"):
+        if d.get(key) is not None and not isinstance(d[key], dict):
+            raise SurestepError(f"{p}: key '{key}' must be a mapping (as `surestep solve` writes it)")
+    limits = d.get("limits") or {}
+    if limits and "velocity" not in limits and "unavailable" not in limits:
+        raise SurestepError(f"{p}: key 'limits' is not the recorded form (joint_names, velocity, acceleration, "
+                            "tool_speed_m_s, ...; as `surestep solve` writes it)")
+    step = (d.get("timing") or {}).get("step_s", DEFAULT_STEP_S)
+    if isinstance(step, bool) or not isinstance(step, (int, float)) or not (math.isfinite(step) and step > 0):
+        raise SurestepError(f"{p}: timing.step_s must be a positive number of seconds, got {shown(repr(step), 40)}")
     return d
 
 
@@ -443,10 +457,18 @@ def export_solution(solution: str | Path, fmt: str, output: str | Path, *, rate_
         [output.with_name(f"{output.stem}_motion.png")] if plot else [])
     for path in targets:  # before any work: never the solution or the URDF read here, never a folder or a device
         check_output_file(path, inputs=[solution, urdf], what="the export")
-    limits = limits_of(sol, urdf, velocity, acceleration, tool_speed, tool_rotation)
-    step, step_source = step_of(sol, step_s)
     frame = str(sol["robot"].get("frame") or "tool")
-    robot = Robot(urdf, frame=frame)
+    try:
+        with quiet_fd(2):  # urdfdom prints parse errors on stderr; the error below says it in one line
+            robot = Robot(urdf, frame=frame)
+    except (ValueError, RuntimeError, OSError, SurestepError) as exc:
+        raise SurestepError(f"{solution}: robot.urdf {shown(str(urdf), 120)}: cannot load it "
+                            f"({shown(str(exc).splitlines()[0] if str(exc) else type(exc).__name__, 160)})") from None
+    try:
+        limits = limits_of(sol, urdf, velocity, acceleration, tool_speed, tool_rotation)
+    except SurestepError as exc:
+        raise SurestepError(f"{solution}: {exc}") from None
+    step, step_source = step_of(sol, step_s)
     if robot.joint_names != list(sol["joint_names"]):
         raise SurestepError(f"{solution}: joint_names {', '.join(sol['joint_names'])} are not those of {urdf}")
     q, clipped = within_position_limits(np.array(sol["q"], float), robot)
