@@ -388,7 +388,8 @@ def test_export_never_overwrites_its_inputs(plans, tmp_path, capsys):
                                   "limits_not_mapping", "step_negative", "step_string"])
 def test_malformed_solution_files_are_one_line_errors(plans, tmp_path, capsys, case):
     """Solution files edited by hand or by another tool: each a one-line exit-2 error naming the file and the key
-    (each of these ended in an internal error or exported silently with default limits before)."""
+    (before, most ended in an internal error or exported silently with the default limits; the unknown frame's
+    error did not name the file)."""
     d = json.loads(Path(plans["ocp"]).read_text())
     junk = tmp_path / "junk.urdf"
     junk.write_text("not a urdf\n")
