@@ -18,7 +18,7 @@ import casadi as ca
 import numpy as np
 
 from .camera import Intrinsics
-from .lie import _SMALL, angle_sq, so3_exp, so3_log
+from .lie import SMALL, angle_sq, quat_of, so3_exp, so3_log
 
 COMPONENTS = ("depth", "fov", "orientation")
 ORIENTATION_FORMULAS = ("cosine", "geodesic")
@@ -97,14 +97,10 @@ def paper_cosine(r, o_star, guard: float, band: float):
     formula jumps (r_p and -r_p are the same rotation there): continuous on SO(3), smooth in the joints (the
     NLP's means are continued vectors, `Robot.camera_pose`), the paper's own value at angles up to pi - band.
     """
-    th2 = ca.dot(r, r)
-    small = th2 < _SMALL
-    th = ca.sqrt(ca.if_else(small, 1.0, th2))
-    w = ca.if_else(small, 1 - th2 / 8, ca.cos(0.5 * th))  # the quaternion (w, v) of exp(r), v = k r
-    k = ca.if_else(small, 0.5 - th2 / 48, ca.sin(0.5 * th) / th)
-    v = k * r
+    Q = quat_of(r)
+    w, v = Q[0], Q[1:]
     aw, s2 = ca.fabs(w), ca.dot(v, v)
-    vsmall = ca.logic_and(s2 < _SMALL, aw > 0.5)
+    vsmall = ca.logic_and(s2 < SMALL, aw > 0.5)
     sv = ca.sqrt(ca.if_else(vsmall, 1.0, ca.fmax(s2, 1e-300)))
     f = ca.if_else(vsmall, 2 / aw - 2 * s2 / (3 * aw**3), 2 * ca.atan2(sv, aw) / sv)  # |r_p| / |v|
     if band > 0:  # sign(w), the side of the cut, smoothed: odd, 1 beyond w_b = sin(band / 2), C1

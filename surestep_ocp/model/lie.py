@@ -17,7 +17,7 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
-_SMALL = 1e-12  # [rad^2] below this squared angle the Taylor branches are used
+SMALL = 1e-12  # [rad^2] below this squared angle the Taylor branches are used
 
 
 def skew(v):
@@ -32,10 +32,10 @@ def skew(v):
 def so3_exp(r):
     """Rotation matrix of the axis-angle vector `r` (CasADi expression)."""
     th2 = ca.dot(r, r)
-    safe = ca.if_else(th2 < _SMALL, 1.0, th2)
+    safe = ca.if_else(th2 < SMALL, 1.0, th2)
     th = ca.sqrt(safe)
-    a = ca.if_else(th2 < _SMALL, 1 - th2 / 6 + th2**2 / 120, ca.sin(th) / th)
-    b = ca.if_else(th2 < _SMALL, 0.5 - th2 / 24 + th2**2 / 720, (1 - ca.cos(th)) / safe)
+    a = ca.if_else(th2 < SMALL, 1 - th2 / 6 + th2**2 / 120, ca.sin(th) / th)
+    b = ca.if_else(th2 < SMALL, 0.5 - th2 / 24 + th2**2 / 720, (1 - ca.cos(th)) / safe)
     k = skew(r)
     return ca.DM.eye(3) + a * k + b * (k @ k)
 
@@ -48,7 +48,7 @@ def so3_log(R):
     v = 0.5 * ca.vertcat(R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1])  # sin(th) * axis
     c = 0.5 * (R[0, 0] + R[1, 1] + R[2, 2] - 1)  # cos(th)
     s2 = ca.dot(v, v)
-    small = ca.logic_and(s2 < _SMALL, c > 0)  # near the identity only; near pi sin(th) is small too
+    small = ca.logic_and(s2 < SMALL, c > 0)  # near the identity only; near pi sin(th) is small too
     safe = ca.if_else(small, 1.0, ca.fmax(s2, 1e-300))
     s = ca.sqrt(safe)
     f = ca.if_else(small, 1 + s2 / 6 + 3 * s2**2 / 40, ca.atan2(s, c) / s)
@@ -69,6 +69,16 @@ def quat_mul(a, b):
     return ca.vertcat(a[0] * b[0] - ca.dot(va, vb), a[0] * vb + b[0] * va + ca.cross(va, vb))
 
 
+def quat_of(r):
+    """Unit quaternion `(w, x, y, z)` of the rotation vector `r` (CasADi), any angle (w < 0 beyond pi)."""
+    th2 = ca.dot(r, r)
+    small = th2 < SMALL
+    th = ca.sqrt(ca.if_else(small, 1.0, th2))
+    w = ca.if_else(small, 1 - th2 / 8, ca.cos(0.5 * th))
+    k = ca.if_else(small, 0.5 - th2 / 48, ca.sin(0.5 * th) / th)
+    return ca.vertcat(w, k * r)
+
+
 def quat_rotvec(Q):
     """Rotation vector of a unit quaternion (CasADi), angle `2 atan2(|v|, w)` in [0, 2 pi).
 
@@ -77,7 +87,7 @@ def quat_rotvec(Q):
     """
     w, v = Q[0], Q[1:]
     s2 = ca.dot(v, v)
-    small = ca.logic_and(s2 < _SMALL, w > 0)
+    small = ca.logic_and(s2 < SMALL, w > 0)
     safe = ca.if_else(small, 1.0, ca.fmax(s2, 1e-300))
     s = ca.sqrt(safe)
     f = ca.if_else(small, 2 / w - 2 * s2 / (3 * w**3), 2 * ca.atan2(s, w) / s)
@@ -107,8 +117,8 @@ def np_quat_rotvec(Q: np.ndarray) -> np.ndarray:
 
 def continued(r: np.ndarray, reference: np.ndarray) -> np.ndarray:
     """(N, 3) rotation vectors of the rotations `exp(r_i)`, each continued to the side of `reference_i`
-    (the representative whose quaternion is nearest the reference's): the vector an EKF near that
-    reference carries, e.g. a rollout's estimate near its planned waypoint."""
+    (the representative whose quaternion is nearest the reference's), e.g. a goal pose on the side of the
+    mean at its joints (`problem.setup`)."""
     Q, ref = np_quat(r), np_quat(np.broadcast_to(reference, np.shape(np.asarray(r).reshape(-1, 3))))
     return np_quat_rotvec(np.where((np.sum(Q * ref, axis=1) < 0)[:, None], -Q, Q))
 
