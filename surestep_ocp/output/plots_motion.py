@@ -3,8 +3,10 @@
 `plot_plans` (written by `surestep compare` as `motion.png`): every method's plan at its planned
 pace (waypoint t at t * step_s), each method in its `styles` look. `plot_trajectory`
 (written by `surestep export` as `<stem>_motion.png`): the exported trajectory, its waypoints
-marked. Both: one panel per joint with its position limits (dashed) and, in a second column, its
-velocity against the velocity limit; last row the tool's translation and rotation speed.
+marked. Both: one row per joint, its position against the position limits (dashed), its velocity
+and its acceleration against theirs (a plan's acceleration is the change of its step velocity at
+each waypoint, at rest before the first and after the last, as `limits.py` checks it); last row
+the tool's translation and rotation speed.
 """
 
 from __future__ import annotations
@@ -49,7 +51,8 @@ def _joint_limits(urdf: str | Path, names: list[str]) -> tuple[np.ndarray, np.nd
 
 
 def _axes(plt, n: int):
-    fig, axes = plt.subplots(n + 1, 2, figsize=(11, 1.55 * (n + 1) + 0.6), sharex=True, squeeze=False)
+    fig, axes = plt.subplots(n + 1, 3, figsize=(14, 1.55 * (n + 1) + 0.6), sharex=True, squeeze=False)
+    axes[-1, 2].set_axis_off()
     return fig, axes
 
 
@@ -69,6 +72,7 @@ def plot_plans(solutions: list, urdf: str | Path, path: Path) -> Path | None:
     names = list(sols[0].extras["motion_limits"]["limits"]["joint_names"])
     lo, hi = _joint_limits(urdf, names)
     vmax = np.asarray(sols[0].extras["motion_limits"]["limits"]["velocity"])
+    amax = np.asarray(sols[0].extras["motion_limits"]["limits"]["acceleration"])
     fig, axes = _axes(plt, len(names))
     styles = styles_of([s.method for s in sols])
     for s in sols:
@@ -80,29 +84,33 @@ def plot_plans(solutions: list, urdf: str | Path, path: Path) -> Path | None:
         st = styles[s.method]
         steps = {"where": "mid", "lw": 0.5 * st.width, "color": st.colour, "linestyle": st.linestyle, "alpha": 0.85}
         v = np.diff(q, axis=0) / dt
+        a = np.diff(np.vstack([np.zeros((1, v.shape[1])), v, np.zeros((1, v.shape[1]))]), axis=0) / dt  # (T+1, n)
         for j in range(len(names)):
             axes[j, 0].plot(t, q[:, j], **st.line(ms=0.5 * st.size, lw=0.5 * st.width, label=s.method))
             axes[j, 1].step(tm, v[:, j], **steps)
+            axes[j, 2].plot(t, a[:, j], **st.line(ms=0.4 * st.size, lw=0.5 * st.width))
         axes[-1, 0].step(tm, 1e3 * np.asarray(rep["tool_speed_per_step_m_s"]), **steps)
         axes[-1, 1].step(tm, rep["tool_rotation_per_step_rad_s"], **steps)
     lim = sols[0].extras["motion_limits"]["limits"]
-    _decorate(axes, names, lo, hi, vmax, 1e3 * lim["tool_speed_m_s"], lim["tool_rotation_rad_s"])
+    _decorate(axes, names, lo, hi, vmax, amax, 1e3 * lim["tool_speed_m_s"], lim["tool_rotation_rad_s"])
     axes[0, 0].legend(fontsize=6, ncol=2)
     fig.suptitle(f"plans at their planned pace ({sols[0].extras['motion_limits']['step_s']:g} s per step): "
-                 "joints against their limits, tool speed", fontsize=9)
+                 "joints' positions, velocities and accelerations against their limits, tool speed", fontsize=9)
     fig.tight_layout()
     out = save_png(fig, path)
     plt.close(fig)
     return out
 
 
-def _decorate(axes, names, lo, hi, vmax, tool_mm_s, tool_rad_s):
+def _decorate(axes, names, lo, hi, vmax, amax, tool_mm_s, tool_rad_s):
     for j, n in enumerate(names):
         unit = "m" if n == "insertion" else "rad"
         _limit_lines(axes[j, 0], lo[j], hi[j])
         _limit_lines(axes[j, 1], -vmax[j], vmax[j])
+        _limit_lines(axes[j, 2], -amax[j], amax[j])
         axes[j, 0].set_ylabel(f"{n} [{unit}]", fontsize=7)
         axes[j, 1].set_ylabel(f"{n} [{unit}/s]", fontsize=7)
+        axes[j, 2].set_ylabel(f"{n} [{unit}/s²]", fontsize=7)
     axes[-1, 0].axhline(tool_mm_s, color="k", ls="--", lw=0.8)
     axes[-1, 1].axhline(tool_rad_s, color="k", ls="--", lw=0.8)
     axes[-1, 0].set_ylabel("tool speed [mm/s]", fontsize=7)
@@ -111,6 +119,9 @@ def _decorate(axes, names, lo, hi, vmax, tool_mm_s, tool_rad_s):
     axes[-1, 1].set_xlabel("time [s]")
     axes[0, 0].set_title("position (dashed: limits)", fontsize=8)
     axes[0, 1].set_title("velocity (dashed: limits)", fontsize=8)
+    axes[0, 2].set_title("acceleration (dashed: limits)", fontsize=8)
+    axes[-2, 2].xaxis.set_tick_params(labelbottom=True)
+    axes[-2, 2].set_xlabel("time [s]")
     for ax in axes.ravel():
         ax.tick_params(labelsize=6)
         ax.grid(True, alpha=0.3)
@@ -141,12 +152,13 @@ def plot_trajectory(traj, sol: dict, urdf: str | Path, path: Path) -> Path:
         axes[j, 0].plot(t, traj.q[:, j], lw=1, color=c)
         axes[j, 0].plot(traj.waypoint_times, traj.q[traj.waypoint_rows, j], "o", ms=2.5, color=c)
         axes[j, 1].plot(t, traj.qd[:, j], lw=1, color=c)
+        axes[j, 2].plot(t, traj.qdd[:, j], lw=1, color=c)
     dp, dr = tool_speeds(urdf, sol["robot"].get("frame") or "tool", t, traj.q)
     tm = 0.5 * (t[1:] + t[:-1])
     axes[-1, 0].plot(tm, 1e3 * dp, lw=1, color=c)
     axes[-1, 1].plot(tm, dr, lw=1, color=c)
     lim = traj.limits
-    _decorate(axes, names, lo, hi, lim.velocity, 1e3 * lim.tool_speed, lim.tool_rotation)
+    _decorate(axes, names, lo, hi, lim.velocity, lim.acceleration, 1e3 * lim.tool_speed, lim.tool_rotation)
     fig.suptitle(f"{sol.get('method', 'plan')} exported: {traj.duration:.2f} s (planned "
                  f"{traj.step_s * (len(traj.waypoint_times) - 1):.2f} s), dots: the planned waypoints", fontsize=9)
     fig.tight_layout()
