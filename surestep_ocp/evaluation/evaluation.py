@@ -22,6 +22,7 @@ the same records, the same `progress.jsonl`, resume and progress bar in each cas
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import os
@@ -116,6 +117,43 @@ def _worker_init() -> None:
     import signal
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent handles Ctrl-C and stops the workers
+    if sys.platform.startswith("linux"):  # a parent killed outright (SIGKILL) takes its workers with it
+        import ctypes
+        import multiprocessing
+
+        try:
+            ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGTERM))  # 1: PR_SET_PDEATHSIG
+        except (OSError, AttributeError):
+            return
+        parent = multiprocessing.parent_process()
+        if parent is not None and os.getppid() != parent.pid:  # it died before the prctl
+            os._exit(1)
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM during `run_evaluation`: raised in the main thread (once), so the pool's workers are stopped and
+    every output file is left whole or absent, as after Ctrl-C; `surestep evaluate` then exits 143."""
+
+
+@contextlib.contextmanager
+def _sigterm_raises():
+    """While inside: SIGTERM raises `Terminated` (in the main thread only; elsewhere nothing changes)."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def handler(signum, frame):
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)  # one raise: a second SIGTERM does not break the clean-up
+        raise Terminated()
+
+    old = signal.signal(signal.SIGTERM, handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, old)
 
 
 # ------------------------------------------------------------------ the run (parent side)
@@ -195,9 +233,24 @@ def run_evaluation(eval_path: str | Path, out_dir: str | Path, configs: int = 10
     on its workers (`jobs` is ignored), which must be able to import surestep_ocp and read
     the evaluation file at the same path.
 
+    SIGTERM (in the main thread) stops the workers and raises `Terminated`, the files left whole or absent.
+
     Raises:
         SurestepError: bad arguments, a bad evaluation file, or a directory holding another run.
     """
+    with _sigterm_raises():
+        try:
+            return _run_evaluation(eval_path, out_dir, configs, rollouts, seed, methods, modes, jobs, resume,
+                                   progress, scheduler)
+        except Terminated as exc:
+            if not exc.args:  # outside the configurations' loop (set-up, or the tables at the end)
+                raise Terminated(f"the files in {out_dir} are whole or absent; continue with the same command "
+                                 "plus --resume") from None
+            raise
+
+
+def _run_evaluation(eval_path, out_dir, configs, rollouts, seed, methods, modes, jobs, resume, progress,
+                    scheduler) -> str:
     from .configs import load_evaluation
     from ..solvers.methods import parse_method
 
@@ -269,6 +322,10 @@ def run_evaluation(eval_path: str | Path, out_dir: str | Path, configs: int = 10
                 finish(evaluate_configuration(*args, i, *rest))
         else:
             _run_pool(todo, args, rest, jobs, finish)
+    except Terminated:
+        bar.close()
+        raise Terminated(f"{len(done)} of {configs} configurations kept in {prog}; continue with the same "
+                         "command plus --resume") from None
     except KeyboardInterrupt:
         bar.close()
         print(f"\ninterrupted: {len(done)} of {configs} configurations kept in {prog}; "
@@ -346,11 +403,24 @@ def cmd_evaluate(args) -> int:
         methods = tuple(m for a in args.methods for m in a.split(",") if m)
     modes = MODES if args.rollout_mode == "both" else (args.rollout_mode,)
     out = args.output_dir or str(Path("out") / f"evaluate-{Path(args.evaluation).stem}")
-    table = run_evaluation(args.evaluation, out, args.configs, args.rollouts, args.seed, methods, modes, args.jobs,
-                           args.resume, progress=not args.quiet, scheduler=getattr(args, "scheduler", None))
+    try:
+        table = run_evaluation(args.evaluation, out, args.configs, args.rollouts, args.seed, methods, modes,
+                               args.jobs, args.resume, progress=not args.quiet,
+                               scheduler=getattr(args, "scheduler", None))
+    except Terminated as exc:
+        return say_terminated(exc)
     print(table)
     print(f"\nwrote {out}/{{table.md, raw.csv, solves.csv, boxplot.png, progress.jsonl, run.json}}")
     return 0
+
+
+def say_terminated(exc: Terminated) -> int:
+    """The one line after a SIGTERM; the exit code of a process ended by SIGTERM (128 + 15)."""
+    try:
+        print(f"surestep: terminated (SIGTERM): {exc}", file=sys.stderr, flush=True)
+    except (OSError, ValueError):
+        pass
+    return 143
 
 
 def register(subparsers):

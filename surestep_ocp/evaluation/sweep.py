@@ -36,6 +36,7 @@ from typing import Any
 import yaml
 
 from ..errors import SurestepError
+from ..output.solution import write_text_atomic
 from ..problem.schema import Reader
 
 _TOP = {"evaluation", "configs", "rollouts", "seed", "rollout_mode", "methods", "runs", "grid", "description"}
@@ -178,6 +179,19 @@ def _absolutise(tree: Any, folder: Path) -> None:
 def run_sweep(sweep_path: str | Path, out_dir: str | Path, jobs: int = 1, scheduler=None, resume: bool = False,
               progress: bool = True, only: tuple[str, ...] = ()) -> str:
     """Run every run of a sweep (or those named in `only`); returns the summary table (Markdown)."""
+    from .evaluation import Terminated, _sigterm_raises
+
+    with _sigterm_raises():  # between runs too: SIGTERM raises Terminated, files whole or absent
+        try:
+            return _run_sweep(sweep_path, out_dir, jobs, scheduler, resume, progress, only)
+        except Terminated as exc:
+            if not exc.args:
+                raise Terminated(f"the files in {out_dir} are whole or absent; continue with the same command "
+                                 "plus --resume") from None
+            raise
+
+
+def _run_sweep(sweep_path, out_dir, jobs, scheduler, resume, progress, only) -> str:
     from .evaluation import run_evaluation
 
     sweep = load_sweep(sweep_path)
@@ -193,7 +207,7 @@ def run_sweep(sweep_path: str | Path, out_dir: str | Path, jobs: int = 1, schedu
                        _MODES[run["rollout_mode"]], jobs, resume,
                        progress=progress, scheduler=scheduler)
     table = summary(out, sweep["runs"])
-    (out / "sweep.md").write_text(table + "\n")
+    write_text_atomic(out / "sweep.md", table + "\n")
     return table
 
 
@@ -225,8 +239,13 @@ def summary(out: Path, runs: list[dict]) -> str:
 
 
 def cmd_sweep(args) -> int:
-    table = run_sweep(args.sweep, args.output_dir, args.jobs, args.scheduler, args.resume, not args.quiet,
-                      tuple(args.only or ()))
+    from .evaluation import Terminated, say_terminated
+
+    try:
+        table = run_sweep(args.sweep, args.output_dir, args.jobs, args.scheduler, args.resume, not args.quiet,
+                          tuple(args.only or ()))
+    except Terminated as exc:
+        return say_terminated(exc)
     print(table)
     print(f"\nwrote {args.output_dir}/{{<run>/..., sweep.md}}")
     return 0
