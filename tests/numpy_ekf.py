@@ -80,11 +80,13 @@ def ekf_step(sigma, W, V, F=I6, Q=I6, H=I6, R=I6):
 
 
 def propagate(
-    poses, noise, camera, components=ALL_COMPONENTS, formula=None, jacobians=None, guard=0.0, band=None
+    poses, noise, camera, components=ALL_COMPONENTS, formula=None, jacobians=None, guard=0.0, band=None,
+    extra_W=None,
 ):
     """Posterior covariances (T+1, 6, 6) and predicted ones (T, 6, 6) along `poses` (T+1, 6).
 
     `jacobians(x0, x1) -> (F, Q, H, R)` (NumPy arrays); identity when omitted.
+    `extra_W`: T further motion noise matrices (6x6) added to each step's W (the joint-space term).
     `formula` defaults to `noise.orientation_formula`, `band` to `noise.cut_band` (0 if absent).
     """
     formula = formula or getattr(noise, "orientation_formula", "cosine")
@@ -95,7 +97,7 @@ def propagate(
     for t in range(len(poses) - 1):
         x0, x1 = poses[t], poses[t + 1]
         F, Q, H, R = jacobians(x0, x1) if jacobians is not None else (I6, I6, I6, I6)
-        W = motion_noise(x0, x1, noise)
+        W = motion_noise(x0, x1, noise) + (0 if extra_W is None else np.asarray(extra_W[t], float))
         V = observation_noise(x1, noise, camera, components, formula, guard, band)
         sig, P = ekf_step(sig, W, V, F, Q, H, R)
         sigmas.append(sig)
@@ -107,3 +109,22 @@ def rel_err(a, b) -> float:
     """Largest entry-wise difference relative to the largest entry of `b`."""
     a, b = np.asarray(a, float), np.asarray(b, float)
     return float(np.max(np.abs(a - b)) / max(np.max(np.abs(b)), 1e-300))
+
+
+def camera_frame_pose(robot, T_cam_base, q) -> np.ndarray:
+    """[p, rotation vector] of the tracked frame in the camera frame, from Pinocchio's FK (`robot.frame_pose`)
+    and scipy's principal rotation vector."""
+    M = T_cam_base @ robot.frame_pose(q)
+    return np.concatenate([M[:3, 3], Rotation.from_matrix(M[:3, :3]).as_rotvec()])
+
+
+def joint_motion_noise(robot, T_cam_base, q0, q1, sigma, h=1e-6) -> np.ndarray:
+    """`J diag(sigma^2 (q1 - q0)^2) J^T` with J the central-difference Jacobian of `camera_frame_pose` at q0."""
+    q0, q1 = np.asarray(q0, float), np.asarray(q1, float)
+    J = np.zeros((6, len(q0)))
+    for j in range(len(q0)):
+        e = np.zeros(len(q0))
+        e[j] = h
+        J[:, j] = (camera_frame_pose(robot, T_cam_base, q0 + e) - camera_frame_pose(robot, T_cam_base, q0 - e)) / (2 * h)
+    D = np.diag((np.asarray(sigma, float) * (q1 - q0)) ** 2)
+    return J @ D @ J.T

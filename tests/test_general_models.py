@@ -71,7 +71,7 @@ def test_matrix_recursion_weights_match_a_numpy_ekf_and_finite_differences(name)
         return np.trace(sig)
 
     fn = recursion_weights(m, T, ca.SX.sym("s", 21), ca.SX.sym("r"))
-    S, dm, do = (np.asarray(v) for v in fn(cm, co, m.recursion_sigma0(n.Sigma0), 1.0))
+    S, dm, do, _ = (np.asarray(v) for v in fn(cm, co, np.zeros((0, T)), m.recursion_sigma0(n.Sigma0), 1.0))
     assert S.item() == pytest.approx(numpy_trace(cm, co), rel=1e-12)
     for c, d in ((cm, dm), (co, do)):
         for idx in np.ndindex(c.shape):

@@ -86,6 +86,8 @@ class NoiseParams:
     V_min: np.ndarray = field(default_factory=lambda: np.zeros((NX, NX)))  # observation noise floor (PSD)
     cosine_guard: float = DEFAULT_COSINE_GUARD  # [rad] g in the cosine formula; 0: the paper's formula (r != 0)
     cut_band: float = DEFAULT_CUT_BAND  # [rad] below pi where the cosine fades to 0 (`paper_cosine`); 0: a jump
+    # joint-space motion noise `W_q = J diag(sigma_q^2 dq^2) J^T` (joint_noise.py): sigma_q per joint [-], or None
+    joint_sigma: tuple[float, ...] | None = None
 
 
 def paper_cosine(r, o_star, guard: float, band: float):
@@ -154,7 +156,14 @@ class BeliefModel:
         """
         n = self.noise
         mats = [n.W_p0, n.W_o0, n.V_d0, n.V_f0, n.V_o0, n.V_min, n.Sigma0]
-        return self.identity_maps and all(np.count_nonzero(M - np.diag(np.diag(M))) == 0 for M in mats)
+        return (self.identity_maps and not self.joint_noise
+                and all(np.count_nonzero(M - np.diag(np.diag(M))) == 0 for M in mats))
+
+    @property
+    def joint_noise(self) -> bool:
+        """Whether the motion noise has the joint-space term `J diag(sigma_q^2 dq^2) J^T` (joint_noise.py): then
+        every step also takes that matrix (vech, from the joints), and the covariance is not diagonal."""
+        return self.noise.joint_sigma is not None and any(v > 0 for v in self.noise.joint_sigma)
 
     @property
     def isotropic(self) -> bool:
@@ -165,7 +174,8 @@ class BeliefModel:
         """
         n = self.noise
         mats = [n.W_p0, n.W_o0, n.V_d0, n.V_f0, n.V_o0, n.V_min]
-        return self.identity_maps and all(np.array_equal(M, M[0, 0] * np.eye(NX)) for M in mats)
+        return (self.identity_maps and not self.joint_noise
+                and all(np.array_equal(M, M[0, 0] * np.eye(NX)) for M in mats))
 
     @property
     def scalar(self) -> bool:
@@ -190,7 +200,8 @@ class BeliefModel:
 
         The posterior `P - P H^T (H P H^T + R V R^T)^-1 H P` is a Schur complement, jointly concave and
         nondecreasing in (P, V); the predict step is affine in (Sigma, W); each noise matrix is
-        `sum_k c_k M_k` with constant M_k >= 0. So the surrogate Hessian and the Newton solver apply.
+        `sum_k c_k M_k` with constant M_k >= 0, and the joint-space term enters W as a matrix whose weight is
+        `dS/dW` (positive semidefinite). So the surrogate Hessian and the Newton solver apply.
         """
         return self.noise.observation_noise == "mean" and self.constant_maps is not None
 
@@ -211,7 +222,7 @@ class BeliefModel:
         mats = tuple(np.asarray(getattr(n, k), float).tobytes() for k in ("W_p0", "W_o0", "V_d0", "V_f0", "V_o0",
                                                                            "V_min"))
         return (mats, n.depth_star, tuple(n.o_star), self.components, n.orientation_formula, n.observation_noise,
-                n.objective, n.cosine_guard, n.cut_band,
+                n.objective, n.cosine_guard, n.cut_band, n.joint_sigma,
                 tuple(self.camera.to_dict().items()), self.identity_maps or id(self.jacobians))
 
     def with_components(self, components: tuple[str, ...]) -> BeliefModel:
@@ -307,10 +318,12 @@ class BeliefModel:
         return ca.Function("observation_noise", [x], [self.observation_noise_expr(x)], ["x"], ["V"])
 
     # --------------------------------------------------------------- EKF
-    def predict_expr(self, x0, x1, s):
-        """vech of the predicted covariance P (the prior before observing x1)."""
+    def predict_expr(self, x0, x1, s, w=None):
+        """vech of the predicted covariance P (the prior before observing x1); `w`: vech of a further motion
+        noise of the step (the joint-space term, joint_noise.py), added to W."""
         F, Q, _, _ = self.jacobians(x0, x1)
-        return vech(F @ unvech(s) @ F.T + Q @ self.motion_noise(x0, x1) @ Q.T)
+        W = self.motion_noise(x0, x1) if w is None else self.motion_noise(x0, x1) + unvech(w)
+        return vech(F @ unvech(s) @ F.T + Q @ W @ Q.T)
 
     def innovation_expr(self, x0, x1, p):
         """(S, H) of the update at x1 given the predicted covariance vech `p`."""
@@ -318,9 +331,9 @@ class BeliefModel:
         P = unvech(p)
         return H @ P @ H.T + R @ self.planning_noise(x1, p) @ R.T, H
 
-    def step_expr(self, x0, x1, s):
-        """vech(Sigma_t+1|t+1) from vech(Sigma_t|t) for the step x0 -> x1."""
-        p = self.predict_expr(x0, x1, s)
+    def step_expr(self, x0, x1, s, w=None):
+        """vech(Sigma_t+1|t+1) from vech(Sigma_t|t) for the step x0 -> x1 (`w`: see `predict_expr`)."""
+        p = self.predict_expr(x0, x1, s, w)
         P = unvech(p)
         S, H = self.innovation_expr(x0, x1, p)
         KT = ca.solve(S, H @ P)  # K^T = S^-1 H P (S symmetric)
@@ -336,6 +349,20 @@ class BeliefModel:
     def step(self) -> ca.Function:
         x0, x1, s = ca.SX.sym("x0", NX), ca.SX.sym("x1", NX), ca.SX.sym("sigma", NV)
         return ca.Function("belief_step", [x0, x1, s], [self.step_expr(x0, x1, s)], ["x0", "x1", "sigma"], ["sigma_next"])
+
+    @cached_property
+    def predict_with(self) -> ca.Function:
+        """`predict` with the step's further motion noise `w` (vech) as a fourth input."""
+        x0, x1, s, w = ca.SX.sym("x0", NX), ca.SX.sym("x1", NX), ca.SX.sym("sigma", NV), ca.SX.sym("w", NV)
+        return ca.Function("predict_with", [x0, x1, s, w], [self.predict_expr(x0, x1, s, w)],
+                           ["x0", "x1", "sigma", "w"], ["sigma_pred"])
+
+    @cached_property
+    def step_with(self) -> ca.Function:
+        """`step` with the step's further motion noise `w` (vech) as a fourth input."""
+        x0, x1, s, w = ca.SX.sym("x0", NX), ca.SX.sym("x1", NX), ca.SX.sym("sigma", NV), ca.SX.sym("w", NV)
+        return ca.Function("belief_step_with", [x0, x1, s, w], [self.step_expr(x0, x1, s, w)],
+                           ["x0", "x1", "sigma", "w"], ["sigma_next"])
 
     def sigma0_vech(self) -> np.ndarray:
         return vech(np.asarray(self.noise.Sigma0, dtype=float))
@@ -358,7 +385,7 @@ class BeliefModel:
         return ca.Function("camera_change", [x, s, D], [xn, sn], ["x", "sigma", "D"], ["x_new", "sigma_new"])
 
     def propagate(self, poses: np.ndarray, changes: list | None = None,
-                  sigma0: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+                  sigma0: np.ndarray | None = None, joint: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Covariances along a trajectory under maximum likelihood.
 
         Args:
@@ -366,19 +393,27 @@ class BeliefModel:
             changes: optional list of T camera moves; entry t (4x4 or None) maps the camera
                 frame of step t to that of step t+1 and is applied before the step t -> t+1.
             sigma0: initial covariance (default: the model's Sigma0).
+            joint: (T, 21) vech of each step's joint-space motion noise (`Setup.joint_noises`); required
+                exactly when the model has that term, so it is never dropped silently.
 
         Returns:
             (sigmas (T+1, 6, 6) posterior covariances Sigma_t|t, predicted (T, 6, 6) Sigma_t+1|t).
         """
         poses = np.asarray(poses, dtype=float)
+        if (joint is not None) != self.joint_noise:
+            raise ValueError("propagate: the joint-space motion noise (`joint`) is given exactly when the model has it")
         s = self.sigma0_vech() if sigma0 is None else vech(np.asarray(sigma0, float))
         sig, pred = [unvech(s)], []
         for t in range(len(poses) - 1):
             x0 = poses[t]
             if changes is not None and changes[t] is not None:
                 x0, s = (np.asarray(v).ravel() for v in self.camera_change(x0, s, changes[t]))
-            pred.append(unvech(np.asarray(self.predict(x0, poses[t + 1], s)).ravel()))
-            s = np.asarray(self.step(x0, poses[t + 1], s)).ravel()
+            if joint is None:
+                pred.append(unvech(np.asarray(self.predict(x0, poses[t + 1], s)).ravel()))
+                s = np.asarray(self.step(x0, poses[t + 1], s)).ravel()
+            else:
+                pred.append(unvech(np.asarray(self.predict_with(x0, poses[t + 1], s, joint[t])).ravel()))
+                s = np.asarray(self.step_with(x0, poses[t + 1], s, joint[t])).ravel()
             sig.append(unvech(s))
         return np.array(sig), np.array(pred)
 

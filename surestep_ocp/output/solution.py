@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 
+from ..errors import SurestepError
 from ..model.belief import entropy
 from ..model.lie import matrix_to_pose, np_angle, np_exp_many, np_log_many, pose_to_matrix
 from ..model.limits import recorded_limits
@@ -171,6 +172,8 @@ def noise_dict(setup: Setup) -> dict:
     d = {k: _cov_json(getattr(n, k)) for k in ("W_p0", "W_o0", "V_d0", "V_f0", "V_o0", "V_min", "Sigma0")}
     d.update(depth_star=n.depth_star, o_star=list(n.o_star), components=list(setup.model.components),
              orientation_formula=n.orientation_formula, cosine_guard=n.cosine_guard, cut_band=n.cut_band)
+    if setup.model.joint_noise:
+        d["joint_motion_sigma"] = list(n.joint_sigma)
     return d
 
 
@@ -205,7 +208,14 @@ def evaluate(
     """
     poses = np.array(poses, dtype=float)
     poses = setup.in_step_frames(_principal(poses))  # planned in the first camera frame
-    sig = setup.eval_model.propagate(poses, setup.camera_changes())[0] if sigma is None else np.asarray(sigma)
+    joint = None
+    if setup.model.joint_noise and sigma is None:  # the joint-space motion noise needs every waypoint's joints
+        if any(qi is None for qi in q):
+            raise SurestepError(f"{method}: a waypoint without joints (unreachable) has no joint-space motion noise "
+                                "(noise.joint_motion_sigma)")
+        joint = setup.joint_noises(np.asarray(q, float))
+    sig = (setup.eval_model.propagate(poses, setup.camera_changes(), joint=joint)[0] if sigma is None
+           else np.asarray(sigma))
     prob = setup.problem
     noise = noise_dict(setup)
     if components is not None:

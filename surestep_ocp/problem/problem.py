@@ -639,7 +639,7 @@ def _pose6(rd: Reader, node: Any, key: str) -> np.ndarray:
 
 
 _NOISE_KEYS = {"observation_scale", "camera_W_p0", "camera_W_o0", "W_p0", "W_o0", "V_d0", "V_f0", "V_o0", "Sigma0", "depth_star", "o_star", "components",
-               "orientation_formula", "observation_noise", "V_min", "cosine_guard", "cut_band"}
+               "orientation_formula", "observation_noise", "V_min", "cosine_guard", "cut_band", "joint_motion_sigma"}
 
 
 def _noise(rd: Reader, node: Any, frames: int = 1) -> NoiseParams:
@@ -677,6 +677,13 @@ def _noise(rd: Reader, node: Any, frames: int = 1) -> NoiseParams:
                                         OBSERVATION_NOISE_FORMS)
     kw["cosine_guard"] = rd.number(m.get("cosine_guard", d.cosine_guard), "noise.cosine_guard", low=0.0, high=1.0)
     kw["cut_band"] = rd.number(m.get("cut_band", d.cut_band), "noise.cut_band", low=0.0, high=1.0)
+    if "joint_motion_sigma" in m:  # one number for every joint, or one per joint (its length is checked on setup)
+        node, key = m["joint_motion_sigma"], "noise.joint_motion_sigma"
+        nodes = node if isinstance(node, list) else [node]
+        if not nodes:
+            raise rd.fail(key, "empty; give one number for every joint or one per joint")
+        kw["joint_sigma"] = tuple(rd.number(v, key if not isinstance(node, list) else f"{key}[{i}]", low=0.0,
+                                            high=1.0) for i, v in enumerate(nodes))
     return NoiseParams(**kw)
 
 

@@ -100,6 +100,15 @@ class Setup:
         q = np.atleast_2d(np.asarray(q, float))
         return np.asarray(self.robot.camera_poses(len(q))(q.T, self.camera_parameter())).T
 
+    def joint_noises(self, q: np.ndarray) -> np.ndarray | None:
+        """(T, 21) vech of each step's joint-space motion noise along the joints `q` (T+1, nq), or None when the
+        model has none (`BeliefModel.propagate`'s `joint`)."""
+        if not self.model.joint_noise:
+            return None
+        from ..model.joint_noise import joint_noises
+
+        return joint_noises(self.robot, self.problem.noise.joint_sigma, q, self.camera_parameter())
+
     def pose_of(self, q: np.ndarray) -> np.ndarray:
         """Camera-frame mean `[p, r]` of the tracked frame at joints `q` (see `poses_of`)."""
         return self.poses_of(q)[0]
@@ -179,6 +188,7 @@ def build_setup(problem: Problem) -> Setup:
     """
     file = str(problem.path)
     robot = load_robot(file, "robot", problem.robot, moving=True)
+    problem = _joint_sigma_for(problem, robot)
 
     cam = problem.camera
     ecm = None
@@ -199,6 +209,23 @@ def build_setup(problem: Problem) -> Setup:
     setup.q_goal, setup.x_goal = _endpoint(problem, setup, problem.goal, setup.q_start)
     setup.x_goal = _continued_at(setup, setup.x_goal, setup.q_goal)
     return setup
+
+
+def _joint_sigma_for(problem: Problem, robot: Robot) -> Problem:
+    """`noise.joint_motion_sigma` checked against the robot (one number per joint, or one for all: expanded)."""
+    sigma = problem.noise.joint_sigma
+    if sigma is None:
+        return problem
+    key = "noise.joint_motion_sigma"
+    if len(sigma) == 1:
+        sigma = sigma * robot.nq
+    elif len(sigma) != robot.nq:
+        raise ProblemError(str(problem.path), key, f"expected one number or {robot.nq} (one per joint: "
+                           f"{', '.join(robot.joint_names)}), got {len(sigma)}")
+    if problem.camera.moves and any(v > 0 for v in sigma):
+        raise ProblemError(str(problem.path), key, "joint-space motion noise with camera.moves is not supported "
+                           "(the noise's Jacobian is taken in one camera frame)")
+    return replace(problem, noise=replace(problem.noise, joint_sigma=tuple(sigma)))
 
 
 def _continued_at(setup: Setup, x: np.ndarray, q: np.ndarray) -> np.ndarray:

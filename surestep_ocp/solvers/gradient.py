@@ -35,6 +35,7 @@ import scipy.optimize
 from .baseline import reachability, straight_line
 from ..model.belief import NX, trace_vech
 from ..model.lie import angle_sq, np_angle, so3_exp
+from ..errors import SurestepError
 from ..problem.setup import Setup
 from ..output.solution import Solution, evaluate
 
@@ -45,6 +46,10 @@ EPS_POS = 1e-6  # [m]
 EPS_ANG = 1e-6  # [rad]
 BARELY_MOVED_M = 1e-3  # [m]  max waypoint position change vs the baseline
 BARELY_MOVED_RAD = 1e-2  # [rad] max waypoint orientation change vs the baseline
+# the paper's variant optimises pose-space waypoints: it has no joints to take the joint-space term's Jacobian at
+JOINT_NOISE_UNSUPPORTED = ("noise.joint_motion_sigma: the gradient variant plans waypoints in pose space, without the "
+                           "joints the joint-space motion noise needs; run the OCP and the baseline (--methods ocp "
+                           "baseline)")
 FAR_M = 10.0  # [m] waypoints this far from the camera are not checked by IK (a diverged optimiser)
 
 
@@ -121,6 +126,8 @@ def solve_gradient(
         The evaluated Solution, method "gradient" or "gradient-no-pose-loss".
     """
     prob = setup.problem
+    if setup.model.joint_noise:
+        raise SurestepError(JOINT_NOISE_UNSUPPORTED)
     spec = prob.gradient
     T = prob.horizon
     components = tuple(setup.model.components if components is None else components)

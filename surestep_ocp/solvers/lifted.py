@@ -59,6 +59,9 @@ class LiftedTranscription:
                                 "noise.observation_noise: mean")
         if model.noise.objective != "posterior":
             raise SurestepError("objective.covariance: predicted needs solver.covariance: condensed (or auto)")
+        if model.joint_noise:
+            raise SurestepError("noise.joint_motion_sigma: the lifted form's structured Hessian takes its noise "
+                                "coefficients from the means alone; use solver.covariance: condensed (or auto)")
         t0 = time.perf_counter()
         self.robot, self.model, self.T = robot, model, horizon
         T, nq = horizon, robot.nq
@@ -72,7 +75,7 @@ class LiftedTranscription:
         # ---- interval functions: (a, b) the means at both ends, s the scaled covariance, sc0/sc1 the scales
         a, b, s = ca.SX.sym("a", NX), ca.SX.sym("b", NX), ca.SX.sym("s", NV)
         sc0, sc1 = ca.SX.sym("sc0"), ca.SX.sym("sc1")
-        (_, _), coefficients, (wm, wo), weighted = interval_terms(model, a, b)
+        (_, _), coefficients, (wm, wo, _), weighted = interval_terms(model, a, b)
         c = ca.vertcat(*coefficients)
         g_int = stage(sc0 * s, c)[0] / sc1
         self.coef = ca.Function("lifted_coef", [a, b], [c])
@@ -128,8 +131,8 @@ class LiftedTranscription:
             entries([(i, i) for i in q_idx])], np.triu(D))
         lam_kin = ca.reshape(lam_g[:NX * (T + 1)], NX, T + 1)
         C, nm = self.coef.map(T)(mus[:, :T], mus[:, 1:]), wm.shape[0]  # motion coefficients, then observation
-        _, w_m, w_o = recursion_weights(model, T, ca.SX.sym("sigma0", NV), ca.SX.sym("trace_ref"))(
-            C[:nm, :], C[nm:, :], P[c0 + T + 2:], ref)
+        _, w_m, w_o, _ = recursion_weights(model, T, ca.SX.sym("sigma0", NV), ca.SX.sym("trace_ref"))(
+            C[:nm, :], C[nm:, :], ca.MX(0, T), P[c0 + T + 2:], ref)
         H_nz = (lam_f * (const + ca.mtimes(h_int, ca.vec(interval_hess.map(T)(mus[:, :T], mus[:, 1:], w_m, w_o))))
                 + ca.mtimes(h_q, ca.vec(node_hess.map(T + 1)(qs, lam_kin, Tc))))
         hess_lag = ca.Function("lifted_hess_l", [X, P, lam_f, lam_g], [ca.MX(hess_sp, H_nz)],

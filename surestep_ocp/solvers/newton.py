@@ -33,7 +33,8 @@ import casadi as ca
 import numpy as np
 import scipy.linalg
 
-from ..model.belief import NV, BeliefModel
+from ..model.belief import NV, BeliefModel, vech
+from ..model.joint_noise import joint_noise_expr
 from .codegen import compiled_or_interpreted
 from ..model.robot import CAMERA_PARAMETERS, Robot
 from ..problem.setup import Setup
@@ -84,15 +85,16 @@ class NewtonSolver:
         pose = pose_function(robot)
         weights = recursion_weights(model, T, sigma0, ref)
         qa, qb = ca.SX.sym("qa", nq), ca.SX.sym("qb", nq)
-        _, coefficients, (wm, wo), weighted = interval_terms(model, pose(qa, Tcb), pose(qb, Tcb))
+        joint = (vech(joint_noise_expr(robot, model.noise.joint_sigma, qa, qb, Tcb)) if model.joint_noise else None)
+        _, coefficients, (wm, wo, wj), weighted = interval_terms(model, pose(qa, Tcb), pose(qb, Tcb), joint)
         coef = ca.Function("coef", [qa, qb, Tcb], list(coefficients))
         surrogate = weighted + smoothness * ca.sumsqr(qb - qa)
         H, g = ca.hessian(surrogate, ca.vertcat(qa, qb))
-        interval = ca.Function("interval", [qa, qb, wm, wo, Tcb], [ca.densify(g), ca.densify(H)])
+        interval = ca.Function("interval", [qa, qb, wm, wo, wj, Tcb], [ca.densify(g), ca.densify(H)])
         Q, P = ca.MX.sym("Q", nq, T + 1), ca.MX.sym("P", CAMERA_PARAMETERS + 1 + NV)  # camera, trace_ref, sigma0
         Tc, r, s0 = P[:CAMERA_PARAMETERS], P[CAMERA_PARAMETERS], P[CAMERA_PARAMETERS + 1:]
-        S_x, w_m, w_o = weights(*coef.map(T)(Q[:, :T], Q[:, 1:], Tc), s0, r)
-        G, HB = interval.map(T)(Q[:, :T], Q[:, 1:], w_m, w_o, Tc)
+        S_x, w_m, w_o, w_j = weights(*coef.map(T)(Q[:, :T], Q[:, 1:], Tc), s0, r)
+        G, HB = interval.map(T)(Q[:, :T], Q[:, 1:], w_m, w_o, w_j, Tc)
         smooth = smoothness * ca.sumsqr(Q[:, 1:] - Q[:, :T])
         # S's own curvature in the coefficients (dense, 5T x 5T, negative semidefinite) and the coefficients'
         # Jacobians per interval: the exact Hessian is the surrogate's plus C^T (d2S/dc2) C (the end-game)
@@ -139,15 +141,15 @@ class NewtonSolver:
         T, Tc, s0, r = self.T, P[:CAMERA_PARAMETERS], P[CAMERA_PARAMETERS + 1:], P[CAMERA_PARAMETERS]
         cm, co = ca.MX.sym("cm", *w_m.shape), ca.MX.sym("co", *w_o.shape)
         nc = w_m.numel() + w_o.numel()
-        _, dm, do = weights(cm, co, s0, r)
+        _, dm, do, _ = weights(cm, co, ca.MX(0, T), s0, r)  # scalar models only: no joint-space term
         direction = ca.MX.sym("dc", nc)
         hvp = ca.Function("hvp", [cm, co, P, direction],
                           [ca.jtimes(ca.vertcat(ca.vec(dm), ca.vec(do)), ca.vertcat(ca.vec(cm), ca.vec(co)), direction)])
         CM, CO = ca.MX.sym("CM", *w_m.shape), ca.MX.sym("CO", *w_o.shape)
         curv = ca.Function("curv", [CM, CO, P], [hvp.map(nc)(CM, CO, P, ca.DM.eye(nc))])
-        coef_jac = ca.Function("coef_jac", [qa, qb, Tcb], [ca.densify(ca.jacobian(ca.vertcat(*coefficients),
+        coef_jac = ca.Function("coef_jac", [qa, qb, Tcb], [ca.densify(ca.jacobian(ca.vertcat(*coefficients[:2]),
                                                                                     ca.vertcat(qa, qb)))])
-        return ca.Function("newton_curv", [Q, P], [ca.densify(curv(*coef.map(T)(Q[:, :T], Q[:, 1:], Tc), P)),
+        return ca.Function("newton_curv", [Q, P], [ca.densify(curv(*coef.map(T)(Q[:, :T], Q[:, 1:], Tc)[:2], P)),
                                                    coef_jac.map(T)(Q[:, :T], Q[:, 1:], Tc)])
 
     def solve(self, setup: Setup, init, method: str = "ocp", tol: float = 1e-6, max_iter: int = 300,

@@ -129,7 +129,7 @@ def solve_ocp_warm(setup: Setup, init: InitialGuess, solver_options: dict | None
         done = done or (limited and tried[-1][1].status == "Infeasible_Problem_Detected")
         if not done and not forced and form == "condensed" and not costly:  # polish from the point reached
             done = attempt("exact", "exact", exact_cap, tried[-1][2])
-    if not done and not forced and not costly:
+    if not done and not forced and (not costly or hessian == "exact"):  # the exact Hessian asked for: always tried
         done = attempt("exact", "exact", exact_cap, None)
         if not done and not pinned:
             attempt("exact, monotone barrier", "exact", {"ipopt.mu_strategy": "monotone", **exact_cap}, None)
@@ -187,19 +187,21 @@ FALSE_VERDICTS = ("Infeasible_Problem_Detected", "Restoration_Failed", "Error_In
 
 
 def diagonal_model_setup(setup: Setup) -> Setup:
-    """The same setup with every base covariance replaced by its diagonal: a scalar model, cheap to solve."""
+    """The same setup with every base covariance replaced by its diagonal and no joint-space motion noise: a scalar
+    model, cheap to solve."""
     from dataclasses import replace
 
     n = setup.problem.noise
     diag = {k: np.diag(np.diag(np.asarray(getattr(n, k), float)))
             for k in ("W_p0", "W_o0", "V_d0", "V_f0", "V_o0", "V_min", "Sigma0")}
-    return replace(setup, problem=replace(setup.problem, noise=replace(n, **diag)))
+    return replace(setup, problem=replace(setup.problem, noise=replace(n, **diag, joint_sigma=None)))
 
 
 def _objective_at(setup: Setup, sol: Solution, other: Solution) -> float:
     """The planner's objective (its model's Tr(Sigma_T) plus the smoothness term, scaled like `sol.objective`) at
     the joints of another plan."""
-    sig, pred = setup.model.propagate(setup.poses_of(np.asarray(other.q, float)))
+    q = np.asarray(other.q, float)
+    sig, pred = setup.model.propagate(setup.poses_of(q), joint=setup.joint_noises(q))
     trace = float(np.trace(pred[-1] if setup.model.noise.objective == "predicted" else sig[-1]))
     smooth = setup.problem.objective.smoothness * float(np.sum(np.diff(np.asarray(other.q, float), axis=0) ** 2))
     return trace + smooth * sol.extras["initial_trace"]

@@ -59,17 +59,32 @@ def spd_solve(S, B):
 
 
 def _stage_symbols(model: BeliefModel):
-    """Symbols `sigma` (vech), `c` (motion coefficients, then observation ones), the prediction
-    `P = F Sigma F^T + Q W Q^T`, the gain `K = P H^T (H P H^T + R V R^T)^-1` with `W = sum_k c_k W_k`,
-    `V = V_min + sum_k c_k V_k`, and the constant maps."""
+    """Symbols `sigma` (vech), `c` (motion coefficients, observation ones, then the vech of the joint-space
+    motion noise if the model has it), the prediction `P = F Sigma F^T + Q W Q^T`, the gain
+    `K = P H^T (H P H^T + R V R^T)^-1` with `W = sum_k c_k W_k (+ W_q)`, `V = V_min + sum_k c_k V_k`, and the
+    constant maps."""
     F, Q, H, R = (ca.DM(M) for M in model.constant_maps)
     Wm, Vm = model.motion_matrices(), model.observation_matrices()
-    s, c = ca.SX.sym("sigma", NV), ca.SX.sym("c", len(Wm) + len(Vm))
+    s, c = ca.SX.sym("sigma", NV), ca.SX.sym("c", len(Wm) + len(Vm) + joint_size(model))
     W = sum(c[k] * ca.DM(M) for k, M in enumerate(Wm))
+    if model.joint_noise:
+        W = W + unvech(c[len(Wm) + len(Vm):])
     V = ca.DM(model.noise.V_min) + sum(c[len(Wm) + k] * ca.DM(M) for k, M in enumerate(Vm))
     P = F @ unvech(s) @ F.T + Q @ W @ Q.T
     K = spd_solve(H @ P @ H.T + R @ V @ R.T, H @ P).T
     return s, c, P, K, (F, Q, H, R), (Wm, Vm)
+
+
+def joint_size(model: BeliefModel) -> int:
+    """Entries of the joint-space motion noise among a step's coefficients: its vech (21), or none."""
+    return NV if model.joint_noise else 0
+
+
+def _unit_vech(v: int) -> np.ndarray:
+    """The symmetric matrix whose vech is the v-th unit vector (d unvech(c) / d c_v)."""
+    e = np.zeros(NV)
+    e[v] = 1.0
+    return unvech(e)
 
 
 def kalman_stage(model: BeliefModel) -> ca.Function:
@@ -95,21 +110,24 @@ def kalman_stage_jacobian(model: BeliefModel) -> ca.Function:
             E = B[:, i] @ B[:, j].T
             cols.append(vech(E + E.T) if i != j else vech(E))
     cols += [vech(AQ @ ca.DM(M) @ AQ.T) for M in Wm] + [vech(KR @ ca.DM(M) @ KR.T) for M in Vm]
+    cols += [vech(AQ @ ca.DM(_unit_vech(v)) @ AQ.T) for v in range(joint_size(model))]
     return ca.Function("kalman_stage_jac", [s, c], [ca.horzcat(*cols)], ["sigma", "c"], ["jac"])
 
 
 def recursion_weights(model: BeliefModel, T: int, sigma0, trace_ref) -> ca.Function:
-    """`weights(cm, co, sigma0, trace_ref) -> (S, dS/dcm, dS/dco)`: the scaled trace after the Kalman
-    recursions as a function of the (motion, observation) coefficient matrices (one column per interval),
-    and its gradient, the surrogate's weights. `sigma0` and `trace_ref` are the caller's SX symbols
-    (`BeliefModel.recursion_sigma0` gives sigma0's value).
+    """`weights(cm, co, cj, sigma0, trace_ref) -> (S, dS/dcm, dS/dco, dS/dcj)`: the scaled trace after the Kalman
+    recursions as a function of the (motion, observation, joint-space) coefficient matrices (one column per
+    interval; `cj` the vech of the joint-space motion noise, no rows without it), and its gradient, the
+    surrogate's weights. `sigma0` and `trace_ref` are the caller's SX symbols (`BeliefModel.recursion_sigma0`
+    gives sigma0's value).
 
     A scalar model runs six scalar recursions; any other structured model (`BeliefModel.structured`:
-    constant maps, any SPD base matrices) the 6x6 matrix recursion, concave and nondecreasing in c too.
+    constant maps, any SPD base matrices, the joint-space term) the 6x6 matrix recursion, concave and
+    nondecreasing in c too (in the joint-space term's matrix: `dS/dW` is positive semidefinite).
     """
     Wm, Vm = model.motion_matrices(), model.observation_matrices()
-    nm, no = len(Wm), len(Vm)
-    cm, co = ca.SX.sym("cm", nm, T), ca.SX.sym("co", no, T)
+    nm, no, nj = len(Wm), len(Vm), joint_size(model)
+    cm, co, cj = ca.SX.sym("cm", nm, T), ca.SX.sym("co", no, T), ca.SX.sym("cj", nj, T)
     floor = model.noise.V_min
     predicted = model.noise.objective == "predicted"
     if model.scalar:
@@ -118,23 +136,30 @@ def recursion_weights(model: BeliefModel, T: int, sigma0, trace_ref) -> ca.Funct
                          [lambda p, t=t: ca.DM(np.diag(floor)) + sum(co[k, t] * Vd[k] for k in range(no))
                           for t in range(T)], predicted)
     else:  # stage-wise (mapaccum): the generated code holds one Kalman step whatever T
-        cm, co = ca.MX.sym("cm", nm, T), ca.MX.sym("co", no, T)
+        cm, co, cj = ca.MX.sym("cm", nm, T), ca.MX.sym("co", no, T), ca.MX.sym("cj", nj, T)
         sigma0, trace_ref = ca.MX.sym("sigma0", NV), ca.MX.sym("trace_ref")
-        post, pred = kalman_stage(model).mapaccum("kalman_roll", T)(sigma0, ca.vertcat(cm, co))
+        post, pred = kalman_stage(model).mapaccum("kalman_roll", T)(sigma0, ca.vertcat(cm, co, cj))
         S = trace_vech((pred if predicted else post)[:, T - 1])
     S = S / trace_ref
-    return ca.Function("weights", [cm, co, sigma0, trace_ref],
-                       [S, ca.jacobian(S, ca.vec(cm)).reshape((nm, T)), ca.jacobian(S, ca.vec(co)).reshape((no, T))])
+    grads = [ca.jacobian(S, ca.vec(c)).reshape(c.shape) if c.numel() else type(S).zeros(0, T) for c in (cm, co, cj)]
+    return ca.Function("weights", [cm, co, cj, sigma0, trace_ref], [S, *grads])
 
 
-def interval_terms(model: BeliefModel, a, b):
-    """For the means `a`, `b` at both ends of an interval: the residuals `(motion, observation)` whose
-    squared norms are the noise coefficients, the coefficient vectors, and the weight symbols `(wm, wo)`
-    with the weighted sum `sum_k wm_k |e_k|^2 + sum_k wo_k |e_k|^2` (the surrogate's interval term)."""
+def interval_terms(model: BeliefModel, a, b, joint=None):
+    """For the means `a`, `b` at both ends of an interval (and `joint`, the vech of the joint-space motion noise
+    of its joints, when the model has it): the residuals `(motion, observation)` whose squared norms are the
+    noise coefficients, the coefficient vectors `(motion, observation, joint)`, the weight symbols
+    `(wm, wo, wj)` and the weighted sum `sum_k wm_k |e_k|^2 + sum_k wo_k |e_k|^2 + wj . joint` (the
+    surrogate's interval term: `wj = dS/d vech(W_q)`, so `wj . vech(W_q) = <dS/dW, W_q>`)."""
+    if (joint is not None) != model.joint_noise:
+        raise ValueError("interval_terms: the joint-space motion noise is given exactly when the model has it")
     res_m = model.motion_residuals(a, b)
     res_o = [e for e, _ in model.observation_residuals(b)]
-    wm, wo = ca.SX.sym("wm", len(res_m)), ca.SX.sym("wo", len(res_o))
-    coefficients = (ca.vertcat(*[ca.sumsqr(e) for e in res_m]), ca.vertcat(*[ca.sumsqr(e) for e in res_o]))
+    wm, wo, wj = ca.SX.sym("wm", len(res_m)), ca.SX.sym("wo", len(res_o)), ca.SX.sym("wj", joint_size(model))
+    cj = joint if joint is not None else ca.SX(0, 1)
+    coefficients = (ca.vertcat(*[ca.sumsqr(e) for e in res_m]), ca.vertcat(*[ca.sumsqr(e) for e in res_o]), cj)
     weighted = (sum(wm[k] * ca.sumsqr(e) for k, e in enumerate(res_m))
                 + sum(wo[k] * ca.sumsqr(e) for k, e in enumerate(res_o)))
-    return (res_m, res_o), coefficients, (wm, wo), weighted
+    if joint is not None:
+        weighted += ca.dot(wj, joint)
+    return (res_m, res_o), coefficients, (wm, wo, wj), weighted

@@ -39,6 +39,7 @@ import numpy as np
 from ..model.belief import DIAG, NV, NX, BeliefModel, unvech, vech
 from .codegen import compiled_or_interpreted
 from ..errors import SurestepError
+from ..model.joint_noise import joint_noise_expr, joint_noise_function
 from ..model.limits import MotionLimits
 from ..model.robot import CAMERA_PARAMETERS, Robot
 from ..problem.setup import Setup
@@ -147,6 +148,8 @@ class Transcription:
         self.p = ca.vertcat(ca.vec(Tcb), scale, trace_ref, sigma0)
 
         pose = pose_function(robot)
+        self.joint_fn = joint_noise_function(robot, model.noise.joint_sigma) if model.joint_noise else None
+        wq = [self.joint_fn(qs[t], qs[t + 1], Tcb) if self.joint_fn else None for t in range(T)]  # W_q, vech
 
         g = [mus[t] - pose(qs[t], Tcb) for t in range(T + 1)]
         predicted = model.noise.objective == "predicted"
@@ -161,13 +164,13 @@ class Transcription:
             else:
                 s_t = sigma0
                 for t in range(T - 1):
-                    s_t = model.step_expr(mus[t], mus[t + 1], s_t)
+                    s_t = model.step_expr(mus[t], mus[t + 1], s_t, wq[t])
                 last = model.predict_expr if predicted else model.step_expr
-                s_t = last(mus[T - 1], mus[T], s_t)
+                s_t = last(mus[T - 1], mus[T], s_t, wq[T - 1])
                 trace_T = sum(s_t[i] for i in DIAG)
         else:
             for t in range(T):
-                g.append(self._step(mus[t], mus[t + 1], scale[t] * ss[t], Ks[t]) / scale[t + 1]
+                g.append(self._step(mus[t], mus[t + 1], scale[t] * ss[t], Ks[t], wq[t]) / scale[t + 1]
                          - ss[t + 1])
             trace_T = scale[T] * (ca.sum1(ss[T]) if form == "diagonal" else sum(ss[T][i] for i in DIAG))
         self.poses = pose.map(T + 1)  # (q columns, T_cam_base) -> mean columns, for initial points
@@ -290,14 +293,17 @@ class Transcription:
         n = self.layout.vector().shape[0]
         weights = recursion_weights(m, T, sigma0, trace_ref)
         a, b = ca.SX.sym("a", NX), ca.SX.sym("b", NX)
-        (res_m, res_o), coefficients, (wm, wo), weighted = interval_terms(m, a, b)
-        coef = ca.Function("coef", [a, b], list(coefficients))
+        jv = ca.SX.sym("w_q", NV) if m.joint_noise else None  # the joint-space term: its own (q_t, q_t+1) stage
+        (res_m, res_o), coefficients, (wm, wo, wj), weighted = interval_terms(m, a, b, jv)
+        coef = ca.Function("coef", [a, b], list(coefficients[:2]))
         ab = ca.vertcat(a, b)
         if self.hessian == "surrogate":  # exact curvature of the weighted coefficients
             block = ca.hessian(weighted, ab)[0]
         else:  # Gauss-Newton: the residuals' curvature dropped too
             block = sum(2 * wm[k] * ca.mtimes(ca.jacobian(e, ab).T, ca.jacobian(e, ab)) for k, e in enumerate(res_m))
             block += sum(2 * wo[k] * ca.mtimes(ca.jacobian(e, ab).T, ca.jacobian(e, ab)) for k, e in enumerate(res_o))
+        if jv is not None:  # the means' terms do not depend on it
+            weighted, block = ca.substitute(weighted, jv, ca.DM.zeros(NV)), ca.substitute(block, jv, ca.DM.zeros(NV))
         interval_grad = ca.Function("interval_grad", [a, b, wm, wo], [ca.densify(ca.gradient(weighted, ab))])
         interval_hess = ca.Function("interval_hess", [a, b, wm, wo], [ca.densify(block)])
         q, lam, Tcb = ca.SX.sym("q", nq), ca.SX.sym("lam", NX), ca.SX.sym("camera", CAMERA_PARAMETERS)
@@ -320,15 +326,23 @@ class Transcription:
         Tcb_x, sigma0_x, ref_x = ca.Function("params", [self.p], [self.p[:CAMERA_PARAMETERS], sigma0, trace_ref])(P)
         mus = ca.horzcat(*[X[i[0]:i[0] + NX] for i in mu_idx])
         qs = ca.horzcat(*[X[i[0]:i[0] + nq] for i in q_idx])
-        S_x, w_m, w_o = weights(*coef.map(T)(mus[:, :T], mus[:, 1:]), sigma0_x, ref_x)
+        qq_idx = [np.concatenate([q_idx[t], q_idx[t + 1]]) for t in range(T)]
+        qab_x = ca.vertcat(qs[:, :T], qs[:, 1:])
+        joint = self._joint_stages(wj, Tcb) if jv is not None else None
+        cj = joint["coef"].map(T)(qab_x, Tcb_x) if joint else ca.MX(0, T)
+        S_x, w_m, w_o, w_j = weights(*coef.map(T)(mus[:, :T], mus[:, 1:]), cj, sigma0_x, ref_x)
         G = interval_grad.map(T)(mus[:, :T], mus[:, 1:], w_m, w_o)
         B = interval_hess.map(T)(mus[:, :T], mus[:, 1:], w_m, w_o)
         Jq = node_jac.map(T + 1)(qs, Tcb_x)
         K = node_hess.map(T + 1)(qs, ca.reshape(lam_g[:NX * (T + 1)], NX, T + 1), Tcb_x)
         smooth_f = 0.5 * ca.bilin(ca.DM(D), X, X) if smoothness > 0 else 0
 
-        grad_sp, (sc_g,), _ = assemble((n, 1), [entries([(i, [0]) for i in ab_idx])])
-        grad = ca.MX(grad_sp, ca.mtimes(sc_g, ca.vec(G)))
+        grad_parts = [entries([(i, [0]) for i in ab_idx])] + ([entries([(i, [0]) for i in qq_idx])] if joint else [])
+        grad_sp, sc_g, _ = assemble((n, 1), grad_parts)
+        grad_nz = ca.mtimes(sc_g[0], ca.vec(G))
+        if joint:
+            grad_nz += ca.mtimes(sc_g[1], ca.vec(joint["grad"].map(T)(qab_x, w_j, Tcb_x)))
+        grad = ca.MX(grad_sp, grad_nz)
         if smoothness > 0:
             grad = ca.densify(grad) + ca.mtimes(ca.DM(D), X)
         grad_f = ca.Function("nlp_grad_f", [X, P], [S_x + smooth_f, ca.densify(grad)], ["x", "p"], ["f", "grad"])
@@ -344,13 +358,11 @@ class Transcription:
             lam_k = ca.SX.sym("lam_k", k)
             tool_jac = ca.Function("tool_jac", [qab], [ca.densify(ca.jacobian(rows_ab, qab))])
             tool_hess = ca.Function("tool_hess", [qab, lam_k], [ca.densify(ca.hessian(ca.dot(lam_k, rows_ab), qab)[0])])
-            qq_idx = [np.concatenate([q_idx[t], q_idx[t + 1]]) for t in range(T)]
             t_idx = [self.ng_eq + self.n_lin + np.arange(k * t, k * (t + 1)) for t in range(T)]
             jac_parts.append(entries(list(zip(t_idx, qq_idx))))
             hess_parts.append(entries([(i, i) for i in qq_idx]))
             lin_const = np.zeros((self.ng, n))
             lin_const[self.ng_eq:self.ng_eq + self.n_lin] = self.A
-            qab_x = ca.vertcat(qs[:, :T], qs[:, 1:])
             Jt = tool_jac.map(T)(qab_x)
             Ht = tool_hess.map(T)(qab_x, ca.reshape(lam_g[self.ng_eq + self.n_lin:], k, T))
             A_sp = ca.sparsify(ca.DM(self.A))
@@ -362,22 +374,49 @@ class Transcription:
         jac_g = ca.Function("nlp_jac_g", [X, P], [ca.vertcat(g_x, *g_lim), ca.MX(jac_sp, J_nz)], ["x", "p"],
                             ["g", "jac"])
 
+        if joint:
+            hess_parts.append(entries([(i, i) for i in qq_idx]))
         hess_sp, sc_h, const = assemble((n, n), hess_parts, np.triu(D))
         sc_b, sc_k = sc_h[:2]
         H_nz = lam_f * (ca.mtimes(sc_b, ca.vec(B)) + const) + ca.mtimes(sc_k, ca.vec(K))
         if self.limits is not None:
             H_nz += ca.mtimes(sc_h[2], ca.vec(Ht))
+        if joint:
+            H_nz += lam_f * ca.mtimes(sc_h[-1], ca.vec(joint["hess"].map(T)(qab_x, w_j, Tcb_x)))
         hess_lag = ca.Function("nlp_hess_l", [X, P, lam_f, lam_g], [ca.MX(hess_sp, H_nz)],
                                ["x", "p", "lam_f", "lam_g"], ["hess"])
         return {"grad_f": grad_f, "jac_g": jac_g, "hess_lag": hess_lag}
 
-    def _step(self, x0, x1, s, K):
+    def _joint_stages(self, wj, Tcb) -> dict:
+        """The joint-space motion noise's stage Functions of `(q_t, q_t+1)`: its vech (the recursion's coefficients
+        `cj`), and the gradient and Hessian of the surrogate's term `wj . vech(W_q)` with the weights frozen (the
+        Hessian: exact, or Gauss-Newton's `2 sum_k du_k^T G du_k` with `W_q = sum_k u_k u_k^T`, G = dS/dW)."""
+        nq = self.robot.nq
+        qab = ca.SX.sym("qab", 2 * nq)
+        w = vech(joint_noise_expr(self.robot, self.model.noise.joint_sigma, qab[:nq], qab[nq:], Tcb))
+        term = ca.dot(wj, w)
+        if self.hessian == "surrogate":
+            hess = ca.hessian(term, qab)[0]
+        else:
+            Gm = 0.5 * (unvech(wj) + ca.diag(ca.diag(unvech(wj))))  # <Gm, W> = wj . vech(W)
+            J = ca.jacobian(self.robot.camera_pose(qab[:nq], Tcb), qab[:nq])
+            sig = ca.DM(np.asarray(self.model.noise.joint_sigma, float))
+            U = J @ ca.diag(sig * (qab[nq:] - qab[:nq]))
+            hess = 0
+            for k in range(nq):
+                dU = ca.jacobian(U[:, k], qab)
+                hess += 2 * dU.T @ Gm @ dU
+        return {"coef": ca.Function("joint_coef", [qab, Tcb], [w]),
+                "grad": ca.Function("joint_grad", [qab, wj, Tcb], [ca.densify(ca.gradient(term, qab))]),
+                "hess": ca.Function("joint_hess", [qab, wj, Tcb], [ca.densify(hess)])}
+
+    def _step(self, x0, x1, s, K, w=None):
         m = self.model
         if self.form == "diagonal":
             p = s + ca.diag(m.motion_noise(x0, x1))
             v = ca.diag(m.planning_noise(x1, vech(ca.diag(p))))
             return (1 - K) ** 2 * p + K**2 * v  # scalar Joseph form, gains free (as in `full`)
-        p = m.predict_expr(x0, x1, s)
+        p = m.predict_expr(x0, x1, s, w)
         S, H = m.innovation_expr(x0, x1, p)
         P = unvech(p)
         K = ca.reshape(K, NX, NX)
@@ -390,7 +429,7 @@ class Transcription:
         """Consistent primal point (mean, covariance, gains) from a joint trajectory; and the scales."""
         model, T = setup.model, self.T  # this setup's Sigma_0 (the cached model may hold another)
         mu = np.array([setup.pose_of(qi) for qi in q])
-        sig, pred = model.propagate(mu)
+        sig, pred = model.propagate(mu, joint=setup.joint_noises(q))
         out = {}
         for t in range(T + 1):
             out[f"q{t}"], out[f"mu{t}"] = q[t], mu[t]

@@ -1,0 +1,48 @@
+"""Joint-space motion noise: cable stretch and hysteresis act on the joints, not on the tool's pose.
+
+A step from q_t to q_t+1 leaves each joint off by an independent error of standard deviation
+`sigma_j |q_t+1,j - q_t,j|` (sigma_j dimensionless: rad per rad, m per m), which the kinematics map into
+the belief's coordinates at q_t:
+
+    W_q = J(q_t) diag(sigma^2 (q_t+1 - q_t)^2) J(q_t)^T,   J = d mean / d q
+
+with `mean = Robot.camera_pose(q, camera)`, the NLP's own chart (position [m], continued rotation vector
+[rad] in the camera frame), so the planner, the evaluation and the tests use one definition. The matrix
+is configuration-dependent and not diagonal in the camera frame; it is added to the paper's pose-space
+W in every EKF predict step (`BeliefModel.predict_expr`'s `w`).
+"""
+
+from __future__ import annotations
+
+import casadi as ca
+import numpy as np
+
+from .belief import vech
+from .robot import CAMERA_PARAMETERS, Robot
+
+
+def joint_noise_expr(robot: Robot, sigma, qa, qb, camera):
+    """`W_q` (6x6 SX) of the step qa -> qb for the per-joint `sigma` (nq numbers)."""
+    J = ca.jacobian(robot.camera_pose(qa, camera), qa)
+    U = J @ ca.diag(ca.DM(np.asarray(sigma, float)) * (qb - qa))  # W_q = U U^T: one column per joint
+    return U @ U.T
+
+
+def joint_noise_function(robot: Robot, sigma) -> ca.Function:
+    """`(qa, qb, camera) -> vech(W_q)` (built once per robot and sigma)."""
+    sigma = tuple(float(v) for v in sigma)
+    cache = robot.__dict__.setdefault("_joint_noise_functions", {})
+    if sigma not in cache:
+        qa, qb = ca.SX.sym("qa", robot.nq), ca.SX.sym("qb", robot.nq)
+        cam = ca.SX.sym("camera", CAMERA_PARAMETERS)
+        cache[sigma] = ca.Function("joint_noise", [qa, qb, cam], [vech(joint_noise_expr(robot, sigma, qa, qb, cam))],
+                                   ["qa", "qb", "camera"], ["w"])
+    return cache[sigma]
+
+
+def joint_noises(robot: Robot, sigma, q: np.ndarray, camera: np.ndarray) -> np.ndarray:
+    """(T, 21) vech of `W_q` for each step of the joint trajectory `q` (T+1, nq)."""
+    q = np.asarray(q, float)
+    T = len(q) - 1
+    out = joint_noise_function(robot, sigma).map(T)(q[:-1].T, q[1:].T, camera)
+    return np.asarray(out).T.reshape(T, -1)
