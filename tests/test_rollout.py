@@ -210,3 +210,72 @@ def test_measurements_outside_the_image_are_no_detection(default_setup, plan):
                                atol=1e-18)
     cam = model.camera
     assert Detection(max_depth=0.3).probability(cam, np.array([[0.0, 0.0, 0.35]]))[0] == 0.0
+
+
+def test_falloff_keeps_the_normal_draws_and_detects_at_its_probability(default_setup, plan):
+    """The falloff's uniforms come from their own stream: where the probability is 1 everywhere the rollouts are
+    those without falloff, draw for draw; where it is 0.5 (Detection.probability, at every true pose of a
+    noise-free rollout) half the steps are detected."""
+    z = np.zeros((6, 6))
+    noise = dataclasses.replace(default_setup.problem.noise, W_p0=z, W_o0=z, V_d0=z, V_f0=z, V_o0=z)
+    still = BeliefModel(noise, default_setup.problem.camera.intrinsics)
+    cam = still.camera
+    central = plan.copy()
+    central[:, :2] *= 0.3
+    a = rollout(default_setup.eval_model, central, n=30, rng=4, mode="model", detection=Detection(margin=0.0))
+    b = rollout(default_setup.eval_model, central, n=30, rng=4, mode="model",
+                detection=Detection(margin=0.0, falloff=1e-9))  # a ramp too thin to reach any sampled pose
+    np.testing.assert_array_equal(a.detected, b.detected)
+    np.testing.assert_array_equal(a.final_true, b.final_true)
+    # every waypoint on the ramp, at probability 0.5: u = margin + falloff / 2 of the image width
+    det = Detection(margin=0.05, falloff=0.1)
+    on_ramp = central.copy()
+    on_ramp[:, 0] = (0.10 * cam.width - cam.cx) / cam.fx * on_ramp[:, 2]
+    assert np.allclose(det.probability(cam, on_ramp[:, :3]), 0.5)
+    ro = rollout(still, on_ramp, n=2000, rng=5, mode="true", detection=det)
+    share = ro.detected.mean()  # 12000 Bernoulli(0.5) draws: standard error 0.0046
+    assert abs(share - 0.5) < 0.025, share
+
+
+def test_replan_hook_is_called_at_each_move_with_the_rollouts_own_belief(moving):
+    """The hook sees each rollout's EKF mean (its estimate re-expressed in the new camera frame) and covariance;
+    returning the waypoints unchanged changes nothing, draw for draw; returning others is what the rollouts follow."""
+    setup, plan = moving
+    model, changes = setup.eval_model, setup.camera_changes()
+    ref = rollout(model, plan, n=6, rng=3, mode="true", keep_paths=True, changes=changes, detection=Detection())
+    calls = []
+
+    def same(t, mean, cov, waypoints):
+        calls.append((t, mean.copy(), cov.copy()))
+        np.testing.assert_array_equal(waypoints, np.broadcast_to(plan, waypoints.shape))
+        return waypoints
+
+    ro = rollout(model, plan, n=6, rng=3, mode="true", keep_paths=True, changes=changes, detection=Detection(),
+                 replan=same)
+    np.testing.assert_array_equal(ro.final_true, ref.final_true)
+    np.testing.assert_array_equal(ro.sigma_final, ref.sigma_final)
+    assert [c[0] for c in calls] == [t for t, c in enumerate(changes) if c is not None]
+    for t, mean, cov in calls:
+        D = changes[t]
+        est = ref.estimate_path[:, t]  # the estimate at waypoint t, before the move
+        np.testing.assert_allclose(mean[:, :3], est[:, :3] @ D[:3, :3].T + D[:3, 3], atol=1e-12)
+        rot = Rotation.from_rotvec(mean[:, 3:]).inv() * Rotation.from_matrix(D[:3, :3]) * Rotation.from_rotvec(est[:, 3:])
+        assert rot.magnitude().max() < 1e-9
+        assert cov.shape == (6, 6, 6) and np.all(np.linalg.eigvalsh(cov) > 0)
+    # noise-free: the rollouts follow whatever the hook returns, from the step after the move
+    z = np.zeros((6, 6))
+    noise = dataclasses.replace(setup.problem.noise, W_p0=z, W_o0=z, V_d0=z, V_f0=z, V_o0=z, camera_W_p0=z,
+                                camera_W_o0=z)
+    still = BeliefModel(noise, setup.problem.camera.intrinsics)
+    offsets = np.array([0.0, 0.002, -0.004])[:, None] * np.array([1.0, -1.0, 0.5])  # per rollout [m]
+
+    def shifted(t, mean, cov, waypoints):
+        out = waypoints.copy()
+        if t == 3:
+            out[:, t + 1:, :3] += offsets[:, None, :]
+        return out
+
+    ro = rollout(still, plan, n=3, rng=0, mode="true", keep_paths=True, changes=changes, replan=shifted)
+    expect = np.broadcast_to(plan[:, :3], (3, *plan[:, :3].shape)).copy()
+    expect[:, 4:] += offsets[:, None, :]  # the first move is before step 3 -> 4: waypoints 4.. moved
+    np.testing.assert_allclose(ro.true_path[:, :, :3], expect, atol=1e-12)

@@ -190,6 +190,7 @@ def rollout(
     keep_paths: bool = False,
     detection: Detection | None = None,
     changes: list | None = None,
+    replan=None,
 ) -> Rollouts:
     """Execute a plan `n` times in closed loop with sampled motion and observation noise.
 
@@ -209,7 +210,9 @@ def rollout(
             Sigma0 is only the EKF's prior.
         keep_paths: also return the (N, T+1, 6) true and estimated paths.
         detection: when the true pose gives an observation (see `Detection`); None: always.
-            With `falloff > 0`, n uniforms per step are drawn after the normals.
+            With `falloff > 0`, the n uniforms per step that decide detection come from a child
+            generator (`rng.spawn(1)`), not from `rng`: the normal draws are those of the same
+            plan with `falloff` 0 (common random numbers across falloffs).
         changes: camera moves (Types 3 and 4; `Setup.camera_changes()`): entry t (4x4 or None)
             maps camera-t to camera-(t+1) coordinates and applies before the step t -> t+1;
             `poses` are then each in their own step's camera frame (`Setup.in_step_frames`).
@@ -217,6 +220,12 @@ def rollout(
             the camera's own motion noise `|t|^2 camera_W_p0 + angle^2 camera_W_o0` to Sigma
             (rotated with it), and the true pose is perturbed by a draw of that noise (n x 6
             normals, drawn before the step's own).
+        replan: with `changes`, re-planning per rollout after each camera move (Type 4): called as
+            `replan(t, mean, cov, waypoints)` right after the move at entry t, with every rollout's
+            EKF mean (N, 6) and covariance (N, 6, 6) in the new camera frame and the waypoints each
+            rollout follows (N, T+1, 6, step frames; a copy); it returns the (N, T+1, 6) waypoints
+            to follow from step t+1 on (rows up to t are not used). It draws nothing from `rng`,
+            so the normal draws are those of the same plan without re-planning.
     """
     if mode not in MODES:
         raise ValueError(f"unknown rollout mode '{mode}'; allowed: {', '.join(MODES)}")
@@ -242,6 +251,8 @@ def rollout(
     paths_true, paths_est = ([_pose(true_p, true_R)], [_pose(mu_p, mu_R)]) if keep_paths else (None, None)
 
     detected = np.ones((n, len(poses) - 1), dtype=bool)
+    u_rng = rng.spawn(1)[0] if detection is not None and detection.falloff > 0 else None  # leaves rng's stream
+    own = None  # (N, T+1, 6) each rollout's waypoints, once `replan` has been called
     for t in range(len(poses) - 1):
         if changes is not None and changes[t] is not None:
             Dc = np.asarray(changes[t], float)
@@ -255,13 +266,19 @@ def rollout(
             F = np.zeros((NX, NX))
             F[:3, :3] = F[3:, 3:] = Dc[:3, :3]  # left-perturbation errors rotate with the frame
             sigma = F @ sigma @ F.T + Wc
-        target = np.tile(poses[t + 1], (n, 1))
+            if replan is not None:
+                current = np.array(np.broadcast_to(poses, (n, *poses.shape)) if own is None else own)
+                own = np.asarray(replan(t, _pose(mu_p, mu_R), sigma.copy(), current), dtype=float)
+                if own.shape != current.shape or not np.all(np.isfinite(own[:, t + 1:])):
+                    raise ValueError(f"replan at step {t} returned waypoints of shape {own.shape} (expected "
+                                     f"{current.shape}, finite)")
+        target = np.tile(poses[t + 1], (n, 1)) if own is None else own[:, t + 1].copy()
         z_w, z_v = rng.standard_normal((n, NX)), rng.standard_normal((n, NX))
-        u_det = rng.random(n) if detection is not None and detection.falloff > 0 else None
+        u_det = None if u_rng is None else u_rng.random(n)
         # command: from the estimate to the next waypoint; W of that step
         W = noise.motion(_pose(mu_p, mu_R), target)
-        dp = poses[t + 1, :3] - mu_p
-        D = mu_R.inv() * waypoints[t + 1]
+        dp = target[:, :3] - mu_p
+        D = mu_R.inv() * (waypoints[t + 1] if own is None else Rotation.from_rotvec(target[:, 3:]))
         w = sample_gaussian(W, z_w)
         true_p = true_p + dp + w[:, :3]
         true_R = Rotation.from_rotvec(w[:, 3:]) * true_R * D
