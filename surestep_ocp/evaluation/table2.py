@@ -8,20 +8,26 @@ medium / hard, Type 2, Type 3, Type 4), every method plans once, and each plan r
 `--rollouts` noisy closed-loop rollouts per mode with the evaluation's detection model
 (`rollout.Detection`) and grasp tolerances (`configs.GRASP_POSITION_M`, `GRASP_ANGLE_RAD`);
 Types 3 and 4 roll out through the camera moves (`rollout(..., changes=...)`). Type 4 adds
-`ocp-replanned`, the trajectory re-optimised after each camera move (`replan.replan`) from
-the plan's maximum-likelihood belief (not re-planned per rollout from each rollout's own
-estimate). Rollouts of type k in mode m use `default_rng([seed, k, m])` for every method.
+`ocp-replanned`: every rollout re-plans after each camera move from its own EKF mean and
+covariance (`RolloutReplanner`, a `Planner` hook of `rollout`: one Newton solver per remaining
+horizon, built once, shared by the rollouts), the paper's protocol; and `ocp-replanned-ml`, the
+previous reading: one trajectory re-optimised after each move from the plan's maximum-likelihood
+belief (`replan.replan`), executed by every rollout. Rollouts of type k in mode m use
+`default_rng([seed, k, m])` for every method (the re-plans draw nothing).
 """
 
 from __future__ import annotations
 
 import argparse
+import copy
 import tempfile
+import time
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
+from ..model.lie import matrix_to_pose
 from .configs import GRASP_ANGLE_RAD, GRASP_POSITION_M
 from .rollout import MODES, Detection, rollout
 
@@ -33,7 +39,8 @@ METHODS = ("baseline", "gradient", "gradient-paper", "gradient-no-pose-loss", "o
 
 
 def plans(setup, methods=METHODS, replanned: bool = False) -> dict:
-    """Each method's waypoints in the first camera frame; `gradient-paper` is `gradient` with `preset: paper`."""
+    """Each method's waypoints, each in its step's camera frame (as `Solution.poses` holds them: `evaluate`
+    re-expresses a plan made in the first camera frame); `gradient-paper` is `gradient` with `preset: paper`."""
     from ..solvers.methods import run_method
     from ..problem.problem import GRADIENT_PRESETS, GradientSpec
 
@@ -51,30 +58,118 @@ def plans(setup, methods=METHODS, replanned: bool = False) -> dict:
 
         with tempfile.TemporaryDirectory() as d:
             res = replan(setup, Path(d))
-        out["ocp-replanned"] = (np.asarray(res["executed"].poses, float), True)
+        out["ocp-replanned-ml"] = (np.asarray(res["executed"].poses, float), True)
     return out
 
 
+class RolloutReplanner:
+    """`rollout`'s `replan` hook for Type 4: each rollout re-plans after each camera move from its own belief.
+
+    At the move before step t -> t+1, rollout i's EKF mean and covariance (in the new camera frame) go to its
+    own copy of one `Planner` (`replan(mean_i, cov_i, camera_pose=C[t+1], step=t)`: warm from that rollout's
+    previous plan, over the steps left, the goal's joints kept); the copies share the Planner's solvers (one
+    per remaining horizon, built once). The new plan's joints give rollout i's waypoints t+1..T, each in its
+    step's camera frame. A re-plan that fails (an unreachable mean, a solver failure) keeps that rollout's
+    previous waypoints and is counted in `failures`. `times` holds each re-plan's time without builds [s].
+    """
+
+    def __init__(self, setup, planner=None):
+        from ..solvers.planner import Planner
+
+        self.setup = setup
+        self.planner = Planner(setup, prebuild=False) if planner is None else planner
+        self.cameras = setup.camera_poses()
+        self.times: list[float] = []
+        self.failures: list[tuple[int, int, str]] = []  # (step, rollout, why)
+        self.planners: list | None = None  # each rollout's Planner copy (its current plan), after the first move
+
+    def initial_poses(self) -> np.ndarray:
+        """(T+1, 6) the first plan (for the first camera pose), each waypoint in its step's camera frame."""
+        return self.poses_in_step_frames(np.asarray(self.planner.plan.q, float), 0)
+
+    def reset(self) -> None:
+        """Start over: the next rollout call's rollouts begin from the first plan."""
+        self.planners = None
+
+    def poses_in_step_frames(self, q: np.ndarray, first: int) -> np.ndarray:
+        """(len(q), 6) the tracked frame at joints q[j] in the camera frame of step first + j."""
+        robot = self.setup.robot
+        return np.array([matrix_to_pose(np.linalg.inv(self.cameras[first + j]) @ robot.base_pose @ robot.frame_pose(qj))
+                         for j, qj in enumerate(np.asarray(q, float))])
+
+    def __call__(self, t: int, mean: np.ndarray, cov: np.ndarray, waypoints: np.ndarray) -> np.ndarray:
+        from ..errors import SurestepError
+
+        if self.planners is None or len(self.planners) != len(mean):
+            self.planners = [copy.copy(self.planner) for _ in range(len(mean))]  # shallow: the solvers are shared
+        out = np.array(waypoints, float)
+        for i, planner in enumerate(self.planners):
+            t0 = time.perf_counter()
+            try:
+                sol = planner.replan(mean[i], cov[i], camera_pose=self.cameras[t + 1], step=t)
+            except SurestepError as exc:  # e.g. a mean the arm cannot reach
+                self.times.append(time.perf_counter() - t0)
+                self.failures.append((t, i, str(exc)))
+                continue
+            self.times.append(sol.extras["replan"]["time_s"])
+            if not sol.success:
+                self.failures.append((t, i, f"{sol.extras.get('solver')}: {sol.status}"))
+                continue
+            out[i, t + 1:] = self.poses_in_step_frames(np.asarray(sol.q, float)[1:], t + 1)
+        return out
+
+
+def _record(ro, grasp) -> dict:
+    hit = (ro.pos_err <= grasp[0]) & (ro.ori_err <= grasp[1])
+    return {"share": float(np.mean(hit)), "median_mm": float(np.median(ro.pos_err) * 1e3)}
+
+
 def success_table(problems_dir: Path, rollouts: int = 500, seed: int = 0, detection: Detection | None = Detection(),
-                  grasp=(GRASP_POSITION_M, GRASP_ANGLE_RAD), types=TYPES, methods=METHODS) -> tuple[str, dict]:
-    """(Markdown table, results[type][method][mode] = success share) over the scenario types."""
+                  grasp=(GRASP_POSITION_M, GRASP_ANGLE_RAD), types=TYPES, methods=METHODS,
+                  replan_rollouts: int | None = None) -> tuple[str, dict]:
+    """(Markdown table, results[type][method][mode] = success share) over the scenario types.
+
+    `replan_rollouts`: rollouts per mode of Type 4's per-rollout re-planning (`ocp-replanned`; default
+    `rollouts`; 0 leaves it out); results[type]["ocp-replanned"]["replans"] has its re-plans' count, failures
+    and times.
+    """
     from ..problem.problem import load_problem
     from ..problem.setup import build_setup
 
+    replan_rollouts = rollouts if replan_rollouts is None else replan_rollouts
     res: dict = {}
     for k, (label, fname) in enumerate(types):
         setup = build_setup(load_problem(problems_dir / fname))
         changes = setup.camera_changes()
+        type4 = fname.startswith("type4")
         res[label] = {}
-        for m, (poses0, ok) in plans(setup, methods, replanned=fname.startswith("type4")).items():
-            poses = setup.in_step_frames(poses0)
+        for m, (poses, ok) in plans(setup, methods, replanned=type4).items():
+            # (step frames already: re-expressing them again, as before, moved every waypoint after a camera move
+            # and the goal by the camera's motion on Types 3 and 4)
             res[label][m] = {"solved": ok}
             for mi, mode in enumerate(MODES):
                 ro = rollout(setup.eval_model, poses, poses[-1], rollouts, np.random.default_rng([seed, k, mi]),
                              mode, detection=detection, changes=changes)
-                hit = (ro.pos_err <= grasp[0]) & (ro.ori_err <= grasp[1])
-                res[label][m][mode] = float(np.mean(hit))
-                res[label][m][f"{mode}_median_mm"] = float(np.median(ro.pos_err) * 1e3)
+                r = _record(ro, grasp)
+                res[label][m][mode], res[label][m][f"{mode}_median_mm"] = r["share"], r["median_mm"]
+        if type4 and replan_rollouts > 0:
+            hook = RolloutReplanner(setup)
+            poses = hook.initial_poses()
+            res[label]["ocp-replanned"] = {"solved": hook.planner.plan.success, "rollouts": replan_rollouts}
+            t0 = time.perf_counter()
+            for mi, mode in enumerate(MODES):
+                hook.reset()
+                ro = rollout(setup.eval_model, poses, poses[-1], replan_rollouts, np.random.default_rng([seed, k, mi]),
+                             mode, detection=detection, changes=changes, replan=hook)
+                r = _record(ro, grasp)
+                res[label]["ocp-replanned"][mode], res[label]["ocp-replanned"][f"{mode}_median_mm"] = \
+                    r["share"], r["median_mm"]
+            times = np.asarray(hook.times)
+            res[label]["ocp-replanned"]["replans"] = {
+                "count": len(times), "failed": len(hook.failures), "wall_s": time.perf_counter() - t0,
+                "median_ms": float(np.median(times) * 1e3), "p95_ms": float(np.percentile(times, 95) * 1e3),
+                "max_ms": float(times.max() * 1e3), "build_s": hook.planner.build_time_s,
+                "failures": hook.failures[:5]}
     all_methods = list(dict.fromkeys(m for t in res.values() for m in t))
     lines = [f"Grasp success (final true pose within {grasp[0] * 1e3:g} mm and {grasp[1]:g} rad of the goal), "
              f"{rollouts} rollouts per plan and mode, cells `model` / `true` (median final position error in mm "
@@ -92,6 +187,17 @@ def success_table(problems_dir: Path, rollouts: int = 500, seed: int = 0, detect
     lines.append("| mean over types | " + " | ".join(f"{mean[m][0]:.0%} / {mean[m][1]:.0%}" if m in mean else ""
                                                    for m in all_methods) + " |")
     lines += ["", "Paper (Table II, real dVRK, 60 regrasps over the four types): SURESTEP 82 %, baseline 18 %."]
+    for label, row in res.items():
+        rp = row.get("ocp-replanned", {}).get("replans")
+        if rp:
+            lines += ["", f"{label}, `ocp-replanned`: every rollout re-plans after each camera move from its own EKF "
+                          f"mean and covariance ({row['ocp-replanned']['rollouts']} rollouts per mode); "
+                          f"`ocp-replanned-ml`: one trajectory re-planned from the maximum-likelihood belief, run by "
+                          f"every rollout. {rp['count']} re-plans, {rp['failed']} failed (previous plan kept); "
+                          f"per re-plan {rp['median_ms']:.1f} ms median, {rp['p95_ms']:.1f} ms p95, "
+                          f"{rp['max_ms']:.1f} ms worst (builds apart: {rp['build_s']:.1f} s); "
+                          f"{rp['wall_s']:.0f} s for both modes' rollouts."]
+            lines += [f"  failed: step {t}, rollout {i}: {why}" for t, i, why in rp["failures"]]
     return "\n".join(lines), res
 
 
@@ -103,10 +209,13 @@ def main(argv=None) -> None:
     ap.add_argument("--problems", default=str(root / "problems"))
     ap.add_argument("--rollouts", type=int, default=500)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--replan-rollouts", type=int, default=None,
+                    help="rollouts per mode of Type 4's per-rollout re-planning (default --rollouts; 0: leave out)")
     ap.add_argument("--output", default=str(root / "benchmarks" / "results" / "evaluation_table2_types.md"))
     args = ap.parse_args(argv)
-    table, _ = success_table(Path(args.problems), args.rollouts, args.seed)
-    cmd = f"`.venv/bin/python -m surestep_ocp.evaluation.table2 --rollouts {args.rollouts} --seed {args.seed}`"
+    table, _ = success_table(Path(args.problems), args.rollouts, args.seed, replan_rollouts=args.replan_rollouts)
+    extra = "" if args.replan_rollouts is None else f" --replan-rollouts {args.replan_rollouts}"
+    cmd = f"`.venv/bin/python -m surestep_ocp.evaluation.table2 --rollouts {args.rollouts} --seed {args.seed}{extra}`"
     write_text_atomic(Path(args.output), f"# Simulated Table II per scenario type\n\n{cmd}\n\n{table}\n")
     print(table)
 
