@@ -10,7 +10,11 @@ settings (solver.name auto) from the straight line's IK:
 - `paper, lifted`: the same, `solver.covariance: full` (vech(Sigma_t) multiple shooting, IPOPT);
 - `full V_d0`: a full 6x6 SPD depth base covariance (random, fixed seed, correlations up to 0.6);
 - `correlated V_d0`: the stereo-like depth noise (V_d0[0, 2] = 2e-2 on diag(1e-2, 1e-2, 1e-1, 5e-3 ...));
-- `... + floor`: with the observation noise floor V_min = diag(1e-6, 1e-6, 4e-6, 1e-5, 1e-5, 1e-5).
+- `... + floor`: with the observation noise floor V_min = diag(1e-6, 1e-6, 4e-6, 1e-5, 1e-5, 1e-5);
+- `joint-space`: the paper's constants plus the joint-space motion noise `J diag(sigma^2 dq^2) J^T`
+  (`noise.joint_motion_sigma`, sigma = 0.05 per joint, 0.02 for the insertion), with and without the floor.
+
+`--models NAME ...` runs a subset (`paper` is always run: the reference).
 
 Per row: converged share, median / 95th percentile / worst solve time (set-up included, builds not), the
 ratio of medians against `paper`, and `worse`: the share of configurations whose optimum is worse (Tr above
@@ -45,6 +49,7 @@ from surestep_ocp.output.solution import write_text_atomic  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 FLOOR = np.diag([1e-6, 1e-6, 4e-6, 1e-5, 1e-5, 1e-5])
+JOINT_SIGMA = (0.05, 0.05, 0.02, 0.05, 0.05, 0.05, 0.0)  # yaw, pitch, insertion, roll, wrist pitch, wrist yaw, jaw
 
 
 def full_depth() -> np.ndarray:
@@ -69,6 +74,8 @@ MODELS = {
     "correlated V_d0": ({"V_d0": correlated_depth()}, "auto"),
     "correlated V_d0 + floor": ({"V_d0": correlated_depth(), "V_min": FLOOR}, "auto"),
     "correlated V_d0, lifted": ({"V_d0": correlated_depth()}, "full"),
+    "joint-space": ({"joint_sigma": JOINT_SIGMA}, "auto"),
+    "joint-space + floor": ({"joint_sigma": JOINT_SIGMA, "V_min": FLOOR}, "auto"),
 }
 
 
@@ -87,15 +94,19 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--horizons", type=int, nargs="*", default=[20, 40, 80, 160])
     ap.add_argument("--scaling-configs", type=int, default=10)
+    ap.add_argument("--models", nargs="*", choices=list(MODELS), default=list(MODELS))
+    ap.add_argument("--scaling-model", choices=list(MODELS), default="correlated V_d0")
+    ap.add_argument("--output", type=Path, default=ROOT / "benchmarks" / "results" / "general_models.md")
     args = ap.parse_args()
+    models = {k: v for k, v in MODELS.items() if k == "paper" or k in args.models}
     sampler = ConfigurationSampler(load_evaluation(ROOT / "problems" / "evaluations" / "evaluation.yaml"))
     res = {name: {"ok": [], "t": [], "tr": [], "worse": [], "worse_diag": [], "kept": [], "form": set()}
-           for name in MODELS}
+           for name in models}
     for c in range(args.configs):
         base = sampler.problem(sampler.sample(args.seed, c))
-        paper_poses = None
+        paper_poses = paper_q = None
         line = [f"{c:3d}"]
-        for name, (noise, form) in MODELS.items():
+        for name, (noise, form) in models.items():
             setup = build_setup(variant(base, noise, form))
             sol = solve_ocp(setup, ocp_initial_guess(setup))
             r = res[name]
@@ -105,15 +116,16 @@ def main() -> None:
             r["kept"].append(sol.status == "Initial_Guess_Kept")
             r["form"].add(f"{sol.extras['covariance_form']} / {sol.extras['hessian']}".split(" + ")[0])
             if name == "paper":
-                paper_poses = np.array(sol.poses)
-            ref = float(np.trace(setup.eval_model.propagate(paper_poses)[0][-1]))  # paper plan in this model
+                paper_poses, paper_q = np.array(sol.poses), np.array(sol.q)
+            ref = float(np.trace(setup.eval_model.propagate(paper_poses, joint=setup.joint_noises(paper_q))[0][-1]))
             r["worse"].append(sol.trace_final > ref * (1 + 1e-6))
             if setup.model.scalar and form == "auto":  # its own diagonal approximation: the same solve
                 r["worse_diag"].append(False)
             else:  # the diagonal approximation's condensed plan (the fast scalar path) evaluated in this model
                 approx = diagonal_model_setup(build_setup(variant(base, noise, "auto")))
                 dplan = solve_ocp(approx, ocp_initial_guess(approx))
-                dref = float(np.trace(setup.eval_model.propagate(np.array(dplan.poses))[0][-1]))
+                dref = float(np.trace(setup.eval_model.propagate(
+                    np.array(dplan.poses), joint=setup.joint_noises(np.array(dplan.q)))[0][-1]))
                 r["worse_diag"].append(sol.trace_final > dref * (1 + 1e-6))
             line.append(f"{name}: {sol.status} {sol.iterations} it {sol.solve_time_s * 1e3:.1f} ms "
                         f"Tr/paper-plan {sol.trace_final / ref:.4f}")
@@ -132,7 +144,7 @@ def main() -> None:
         times, ok = [], 0
         for c in range(args.scaling_configs):
             setup = build_setup(variant(sampler.problem(sampler.sample(args.seed, c)),
-                                        MODELS["correlated V_d0"][0], "auto", T))
+                                        MODELS[args.scaling_model][0], "auto", T))
             sol = solve_ocp(setup, ocp_initial_guess(setup))
             times.append(sol.solve_time_s)
             ok += sol.success
@@ -140,7 +152,7 @@ def main() -> None:
         print(f"T={T}: median {scaling[-1][1] * 1e3:.1f} ms, worst {scaling[-1][2] * 1e3:.1f} ms, "
               f"{ok}/{args.scaling_configs} converged", flush=True)
 
-    general = [name for name in MODELS if not name.startswith("paper")]
+    general = [name for name in models if not name.startswith("paper")]
     t_gen = np.concatenate([np.array(res[k]["t"]) for k in general]) * 1e3
     ok_gen = np.mean(np.concatenate([res[k]["ok"] for k in general]))
     worse_gen = np.mean(np.concatenate([res[k]["worse_diag"] for k in general]))
@@ -149,17 +161,20 @@ def main() -> None:
     text = "\n".join([
         "# The OCP on general belief models", "",
         f"`.venv/bin/python benchmarks/general_models.py --configs {n} --seed {args.seed} --horizons "
-        f"{' '.join(map(str, args.horizons))} --scaling-configs {args.scaling_configs}` (OPENBLAS_NUM_THREADS=1)", "",
+        f"{' '.join(map(str, args.horizons))} --scaling-configs {args.scaling_configs}"
+        + ("" if len(models) == len(MODELS) else f" --models {' '.join(repr(k) for k in models if k != 'paper')}")
+        + f" --scaling-model '{args.scaling_model}'"
+        + "` (OPENBLAS_NUM_THREADS=1)", "",
         f"{n} configurations of problems/evaluations/evaluation.yaml at T = 20; times include the set-up of each "
         "solve, not the builds (compiled once per structure and cached).", "",
         "| model | converged | kept start | median [ms] | p95 [ms] | worst [ms] | median / paper | worse than the "
         "paper plan | worse than the diagonal model's plan | form / first solver |",
         "|---|---|---|---|---|---|---|---|---|---|", *rows, "",
-        "Solve time against T (`correlated V_d0`, default solver):", "",
+        f"Solve time against T (`{args.scaling_model}`, default solver):", "",
         "| T | median [ms] | worst [ms] | converged |", "|---|---|---|---|",
         *[f"| {T} | {m * 1e3:.1f} | {w * 1e3:.1f} | {ok}/{args.scaling_configs} |" for T, m, w, ok in scaling], "",
         last]) + "\n"
-    write_text_atomic(ROOT / "benchmarks" / "results" / "general_models.md", text)
+    write_text_atomic(args.output, text)
     print(text)
 
 

@@ -28,6 +28,9 @@ NX = 6
 NV = NX * (NX + 1) // 2  # 21
 _TRIL = [(i, j) for j in range(NX) for i in range(j, NX)]  # vech order: column-major lower triangle
 DIAG = [k for k, (i, j) in enumerate(_TRIL) if i == j]  # positions of the diagonal in vech
+_UNVECH_INDEX = np.zeros((NX, NX), int)  # (6, 6) position in vech of each entry
+for _k, (_i, _j) in enumerate(_TRIL):
+    _UNVECH_INDEX[_i, _j] = _UNVECH_INDEX[_j, _i] = _k
 # The default guard g of |r| in the paper's cosine formula, cos = r.o* / (sqrt(|r|^2 + g^2) |o*|), as its square
 # [rad^2] (`NoiseParams.cosine_guard` is g [rad]). The formula is undefined at r = 0, and near it the direction of
 # r is free: an optimiser found that a rotation of 1e-4 rad about o*'s axis makes the orientation noise vanish
@@ -36,6 +39,30 @@ DIAG = [k for k, (i, j) in enumerate(_TRIL) if i == j]  # positions of the diago
 DEFAULT_COSINE_GUARD = 0.05  # [rad]
 DEFAULT_CUT_BAND = 0.2  # [rad] (see `paper_cosine`)
 COSINE_GUARD = DEFAULT_COSINE_GUARD**2
+
+
+_SHARED: dict[tuple, ca.Function] = {}
+
+
+def shared_function(build):
+    """A model's named CasADi Function, built once per model constants (`BeliefModel.key`) and shared by every
+    BeliefModel with those constants: a setup's variants (the second start's diagonal model, a re-plan's Sigma_0)
+    build new models, and rebuilding their Functions cost about 20 ms per solve."""
+    name = build.__name__
+
+    def get(self):
+        if name not in self.__dict__:
+            if not self.identity_maps:  # keyed by the maps' id, which a collected Function's successor may reuse
+                self.__dict__[name] = build(self)
+                return self.__dict__[name]
+            key = (self.key(), name)
+            if key not in _SHARED:
+                _SHARED[key] = build(self)
+            self.__dict__[name] = _SHARED[key]
+        return self.__dict__[name]
+
+    get.__doc__ = build.__doc__
+    return property(get)
 
 
 def vech(M):
@@ -58,6 +85,12 @@ def unvech(v):
         if i != j:
             M[j, i] = v[k]
     return M
+
+
+def unvech_many(V: np.ndarray) -> np.ndarray:
+    """(N, 6, 6) symmetric matrices of the rows of V (N, 21), NumPy."""
+    V = np.asarray(V, float)
+    return V[:, _UNVECH_INDEX]
 
 
 def trace_vech(v):
@@ -220,7 +253,7 @@ class BeliefModel:
         """Hashable identity of the model's constants (for caching built solvers)."""
         n = self.noise
         mats = tuple(np.asarray(getattr(n, k), float).tobytes() for k in ("W_p0", "W_o0", "V_d0", "V_f0", "V_o0",
-                                                                           "V_min"))
+                                                                           "V_min", "camera_W_p0", "camera_W_o0"))
         return (mats, n.depth_star, tuple(n.o_star), self.components, n.orientation_formula, n.observation_noise,
                 n.objective, n.cosine_guard, n.cut_band, n.joint_sigma,
                 tuple(self.camera.to_dict().items()), self.identity_maps or id(self.jacobians))
@@ -300,19 +333,19 @@ class BeliefModel:
             V += c * ca.DM(M)
         return V
 
-    @cached_property
+    @shared_function
     def motion_noise(self) -> ca.Function:
         x0, x1 = ca.SX.sym("x0", NX), ca.SX.sym("x1", NX)
         return ca.Function("motion_noise", [x0, x1], [self.motion_noise_expr(x0, x1)], ["x0", "x1"], ["W"])
 
-    @cached_property
+    @shared_function
     def planning_noise(self) -> ca.Function:
         """V used by the planner's EKF step: `(x, P_pred vech) -> V` (equals `observation_noise` in mean form)."""
         x, p = ca.SX.sym("x", NX), ca.SX.sym("sigma_pred", NV)
         return ca.Function("planning_noise", [x, p], [self.observation_noise_expr(x, unvech(p))],
                            ["x", "sigma_pred"], ["V"])
 
-    @cached_property
+    @shared_function
     def observation_noise(self) -> ca.Function:
         x = ca.SX.sym("x", NX)
         return ca.Function("observation_noise", [x], [self.observation_noise_expr(x)], ["x"], ["V"])
@@ -340,24 +373,24 @@ class BeliefModel:
         post = P - KT.T @ H @ P
         return vech(0.5 * (post + post.T))
 
-    @cached_property
+    @shared_function
     def predict(self) -> ca.Function:
         x0, x1, s = ca.SX.sym("x0", NX), ca.SX.sym("x1", NX), ca.SX.sym("sigma", NV)
         return ca.Function("predict", [x0, x1, s], [self.predict_expr(x0, x1, s)], ["x0", "x1", "sigma"], ["sigma_pred"])
 
-    @cached_property
+    @shared_function
     def step(self) -> ca.Function:
         x0, x1, s = ca.SX.sym("x0", NX), ca.SX.sym("x1", NX), ca.SX.sym("sigma", NV)
         return ca.Function("belief_step", [x0, x1, s], [self.step_expr(x0, x1, s)], ["x0", "x1", "sigma"], ["sigma_next"])
 
-    @cached_property
+    @shared_function
     def predict_with(self) -> ca.Function:
         """`predict` with the step's further motion noise `w` (vech) as a fourth input."""
         x0, x1, s, w = ca.SX.sym("x0", NX), ca.SX.sym("x1", NX), ca.SX.sym("sigma", NV), ca.SX.sym("w", NV)
         return ca.Function("predict_with", [x0, x1, s, w], [self.predict_expr(x0, x1, s, w)],
                            ["x0", "x1", "sigma", "w"], ["sigma_pred"])
 
-    @cached_property
+    @shared_function
     def step_with(self) -> ca.Function:
         """`step` with the step's further motion noise `w` (vech) as a fourth input."""
         x0, x1, s, w = ca.SX.sym("x0", NX), ca.SX.sym("x1", NX), ca.SX.sym("sigma", NV), ca.SX.sym("w", NV)
@@ -367,7 +400,7 @@ class BeliefModel:
     def sigma0_vech(self) -> np.ndarray:
         return vech(np.asarray(self.noise.Sigma0, dtype=float))
 
-    @cached_property
+    @shared_function
     def camera_change(self) -> ca.Function:
         """A camera move: `(x, sigma, D) -> (x', sigma')`, D (4x4) maps old to new camera coordinates.
 
@@ -383,6 +416,22 @@ class BeliefModel:
         W = ca.dot(td, td) * ca.DM(n.camera_W_p0) + angle_sq(ca.DM.eye(3), Rd) * ca.DM(n.camera_W_o0)
         sn = vech(F @ unvech(s) @ F.T + W)
         return ca.Function("camera_change", [x, s, D], [xn, sn], ["x", "sigma", "D"], ["x_new", "sigma_new"])
+
+    @shared_function
+    def step_pair(self) -> ca.Function:
+        """`(x0, x1, sigma, w) -> (sigma_next, sigma_pred)`: `step_with` and `predict_with` in one Function."""
+        x0, x1, s, w = ca.SX.sym("x0", NX), ca.SX.sym("x1", NX), ca.SX.sym("sigma", NV), ca.SX.sym("w", NV)
+        return ca.Function("belief_step_pair", [x0, x1, s, w], [self.step_expr(x0, x1, s, w),
+                                                                 self.predict_expr(x0, x1, s, w)])
+
+    def _roll(self, T: int) -> ca.Function:
+        """`step_pair` accumulated over T steps (mapaccum: one step's code whatever T), shared like the others."""
+        key = (self.key(), "roll", T)
+        if not self.identity_maps:
+            return self.step_pair.mapaccum("belief_roll", T, [2], [0])
+        if key not in _SHARED:
+            _SHARED[key] = self.step_pair.mapaccum("belief_roll", T, [2], [0])
+        return _SHARED[key]
 
     def propagate(self, poses: np.ndarray, changes: list | None = None,
                   sigma0: np.ndarray | None = None, joint: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -403,6 +452,12 @@ class BeliefModel:
         if (joint is not None) != self.joint_noise:
             raise ValueError("propagate: the joint-space motion noise (`joint`) is given exactly when the model has it")
         s = self.sigma0_vech() if sigma0 is None else vech(np.asarray(sigma0, float))
+        T = len(poses) - 1
+        if T > 0 and (changes is None or all(c is None for c in changes)):  # one call over the horizon
+            w = np.zeros((NV, T)) if joint is None else np.asarray(joint, float).T
+            post, prior = self._roll(T)(poses[:-1].T, poses[1:].T, s, w)
+            post, prior = np.asarray(post), np.asarray(prior)
+            return (np.concatenate([unvech(s)[None], unvech_many(post.T)]), unvech_many(prior.T))
         sig, pred = [unvech(s)], []
         for t in range(len(poses) - 1):
             x0 = poses[t]

@@ -28,6 +28,24 @@ def joint_noise_expr(robot: Robot, sigma, qa, qb, camera):
     return U @ U.T
 
 
+def joint_noise_curvature(robot: Robot, sigma, qa, camera, wj):
+    """Curvature in (qa, qb) of the surrogate's term `wj . vech(W_q)` with J held at qa (2nq x 2nq SX).
+
+    With `G = dS/dW` (from the weights `wj` of vech: halved off the diagonal) the term is
+    `sum_k sigma_k^2 dq_k^2 J_k^T G J_k`, quadratic in each joint's step: this is its exact Hessian in qb and
+    drops only the variation of J with qa (third derivatives of the kinematics). G is positive semidefinite
+    (S is nondecreasing in W), so the block is too.
+    """
+    from .belief import unvech
+
+    nq = robot.nq
+    G = 0.5 * (unvech(wj) + ca.diag(ca.diag(unvech(wj))))
+    J = ca.jacobian(robot.camera_pose(qa, camera), qa)
+    a = ca.vertcat(*[float(sigma[k]) ** 2 * ca.bilin(G, J[:, k], J[:, k]) for k in range(nq)])
+    A = ca.diag(2 * a)
+    return ca.vertcat(ca.horzcat(A, -A), ca.horzcat(-A, A))
+
+
 def joint_noise_function(robot: Robot, sigma) -> ca.Function:
     """`(qa, qb, camera) -> vech(W_q)` (built once per robot and sigma)."""
     sigma = tuple(float(v) for v in sigma)
@@ -44,5 +62,9 @@ def joint_noises(robot: Robot, sigma, q: np.ndarray, camera: np.ndarray) -> np.n
     """(T, 21) vech of `W_q` for each step of the joint trajectory `q` (T+1, nq)."""
     q = np.asarray(q, float)
     T = len(q) - 1
-    out = joint_noise_function(robot, sigma).map(T)(q[:-1].T, q[1:].T, camera)
+    key = (tuple(float(v) for v in sigma), T)
+    maps = robot.__dict__.setdefault("_joint_noise_maps", {})
+    if key not in maps:
+        maps[key] = joint_noise_function(robot, sigma).map(T)
+    out = maps[key](q[:-1].T, q[1:].T, camera)
     return np.asarray(out).T.reshape(T, -1)

@@ -34,7 +34,7 @@ import numpy as np
 import scipy.linalg
 
 from ..model.belief import NV, BeliefModel, vech
-from ..model.joint_noise import joint_noise_expr
+from ..model.joint_noise import joint_noise_curvature, joint_noise_expr
 from .codegen import compiled_or_interpreted
 from ..model.robot import CAMERA_PARAMETERS, Robot
 from ..problem.setup import Setup
@@ -89,7 +89,13 @@ class NewtonSolver:
         _, coefficients, (wm, wo, wj), weighted = interval_terms(model, pose(qa, Tcb), pose(qb, Tcb), joint)
         coef = ca.Function("coef", [qa, qb, Tcb], list(coefficients))
         surrogate = weighted + smoothness * ca.sumsqr(qb - qa)
-        H, g = ca.hessian(surrogate, ca.vertcat(qa, qb))
+        g = ca.gradient(surrogate, ca.vertcat(qa, qb))
+        if joint is None:
+            H = ca.hessian(surrogate, ca.vertcat(qa, qb))[0]
+        else:  # the joint-space term's curvature with J held at qa (exact in qb; 7x cheaper per step, measured)
+            means_only = ca.substitute(surrogate, wj, ca.DM.zeros(wj.shape[0]))
+            H = ca.hessian(means_only, ca.vertcat(qa, qb))[0] + joint_noise_curvature(
+                robot, model.noise.joint_sigma, qa, Tcb, wj)
         interval = ca.Function("interval", [qa, qb, wm, wo, wj, Tcb], [ca.densify(g), ca.densify(H)])
         Q, P = ca.MX.sym("Q", nq, T + 1), ca.MX.sym("P", CAMERA_PARAMETERS + 1 + NV)  # camera, trace_ref, sigma0
         Tc, r, s0 = P[:CAMERA_PARAMETERS], P[CAMERA_PARAMETERS], P[CAMERA_PARAMETERS + 1:]
@@ -273,7 +279,7 @@ class NewtonSolver:
 
     def _solution(self, setup, method, init, r: NewtonRun) -> Solution:
         return evaluate(
-            setup, method, np.array([setup.pose_of(qi) for qi in r.q]), list(r.q),
+            setup, method, r.mu, list(r.q),
             success=r.success, status=r.status, solve_time_s=r.solve_time_s, iterations=r.iterations,
             objective=r.objective,
             extras={"init": init.source, "solver": "newton", "covariance_form": "condensed",
