@@ -203,7 +203,7 @@ def test_evaluation_file_detection_grasp_and_gradient_keys(tmp_path):
     tree["detection"] = {"enabled": False}
     path.write_text(yaml.safe_dump(tree))
     assert load_evaluation(path).detection is None
-    for bad, key in (({"detection": {"margin": 0.3, "falloff": 0.3}}, "detection"),
+    for bad, key in (({"detection": {"margin": 0.3, "falloff": 0.3}}, "detection.falloff"),
                      ({"grasp": {"angle": -1}}, "grasp.angle"), ({"gradient": {"preset": "x"}}, "gradient.preset"),
                      ({"detection": {"radius": 1}}, "radius")):
         t = {**tree, **bad}
@@ -211,6 +211,28 @@ def test_evaluation_file_detection_grasp_and_gradient_keys(tmp_path):
         with pytest.raises(ProblemError) as exc:
             load_evaluation(path)
         assert "e.yaml" in str(exc.value) and key in str(exc.value)
+
+
+@pytest.mark.parametrize("value", ["-0.1", ".nan", ".inf", "'a'", "true", "0.49", "[0.1]"])
+def test_bad_detection_falloff_is_one_line_exit_2_naming_the_key(tmp_path, value):
+    """`surestep evaluate` with a bad `detection.falloff` (negative, not finite, not a number, or with the margin
+    past half the image) stops before any work: one line naming the file and the key, exit 2, no traceback."""
+    import subprocess
+    import sys
+
+    text = EVAL.read_text()
+    assert "  falloff: 0.0 " in text
+    tree = yaml.safe_load(text.replace("  falloff: 0.0 ", f"  falloff: {value} "))
+    tree["base"] = str((EVAL.parent / tree["base"]).resolve())
+    path = tmp_path / "bad.yaml"
+    path.write_text(yaml.safe_dump(tree))
+    res = subprocess.run([sys.executable, "-m", "surestep_ocp.cli", "evaluate", str(path), "--configs", "1",
+                          "--rollouts", "2", "--methods", "baseline", "--quiet", "--output-dir", str(tmp_path / "o")],
+                         capture_output=True, text=True, timeout=300)
+    assert res.returncode == 2, res.stderr
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1 and "bad.yaml" in lines[0] and "detection.falloff" in lines[0], res.stderr
+    assert not (tmp_path / "o").exists()
 
 
 def test_sweep_expands_into_runs(tmp_path):

@@ -123,8 +123,8 @@ def load_evaluation(path: str | Path) -> EvaluationSpec:
         if detection.max_depth <= detection.min_depth:
             raise rd.fail("detection.max_depth", f"must exceed detection.min_depth ({detection.min_depth:g} m)")
         if detection.margin + detection.falloff >= 0.5:
-            raise rd.fail("detection", f"margin + falloff must be < 0.5 (fractions of the image size), got "
-                                       f"{detection.margin:g} + {detection.falloff:g}")
+            raise rd.fail("detection.falloff", f"margin + falloff must be < 0.5 (fractions of the image size), "
+                                               f"got {detection.margin:g} + {detection.falloff:g}")
     grasp = rd.mapping(top.get("grasp", {}), "grasp", {"position", "angle"})
     robot = load_robot(str(base_path), "robot", base.robot, moving=True)
     ecm_box = None
