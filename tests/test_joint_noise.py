@@ -115,6 +115,10 @@ def test_methods_without_joints_refuse_joint_noise():
         run_method(setup, "gradient")
     with pytest.raises(SurestepError, match="joint_motion_sigma"):
         run_comparison(setup, ("ocp", "gradient-no-pose-loss"))
+    from surestep_ocp.evaluation.rollout import rollout
+
+    with pytest.raises(SurestepError, match="joint_motion_sigma"):  # would sample without the term
+        rollout(setup.eval_model, np.array([setup.x_start, setup.x_goal]), n=2)
     base = run_method(setup, "baseline")  # the straight line has joints: evaluated with the term
     assert base.trace_final == pytest.approx(np.trace(numpy_reference(setup, base.q)[-1]), rel=1e-9)
 

@@ -40,6 +40,7 @@ import casadi as ca
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from ..errors import SurestepError
 from ..model.belief import NX, BeliefModel
 
 MODES = ("model", "true")
@@ -231,6 +232,9 @@ def rollout(
         raise ValueError(f"unknown rollout mode '{mode}'; allowed: {', '.join(MODES)}")
     if not has_identity_maps(model):
         raise ValueError("rollouts support belief models with identity motion and observation maps only")
+    if model.joint_noise:  # the rollouts sample pose-space noise from the waypoints alone: the term would be lost
+        raise SurestepError("noise.joint_motion_sigma: the rollouts (surestep evaluate) sample pose-space motion "
+                            "noise from the waypoints only; evaluate without the joint-space term")
     poses = np.asarray(poses, dtype=float)
     if poses.ndim != 2 or poses.shape[1] != NX or len(poses) < 2:
         raise ValueError(f"poses must have shape (T+1, {NX}) with T >= 1, got {poses.shape}")
