@@ -5,7 +5,7 @@ camera frame. The covariance is carried as `vech(Sigma)` (21 numbers, the lower
 triangle column by column). All maps are named CasADi Functions built once;
 every method (OCP, gradient variant, baseline, rollouts) uses these.
 
-    predict:  P  = F Sigma F^T + Q W(x_t, x_t+1) Q^T
+    predict:  P  = F Sigma F^T + Q (W(x_t, x_t+1) + W_q) Q^T    (W_q: the optional joint-space term, joint_noise.py)
     update:   S  = H P H^T + R V(x_t+1) R^T,  K = P H^T S^-1,  Sigma+ = sym((I - K H) P)
 """
 
