@@ -408,3 +408,58 @@ def test_malformed_solution_files_are_one_line_errors(plans, tmp_path, capsys, c
     err = capsys.readouterr().err.strip()
     assert code == 2 and len(err.splitlines()) == 1 and "plan.json" in err, err
     assert not (tmp_path / "out.csv").exists()
+
+
+@pytest.fixture(scope="module")
+def enforced_plan(tmp_path_factory):
+    """The default problem planned with its limits enforced at 0.1 s per step (20 steps, 2 s): the OCP's rows bound
+    the curve the export plays at the planned times."""
+    from surestep_ocp.problem.problem import load_problem
+    from surestep_ocp.problem.setup import build_setup
+    from dataclasses import replace
+    from surestep_ocp.problem.problem import LimitsSpec
+
+    prob = load_problem(REPO / "problems" / "needle_regrasp.yaml")
+    prob = replace(prob, limits=LimitsSpec(enforce=True), timing=replace(prob.timing, step_s=0.1))
+    sol = run_method(build_setup(prob), "ocp")
+    assert sol.success, sol.status
+    return sol.save(tmp_path_factory.mktemp("enforced") / "ocp.json")
+
+
+@pytest.mark.parametrize("fmt", ["json", "csv", "ros2"])
+def test_an_enforced_plan_is_exported_at_its_planned_pace(enforced_plan, tmp_path, fmt):
+    """Duration the planned 20 x 0.1 s, every waypoint at its planned time, within every limit (read back)."""
+    out = tmp_path / f"p{SUFFIX[fmt]}"
+    assert export(enforced_plan, fmt, out, "--no-plot") == 0
+    c = READERS[fmt](out)
+    check_limits(c)
+    peaks = check_tool(c)
+    sol = json.loads(Path(enforced_plan).read_text())
+    wt = c["waypoint_times"] if fmt != "ros2" else ros2_waypoint_times(out, c["t"])
+    check_waypoints(c, sol, wt)
+    assert abs(c["t"][-1] - 2.0) <= 1e-9
+    np.testing.assert_allclose(wt, 0.1 * np.arange(21), rtol=0, atol=1e-9)
+    assert max(peaks) >= 0.5  # the tool moves at a good part of its limits
+    if fmt == "json":
+        d = json.loads(out.read_text())
+        assert d["timing"] == "planned" and d["planned_curve"]["within"] and d["duration_s"] == 2.0
+    if fmt == "ros2":
+        assert Path(out).read_text().splitlines()[2].startswith("# timing: planned")
+
+
+def test_timing_toppra_retimes_and_planned_refuses_a_plan_over_its_limits(enforced_plan, plans, tmp_path, capsys):
+    """--timing toppra retimes even a plan within its limits (no faster than planned); --timing planned on the
+    straight line (over its acceleration limits at the planned pace) is a one-line error, exit 2, nothing written;
+    by default that plan is retimed and the file says why."""
+    assert export(enforced_plan, "json", tmp_path / "t.json", "--no-plot", "--timing", "toppra") == 0
+    d = json.loads((tmp_path / "t.json").read_text())
+    assert d["timing"] == "toppra" and d["duration_s"] >= 2.0 - 1e-9
+    check_limits(read_json(tmp_path / "t.json"))
+    capsys.readouterr()
+    assert export(plans["baseline"], "json", tmp_path / "b.json", "--no-plot", "--timing", "planned") == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "joint_acceleration" in err[0] and not (tmp_path / "b.json").exists()
+    assert export(plans["baseline"], "json", tmp_path / "b.json", "--no-plot") == 0
+    d = json.loads((tmp_path / "b.json").read_text())
+    assert d["timing"] == "toppra" and not d["planned_curve"]["within"]
+    assert "joint_acceleration" in d["planned_curve"]["not_played"] and d["duration_s"] > 1.0

@@ -64,6 +64,52 @@ def check_plan(setup, sol, velocity=None, accel=None, tool_speed=0.1, tool_rotat
     return vr.max(), ar.max(), speed.max() / tool_speed
 
 
+# The curve `surestep export` plays at the planned times (limits.py, "the played curve"), written out here: per step
+# the quintic Hermite polynomial with the waypoints' finite-difference velocities and accelerations at both ends.
+HERMITE = np.array([[1, 0, 0, -10, 15, -6], [0, 1, 0, -6, 8, -3], [0, 0, 0.5, -1.5, 1.5, -0.5],
+                    [0, 0, 0, 10, -15, 6], [0, 0, 0, -4, 7, -3], [0, 0, 0, 0.5, -1, 0.5]])  # p0, v0, a0, p1, v1, a1
+
+
+def played_curve(q, dt, per_step=200):
+    """Times, positions, velocities and accelerations of the played curve, `per_step` samples per step."""
+    T = len(q) - 1
+    v = np.zeros_like(q)
+    v[1:-1] = (q[2:] - q[:-2]) / (2 * dt)
+    a = np.zeros_like(q)
+    a[1:-1] = (q[2:] - 2 * q[1:-1] + q[:-2]) / dt**2
+    a[0], a[-1] = (q[1] - q[0]) / dt**2, (q[-2] - q[-1]) / dt**2
+    s = np.linspace(0, 1, per_step, endpoint=False)
+    out = [[], [], [], []]
+    for t in range(T):
+        data = np.stack([q[t], dt * v[t], dt**2 * a[t], q[t + 1], dt * v[t + 1], dt**2 * a[t + 1]])  # (6, n)
+        coef = HERMITE.T @ data  # power coefficients in s, (6, n)
+        for order in range(3):
+            c = np.polynomial.polynomial.polyder(coef, order) / dt**order if order else coef
+            out[order + 1].append(np.polynomial.polynomial.polyval(s, c).T)
+        out[0].append((t + s) * dt)
+    return [np.concatenate(x) for x in out]
+
+
+def check_curve(setup, sol, velocity=None, accel=None, tool_speed=0.1, tool_rotation=math.pi / 2):
+    """The played curve within the joint limits at every sample, and the tool's speed (chords of the FK over
+    the samples); returns the peak ratios."""
+    dt = setup.problem.timing.step_s
+    names = sol.joint_names
+    v_lim = np.array([{**urdf_velocities(setup.robot.urdf), **(velocity or {})}[n] for n in names])
+    a_lim = np.array([{**ACCEL, **(accel or {})}[n] for n in names])
+    t, q, v, a = played_curve(np.array(sol.q, float), dt)
+    np.testing.assert_allclose(q[::200], np.array(sol.q)[:-1], atol=1e-12)  # through the waypoints at their times
+    vr, ar = (np.abs(v) / v_lim).max(), (np.abs(a) / a_lim).max()
+    assert vr <= 1 + TOL and ar <= 1 + TOL, (vr, ar)
+    T_tool = [setup.robot.frame_pose(qi, setup.robot.frame) for qi in q]
+    h = np.diff(t)
+    speed = np.array([np.linalg.norm(b[:3, 3] - a_[:3, 3]) for a_, b in zip(T_tool, T_tool[1:])]) / h
+    rot = np.array([np.arccos(np.clip((np.trace(a_[:3, :3].T @ b[:3, :3]) - 1) / 2, -1, 1))
+                    for a_, b in zip(T_tool, T_tool[1:])]) / h
+    assert speed.max() <= tool_speed * (1 + TOL) and rot.max() <= tool_rotation * (1 + TOL), (speed.max(), rot.max())
+    return vr, ar, speed.max() / tool_speed, rot.max() / tool_rotation
+
+
 def check_solution(setup, sol):
     """The trace by the exact EKF along the plan's poses; the terminal equality."""
     sig, _ = ref.propagate(np.asarray(sol.poses), setup.problem.noise, setup.problem.camera.intrinsics,
@@ -78,7 +124,9 @@ def enforced(problem, **kw):
 
 @pytest.fixture(scope="module")
 def default_enforced():
-    setup = build_setup(enforced(load_problem(DEFAULT)))
+    """The default problem at 0.1 s per step (its 0.05 s x 20 steps is infeasible with the played curve's rows)."""
+    prob = load_problem(DEFAULT)
+    setup = build_setup(enforced(replace(prob, timing=replace(prob.timing, step_s=0.1))))
     return setup, run_method(setup, "ocp")
 
 
@@ -87,7 +135,9 @@ def test_default_problem_plan_meets_every_limit(default_enforced):
     assert sol.success, sol.status
     ratios = check_plan(setup, sol)
     check_solution(setup, sol)
-    assert max(ratios) > 0.9  # the limits are active (the unconstrained plan moves 31 mm in its first step)
+    curve = check_curve(setup, sol)  # and the curve the export plays at the planned pace
+    assert max(curve) > 0.9  # the limits are active (the unconstrained plan moves 31 mm in its first step)
+    assert max(ratios) <= max(curve) + 1e-9  # the finite differences are averages of the curve's values
     assert sol.extras["motion_limits"]["ok"] and sol.extras["motion_limits"]["enforced"]
     # Newton's unconstrained plan breaks them: IPOPT, which carries them, took over
     assert sol.extras["attempts"][0]["status"] == "Motion_Limits_Violated"
@@ -101,6 +151,7 @@ def test_evaluation_configurations_meet_every_limit(config):
     sol = run_method(setup, "ocp")
     assert sol.success, sol.status
     check_plan(setup, sol)
+    check_curve(setup, sol)
     check_solution(setup, sol)
 
 
@@ -116,6 +167,7 @@ def test_overrides_from_the_problem_file_are_honoured(write_problem):
     sol = run_method(setup, "ocp")
     assert sol.success, sol.status
     check_plan(setup, sol, velocity={"yaw": 0.3}, accel={"wrist_pitch": 3.0}, tool_speed=0.05, tool_rotation=1.0)
+    check_curve(setup, sol, velocity={"yaw": 0.3}, accel={"wrist_pitch": 3.0}, tool_speed=0.05, tool_rotation=1.0)
     check_solution(setup, sol)
 
 
@@ -136,12 +188,19 @@ def test_rcm_distance_is_a_bound_on_the_insertion():
         assert np.linalg.norm(setup.robot.frame_pose(q, "roll_link")[:3, 3]) == pytest.approx(0.07, abs=1e-9)
 
 
-def test_limit_rows_staged_derivatives_equal_casadis_own():
+@pytest.mark.parametrize("rows", ["curve", "steps"])
+def test_limit_rows_staged_derivatives_equal_casadis_own(monkeypatch, rows):
     """The limit rows' stage-wise Jacobian and curvature (the tool rows are nonlinear) equal CasADi's AD of
-    the whole NLP, at a perturbed point with random multipliers (T = 6)."""
+    the whole NLP, at a perturbed point with random multipliers (T = 6), for the played curve's rows (the tool
+    at 4 points of each step but the first's start, 2 rows each) and the finite differences'."""
+    from surestep_ocp.model import limits
+    from surestep_ocp.solvers import solver_setup
+
+    monkeypatch.setattr(limits, "CURVE_ROWS", rows)
+    monkeypatch.setattr(solver_setup, "_CACHE", {})
     setup = build_setup(enforced(replace(load_problem(DEFAULT), horizon=6)))
     staged, exact = transcription(setup, hessian="surrogate"), transcription(setup, hessian="exact")
-    assert staged.ng == exact.ng > staged.ng_eq and staged.n_tool == 2 * 6
+    assert staged.ng == exact.ng > staged.ng_eq and staged.n_tool == 2 * (4 * 6 - 1 if rows == "curve" else 6)
     x0, scale, _ = staged._condensed_start(setup, ocp_initial_guess(setup))
     rng = np.random.default_rng(5)
     x = x0 + 1e-2 * rng.normal(size=len(x0))

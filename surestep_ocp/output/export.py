@@ -1,5 +1,13 @@
 """`surestep export SOLUTION.json --format csv|json|ros2 --output F`: a time-stamped joint trajectory.
 
+First (`--timing auto`, the default) the planned curve is tried: the curve through the waypoints at the planned
+times that the OCP's limit rows bound with `limits.enforce: true` (`limits.py`, "the played curve": a quintic
+Hermite per step with the waypoints' finite-difference velocities and accelerations). It is checked at every
+sample written and at CURVE_CHECK_PER_STEP points per step against the joint velocity and acceleration limits and
+the tool's speeds (Pinocchio's frame Jacobian); within them (to REL_TOL) it is written as it is, the duration the
+planned one (`timing: planned` in the JSON, the ROS 2 header). Otherwise the plan is retimed (`timing: toppra`,
+with the planned curve's peak ratios and the reason in `planned_curve`), as follows.
+
 The planned waypoints `q_0..q_T` become a path in joint space, `q(s)` with `q(i * step_s) = q_i`
 (piecewise cubic Hermite, shape-preserving: scipy's PCHIP, so between two waypoints every joint
 stays between its two values and never leaves its position limits). toppra (time-optimal path
@@ -37,7 +45,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import SurestepError, shown
-from ..model.limits import JAW, MotionLimits, motion_limits, parse_overrides
+from ..model.limits import CURVE_NAME, JAW, MotionLimits, motion_limits, parse_overrides
 from .outputs import check_output_file, quiet_fd
 from .solution import write_json_atomic, write_text_atomic
 
@@ -53,6 +61,8 @@ CLOCK_ACCELERATION = 100.0  # [1/s] bound on s-ddot (not binding in practice: th
 PRE_KNOT = 1e-6  # grid point this fraction of a step before each waypoint
 POSITION_TOL = 1e-6  # [relative] a waypoint this far beyond a position limit is clipped onto it, further is an error
 COMMAND_LINE = "command line"  # the source of a limit given by an export flag
+TIMINGS = ("auto", "planned", "toppra")  # auto: the planned curve when within the limits, else toppra
+CURVE_CHECK_PER_STEP = 40  # points per planned step where the planned curve is checked (and every sample)
 
 
 @dataclass
@@ -73,6 +83,8 @@ class Trajectory:
     peak_acceleration_ratio: np.ndarray
     peak_tool_ratio: tuple[float, float] | None = None  # translation, rotation speed / limit (dense check)
     tool_frame: str | None = None
+    timing: str = "toppra"  # "planned": the planned curve at the planned times; "toppra": retimed
+    planned_curve: dict | None = None  # the planned curve's peak ratios to the limits (dense check), and why not played
 
     @property
     def duration(self) -> float:
@@ -261,17 +273,68 @@ def within_position_limits(q: np.ndarray, robot) -> tuple[np.ndarray, float]:
     return out, float(excess.max())
 
 
+def planned_curve(q: np.ndarray, step_s: float, limits: MotionLimits, rate_hz: float = DEFAULT_RATE_HZ,
+                  robot=None, tool_frame: str | None = None) -> tuple[Trajectory | None, dict]:
+    """The planned curve (`limits.py`, "the played curve": the curve the OCP's rows bound with `limits.enforce`)
+    through the waypoints `q` at the planned times, sampled every 1/rate_hz s and at every waypoint; checked against
+    the joint velocity and acceleration limits and the tool's speeds at those samples and at CURVE_CHECK_PER_STEP
+    points per step. Returns (the trajectory, or None when a limit is exceeded by more than REL_TOL; the check:
+    peak ratios per family and `within`)."""
+    from ..model.limits import REL_TOL, evaluate_curve
+
+    q = np.asarray(q, float)
+    T, n = len(q) - 1, q.shape[1]
+    wp_t = step_s * np.arange(T + 1)
+    times = _sample_times(float(wp_t[-1]), wp_t, rate_hz)
+    check = np.union1d(times, np.linspace(0.0, wp_t[-1], CURVE_CHECK_PER_STEP * T + 1))
+    Q, QD, QDD = evaluate_curve(q, step_s, check)
+    vr = np.max(np.abs(QD) / limits.velocity, axis=0)
+    ar = np.max(np.abs(QDD) / limits.acceleration, axis=0)
+    tool = None if robot is None else _ToolSpeed(robot, tool_frame or robot.frame, limits)
+    tool_ratio = None
+    if tool is not None and max(vr.max(), ar.max()) <= 1 + REL_TOL:  # (not worth the Jacobians when over already)
+        tool_ratio = tuple(float(x) for x in np.max(tool.rates(Q, QD) / tool.vmax, axis=0))
+    peaks = {"joint_velocity": float(vr.max()), "joint_acceleration": float(ar.max()),
+             "tool_speed": None if tool_ratio is None else tool_ratio[0],
+             "tool_rotation": None if tool_ratio is None else tool_ratio[1]}
+    within = all(v is None or v <= 1 + REL_TOL for v in peaks.values()) and (tool is None or tool_ratio is not None)
+    info = {"curve": CURVE_NAME, "peak_ratios": peaks, "within": within}
+    if not within:
+        return None, info
+    Q, QD, QDD = evaluate_curve(q, step_s, times)
+    QD[0] = QD[-1] = 0.0  # at rest (zero by construction; removes rounding)
+    rows = np.searchsorted(times, wp_t)
+    Q[rows] = q  # the waypoints themselves (the curve passes them to rounding)
+    traj = Trajectory(list(limits.joint_names), times, Q, QD, QDD, wp_t, rows, limits,
+                      {"joint_velocity": 1.0, "joint_acceleration": 1.0, "tool_speed": 1.0}, step_s, vr, ar,
+                      tool_ratio, None if tool is None else tool.frame, timing="planned", planned_curve=info)
+    return traj, info
+
+
 def time_parametrise(q: np.ndarray, step_s: float, limits: MotionLimits, rate_hz: float = DEFAULT_RATE_HZ,
-                     robot=None, tool_frame: str | None = None) -> Trajectory:
-    """The time-optimal trajectory through the waypoints `q` ((T+1, n)) within `limits` (module docstring);
-    with `robot` (a `surestep_ocp.model.robot.Robot` of the plan's joints) and `tool_frame`, within the tool's
-    translation and rotation speed limits too."""
+                     robot=None, tool_frame: str | None = None, timing: str = "auto") -> Trajectory:
+    """The trajectory through the waypoints `q` ((T+1, n)) within `limits`: with `timing` "auto" the planned
+    curve at the planned times when it is within every limit (`planned_curve`), else (and with "toppra") the
+    time-optimal one (module docstring); with `robot` (a `surestep_ocp.model.robot.Robot` of the plan's joints) and
+    `tool_frame`, within the tool's translation and rotation speed limits too."""
     import toppra.algorithm as algo
     import toppra.constraint as constraint
 
     q = np.asarray(q, float)
     if not (math.isfinite(rate_hz) and 0 < rate_hz <= 10_000):
         raise SurestepError(f"--rate must be in (0, 10000] Hz, got {rate_hz:g}")
+    if timing not in TIMINGS:
+        raise SurestepError(f"--timing must be one of {', '.join(TIMINGS)}, got {timing!r}")
+    curve_info = None
+    if timing in ("auto", "planned"):
+        played, curve_info = planned_curve(q, step_s, limits, rate_hz, robot, tool_frame)
+        if played is not None:
+            return played
+        over = ", ".join(f"{k} {v:.3f}" for k, v in curve_info["peak_ratios"].items() if v is not None and v > 1)
+        if timing == "planned":
+            raise SurestepError(f"--timing planned: the planned curve exceeds its limits at the planned pace "
+                                f"(peak / limit: {over}); use --timing auto or toppra to retime it")
+        curve_info["not_played"] = f"over a limit at the planned pace ({over}): retimed by toppra"
     logging.getLogger("toppra").setLevel(logging.ERROR)  # a failed try is retried; its warnings are noise
     ss = step_s * np.arange(len(q))
     path = _PchipPath(ss, q)
@@ -324,7 +387,7 @@ def time_parametrise(q: np.ndarray, step_s: float, limits: MotionLimits, rate_hz
     return Trajectory(list(limits.joint_names), times, Q, QD, QDD, wp_t, rows, limits,
                       dict(zip(("joint_velocity", "joint_acceleration", "tool_speed"), scales.tolist())), step_s, vr,
                       ar, None if tool_ratio is None else (float(tool_ratio[0]), float(tool_ratio[1])),
-                      None if tool is None else tool.frame)
+                      None if tool is None else tool.frame, timing="toppra", planned_curve=curve_info)
 
 
 # ------------------------------------------------------------------------------------------ writers
@@ -343,6 +406,8 @@ def to_json(traj: Trajectory, meta: dict) -> dict:
         "duration_s": traj.duration,
         "planned_duration_s": traj.step_s * (len(traj.waypoint_times) - 1),
         "limits": traj.limits.to_dict(),
+        "timing": traj.timing,  # "planned": the planned curve at the planned times; "toppra": retimed
+        "planned_curve": traj.planned_curve,
         "limit_scales": traj.scales,
         "peak_velocity_ratio": dict(zip(traj.joint_names, traj.peak_velocity_ratio.tolist())),
         "peak_acceleration_ratio": dict(zip(traj.joint_names, traj.peak_acceleration_ratio.tolist())),
@@ -411,8 +476,16 @@ def _ros2_text(traj: Trajectory, idx: list[int], what: str) -> str:
 
     times = ", ".join(f"{t:.6f}" for t in traj.waypoint_times)
     head = (f"# trajectory_msgs/JointTrajectory ({what}), written by surestep export\n"
-            f"# planned waypoints 0..{len(traj.waypoint_times) - 1} at time_from_start [s]: {times}\n")
+            f"# planned waypoints 0..{len(traj.waypoint_times) - 1} at time_from_start [s]: {times}\n"
+            f"# timing: {_timing_text(traj)}\n")
     return head + yaml.safe_dump(to_joint_trajectory(traj, idx), sort_keys=False, default_flow_style=None)
+
+
+def _timing_text(traj: Trajectory) -> str:
+    if traj.timing == "planned":
+        return f"planned ({CURVE_NAME}, at the planned times)"
+    why = (traj.planned_curve or {}).get("not_played", "--timing toppra")
+    return f"toppra (time-optimal within the limits; the planned curve: {why})"
 
 
 def jaw_path(output: Path) -> Path:
@@ -439,7 +512,8 @@ def write(traj: Trajectory, fmt: str, output: Path, meta: dict) -> list[Path]:
 def export_solution(solution: str | Path, fmt: str, output: str | Path, *, rate_hz: float = DEFAULT_RATE_HZ,
                     step_s: float | None = None, velocity: dict | None = None,
                     acceleration: dict | None = None, tool_speed: float | None = None,
-                    tool_rotation: float | None = None, plot: bool = True) -> tuple[Trajectory, list[Path]]:
+                    tool_rotation: float | None = None, plot: bool = True,
+                    timing: str = "auto") -> tuple[Trajectory, list[Path]]:
     from ..problem.problem import resolve_urdf
     from ..model.robot import Robot
 
@@ -472,7 +546,7 @@ def export_solution(solution: str | Path, fmt: str, output: str | Path, *, rate_
     if robot.joint_names != list(sol["joint_names"]):
         raise SurestepError(f"{solution}: joint_names {', '.join(sol['joint_names'])} are not those of {urdf}")
     q, clipped = within_position_limits(np.array(sol["q"], float), robot)
-    traj = time_parametrise(q, step, limits, rate_hz, robot=robot, tool_frame=frame)
+    traj = time_parametrise(q, step, limits, rate_hz, robot=robot, tool_frame=frame, timing=timing)
     meta = {"source": str(solution), "method": sol.get("method"), "problem": sol.get("problem"),
             "robot": {"urdf": sol["robot"].get("urdf"), "frame": sol["robot"].get("frame")},
             "step_s_source": step_source, "limits_enforced_in_plan": (sol.get("limits") or {}).get("enforce"),
@@ -498,6 +572,7 @@ def summary(traj: Trajectory) -> str:
         lim = traj.limits
         lines.append(f"tool        peak {traj.peak_tool_ratio[0]:.3f} of {1e3 * lim.tool_speed:g} mm/s, "
                      f"{traj.peak_tool_ratio[1]:.3f} of {lim.tool_rotation:.3g} rad/s ({traj.tool_frame})")
+    lines.append(f"timing      {_timing_text(traj)}")
     lines.append(f"limits      {traj.limits.sources.get('recorded', '')}")
     low = {k: v for k, v in traj.scales.items() if v < 1}
     if low:
@@ -512,7 +587,8 @@ def cmd_export(args) -> int:
         args.solution, args.format, args.output, rate_hz=args.rate, step_s=args.step_s,
         velocity=parse_overrides(args.velocity_limit, "--velocity-limit"),
         acceleration=parse_overrides(args.acceleration_limit, "--acceleration-limit"),
-        tool_speed=args.tool_speed, tool_rotation=args.tool_rotation_speed, plot=not args.no_plot)
+        tool_speed=args.tool_speed, tool_rotation=args.tool_rotation_speed, plot=not args.no_plot,
+        timing=args.timing)
     print(summary(traj))
     for f in files:
         print(f"wrote       {f}")
@@ -540,5 +616,9 @@ def register(sub) -> None:
                    help="override the tool's translation speed limit [m/s] (default: the recorded one, else 0.1)")
     e.add_argument("--tool-rotation-speed", type=float, metavar="RAD_S",
                    help="override the tool's rotation speed limit [rad/s] (default: the recorded one, else pi/2)")
+    e.add_argument("--timing", choices=TIMINGS, default="auto",
+                   help="auto (default): the planned curve at the planned times when it is within every limit (a plan "
+                        "made with limits.enforce: true), else retimed by toppra; planned: that curve or an error; "
+                        "toppra: always retimed")
     e.add_argument("--no-plot", action="store_true", help="do not write <stem>_motion.png beside the output")
     e.set_defaults(func=cmd_export)

@@ -18,7 +18,9 @@ one built solver serves every start, goal and camera pose of a given structure a
 (`solver_setup.transcription` caches it). Measurements: docs/method.md and docs/hessian_and_newton.md.
 
 With `limits` (a problem's `limits.enforce: true`, `limits.py`) the NLP also carries the motion limits, each
-row normalised by its limit (so every bound is 1): joint velocities `(q_t+1 - q_t) / (dt v_max)` and
+row normalised by its limit (so every bound is 1). By default (`limits.CURVE_ROWS = "curve"`, `_limit_rows`) they
+bound the curve `surestep export` plays at the planned times: linear rows on its velocity and acceleration control
+points, the tool's speeds at points inside every step. With "steps" (before, kept for measurements): joint velocities `(q_t+1 - q_t) / (dt v_max)` and
 accelerations `(q_t+1 - 2 q_t + q_t-1) / (dt^2 a_max)` of the moving joints, linear, with the plan at rest
 before q_0 and after q_T (q_-1 = q_0, q_T+1 = q_T: a plan is a motion from rest to rest, as `limits.py`
 reports it and `surestep export` runs it); per interval the tool's squared translation
@@ -204,56 +206,91 @@ class Transcription:
         self.build_time_s = time.perf_counter() - t0
 
     def _limit_rows(self, x: ca.SX, qs: list, g: list) -> None:
-        """Append the motion-limit rows (module docstring) to `g`: the linear ones `A x` (A constant), then
-        per interval the tool's normalised translation and rotation (`self.tool_rows`, of (q_t, q_t+1))."""
+        """Append the motion-limit rows (module docstring) to `g`: the linear ones `A x` (A constant), then the
+        tool's normalised translation and rotation (`self.tool_point`, of a window of waypoints per point).
+
+        `limits.CURVE_ROWS` "curve" (the default): the rows bound the curve `surestep export` plays at the planned
+        times (`limits.py`, "the played curve"): joint velocity and acceleration by the Bernstein control points
+        of each step's quartic / cubic (linear, sufficient everywhere), the tool's squared speed
+        `|J_v(q(s)) q'(s)|^2` and rotation `|J_w q'|^2` at `limits.TOOL_POINTS` of each step, each point a function
+        of the four waypoints the piece depends on. "steps": the finite differences of the waypoints (velocity per
+        step, acceleration per waypoint, the tool's chord per step), as before; kept for measurements."""
         self.n_lin = self.n_tool = 0
-        self.A, self.tool_rows, self.rcm_bound, self.limit_g = None, None, None, None
+        self.A, self.tool_point, self.rcm_bound, self.limit_g = None, None, None, None
         if self.limits is None:
             return
-        from ..model.limits import rcm_insertion_bound
+        from ..model import limits as lm
 
         dt, lim = self.limits
         T, nq, n = self.T, self.robot.nq, x.shape[0]
         idx = self._q_index()
         mov = self.robot.supporting_joints()
-        rows, cols, vals = [], [], []
-        r = 0
-        for t in range(T):  # velocity over step t
-            for j in mov:
-                rows += [r, r]
-                cols += [idx[t + 1][j], idx[t][j]]
-                vals += [1 / (dt * lim.velocity[j]), -1 / (dt * lim.velocity[j])]
-                r += 1
-        for t in range(T + 1):  # acceleration at waypoint t, at rest before q_0 and after q_T
-            for j in mov:
-                c = 1 / (dt * dt * lim.acceleration[j])
-                coef = {}
-                if t < T:
-                    coef[idx[t + 1][j]] = coef.get(idx[t + 1][j], 0) + c
-                    coef[idx[t][j]] = coef.get(idx[t][j], 0) - c
-                if t > 0:
-                    coef[idx[t][j]] = coef.get(idx[t][j], 0) - c
-                    coef[idx[t - 1][j]] = coef.get(idx[t - 1][j], 0) + c
-                for col, v in coef.items():
-                    rows.append(r)
-                    cols.append(col)
-                    vals.append(v)
-                r += 1
-        self.n_lin = r
-        self.A = np.zeros((r, n))
-        np.add.at(self.A, (rows, cols), vals)
-        qa, qb = ca.SX.sym("qa", nq), ca.SX.sym("qb", nq)
-        Ta, Tb = self.robot.fk_expr(qa, self.robot.frame), self.robot.fk_expr(qb, self.robot.frame)
-        out = [ca.sumsqr(Tb[:3, 3] - Ta[:3, 3]) / (lim.tool_speed * dt) ** 2]
-        if lim.tool_rotation * dt < np.pi:  # else any rotation is within the limit
-            out.append((3 - ca.sum1(ca.sum2(Ta[:3, :3] * Tb[:3, :3]))) / (2 - 2 * np.cos(lim.tool_rotation * dt)))
-        self.tool_rows = ca.Function("tool_rows", [qa, qb], [ca.vertcat(*out)])
-        self.n_tool = len(out) * T
+        self.curve = lm.CURVE_ROWS
+        if self.curve not in ("curve", "steps"):
+            raise SurestepError(f"limits.CURVE_ROWS must be 'curve' or 'steps', got {self.curve!r}")
+        if self.curve == "curve":
+            Rv, Ra = lm.curve_control_rows(T, dt)
+        else:  # (q_t+1 - q_t) / dt per step; acceleration at waypoint t, at rest before q_0 and after q_T
+            Dv, Da = lm.knot_derivatives(T, dt)
+            Rv = (np.eye(T + 1, k=1) - np.eye(T + 1))[:T] / dt
+            Ra = Da
+        blocks = []
+        for R, scale in ((Rv, lim.velocity), (Ra, lim.acceleration)):
+            for row in R:
+                for j in mov:
+                    B = np.zeros(n)
+                    B[[idx[m][j] for m in range(T + 1)]] = row / scale[j]
+                    blocks.append(B)
+        self.A = np.array(blocks)
+        self.A[np.abs(self.A) < 1e-12 * np.abs(self.A).max(axis=1, keepdims=True)] = 0.0  # exact zeros, rounded
+        self.A = self.A[np.any(self.A != 0, axis=1)]  # rows that are 0 by construction (the velocities at rest)
+        self.n_lin = len(self.A)
+        qa, qd = ca.SX.sym("qa", nq), ca.SX.sym("qd", nq)
+        Ta = self.robot.fk_expr(qa, self.robot.frame)
+        if self.curve == "curve":
+            win = 4
+            pv = ca.jtimes(Ta[:3, 3], qa, qd)  # the tool's velocity [m/s] (world frame), and dR/dt
+            Rd = ca.jtimes(ca.vec(Ta[:3, :3]), qa, qd)
+            k = 1 - lm.TOOL_MARGIN  # the speed between the points may exceed theirs a little (the export checks)
+            rate = ca.Function("tool_rate", [qa, qd], [ca.vertcat(ca.sumsqr(pv) / (k * lim.tool_speed) ** 2,
+                                                                  0.5 * ca.sumsqr(Rd) / (k * lim.tool_rotation) ** 2)])
+            w, c = ca.SX.sym("w", win * nq), ca.SX.sym("c", 2 * win)
+            ws = ca.reshape(w, nq, win)
+            out = rate(ws @ c[:win], ws @ c[win:])
+            windows, weights = [], []
+            for t in range(T):
+                nodes = [min(max(m, 0), T) for m in (t - 1, t, t + 1, t + 2)]
+                for frac in lm.TOOL_POINTS:
+                    if t == 0 and frac == 0.0:
+                        continue  # at rest
+                    wq, wv = lm.curve_point_weights(T, dt, t, frac)
+                    cw = np.zeros(2 * win)
+                    for slot, m in enumerate(nodes):
+                        if m not in nodes[:slot]:  # a repeated end node: its weight in the first slot only
+                            cw[slot], cw[win + slot] = wq[m], wv[m]
+                    windows.append(nodes)
+                    weights.append(cw)
+        else:
+            win = 2
+            w, c = ca.SX.sym("w", win * nq), ca.SX.sym("c", 2 * win)  # c unused: the chord of (q_t, q_t+1)
+            Tb = self.robot.fk_expr(w[nq:], self.robot.frame)
+            Tw = self.robot.fk_expr(w[:nq], self.robot.frame)
+            rows = [ca.sumsqr(Tb[:3, 3] - Tw[:3, 3]) / (lim.tool_speed * dt) ** 2]
+            if lim.tool_rotation * dt < np.pi:  # else any rotation is within the limit
+                rows.append((3 - ca.sum1(ca.sum2(Tw[:3, :3] * Tb[:3, :3]))) / (2 - 2 * np.cos(lim.tool_rotation * dt)))
+            out = ca.vertcat(*rows)
+            windows, weights = [[t, t + 1] for t in range(T)], [np.zeros(2 * win)] * T
+        self.tool_point = ca.Function("tool_point", [w, c], [out])
+        self.tool_windows = windows  # per point: the waypoints (node indices) it depends on
+        self.tool_weights = ca.DM(np.array(weights).T)  # (2 win, points)
+        self.tool_k = out.shape[0]
+        self.n_tool = self.tool_k * len(windows)
         lin = ca.mtimes(ca.sparsify(ca.DM(self.A)), x)
-        tool = ca.vec(self.tool_rows.map(T)(ca.horzcat(*qs[:T]), ca.horzcat(*qs[1:])))
+        W = ca.horzcat(*[ca.vertcat(*[qs[m] for m in nodes]) for nodes in windows])
+        tool = ca.vec(self.tool_point.map(len(windows))(W, self.tool_weights))
         g += [lin, tool]
         self.limit_g = ca.Function("limit_g", [x], [ca.vertcat(lin, tool)])
-        self.rcm_bound = rcm_insertion_bound(self.robot, lim.rcm_min_distance)
+        self.rcm_bound = lm.rcm_insertion_bound(self.robot, lim.rcm_min_distance)
 
     def _q_index(self) -> list[np.ndarray]:
         offsets = dict(zip((name for name, _, _ in self.layout.blocks),
@@ -351,22 +388,25 @@ class Transcription:
         hess_parts = [entries([(i, i) for i in ab_idx]), entries([(i, i) for i in q_idx])]
         g_x = ca.vec(mus - ca.Function("poses", [q, Tcb], [pose(q, Tcb)]).map(T + 1)(qs, Tcb_x))
         lin_const, g_lim = None, []
-        if self.limits is not None:  # the limit rows: A x (constant Jacobian), then the tool rows per interval
-            k = self.n_tool // T
-            qab = ca.vertcat(q, ca.SX.sym("qb", nq))
-            rows_ab = self.tool_rows(qab[:nq], qab[nq:])
+        if self.limits is not None:  # the limit rows: A x (constant Jacobian), then the tool rows per point
+            k, npts = self.tool_k, len(self.tool_windows)
+            w_in, c_in = self.tool_point.sx_in()
+            rows_w = self.tool_point(w_in, c_in)
             lam_k = ca.SX.sym("lam_k", k)
-            tool_jac = ca.Function("tool_jac", [qab], [ca.densify(ca.jacobian(rows_ab, qab))])
-            tool_hess = ca.Function("tool_hess", [qab, lam_k], [ca.densify(ca.hessian(ca.dot(lam_k, rows_ab), qab)[0])])
-            t_idx = [self.ng_eq + self.n_lin + np.arange(k * t, k * (t + 1)) for t in range(T)]
-            jac_parts.append(entries(list(zip(t_idx, qq_idx))))
-            hess_parts.append(entries([(i, i) for i in qq_idx]))
+            tool_jac = ca.Function("tool_jac", [w_in, c_in], [ca.densify(ca.jacobian(rows_w, w_in))])
+            tool_hess = ca.Function("tool_hess", [w_in, c_in, lam_k],
+                                    [ca.densify(ca.hessian(ca.dot(lam_k, rows_w), w_in)[0])])
+            win_idx = [np.concatenate([q_idx[m] for m in nodes]) for nodes in self.tool_windows]
+            t_idx = [self.ng_eq + self.n_lin + np.arange(k * p, k * (p + 1)) for p in range(npts)]
+            jac_parts.append(entries(list(zip(t_idx, win_idx))))
+            hess_parts.append(entries([(i, i) for i in win_idx]))
             lin_const = np.zeros((self.ng, n))
             lin_const[self.ng_eq:self.ng_eq + self.n_lin] = self.A
-            Jt = tool_jac.map(T)(qab_x)
-            Ht = tool_hess.map(T)(qab_x, ca.reshape(lam_g[self.ng_eq + self.n_lin:], k, T))
+            W_x = ca.reshape(X[np.concatenate(win_idx).tolist()], w_in.shape[0], npts)
+            Jt = tool_jac.map(npts)(W_x, self.tool_weights)
+            Ht = tool_hess.map(npts)(W_x, self.tool_weights, ca.reshape(lam_g[self.ng_eq + self.n_lin:], k, npts))
             A_sp = ca.sparsify(ca.DM(self.A))
-            g_lim = [ca.mtimes(A_sp, X), ca.vec(self.tool_rows.map(T)(qs[:, :T], qs[:, 1:]))]
+            g_lim = [ca.mtimes(A_sp, X), ca.vec(self.tool_point.map(npts)(W_x, self.tool_weights))]
         jac_sp, sc_j, jconst = assemble((self.ng, n), jac_parts, lin_const)
         J_nz = ca.mtimes(sc_j[0], ca.vec(Jq)) + ca.mtimes(sc_j[1], ca.DM(np.tile(np.eye(NX).ravel(order="F"), T + 1)))
         if self.limits is not None:
