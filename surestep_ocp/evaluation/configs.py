@@ -1,7 +1,7 @@
 """Random initial configurations for the evaluation (`problems/evaluations/evaluation.yaml`).
 
 An evaluation file names a base problem (robot, camera intrinsics, noise, solver
-settings) and uniform boxes of ECM joints (the camera pose), PSM start joints and
+settings; its `horizon`, `gradient` and `limits` sections can be replaced) and uniform boxes of ECM joints (the camera pose), PSM start joints and
 PSM goal joints. Configuration `i` of seed `s` is drawn by rejection sampling
 from its own generator `numpy.random.default_rng([s, i])`, so it does not depend
 on how many configurations are run, in which order, or in which process; every
@@ -27,6 +27,7 @@ from ..problem.problem import (
     EndpointSpec,
     Problem,
     _gradient,
+    _limits,
     find_shipped,
     load_problem,
     read_yaml,
@@ -38,7 +39,7 @@ from ..problem.schema import Reader
 from ..problem.setup import Setup, build_setup, load_robot
 
 _TOP = {"description", "base", "horizon", "ecm_joints", "start_joints", "goal_joints", "accept", "max_tries",
-        "gradient", "detection", "grasp"}
+        "gradient", "detection", "grasp", "limits"}
 
 # Grasp tolerances of the simulated Table II (docs/evaluation.md, "Table II"): the final true pose counts as a successful
 # regrasp within these of the goal. 5 mm: half the Large Needle Driver's 10.2 mm jaw (wrist-yaw pivot to tip),
@@ -110,6 +111,8 @@ def load_evaluation(path: str | Path) -> EvaluationSpec:
     base = replace(base, horizon=horizon)
     if "gradient" in top:  # replaces the base problem's gradient section (e.g. {preset: paper})
         base = replace(base, gradient=_gradient(rd, top["gradient"]))
+    if "limits" in top:  # replaces the base problem's limits section (a problem file's `limits:`, checked as there)
+        base = replace(base, limits=_limits(rd, top["limits"], base.robot))
     det = rd.mapping(top.get("detection", {}), "detection", {"enabled", "margin", "min_depth", "max_depth",
                                                               "falloff"})
     detection = None

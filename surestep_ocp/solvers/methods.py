@@ -60,6 +60,23 @@ def ocp_initial_guess(setup: Setup, source: str = "baseline", gradient: Solution
     return InitialGuess(q_best, note)
 
 
+def honours_limits(name: str) -> bool:
+    """Whether the method plans within enforced motion limits (the OCP methods: constraints in IPOPT's NLP). The
+    baseline and the gradient variants cannot; with `limits.enforce: true` they report their violations."""
+    return parse_method(name)[0].startswith("ocp")
+
+
+def counted_failures(sols: list[Solution]) -> tuple[list[str], list[str]]:
+    """(failed, over the limits only): methods whose failure counts (any failure of a method that honours the limits,
+    any other failure of one that cannot), and methods that cannot honour them reported over them
+    (`Motion_Limits_Violated`), which `surestep compare` prints and does not count."""
+    from ..model.limits import VIOLATED
+
+    failed = [s.method for s in sols if not s.success and (honours_limits(s.method) or s.status != VIOLATED)]
+    reported = [s.method for s in sols if not s.success and s.method not in failed]
+    return failed, reported
+
+
 def run_method(setup: Setup, name: str, cache: dict[str, Solution] | None = None,
                solver_options: dict | None = None) -> Solution:
     """Solve `setup` with the named method (see module docstring).
