@@ -617,8 +617,8 @@ def register(sub) -> None:
     e.add_argument("--tool-rotation-speed", type=float, metavar="RAD_S",
                    help="override the tool's rotation speed limit [rad/s] (default: the recorded one, else pi/2)")
     e.add_argument("--timing", choices=TIMINGS, default="auto",
-                   help="auto (default): the planned curve at the planned times when it is within every limit (a plan "
+                   help="auto: the planned curve at the planned times when it is within every limit (a plan "
                         "made with limits.enforce: true), else retimed by toppra; planned: that curve or an error; "
-                        "toppra: always retimed")
+                        "toppra: always retimed (default: auto)")
     e.add_argument("--no-plot", action="store_true", help="do not write <stem>_motion.png beside the output")
     e.set_defaults(func=cmd_export)
