@@ -168,12 +168,15 @@ def mutated_tree(draw):
             value = get(tree, path)
             get(tree, path[:-1])[path[-1]] = value * factor if abs(value) < 1e300 else value
         elif op == "noise_scalar":  # the scalar model parameters, present in the file or not
-            path = ("noise", draw(st.sampled_from(["cosine_guard", "cut_band", "depth_star", "observation_scale"])))
+            path = ("noise", draw(st.sampled_from(["cosine_guard", "cut_band", "depth_star", "observation_scale",
+                                                   "joint_motion_sigma"])))
             tree.setdefault("noise", {})
             if not isinstance(tree["noise"], dict):
                 continue
-            tree["noise"][path[1]] = draw(st.one_of(bad_value(), st.sampled_from(EXTREME),
-                                                    st.sampled_from([-0.1, 0.0, 0.2, 1.0, 1.5, 3.2])))
+            scalar = st.one_of(bad_value(), st.sampled_from(EXTREME), st.sampled_from([-0.1, 0.0, 0.2, 1.0, 1.5, 3.2]))
+            if path[1] == "joint_motion_sigma":  # a number, or a list of any length (7 for the PSM)
+                scalar = st.one_of(scalar, st.lists(scalar, max_size=9))
+            tree["noise"][path[1]] = draw(scalar)
         else:
             path = ("noise", draw(st.sampled_from(["W_p0", "W_o0", "V_d0", "V_f0", "V_o0", "Sigma0",
                                                    "camera_W_p0", "camera_W_o0"])))
