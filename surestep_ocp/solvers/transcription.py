@@ -210,8 +210,9 @@ class Transcription:
         tool's normalised translation and rotation (`self.tool_point`, of a window of waypoints per point).
 
         `limits.CURVE_ROWS` "curve" (the default): the rows bound the curve `surestep export` plays at the planned
-        times (`limits.py`, "the played curve"): joint velocity and acceleration by the Bernstein control points
-        of each step's quartic / cubic (linear, sufficient everywhere), the tool's squared speed
+        times (`limits.py`, "the played curve"): joint acceleration by the Bernstein control points of each step's
+        cubic (linear, sufficient everywhere), joint velocity at the knots within `v_max - a_max dt / 2` (sufficient
+        given the acceleration rows; the quartic's control points where that is not positive), the tool's squared speed
         `|J_v(q(s)) q'(s)|^2` and rotation `|J_w q'|^2` at `limits.TOOL_POINTS` of each step, each point a function
         of the four waypoints the piece depends on. "steps": the finite differences of the waypoints (velocity per
         step, acceleration per waypoint, the tool's chord per step), as before; kept for measurements."""
@@ -228,14 +229,19 @@ class Transcription:
         self.curve = lm.CURVE_ROWS
         if self.curve not in ("curve", "steps"):
             raise SurestepError(f"limits.CURVE_ROWS must be 'curve' or 'steps', got {self.curve!r}")
+        v_scale = lim.velocity
         if self.curve == "curve":
             Rv, Ra = lm.curve_control_rows(T, dt)
+            slack = lim.velocity - lim.acceleration * dt / 2
+            if np.all(slack[mov] > 0):  # the knot velocities within v_max - a_max dt / 2 (sufficient, fewer rows:
+                Rv = lm.knot_derivatives(T, dt)[0][1:T]  # |a| <= a_max everywhere, a knot is dt / 2 away at most)
+                v_scale = slack
         else:  # (q_t+1 - q_t) / dt per step; acceleration at waypoint t, at rest before q_0 and after q_T
             Dv, Da = lm.knot_derivatives(T, dt)
             Rv = (np.eye(T + 1, k=1) - np.eye(T + 1))[:T] / dt
             Ra = Da
         blocks = []
-        for R, scale in ((Rv, lim.velocity), (Ra, lim.acceleration)):
+        for R, scale in ((Rv, v_scale), (Ra, lim.acceleration)):
             for row in R:
                 for j in mov:
                     B = np.zeros(n)
