@@ -95,8 +95,8 @@ def limits_table(solutions: list[Solution]) -> str:
     skipped = [m for m, r in reps if isinstance(r, dict) and "skipped" in r]
     note = f" (not checked: {', '.join(skipped)}, unreachable waypoints)" if skipped else ""
     enforced = any(isinstance(r, dict) and r.get("enforced") for _, r in reps)
-    how = ("enforced (`limits.enforce: true`: the OCP's constraints; a plan over a limit is a failure, "
-           "status Motion_Limits_Violated)" if enforced else
+    how = ("enforced (`limits.enforce: true`: the OCP's constraints, an OCP plan over a limit is a failure, status "
+           "Motion_Limits_Violated; the other methods' violations are reported)" if enforced else
            "reported, not enforced (`limits.enforce: false`)")
-    return (f"Motion limits at the planned pace ({step:g} s per step; {how}; "
-            f"`surestep export` retimes a plan within the joint limits){note}:\n\n{markdown_rows(rows)}")
+    return (f"Motion limits at the planned pace ({step:g} s per step; {how}; `surestep export` plays a plan "
+            f"within the limits at its planned times and retimes any other){note}:\n\n{markdown_rows(rows)}")
