@@ -85,14 +85,20 @@ def _cleanup(proc: subprocess.Popen, procs: list) -> None:
         proc.wait()
 
 
+def _pool_started(proc, out):
+    """(the run's processes once it has started, its two pool workers: what must not survive)."""
+    workers = _wait_started(proc, out)
+    pool = [p for p in workers if "spawn_main" in " ".join(p.cmdline())]
+    assert len(pool) == 2, [p.cmdline() for p in workers]
+    return workers, pool
+
+
 def test_sigterm_stops_the_pool_workers_and_exits_143_with_one_line(tmp_path):
     out = tmp_path / "run"
     proc = _start(out)
     workers = []
     try:
-        workers = _wait_started(proc, out)
-        pool = [p for p in workers if "spawn_main" in " ".join(p.cmdline())]
-        assert len(pool) == 2, [p.cmdline() for p in workers]  # what must not survive
+        workers, pool = _pool_started(proc, out)
         proc.send_signal(signal.SIGTERM)  # to the parent only, as `kill -TERM <pid>`
         proc.wait(timeout=EXIT_TIMEOUT_S)
         err = (tmp_path / "stderr.txt").read_text()
@@ -114,9 +120,7 @@ def test_sigkill_of_the_parent_takes_the_workers_with_it(tmp_path):
     proc = _start(out)
     workers = []
     try:
-        workers = _wait_started(proc, out)
-        pool = [p for p in workers if "spawn_main" in " ".join(p.cmdline())]
-        assert len(pool) == 2, [p.cmdline() for p in workers]
+        workers, pool = _pool_started(proc, out)
         proc.send_signal(signal.SIGKILL)
         proc.wait(timeout=EXIT_TIMEOUT_S)
         assert _survivors(pool) == [], "pool workers outlived a killed parent"
