@@ -44,21 +44,26 @@ COSINE_GUARD = DEFAULT_COSINE_GUARD**2
 _SHARED: dict[tuple, ca.Function] = {}
 
 
+def _shared(model, name, build) -> ca.Function:
+    """`build()` once per model constants (`BeliefModel.key`) and `name`, shared by every BeliefModel with those
+    constants (a setup's variants, e.g. the second start's diagonal model or a re-plan's Sigma_0, are new models
+    with the same Functions); models with their own maps keep theirs (keyed by the maps' id, which a collected
+    Function's successor may reuse)."""
+    if not model.identity_maps:
+        return build()
+    key = (model.key(), name)
+    if key not in _SHARED:
+        _SHARED[key] = build()
+    return _SHARED[key]
+
+
 def shared_function(build):
-    """A model's named CasADi Function, built once per model constants (`BeliefModel.key`) and shared by every
-    BeliefModel with those constants: a setup's variants (the second start's diagonal model, a re-plan's Sigma_0)
-    build new models, and rebuilding their Functions cost about 20 ms per solve."""
+    """A model's named CasADi Function as a property, built once and shared (`_shared`)."""
     name = build.__name__
 
     def get(self):
         if name not in self.__dict__:
-            if not self.identity_maps:  # keyed by the maps' id, which a collected Function's successor may reuse
-                self.__dict__[name] = build(self)
-                return self.__dict__[name]
-            key = (self.key(), name)
-            if key not in _SHARED:
-                _SHARED[key] = build(self)
-            self.__dict__[name] = _SHARED[key]
+            self.__dict__[name] = _shared(self, name, lambda: build(self))
         return self.__dict__[name]
 
     get.__doc__ = build.__doc__
@@ -383,20 +388,6 @@ class BeliefModel:
         x0, x1, s = ca.SX.sym("x0", NX), ca.SX.sym("x1", NX), ca.SX.sym("sigma", NV)
         return ca.Function("belief_step", [x0, x1, s], [self.step_expr(x0, x1, s)], ["x0", "x1", "sigma"], ["sigma_next"])
 
-    @shared_function
-    def predict_with(self) -> ca.Function:
-        """`predict` with the step's further motion noise `w` (vech) as a fourth input."""
-        x0, x1, s, w = ca.SX.sym("x0", NX), ca.SX.sym("x1", NX), ca.SX.sym("sigma", NV), ca.SX.sym("w", NV)
-        return ca.Function("predict_with", [x0, x1, s, w], [self.predict_expr(x0, x1, s, w)],
-                           ["x0", "x1", "sigma", "w"], ["sigma_pred"])
-
-    @shared_function
-    def step_with(self) -> ca.Function:
-        """`step` with the step's further motion noise `w` (vech) as a fourth input."""
-        x0, x1, s, w = ca.SX.sym("x0", NX), ca.SX.sym("x1", NX), ca.SX.sym("sigma", NV), ca.SX.sym("w", NV)
-        return ca.Function("belief_step_with", [x0, x1, s, w], [self.step_expr(x0, x1, s, w)],
-                           ["x0", "x1", "sigma", "w"], ["sigma_next"])
-
     def sigma0_vech(self) -> np.ndarray:
         return vech(np.asarray(self.noise.Sigma0, dtype=float))
 
@@ -419,19 +410,15 @@ class BeliefModel:
 
     @shared_function
     def step_pair(self) -> ca.Function:
-        """`(x0, x1, sigma, w) -> (sigma_next, sigma_pred)`: `step_with` and `predict_with` in one Function."""
+        """`(x0, x1, sigma, w) -> (sigma_next, sigma_pred)`: `step` and `predict` in one Function, with the step's
+        further motion noise `w` (vech; the joint-space term) as a fourth input."""
         x0, x1, s, w = ca.SX.sym("x0", NX), ca.SX.sym("x1", NX), ca.SX.sym("sigma", NV), ca.SX.sym("w", NV)
         return ca.Function("belief_step_pair", [x0, x1, s, w], [self.step_expr(x0, x1, s, w),
                                                                  self.predict_expr(x0, x1, s, w)])
 
     def _roll(self, T: int) -> ca.Function:
         """`step_pair` accumulated over T steps (mapaccum: one step's code whatever T), shared like the others."""
-        key = (self.key(), "roll", T)
-        if not self.identity_maps:
-            return self.step_pair.mapaccum("belief_roll", T, [2], [0])
-        if key not in _SHARED:
-            _SHARED[key] = self.step_pair.mapaccum("belief_roll", T, [2], [0])
-        return _SHARED[key]
+        return _shared(self, ("roll", T), lambda: self.step_pair.mapaccum("belief_roll", T, [2], [0]))
 
     def propagate(self, poses: np.ndarray, changes: list | None = None,
                   sigma0: np.ndarray | None = None, joint: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -453,22 +440,17 @@ class BeliefModel:
             raise ValueError("propagate: the joint-space motion noise (`joint`) is given exactly when the model has it")
         s = self.sigma0_vech() if sigma0 is None else vech(np.asarray(sigma0, float))
         T = len(poses) - 1
+        w = np.zeros((NV, T)) if joint is None else np.asarray(joint, float).T  # W + 0 is W exactly
         if T > 0 and (changes is None or all(c is None for c in changes)):  # one call over the horizon
-            w = np.zeros((NV, T)) if joint is None else np.asarray(joint, float).T
-            post, prior = self._roll(T)(poses[:-1].T, poses[1:].T, s, w)
-            post, prior = np.asarray(post), np.asarray(prior)
-            return (np.concatenate([unvech(s)[None], unvech_many(post.T)]), unvech_many(prior.T))
+            post, prior = (np.asarray(v) for v in self._roll(T)(poses[:-1].T, poses[1:].T, s, w))
+            return np.concatenate([unvech(s)[None], unvech_many(post.T)]), unvech_many(prior.T)
         sig, pred = [unvech(s)], []
-        for t in range(len(poses) - 1):
+        for t in range(T):
             x0 = poses[t]
             if changes is not None and changes[t] is not None:
                 x0, s = (np.asarray(v).ravel() for v in self.camera_change(x0, s, changes[t]))
-            if joint is None:
-                pred.append(unvech(np.asarray(self.predict(x0, poses[t + 1], s)).ravel()))
-                s = np.asarray(self.step(x0, poses[t + 1], s)).ravel()
-            else:
-                pred.append(unvech(np.asarray(self.predict_with(x0, poses[t + 1], s, joint[t])).ravel()))
-                s = np.asarray(self.step_with(x0, poses[t + 1], s, joint[t])).ravel()
+            s, p = (np.asarray(v).ravel() for v in self.step_pair(x0, poses[t + 1], s, w[:, t]))
+            pred.append(unvech(p))
             sig.append(unvech(s))
         return np.array(sig), np.array(pred)
 

@@ -17,15 +17,25 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
-from .belief import vech
+from .belief import unvech, vech
 from .robot import CAMERA_PARAMETERS, Robot
+
+
+def joint_noise_factor(robot: Robot, sigma, qa, qb, camera):
+    """U (6 x nq SX) with `W_q = U U^T`: column k is `sigma_k (qb_k - qa_k) J_k(qa)`."""
+    J = ca.jacobian(robot.camera_pose(qa, camera), qa)
+    return J @ ca.diag(ca.DM(np.asarray(sigma, float)) * (qb - qa))
 
 
 def joint_noise_expr(robot: Robot, sigma, qa, qb, camera):
     """`W_q` (6x6 SX) of the step qa -> qb for the per-joint `sigma` (nq numbers)."""
-    J = ca.jacobian(robot.camera_pose(qa, camera), qa)
-    U = J @ ca.diag(ca.DM(np.asarray(sigma, float)) * (qb - qa))  # W_q = U U^T: one column per joint
+    U = joint_noise_factor(robot, sigma, qa, qb, camera)
     return U @ U.T
+
+
+def weight_matrix(wj):
+    """G with `<G, W> = wj . vech(W)` for symmetric W: the weights of vech, halved off the diagonal."""
+    return 0.5 * (unvech(wj) + ca.diag(ca.diag(unvech(wj))))
 
 
 def joint_noise_curvature(robot: Robot, sigma, qa, camera, wj):
@@ -36,10 +46,8 @@ def joint_noise_curvature(robot: Robot, sigma, qa, camera, wj):
     drops only the variation of J with qa (third derivatives of the kinematics). G is positive semidefinite
     (S is nondecreasing in W), so the block is too.
     """
-    from .belief import unvech
-
     nq = robot.nq
-    G = 0.5 * (unvech(wj) + ca.diag(ca.diag(unvech(wj))))
+    G = weight_matrix(wj)
     J = ca.jacobian(robot.camera_pose(qa, camera), qa)
     a = ca.vertcat(*[float(sigma[k]) ** 2 * ca.bilin(G, J[:, k], J[:, k]) for k in range(nq)])
     A = ca.diag(2 * a)

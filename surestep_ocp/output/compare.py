@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import SurestepError
+from ..solvers.gradient import JOINT_NOISE_UNSUPPORTED
 from ..solvers.method_names import split_name
 from ..solvers.methods import COMPARE_METHODS, run_method
 from ..evaluation.metrics import comparison_rows, markdown_table
@@ -18,9 +19,7 @@ from .solution import Solution, write_json_atomic, write_text_atomic
 def run_comparison(setup: Setup, methods: tuple[str, ...] = COMPARE_METHODS, progress=None) -> list[Solution]:
     """Solve with each method in turn (a gradient solution is reused by `ocp-from-gradient`)."""
     if setup.model.joint_noise and any("gradient" in split_name(m)[0] for m in methods):
-        from ..solvers.gradient import JOINT_NOISE_UNSUPPORTED  # checked before any solve
-
-        raise SurestepError(JOINT_NOISE_UNSUPPORTED)
+        raise SurestepError(JOINT_NOISE_UNSUPPORTED)  # checked before any solve
     cache: dict[str, Solution] = {}
     for name in methods:
         if progress:

@@ -10,6 +10,7 @@ from scipy.spatial.transform import Rotation
 
 from ..model.belief import BeliefModel
 from ..errors import FrameNotFound, ProblemError, UnreachablePose, UnsupportedJoint
+from ..model.joint_noise import joint_noises
 from ..model.lie import continued, matrix_to_pose, np_exp_many, pose_to_matrix, quat_mul
 from .problem import EndpointSpec, Problem
 from ..model.robot import Robot
@@ -105,8 +106,6 @@ class Setup:
         model has none (`BeliefModel.propagate`'s `joint`)."""
         if not self.model.joint_noise:
             return None
-        from ..model.joint_noise import joint_noises
-
         return joint_noises(self.robot, self.problem.noise.joint_sigma, q, self.camera_parameter())
 
     def pose_of(self, q: np.ndarray) -> np.ndarray:

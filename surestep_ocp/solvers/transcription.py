@@ -41,7 +41,7 @@ import numpy as np
 from ..model.belief import DIAG, NV, NX, BeliefModel, unvech, vech
 from .codegen import compiled_or_interpreted
 from ..errors import SurestepError
-from ..model.joint_noise import joint_noise_expr, joint_noise_function
+from ..model.joint_noise import joint_noise_expr, joint_noise_factor, joint_noise_function, weight_matrix
 from ..model.limits import MotionLimits
 from ..model.robot import CAMERA_PARAMETERS, Robot
 from ..problem.setup import Setup
@@ -444,14 +444,12 @@ class Transcription:
         if self.hessian == "surrogate":
             hess = ca.hessian(term, qab)[0]
         else:
-            Gm = 0.5 * (unvech(wj) + ca.diag(ca.diag(unvech(wj))))  # <Gm, W> = wj . vech(W)
-            J = ca.jacobian(self.robot.camera_pose(qab[:nq], Tcb), qab[:nq])
-            sig = ca.DM(np.asarray(self.model.noise.joint_sigma, float))
-            U = J @ ca.diag(sig * (qab[nq:] - qab[:nq]))
+            G = weight_matrix(wj)
+            U = joint_noise_factor(self.robot, self.model.noise.joint_sigma, qab[:nq], qab[nq:], Tcb)
             hess = 0
             for k in range(nq):
                 dU = ca.jacobian(U[:, k], qab)
-                hess += 2 * dU.T @ Gm @ dU
+                hess += 2 * dU.T @ G @ dU
         return {"coef": ca.Function("joint_coef", [qab, Tcb], [w]),
                 "grad": ca.Function("joint_grad", [qab, wj, Tcb], [ca.densify(ca.gradient(term, qab))]),
                 "hess": ca.Function("joint_hess", [qab, wj, Tcb], [ca.densify(hess)])}
