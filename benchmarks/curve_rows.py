@@ -63,7 +63,7 @@ def main() -> None:
         return replace(p, horizon=args.horizon, limits=replace(p.limits, enforce=True),
                        timing=replace(p.timing, step_s=args.step_s))
 
-    base = enforced(load_problem(ROOT / "problems" / "needle_regrasp.yaml"))
+    base = enforced(load_problem(ROOT / "problems" / "needle_regrasp_paper_pace.yaml"))
     sampler = ConfigurationSampler(load_evaluation(ROOT / "problems" / "evaluations" / "evaluation.yaml"))
     cases = [("default", base, args.repeats)] + [
         (f"config {i}", enforced(sampler.problem(sampler.sample(0, i))), 1) for i in range(args.configs)]

@@ -56,7 +56,7 @@ def plan_row(setup, sol, step, export_lim=None):
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--problem", default=str(ROOT / "problems" / "needle_regrasp.yaml"))
+    ap.add_argument("--problem", default=str(ROOT / "problems" / "needle_regrasp_paper_pace.yaml"))
     ap.add_argument("--cases", nargs="+", default=["0.05:20:20", "0.06:20:0", "0.07:20:0", "0.08:20:0",
                                                   "0.1:20:20", "0.1:20:10", "0.05:30:20", "0.05:40:20", "0.05:40:20:0.5"])
     ap.add_argument("--repeats", type=int, default=1, help="solves per method and case; the solve time is their median")

@@ -30,15 +30,15 @@ EVAL = ROOT / "problems" / "evaluations" / "evaluation.yaml"
 
 def files(step_s: float) -> Path:
     """The enforced base problem and the evaluation file that uses it; returns the evaluation file."""
-    base = yaml.safe_load((ROOT / "problems" / "needle_regrasp.yaml").read_text())
+    base = yaml.safe_load((ROOT / "problems" / "needle_regrasp_paper_pace.yaml").read_text())
     base["limits"] = {"enforce": True}
     base["timing"] = {"step_s": step_s, "tracker_hz": 1.0 / step_s}
     write_text_atomic(OUT / "needle_regrasp_limits.yaml", yaml.safe_dump(base, sort_keys=False))
     text = EVAL.read_text()
-    if "base: ../needle_regrasp.yaml" not in text:
+    if "base: ../needle_regrasp_paper_pace.yaml" not in text:
         raise SystemExit(f"{EVAL}: its base is no longer ../needle_regrasp.yaml; update this script")
     return write_text_atomic(OUT / "evaluation_limits.yaml",
-                             text.replace("base: ../needle_regrasp.yaml", "base: needle_regrasp_limits.yaml"))
+                             text.replace("base: ../needle_regrasp_paper_pace.yaml", "base: needle_regrasp_limits.yaml"))
 
 
 def ocp_rows(table: str) -> dict[str, str]:

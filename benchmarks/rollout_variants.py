@@ -30,18 +30,18 @@ EVAL = ROOT / "problems" / "evaluations" / "evaluation.yaml"
 
 def write(out: Path) -> list[Path]:
     text = EVAL.read_text()
-    if "base: ../needle_regrasp.yaml" not in text:
+    if "base: ../needle_regrasp_paper_pace.yaml" not in text:
         raise SystemExit(f"{EVAL}: its base is no longer ../needle_regrasp.yaml; update this script")
     paths = []
     for name, change in (("limits", {"limits": {"enforce": True}, "timing": {"step_s": 0.1, "tracker_hz": 10.0}}),
                          ("Wo_block", {"noise": {"W_o0": [[1e-3 if i == j and i >= 3 else 0.0 for j in range(6)]
                                                           for i in range(6)]}})):
-        base = yaml.safe_load((ROOT / "problems" / "needle_regrasp.yaml").read_text())
+        base = yaml.safe_load((ROOT / "problems" / "needle_regrasp_paper_pace.yaml").read_text())
         for key, value in change.items():
             base[key] = {**base.get(key, {}), **value} if key == "noise" else value
         write_text_atomic(out / f"needle_regrasp_{name}.yaml", yaml.safe_dump(base, sort_keys=False))
         paths.append(write_text_atomic(out / f"evaluation_{name}.yaml",
-                                       text.replace("base: ../needle_regrasp.yaml", f"base: needle_regrasp_{name}.yaml")))
+                                       text.replace("base: ../needle_regrasp_paper_pace.yaml", f"base: needle_regrasp_{name}.yaml")))
     return paths
 
 

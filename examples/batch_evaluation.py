@@ -15,7 +15,7 @@ ap.add_argument("--methods", nargs="+", default=["baseline", "gradient", "ocp"])
 ap.add_argument("--output-dir", default="out/batch")
 args = ap.parse_args()
 
-base = ss.load_problem("problems/needle_regrasp.yaml").with_horizon(args.horizon)
+base = ss.load_problem("problems/needle_regrasp_paper_pace.yaml").with_horizon(args.horizon)
 goals = {"right edge": [0.045, 0.005, 0.115, 0.60, 0.10, 1.40], "centre": [0.0, 0.0, 0.12, 0.40, 0.40, 1.53]}
 rows = []
 for goal_name, goal in goals.items():

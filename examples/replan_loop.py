@@ -18,7 +18,7 @@ ap.add_argument("--horizon", type=int, default=20)
 ap.add_argument("--seed", type=int, default=0)
 args = ap.parse_args()
 
-problem = ss.load_problem("problems/needle_regrasp.yaml").with_horizon(args.horizon)
+problem = ss.load_problem("problems/needle_regrasp_paper_pace.yaml").with_horizon(args.horizon)
 planner = ss.Planner(problem)  # builds one solver per horizon left, then plans once
 print(f"built {len(planner.builds)} solvers in {planner.build_time_s:.2f} s; first plan "
       f"Tr(Sigma_T) = {planner.plan.trace_final:.3e}")

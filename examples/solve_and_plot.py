@@ -18,7 +18,7 @@ ap.add_argument("--horizon", type=int, default=20)
 ap.add_argument("--output-dir", default="out/example")
 args = ap.parse_args()
 
-problem = ss.load_problem("problems/needle_regrasp.yaml").with_horizon(args.horizon)
+problem = ss.load_problem("problems/needle_regrasp_paper_pace.yaml").with_horizon(args.horizon)
 problem = problem.with_goal(pose=[0.045, 0.005, 0.115, 0.60, 0.10, 1.40])  # [m], axis-angle [rad], camera frame
 fig, (ax_tr, ax_uv) = plt.subplots(1, 2, figsize=(10, 4))
 for method in ("baseline", "ocp"):

@@ -1,7 +1,7 @@
 """SURESTEP belief-space trajectory optimisation: the Python API.
 
     import surestep_ocp as ss
-    problem = ss.load_problem("problems/needle_regrasp.yaml")      # or ss.problem_from_dict({...})
+    problem = ss.load_problem("problems/needle_regrasp_paper_pace.yaml")  # or ss.problem_from_dict({...})
     problem = problem.with_goal(pose=[0.045, 0.005, 0.115, 0.6, 0.1, 1.4])   # [m], axis-angle [rad]
     sol = ss.solve(problem, method="ocp")                          # any method name of the CLI
     sol.joints, sol.positions, sol.covariances, sol.trace_final    # arrays with units (Solution)

@@ -1,7 +1,7 @@
 """The Python API's entry points beside `Problem`, `Solution` and `Planner`: load or build, solve.
 
     import surestep_ocp as ss
-    problem = ss.load_problem("problems/needle_regrasp.yaml").with_goal(pose=[0.04, 0.0, 0.11, 0.6, 0.1, 1.4])
+    problem = ss.load_problem("problems/needle_regrasp_paper_pace.yaml").with_goal(pose=[0.04, 0.0, 0.11, 0.6, 0.1, 1.4])
     sol = ss.solve(problem, method="ocp")
     sol.joints, sol.positions, sol.covariances   # (T+1, nq) [rad, m], (T+1, 3) [m], (T+1, 6, 6) [m^2, rad^2]
 """

@@ -12,7 +12,7 @@ GOAL = [0.045, 0.005, 0.115, 0.60, 0.10, 1.40]
 
 @pytest.fixture(scope="module")
 def problem():
-    return ss.load_problem("problems/needle_regrasp.yaml").with_horizon(6)
+    return ss.load_problem("problems/needle_regrasp_paper_pace.yaml").with_horizon(6)
 
 
 @pytest.mark.parametrize(("change", "key"), [

@@ -26,7 +26,7 @@ from surestep_ocp.problem.problem import MAX_HORIZON, load_problem
 from surestep_ocp.problem.setup import build_setup
 
 REPO = Path(__file__).resolve().parents[1]
-DEFAULT = REPO / "problems" / "needle_regrasp.yaml"
+DEFAULT = REPO / "problems" / "needle_regrasp_paper_pace.yaml"
 TREE = yaml.safe_load(DEFAULT.read_text())
 
 
@@ -154,7 +154,7 @@ def test_a_non_finite_solution_is_not_written(tmp_path, default_setup):
     (lambda t: t["objective"].update(smoothness=1e200) if "objective" in t else t.update(objective={"smoothness": 1e200}),
      "objective.smoothness", "range"),
     (lambda t: t["robot"].update(frame="universe"), "robot.frame", "not moved by any joint"),
-    (lambda t: t["robot"].update(urdf="problems/needle_regrasp.yaml"), "robot.urdf", "URDF"),
+    (lambda t: t["robot"].update(urdf="problems/needle_regrasp_paper_pace.yaml"), "robot.urdf", "URDF"),
     (lambda t: t["solver"].update(options={"no_such_option": 1}), "solver.options", "no_such_option"),
     (lambda t: t["robot"].update(frame="a\nb" * 500), "robot.frame", "not in the model"),
 ])

@@ -11,7 +11,7 @@ import pytest
 import yaml
 
 REPO = Path(__file__).resolve().parents[1]
-DEFAULT = REPO / "problems" / "needle_regrasp.yaml"
+DEFAULT = REPO / "problems" / "needle_regrasp_paper_pace.yaml"
 
 
 def run(*args: str) -> subprocess.CompletedProcess:

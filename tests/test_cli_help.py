@@ -16,7 +16,7 @@ from surestep_ocp.cli import build_parser, main
 from surestep_ocp.solvers.method_names import ABLATIONS, BASE_METHODS, EXPECTED, PREDICTED
 
 REPO = Path(__file__).resolve().parents[1]
-DEFAULT = REPO / "problems" / "needle_regrasp.yaml"
+DEFAULT = REPO / "problems" / "needle_regrasp_paper_pace.yaml"
 
 
 def subparsers() -> dict[str, argparse.ArgumentParser]:

@@ -28,7 +28,7 @@ def write_evaluation(tmp_path, base=None, **keys):
 
 
 def test_an_evaluation_file_sets_its_own_limits(tmp_path, write_problem):
-    assert not load_evaluation(EVAL).base.limits.enforce  # inherited from needle_regrasp.yaml
+    assert not load_evaluation(EVAL).base.limits.enforce  # inherited from needle_regrasp_paper_pace.yaml
     spec = load_evaluation(write_evaluation(tmp_path, limits={"enforce": True, "tool_speed": 0.05,
                                                               "joint_velocity": {"yaw": 0.3}}))
     lim = spec.base.limits

@@ -98,7 +98,7 @@ def predicted_setup():
     from surestep_ocp.problem.problem import load_problem
     from surestep_ocp.problem.setup import build_setup
 
-    p = load_problem(Path(__file__).resolve().parents[1] / "problems" / "needle_regrasp.yaml")
+    p = load_problem(Path(__file__).resolve().parents[1] / "problems" / "needle_regrasp_paper_pace.yaml")
     return build_setup(replace(p, horizon=6, noise=replace(p.noise, objective="predicted")))
 
 
@@ -119,7 +119,7 @@ def test_unknown_objective_is_a_problem_error(tmp_path):
     from surestep_ocp.errors import ProblemError
     from surestep_ocp.problem.problem import load_problem
 
-    text = (Path(__file__).resolve().parents[1] / "problems" / "needle_regrasp.yaml").read_text()
+    text = (Path(__file__).resolve().parents[1] / "problems" / "needle_regrasp_paper_pace.yaml").read_text()
     path = tmp_path / "bad.yaml"
     path.write_text(text.replace("  smoothness: 0.0", "  smoothness: 0.0\n  covariance: prior"))
     with pytest.raises(ProblemError, match="objective.covariance"):

@@ -56,7 +56,7 @@ def plans(tmp_path_factory):
     from surestep_ocp.problem.setup import build_setup
 
     d = tmp_path_factory.mktemp("plans")
-    setup = build_setup(load_problem(REPO / "problems" / "needle_regrasp.yaml"))
+    setup = build_setup(load_problem(REPO / "problems" / "needle_regrasp_paper_pace.yaml"))
     out = {}
     for m in ("ocp", "baseline"):
         out[m] = run_method(setup, m).save(d / f"{m}.json")
@@ -412,15 +412,13 @@ def test_malformed_solution_files_are_one_line_errors(plans, tmp_path, capsys, c
 
 @pytest.fixture(scope="module")
 def enforced_plan(tmp_path_factory):
-    """The default problem planned with its limits enforced at 0.1 s per step (20 steps, 2 s): the OCP's rows bound
+    """The default problem as shipped: 40 steps of 0.05 s (2 s) with its limits enforced, so the OCP's rows bound
     the curve the export plays at the planned times."""
     from surestep_ocp.problem.problem import load_problem
     from surestep_ocp.problem.setup import build_setup
-    from dataclasses import replace
-    from surestep_ocp.problem.problem import LimitsSpec
 
     prob = load_problem(REPO / "problems" / "needle_regrasp.yaml")
-    prob = replace(prob, limits=LimitsSpec(enforce=True), timing=replace(prob.timing, step_s=0.1))
+    assert prob.limits.enforce and prob.horizon == 40 and prob.timing.step_s == 0.05
     sol = run_method(build_setup(prob), "ocp")
     assert sol.success, sol.status
     return sol.save(tmp_path_factory.mktemp("enforced") / "ocp.json")
@@ -428,7 +426,7 @@ def enforced_plan(tmp_path_factory):
 
 @pytest.mark.parametrize("fmt", ["json", "csv", "ros2"])
 def test_an_enforced_plan_is_exported_at_its_planned_pace(enforced_plan, tmp_path, fmt):
-    """Duration the planned 20 x 0.1 s, every waypoint at its planned time, within every limit (read back)."""
+    """Duration the planned 40 x 0.05 s, every waypoint at its planned time, within every limit (read back)."""
     out = tmp_path / f"p{SUFFIX[fmt]}"
     assert export(enforced_plan, fmt, out, "--no-plot") == 0
     c = READERS[fmt](out)
@@ -438,7 +436,7 @@ def test_an_enforced_plan_is_exported_at_its_planned_pace(enforced_plan, tmp_pat
     wt = c["waypoint_times"] if fmt != "ros2" else ros2_waypoint_times(out, c["t"])
     check_waypoints(c, sol, wt)
     assert abs(c["t"][-1] - 2.0) <= 1e-9
-    np.testing.assert_allclose(wt, 0.1 * np.arange(21), rtol=0, atol=1e-9)
+    np.testing.assert_allclose(wt, 0.05 * np.arange(41), rtol=0, atol=1e-9)
     assert max(peaks) >= 0.5  # the tool moves at a good part of its limits
     if fmt == "json":
         d = json.loads(out.read_text())

@@ -273,7 +273,7 @@ EVAL_TREES = {p.name: yaml.safe_load(p.read_text()) for p in EVALUATION_FILES}
 def mutated_evaluation(draw):
     name = draw(st.sampled_from(sorted(EVAL_TREES)))
     tree = copy.deepcopy(EVAL_TREES[name])
-    tree["base"] = str(REPO / "problems" / "needle_regrasp.yaml")  # the copy lives elsewhere
+    tree["base"] = str(REPO / "problems" / "needle_regrasp_paper_pace.yaml")  # the copy lives elsewhere
     every = [p for p in paths(tree) if p != ("base",)]
     path = draw(st.sampled_from(every))
     op = draw(st.sampled_from(["delete", "replace", "replace"]))

@@ -23,7 +23,7 @@ from surestep_ocp.problem.problem import load_problem
 from surestep_ocp.problem.setup import build_setup
 from surestep_ocp.solvers.surrogate import recursion_weights
 
-DEFAULT = Path(__file__).resolve().parents[1] / "problems" / "needle_regrasp.yaml"
+DEFAULT = Path(__file__).resolve().parents[1] / "problems" / "needle_regrasp_paper_pace.yaml"
 
 
 def correlated_depth() -> np.ndarray:

@@ -12,7 +12,7 @@ from surestep_ocp.solvers.gradient import build_loss, solve_gradient
 from surestep_ocp.problem.problem import load_problem
 from surestep_ocp.problem.setup import build_setup
 
-PROBLEM = Path(__file__).resolve().parents[1] / "problems" / "needle_regrasp.yaml"
+PROBLEM = Path(__file__).resolve().parents[1] / "problems" / "needle_regrasp_paper_pace.yaml"
 HORIZON = 8
 
 

@@ -26,7 +26,7 @@ from surestep_ocp.solvers.methods import ocp_initial_guess, run_method
 from surestep_ocp.solvers.ocp import solve_ocp
 
 ROOT = Path(__file__).resolve().parents[1]
-DEFAULT = ROOT / "problems" / "needle_regrasp.yaml"
+DEFAULT = ROOT / "problems" / "needle_regrasp_paper_pace.yaml"
 SIGMA = (0.05, 0.05, 0.02, 0.05, 0.05, 0.05, 0.0)  # per joint; the jaw moves nothing
 
 

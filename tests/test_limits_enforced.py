@@ -26,7 +26,7 @@ from surestep_ocp.problem.problem import LimitsSpec, load_problem
 from surestep_ocp.problem.setup import build_setup
 
 ROOT = Path(__file__).resolve().parents[1]
-DEFAULT = ROOT / "problems" / "needle_regrasp.yaml"
+DEFAULT = ROOT / "problems" / "needle_regrasp_paper_pace.yaml"
 # The dVRK's move_jp accelerations (sawIntuitiveResearchKit mtsIntuitiveResearchKitPSM.cpp): 90 deg/s^2 for yaw
 # and pitch, 0.2 m/s^2 for the insertion, 720 deg/s^2 for the instrument's joints.
 ACCEL = {"yaw": math.pi / 2, "pitch": math.pi / 2, "insertion": 0.2, "roll": 4 * math.pi, "wrist_pitch": 4 * math.pi,

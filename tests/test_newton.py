@@ -16,7 +16,7 @@ from surestep_ocp.solvers.ocp import newton_solver, solve_ocp
 from surestep_ocp.problem.problem import load_problem
 from surestep_ocp.problem.setup import build_setup
 
-DEFAULT = Path(__file__).resolve().parents[1] / "problems" / "needle_regrasp.yaml"
+DEFAULT = Path(__file__).resolve().parents[1] / "problems" / "needle_regrasp_paper_pace.yaml"
 
 
 def with_solver(setup, **kw):

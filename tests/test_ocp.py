@@ -168,7 +168,7 @@ def test_saved_json_has_documented_keys(solution, setup, tmp_path):
     missing = [k for k in REQUIRED_KEYS if k not in d]
     assert not missing, missing
     assert d["method"] == "ocp" and d["success"] is True and isinstance(d["status"], str)
-    assert d["problem"].endswith("needle_regrasp.yaml")
+    assert d["problem"].endswith("needle_regrasp_paper_pace.yaml")
     assert isinstance(d["solve_time_s"], float) and d["solve_time_s"] >= 0
     assert isinstance(d["iterations"], int) and d["horizon"] == T
     assert d["joint_names"] == [

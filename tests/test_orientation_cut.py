@@ -25,7 +25,7 @@ from surestep_ocp.problem.problem import load_problem
 from surestep_ocp.evaluation.rollout import rollout
 from surestep_ocp.problem.setup import build_setup
 
-DEFAULT = Path(__file__).resolve().parents[1] / "problems" / "needle_regrasp.yaml"
+DEFAULT = Path(__file__).resolve().parents[1] / "problems" / "needle_regrasp_paper_pace.yaml"
 EVALUATION = DEFAULT.parent / "evaluations" / "evaluation.yaml"
 CROSSING = (0, 36)  # evaluation configurations whose straight line passes through a rotation of pi
 

@@ -20,7 +20,7 @@ T = 8
 
 @pytest.fixture(scope="module")
 def problem():
-    return ss.load_problem("problems/needle_regrasp.yaml").with_horizon(T)
+    return ss.load_problem("problems/needle_regrasp_paper_pace.yaml").with_horizon(T)
 
 
 @pytest.fixture(scope="module")

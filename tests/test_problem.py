@@ -16,7 +16,7 @@ PROBLEMS_DIR = Path(__file__).resolve().parents[1] / "problems"
 
 
 def default_text() -> str:
-    return (PROBLEMS_DIR / "needle_regrasp.yaml").read_text()
+    return (PROBLEMS_DIR / "needle_regrasp_paper_pace.yaml").read_text()
 
 
 def load_and_build(path):

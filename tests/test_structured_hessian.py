@@ -19,7 +19,7 @@ from surestep_ocp.solvers.ocp import solve_ocp, solve_ocp_warm, transcription
 from surestep_ocp.problem.problem import load_problem
 from surestep_ocp.problem.setup import build_setup
 
-DEFAULT = Path(__file__).resolve().parents[1] / "problems" / "needle_regrasp.yaml"
+DEFAULT = Path(__file__).resolve().parents[1] / "problems" / "needle_regrasp_paper_pace.yaml"
 
 
 def with_solver(problem, **kw):
