@@ -1,13 +1,14 @@
 """Run `surestep compare` on every scenario file and print one table of Tr(Sigma_T) per method.
 
-    .venv/bin/python benchmarks/scenarios.py [--output-dir out/scenarios] [--reuse] [--limits [--step-s S]]
+    .venv/bin/python benchmarks/scenarios.py [--output-dir out/scenarios] [--reuse] [--limits [--step-s S] [--horizon T]]
 
 `--reuse` only reads existing `<dir>/<scenario>/comparison.json` files.
 `--limits`: each scenario with `limits: {enforce: true}` (the default limits) at `--step-s` seconds per
-step (default: the file's, 0.05) with one observation per waypoint (`tracker_hz = 1 / step_s`), written
+step (default: the file's, 0.05) with one observation per waypoint (`tracker_hz = 1 / step_s`) and `--horizon`
+steps (default: the file's; the default problem's 40 is the pace its limits allow), written
 beside the results as `<dir>/<scenario>.yaml`; a plan that breaks a limit is a failure (every method
 but the OCP: they do not honour limits). Writes benchmarks/results/scenarios.md (with --limits
-scenarios_limits_step<S>.md).
+scenarios_limits_step<S>[_T<T>].md).
 """
 
 from __future__ import annotations
@@ -23,7 +24,7 @@ import yaml
 from surestep_ocp.output.solution import write_text_atomic
 
 ROOT = Path(__file__).resolve().parents[1]
-SCENARIOS = ["needle_regrasp", "type1_easy", "type1_medium", "type1_hard", "type2_needle_arm_moves",
+SCENARIOS = ["needle_regrasp", "needle_regrasp_paper_pace", "type1_easy", "type1_medium", "type1_hard", "type2_needle_arm_moves",
              "type3_camera_moves_once", "type4_camera_moves", "ur5_fixed_camera"]
 METHODS = ["baseline", "gradient", "gradient-no-pose-loss", "ocp", "ocp-from-gradient"]
 
@@ -34,8 +35,9 @@ def main() -> None:
     ap.add_argument("--reuse", action="store_true")
     ap.add_argument("--limits", action="store_true", help="enforce the motion limits (module docstring)")
     ap.add_argument("--step-s", type=float, help="seconds per step with --limits (default: the file's)")
+    ap.add_argument("--horizon", type=int, help="steps with --limits (default: the file's)")
     args = ap.parse_args()
-    suffix = "" if not args.limits else f"_limits_step{args.step_s or 0.05:g}"
+    suffix = "" if not args.limits else f"_limits_step{args.step_s or 0.05:g}" + (f"_T{args.horizon}" if args.horizon else "")
     out = Path(args.output_dir + suffix)
     head = "| scenario | " + " | ".join(f"{m} Tr(Σ_T)" for m in METHODS) + " | OCP / baseline | OCP time [s] |"
     lines = [head, "|" + "---|" * (len(METHODS) + 3)]
@@ -43,7 +45,7 @@ def main() -> None:
         d = out / name
         problem = ROOT / "problems" / f"{name}.yaml"
         if args.limits:
-            problem = with_limits(problem, out / f"{name}.yaml", args.step_s)
+            problem = with_limits(problem, out / f"{name}.yaml", args.step_s, args.horizon)
         if not args.reuse:
             subprocess.run([sys.executable, "-m", "surestep_ocp.cli", "compare", str(problem),
                             "--output-dir", str(d)], check=False)
@@ -53,19 +55,24 @@ def main() -> None:
         lines.append(f"| {name} | " + " | ".join(cells) +
                      f" | {ocp['trace_final'] / rows['baseline']['trace_final']:.3f} | {ocp['solve_time_s']:.2f} |")
     if args.limits:
-        lines = [f"Limits enforced (`limits: {{enforce: true}}`, default limits) at step_s {args.step_s or 0.05:g} s, "
+        lines = [f"Limits enforced (`limits: {{enforce: true}}`, default limits) at step_s {args.step_s or 0.05:g} s"
+                 + (f" and T = {args.horizon}" if args.horizon else "") + ", "
                  "one observation per waypoint; `(failed)`: the plan breaks a limit or the solver found none "
                  "within them. Machine shared with other jobs (2 cores).", "",
-                 f"`.venv/bin/python benchmarks/scenarios.py --limits{f' --step-s {args.step_s:g}' if args.step_s else ''}`",
+                 f"`.venv/bin/python benchmarks/scenarios.py --limits{f' --step-s {args.step_s:g}' if args.step_s else ''}"
+                 f"{f' --horizon {args.horizon}' if args.horizon else ''}`",
                  "", *lines]
     text = "\n".join(lines) + "\n"
     write_text_atomic(ROOT / "benchmarks" / "results" / f"scenarios{suffix}.md", text)
     print(text)
 
 
-def with_limits(problem: Path, dest: Path, step_s: float | None) -> Path:
-    """`problem` with `limits: {enforce: true}` (and the pace `step_s`, one observation per waypoint) at `dest`."""
+def with_limits(problem: Path, dest: Path, step_s: float | None, horizon: int | None = None) -> Path:
+    """`problem` with `limits: {enforce: true}` (and the pace `step_s`, one observation per waypoint; `horizon`
+    steps) at `dest`."""
     tree = yaml.safe_load(problem.read_text())
+    if horizon is not None:
+        tree["horizon"] = horizon
     tree["limits"] = {**(tree.get("limits") or {}), "enforce": True}
     if step_s is not None:
         tree["timing"] = {"step_s": step_s, "tracker_hz": 1.0 / step_s}
