@@ -17,6 +17,11 @@ out is held); a Cholesky factorisation with a diagonal shift when it is not posi
 definite; an Armijo backtracking search along the projected path. Converged when the
 projected gradient is below `solver.tol` (inf-norm; the objective is 1 at the start).
 
+The surrogate freezes the recursion's weights, so it lacks S's own curvature and the iteration
+converges linearly near the optimum. The end-game adds it back: exactly for the scalar recursion
+at small sizes (`EXACT_MAX_N`, a dense step), otherwise by a limited-memory symmetric rank-one
+correction learnt from the steps taken (`_SecantCorrection`, banded solves plus a small dense one).
+
 The minimum-depth bound is not in this formulation: it is checked at the end, and a
 violation is a failure, after which `solve_ocp_warm` runs IPOPT (which has the bound).
 Every evaluation is one call of a stage-wise Function (compiled with `solver.codegen`)
@@ -32,15 +37,15 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 import scipy.linalg
+from scipy.linalg.lapack import dpbtrf, dpbtrs
 
 from ..model.belief import NV, BeliefModel, vech
 from ..model.joint_noise import joint_noise_curvature, joint_noise_expr
-from .codegen import compiled_or_interpreted
 from ..model.robot import CAMERA_PARAMETERS, Robot
-from ..problem.setup import Setup
 from ..output.solution import Solution, evaluate
+from ..problem.setup import Setup
+from .codegen import compiled_or_interpreted
 from .surrogate import interval_terms, pose_function, recursion_weights
-
 
 EXACT_BELOW = 1e-3  # projected gradient (objective 1 at the start) below which Newton tries the exact Hessian
 # The exact Hessian is dense (S couples every interval): its cost grows as n^3 and its curvature's as T^2, so above
@@ -51,6 +56,46 @@ EXACT_MAX_N = 200
 # Newton stops as "Stalled" when the objective fell by less than STALL_DECREASE (relative) over STALL_WINDOW iterations
 # (a warm re-plan with exact steps ran its 300-iteration cap in 1 s this way, where the fallback took 50 ms)
 STALL_WINDOW, STALL_DECREASE = 10, 1e-10
+SECANT_MEMORY = 20  # rank-one terms the secant end-game keeps (its tail is a few iterations: rarely reached)
+
+
+class _SecantCorrection:
+    """A limited-memory SR1 correction `A = U diag(w) U^T` of the surrogate Hessian (structured quasi-Newton).
+
+    The surrogate misses S's own curvature in the coefficients (concave: negative semidefinite), which has no cheap
+    exact form for the 6x6 recursion (nc Hessian-vector products) or at long horizons. Each step s with gradient change
+    y gives the secant residual `r = y - H s - A s` of the current surrogate H; SR1 adds `r r^T / (r . s)` (indefinite
+    updates allowed, as the missing part is). The step solves `(H + A) d = -g` by Woodbury on H's banded factor, and
+    is used only where `H + A` is positive definite on the free variables (Haynsworth: the capacitance matrix
+    `W^-1 + U^T H^-1 U` then has the inertia of `W^-1`)."""
+
+    def __init__(self, n: int):
+        self.U, self.w = np.zeros((n, 0)), np.zeros(0)
+
+    def update(self, s: np.ndarray, r_surrogate: np.ndarray) -> None:
+        """Add the SR1 term for step s, given `y - H s` (H: the surrogate at the new point); skipped when r . s is
+        tiny against |r| |s| (SR1's safeguard)."""
+        r = r_surrogate - self.U @ (self.w * (self.U.T @ s))
+        den = float(r @ s)
+        if abs(den) <= 1e-8 * np.linalg.norm(r) * np.linalg.norm(s):
+            return
+        self.U = np.column_stack([self.U, r])[:, -SECANT_MEMORY:]
+        self.w = np.append(self.w, 1.0 / den)[-SECANT_MEMORY:]
+
+    def step(self, factor: np.ndarray, fixed: np.ndarray, z0: np.ndarray) -> np.ndarray | None:
+        """`(H + A)^-1 (-g)` from `z0 = H^-1 (-g)` and H's banded Cholesky factor (held variables: identity rows,
+        no correction), or None where `H + A` is not positive definite there."""
+        if not self.w.size:
+            return None
+        U = np.where(fixed[:, None], 0.0, self.U)
+        Z = dpbtrs(factor, U, lower=1)[0]
+        cap = np.diag(1.0 / self.w) + U.T @ Z
+        cap = 0.5 * (cap + cap.T)
+        ev = np.linalg.eigvalsh(cap)
+        if np.min(np.abs(ev)) <= 1e-12 * np.max(np.abs(ev)) or np.sum(ev < 0) != np.sum(self.w < 0):
+            return None
+        d = z0 - Z @ np.linalg.solve(cap, U.T @ z0)
+        return d if np.all(np.isfinite(d)) else None
 
 
 class _Buffered:
@@ -129,7 +174,10 @@ class NewtonSolver:
         self.band = 2 * nq
         self.h_lower = hr >= hc
         self.h_index = ((hr - hc) * n + hc)[self.h_lower]
+        # band slot (k, c) couples columns c and c + k (past the end: a padding slot, index n)
+        self.band_partner = np.minimum(np.arange(n)[None, :] + np.arange(self.band)[:, None], n)
         self.h_full = hr * n + hc  # the same entries in a dense n x n matrix (both triangles)
+        self.h_rows, self.h_cols = hr, hc
         # the coefficient Jacobians (nc x 2nq per interval, column-major) into C (nc T x n): coefficient k of
         # interval t is row k + nm t (motion) or nm T + (k - nm) + no t (observation), as d2S/dc2 orders them
         nm, no = self.nm, self.no
@@ -165,9 +213,10 @@ class NewtonSolver:
         return self._solution(setup, method, init, self.run(setup, init, tol, max_iter, verbose))
 
     def run(self, setup: Setup, init, tol: float = 1e-6, max_iter: int = 300, verbose: bool = False,
-            exact_below: float = EXACT_BELOW) -> NewtonRun:
+            exact_below: float = EXACT_BELOW, secant: bool = True) -> NewtonRun:
         """`solve` without the evaluation of its plan (the re-planning loop evaluates it faster, planner.py);
-        exact Hessian steps once the projected gradient is at most `exact_below` (inf: from a warm start on)."""
+        exact Hessian steps (or, without them, the secant end-game unless `secant` is false: for measurements)
+        once the projected gradient is at most `exact_below` (inf: from a warm start on)."""
         t0 = time.perf_counter()
         T, nq, n, robot = self.T, self.robot.nq, self.n, self.robot
         sigma0 = setup.model.recursion_sigma0(setup.problem.noise.Sigma0)
@@ -181,7 +230,8 @@ class NewtonSolver:
                         and np.allclose(x[:nq], setup.q_start, atol=1e-12))
         P[CAMERA_PARAMETERS] = trace_ref = float(self.step(x, P)[0][0])  # the objective is 1 (plus smoothness) at the start
         status, it, shift = "Maximum_Iterations_Exceeded" if start_ok else "Infeasible_Start", 0, 0.0
-        exact_steps, history = 0, []
+        exact_steps, secant_steps, history = 0, 0, []
+        use_secant, secant, previous = secant, None, None  # the end-game's correction; the last point and gradient
         while start_ok and it <= max_iter:
             _, f_val, G, HB = self.step(x, P)
             f_val = float(f_val[0])
@@ -190,6 +240,9 @@ class NewtonSolver:
                 status = "Stalled"  # not converged, and not getting there: the caller's fallback, not the cap
                 break
             g = np.bincount(self.g_index, weights=G, minlength=n)
+            if secant is not None:  # the secant pair of the last step, against the surrogate at the new point
+                s = x - previous[0]
+                secant.update(s, g - previous[1] - np.bincount(self.h_rows, weights=HB * s[self.h_cols], minlength=n))
             held = ((x <= lo) & (g > 0)) | ((x >= hi) & (g < 0))
             idx = np.flatnonzero(free & ~held)
             if np.max(np.abs(g[idx]), initial=0.0) <= tol:
@@ -200,15 +253,22 @@ class NewtonSolver:
             pg = np.max(np.abs(g[idx]), initial=0.0)
             d = self._exact_step(x, P, HB, g, idx) if pg <= exact_below and self.curv is not None else None
             exact_steps += d is not None
-            if verbose:
-                print(f"newton {it:4d}  f {f_val:.10e}  |pg| {pg:.2e}  free {idx.size:4d}  "
-                      f"{'exact' if d is not None else 'surrogate'}", flush=True)
+            kind = "exact" if d is not None else "surrogate"
             if d is None:
-                d = self._surrogate_step(HB, g, idx, shift)
-                if d is None:
+                if use_secant and secant is None and pg <= exact_below and self.curv is None:
+                    secant = _SecantCorrection(n)  # the end-game starts: pairs from the next step on
+                step = self._surrogate_step(HB, g, idx, shift, secant)
+                if step is None:
                     status = "Singular_Hessian"
                     break
-                d, shift = d
+                d, shift, corrected = step
+                secant_steps += corrected
+                kind = "secant" if corrected else kind
+                if secant is not None and not corrected and secant.w.size:
+                    secant = _SecantCorrection(n)  # H + A was not positive definite: start the correction afresh
+            if verbose:
+                print(f"newton {it:4d}  f {f_val:.10e}  |pg| {pg:.2e}  free {idx.size:4d}  {kind}", flush=True)
+            previous = (x, g)
             alpha = 1.0
             while alpha > 1e-12:  # Armijo along the projected path
                 trial = np.clip(x + alpha * d, lo, hi)
@@ -219,7 +279,7 @@ class NewtonSolver:
                 status = "Line_Search_Failed"
                 break
             x, it = trial, it + 1
-        return self._end(setup, x, P, trace_ref, status, it, exact_steps, t0)
+        return self._end(setup, x, P, trace_ref, status, it, exact_steps, t0, secant_steps)
 
     def _exact_step(self, x, P, HB, g, idx) -> np.ndarray | None:
         """Newton's step with the exact Hessian (the surrogate's plus S's own curvature C^T d2S/dc2 C) on the free
@@ -239,32 +299,36 @@ class NewtonSolver:
         d[idx] = scipy.linalg.cho_solve(factor, -g[idx], check_finite=False)
         return d if np.all(np.isfinite(d)) else None
 
-    def _surrogate_step(self, HB, g, idx, shift):
-        """The step with the surrogate Hessian (banded), shifted until positive definite; (d, shift) or None."""
+    def _surrogate_step(self, HB, g, idx, shift, secant: _SecantCorrection | None = None):
+        """The step with the surrogate Hessian (banded), shifted until positive definite, and with the secant
+        correction where it has one and stays positive definite: (d, shift, corrected) or None.
+
+        LAPACK's banded Cholesky (dpbtrf / dpbtrs) is called directly: scipy's solveh_banded wrapper cost more than
+        the factorisation at these sizes."""
         n = self.n
         ab = np.bincount(self.h_index, weights=HB[self.h_lower], minlength=self.band * n).reshape(self.band, n)
-        fixed = np.ones(n, bool)
+        fixed = np.ones(n + 1, bool)
         fixed[idx] = False
-        for k in range(1, self.band):  # rows and columns of the held variables out, identity in
-            ab[k, : n - k][fixed[: n - k] | fixed[k:]] = 0.0
-        ab[0, fixed] = 1.0
+        ab[fixed[:n][None, :] | fixed[self.band_partner]] = 0.0  # rows and columns of the held variables out,
+        fixed = fixed[:n]
+        ab[0, fixed] = 1.0  # identity in
         rhs = np.where(fixed, 0.0, -g)
         shift = shift / 4 if shift > 1e-14 else 0.0
-        scale = max(float(np.max(np.abs(ab[0, ~fixed]))), 1e-12)
-        d = None
+        free_diag = ab[0, ~fixed]
+        scale = max(float(np.max(np.abs(free_diag))) if free_diag.size else 0.0, 1e-12)
         while shift <= 1e12 * scale:  # a diagonal shift until positive definite (IPOPT's inertia correction)
-            try:
-                shifted = ab.copy()
-                shifted[0, ~fixed] += shift
-                d = scipy.linalg.solveh_banded(shifted, rhs, lower=True, check_finite=False)
-                break
-            except (np.linalg.LinAlgError, ValueError):  # not positive definite (or not finite)
-                shift = max(1e-8 * scale, 10 * shift)
-        if d is None or not np.all(np.isfinite(d)):
-            return None
-        return d, shift
+            shifted = ab.copy()
+            shifted[0, ~fixed] += shift
+            factor, info = dpbtrf(shifted, lower=1, overwrite_ab=1)
+            if info == 0:
+                d = dpbtrs(factor, rhs[:, None], lower=1)[0][:, 0]
+                if np.all(np.isfinite(d)):
+                    corrected = secant.step(factor, fixed, d) if secant is not None else None
+                    return (d, shift, False) if corrected is None else (corrected, shift, True)
+            shift = max(1e-8 * scale, 10 * shift)  # not positive definite (or not finite)
+        return None
 
-    def _end(self, setup, x, P, trace_ref, status, it, exact_steps, t0) -> NewtonRun:
+    def _end(self, setup, x, P, trace_ref, status, it, exact_steps, t0, secant_steps=0) -> NewtonRun:
         T, nq = self.T, self.robot.nq
         q = x.reshape(T + 1, nq)
         mu = np.asarray(self.poses(q.T, setup.camera_parameter())).T
@@ -275,7 +339,7 @@ class NewtonSolver:
         solve_s = time.perf_counter() - t0
         trace, f_val = (float(v[0]) for v in self.step(x, P)[:2])
         return NewtonRun(q, mu, status, it, exact_steps, f_val * trace_ref, trace * trace_ref, trace_ref,
-                         max(terminal, depth), solve_s)
+                         max(terminal, depth), solve_s, secant_steps)
 
     def _solution(self, setup, method, init, r: NewtonRun) -> Solution:
         return evaluate(
@@ -283,7 +347,8 @@ class NewtonSolver:
             success=r.success, status=r.status, solve_time_s=r.solve_time_s, iterations=r.iterations,
             objective=r.objective,
             extras={"init": init.source, "solver": "newton", "covariance_form": "condensed",
-                    "exact_steps": r.exact_steps, "build_time_s": self.build_time_s, "compiled": self.codegen,
+                    "exact_steps": r.exact_steps, "secant_steps": r.secant_steps,
+                    "build_time_s": self.build_time_s, "compiled": self.codegen,
                     **({"codegen_note": self.codegen_note} if self.codegen_note else {}),
                     "ocp_trace_final": r.trace, "initial_trace": r.initial_trace,
                     "constraint_violation": r.violation},
@@ -304,6 +369,7 @@ class NewtonRun:
     initial_trace: float  # at the initial guess
     violation: float  # terminal pose [m or rad] or depth bound [m]
     solve_time_s: float
+    secant_steps: int = 0  # steps with the secant end-game's correction
 
     @property
     def success(self) -> bool:
