@@ -1,0 +1,62 @@
+"""The enforced NLP's acceptable-level stop (`solver_setup.ENFORCED_OPTIONS`) against independent checks: a tighter
+IPOPT solve of the same NLP without the acceptable level, the plan's finite-difference limit report and the export's
+own dense check of the played curve."""
+
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from surestep_ocp.model import limits as lm
+from surestep_ocp.output.export import time_parametrise, within_position_limits
+from surestep_ocp.problem.problem import load_problem
+from surestep_ocp.problem.setup import build_setup
+from surestep_ocp.solvers.methods import ocp_initial_guess, run_method
+from surestep_ocp.solvers.solver_setup import transcription
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def enforced_default():
+    """The default problem at 40 steps of 0.05 s with the limits enforced (set here, whatever the file holds)."""
+    prob = load_problem(ROOT / "problems" / "needle_regrasp.yaml")
+    prob = replace(prob, horizon=40, limits=replace(prob.limits, enforce=True),
+                   timing=replace(prob.timing, step_s=0.05))
+    setup = build_setup(prob)
+    return setup, run_method(setup, "ocp")
+
+
+def test_acceptable_stop_is_reported_as_such(enforced_default):
+    """The default problem's surrogate IPOPT ends in its linear tail: stopped there, and the status says so."""
+    _, sol = enforced_default
+    assert sol.success
+    kept = [a for a in sol.extras["attempts"] if a["kept"]]
+    assert len(kept) == 1 and kept[0]["hessian"] == "surrogate"
+    assert sol.status == kept[0]["status"] == "Solved_To_Acceptable_Level", sol.extras["attempts"]
+
+
+def test_acceptable_plan_equals_a_tight_solve(enforced_default):
+    """Tr(Sigma_T) within 1e-6 of the same NLP solved to tol 1e-10 with the acceptable level off."""
+    setup, sol = enforced_default
+    tight_opts = {"ipopt.tol": 1e-10, "ipopt.acceptable_iter": 0, "ipopt.max_iter": 1000}
+    tr = transcription(setup, "condensed", tight_opts, hessian="surrogate")
+    tight, _ = tr.solve(setup, ocp_initial_guess(setup))
+    assert tight.status == "Solve_Succeeded", tight.status
+    assert abs(sol.trace_final / tight.trace_final - 1) < 1e-6, (sol.trace_final, tight.trace_final)
+    assert tight.iterations > sol.extras["attempts"][-1]["iterations"]  # the tail it did not run
+
+
+def test_acceptable_plan_meets_every_limit(enforced_default):
+    """The finite-difference report and the export's dense check of the played curve: within every limit, exported
+    at its planned duration."""
+    setup, sol = enforced_default
+    report = lm.plan_report(setup.robot, np.array(sol.q, float), setup.problem.timing.step_s,
+                            lm.problem_limits(setup), tool_frame=setup.robot.frame)
+    assert report["ok"], report["violations"][:3]
+    q, _ = within_position_limits(np.array(sol.q, float), setup.robot)
+    traj = time_parametrise(q, setup.problem.timing.step_s, lm.problem_limits(setup), robot=setup.robot,
+                            tool_frame=setup.robot.frame)
+    assert traj.timing == "planned"
+    assert traj.duration == pytest.approx(setup.problem.horizon * setup.problem.timing.step_s)
