@@ -21,7 +21,7 @@ from surestep_ocp.model.belief import COSINE_GUARD
 from surestep_ocp.evaluation.configs import ConfigurationSampler, load_evaluation
 from surestep_ocp.errors import ProblemError
 from surestep_ocp.solvers.methods import ocp_initial_guess, run_method
-from surestep_ocp.solvers.ocp import transcription
+from surestep_ocp.solvers.ocp import solve_ocp, transcription
 from surestep_ocp.problem.problem import LimitsSpec, load_problem
 from surestep_ocp.problem.setup import build_setup
 
@@ -118,6 +118,14 @@ def check_solution(setup, sol):
     assert np.abs(np.asarray(sol.poses[-1]) - setup.x_goal).max() <= 1e-6
 
 
+def newton_attempt(setup) -> dict:
+    """The same problem under `solver.name: newton`: its first attempt (Newton's unconstrained plan, then checked)."""
+    prob = replace(setup.problem, solver=replace(setup.problem.solver, name="newton"))
+    first = solve_ocp(build_setup(prob), ocp_initial_guess(setup)).extras["attempts"][0]
+    assert first["hessian"] == "newton"
+    return first
+
+
 def enforced(problem, **kw):
     return replace(problem, limits=LimitsSpec(enforce=True, **kw))
 
@@ -139,9 +147,10 @@ def test_default_problem_plan_meets_every_limit(default_enforced):
     assert max(curve) > 0.9  # the limits are active (the unconstrained plan moves 31 mm in its first step)
     assert max(ratios) <= max(curve) + 1e-9  # the finite differences are averages of the curve's values
     assert sol.extras["motion_limits"]["ok"] and sol.extras["motion_limits"]["enforced"]
-    # Newton's unconstrained plan breaks them: IPOPT, which carries them, took over
-    assert sol.extras["attempts"][0]["status"] == "Motion_Limits_Violated"
-    assert not sol.extras["attempts"][0]["kept"]
+    # IPOPT, which carries them, solves it (Newton's unconstrained plan would break them: not run under auto)
+    assert sol.extras["solver"] == "ipopt" and "newton" not in sol.extras["hessian"]
+    first = newton_attempt(setup)
+    assert first["status"] == "Motion_Limits_Violated" and first["objective"] < sol.objective
 
 
 @pytest.mark.parametrize("config", [3, 5])
