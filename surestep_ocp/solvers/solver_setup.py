@@ -7,6 +7,7 @@ camera pose or Sigma_0 reuses it.
 
 from __future__ import annotations
 
+from ..model import limits as limits_module
 from ..model.belief import NX
 from .codegen import available as compiler_available
 from ..errors import SurestepError
@@ -113,7 +114,7 @@ def limits_key(limits) -> tuple | None:
         return None
     dt, lim = limits
     return (dt, tuple(lim.joint_names), lim.velocity.tobytes(), lim.acceleration.tobytes(), lim.tool_speed,
-            lim.tool_rotation, lim.rcm_min_distance)
+            lim.tool_rotation, lim.rcm_min_distance, limits_module.CURVE_ROWS)
 
 
 def resolve_codegen(setup: Setup, hessian: str) -> bool:
