@@ -65,3 +65,24 @@ def test_a_depth_violation_by_newton_goes_to_the_monotone_barrier():
     ekf = np.trace(ref.propagate(poses, n, setup.problem.camera.intrinsics, guard=n.cosine_guard**2)[0][-1])
     assert ekf == pytest.approx(sol.trace_final, rel=1e-9)
     assert sol.trace_final < solve_baseline(setup).trace_final
+
+
+def test_newton_stops_early_below_the_depth_bound_and_ipopt_meets_it(monkeypatch):
+    """Configuration 73 at T = 40: Newton's iterates go below the minimum depth in its end phase and stay there; it
+    stops there (fewer iterations than without the check, same verdict), and the returned plan meets the bound by
+    Pinocchio's FK of its joints."""
+    import surestep_ocp.solvers.newton as newton
+    from surestep_ocp.solvers.ocp import newton_solver
+
+    setup = _configuration_73("auto")
+    init = ocp_initial_guess(setup)
+    early = newton_solver(setup).run(setup, init)
+    monkeypatch.setattr(newton, "DEPTH_CHECK_BELOW", -1.0)  # never checked before the end
+    late = newton_solver(setup).run(setup, init)
+    monkeypatch.undo()
+    assert early.status == late.status == "Depth_Bound_Violated"
+    assert early.iterations < late.iterations
+    sol = solve_ocp(setup, init)
+    assert sol.success and sol.extras["attempts"][0]["status"] == "Depth_Bound_Violated"
+    depths = [setup.pose_of(q)[2] for q in np.asarray(sol.q)]
+    assert min(depths) >= setup.problem.min_depth - 1e-7

@@ -56,6 +56,10 @@ EXACT_MAX_N = 200
 # Newton stops as "Stalled" when the objective fell by less than STALL_DECREASE (relative) over STALL_WINDOW iterations
 # (a warm re-plan with exact steps ran its 300-iteration cap in 1 s this way, where the fallback took 50 ms)
 STALL_WINDOW, STALL_DECREASE = 10, 1e-10
+# In its end phase (projected gradient below this) Newton stops as soon as an iterate is below the depth bound, which
+# its formulation does not carry: such runs had converged below it anyway after tens more iterations (evaluation
+# configuration 73 at T = 40: below it from iteration 22 to the end at 66), and IPOPT, which has the bound, takes over
+DEPTH_CHECK_BELOW = 1e-3
 SECANT_MEMORY = 20  # rank-one terms the secant end-game keeps (its tail is a few iterations: rarely reached)
 
 
@@ -251,6 +255,9 @@ class NewtonSolver:
             if it == max_iter:
                 break
             pg = np.max(np.abs(g[idx]), initial=0.0)
+            if pg <= DEPTH_CHECK_BELOW and self._min_depth(x, setup) < setup.problem.min_depth:
+                status = "Depth_Bound_Violated"
+                break
             d = self._exact_step(x, P, HB, g, idx) if pg <= exact_below and self.curv is not None else None
             exact_steps += d is not None
             kind = "exact" if d is not None else "surrogate"
@@ -280,6 +287,11 @@ class NewtonSolver:
                 break
             x, it = trial, it + 1
         return self._end(setup, x, P, trace_ref, status, it, exact_steps, t0, secant_steps)
+
+    def _min_depth(self, x: np.ndarray, setup: Setup) -> float:
+        """The smallest depth [m] of the means at joints `x` (the camera-frame z of every node)."""
+        q = x.reshape(self.T + 1, self.robot.nq)
+        return float(np.min(np.asarray(self.poses(q.T, setup.camera_parameter()))[2]))
 
     def _exact_step(self, x, P, HB, g, idx) -> np.ndarray | None:
         """Newton's step with the exact Hessian (the surrogate's plus S's own curvature C^T d2S/dc2 C) on the free
