@@ -22,8 +22,8 @@ converges linearly near the optimum. The end-game adds it back: exactly for the 
 at small sizes (`EXACT_MAX_N`, a dense step), otherwise by a limited-memory symmetric rank-one
 correction learnt from the steps taken (`_SecantCorrection`, banded solves plus a small dense one).
 
-The minimum-depth bound is not in this formulation: it is checked at the end, and a
-violation is a failure, after which `solve_ocp_warm` runs IPOPT (which has the bound).
+The minimum-depth bound is not in this formulation: it is checked in the end phase and at the
+end, and a violation is a failure, after which `solve_ocp_warm` runs IPOPT (which has the bound).
 Every evaluation is one call of a stage-wise Function (compiled with `solver.codegen`)
 through CasADi's buffer interface (no conversions), so an iteration costs about 0.3 ms at
 T = 20 where IPOPT's own work is 0.43 ms (docs/solve_speed.md).
@@ -57,8 +57,9 @@ EXACT_MAX_N = 200
 # (a warm re-plan with exact steps ran its 300-iteration cap in 1 s this way, where the fallback took 50 ms)
 STALL_WINDOW, STALL_DECREASE = 10, 1e-10
 # In its end phase (projected gradient below this) Newton stops as soon as an iterate is below the depth bound, which
-# its formulation does not carry: such runs had converged below it anyway after tens more iterations (evaluation
-# configuration 73 at T = 40: below it from iteration 22 to the end at 66), and IPOPT, which has the bound, takes over
+# its formulation does not carry, and IPOPT, which has it, takes over: most such runs converged below it anyway after
+# tens more iterations (evaluation configuration 73 at T = 40: below it from iteration 22 to the end at 66); where one
+# came back above it (5 of 100 at T = 40), IPOPT's plan was lower (docs/solve_speed.md, "Worst case")
 DEPTH_CHECK_BELOW = 1e-3
 SECANT_MEMORY = 20  # rank-one terms the secant end-game keeps (its tail is a few iterations: rarely reached)
 
