@@ -37,7 +37,7 @@ def test_newton_gradient_matches_finite_differences(short):
     x = (q + 0.02 * rng.normal(size=q.shape)).ravel()
     sigma0 = np.diag(setup.model.channel_variances(np.asarray(setup.problem.noise.Sigma0, float)))
     P = np.concatenate([setup.camera_parameter(), [3e-5], vech(sigma0)])
-    _, _, G, _ = (v.copy() for v in ns.step(x, P))
+    _, _, G, _, _ = (v.copy() for v in ns.step(x, P))
     g = np.bincount(ns.g_index, weights=G, minlength=ns.n)
     fd = np.zeros(ns.n)
     for i in range(ns.n):

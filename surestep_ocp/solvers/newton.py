@@ -154,7 +154,8 @@ class NewtonSolver:
         smooth = smoothness * ca.sumsqr(Q[:, 1:] - Q[:, :T])
         # S's own curvature in the coefficients (dense, 5T x 5T, negative semidefinite) and the coefficients'
         # Jacobians per interval: the exact Hessian is the surrogate's plus C^T (d2S/dc2) C (the end-game)
-        fns = {"newton_step": ca.Function("newton_step", [Q, P], [S_x, S_x + smooth, G, HB]),
+        depth = ca.mmin(pose.map(T + 1)(Q, Tc)[2, :])  # the means' smallest depth (the end phase's check)
+        fns = {"newton_step": ca.Function("newton_step", [Q, P], [S_x, S_x + smooth, G, HB, depth]),
                "newton_f": ca.Function("newton_f", [Q, P], [S_x + smooth])}
         self.nm, self.no = w_m.shape[0], w_o.shape[0]
         # S's curvature costs nc T Hessian-vector products: cheap for the scalar recursion (1.8 ms at T = 20),
@@ -238,7 +239,7 @@ class NewtonSolver:
         exact_steps, secant_steps, history = 0, 0, []
         use_secant, secant, previous = secant, None, None  # the end-game's correction; the last point and gradient
         while start_ok and it <= max_iter:
-            _, f_val, G, HB = self.step(x, P)
+            _, f_val, G, HB, depth = self.step(x, P)
             f_val = float(f_val[0])
             history.append(f_val)
             if len(history) > STALL_WINDOW and history[-STALL_WINDOW - 1] - f_val <= STALL_DECREASE * abs(f_val):
@@ -256,7 +257,7 @@ class NewtonSolver:
             if it == max_iter:
                 break
             pg = np.max(np.abs(g[idx]), initial=0.0)
-            if pg <= DEPTH_CHECK_BELOW and self._min_depth(x, setup) < setup.problem.min_depth:
+            if pg <= DEPTH_CHECK_BELOW and float(depth[0]) < setup.problem.min_depth:
                 status = "Depth_Bound_Violated"
                 break
             d = self._exact_step(x, P, HB, g, idx) if pg <= exact_below and self.curv is not None else None
@@ -288,11 +289,6 @@ class NewtonSolver:
                 break
             x, it = trial, it + 1
         return self._end(setup, x, P, trace_ref, status, it, exact_steps, t0, secant_steps)
-
-    def _min_depth(self, x: np.ndarray, setup: Setup) -> float:
-        """The smallest depth [m] of the means at joints `x` (the camera-frame z of every node)."""
-        q = x.reshape(self.T + 1, self.robot.nq)
-        return float(np.min(np.asarray(self.poses(q.T, setup.camera_parameter()))[2]))
 
     def _exact_step(self, x, P, HB, g, idx) -> np.ndarray | None:
         """Newton's step with the exact Hessian (the surrogate's plus S's own curvature C^T d2S/dc2 C) on the free
