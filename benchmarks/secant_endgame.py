@@ -48,7 +48,7 @@ def main() -> None:
             best = {False: None, True: None}
             for _ in range(args.repeats):
                 for sec in (False, True):
-                    r = solver.run(setup, init, tol=tol, max_iter=300, secant=sec)
+                    r = solver.run(setup, init, tol=tol, max_iter=300, use_secant=sec)
                     if best[sec] is None or r.solve_time_s < best[sec].solve_time_s:
                         best[sec] = r
             for sec, r in best.items():

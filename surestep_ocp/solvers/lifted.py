@@ -35,16 +35,22 @@ import casadi as ca
 import numpy as np
 import scipy.sparse.linalg
 
-from ..model.belief import DIAG, NV, NX, BeliefModel, unvech, vech
-from .codegen import compiled_or_interpreted
-from .newton import _Buffered
 from ..errors import SurestepError
+from ..model.belief import DIAG, NV, NX, BeliefModel, unvech, vech
 from ..model.robot import CAMERA_PARAMETERS, Robot
-from ..problem.setup import Setup
 from ..output.solution import Solution
+from ..problem.setup import Setup
+from .buffered import Buffered
+from .codegen import compiled_or_interpreted
 from .stages import assemble, entries, smoothness_matrix
+from .surrogate import (
+    interval_terms,
+    kalman_stage,
+    kalman_stage_jacobian,
+    pose_function,
+    recursion_weights,
+)
 from .transcription import ipopt_solution
-from .surrogate import interval_terms, kalman_stage, kalman_stage_jacobian, pose_function, recursion_weights
 
 
 class LiftedTranscription:
@@ -177,7 +183,7 @@ class LiftedTranscription:
         bound multipliers that make it stationary in every variable (exact at a KKT point of the condensed
         form, whose joints are the same)."""
         if self._jac_nz is None:  # the Jacobian's nonzeros through CasADi's buffer interface: a DM's conversion to
-            self._jac_nz = _Buffered(self.jac_g)  # scipy cost 6 ms at T = 20, about half of this function
+            self._jac_nz = Buffered(self.jac_g)  # scipy cost 6 ms at T = 20, about half of this function
         sp = self.jac_g.sparsity_out(1)
         J = scipy.sparse.csc_matrix((self._jac_nz(x, p)[1].copy(), sp.row(), sp.colind()), shape=sp.shape)
         grad = np.asarray(self.grad_f(x, p)[1]).ravel()

@@ -44,6 +44,7 @@ from ..model.joint_noise import joint_noise_curvature, joint_noise_expr
 from ..model.robot import CAMERA_PARAMETERS, Robot
 from ..output.solution import Solution, evaluate
 from ..problem.setup import Setup
+from .buffered import Buffered
 from .codegen import compiled_or_interpreted
 from .surrogate import interval_terms, pose_function, recursion_weights
 
@@ -103,26 +104,6 @@ class _SecantCorrection:
         return d if np.all(np.isfinite(d)) else None
 
 
-class _Buffered:
-    """A Function evaluated in place on NumPy arrays (CasADi's buffer interface)."""
-
-    def __init__(self, fn: ca.Function):
-        self.fn = fn  # the buffer refers to it
-        self.args = [np.zeros(fn.sparsity_in(i).numel()) for i in range(fn.n_in())]
-        self.res = [np.zeros(fn.sparsity_out(i).nnz()) for i in range(fn.n_out())]
-        self.buf, self.trigger = fn.buffer()
-        for i, a in enumerate(self.args):
-            self.buf.set_arg(i, memoryview(a))
-        for i, r in enumerate(self.res):
-            self.buf.set_res(i, memoryview(r))
-
-    def __call__(self, *args) -> list[np.ndarray]:
-        for dst, src in zip(self.args, args):
-            dst[:] = np.ravel(src, order="F")
-        self.trigger()
-        return self.res
-
-
 class NewtonSolver:
     """The joint-space problem of one structure (robot, model, horizon, smoothness), built once."""
 
@@ -166,8 +147,8 @@ class NewtonSolver:
         if codegen:
             fns, self.codegen_note = compiled_or_interpreted(fns, codegen_required)
             self.codegen = self.codegen_note is None
-        self.step, self.f = _Buffered(fns["newton_step"]), _Buffered(fns["newton_f"])
-        self.curv = _Buffered(fns["newton_curv"]) if "newton_curv" in fns else None
+        self.step, self.f = Buffered(fns["newton_step"]), Buffered(fns["newton_f"])
+        self.curv = Buffered(fns["newton_curv"]) if "newton_curv" in fns else None
         self.poses = pose.map(T + 1)
         # scatter maps: interval t covers the joint vectors of nodes t, t+1 (positions t*nq .. (t+2)*nq)
         n = self.n = nq * (T + 1)
@@ -219,9 +200,9 @@ class NewtonSolver:
         return self._solution(setup, method, init, self.run(setup, init, tol, max_iter, verbose))
 
     def run(self, setup: Setup, init, tol: float = 1e-6, max_iter: int = 300, verbose: bool = False,
-            exact_below: float = EXACT_BELOW, secant: bool = True) -> NewtonRun:
+            exact_below: float = EXACT_BELOW, use_secant: bool = True) -> NewtonRun:
         """`solve` without the evaluation of its plan (the re-planning loop evaluates it faster, planner.py);
-        exact Hessian steps (or, without them, the secant end-game unless `secant` is false: for measurements)
+        exact Hessian steps (or, without them, the secant end-game unless `use_secant` is false: for measurements)
         once the projected gradient is at most `exact_below` (inf: from a warm start on)."""
         t0 = time.perf_counter()
         T, nq, n, robot = self.T, self.robot.nq, self.n, self.robot
@@ -237,7 +218,7 @@ class NewtonSolver:
         P[CAMERA_PARAMETERS] = trace_ref = float(self.step(x, P)[0][0])  # the objective is 1 (plus smoothness) at the start
         status, it, shift = "Maximum_Iterations_Exceeded" if start_ok else "Infeasible_Start", 0, 0.0
         exact_steps, secant_steps, history = 0, 0, []
-        use_secant, secant, previous = secant, None, None  # the end-game's correction; the last point and gradient
+        secant, previous = None, None  # the end-game's correction; the last point and its gradient
         while start_ok and it <= max_iter:
             _, f_val, G, HB, depth = self.step(x, P)
             f_val = float(f_val[0])

@@ -1,0 +1,27 @@
+"""A CasADi Function called in place on NumPy arrays, through CasADi's buffer interface: no DM conversions on the
+hot paths (Newton's iterations, the lifted form's initial multipliers)."""
+
+from __future__ import annotations
+
+import casadi as ca
+import numpy as np
+
+
+class Buffered:
+    """A Function evaluated in place on NumPy arrays (CasADi's buffer interface)."""
+
+    def __init__(self, fn: ca.Function):
+        self.fn = fn  # the buffer refers to it
+        self.args = [np.zeros(fn.sparsity_in(i).numel()) for i in range(fn.n_in())]
+        self.res = [np.zeros(fn.sparsity_out(i).nnz()) for i in range(fn.n_out())]
+        self.buf, self.trigger = fn.buffer()
+        for i, a in enumerate(self.args):
+            self.buf.set_arg(i, memoryview(a))
+        for i, r in enumerate(self.res):
+            self.buf.set_res(i, memoryview(r))
+
+    def __call__(self, *args) -> list[np.ndarray]:
+        for dst, src in zip(self.args, args):
+            dst[:] = np.ravel(src, order="F")
+        self.trigger()
+        return self.res
