@@ -119,12 +119,18 @@ def camera_frame_pose(robot, T_cam_base, q) -> np.ndarray:
 
 
 def joint_motion_noise(robot, T_cam_base, q0, q1, sigma, h=1e-6) -> np.ndarray:
-    """`J diag(sigma^2 (q1 - q0)^2) J^T` with J the central-difference Jacobian of `camera_frame_pose` at q0."""
+    """`J diag(sigma^2 (q1 - q0)^2) J^T` with J the central-difference Jacobian at q0 in the belief's tangent:
+    the position's, and the rotation's as a left (camera-frame) perturbation, `log(R(q0 +- h e_j) R(q0)^T)`."""
     q0, q1 = np.asarray(q0, float), np.asarray(q1, float)
+    M0 = T_cam_base @ robot.frame_pose(q0)
+    R0 = Rotation.from_matrix(M0[:3, :3])
     J = np.zeros((6, len(q0)))
     for j in range(len(q0)):
         e = np.zeros(len(q0))
         e[j] = h
-        J[:, j] = (camera_frame_pose(robot, T_cam_base, q0 + e) - camera_frame_pose(robot, T_cam_base, q0 - e)) / (2 * h)
+        Mp, Mm = (T_cam_base @ robot.frame_pose(q0 + e)), (T_cam_base @ robot.frame_pose(q0 - e))
+        J[:3, j] = (Mp[:3, 3] - Mm[:3, 3]) / (2 * h)
+        J[3:, j] = ((Rotation.from_matrix(Mp[:3, :3]) * R0.inv()).as_rotvec()
+                    - (Rotation.from_matrix(Mm[:3, :3]) * R0.inv()).as_rotvec()) / (2 * h)
     D = np.diag((np.asarray(sigma, float) * (q1 - q0)) ** 2)
     return J @ D @ J.T

@@ -12,6 +12,7 @@ import casadi as ca
 import numpy as np
 import numpy_ekf as ref
 import pytest
+from scipy.spatial.transform import Rotation
 
 from surestep_ocp.model.belief import (
     COSINE_GUARD,
@@ -25,6 +26,13 @@ from surestep_ocp.model.belief import (
     vech,
 )
 from surestep_ocp.model.camera import Intrinsics
+from surestep_ocp.model.lie import np_means, pose_mean
+
+
+def mean(x):
+    """The model's mean (position, quaternion) of a pose (position, rotation vector)."""
+    return np_means(x)[0]
+
 
 CAMERA = Intrinsics(
     fx=768.98551924, fy=768.98551924, cx=292.8861567, cy=291.61479526, width=640, height=480
@@ -94,9 +102,9 @@ def test_noise_models_match_numpy(formula):
     model = BeliefModel(noise, CAMERA)
     for _ in range(20):
         x0, x1 = random_pose(rng), random_pose(rng)
-        W = np.asarray(model.motion_noise(x0, x1))
+        W = np.asarray(model.motion_noise(mean(x0), mean(x1)))
         assert ref.rel_err(W, ref.motion_noise(x0, x1, noise)) < REL
-        V = np.asarray(model.observation_noise(x1))
+        V = np.asarray(model.observation_noise(mean(x1)))
         assert (
             ref.rel_err(V, ref.observation_noise(x1, noise, CAMERA, COMPONENTS, formula, GUARD, noise.cut_band))
             < REL
@@ -112,7 +120,7 @@ def test_motion_noise_uses_geodesic_angle():
         np.r_[0, 0, 0.1, 3.0 * axis],
         np.r_[0, 0, 0.1, -3.0 * axis],
     )  # 2*pi - 6 rad apart, |dr| = 6
-    W = np.asarray(model.motion_noise(x0, x1))
+    W = np.asarray(model.motion_noise(mean(x0), mean(x1)))
     assert W[0, 0] == pytest.approx((2 * np.pi - 6.0) ** 2, rel=1e-12)
 
 
@@ -133,32 +141,32 @@ def test_fov_noise_is_zero_at_image_centre_and_depth_at_d_star():
         ]
     )
     x = np.r_[p, np.array(O_STAR)]
-    assert np.abs(np.asarray(model.observation_noise(x))).max() < 1e-20
+    assert np.abs(np.asarray(model.observation_noise(mean(x)))).max() < 1e-20
     cosine = BeliefModel(NoiseParams(o_star=O_STAR), CAMERA)
     r2 = float(np.dot(O_STAR, O_STAR))
     expected = (1 - 1 / np.sqrt(1 + COSINE_GUARD / r2)) ** 2 * cosine.noise.V_o0
-    np.testing.assert_allclose(np.asarray(cosine.observation_noise(x)), expected, rtol=1e-6, atol=1e-30)
+    np.testing.assert_allclose(np.asarray(cosine.observation_noise(mean(x))), expected, rtol=1e-6, atol=1e-30)
 
 
 def test_cosine_formula_guarded_at_zero_rotation():
     """The paper's cosine is undefined at r = 0: the guarded value and its gradient are finite."""
     model = BeliefModel(NoiseParams(o_star=O_STAR), CAMERA)
     x = ca.SX.sym("x", 6)
-    V = model.observation_noise(x)
+    V = model.observation_noise(pose_mean(x))
     f = ca.Function("f", [x], [V[0, 0], ca.gradient(V[0, 0], x)])
     v, g = f(np.r_[0.01, 0.0, 0.15, 0.0, 0.0, 0.0])
     assert np.isfinite(float(v)) and np.all(np.isfinite(np.asarray(g)))
     # far from zero the guard is small: the paper's formula without any guard, within 0.5 %
     x1 = np.r_[0.01, 0.0, 0.15, 0.9, -0.6, 1.5]
     V_ref = ref.observation_noise(x1, model.noise, CAMERA, guard=0.0, band=model.noise.cut_band)
-    assert ref.rel_err(np.asarray(model.observation_noise(x1)), V_ref) < 5e-3
+    assert ref.rel_err(np.asarray(model.observation_noise(mean(x1))), V_ref) < 5e-3
 
 
 def test_tiny_rotation_along_o_star_does_not_zero_the_orientation_noise():
     """Near r = 0 the direction of r is free; the guard keeps a 1e-4 rad turn about o* from looking ideal."""
     model = BeliefModel(NoiseParams(o_star=O_STAR), CAMERA, components=("orientation",))
     axis = np.asarray(O_STAR) / np.linalg.norm(O_STAR)
-    V_tiny = float(np.asarray(model.observation_noise(np.r_[0.0, 0.0, 0.15, 1e-4 * axis]))[0, 0])
+    V_tiny = float(np.asarray(model.observation_noise(mean(np.r_[0.0, 0.0, 0.15, 1e-4 * axis])))[0, 0])
     assert V_tiny > 0.99 * model.noise.V_o0[0, 0]
 
 
@@ -220,7 +228,7 @@ def test_propagate_with_constant_non_identity_jacobians():
     """Non-identity motion/observation maps (section 3) use F, Q, H, R correctly."""
     rng = np.random.default_rng(500)
     F, Q, H, R = _constant_jacobians(rng)
-    x0, x1 = ca.SX.sym("x0", 6), ca.SX.sym("x1", 6)
+    x0, x1 = ca.SX.sym("m0", 7), ca.SX.sym("m1", 7)  # the step's means (position, quaternion)
     jac = ca.Function(
         "jacobians",
         [x0, x1],
@@ -247,21 +255,20 @@ def test_propagate_with_constant_non_identity_jacobians():
 def test_propagate_with_pose_dependent_jacobians_from_casadi():
     """Jacobians from CasADi differentiation of nonlinear maps are evaluated at the right poses."""
     rng = np.random.default_rng(600)
-    A = 0.3 * rng.normal(size=(6, 6))
-    x0, x1 = ca.SX.sym("x0", 6), ca.SX.sym("x1", 6)
-    f = x0 + 0.1 * ca.sin(ca.DM(A) @ x0)  # motion map x1 = f(x0) + u (its Jacobian in x0)
-    h = x1 + 0.05 * ca.tanh(x1) ** 2  # observation map z = h(x1)
-    jac = ca.Function(
-        "jacobians",
-        [x0, x1],
-        [ca.jacobian(f, x0), ca.SX.eye(6), ca.jacobian(h, x1), ca.SX.eye(6)],
-        ["x0", "x1"],
-        ["F", "Q", "H", "R"],
-    )
+    A, B = 0.3 * rng.normal(size=(6, 6)), rng.normal(size=(6, 7))
+    m0, m1 = ca.SX.sym("m0", 7), ca.SX.sym("m1", 7)  # the step's means (position, unit quaternion)
+    F = ca.SX.eye(6) + 0.1 * ca.diag(ca.cos(ca.DM(B) @ m0)) @ ca.DM(A)  # maps that vary with the means
+    H = ca.diag(1 + 0.1 * ca.tanh(ca.DM(B) @ m1) ** 2)
+    jac = ca.Function("jacobians", [m0, m1], [F, ca.SX.eye(6), H, ca.SX.eye(6)], ["x0", "x1"], ["F", "Q", "H", "R"])
+
+    def means(x):  # scipy's quaternion of the pose's rotation, reordered (w, x, y, z), w >= 0 (principal poses)
+        qx, qy, qz, qw = Rotation.from_rotvec(x[3:]).as_quat(canonical=True)
+        return np.r_[x[:3], qw, qx, qy, qz]
 
     def jac_np(a, b):
-        F = np.eye(6) + 0.1 * np.cos(A @ a)[:, None] * A
-        H = np.diag(1 + 0.1 * np.tanh(b) * (1 - np.tanh(b) ** 2))
+        ma, mb = means(a), means(b)
+        F = np.eye(6) + 0.1 * np.cos(B @ ma)[:, None] * A
+        H = np.diag(1 + 0.1 * np.tanh(B @ mb) ** 2)
         return F, np.eye(6), H, np.eye(6)
 
     model = BeliefModel(random_noise(rng), CAMERA, jacobians=jac)
@@ -336,10 +343,10 @@ def test_step_function_equals_propagate():
     s = vech(np.asarray(model.noise.Sigma0))
     for t in range(3):
         np.testing.assert_allclose(
-            unvech(np.asarray(model.predict(poses[t], poses[t + 1], s)).ravel()),
+            unvech(np.asarray(model.predict(mean(poses[t]), mean(poses[t + 1]), s)).ravel()),
             pred[t],
             rtol=0,
             atol=1e-15,
         )
-        s = np.asarray(model.step(poses[t], poses[t + 1], s)).ravel()
+        s = np.asarray(model.step(mean(poses[t]), mean(poses[t + 1]), s)).ravel()
         np.testing.assert_array_equal(unvech(s), sig[t + 1])

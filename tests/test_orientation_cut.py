@@ -23,6 +23,7 @@ from surestep_ocp.solvers.methods import ocp_initial_guess, run_method
 from surestep_ocp.solvers.ocp import solve_ocp
 from surestep_ocp.problem.problem import load_problem
 from surestep_ocp.evaluation.rollout import rollout
+from surestep_ocp.model.lie import np_means, pose_mean
 from surestep_ocp.problem.setup import build_setup
 
 DEFAULT = Path(__file__).resolve().parents[1] / "problems" / "needle_regrasp_paper_pace.yaml"
@@ -74,6 +75,29 @@ def test_means_are_continued_along_the_joints_through_pi(sampler):
         np.testing.assert_allclose(x[:3], T[:3, 3], atol=1e-12)
 
 
+def test_nlp_means_are_pinocchios_rotations_and_continuous_through_pi(sampler):
+    """The NLP's means `(p, Q)` (`Setup.means_of`, `Robot.camera_pose`): unit quaternions of Pinocchio's rotation
+    (up to the double cover's sign) along configuration 0's straight line, which crosses pi, with no jump (each
+    step's quaternion change is its half-angle step), and over random joints in the whole box."""
+    setup = _setup(sampler, 0)
+    q = np.asarray(ocp_initial_guess(setup).q, float)
+    rng = np.random.default_rng(6)
+    lo, hi = setup.robot.lower, setup.robot.upper
+    for joints, path in ((q, True), (lo + (hi - lo) * rng.random((200, setup.robot.nq)), False)):
+        m = setup.means_of(joints)
+        assert m.shape == (len(joints), 7)
+        np.testing.assert_allclose(np.linalg.norm(m[:, 3:], axis=1), 1.0, atol=1e-12)
+        for qi, mi in zip(joints, m):
+            T = setup.T_cam_base @ setup.robot.frame_pose(qi)
+            x, y, z, w = Rotation.from_matrix(T[:3, :3]).as_quat()
+            assert abs(abs(mi[3:] @ np.array([w, x, y, z])) - 1) < 1e-12
+            np.testing.assert_allclose(mi[:3], T[:3, 3], atol=1e-12)
+        if path:
+            assert np.max(np.linalg.norm(np.diff(m[:, 3:], axis=0), axis=1)) < 0.1
+    np.testing.assert_allclose(setup.m_start[3:], setup.means_of(setup.q_start)[0, 3:], atol=1e-9)
+    np.testing.assert_allclose(setup.m_goal[3:], setup.means_of(setup.q_goal)[0, 3:], atol=1e-6)
+
+
 def test_means_are_finite_and_pinocchios_over_the_whole_joint_box(sampler):
     """Random joints in the limits (the roll joint turns 9 rad): every mean is finite, its rotation Pinocchio's, its
     angle at most 2 acos(-0.9) (past it the other vector of the rotation: no log at a full turn)."""
@@ -99,23 +123,23 @@ def test_the_cosine_term_is_a_function_of_the_rotation():
     model = BeliefModel(noise, ref_camera())
     for r in _angles(40, rng):
         x = np.r_[0.01, -0.02, 0.12, r]
-        V = np.asarray(model.observation_noise(x))
-        V_other = np.asarray(model.observation_noise(np.r_[x[:3], _other_side(r)]))
+        V = np.asarray(model.observation_noise(np_means(x)[0]))
+        V_other = np.asarray(model.observation_noise(np_means(np.r_[x[:3], _other_side(r)])[0]))
         V_ref = ref.observation_noise(x, noise, model.camera, guard=noise.cosine_guard**2, band=noise.cut_band)
         assert ref.rel_err(V, V_ref) < 1e-12 and ref.rel_err(V_other, V_ref) < 1e-12
     axis = np.array([0.6, 0.3, 0.74]) / np.linalg.norm([0.6, 0.3, 0.74])
-    v = lambda th: float(np.asarray(model.observation_noise(np.r_[0.01, -0.02, 0.12, th * axis]))[5, 5])
+    v = lambda th: float(np.asarray(model.observation_noise(np_means(np.r_[0.01, -0.02, 0.12, th * axis])[0]))[5, 5])
     assert abs(v(np.pi - 1e-7) - v(np.pi + 1e-7)) < 1e-7  # its slope times 2e-7; the paper's jump is ~1e-2
     xs = ca.SX.sym("x", 6)
-    grad = ca.Function("g", [xs], [ca.gradient(model.observation_noise(xs)[5, 5], xs)])
+    V_of = ca.Function("V", [xs], [model.observation_noise(pose_mean(xs))[5, 5]])  # along the rotation vector
+    grad = ca.Function("g", [xs], [ca.gradient(V_of(xs), xs)])
     for th in (np.pi - 0.15, np.pi - 1e-3, np.pi + 1e-3, np.pi + 0.15):
         x, h = np.r_[0.01, -0.02, 0.12, th * axis], 1e-6
-        fd = [(float(np.asarray(model.observation_noise(x + h * e))[5, 5])
-               - float(np.asarray(model.observation_noise(x - h * e))[5, 5])) / (2 * h) for e in np.eye(6)]
+        fd = [(float(V_of(x + h * e)) - float(V_of(x - h * e))) / (2 * h) for e in np.eye(6)]
         np.testing.assert_allclose(np.asarray(grad(x)).ravel(), fd, rtol=1e-5, atol=1e-9)
     # cut_band 0 and cosine_guard 0: the paper's own formula, with its jump at pi
     paper = BeliefModel(replace(noise, cosine_guard=0.0, cut_band=0.0), ref_camera(), components=("orientation",))
-    vp = lambda th: float(np.asarray(paper.observation_noise(np.r_[0.01, -0.02, 0.12, th * axis]))[5, 5])
+    vp = lambda th: float(np.asarray(paper.observation_noise(np_means(np.r_[0.01, -0.02, 0.12, th * axis])[0]))[5, 5])
     cos = float(axis @ np.asarray(noise.o_star)) / np.linalg.norm(noise.o_star)
     assert vp(np.pi - 1e-3) == pytest.approx((1 - cos) ** 2 * noise.V_o0[5, 5], rel=1e-12)
     assert vp(np.pi + 1e-3) == pytest.approx((1 + cos) ** 2 * noise.V_o0[5, 5], rel=1e-12)

@@ -11,6 +11,7 @@ from scipy.spatial.transform import Rotation
 
 from surestep_ocp.solvers.baseline import straight_line
 from surestep_ocp.model.belief import BeliefModel
+from surestep_ocp.model.lie import np_means
 from surestep_ocp.evaluation.rollout import METRICS, BatchedNoise, Detection, plan_metrics, rollout
 
 T = 6
@@ -48,8 +49,9 @@ def test_batched_noise_matches_the_model_functions(default_setup, plan):
     b = BatchedNoise(model, 5)
     W, V = b.motion(x0, x1), b.observation(x0)
     for k in range(5):
-        np.testing.assert_allclose(W[k], np.asarray(model.motion_noise(x0[k], x1[k])), rtol=1e-14, atol=0)
-        np.testing.assert_allclose(V[k], np.asarray(model.observation_noise(x0[k])), rtol=1e-14, atol=0)
+        W_k = model.motion_noise(np_means(x0[k])[0], np_means(x1[k])[0])
+        np.testing.assert_allclose(W[k], np.asarray(W_k), rtol=1e-14, atol=0)
+        np.testing.assert_allclose(V[k], np.asarray(model.observation_noise(np_means(x0[k])[0])), rtol=1e-14, atol=0)
 
 
 def test_empirical_error_covariance_matches_the_ekf(default_setup, plan):
@@ -122,7 +124,7 @@ def test_undetected_steps_only_predict(default_setup, plan):
     model = default_setup.eval_model
     out = plan.copy()
     out[:, 0] += 0.3  # 30 cm to the right at ~15 cm depth: far outside the image
-    sigma = np.asarray(model.noise.Sigma0, float) + sum(np.asarray(model.motion_noise(out[t], out[t + 1]))
+    sigma = np.asarray(model.noise.Sigma0, float) + sum(BatchedNoise(model, 1).motion(out[t:t + 1], out[t + 1:t + 2])[0]
                                                         for t in range(T))
     for mode in ("model", "true"):
         ro = rollout(model, out, n=5, rng=1, mode=mode, detection=Detection())
@@ -204,8 +206,8 @@ def test_measurements_outside_the_image_are_no_detection(default_setup, plan):
     # every undetected step of a rollout that never saw the tool left its covariance at the prediction
     never = ~ro.detected.any(axis=1)
     assert never.any()
-    sigma = np.asarray(model.noise.Sigma0, float) + sum(np.asarray(model.motion_noise(central[t], central[t + 1]))
-                                                        for t in range(T))
+    sigma = np.asarray(model.noise.Sigma0, float) + sum(
+        BatchedNoise(model, 1).motion(central[t:t + 1], central[t + 1:t + 2])[0] for t in range(T))
     np.testing.assert_allclose(ro.sigma_final[never], np.broadcast_to(sigma, (never.sum(), 6, 6)), rtol=1e-12,
                                atol=1e-18)
     cam = model.camera

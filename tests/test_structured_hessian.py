@@ -32,12 +32,18 @@ def short():
 
 
 # ------------------------------------------------------------------ independent structured Hessians
+def rotation(m) -> Rotation:
+    """scipy's rotation of a mean's quaternion `(w, x, y, z)` (normalised by scipy)."""
+    return Rotation.from_quat(np.r_[m[4:7], m[3]])
+
+
 def residuals(setup, x0, x1) -> list[np.ndarray]:
-    """Motion (step, relative rotation) then observation (depth, image offset, 1 - cos) residuals, NumPy."""
+    """Motion (step, relative rotation) then observation (depth, image offset, 1 - cos) residuals, NumPy, of two
+    means `(p, Q)` (the NLP's variables); the cosine of scipy's principal rotation vector."""
     n, cam = setup.problem.noise, setup.problem.camera.intrinsics
-    rel = (Rotation.from_rotvec(x0[3:]).inv() * Rotation.from_rotvec(x1[3:])).as_rotvec()
+    rel = (rotation(x0).inv() * rotation(x1)).as_rotvec()
     o = np.asarray(n.o_star, float)
-    r = x1[3:]
+    r = rotation(x1).as_rotvec()
     cos = float(r @ o) / (np.sqrt(r @ r + COSINE_GUARD) * np.linalg.norm(o))
     return [x1[:3] - x0[:3], rel, np.array([x1[2] - n.depth_star]), np.array(image_offset(x1[:3], cam)),
             np.array([1 - cos])]
@@ -57,7 +63,7 @@ def trace_of_coefficients(setup, c: np.ndarray, T: int) -> float:
 
 
 def numpy_structured_hessian(setup, mus: np.ndarray, trace_ref: float, kind: str) -> np.ndarray:
-    """Over the means (6(T+1) square), by central differences: `gauss-newton` sum_k dS/dc_k 2 J_k^T J_k,
+    """Over the means (7(T+1) square), by central differences: `gauss-newton` sum_k dS/dc_k 2 J_k^T J_k,
     `surrogate` sum_k dS/dc_k Hess c_k."""
     T = len(mus) - 1
     c = np.array([[float(e @ e) for e in residuals(setup, mus[t], mus[t + 1])] for t in range(T)])
@@ -68,13 +74,13 @@ def numpy_structured_hessian(setup, mus: np.ndarray, trace_ref: float, kind: str
         cp[idx] += h
         cm[idx] -= h
         w[idx] = (trace_of_coefficients(setup, cp, T) - trace_of_coefficients(setup, cm, T)) / (2 * h) / trace_ref
-    H = np.zeros((6 * (T + 1), 6 * (T + 1)))
+    H = np.zeros((7 * (T + 1), 7 * (T + 1)))
     for t in range(T):
         ab = np.concatenate([mus[t], mus[t + 1]])
-        base = residuals(setup, ab[:6], ab[6:])
-        J = [np.zeros((len(e), 12)) for e in base]
-        for j in range(12):
-            d = np.zeros(12)
+        base = residuals(setup, ab[:7], ab[7:])
+        J = [np.zeros((len(e), 14)) for e in base]
+        for j in range(14):
+            d = np.zeros(14)
             d[j] = 1e-7
             up, dn = residuals(setup, *np.split(ab + d, 2)), residuals(setup, *np.split(ab - d, 2))
             for k in range(len(base)):
@@ -84,13 +90,13 @@ def numpy_structured_hessian(setup, mus: np.ndarray, trace_ref: float, kind: str
         else:
             def weighted(y, t=t):
                 return sum(w[t, k] * float(e @ e) for k, e in enumerate(residuals(setup, *np.split(y, 2))))
-            block, h = np.zeros((12, 12)), 1e-4
-            for i in range(12):
-                for j in range(12):
-                    di, dj = np.eye(12)[i] * h, np.eye(12)[j] * h
+            block, h = np.zeros((14, 14)), 1e-4
+            for i in range(14):
+                for j in range(14):
+                    di, dj = np.eye(14)[i] * h, np.eye(14)[j] * h
                     block[i, j] = (weighted(ab + di + dj) - weighted(ab + di - dj) - weighted(ab - di + dj)
                                    + weighted(ab - di - dj)) / (4 * h * h)
-        H[6 * t:6 * t + 12, 6 * t:6 * t + 12] += block
+        H[7 * t:7 * t + 14, 7 * t:7 * t + 14] += block
     return H
 
 
@@ -111,7 +117,7 @@ def test_structured_hessians_match_numpy_finite_differences(short, kind):
     H = np.triu(H) + np.triu(H, 1).T
     offsets = np.cumsum([0] + [size for _, size, _ in tr.layout.blocks])
     names = [name for name, _, _ in tr.layout.blocks]
-    mu_idx = np.concatenate([np.arange(offsets[names.index(f"mu{t}")], offsets[names.index(f"mu{t}")] + 6)
+    mu_idx = np.concatenate([np.arange(offsets[names.index(f"mu{t}")], offsets[names.index(f"mu{t}")] + 7)
                              for t in range(tr.T + 1)])
     expected = numpy_structured_hessian(setup, mus, trace_ref, kind)
     got = H[np.ix_(mu_idx, mu_idx)]
@@ -127,7 +133,7 @@ def test_structured_hessians_match_numpy_finite_differences(short, kind):
     for t in range(tr.T + 1):
         far = [i for i in range(tr.T + 1) if abs(i - t) >= 2]
         for i in far:
-            assert np.all(got[6 * t:6 * t + 6, 6 * i:6 * i + 6] == 0)
+            assert np.all(got[7 * t:7 * t + 7, 7 * i:7 * i + 7] == 0)
 
 
 @pytest.mark.parametrize("kind", ["gauss-newton", "surrogate"])

@@ -41,7 +41,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ..errors import SurestepError
-from ..model.belief import NX, BeliefModel
+from ..model.belief import NM, NX, BeliefModel
+from ..model.lie import np_means
 
 MODES = ("model", "true")
 METRICS = ("pos_err_mean", "pos_err_std", "ori_err_mean", "ori_err_std", "trace_noisy", "trace_ml",
@@ -128,7 +129,8 @@ class Rollouts:
 
 
 class BatchedNoise:
-    """The model's noise Functions mapped over N poses at once (CasADi `Function.map`)."""
+    """The model's noise Functions mapped over N poses at once (CasADi `Function.map`), taking poses `(p, r)`
+    (converted to the model's means, `lie.np_means`)."""
 
     def __init__(self, model: BeliefModel, n: int):
         self.n = n
@@ -141,11 +143,11 @@ class BatchedNoise:
 
     def motion(self, x0: np.ndarray, x1: np.ndarray) -> np.ndarray:
         """(N, 6, 6) W of the steps x0[k] -> x1[k] ((N, 6) each)."""
-        return self._unstack(self._W(x0.T, x1.T))
+        return self._unstack(self._W(np_means(x0).T, np_means(x1).T))
 
     def observation(self, x: np.ndarray) -> np.ndarray:
         """(N, 6, 6) V at the poses x ((N, 6))."""
-        return self._unstack(self._V(x.T))
+        return self._unstack(self._V(np_means(x).T))
 
 
 def sample_gaussian(cov: np.ndarray, z: np.ndarray) -> np.ndarray:
@@ -163,7 +165,7 @@ def has_identity_maps(model: BeliefModel) -> bool:
     """
     if model.identity_maps:
         return True
-    x0, x1 = ca.SX.sym("x0", NX), ca.SX.sym("x1", NX)
+    x0, x1 = ca.SX.sym("x0", NM), ca.SX.sym("x1", NM)
     mats = model.jacobians(x0, x1)
     return all(M.is_constant() and np.array_equal(np.asarray(ca.DM(M)), np.eye(NX)) for M in mats)
 

@@ -1,9 +1,16 @@
 """The belief model: noise models and the EKF step under maximum-likelihood observations.
 
-State `x = (p, r)`: tool position [m] and axis-angle orientation [rad] in the
-camera frame. The covariance is carried as `vech(Sigma)` (21 numbers, the lower
-triangle column by column). All maps are named CasADi Functions built once;
-every method (OCP, gradient variant, baseline, rollouts) uses these.
+The mean is rotation-valued, `m = (p, Q)` (NM = 7 numbers): the tool position [m] and the unit
+quaternion of its orientation, in the camera frame. The covariance Sigma (6x6) is that of the
+error in the tangent at the mean, `(p_true - p, e)` with `R_true = exp(e) R` (a left,
+camera-frame perturbation; the rollouts use the same). With the motion applied as a body-frame
+step (`R_t+1 = R_t D`) and the tracker reporting `exp(v) R_true`, the error-state EKF's maps are
+the identity (F = Q = H = R = I) exactly, for any noise matrices; a camera move rotates the error
+(`camera_change`). Residuals between means are tangents of the relative rotation (`lie.quat_step`),
+so no axis-angle chart enters the model; poses `(p, r)` are converted at the boundary
+(`propagate`, `lie.np_means`). The covariance is carried as `vech(Sigma)` (21 numbers, the lower
+triangle column by column). All maps are named CasADi Functions built once; every method (OCP,
+gradient variant, baseline, rollouts) uses these.
 
     predict:  P  = F Sigma F^T + Q (W(x_t, x_t+1) + W_q) Q^T    (W_q: the optional joint-space term, joint_noise.py)
     update:   S  = H P H^T + R V(x_t+1) R^T,  K = P H^T S^-1,  Sigma+ = sym((I - K H) P)
@@ -16,15 +23,17 @@ from functools import cached_property
 
 import casadi as ca
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from .camera import Intrinsics
-from .lie import SMALL, angle_sq, quat_of, so3_exp, so3_log
+from .lie import SMALL, np_means, quat_cos_angle, quat_mul, quat_of, quat_step, quat_tangent
 
 COMPONENTS = ("depth", "fov", "orientation")
 ORIENTATION_FORMULAS = ("cosine", "geodesic")
 OBSERVATION_NOISE_FORMS = ("mean", "expected")
 OBJECTIVES = ("posterior", "predicted")
-NX = 6
+NX = 6  # the tangent (and pose) size: position, rotation
+NM = 7  # a mean: position, unit quaternion (w, x, y, z)
 NV = NX * (NX + 1) // 2  # 21
 _TRIL = [(i, j) for j in range(NX) for i in range(j, NX)]  # vech order: column-major lower triangle
 DIAG = [k for k, (i, j) in enumerate(_TRIL) if i == j]  # positions of the diagonal in vech
@@ -128,16 +137,15 @@ class NoiseParams:
     joint_sigma: tuple[float, ...] | None = None
 
 
-def paper_cosine(r, o_star, guard: float, band: float):
-    """The paper's `cos = r.o* / (|r| |o*|)` as a function of the rotation (CasADi), from any of its vectors r.
+def paper_cosine(Q, o_star, guard: float, band: float):
+    """The paper's `cos = r.o* / (|r| |o*|)` as a function of the rotation (CasADi), from its unit quaternion Q.
 
-    r is read as its rotation's principal vector r_p (angle in [0, pi]), so both sheets of the double cover
-    give the same value; the guard g [rad] makes it `r_p.o* / (sqrt(|r_p|^2 + g^2) |o*|)` (defined at r = 0);
-    within `band` [rad] below pi it fades to 0 at pi by a smoothstep in the quaternion's w, where the paper's
-    formula jumps (r_p and -r_p are the same rotation there): continuous on SO(3), smooth in the joints (the
-    NLP's means are continued vectors, `Robot.camera_pose`), the paper's own value at angles up to pi - band.
+    The paper's formula is one of the axis-angle chart: it is evaluated on the rotation's principal vector r_p
+    (angle in [0, pi]), so both signs of Q give the same value; the guard g [rad] makes it
+    `r_p.o* / (sqrt(|r_p|^2 + g^2) |o*|)` (defined at r = 0); within `band` [rad] below pi it fades to 0 at pi
+    by a smoothstep in Q's w, where the paper's formula jumps (r_p and -r_p are the same rotation there):
+    continuous on SO(3), smooth in the joints, the paper's own value at angles up to pi - band.
     """
-    Q = quat_of(r)
     w, v = Q[0], Q[1:]
     aw, s2 = ca.fabs(w), ca.dot(v, v)
     vsmall = ca.logic_and(s2 < SMALL, aw > 0.5)
@@ -153,7 +161,7 @@ def paper_cosine(r, o_star, guard: float, band: float):
 
 
 def _identity_jacobians() -> ca.Function:
-    x0, x1 = ca.SX.sym("x0", NX), ca.SX.sym("x1", NX)
+    x0, x1 = ca.SX.sym("x0", NM), ca.SX.sym("x1", NM)
     eye = ca.SX.eye(NX)
     return ca.Function("jacobians", [x0, x1], [eye, eye, eye, eye], ["x0", "x1"], ["F", "Q", "H", "R"])
 
@@ -165,8 +173,9 @@ class BeliefModel:
         noise: constants and options.
         camera: intrinsics (for the field-of-view term).
         components: observation components to include; defaults to `noise.components`.
-        jacobians: optional Function `(x0, x1) -> (F, Q, H, R)` for models whose motion or
-            observation maps are not the identity (e.g. built with `casadi.jacobian`).
+        jacobians: optional Function `(m0, m1) -> (F, Q, H, R)` of the step's two means (7 numbers each)
+            for models whose motion or observation maps (in the tangent) are not the identity (e.g. built
+            with `casadi.jacobian`).
     """
 
     def __init__(
@@ -225,7 +234,7 @@ class BeliefModel:
         """(F, Q, H, R) as NumPy arrays when they do not depend on the means (identity maps always), else None."""
         if self.identity_maps:
             return tuple(np.eye(NX) for _ in range(4))
-        x0, x1 = ca.SX.sym("x0", NX), ca.SX.sym("x1", NX)
+        x0, x1 = ca.SX.sym("m0", NM), ca.SX.sym("m1", NM)
         out = self.jacobians(x0, x1)
         if any(ca.depends_on(M, ca.vertcat(x0, x1)) for M in out):
             return None
@@ -276,8 +285,9 @@ class BeliefModel:
 
     # --------------------------------------------------------------- noise models
     def motion_residuals(self, x0, x1):
-        """Vectors whose squared norms are the motion coefficients: the step and the rotation's log."""
-        return [x1[:3] - x0[:3], so3_log(so3_exp(x0[3:]).T @ so3_exp(x1[3:]))]
+        """Vectors whose squared norms are the motion coefficients of the step between the means x0 -> x1: the
+        translation and the tangent of the relative rotation (its norm is the geodesic angle)."""
+        return [x1[:3] - x0[:3], quat_step(x0[3:], x1[3:])]
 
     def motion_coefficients(self, x0, x1):
         """Scalars multiplying (W_p0, W_o0): squared step length [m^2] and squared angle [rad^2]."""
@@ -289,25 +299,26 @@ class BeliefModel:
     def observation_coefficients(self, x, P=None):
         """Scalars multiplying the base matrices of the selected components (same order).
 
-        With `P` (the predicted covariance, 6x6) and `noise.observation_noise == "expected"`,
-        each term is its expectation under N(x, P): exact for the depth term, first order
-        for the field-of-view and orientation terms (surestep_method.md, section 8).
+        With `P` (the predicted covariance, 6x6, of the tangent error) and `noise.observation_noise ==
+        "expected"`, each term is its expectation under that error: exact for the depth term, first order for
+        the field-of-view and orientation terms (surestep_method.md, section 8), with the orientation
+        residual's Jacobian taken in the tangent (`lie.quat_tangent`).
         """
         expected = P is not None and self.noise.observation_noise == "expected"
         out = []
         for e, i in self.observation_residuals(x):
             c = ca.sumsqr(e)
             if expected:  # E|e(x + d)|^2 ~ |e(x)|^2 + tr(J P J^T), exact for the (affine) depth residual
-                J = ca.jacobian(e, x[i : i + 3])
+                J = ca.jacobian(e, x[:3]) if i == 0 else ca.jacobian(e, x[3:7]) @ quat_tangent(x[3:7])
                 c += ca.trace(J @ P[i : i + 3, i : i + 3] @ J.T)
             out.append(c)
         return out
 
     def observation_residuals(self, x):
-        """Per selected component, `(e, i)`: the coefficient (mean form) is `|e(x)|^2`, and `e`
-        depends on `x[i:i+3]` only (i = 0: the position, 3: the orientation)."""
+        """Per selected component at the mean x, `(e, i)`: the coefficient (mean form) is `|e(x)|^2`, and `e`
+        depends on the position (i = 0) or on the orientation (i = 3, the tangent's rows) only."""
         n = self.noise
-        p, r = x[:3], x[3:]
+        p, Q = x[:3], x[3:7]
         out = []
         if "depth" in self.components:
             out.append((p[2] - n.depth_star, 0))
@@ -316,9 +327,9 @@ class BeliefModel:
         if "orientation" in self.components:
             o = ca.DM(n.o_star)
             if n.orientation_formula == "cosine":
-                cos = paper_cosine(r, n.o_star, n.cosine_guard, n.cut_band)
+                cos = paper_cosine(Q, n.o_star, n.cosine_guard, n.cut_band)
             else:  # geodesic: cosine of the angle between the rotations
-                cos = 0.5 * (ca.trace(so3_exp(r).T @ so3_exp(o)) - 1)
+                cos = quat_cos_angle(Q, quat_of(o))
             out.append((1 - cos, 3))
         return out
 
@@ -340,19 +351,19 @@ class BeliefModel:
 
     @shared_function
     def motion_noise(self) -> ca.Function:
-        x0, x1 = ca.SX.sym("x0", NX), ca.SX.sym("x1", NX)
+        x0, x1 = ca.SX.sym("x0", NM), ca.SX.sym("x1", NM)
         return ca.Function("motion_noise", [x0, x1], [self.motion_noise_expr(x0, x1)], ["x0", "x1"], ["W"])
 
     @shared_function
     def planning_noise(self) -> ca.Function:
         """V used by the planner's EKF step: `(x, P_pred vech) -> V` (equals `observation_noise` in mean form)."""
-        x, p = ca.SX.sym("x", NX), ca.SX.sym("sigma_pred", NV)
+        x, p = ca.SX.sym("x", NM), ca.SX.sym("sigma_pred", NV)
         return ca.Function("planning_noise", [x, p], [self.observation_noise_expr(x, unvech(p))],
                            ["x", "sigma_pred"], ["V"])
 
     @shared_function
     def observation_noise(self) -> ca.Function:
-        x = ca.SX.sym("x", NX)
+        x = ca.SX.sym("x", NM)
         return ca.Function("observation_noise", [x], [self.observation_noise_expr(x)], ["x"], ["V"])
 
     # --------------------------------------------------------------- EKF
@@ -380,39 +391,41 @@ class BeliefModel:
 
     @shared_function
     def predict(self) -> ca.Function:
-        x0, x1, s = ca.SX.sym("x0", NX), ca.SX.sym("x1", NX), ca.SX.sym("sigma", NV)
+        x0, x1, s = ca.SX.sym("x0", NM), ca.SX.sym("x1", NM), ca.SX.sym("sigma", NV)
         return ca.Function("predict", [x0, x1, s], [self.predict_expr(x0, x1, s)], ["x0", "x1", "sigma"], ["sigma_pred"])
 
     @shared_function
     def step(self) -> ca.Function:
-        x0, x1, s = ca.SX.sym("x0", NX), ca.SX.sym("x1", NX), ca.SX.sym("sigma", NV)
+        x0, x1, s = ca.SX.sym("x0", NM), ca.SX.sym("x1", NM), ca.SX.sym("sigma", NV)
         return ca.Function("belief_step", [x0, x1, s], [self.step_expr(x0, x1, s)], ["x0", "x1", "sigma"], ["sigma_next"])
 
     def sigma0_vech(self) -> np.ndarray:
         return vech(np.asarray(self.noise.Sigma0, dtype=float))
 
-    @shared_function
-    def camera_change(self) -> ca.Function:
-        """A camera move: `(x, sigma, D) -> (x', sigma')`, D (4x4) maps old to new camera coordinates.
+    def camera_change(self, x: np.ndarray, s: np.ndarray, D: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """A camera move (NumPy): `(mean, vech sigma, D) -> (mean', vech sigma')`, D (4x4) maps old to new camera
+        coordinates.
 
-        The mean is re-expressed in the new camera frame (`p' = R p + t`, `R' = R_D R`),
-        the covariance by the Jacobian of that map, plus motion noise of the camera's
-        own displacement, `|t|^2 camera_W_p0 + angle(R_D)^2 camera_W_o0` (ECM cable stretch).
+        The mean is re-expressed in the new camera frame (`p' = R_D p + t`, `Q' = Q_D Q`); the tangent error
+        rotates with the frame (`F = diag(R_D, R_D)`, exact for left perturbations), plus motion noise of the
+        camera's own displacement, `|t|^2 camera_W_p0 + angle(R_D)^2 camera_W_o0` (ECM cable stretch).
         """
-        x, s, D = ca.SX.sym("x", NX), ca.SX.sym("sigma", NV), ca.SX.sym("D", 4, 4)
+        x, D = np.asarray(x, float).ravel(), np.asarray(D, float)
         Rd, td = D[:3, :3], D[:3, 3]
-        xn = ca.vertcat(Rd @ x[:3] + td, so3_log(Rd @ so3_exp(x[3:])))
-        F = ca.jacobian(xn, x)
+        rot = Rotation.from_matrix(Rd)
+        qx, qy, qz, qw = rot.as_quat()
+        xn = np.concatenate([Rd @ x[:3] + td, quat_mul(np.array([qw, qx, qy, qz]), x[3:7])])
+        F = np.zeros((NX, NX))
+        F[:3, :3] = F[3:, 3:] = Rd
         n = self.noise
-        W = ca.dot(td, td) * ca.DM(n.camera_W_p0) + angle_sq(ca.DM.eye(3), Rd) * ca.DM(n.camera_W_o0)
-        sn = vech(F @ unvech(s) @ F.T + W)
-        return ca.Function("camera_change", [x, s, D], [xn, sn], ["x", "sigma", "D"], ["x_new", "sigma_new"])
+        W = (td @ td) * np.asarray(n.camera_W_p0, float) + rot.magnitude() ** 2 * np.asarray(n.camera_W_o0, float)
+        return xn, vech(F @ unvech(np.asarray(s, float).ravel()) @ F.T + W)
 
     @shared_function
     def step_pair(self) -> ca.Function:
         """`(x0, x1, sigma, w) -> (sigma_next, sigma_pred)`: `step` and `predict` in one Function, with the step's
         further motion noise `w` (vech; the joint-space term) as a fourth input."""
-        x0, x1, s, w = ca.SX.sym("x0", NX), ca.SX.sym("x1", NX), ca.SX.sym("sigma", NV), ca.SX.sym("w", NV)
+        x0, x1, s, w = ca.SX.sym("x0", NM), ca.SX.sym("x1", NM), ca.SX.sym("sigma", NV), ca.SX.sym("w", NV)
         return ca.Function("belief_step_pair", [x0, x1, s, w], [self.step_expr(x0, x1, s, w),
                                                                  self.predict_expr(x0, x1, s, w)])
 
@@ -422,10 +435,10 @@ class BeliefModel:
 
     def propagate(self, poses: np.ndarray, changes: list | None = None,
                   sigma0: np.ndarray | None = None, joint: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """Covariances along a trajectory under maximum likelihood.
+        """Covariances along a trajectory of poses under maximum likelihood (`propagate_means` of their means).
 
         Args:
-            poses: (T+1, 6) waypoints, each in the camera frame of its own step.
+            poses: (T+1, 6) waypoints `(p, r)`, each in the camera frame of its own step.
             changes: optional list of T camera moves; entry t (4x4 or None) maps the camera
                 frame of step t to that of step t+1 and is applied before the step t -> t+1.
             sigma0: initial covariance (default: the model's Sigma0).
@@ -435,6 +448,11 @@ class BeliefModel:
         Returns:
             (sigmas (T+1, 6, 6) posterior covariances Sigma_t|t, predicted (T, 6, 6) Sigma_t+1|t).
         """
+        return self.propagate_means(np_means(poses), changes, sigma0, joint)
+
+    def propagate_means(self, poses: np.ndarray, changes: list | None = None, sigma0: np.ndarray | None = None,
+                        joint: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """`propagate` along (T+1, 7) means `(p, Q)`."""
         poses = np.asarray(poses, dtype=float)
         if (joint is not None) != self.joint_noise:
             raise ValueError("propagate: the joint-space motion noise (`joint`) is given exactly when the model has it")
@@ -448,7 +466,7 @@ class BeliefModel:
         for t in range(T):
             x0 = poses[t]
             if changes is not None and changes[t] is not None:
-                x0, s = (np.asarray(v).ravel() for v in self.camera_change(x0, s, changes[t]))
+                x0, s = self.camera_change(x0, s, changes[t])
             s, p = (np.asarray(v).ravel() for v in self.step_pair(x0, poses[t + 1], s, w[:, t]))
             pred.append(unvech(p))
             sig.append(unvech(s))

@@ -4,12 +4,13 @@ A step from q_t to q_t+1 leaves each joint off by an independent error of standa
 `sigma_j |q_t+1,j - q_t,j|` (sigma_j dimensionless: rad per rad, m per m), which the kinematics map into
 the belief's coordinates at q_t:
 
-    W_q = J(q_t) diag(sigma^2 (q_t+1 - q_t)^2) J(q_t)^T,   J = d mean / d q
+    W_q = J(q_t) diag(sigma^2 (q_t+1 - q_t)^2) J(q_t)^T,   J = d (p, e) / d q
 
-with `mean = Robot.camera_pose(q, camera)`, the NLP's own chart (position [m], continued rotation vector
-[rad] in the camera frame), so the planner, the evaluation and the tests use one definition. The matrix
-is configuration-dependent and not diagonal in the camera frame; it is added to the paper's pose-space
-W in every EKF predict step (`BeliefModel.predict_expr`'s `w`).
+the Jacobian in the belief's tangent (`tangent_jacobian`): the position's and the camera-frame angular
+velocity's (the left perturbation `exp(e) R` of the mean `Robot.camera_pose(q, camera)`), so the planner,
+the evaluation and the tests use one definition. The matrix is configuration-dependent and not diagonal in
+the camera frame; it is added to the paper's pose-space W in every EKF predict step
+(`BeliefModel.predict_expr`'s `w`).
 """
 
 from __future__ import annotations
@@ -18,12 +19,21 @@ import casadi as ca
 import numpy as np
 
 from .belief import unvech, vech
+from .lie import quat_tangent
 from .robot import CAMERA_PARAMETERS, Robot
+
+
+def tangent_jacobian(robot: Robot, q, camera):
+    """J (6 x nq SX): the mean's derivative in the tangent, `d(p, e)/dq` with `R(q + dq) = exp(J_e dq) R(q)`
+    (from the FK quaternion's derivative, `e = 4 E(Q)^T dQ`, `lie.quat_tangent`)."""
+    m = robot.camera_pose(q, camera)
+    Jm = ca.jacobian(m, q)
+    return ca.vertcat(Jm[:3, :], 4 * quat_tangent(m[3:7]).T @ Jm[3:7, :])
 
 
 def joint_noise_factor(robot: Robot, sigma, qa, qb, camera):
     """U (6 x nq SX) with `W_q = U U^T`: column k is `sigma_k (qb_k - qa_k) J_k(qa)`."""
-    J = ca.jacobian(robot.camera_pose(qa, camera), qa)
+    J = tangent_jacobian(robot, qa, camera)
     return J @ ca.diag(ca.DM(np.asarray(sigma, float)) * (qb - qa))
 
 
@@ -48,7 +58,7 @@ def joint_noise_curvature(robot: Robot, sigma, qa, camera, wj):
     """
     nq = robot.nq
     G = weight_matrix(wj)
-    J = ca.jacobian(robot.camera_pose(qa, camera), qa)
+    J = tangent_jacobian(robot, qa, camera)
     a = ca.vertcat(*[float(sigma[k]) ** 2 * ca.bilin(G, J[:, k], J[:, k]) for k in range(nq)])
     A = ca.diag(2 * a)
     return ca.vertcat(ca.horzcat(A, -A), ca.horzcat(-A, A))

@@ -4,12 +4,13 @@ Axis-angle vectors `r` [rad] parametrise rotations, `R = exp(r)`. The symbolic
 maps avoid the 0/0 at the identity with a Taylor branch evaluated on a safe
 argument (so automatic differentiation never meets a NaN in the unused branch).
 
-Orientation means are continued along the motion (docs/orientation.md): a unit
-quaternion `(w, x, y, z)` (the double cover of SO(3)) is continuous along any joint
-path, and its log `r = 2 atan2(|v|, w) v / |v|` (angle in [0, 2 pi)) is the rotation
-vector an EKF adding increments to `r` carries. It equals the principal vector while
-the angle stays below pi and continues smoothly beyond it, where the principal vector
-jumps to the other side of the ball.
+The belief's means are rotation-valued (docs/orientation.md): a mean is `m = (p, Q)`,
+seven numbers, the position and a unit quaternion `(w, x, y, z)` (the double cover of
+SO(3), continuous along any joint path). Errors, noises and covariances live in the
+tangent at the mean, as left (camera-frame) perturbations `Q_true = exp(e) Q`; residuals
+between two means are the tangent of the relative rotation (`quat_step`), near the
+identity. Axis-angle vectors are the poses' storage format (solutions, the gradient
+variant's decision space); `pose_mean` / `np_means` convert them to means.
 """
 
 from __future__ import annotations
@@ -94,7 +95,51 @@ def quat_rotvec(Q):
     return f * v
 
 
+def quat_conj(Q):
+    """Conjugate (the inverse rotation) of a unit quaternion (CasADi)."""
+    return ca.vertcat(Q[0], -Q[1:])
+
+
+def quat_step(Qa, Qb):
+    """Rotation vector of the relative rotation `Qa^* Qb` (from a to b in a's frame, angle in [0, pi]), CasADi:
+    the tangent residual between two orientation means; the sign of either quaternion does not matter."""
+    D = quat_mul(quat_conj(Qa), Qb)
+    return quat_rotvec(ca.if_else(D[0] < 0, -D, D))
+
+
+def quat_cos_angle(Qa, Qb):
+    """Cosine of the geodesic angle between two rotations given as unit quaternions, `2 (Qa.Qb)^2 - 1` (CasADi)."""
+    return 2 * ca.dot(Qa, Qb) ** 2 - 1
+
+
+def quat_tangent(Q):
+    """E (4x3) with `dQ = E w` for a left (camera-frame) perturbation `exp(w) Q` at w = 0 (CasADi); for a unit Q,
+    `E^T E = I / 4`, so `w = 4 E^T dQ`: the map from quaternion derivatives to tangent ones."""
+    w, v = Q[0], Q[1:]
+    return 0.5 * ca.vertcat(-v.T, w * ca.DM.eye(3) - skew(v))
+
+
+def pose_mean(x):
+    """The mean `(p, Q)` (7) of a pose `(p, r)` (6), CasADi: the quaternion of the rotation vector."""
+    return ca.vertcat(x[:3], quat_of(x[3:6]))
+
+
 # ---------------------------------------------------------------- NumPy versions
+
+
+def np_means(poses: np.ndarray) -> np.ndarray:
+    """(N, 7) means `(p, Q)` of (N, 6) poses `(p, r)`: `Q = np_quat(r)` (so a continued vector keeps its sheet)."""
+    poses = np.asarray(poses, dtype=float).reshape(-1, 6)
+    return np.hstack([poses[:, :3], np_quat(poses[:, 3:])])
+
+
+def np_poses(means: np.ndarray, flip_w: float = 0.9) -> np.ndarray:
+    """(N, 6) poses `(p, r)` of (N, 7) means: r the log of Q (angle in [0, 2 pi), the double cover's vector, so
+    it continues along the sheet of Q), with Q's sign flipped where w < -flip_w (near a full turn the log is
+    singular; past 2 acos(-flip_w), 5.4 rad, the other vector of the same rotation is used)."""
+    m = np.asarray(means, dtype=float).reshape(-1, 7)
+    Q = np.where((m[:, 3] < -flip_w)[:, None], -m[:, 3:], m[:, 3:])
+    return np.hstack([m[:, :3], np_quat_rotvec(Q)])
 
 
 def np_quat(r: np.ndarray) -> np.ndarray:

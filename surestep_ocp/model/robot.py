@@ -23,9 +23,8 @@ from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
 from ..errors import FrameNotFound, UnreachablePose, UnsupportedJoint
-from .lie import np_log, quat_mul, quat_rotvec, so3_exp, so3_log
+from .lie import np_log, quat_mul, so3_exp, so3_log
 
-FLIP_W = 0.9  # `camera_pose`: a continued vector's quaternion with w below -FLIP_W is flipped
 CAMERA_PARAMETERS = 16  # the camera parameter of `Robot.camera_pose`: vec(T_cam_base[:3, :]), then its quaternion
 
 
@@ -234,20 +233,17 @@ class Robot:
 
     @cached_property
     def camera_pose(self) -> ca.Function:
-        """`pose(q, camera) -> mean` (position [m], rotation vector [rad]) of the tracked object in the camera
-        frame; `camera` (CAMERA_PARAMETERS) is vec of the root's 3x4 pose in the camera frame, then that
-        rotation's quaternion with the sign that makes the start's angle at most pi (`Setup.camera_parameter`).
+        """`pose(q, camera) -> mean` (position [m], unit quaternion `(w, x, y, z)`: 7 numbers) of the tracked object
+        in the camera frame; `camera` (CAMERA_PARAMETERS) is vec of the root's 3x4 pose in the camera frame, then
+        that rotation's quaternion with the sign that makes the start's angle at most pi (`Setup.camera_parameter`).
 
-        The rotation vector is the log of the FK quaternion (`lie.quat_rotvec`): continued along the joints,
-        no cut at pi.
+        The quaternion is the product of the joints' half-angle quaternions (`fk_quaternion_expr`): smooth in the
+        joints, no chart (docs/orientation.md).
         """
         q, cam = ca.SX.sym("q", self.nq), ca.SX.sym("camera", CAMERA_PARAMETERS)
         Tcb, Tq = cam[:12].reshape((3, 4)), self.fk_expr(q)
         Q = quat_mul(cam[12:], self.fk_quaternion_expr(q))
-        # near a full turn (w = -1) the log is singular: past angles of 2 acos(-FLIP_W) (5.4 rad) the other vector of
-        # the same rotation (every noise term is a function of the rotation; only the mean's coordinates jump)
-        r = quat_rotvec(ca.if_else(Q[0] < -FLIP_W, -Q, Q))
-        return ca.Function("pose", [q, cam], [ca.vertcat(Tcb[:, :3] @ Tq[:3, 3] + Tcb[:, 3], r)], ["q", "camera"],
+        return ca.Function("pose", [q, cam], [ca.vertcat(Tcb[:, :3] @ Tq[:3, 3] + Tcb[:, 3], Q)], ["q", "camera"],
                            ["mean"])
 
     def camera_poses(self, n: int) -> ca.Function:

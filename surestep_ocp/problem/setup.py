@@ -11,7 +11,7 @@ from scipy.spatial.transform import Rotation
 from ..model.belief import BeliefModel
 from ..errors import FrameNotFound, ProblemError, UnreachablePose, UnsupportedJoint
 from ..model.joint_noise import joint_noises
-from ..model.lie import continued, matrix_to_pose, np_exp_many, pose_to_matrix, quat_mul
+from ..model.lie import continued, matrix_to_pose, np_exp_many, np_means, np_poses, pose_to_matrix, quat_mul
 from .problem import EndpointSpec, Problem
 from ..model.robot import Robot
 
@@ -95,11 +95,33 @@ class Setup:
             cache[key] = np.concatenate([Tcb[:3, :].ravel(order="F"), Qc])
         return cache[key].copy()
 
-    def poses_of(self, q: np.ndarray) -> np.ndarray:
-        """(N, 6) camera-frame means `[p, r]` at the joint vectors `q` (N, nq): the rotation vector continued
-        along the joints from the start's (docs/orientation.md); exp(r) is Pinocchio's rotation (tested)."""
+    def means_of(self, q: np.ndarray) -> np.ndarray:
+        """(N, 7) camera-frame means `(p, Q)` at the joint vectors `q` (N, nq), `Robot.camera_pose`: the FK
+        quaternion, continuous along the joints (its sign is the start's principal one at q_start)."""
         q = np.atleast_2d(np.asarray(q, float))
         return np.asarray(self.robot.camera_poses(len(q))(q.T, self.camera_parameter())).T
+
+    def poses_of(self, q: np.ndarray) -> np.ndarray:
+        """(N, 6) camera-frame poses `[p, r]` at the joint vectors `q` (N, nq): r the log of the means' quaternion,
+        continued along the joints from the start's (docs/orientation.md); exp(r) is Pinocchio's rotation (tested)."""
+        return np_poses(self.means_of(q))
+
+    def mean_at(self, x: np.ndarray, q: np.ndarray) -> np.ndarray:
+        """The mean `(p, Q)` of the pose `x`, its quaternion on the side (sign) of the FK quaternion at joints q."""
+        m = np_means(np.asarray(x, float))[0]
+        if m[3:] @ self.means_of(q)[0, 3:] < 0:
+            m[3:] = -m[3:]
+        return m
+
+    @property
+    def m_start(self) -> np.ndarray:
+        """The start's mean `(p, Q)` (the OCP's first node)."""
+        return self.mean_at(self.x_start, self.q_start)
+
+    @property
+    def m_goal(self) -> np.ndarray:
+        """The goal's mean `(p, Q)`: the OCP's terminal equality `mu_T = m_goal`, on the sheet of the goal joints."""
+        return self.mean_at(self.x_goal, self.q_goal)
 
     def joint_noises(self, q: np.ndarray) -> np.ndarray | None:
         """(T, 21) vech of each step's joint-space motion noise along the joints `q` (T+1, nq), or None when the
@@ -109,7 +131,7 @@ class Setup:
         return joint_noises(self.robot, self.problem.noise.joint_sigma, q, self.camera_parameter())
 
     def pose_of(self, q: np.ndarray) -> np.ndarray:
-        """Camera-frame mean `[p, r]` of the tracked frame at joints `q` (see `poses_of`)."""
+        """Camera-frame pose `[p, r]` of the tracked frame at joints `q` (see `poses_of`)."""
         return self.poses_of(q)[0]
 
     def joints_for(self, x: np.ndarray, q0: np.ndarray, what: str = "pose", raise_on_fail: bool = True):

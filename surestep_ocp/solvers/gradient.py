@@ -34,7 +34,7 @@ import scipy.optimize
 
 from .baseline import reachability, straight_line
 from ..model.belief import NX, trace_vech
-from ..model.lie import angle_sq, np_angle, so3_exp
+from ..model.lie import angle_sq, np_angle, pose_mean, so3_exp
 from ..errors import SurestepError
 from ..problem.setup import Setup
 from ..output.solution import Solution, evaluate
@@ -75,12 +75,13 @@ def build_loss(setup: Setup, model, pose_loss: bool, weight: float,
         x = x + d[NX * t:NX * (t + 1)]
         xs.append(x)
     xs[T] = ca.DM(setup.x_goal)  # the clipping action
+    ms = [pose_mean(x) for x in xs]  # the belief's means of the pose-space waypoints (the paper's decision space)
     for t in range(T - 1):
-        s = model.step(xs[t], xs[t + 1], s)
+        s = model.step(ms[t], ms[t + 1], s)
     if model.noise.objective == "predicted":  # Sigma_T|T-1: before the last observation
-        s = model.predict(xs[T - 1], xs[T], s)
+        s = model.predict(ms[T - 1], ms[T], s)
     else:
-        s = model.step(xs[T - 1], xs[T], s)
+        s = model.step(ms[T - 1], ms[T], s)
     trace = trace_vech(s)
     dp = xs[T][:3] - xs[T - 1][:3]
     step_m = _smooth_norm(ca.dot(dp, dp), EPS_POS)

@@ -1,6 +1,6 @@
 """The lifted multiple-shooting OCP: vech(Sigma_t) as node variables, the Kalman step as the shooting constraint.
 
-Per node t: joints `q_t`, mean `mu_t` and `s_t = vech(Sigma_t) / scale_t` (21 numbers, scaled by the
+Per node t: joints `q_t`, mean `mu_t` (position and unit quaternion, `Robot.camera_pose`) and `s_t = vech(Sigma_t) / scale_t` (21 numbers, scaled by the
 initial guess's covariance size). Constraints:
 
     mu_t - pose(q_t) = 0                                   every node (kinematics)
@@ -36,7 +36,7 @@ import numpy as np
 import scipy.sparse.linalg
 
 from ..errors import SurestepError
-from ..model.belief import DIAG, NV, NX, BeliefModel, unvech, vech
+from ..model.belief import DIAG, NM, NV, NX, BeliefModel, unvech, vech
 from ..model.robot import CAMERA_PARAMETERS, Robot
 from ..output.solution import Solution
 from ..problem.setup import Setup
@@ -72,15 +72,15 @@ class LiftedTranscription:
         t0 = time.perf_counter()
         self.robot, self.model, self.T = robot, model, horizon
         T, nq = horizon, robot.nq
-        self.nz = nz = nq + NX + NV  # per node: q, mu, s
+        self.nz = nz = nq + NM + NV  # per node: q, mu, s
         self.n = n = nz * (T + 1)
-        self.ng = NX * (T + 1) + NV * T
+        self.ng = NM * (T + 1) + NV * T
         self.n_p = CAMERA_PARAMETERS + (T + 1) + 1 + NV
         pose = pose_function(robot)
         stage = kalman_stage(model)
 
         # ---- interval functions: (a, b) the means at both ends, s the scaled covariance, sc0/sc1 the scales
-        a, b, s = ca.SX.sym("a", NX), ca.SX.sym("b", NX), ca.SX.sym("s", NV)
+        a, b, s = ca.SX.sym("a", NM), ca.SX.sym("b", NM), ca.SX.sym("s", NV)
         sc0, sc1 = ca.SX.sym("sc0"), ca.SX.sym("sc1")
         (_, _), coefficients, (wm, wo, _), weighted = interval_terms(model, a, b)
         c = ca.vertcat(*coefficients)
@@ -92,7 +92,7 @@ class LiftedTranscription:
         interval_jac = ca.Function("lifted_jac", [a, b, s, sc0, sc1], [ca.densify(ca.horzcat(Jab, sc0 * Jsc[:, :NV]))])
         interval_hess = ca.Function("lifted_hess", [a, b, wm, wo],
                                     [ca.densify(ca.hessian(weighted, ca.vertcat(a, b))[0])])
-        q, lk, Tcb = ca.SX.sym("q", nq), ca.SX.sym("lk", NX), ca.SX.sym("camera", CAMERA_PARAMETERS)
+        q, lk, Tcb = ca.SX.sym("q", nq), ca.SX.sym("lk", NM), ca.SX.sym("camera", CAMERA_PARAMETERS)
         node_jac = ca.Function("lifted_node_jac", [q, Tcb], [ca.densify(-ca.jacobian(pose(q, Tcb), q))])
         node_hess = ca.Function("lifted_node_hess", [q, lk, Tcb],
                                 [ca.densify(ca.hessian(-ca.dot(lk, pose(q, Tcb)), q)[0])])
@@ -100,17 +100,17 @@ class LiftedTranscription:
         # ---- indices (node-major decision vector: q_t, mu_t, s_t)
         base = [nz * t for t in range(T + 1)]
         self.q_idx = q_idx = [np.arange(o, o + nq) for o in base]
-        self.mu_idx = mu_idx = [np.arange(o + nq, o + nq + NX) for o in base]
-        self.s_idx = s_idx = [np.arange(o + nq + NX, o + nz) for o in base]
-        kin_rows = [np.arange(NX * t, NX * (t + 1)) for t in range(T + 1)]
-        step_rows = [NX * (T + 1) + np.arange(NV * t, NV * (t + 1)) for t in range(T)]
+        self.mu_idx = mu_idx = [np.arange(o + nq, o + nq + NM) for o in base]
+        self.s_idx = s_idx = [np.arange(o + nq + NM, o + nz) for o in base]
+        kin_rows = [np.arange(NM * t, NM * (t + 1)) for t in range(T + 1)]
+        step_rows = [NM * (T + 1) + np.arange(NV * t, NV * (t + 1)) for t in range(T)]
         D = smoothness_matrix(n, q_idx, smoothness)
 
         # ---- symbolic NLP over the mapped stages
         X, P = ca.MX.sym("x", n), ca.MX.sym("p", self.n_p)
         lam_f, lam_g = ca.MX.sym("lam_f"), ca.MX.sym("lam_g", self.ng)
         Z = ca.reshape(X, nz, T + 1)
-        qs, mus, ss = Z[:nq, :], Z[nq:nq + NX, :], Z[nq + NX:, :]
+        qs, mus, ss = Z[:nq, :], Z[nq:nq + NM, :], Z[nq + NM:, :]
         c0 = CAMERA_PARAMETERS
         Tc, scale, ref = P[:c0], P[c0:c0 + T + 1], P[c0 + T + 1]
         sc_a, sc_b = ca.reshape(scale[:T], 1, T), ca.reshape(scale[1:], 1, T)
@@ -128,7 +128,7 @@ class LiftedTranscription:
             entries([(step_rows[t], np.concatenate([mu_idx[t], mu_idx[t + 1], s_idx[t]])) for t in range(T)]),
             entries([(step_rows[t], s_idx[t + 1]) for t in range(T)])])
         J_nz = (ca.mtimes(j_q, ca.vec(node_jac.map(T + 1)(qs, Tc)))
-                + ca.mtimes(j_mu, ca.DM(np.tile(np.eye(NX).ravel(order="F"), T + 1)))
+                + ca.mtimes(j_mu, ca.DM(np.tile(np.eye(NM).ravel(order="F"), T + 1)))
                 + ca.mtimes(j_int, ca.vec(interval_jac.map(T)(*args)))
                 + ca.mtimes(j_next, ca.DM(np.tile(eye_nv, T))))
         jac_g = ca.Function("lifted_jac_g", [X, P], [g, ca.MX(jac_sp, J_nz)], ["x", "p"], ["g", "jac"])
@@ -136,7 +136,7 @@ class LiftedTranscription:
         hess_sp, (h_int, h_q), const = assemble((n, n), [
             entries([(np.concatenate([mu_idx[t], mu_idx[t + 1]]),) * 2 for t in range(T)]),
             entries([(i, i) for i in q_idx])], np.triu(D))
-        lam_kin = ca.reshape(lam_g[:NX * (T + 1)], NX, T + 1)
+        lam_kin = ca.reshape(lam_g[:NM * (T + 1)], NM, T + 1)
         C, nm = self.coef.map(T)(mus[:, :T], mus[:, 1:]), wm.shape[0]  # motion coefficients, then observation
         _, w_m, w_o, _ = recursion_weights(model, T, ca.SX.sym("sigma0", NV), ca.SX.sym("trace_ref"))(
             C[:nm, :], C[nm:, :], ca.MX(0, T), P[c0 + T + 2:], ref)
@@ -153,7 +153,7 @@ class LiftedTranscription:
         self.hess_lag, self.jac_g, self.grad_f = staged["hess_lag"], staged["jac_g"], staged["grad_f"]
         self._jac_nz = None  # the buffered Jacobian of `multipliers`, made on first use
         # initial covariances: the Kalman recursion along the initial means (mapaccum of the same stage)
-        M, S0 = ca.MX.sym("mus", NX, T + 1), ca.MX.sym("sigma0", NV)
+        M, S0 = ca.MX.sym("mus", NM, T + 1), ca.MX.sym("sigma0", NV)
         roll = stage.mapaccum("lifted_roll", T)(S0, self.coef.map(T)(M[:, :T], M[:, 1:]))[0]
         self.roll = ca.Function("lifted_rollout", [M, S0], [roll])
         self.poses = pose.map(T + 1)
@@ -169,7 +169,7 @@ class LiftedTranscription:
     def _start(self, setup: Setup, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
         """Consistent initial point (joints, means by FK, covariances by the recursion), scales, initial trace."""
         T = self.T
-        mu = np.asarray(self.poses(q.T, setup.camera_parameter()))  # 6 x T+1
+        mu = np.asarray(self.poses(q.T, setup.camera_parameter()))  # 7 x T+1
         s0 = vech(np.asarray(setup.problem.noise.Sigma0, float))
         S = np.hstack([s0[:, None], np.asarray(self.roll(mu, s0))])  # 21 x T+1
         tr = S[DIAG, :].sum(axis=0)
@@ -200,9 +200,9 @@ class LiftedTranscription:
         lo[held, :] = hi[held, :] = np.asarray(setup.q_start)[held, None]
         lo[:nq, 0] = hi[:nq, 0] = setup.q_start
         lo[nq + 2, :] = prob.min_depth
-        lo[nq:nq + NX, 0] = hi[nq:nq + NX, 0] = setup.x_start
-        lo[nq:nq + NX, T] = hi[nq:nq + NX, T] = setup.x_goal
-        lo[nq + NX:, 0] = hi[nq + NX:, 0] = vech(np.asarray(prob.noise.Sigma0, float)) / scale[0]
+        lo[nq:nq + NM, 0] = hi[nq:nq + NM, 0] = setup.m_start
+        lo[nq:nq + NM, T] = hi[nq:nq + NM, T] = setup.m_goal
+        lo[nq + NM:, 0] = hi[nq + NM:, 0] = vech(np.asarray(prob.noise.Sigma0, float)) / scale[0]
         return lo.ravel(order="F"), hi.ravel(order="F")
 
     def solve(self, setup: Setup, init, method: str = "ocp", warm=None):
@@ -224,7 +224,7 @@ class LiftedTranscription:
         solve_s = time.perf_counter() - t0
         Z = np.asarray(res["x"]).reshape(self.nz, T + 1, order="F")
         return ipopt_solution(self, setup, method, init, warm, Z[:nq, :].T.copy(), res, solve_s, scale, trace_ref,
-                              float(scale[T] * np.trace(unvech(Z[nq + NX:, T]))),
+                              float(scale[T] * np.trace(unvech(Z[nq + NM:, T]))),
                               float(np.max(np.abs(np.asarray(res["g"])))), "full (lifted, structured Hessian)")
 
     def start_solution(self, setup: Setup, init, method: str = "ocp") -> Solution | None:

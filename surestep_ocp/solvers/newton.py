@@ -40,6 +40,7 @@ import scipy.linalg
 from scipy.linalg.lapack import dpbtrf, dpbtrs
 
 from ..model.belief import NV, BeliefModel, vech
+from ..model.lie import np_poses
 from ..model.joint_noise import joint_noise_curvature, joint_noise_expr
 from ..model.robot import CAMERA_PARAMETERS, Robot
 from ..output.solution import Solution, evaluate
@@ -321,19 +322,19 @@ class NewtonSolver:
     def _end(self, setup, x, P, trace_ref, status, it, exact_steps, t0, secant_steps=0) -> NewtonRun:
         T, nq = self.T, self.robot.nq
         q = x.reshape(T + 1, nq)
-        mu = np.asarray(self.poses(q.T, setup.camera_parameter())).T
-        terminal = float(np.max(np.abs(mu[T] - setup.x_goal)))
+        mu = np.asarray(self.poses(q.T, setup.camera_parameter())).T  # means (p, Q)
+        terminal = float(np.max(np.abs(mu[T] - setup.m_goal)))
         depth = float(max(0.0, setup.problem.min_depth - mu[:, 2].min()))
         if status == "Solve_Succeeded" and (depth > 0 or terminal > 1e-9):
             status = "Depth_Bound_Violated" if depth > 0 else "Terminal_Pose_Not_Met"
         solve_s = time.perf_counter() - t0
         trace, f_val = (float(v[0]) for v in self.step(x, P)[:2])
-        return NewtonRun(q, mu, status, it, exact_steps, f_val * trace_ref, trace * trace_ref, trace_ref,
+        return NewtonRun(q, np_poses(mu), status, it, exact_steps, f_val * trace_ref, trace * trace_ref, trace_ref,
                          max(terminal, depth), solve_s, secant_steps)
 
     def _solution(self, setup, method, init, r: NewtonRun) -> Solution:
         return evaluate(
-            setup, method, r.mu, list(r.q),
+            setup, method, r.poses, list(r.q),
             success=r.success, status=r.status, solve_time_s=r.solve_time_s, iterations=r.iterations,
             objective=r.objective,
             extras={"init": init.source, "solver": "newton", "covariance_form": "condensed",
@@ -350,7 +351,7 @@ class NewtonRun:
     """Where a projected Newton run ended, before its plan is evaluated (`NewtonSolver.run`)."""
 
     q: np.ndarray  # (T+1, nq) joints
-    mu: np.ndarray  # (T+1, 6) planned means [m, rad], camera frame
+    poses: np.ndarray  # (T+1, 6) planned poses [m, rad], camera frame
     status: str
     iterations: int
     exact_steps: int

@@ -25,6 +25,7 @@ import numpy as np
 
 from ..model.belief import NV, NX, BeliefModel, unvech, vech
 from ..errors import SurestepError
+from ..model.lie import pose_mean
 from .methods import ocp_initial_guess
 from .newton import EXACT_BELOW
 from .ocp import (
@@ -125,8 +126,8 @@ class Planner:
                 if run.status not in ("Stalled", "Maximum_Iterations_Exceeded", "Line_Search_Failed"):
                     break  # converged, or a failure the switch does not change (a depth bound, an infeasible start)
             if run.success:
-                sig = np.asarray(built[1](run.mu.T, vech(cov))).T[:, _UNVECH]
-                sol = evaluate(sub, "ocp-replan", run.mu, list(run.q), success=True, status=run.status,
+                sig = np.asarray(built[1](run.poses.T, vech(cov))).T[:, _UNVECH]
+                sol = evaluate(sub, "ocp-replan", run.poses, list(run.q), success=True, status=run.status,
                                solve_time_s=run.solve_time_s, iterations=run.iterations, objective=run.objective,
                                sigma=sig, extras={"solver": "newton", "init": warm.source,
                                                   "initial_trace": run.initial_trace, "warm_start_q": warm.q})
@@ -175,9 +176,9 @@ def _estimate(mean, covariance) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _propagation(model: BeliefModel, n: int) -> ca.Function:
-    """`(means (6, n+1), vech(Sigma_0)) -> vech(Sigma_t|t) (21, n+1)`: the model's EKF step unrolled (one call)."""
+    """`(poses (6, n+1), vech(Sigma_0)) -> vech(Sigma_t|t) (21, n+1)`: the model's EKF step unrolled (one call)."""
     X, s0 = ca.SX.sym("X", NX, n + 1), ca.SX.sym("sigma0", NV)
     out = [s0]
     for t in range(n):
-        out.append(model.step(X[:, t], X[:, t + 1], out[-1]))
+        out.append(model.step(pose_mean(X[:, t]), pose_mean(X[:, t + 1]), out[-1]))
     return ca.Function("propagation", [X, s0], [ca.horzcat(*out)])

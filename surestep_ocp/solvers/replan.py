@@ -15,7 +15,7 @@ import numpy as np
 
 from ..model.belief import unvech, vech
 from ..errors import SurestepError
-from ..model.lie import matrix_to_pose
+from ..model.lie import matrix_to_pose, np_means, np_poses
 from .methods import run_method
 from ..output.outputs import check_finite
 from .planner import Planner
@@ -31,8 +31,8 @@ def _belief_after_move(setup: Setup, q_exec: np.ndarray, k: int) -> tuple[np.nda
     poses = np.array([matrix_to_pose(np.linalg.inv(C[t]) @ setup.robot.base_pose @ setup.robot.frame_pose(q))
                       for t, q in enumerate(q_exec[:k])])
     sig, _ = setup.eval_model.propagate(poses, changes[: k - 1] if k > 1 else None)
-    x_new, s_new = setup.eval_model.camera_change(poses[-1], vech(sig[-1]), changes[k - 1])
-    return np.asarray(x_new).ravel(), unvech(np.asarray(s_new).ravel())
+    m_new, s_new = setup.eval_model.camera_change(np_means(poses[-1])[0], vech(sig[-1]), changes[k - 1])
+    return np_poses(m_new, flip_w=0.0)[0], unvech(s_new)  # the principal vector
 
 
 def replan(setup: Setup, out_dir: Path, progress=None) -> dict:

@@ -1,8 +1,9 @@
 """The condensed, gain-lifted and diagonal transcriptions of the belief-space OCP (IPOPT).
 
 Direct multiple shooting over joints and belief mean. Per node t = 0..T: joints `q_t` and mean `mu_t`
-(camera-frame pose), tied by `mu_t = pose_in_camera(FK(q_t))`; joint limits, a minimum depth, `q_0`,
-`mu_0`, `Sigma_0` fixed and `mu_T = x^G` (hard). Objective: `Tr(Sigma_T)` divided by the initial guess's
+(camera-frame position and unit quaternion, 7 numbers: rotation-valued, no axis-angle chart), tied by
+`mu_t = pose_in_camera(FK(q_t))` (`Robot.camera_pose`: the FK quaternion); joint limits, a minimum depth,
+`q_0`, `mu_0`, `Sigma_0` fixed and `mu_T = x^G` (hard; the goal's quaternion on the goal joints' sheet). Objective: `Tr(Sigma_T)` divided by the initial guess's
 value, plus an optional joint-step smoothness term. The covariance forms (`solver.covariance`):
 
 * `condensed`: no covariance variables; the EKF recursion is written out in the objective (six scalar
@@ -38,7 +39,7 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
-from ..model.belief import DIAG, NV, NX, BeliefModel, unvech, vech
+from ..model.belief import DIAG, NM, NV, NX, BeliefModel, unvech, vech
 from .codegen import compiled_or_interpreted
 from ..errors import SurestepError
 from ..model.joint_noise import joint_noise_expr, joint_noise_factor, joint_noise_function, weight_matrix
@@ -136,7 +137,7 @@ class Transcription:
         qs, mus, ss, Ks = [], [], [], []
         for t in range(T + 1):
             qs.append(L.add(f"q{t}", nq))
-            mus.append(L.add(f"mu{t}", NX))
+            mus.append(L.add(f"mu{t}", NM))
             if form == "condensed":
                 continue
             ss.append(L.add(f"s{t}", ns))
@@ -337,7 +338,7 @@ class Transcription:
         m, T, nq = self.model, self.T, self.robot.nq
         n = self.layout.vector().shape[0]
         weights = recursion_weights(m, T, sigma0, trace_ref)
-        a, b = ca.SX.sym("a", NX), ca.SX.sym("b", NX)
+        a, b = ca.SX.sym("a", NM), ca.SX.sym("b", NM)
         jv = ca.SX.sym("w_q", NV) if m.joint_noise else None  # the joint-space term: its own (q_t, q_t+1) stage
         (res_m, res_o), coefficients, (wm, wo, wj), weighted = interval_terms(m, a, b, jv)
         coef = ca.Function("coef", [a, b], list(coefficients[:2]))
@@ -351,7 +352,7 @@ class Transcription:
             weighted, block = ca.substitute(weighted, jv, ca.DM.zeros(NV)), ca.substitute(block, jv, ca.DM.zeros(NV))
         interval_grad = ca.Function("interval_grad", [a, b, wm, wo], [ca.densify(ca.gradient(weighted, ab))])
         interval_hess = ca.Function("interval_hess", [a, b, wm, wo], [ca.densify(block)])
-        q, lam, Tcb = ca.SX.sym("q", nq), ca.SX.sym("lam", NX), ca.SX.sym("camera", CAMERA_PARAMETERS)
+        q, lam, Tcb = ca.SX.sym("q", nq), ca.SX.sym("lam", NM), ca.SX.sym("camera", CAMERA_PARAMETERS)
         # g_t = mu_t - pose(q_t): Jacobian -d pose/dq (and I in the mean); curvature -Hess(lam . pose)
         node_jac = ca.Function("node_jac", [q, Tcb], [ca.densify(-ca.jacobian(pose(q, Tcb), q))])
         node_hess = ca.Function("node_hess", [q, lam, Tcb], [ca.densify(ca.hessian(-ca.dot(lam, pose(q, Tcb)), q)[0])])
@@ -359,17 +360,17 @@ class Transcription:
         # Where each stage output's entries go (column-major within each stage block).
         offsets = dict(zip((name for name, _, _ in self.layout.blocks),
                            np.cumsum([0] + [size for _, size, _ in self.layout.blocks])))
-        mu_idx = [np.arange(offsets[f"mu{t}"], offsets[f"mu{t}"] + NX) for t in range(T + 1)]
+        mu_idx = [np.arange(offsets[f"mu{t}"], offsets[f"mu{t}"] + NM) for t in range(T + 1)]
         q_idx = [np.arange(offsets[f"q{t}"], offsets[f"q{t}"] + nq) for t in range(T + 1)]
         ab_idx = [np.concatenate([mu_idx[t], mu_idx[t + 1]]) for t in range(T)]
-        g_idx = [np.arange(NX * t, NX * (t + 1)) for t in range(T + 1)]
+        g_idx = [np.arange(NM * t, NM * (t + 1)) for t in range(T + 1)]
 
         D = smoothness_matrix(n, q_idx, smoothness)
 
         X, P = ca.MX.sym("x", n), ca.MX.sym("p", self.p.shape[0])
         lam_f, lam_g = ca.MX.sym("lam_f"), ca.MX.sym("lam_g", self.ng)
         Tcb_x, sigma0_x, ref_x = ca.Function("params", [self.p], [self.p[:CAMERA_PARAMETERS], sigma0, trace_ref])(P)
-        mus = ca.horzcat(*[X[i[0]:i[0] + NX] for i in mu_idx])
+        mus = ca.horzcat(*[X[i[0]:i[0] + NM] for i in mu_idx])
         qs = ca.horzcat(*[X[i[0]:i[0] + nq] for i in q_idx])
         qq_idx = [np.concatenate([q_idx[t], q_idx[t + 1]]) for t in range(T)]
         qab_x = ca.vertcat(qs[:, :T], qs[:, 1:])
@@ -379,7 +380,7 @@ class Transcription:
         G = interval_grad.map(T)(mus[:, :T], mus[:, 1:], w_m, w_o)
         B = interval_hess.map(T)(mus[:, :T], mus[:, 1:], w_m, w_o)
         Jq = node_jac.map(T + 1)(qs, Tcb_x)
-        K = node_hess.map(T + 1)(qs, ca.reshape(lam_g[:NX * (T + 1)], NX, T + 1), Tcb_x)
+        K = node_hess.map(T + 1)(qs, ca.reshape(lam_g[:NM * (T + 1)], NM, T + 1), Tcb_x)
         smooth_f = 0.5 * ca.bilin(ca.DM(D), X, X) if smoothness > 0 else 0
 
         grad_parts = [entries([(i, [0]) for i in ab_idx])] + ([entries([(i, [0]) for i in qq_idx])] if joint else [])
@@ -411,7 +412,7 @@ class Transcription:
             A_sp = ca.sparsify(ca.DM(self.A))
             g_lim = [ca.mtimes(A_sp, X), ca.vec(self.tool_point.map(npts)(W_x, self.tool_weights))]
         jac_sp, sc_j, jconst = assemble((self.ng, n), jac_parts, lin_const)
-        J_nz = ca.mtimes(sc_j[0], ca.vec(Jq)) + ca.mtimes(sc_j[1], ca.DM(np.tile(np.eye(NX).ravel(order="F"), T + 1)))
+        J_nz = ca.mtimes(sc_j[0], ca.vec(Jq)) + ca.mtimes(sc_j[1], ca.DM(np.tile(np.eye(NM).ravel(order="F"), T + 1)))
         if self.limits is not None:
             J_nz += jconst + ca.mtimes(sc_j[2], ca.vec(Jt))
         jac_g = ca.Function("nlp_jac_g", [X, P], [ca.vertcat(g_x, *g_lim), ca.MX(jac_sp, J_nz)], ["x", "p"],
@@ -498,8 +499,8 @@ class Transcription:
     def guess(self, setup: Setup, q: np.ndarray) -> tuple[dict, np.ndarray]:
         """Consistent primal point (mean, covariance, gains) from a joint trajectory; and the scales."""
         model, T = setup.model, self.T  # this setup's Sigma_0 (the cached model may hold another)
-        mu = np.array([setup.pose_of(qi) for qi in q])
-        sig, pred = model.propagate(mu, joint=setup.joint_noises(q))
+        mu = setup.means_of(q)
+        sig, pred = model.propagate_means(mu, joint=setup.joint_noises(q))
         out = {}
         for t in range(T + 1):
             out[f"q{t}"], out[f"mu{t}"] = q[t], mu[t]
@@ -527,12 +528,12 @@ class Transcription:
                 elif self.rcm_bound is not None and j == self.rcm_bound[0]:  # the RCM distance (limits)
                     ql[j] = min(max(ql[j], self.rcm_bound[1]), qh[j])
             lo[f"q{t}"], hi[f"q{t}"] = ql, qh
-            ml, mh = np.full(NX, -np.inf), np.full(NX, np.inf)
+            ml, mh = np.full(NM, -np.inf), np.full(NM, np.inf)
             ml[2] = prob.min_depth
             if t == 0:
-                ml = mh = setup.x_start
+                ml = mh = setup.m_start
             if t == T:
-                ml = mh = setup.x_goal
+                ml = mh = setup.m_goal
             lo[f"mu{t}"], hi[f"mu{t}"] = ml, mh
             if t == 0:
                 lo["s0"] = hi["s0"] = (np.diag(s0) if self.form == "diagonal" else vech(s0)) / scale[0]
@@ -572,7 +573,7 @@ class Transcription:
         if violation > 1e-9:
             return None
         q = np.asarray(init.q, float)
-        return evaluate(setup, method, np.array([setup.pose_of(qi) for qi in q]), list(q), success=True,
+        return evaluate(setup, method, setup.poses_of(q), list(q), success=True,
                         status="Initial_Guess_Kept", solve_time_s=0.0, iterations=0, objective=trace_ref,
                         extras={"init": init.source, "solver": "ipopt", "covariance_form": self.form,
                                 "build_time_s": self.build_time_s, "compiled": self.codegen,
@@ -618,7 +619,7 @@ def ipopt_solution(tr, setup: Setup, method: str, init, warm, q: np.ndarray, res
     """The Solution of one IPOPT solve of transcription `tr` (the exact EKF re-evaluates the plan from the
     Pinocchio FK of its joints), and its primal-dual point as a warm start."""
     stats = tr.solver.stats()
-    poses = np.array([setup.pose_of(qi) for qi in q])
+    poses = setup.poses_of(q)
     sol = evaluate(
         setup, method, poses, list(q),
         success=bool(stats["success"]), status=str(stats["return_status"]), solve_time_s=solve_s,
