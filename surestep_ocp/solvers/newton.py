@@ -60,9 +60,10 @@ EXACT_MAX_N = 200
 # (a warm re-plan with exact steps ran its 300-iteration cap in 1 s this way, where the fallback took 50 ms)
 STALL_WINDOW, STALL_DECREASE = 10, 1e-10
 # In its end phase (projected gradient below this) Newton stops as soon as an iterate is below the depth bound, which
-# its formulation does not carry, and IPOPT, which has it, takes over: most such runs converged below it anyway after
-# tens more iterations (evaluation configuration 73 at T = 40: below it from iteration 22 to the end at 66); where one
-# came back above it (5 of 100 at T = 40), IPOPT's plan was lower (docs/solve_speed.md, "Worst case")
+# its formulation does not carry, and a solver that has it takes over (`run_barrier`, then IPOPT): most such runs
+# converged below it anyway after tens more iterations (evaluation configuration 73 at T = 40: below it from iteration
+# 22 to the end at 66); where one came back above it (5 of 100 at T = 40), IPOPT's plan was lower
+# (docs/solve_speed.md, "Worst case")
 DEPTH_CHECK_BELOW = 1e-3
 SECANT_MEMORY = 20  # rank-one terms the secant end-game keeps (its tail is a few iterations: rarely reached)
 # `run_barrier`: IPOPT's defaults for its barrier problem and the monotone update (mu_init, barrier_tol_factor,

@@ -103,9 +103,10 @@ def solve_ocp_warm(setup: Setup, init: InitialGuess, solver_options: dict | None
         tried.append(("newton" + (", warm start" if warm is not None else ""), first,
                       NewtonWarm(np.array(first.q)) if first.success else None))
         done = first.success
-        if first.status == "Depth_Bound_Violated":
+        if first.status == "Depth_Bound_Violated" and setup.model.scalar:
             # Newton on IPOPT's barrier problem, which has the bound, from `init`: the central path of the IPOPT
-            # fallback below (the monotone barrier) at Newton's cost per iteration (newton.run_barrier)
+            # fallback below (the monotone barrier) at Newton's cost per iteration (newton.run_barrier). Measured
+            # with the scalar recursion; the 6x6 one (general models) keeps the IPOPT fallback.
             barrier = newton.solve(setup, init, method, tol=spec.tol, max_iter=newton_cap,
                                    verbose=spec.print_level > 0, barrier=True)
             enforce_limits(setup, barrier)
