@@ -52,22 +52,53 @@ def test_a_false_infeasibility_verdict_is_retried_with_the_monotone_barrier(monk
     assert sol.trace_final < solve_baseline(setup).trace_final
 
 
-def test_a_depth_violation_by_newton_goes_to_the_monotone_barrier():
-    """The same configuration with the default solver: Newton's plan goes below the depth bound, IPOPT runs with the
-    monotone barrier at once. The plan meets the bound and is below the straight line, by the NumPy EKF."""
+def _ipopt_monotone(setup):
+    """IPOPT alone with its monotone barrier update: the central path Newton's barrier run follows."""
+    spec = setup.problem.solver
+    return replace(setup, problem=replace(setup.problem, solver=replace(
+        spec, name="ipopt", options={**spec.options, "mu_strategy": "monotone"})))
+
+
+def test_a_depth_violation_by_newton_goes_to_newton_on_the_barrier_problem():
+    """The same configuration with the default solver: Newton's plan goes below the depth bound, Newton on IPOPT's
+    barrier problem runs next and is the plan. It is IPOPT's own (monotone barrier) optimum, meets the bound by
+    Pinocchio's FK, and its trace is the NumPy EKF's and below the straight line's."""
     setup = _configuration_73("auto")
-    sol = solve_ocp(setup, ocp_initial_guess(setup))
+    init = ocp_initial_guess(setup)
+    sol = solve_ocp(setup, init)
     names = [(a["hessian"], a["status"]) for a in sol.extras["attempts"]]
-    assert names == [("newton", "Depth_Bound_Violated"), ("surrogate, monotone barrier", "Solve_Succeeded")]
+    assert names == [("newton", "Depth_Bound_Violated"), ("newton, depth barrier", "Solve_Succeeded")]
+    assert sol.extras["solver"] == "newton"
+    ipopt = solve_ocp(_ipopt_monotone(setup), init)
+    assert ipopt.extras["solver"] == "ipopt" and ipopt.success
+    assert sol.trace_final == pytest.approx(ipopt.trace_final, rel=1e-6)
+    depths = [setup.pose_of(q)[2] for q in np.asarray(sol.q)]
+    assert min(depths) >= setup.problem.min_depth
     poses = np.asarray(sol.poses)
-    assert poses[:, 2].min() >= setup.problem.min_depth - 1e-8
     n = setup.problem.noise
     ekf = np.trace(ref.propagate(poses, n, setup.problem.camera.intrinsics, guard=n.cosine_guard**2)[0][-1])
     assert ekf == pytest.approx(sol.trace_final, rel=1e-9)
     assert sol.trace_final < solve_baseline(setup).trace_final
 
 
-def test_newton_stops_early_below_the_depth_bound_and_ipopt_meets_it(monkeypatch):
+def test_a_failed_barrier_run_goes_to_ipopts_monotone_barrier(monkeypatch):
+    """Where Newton's barrier run does not converge (here: cut to one iteration), IPOPT with the monotone barrier
+    follows from the straight line, and its plan meets the bound."""
+    from surestep_ocp.solvers.newton import NewtonSolver
+
+    real = NewtonSolver.run_barrier
+    monkeypatch.setattr(NewtonSolver, "run_barrier", lambda self, setup, init, tol=1e-6, max_iter=300,
+                        verbose=False: real(self, setup, init, tol, 1, verbose))
+    setup = _configuration_73("auto")
+    sol = solve_ocp(setup, ocp_initial_guess(setup))
+    names = [(a["hessian"], a["status"]) for a in sol.extras["attempts"]]
+    assert names == [("newton", "Depth_Bound_Violated"), ("newton, depth barrier", "Maximum_Iterations_Exceeded"),
+                     ("surrogate, monotone barrier", "Solve_Succeeded")]
+    assert sol.extras["solver"] == "ipopt"
+    assert np.asarray(sol.poses)[:, 2].min() >= setup.problem.min_depth - 1e-8
+
+
+def test_newton_stops_early_below_the_depth_bound_and_the_fallback_meets_it(monkeypatch):
     """Configuration 73 at T = 40: Newton's iterates go below the minimum depth in its end phase and stay there; it
     stops there (fewer iterations than without the check, same verdict), and the returned plan meets the bound by
     Pinocchio's FK of its joints."""

@@ -1,5 +1,5 @@
 """The projected Newton solver (`solver.name: newton`): its gradient against finite differences, its
-optima against IPOPT's, its fallback to IPOPT, and its errors."""
+optima against IPOPT's, its barrier run where the depth bound is violated, and its errors."""
 
 from __future__ import annotations
 
@@ -67,19 +67,56 @@ def test_newton_reaches_ipopts_optimum(horizon):
     assert min(p[2] for p in newton.poses) >= setup.problem.min_depth
 
 
-def test_newton_falls_back_to_ipopt_when_the_depth_bound_is_violated():
-    """Evaluation configuration 39 at T = 20: Newton's optimum goes below the minimum depth (a bound it does
-    not have); IPOPT then solves it from the start, with the bound, and that is the plan."""
+def test_newton_keeps_the_depth_bound_with_its_barrier_run_when_violated():
+    """Evaluation configuration 39 at T = 20: Newton's optimum goes below the minimum depth (a bound its box
+    form does not have); Newton on IPOPT's barrier problem then solves it from the start, with the bound, and that
+    is the plan: IPOPT's own optimum with the monotone barrier (trace to 1e-6), the bound met by Pinocchio's FK."""
     from surestep_ocp.evaluation.configs import ConfigurationSampler, load_evaluation
 
     sampler = ConfigurationSampler(load_evaluation(DEFAULT.parent / "evaluations" / "evaluation.yaml"))
     setup = with_solver(build_setup(sampler.problem(sampler.sample(0, 39))), name="newton")
-    sol = solve_ocp(setup, ocp_initial_guess(setup))
-    attempts = sol.extras["attempts"]
-    assert attempts[0]["hessian"] == "newton" and attempts[0]["status"] == "Depth_Bound_Violated"
-    assert not attempts[0]["kept"] and len(attempts) >= 2
-    assert sol.success and sol.extras["solver"] == "ipopt"
-    assert min(p[2] for p in sol.poses) >= setup.problem.min_depth - 1e-8
+    init = ocp_initial_guess(setup)
+    sol = solve_ocp(setup, init)
+    attempts = [(a["hessian"], a["status"], a["kept"]) for a in sol.extras["attempts"]]
+    assert attempts == [("newton", "Depth_Bound_Violated", False), ("newton, depth barrier", "Solve_Succeeded", True)]
+    assert sol.success and sol.extras["solver"] == "newton"
+    ipopt = solve_ocp(with_solver(setup, name="ipopt", options={"mu_strategy": "monotone"}), init)
+    assert ipopt.success and ipopt.extras["solver"] == "ipopt"
+    assert sol.trace_final == pytest.approx(ipopt.trace_final, rel=1e-6)
+    assert min(setup.pose_of(q)[2] for q in np.asarray(sol.q)) >= setup.problem.min_depth
+    assert max(sol.terminal_error) <= 1e-9
+
+
+def test_barrier_depth_derivatives_match_the_fk(short):
+    """The barrier's per-node depth, its gradient and Hessian in the node's joints (`newton_depth`) against
+    Pinocchio's FK and its central differences."""
+    ns = newton_solver(short)
+    q = np.asarray(ocp_initial_guess(short).q, float)
+    rng = np.random.default_rng(2)
+    q = q + 0.02 * rng.normal(size=q.shape)
+    camera = short.camera_parameter()
+    P = np.zeros(ns.depth.args[1].size)  # camera parameters first (the rest does not enter the depth)
+    P[:camera.size] = camera
+    z, dz, d2z = (v.copy() for v in ns.depth(q.ravel(), P))
+    nq, t, h = short.robot.nq, 3, 1e-5
+    assert z == pytest.approx([short.pose_of(qt)[2] for qt in q], abs=1e-12)
+
+    def depth(qt):
+        return short.pose_of(qt)[2]
+
+    grad = np.zeros(nq)
+    hess = np.zeros((nq, nq))
+    for i in range(nq):
+        e = np.zeros(nq)
+        e[i] = h
+        grad[i] = (depth(q[t] + e) - depth(q[t] - e)) / (2 * h)
+        for j in range(nq):
+            f = np.zeros(nq)
+            f[j] = h
+            hess[i, j] = (depth(q[t] + e + f) - depth(q[t] + e - f) - depth(q[t] - e + f)
+                          + depth(q[t] - e - f)) / (4 * h * h)
+    np.testing.assert_allclose(dz.reshape(-1, nq)[t], grad, atol=1e-8)
+    np.testing.assert_allclose(d2z.reshape(-1, nq, nq)[t], hess, atol=1e-4)
 
 
 def test_newton_needs_the_surrogate_model(short):

@@ -23,7 +23,9 @@ at small sizes (`EXACT_MAX_N`, a dense step), otherwise by a limited-memory symm
 correction learnt from the steps taken (`_SecantCorrection`, banded solves plus a small dense one).
 
 The minimum-depth bound is not in this formulation: it is checked in the end phase and at the
-end, and a violation is a failure, after which `solve_ocp_warm` runs IPOPT (which has the bound).
+end, and a violation is a failure, after which `solve_ocp_warm` runs `run_barrier`: Newton on IPOPT's
+barrier problem (the bounds and the depth bound as log-barriers, IPOPT's monotone update of the barrier
+parameter), which follows the central path of the IPOPT fallback it replaces in joint space.
 Every evaluation is one call of a stage-wise Function (compiled with `solver.codegen`)
 through CasADi's buffer interface (no conversions), so an iteration costs about 0.3 ms at
 T = 20 where IPOPT's own work is 0.43 ms (docs/solve_speed.md).
@@ -59,11 +61,15 @@ EXACT_MAX_N = 200
 # (a warm re-plan with exact steps ran its 300-iteration cap in 1 s this way, where the fallback took 50 ms)
 STALL_WINDOW, STALL_DECREASE = 10, 1e-10
 # In its end phase (projected gradient below this) Newton stops as soon as an iterate is below the depth bound, which
-# its formulation does not carry, and IPOPT, which has it, takes over: most such runs converged below it anyway after
-# tens more iterations (evaluation configuration 73 at T = 40: below it from iteration 22 to the end at 66); where one
-# came back above it (5 of 100 at T = 40), IPOPT's plan was lower (docs/solve_speed.md, "Worst case")
+# its formulation does not carry, and a solver that has it takes over (`run_barrier`, then IPOPT): most such runs
+# converged below it anyway after tens more iterations (evaluation configuration 73 at T = 40: below it from iteration
+# 22 to the end at 66); where one came back above it (5 of 100 at T = 40), IPOPT's plan was lower
+# (docs/solve_speed.md, "Worst case")
 DEPTH_CHECK_BELOW = 1e-3
 SECANT_MEMORY = 20  # rank-one terms the secant end-game keeps (its tail is a few iterations: rarely reached)
+# `run_barrier`: IPOPT's defaults for its barrier problem and the monotone update (mu_init, barrier_tol_factor,
+# mu_linear_decrease_factor, mu_superlinear_decrease_power, tau_min, bound_push = bound_frac)
+MU_INIT, KAPPA_EPS, KAPPA_MU, THETA_MU, TAU_MIN, BOUND_PUSH = 0.1, 10.0, 0.2, 1.5, 0.99, 1e-2
 
 
 class _SecantCorrection:
@@ -137,8 +143,15 @@ class NewtonSolver:
         # S's own curvature in the coefficients (dense, 5T x 5T, negative semidefinite) and the coefficients'
         # Jacobians per interval: the exact Hessian is the surrogate's plus C^T (d2S/dc2) C (the end-game)
         depth = ca.mmin(pose.map(T + 1)(Q, Tc)[2, :])  # the means' smallest depth (the end phase's check)
+        # each node's depth with its gradient and Hessian in the node's joints (the barrier of `run_barrier`)
+        z = pose(qa, Tcb)[2]
+        node_depth = ca.Function("node_depth", [qa, Tcb], [z, ca.densify(ca.gradient(z, qa)),
+                                                         ca.densify(ca.vec(ca.hessian(z, qa)[0]))])
+        Z, DZ, D2Z = node_depth.map(T + 1)(Q, Tc)
         fns = {"newton_step": ca.Function("newton_step", [Q, P], [S_x, S_x + smooth, G, HB, depth]),
-               "newton_f": ca.Function("newton_f", [Q, P], [S_x + smooth])}
+               "newton_f": ca.Function("newton_f", [Q, P], [S_x + smooth]),
+               "newton_depth": ca.Function("newton_depth", [Q, P], [Z, DZ, D2Z]),
+               "newton_fz": ca.Function("newton_fz", [Q, P], [S_x + smooth, Z])}
         self.nm, self.no = w_m.shape[0], w_o.shape[0]
         # S's curvature costs nc T Hessian-vector products: cheap for the scalar recursion (1.8 ms at T = 20),
         # not for the 6x6 one (0.36 s measured), where Newton keeps the surrogate throughout
@@ -149,6 +162,7 @@ class NewtonSolver:
             fns, self.codegen_note = compiled_or_interpreted(fns, codegen_required)
             self.codegen = self.codegen_note is None
         self.step, self.f = Buffered(fns["newton_step"]), Buffered(fns["newton_f"])
+        self.depth, self.fz = Buffered(fns["newton_depth"]), Buffered(fns["newton_fz"])
         self.curv = Buffered(fns["newton_curv"]) if "newton_curv" in fns else None
         self.poses = pose.map(T + 1)
         # scatter maps: interval t covers the joint vectors of nodes t, t+1 (positions t*nq .. (t+2)*nq)
@@ -165,6 +179,9 @@ class NewtonSolver:
         # band slot (k, c) couples columns c and c + k (past the end: a padding slot, index n)
         self.band_partner = np.minimum(np.arange(n)[None, :] + np.arange(self.band)[:, None], n)
         self.h_full = hr * n + hc  # the same entries in a dense n x n matrix (both triangles)
+        a, b = np.tril_indices(nq)  # one node's block (a >= b) in the band: the depth barrier's curvature
+        self.node_pairs = (a, b)
+        self.node_band = np.concatenate([(a - b) * n + t * nq + b for t in range(T + 1)])
         self.h_rows, self.h_cols = hr, hc
         # the coefficient Jacobians (nc x 2nq per interval, column-major) into C (nc T x n): coefficient k of
         # interval t is row k + nm t (motion) or nm T + (k - nm) + no t (observation), as d2S/dc2 orders them
@@ -195,10 +212,12 @@ class NewtonSolver:
                                                    coef_jac.map(T)(Q[:, :T], Q[:, 1:], Tc)])
 
     def solve(self, setup: Setup, init, method: str = "ocp", tol: float = 1e-6, max_iter: int = 300,
-              verbose: bool = False) -> Solution:
+              verbose: bool = False, barrier: bool = False) -> Solution:
         """Projected Newton from `init`: converged when the projected gradient's inf-norm is at most `tol` (the
-        objective is 1 at the start), at most `max_iter` iterations; `verbose` prints one line per iteration."""
-        return self._solution(setup, method, init, self.run(setup, init, tol, max_iter, verbose))
+        objective is 1 at the start), at most `max_iter` iterations; `verbose` prints one line per iteration.
+        With `barrier`, `run_barrier` (the depth bound kept)."""
+        run = self.run_barrier if barrier else self.run
+        return self._solution(setup, method, init, run(setup, init, tol, max_iter, verbose))
 
     def run(self, setup: Setup, init, tol: float = 1e-6, max_iter: int = 300, verbose: bool = False,
             exact_below: float = EXACT_BELOW, use_secant: bool = True) -> NewtonRun:
@@ -272,6 +291,98 @@ class NewtonSolver:
             x, it = trial, it + 1
         return self._end(setup, x, P, trace_ref, status, it, exact_steps, t0, secant_steps)
 
+    def run_barrier(self, setup: Setup, init, tol: float = 1e-6, max_iter: int = 300,
+                    verbose: bool = False) -> NewtonRun:
+        """Newton on IPOPT's barrier problem, which keeps the minimum-depth bound: the objective minus mu times the
+        logs of the free joints' distances to their bounds and of the interior means' depths above the bound,
+        mu updated as IPOPT's monotone strategy does (from MU_INIT; once the barrier gradient's inf-norm is below
+        KAPPA_EPS mu, to max(tol / 10, min(KAPPA_MU mu, mu^THETA_MU))), the start pushed inside the bounds as
+        IPOPT does. The barrier problem's minimisers do not depend on the method, so this follows the central path
+        of IPOPT's monotone fallback (`solve_ocp_warm`) with Newton's cheaper steps in joint space. Steps: the
+        surrogate's banded Hessian plus the barrier's, an Armijo search on the barrier function with IPOPT's
+        fraction to the boundary. Converged when the barrier gradient is at most `tol` at mu = tol / 10."""
+        t0 = time.perf_counter()
+        T, nq, n, robot = self.T, self.robot.nq, self.n, self.robot
+        sigma0 = setup.model.recursion_sigma0(setup.problem.noise.Sigma0)
+        P = np.concatenate([setup.camera_parameter(), [1.0], sigma0])
+        x = np.array(init.q, float).ravel()
+        lo, hi = np.tile(robot.lower, T + 1), np.tile(robot.upper, T + 1)
+        free = np.zeros((T + 1, nq), bool)
+        free[1:T, robot.supporting_joints()] = True
+        free = free.ravel()
+        idx, min_depth = np.flatnonzero(free), setup.problem.min_depth
+        start_ok = bool(np.all(x >= lo - 1e-12) and np.all(x <= hi + 1e-12)
+                        and np.allclose(x[:nq], setup.q_start, atol=1e-12))
+        P[CAMERA_PARAMETERS] = trace_ref = float(self.step(x, P)[0][0])  # at `init`, as `run`
+        push_lo = BOUND_PUSH * np.minimum(np.maximum(1.0, np.abs(lo)), hi - lo)
+        push_hi = BOUND_PUSH * np.minimum(np.maximum(1.0, np.abs(hi)), hi - lo)
+        x = np.where(free, np.clip(x, lo + push_lo, hi - push_hi), x)
+        xl, xh = lo[idx], hi[idx]
+
+        def merit(y: np.ndarray, m: float) -> tuple[float, np.ndarray]:
+            """The barrier function at y (inf where a depth is at or below the bound) and the interior slacks."""
+            f_y, z_y = self.fz(y, P)
+            s_y = z_y[1:T] - min_depth
+            if np.any(s_y <= 0):
+                return np.inf, s_y
+            return float(f_y[0]) - m * (np.sum(np.log(s_y)) + np.sum(np.log(y[idx] - xl))
+                                        + np.sum(np.log(xh - y[idx]))), s_y
+
+        a, b = self.node_pairs
+        m, it, shift = MU_INIT, 0, 0.0
+        mu_min = tol / 10
+        start_ok = start_ok and np.isfinite(merit(x, m)[0])
+        status = "Maximum_Iterations_Exceeded" if start_ok else "Infeasible_Start"
+        while start_ok and it <= max_iter:
+            _, f_val, G, HB, _ = self.step(x, P)
+            z, dz, d2z = self.depth(x, P)
+            inv_s = np.zeros(T + 1)
+            inv_s[1:T] = 1.0 / (z[1:T] - min_depth)
+            dz, d2z = dz.reshape(T + 1, nq), d2z.reshape(T + 1, nq, nq)
+            g = np.bincount(self.g_index, weights=G, minlength=n)
+            gb = -(inv_s[:, None] * dz).ravel()  # the barrier's gradient and curvature, per unit mu
+            gb[idx] += 1.0 / (xh - x[idx]) - 1.0 / (x[idx] - xl)
+            blocks = inv_s[:, None, None] ** 2 * dz[:, :, None] * dz[:, None, :] - inv_s[:, None, None] * d2z
+            band = np.bincount(self.node_band, weights=blocks[:, a, b].ravel(), minlength=self.band * n)
+            band = band.reshape(self.band, n)
+            band[0, idx] += 1.0 / (x[idx] - xl) ** 2 + 1.0 / (xh - x[idx]) ** 2
+            err = np.max(np.abs(g[idx] + m * gb[idx]))
+            while err <= KAPPA_EPS * m and m > mu_min:  # the barrier problem solved well enough: a smaller mu
+                m = max(mu_min, min(KAPPA_MU * m, m ** THETA_MU))
+                err = np.max(np.abs(g[idx] + m * gb[idx]))
+            if m <= mu_min and err <= tol:
+                status = "Solve_Succeeded"
+                break
+            if it == max_iter:
+                break
+            gm = g + m * gb
+            step = self._surrogate_step(HB, gm, idx, shift, band_extra=m * band)
+            if step is None:
+                status = "Singular_Hessian"
+                break
+            d, shift, _ = step
+            tau = max(TAU_MIN, 1.0 - m)
+            di = d[idx]
+            with np.errstate(divide="ignore", invalid="ignore"):
+                room = np.concatenate([np.where(di < 0, (x[idx] - xl) / -di, np.inf),
+                                       np.where(di > 0, (xh - x[idx]) / di, np.inf)])
+            alpha = min(1.0, tau * float(np.min(room, initial=np.inf)))  # IPOPT's fraction to the boundary
+            value, s = merit(x, m)
+            if verbose:
+                print(f"newton barrier {it:4d}  f {float(f_val[0]):.10e}  mu {m:.1e}  |g_mu| {err:.2e}  "
+                      f"depth margin {s.min(initial=np.inf):.3e}", flush=True)
+            while alpha > 1e-12:
+                trial = x + alpha * d
+                v_trial, s_trial = merit(trial, m)
+                if np.all(s_trial >= (1 - tau) * s) and v_trial <= value + 1e-4 * alpha * (gm @ d):
+                    break
+                alpha /= 2
+            else:
+                status = "Line_Search_Failed"
+                break
+            x, it = trial, it + 1
+        return self._end(setup, x, P, trace_ref, status, it, 0, t0)
+
     def _exact_step(self, x, P, HB, g, idx) -> np.ndarray | None:
         """Newton's step with the exact Hessian (the surrogate's plus S's own curvature C^T d2S/dc2 C) on the free
         variables, or None where it is not positive definite there."""
@@ -290,14 +401,17 @@ class NewtonSolver:
         d[idx] = scipy.linalg.cho_solve(factor, -g[idx], check_finite=False)
         return d if np.all(np.isfinite(d)) else None
 
-    def _surrogate_step(self, HB, g, idx, shift, secant: _SecantCorrection | None = None):
-        """The step with the surrogate Hessian (banded), shifted until positive definite, and with the secant
-        correction where it has one and stays positive definite: (d, shift, corrected) or None.
+    def _surrogate_step(self, HB, g, idx, shift, secant: _SecantCorrection | None = None, band_extra=None):
+        """The step with the surrogate Hessian (banded; plus `band_extra` in the same band storage, the barrier's),
+        shifted until positive definite, and with the secant correction where it has one and stays positive
+        definite: (d, shift, corrected) or None.
 
         LAPACK's banded Cholesky (dpbtrf / dpbtrs) is called directly: scipy's solveh_banded wrapper cost more than
         the factorisation at these sizes."""
         n = self.n
         ab = np.bincount(self.h_index, weights=HB[self.h_lower], minlength=self.band * n).reshape(self.band, n)
+        if band_extra is not None:
+            ab += band_extra
         fixed = np.ones(n + 1, bool)
         fixed[idx] = False
         ab[fixed[:n][None, :] | fixed[self.band_partner]] = 0.0  # rows and columns of the held variables out,

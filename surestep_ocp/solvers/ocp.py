@@ -96,13 +96,23 @@ def solve_ocp_warm(setup: Setup, init: InitialGuess, solver_options: dict | None
     if (spec.name == "newton" or (spec.name == "auto" and not limited)) and newton_fits and (
             warm is None or isinstance(warm, NewtonWarm)):
         start = init if warm is None else InitialGuess(np.asarray(warm.q), f"warm start ({init.source})")
-        first = newton_solver(setup).solve(setup, start, method, tol=spec.tol,
-                                           max_iter=min(spec.surrogate_max_iter, spec.max_iter),
-                                           verbose=spec.print_level > 0)
+        newton = newton_solver(setup)
+        newton_cap = min(spec.surrogate_max_iter, spec.max_iter)
+        first = newton.solve(setup, start, method, tol=spec.tol, max_iter=newton_cap, verbose=spec.print_level > 0)
         enforce_limits(setup, first)  # Newton has no step constraints: a plan over an enforced limit goes to IPOPT
         tried.append(("newton" + (", warm start" if warm is not None else ""), first,
                       NewtonWarm(np.array(first.q)) if first.success else None))
         done = first.success
+        if first.status == "Depth_Bound_Violated" and setup.model.scalar:
+            # Newton on IPOPT's barrier problem, which has the bound, from `init`: the central path of the IPOPT
+            # fallback below (the monotone barrier) at Newton's cost per iteration (newton.run_barrier). Measured
+            # with the scalar recursion; the 6x6 one (general models) keeps the IPOPT fallback.
+            barrier = newton.solve(setup, init, method, tol=spec.tol, max_iter=newton_cap,
+                                   verbose=spec.print_level > 0, barrier=True)
+            enforce_limits(setup, barrier)
+            tried.append(("newton, depth barrier", barrier,
+                          NewtonWarm(np.array(barrier.q)) if barrier.success else None))
+            done = barrier.success
     if isinstance(warm, NewtonWarm):  # IPOPT has no multipliers from Newton: it starts cold from init
         warm = None
     if warm is not None:  # near the optimum already: Newton's local convergence (the lifted form: its own Hessian)
