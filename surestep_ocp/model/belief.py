@@ -5,7 +5,8 @@ quaternion of its orientation, in the camera frame. The covariance Sigma (6x6) i
 error in the tangent at the mean, `(p_true - p, e)` with `R_true = exp(e) R` (a left,
 camera-frame perturbation; the rollouts use the same). With the motion applied as a body-frame
 step (`R_t+1 = R_t D`) and the tracker reporting `exp(v) R_true`, the error-state EKF's maps are
-the identity (F = Q = H = R = I) exactly, for any noise matrices; a camera move rotates the error
+the identity (F = Q = H = R = I) for any noise matrices: exactly for the mean's step, to first order
+in the noises for their composition (the noises are milliradians); a camera move rotates the error
 (`camera_change`). Residuals between means are tangents of the relative rotation (`lie.quat_step`),
 so no axis-angle chart enters the model; poses `(p, r)` are converted at the boundary
 (`propagate`, `lie.np_means`). The covariance is carried as `vech(Sigma)` (21 numbers, the lower

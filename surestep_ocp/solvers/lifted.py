@@ -184,12 +184,28 @@ class LiftedTranscription:
         form, whose joints are the same)."""
         if self._jac_nz is None:  # the Jacobian's nonzeros through CasADi's buffer interface: a DM's conversion to
             self._jac_nz = Buffered(self.jac_g)  # scipy cost 6 ms at T = 20, about half of this function
-        sp = self.jac_g.sparsity_out(1)
-        J = scipy.sparse.csc_matrix((self._jac_nz(x, p)[1].copy(), sp.row(), sp.colind()), shape=sp.shape)
+            self._adjoint = self._adjoint_pattern()
+        nz = self._jac_nz(x, p)[1]
+        sel, indices, indptr, rows, col_of, cols = self._adjoint
+        A = scipy.sparse.csr_matrix((nz[sel], indices, indptr), shape=(len(cols), self.ng))  # J[:, cols]^T
         grad = np.asarray(self.grad_f(x, p)[1]).ravel()
+        lam_g = scipy.sparse.linalg.spsolve(A, -grad[cols])
+        return lam_g, -(grad + np.bincount(col_of, weights=nz * lam_g[rows], minlength=self.n))
+
+    def _adjoint_pattern(self) -> tuple:
+        """The constraint Jacobian's fixed pattern, for `multipliers`: the nonzeros (`sel`, in order) and the CSR
+        indices of `J[:, cols]^T` (cols: the means and the covariances after the first), and each nonzero's row and
+        column (for `J^T lam` by one bincount); built once instead of scipy's slicing per call."""
+        sp = self.jac_g.sparsity_out(1)
+        rows, colind = np.asarray(sp.row()), np.asarray(sp.colind())
+        col_of = np.repeat(np.arange(self.n), np.diff(colind))
         cols = np.concatenate(self.mu_idx + self.s_idx[1:])
-        lam_g = scipy.sparse.linalg.spsolve(J[:, cols].T.tocsc(), -grad[cols])
-        return lam_g, -(grad + J.T @ lam_g)
+        position = np.full(self.n, -1)
+        position[cols] = np.arange(len(cols))
+        keep = np.flatnonzero(position[col_of] >= 0)
+        sel = keep[np.argsort(position[col_of[keep]], kind="stable")]
+        indptr = np.concatenate([[0], np.cumsum(np.bincount(position[col_of[sel]], minlength=len(cols)))])
+        return sel, rows[sel], indptr, rows, col_of, cols
 
     def bounds(self, setup: Setup, scale: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         prob, T, nq = setup.problem, self.T, self.robot.nq

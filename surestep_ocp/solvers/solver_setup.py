@@ -30,11 +30,18 @@ WARM_OPTIONS = {
 # IPOPT options for the lifted NLP started at the condensed solution (a KKT point up to tol, with its
 # multipliers): a small monotone barrier. Measured on the default problem at T = 20: 15 and 1 iterations (paper
 # constants, correlated V_d0) against 65-73 with the adaptive update, which raised mu to 1e-3 and walked away.
+# With the structured Hessian the dual infeasibility then falls linearly (about 0.9 per iteration on evaluation
+# configuration 9) while the objective stays put: the acceptable-level stop of ENFORCED_OPTIONS (objective change at
+# most 1e-9 over 3 iterations, complementarity 1e-9, constraints 1e-6) ends that tail as Solved_To_Acceptable_Level.
 LIFTED_FROM_CONDENSED = {
     "ipopt.mu_init": 1e-9,
     "ipopt.mu_strategy": "monotone",
     "ipopt.warm_start_bound_push": 1e-9,
     "ipopt.warm_start_mult_bound_push": 1e-9,
+    "ipopt.acceptable_tol": 1e-3,
+    "ipopt.acceptable_iter": 3,
+    "ipopt.acceptable_obj_change_tol": 1e-9,
+    "ipopt.acceptable_compl_inf_tol": 1e-6,
 }
 
 
