@@ -72,6 +72,17 @@ SECANT_MEMORY = 20  # rank-one terms the secant end-game keeps (its tail is a fe
 MU_INIT, KAPPA_EPS, KAPPA_MU, THETA_MU, TAU_MIN, BOUND_PUSH = 0.1, 10.0, 0.2, 1.5, 0.99, 1e-2
 
 
+def _backtrack(alpha: float, trial_at) -> np.ndarray | None:
+    """Halve the step length from `alpha` until `trial_at(alpha)` returns an accepted point (each caller's Armijo
+    test); None once it is below 1e-12 (a failed line search)."""
+    while alpha > 1e-12:
+        trial = trial_at(alpha)
+        if trial is not None:
+            return trial
+        alpha /= 2
+    return None
+
+
 class _SecantCorrection:
     """A limited-memory SR1 correction `A = U diag(w) U^T` of the surrogate Hessian (structured quasi-Newton).
 
@@ -279,13 +290,12 @@ class NewtonSolver:
             if verbose:
                 print(f"newton {it:4d}  f {f_val:.10e}  |pg| {pg:.2e}  free {idx.size:4d}  {kind}", flush=True)
             previous = (x, g)
-            alpha = 1.0
-            while alpha > 1e-12:  # Armijo along the projected path
+            def projected(alpha, x=x, d=d, g=g, f_val=f_val):  # Armijo along the projected path
                 trial = np.clip(x + alpha * d, lo, hi)
-                if float(self.f(trial, P)[0][0]) <= f_val + 1e-4 * g @ (trial - x):
-                    break
-                alpha /= 2
-            else:
+                return trial if float(self.f(trial, P)[0][0]) <= f_val + 1e-4 * g @ (trial - x) else None
+
+            trial = _backtrack(1.0, projected)
+            if trial is None:
                 status = "Line_Search_Failed"
                 break
             x, it = trial, it + 1
@@ -371,13 +381,13 @@ class NewtonSolver:
             if verbose:
                 print(f"newton barrier {it:4d}  f {float(f_val[0]):.10e}  mu {m:.1e}  |g_mu| {err:.2e}  "
                       f"depth margin {s.min(initial=np.inf):.3e}", flush=True)
-            while alpha > 1e-12:
+            def barrier_step(alpha, x=x, d=d, s=s, m=m, tau=tau, value=value, slope=float(gm @ d)):  # Armijo, boundary
                 trial = x + alpha * d
                 v_trial, s_trial = merit(trial, m)
-                if np.all(s_trial >= (1 - tau) * s) and v_trial <= value + 1e-4 * alpha * (gm @ d):
-                    break
-                alpha /= 2
-            else:
+                return trial if np.all(s_trial >= (1 - tau) * s) and v_trial <= value + 1e-4 * alpha * slope else None
+
+            trial = _backtrack(alpha, barrier_step)
+            if trial is None:
                 status = "Line_Search_Failed"
                 break
             x, it = trial, it + 1
