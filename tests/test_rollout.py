@@ -124,8 +124,8 @@ def test_undetected_steps_only_predict(default_setup, plan):
     model = default_setup.eval_model
     out = plan.copy()
     out[:, 0] += 0.3  # 30 cm to the right at ~15 cm depth: far outside the image
-    sigma = np.asarray(model.noise.Sigma0, float) + sum(BatchedNoise(model, 1).motion(out[t:t + 1], out[t + 1:t + 2])[0]
-                                                        for t in range(T))
+    m = np_means(out)
+    sigma = np.asarray(model.noise.Sigma0, float) + sum(np.asarray(model.motion_noise(m[t], m[t + 1])) for t in range(T))
     for mode in ("model", "true"):
         ro = rollout(model, out, n=5, rng=1, mode=mode, detection=Detection())
         assert not ro.detected.any()
@@ -206,8 +206,9 @@ def test_measurements_outside_the_image_are_no_detection(default_setup, plan):
     # every undetected step of a rollout that never saw the tool left its covariance at the prediction
     never = ~ro.detected.any(axis=1)
     assert never.any()
-    sigma = np.asarray(model.noise.Sigma0, float) + sum(
-        BatchedNoise(model, 1).motion(central[t:t + 1], central[t + 1:t + 2])[0] for t in range(T))
+    m = np_means(central)
+    sigma = np.asarray(model.noise.Sigma0, float) + sum(np.asarray(model.motion_noise(m[t], m[t + 1]))
+                                                        for t in range(T))
     np.testing.assert_allclose(ro.sigma_final[never], np.broadcast_to(sigma, (never.sum(), 6, 6)), rtol=1e-12,
                                atol=1e-18)
     cam = model.camera

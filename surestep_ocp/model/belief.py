@@ -24,10 +24,9 @@ from functools import cached_property
 
 import casadi as ca
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from .camera import Intrinsics
-from .lie import SMALL, np_means, quat_cos_angle, quat_mul, quat_of, quat_step, quat_tangent
+from .lie import SMALL, np_log, np_means, np_quat_of_matrix, quat_cos_angle, quat_mul, quat_of, quat_step, quat_tangent
 
 COMPONENTS = ("depth", "fov", "orientation")
 ORIENTATION_FORMULAS = ("cosine", "geodesic")
@@ -413,13 +412,11 @@ class BeliefModel:
         """
         x, D = np.asarray(x, float).ravel(), np.asarray(D, float)
         Rd, td = D[:3, :3], D[:3, 3]
-        rot = Rotation.from_matrix(Rd)
-        qx, qy, qz, qw = rot.as_quat()
-        xn = np.concatenate([Rd @ x[:3] + td, quat_mul(np.array([qw, qx, qy, qz]), x[3:7])])
+        xn = np.concatenate([Rd @ x[:3] + td, quat_mul(np_quat_of_matrix(Rd), x[3:7])])
         F = np.zeros((NX, NX))
         F[:3, :3] = F[3:, 3:] = Rd
         n = self.noise
-        W = (td @ td) * np.asarray(n.camera_W_p0, float) + rot.magnitude() ** 2 * np.asarray(n.camera_W_o0, float)
+        W = (td @ td) * np.asarray(n.camera_W_p0, float) + float(np.linalg.norm(np_log(Rd))) ** 2 * np.asarray(n.camera_W_o0, float)
         return xn, vech(F @ unvech(np.asarray(s, float).ravel()) @ F.T + W)
 
     @shared_function

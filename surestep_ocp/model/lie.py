@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import casadi as ca
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 SMALL = 1e-12  # [rad^2] below this squared angle the Taylor branches are used
 
@@ -125,6 +126,12 @@ def pose_mean(x):
 
 
 # ---------------------------------------------------------------- NumPy versions
+
+
+def np_quat_of_matrix(R: np.ndarray) -> np.ndarray:
+    """Unit quaternion `(w, x, y, z)` of a rotation matrix (scipy's, reordered; either sign)."""
+    x, y, z, w = Rotation.from_matrix(np.asarray(R, float)).as_quat()
+    return np.array([w, x, y, z])
 
 
 def np_means(poses: np.ndarray) -> np.ndarray:

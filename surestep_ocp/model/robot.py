@@ -20,10 +20,9 @@ import casadi as ca
 import numpy as np
 import pinocchio as pin
 from scipy.optimize import least_squares
-from scipy.spatial.transform import Rotation
 
 from ..errors import FrameNotFound, UnreachablePose, UnsupportedJoint
-from .lie import np_log, quat_mul, so3_exp, so3_log
+from .lie import np_log, np_quat_of_matrix, quat_mul, so3_exp, so3_log
 
 CAMERA_PARAMETERS = 16  # the camera parameter of `Robot.camera_pose`: vec(T_cam_base[:3, :]), then its quaternion
 
@@ -46,8 +45,7 @@ _IK_MAPS: dict[tuple, dict[int, ca.Function]] = {}  # same key -> {N: the Functi
 
 def _quat_of(R: np.ndarray) -> ca.DM:
     """Quaternion `(w, x, y, z)` of a constant rotation matrix (either sign; used as a fixed factor)."""
-    x, y, z, w = Rotation.from_matrix(np.asarray(R, float)).as_quat()
-    return ca.DM([w, x, y, z])
+    return ca.DM(np_quat_of_matrix(R))
 
 
 def _se3(M: pin.SE3) -> np.ndarray:

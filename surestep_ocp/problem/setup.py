@@ -6,12 +6,12 @@ from dataclasses import dataclass, field, replace
 from functools import cached_property
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from ..model.belief import BeliefModel
 from ..errors import FrameNotFound, ProblemError, UnreachablePose, UnsupportedJoint
 from ..model.joint_noise import joint_noises
-from ..model.lie import continued, matrix_to_pose, np_exp_many, np_means, np_poses, pose_to_matrix, quat_mul
+from ..model.lie import (continued, matrix_to_pose, np_exp_many, np_means, np_poses, np_quat_of_matrix,
+                         pose_to_matrix, quat_mul)
 from .problem import EndpointSpec, Problem
 from ..model.robot import Robot
 
@@ -87,8 +87,7 @@ class Setup:
         cache = self.__dict__.setdefault("_camera_parameter", {})  # per instance: camera and start may be reassigned
         if key not in cache:
             Tcb = self.T_cam_base
-            x, y, z, w = Rotation.from_matrix(Tcb[:3, :3]).as_quat()
-            Qc = np.array([w, x, y, z])
+            Qc = np_quat_of_matrix(Tcb[:3, :3])
             if quat_mul(Qc, np.asarray(self.robot.fk_quaternion(self.q_start)).ravel())[0] < 0:
                 Qc = -Qc
             cache.clear()

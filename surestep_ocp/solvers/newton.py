@@ -329,14 +329,17 @@ class NewtonSolver:
         x = np.where(free, np.clip(x, lo + push_lo, hi - push_hi), x)
         xl, xh = lo[idx], hi[idx]
 
-        def merit(y: np.ndarray, m: float) -> tuple[float, np.ndarray]:
-            """The barrier function at y (inf where a depth is at or below the bound) and the interior slacks."""
-            f_y, z_y = self.fz(y, P)
+        def barrier_value(f_y: float, z_y: np.ndarray, y: np.ndarray, m: float) -> tuple[float, np.ndarray]:
+            """The barrier function at y from its objective and node depths (inf where a depth is at or below the
+            bound), and the interior slacks."""
             s_y = z_y[1:T] - min_depth
             if np.any(s_y <= 0):
                 return np.inf, s_y
-            return float(f_y[0]) - m * (np.sum(np.log(s_y)) + np.sum(np.log(y[idx] - xl))
-                                        + np.sum(np.log(xh - y[idx]))), s_y
+            return f_y - m * (np.sum(np.log(s_y)) + np.sum(np.log(y[idx] - xl)) + np.sum(np.log(xh - y[idx]))), s_y
+
+        def merit(y: np.ndarray, m: float) -> tuple[float, np.ndarray]:
+            f_y, z_y = self.fz(y, P)
+            return barrier_value(float(f_y[0]), z_y, y, m)
 
         a, b = self.node_pairs
         m, it, shift = MU_INIT, 0, 0.0
@@ -377,7 +380,7 @@ class NewtonSolver:
                 room = np.concatenate([np.where(di < 0, (x[idx] - xl) / -di, np.inf),
                                        np.where(di > 0, (xh - x[idx]) / di, np.inf)])
             alpha = min(1.0, tau * float(np.min(room, initial=np.inf)))  # IPOPT's fraction to the boundary
-            value, s = merit(x, m)
+            value, s = barrier_value(float(f_val[0]), z, x, m)  # this iterate's objective and depths, evaluated above
             if verbose:
                 print(f"newton barrier {it:4d}  f {float(f_val[0]):.10e}  mu {m:.1e}  |g_mu| {err:.2e}  "
                       f"depth margin {s.min(initial=np.inf):.3e}", flush=True)
