@@ -34,12 +34,13 @@ from ..problem.problem import (
     resolve_path,
 )
 from ..model.robot import Robot
+from .pacing import PACES
 from .rollout import Detection
 from ..problem.schema import Reader
 from ..problem.setup import Setup, build_setup, load_robot
 
 _TOP = {"description", "base", "horizon", "ecm_joints", "start_joints", "goal_joints", "accept", "max_tries",
-        "gradient", "detection", "grasp", "limits"}
+        "gradient", "detection", "grasp", "limits", "execution"}
 
 # Grasp tolerances of the simulated Table II (docs/evaluation.md, "Table II"): the final true pose counts as a successful
 # regrasp within these of the goal. 5 mm: half the Large Needle Driver's 10.2 mm jaw (wrist-yaw pivot to tip),
@@ -77,6 +78,7 @@ class EvaluationSpec:
     detection: Detection | None = Detection()  # None: every rollout step observes (detection.enabled: false)
     grasp_position: float = GRASP_POSITION_M  # [m] success tolerance of the final true position
     grasp_angle: float = GRASP_ANGLE_RAD  # [rad] ... and of the final true orientation
+    pace: str = "planned"  # how the rollouts run a plan (pacing.py): planned | limits (the tool's speed limits)
 
 
 @dataclass(frozen=True)
@@ -129,6 +131,8 @@ def load_evaluation(path: str | Path) -> EvaluationSpec:
             raise rd.fail("detection.falloff", f"margin + falloff must be < 0.5 (fractions of the image size), "
                                                f"got {detection.margin:g} + {detection.falloff:g}")
     grasp = rd.mapping(top.get("grasp", {}), "grasp", {"position", "angle"})
+    execution = rd.mapping(top.get("execution", {}), "execution", {"pace"})
+    pace = rd.string(execution.get("pace", "planned"), "execution.pace", PACES)
     robot = load_robot(str(base_path), "robot", base.robot, moving=True)
     ecm_box = None
     if "ecm_joints" in top:
@@ -158,6 +162,7 @@ def load_evaluation(path: str | Path) -> EvaluationSpec:
         detection=detection,
         grasp_position=rd.number(grasp.get("position", GRASP_POSITION_M), "grasp.position", positive=True),
         grasp_angle=rd.number(grasp.get("angle", GRASP_ANGLE_RAD), "grasp.angle", positive=True),
+        pace=pace,
     )
 
 

@@ -11,6 +11,9 @@ Randomness: configuration i uses `default_rng([seed, i])`; its rollouts in mode 
 use `default_rng([seed, i, k_m])` (k_model = 0, k_true = 1), the same generator
 state for every method (common random numbers).
 
+The rollouts run each plan at its planned pace, or split its steps so that the tool moves no faster
+than its speed limits (the evaluation file's `execution.pace`, `pacing.py`).
+
 Rollouts observe only when the true pose is detectable (the evaluation file's
 `detection`, `rollout.Detection`); a rollout is a successful grasp when its final true
 pose is within the file's `grasp` tolerances of the goal (the simulated Table II).
@@ -58,6 +61,19 @@ def _sampler(eval_path: str):
     return _SAMPLERS[key]
 
 
+def executed_poses(setup, poses, pace: str) -> np.ndarray:
+    """The waypoints the rollouts follow: the plan's (`planned`) or the plan's run at the tool's limits
+    (`limits`: the problem's `limits:` tool speeds, one rollout step of `timing.step_s` each; pacing.py)."""
+    poses = np.asarray(poses, float)
+    if pace == "planned":
+        return poses
+    from ..model.limits import problem_limits
+    from .pacing import paced
+
+    lim = problem_limits(setup)
+    return paced(poses, setup.problem.timing.step_s, lim.tool_speed, lim.tool_rotation)
+
+
 def evaluate_configuration(eval_path: str, seed: int, index: int, methods: tuple[str, ...], rollouts: int,
                            modes: tuple[str, ...]) -> dict:
     """Plan with every method on configuration `index` and roll each plan out; a JSON-able record.
@@ -93,9 +109,11 @@ def evaluate_configuration(eval_path: str, seed: int, index: int, methods: tuple
             solve["kept_start"] = "; ".join(f"{a.get('hessian', '?')}: {a.get('status', '?')}"
                                             for a in sol.extras.get("attempts", [])) or sol.extras.get("solver", "")
         try:
+            poses = executed_poses(setup, sol.poses, spec.pace)
+            solve["rollout_steps"] = len(poses) - 1
             for mode in modes:
                 rng = np.random.default_rng([seed, index, MODES.index(mode)])
-                met, ro = plan_metrics(setup.eval_model, sol.poses, setup.x_goal, rollouts, rng, mode,
+                met, ro = plan_metrics(setup.eval_model, poses, setup.x_goal, rollouts, rng, mode,
                                        sol.sigma_final, detection=spec.detection)
                 rec["metrics"][mode][name] = met
                 rec["pos_errors"][mode][name] = ro.pos_err.tolist()

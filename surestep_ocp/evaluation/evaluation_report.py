@@ -121,6 +121,17 @@ def markdown(records, methods, modes, header, spec) -> str:
                  + (f" (preset {grad.preset})" if grad.preset else ""))
     kept = [f"configuration {r['config']} ({m}: {r['solves'][m]['kept_start']})" for r in records
             for m in methods if "kept_start" in r["solves"].get(m, {})]
+    pace = getattr(spec, "pace", "planned")
+    if pace == "limits":
+        steps = {m: [r["solves"][m]["rollout_steps"] for r in records
+                     if "rollout_steps" in r["solves"].get(m, {})] for m in methods}
+        pace_text = ("**Execution**: each plan run no faster than the tool's speed limits (`execution.pace: limits`, "
+                     "`pacing.py`: a step over them split into equal rollout steps, one observation each); rollout "
+                     "steps per plan, median / max: " + "; ".join(
+                         f"{m} {np.median(v):.0f} / {max(v)}" for m, v in steps.items() if v) + ".")
+    else:
+        pace_text = ("**Execution**: every plan at its planned pace, one rollout step (one observation) per plan "
+                     "step however large (`execution.pace: planned`, the paper's protocol).")
     lines = [f"# Evaluation on `{spec.path}`", "",
              f"{n} random configurations (seed {header['seed']}, base problem `{spec.base_path.name}`, horizon "
              f"T = {spec.horizon}), {header['rollouts']} noisy closed-loop rollouts per plan and rollout mode; "
@@ -140,6 +151,7 @@ def markdown(records, methods, modes, header, spec) -> str:
              "**Failed solves** are counted in the `failed` column and are not dropped: a plan whose solver "
              "reported failure is still rolled out and averaged in; only a method that produced no plan at all "
              "(`no plan`) is left out of that configuration's averages (`n` = configurations averaged).", "",
+             pace_text, "",
              "`kept start`: the OCP's solvers ended above the straight line they started from, which is then the "
              "plan; the attempts' statuses say why: " + ("; ".join(kept) if kept else "none") + ".", ""]
     cols = []
