@@ -6,8 +6,8 @@ protocol) a rollout executes one plan step per rollout step, however large. A dV
 keep observing meanwhile. At `limits` pace each plan step is split into the fewest equal rollout
 steps of `step_s` each (one observation each, as every rollout step) for which the tool moves no
 faster than `MotionLimits.tool_speed` and turns no faster than `tool_rotation`: the position
-linearly, the orientation along the geodesic (slerp), so the path is the plan's between its
-waypoints. A step within both limits is left as it is; a plan within them is rolled out exactly as
+linearly, the orientation along the geodesic (`baseline.straight_line` on each step), so the path
+is the plan's between its waypoints. A step within both limits is left as it is; a plan within them is rolled out exactly as
 at the planned pace.
 """
 
@@ -16,7 +16,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.spatial.transform import Rotation, Slerp
+from scipy.spatial.transform import Rotation
+
+from ..solvers.baseline import straight_line
 
 PACES = ("planned", "limits")
 
@@ -42,15 +44,9 @@ def paced(poses: np.ndarray, step_s: float, tool_speed: float, tool_rotation: fl
     k = substeps(P, step_s, tool_speed, tool_rotation)
     if np.all(k == 1):
         return P
-    R = Rotation.from_rotvec(P[:, 3:])
     out = [P[:1]]
-    for t, kt in enumerate(k):
-        if kt == 1:
-            out.append(P[t + 1:t + 2])
-            continue
-        s = np.arange(1, kt + 1) / kt
-        rot = Slerp([0.0, 1.0], R[t:t + 2])(s).as_rotvec()
-        rot[-1] = P[t + 1, 3:]  # the waypoint itself, not its slerp (same rotation, same vector)
-        pos = P[t, :3] + s[:, None] * (P[t + 1, :3] - P[t, :3])
-        out.append(np.hstack([pos, rot]))
+    for t, kt in enumerate(k):  # the baseline's interpolation, on each step: position linear, shortest rotation
+        seg = straight_line(P[t], P[t + 1], int(kt))[1:]
+        seg[-1] = P[t + 1]  # the waypoint itself (the continued rotation vector may be its other-side twin)
+        out.append(seg)
     return np.vstack(out)
