@@ -1,0 +1,35 @@
+"""Every stored plan is made again equal: the default problem's and the scenario files' compare methods, the OCP
+on 200 evaluation configurations (T = 20 and 40) and a re-planning loop, against `tests/data/stored_plans.npz`
+(made by `tests/stored_plans.py` before the solver boundary was redesigned). Joints equal to 1e-10 rad / m and
+the same status: a refactor of the solve strategy must not change a plan."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import stored_plans
+
+STORED_Q, STORED_STATUS = stored_plans.load()
+
+
+@pytest.mark.parametrize("args", [a for _, a in stored_plans.cases()], ids=[c for c, _ in stored_plans.cases()])
+def test_plans_equal_the_stored_ones(args):
+    made = stored_plans.plans(*args)
+    assert made, "a case with no plans"
+    for key, (q, status) in made.items():
+        assert status == STORED_STATUS[key], key
+        np.testing.assert_allclose(q, STORED_Q[key], rtol=0, atol=1e-10, err_msg=key)
+
+
+def test_every_stored_plan_is_checked():
+    """The cases cover every stored key (none left unchecked after a change of the case list)."""
+    keys = set()
+    for _, args in stored_plans.cases():
+        kind = args[0]
+        if kind == "scenario":
+            keys |= {f"{args[1]}/{m}" for m in stored_plans.METHODS}
+        elif kind == "configs":
+            keys |= {f"config/T{args[1]}/{c}" for c in range(args[2], args[2] + args[3])}
+        else:
+            keys |= {f"replan/{k}" for k in range(stored_plans.REPLANS + 1)}
+    assert keys == set(STORED_STATUS)
