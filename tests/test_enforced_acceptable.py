@@ -1,4 +1,4 @@
-"""The enforced NLP's acceptable-level stop (`solver_setup.ENFORCED_OPTIONS`) against independent checks: a tighter
+"""The enforced NLP's acceptable-level stop (`nlp_cache.ENFORCED_OPTIONS`) against independent checks: a tighter
 IPOPT solve of the same NLP without the acceptable level, the plan's finite-difference limit report and the export's
 own dense check of the played curve."""
 
@@ -13,7 +13,7 @@ from surestep_ocp.output.export import time_parametrise, within_position_limits
 from surestep_ocp.problem.problem import load_problem
 from surestep_ocp.problem.setup import build_setup
 from surestep_ocp.solvers.methods import ocp_initial_guess, run_method
-from surestep_ocp.solvers.solver_setup import transcription
+from surestep_ocp.solvers.nlp_cache import transcription
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -32,9 +32,9 @@ def test_acceptable_stop_is_reported_as_such(enforced_default):
     """The default problem's surrogate IPOPT ends in its linear tail: stopped there, and the status says so."""
     _, sol = enforced_default
     assert sol.success
-    kept = [a for a in sol.extras["attempts"] if a["kept"]]
-    assert len(kept) == 1 and kept[0]["hessian"] == "surrogate"
-    assert sol.status == kept[0]["status"] == "Solved_To_Acceptable_Level", sol.extras["attempts"]
+    kept = [a for a in sol.attempts if a.kept]
+    assert len(kept) == 1 and kept[0].label == "surrogate"
+    assert sol.status == kept[0].status == "Solved_To_Acceptable_Level", sol.attempts
 
 
 def test_acceptable_plan_equals_a_tight_solve(enforced_default):
@@ -45,7 +45,7 @@ def test_acceptable_plan_equals_a_tight_solve(enforced_default):
     tight, _ = tr.solve(setup, ocp_initial_guess(setup))
     assert tight.status == "Solve_Succeeded", tight.status
     assert abs(sol.trace_final / tight.trace_final - 1) < 1e-6, (sol.trace_final, tight.trace_final)
-    assert tight.iterations > sol.extras["attempts"][-1]["iterations"]  # the tail it did not run
+    assert tight.iterations > sol.attempts[-1].iterations  # the tail it did not run
 
 
 def test_acceptable_plan_meets_every_limit(enforced_default):

@@ -46,7 +46,7 @@ def test_a_false_infeasibility_verdict_is_retried_with_the_monotone_barrier(monk
 
     monkeypatch.setattr(tr.Transcription, "solve", first_infeasible)
     sol = solve_ocp(setup, ocp_initial_guess(setup))
-    names = [(a["hessian"], a["status"]) for a in sol.extras["attempts"]]
+    names = [(a.label, a.status) for a in sol.attempts]
     assert names == [("surrogate", "Infeasible_Problem_Detected"), ("surrogate, monotone barrier", "Solve_Succeeded")]
     assert sol.trace_final == pytest.approx(plain.trace_final, rel=1e-5)
     assert sol.trace_final < solve_baseline(setup).trace_final
@@ -66,7 +66,7 @@ def test_a_depth_violation_by_newton_goes_to_newton_on_the_barrier_problem():
     setup = _configuration_73("auto")
     init = ocp_initial_guess(setup)
     sol = solve_ocp(setup, init)
-    names = [(a["hessian"], a["status"]) for a in sol.extras["attempts"]]
+    names = [(a.label, a.status) for a in sol.attempts]
     assert names == [("newton", "Depth_Bound_Violated"), ("newton, depth barrier", "Solve_Succeeded")]
     assert sol.extras["solver"] == "newton"
     ipopt = solve_ocp(_ipopt_monotone(setup), init)
@@ -91,7 +91,7 @@ def test_a_failed_barrier_run_goes_to_ipopts_monotone_barrier(monkeypatch):
                         verbose=False: real(self, setup, init, tol, 1, verbose))
     setup = _configuration_73("auto")
     sol = solve_ocp(setup, ocp_initial_guess(setup))
-    names = [(a["hessian"], a["status"]) for a in sol.extras["attempts"]]
+    names = [(a.label, a.status) for a in sol.attempts]
     assert names == [("newton", "Depth_Bound_Violated"), ("newton, depth barrier", "Maximum_Iterations_Exceeded"),
                      ("surrogate, monotone barrier", "Solve_Succeeded")]
     assert sol.extras["solver"] == "ipopt"
@@ -103,7 +103,7 @@ def test_newton_stops_early_below_the_depth_bound_and_the_fallback_meets_it(monk
     stops there (fewer iterations than without the check, same verdict), and the returned plan meets the bound by
     Pinocchio's FK of its joints."""
     import surestep_ocp.solvers.newton as newton
-    from surestep_ocp.solvers.ocp import newton_solver
+    from surestep_ocp.solvers.nlp_cache import newton_solver
 
     setup = _configuration_73("auto")
     init = ocp_initial_guess(setup)
@@ -114,6 +114,6 @@ def test_newton_stops_early_below_the_depth_bound_and_the_fallback_meets_it(monk
     assert early.status == late.status == "Depth_Bound_Violated"
     assert early.iterations < late.iterations
     sol = solve_ocp(setup, init)
-    assert sol.success and sol.extras["attempts"][0]["status"] == "Depth_Bound_Violated"
+    assert sol.success and sol.attempts[0].status == "Depth_Bound_Violated"
     depths = [setup.pose_of(q)[2] for q in np.asarray(sol.q)]
     assert min(depths) >= setup.problem.min_depth - 1e-7

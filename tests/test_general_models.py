@@ -18,7 +18,10 @@ from numpy_ekf import ekf_step, propagate
 
 from surestep_ocp.model.belief import COSINE_GUARD
 from surestep_ocp.solvers.methods import ocp_initial_guess
-from surestep_ocp.solvers.ocp import InitialGuess, resolve_form, solve_ocp, transcription
+from surestep_ocp.problem.solver_config import resolve_form
+from surestep_ocp.solvers.iterate import InitialGuess
+from surestep_ocp.solvers.nlp_cache import transcription
+from surestep_ocp.solvers.ocp import solve_ocp
 from surestep_ocp.problem.problem import load_problem
 from surestep_ocp.problem.setup import build_setup
 from surestep_ocp.solvers.surrogate import recursion_weights

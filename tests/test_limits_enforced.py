@@ -21,7 +21,8 @@ from surestep_ocp.model.belief import COSINE_GUARD
 from surestep_ocp.evaluation.configs import ConfigurationSampler, load_evaluation
 from surestep_ocp.errors import ProblemError
 from surestep_ocp.solvers.methods import ocp_initial_guess, run_method
-from surestep_ocp.solvers.ocp import solve_ocp, transcription
+from surestep_ocp.solvers.nlp_cache import transcription
+from surestep_ocp.solvers.ocp import solve_ocp
 from surestep_ocp.problem.problem import LimitsSpec, load_problem
 from surestep_ocp.problem.setup import build_setup
 
@@ -121,8 +122,8 @@ def check_solution(setup, sol):
 def newton_attempt(setup) -> dict:
     """The same problem under `solver.name: newton`: its first attempt (Newton's unconstrained plan, then checked)."""
     prob = replace(setup.problem, solver=replace(setup.problem.solver, name="newton"))
-    first = solve_ocp(build_setup(prob), ocp_initial_guess(setup)).extras["attempts"][0]
-    assert first["hessian"] == "newton"
+    first = solve_ocp(build_setup(prob), ocp_initial_guess(setup)).attempts[0]
+    assert first.label == "newton" and first.solver == "newton"
     return first
 
 
@@ -150,7 +151,7 @@ def test_default_problem_plan_meets_every_limit(default_enforced):
     # IPOPT, which carries them, solves it (Newton's unconstrained plan would break them: not run under auto)
     assert sol.extras["solver"] == "ipopt" and "newton" not in sol.extras["hessian"]
     first = newton_attempt(setup)
-    assert first["status"] == "Motion_Limits_Violated" and first["objective"] < sol.objective
+    assert first.status == "Motion_Limits_Violated" and first.objective < sol.objective
 
 
 @pytest.mark.parametrize("config", [3, 5])
@@ -203,10 +204,10 @@ def test_limit_rows_staged_derivatives_equal_casadis_own(monkeypatch, rows):
     the whole NLP, at a perturbed point with random multipliers (T = 6), for the played curve's rows (the tool
     at 4 points of each step but the first's start, 2 rows each) and the finite differences'."""
     from surestep_ocp.model import limits
-    from surestep_ocp.solvers import solver_setup
+    from surestep_ocp.solvers import nlp_cache
 
     monkeypatch.setattr(limits, "CURVE_ROWS", rows)
-    monkeypatch.setattr(solver_setup, "_CACHE", {})
+    monkeypatch.setattr(nlp_cache, "_CACHE", {})
     setup = build_setup(enforced(replace(load_problem(DEFAULT), horizon=6)))
     staged, exact = transcription(setup, hessian="surrogate"), transcription(setup, hessian="exact")
     assert staged.ng == exact.ng > staged.ng_eq and staged.n_tool == 2 * (4 * 6 - 1 if rows == "curve" else 6)
@@ -257,9 +258,9 @@ def test_bad_limits_sections_are_named_errors(write_problem, section, key):
 def test_transcription_cache_keys_on_the_row_kind(monkeypatch):
     """Switching `limits.CURVE_ROWS` gives another cached NLP, not the one built with the other rows."""
     from surestep_ocp.model import limits as lm
-    from surestep_ocp.solvers import solver_setup
+    from surestep_ocp.solvers import nlp_cache
 
-    limits = solver_setup.enforced_limits(build_setup(enforced(load_problem(DEFAULT))))
-    curve = solver_setup.limits_key(limits)
+    limits = nlp_cache.enforced_limits(build_setup(enforced(load_problem(DEFAULT))))
+    curve = nlp_cache.limits_key(limits)
     monkeypatch.setattr(lm, "CURVE_ROWS", "steps")
-    assert solver_setup.limits_key(limits) != curve
+    assert nlp_cache.limits_key(limits) != curve

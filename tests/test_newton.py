@@ -12,7 +12,8 @@ import pytest
 from surestep_ocp.model.belief import vech
 from surestep_ocp.errors import SurestepError
 from surestep_ocp.solvers.methods import ocp_initial_guess
-from surestep_ocp.solvers.ocp import newton_solver, solve_ocp
+from surestep_ocp.solvers.nlp_cache import newton_solver
+from surestep_ocp.solvers.ocp import solve_ocp
 from surestep_ocp.problem.problem import load_problem
 from surestep_ocp.problem.setup import build_setup
 
@@ -56,7 +57,7 @@ def test_newton_reaches_ipopts_optimum(horizon):
     assert ipopt.extras["solver"] == "ipopt" and "newton" not in ipopt.extras["hessian"]
     newton = solve_ocp(with_solver(setup, name="newton"), init)
     assert newton.success and newton.status == "Solve_Succeeded" and newton.extras["solver"] == "newton"
-    assert [a["hessian"] for a in newton.extras["attempts"]] == ["newton"]
+    assert [a.label for a in newton.attempts] == ["newton"]
     assert newton.trace_final == pytest.approx(ipopt.trace_final, rel=1e-6)
     assert newton.extras["ocp_trace_final"] == pytest.approx(newton.trace_final, rel=1e-9)
     q = np.array(newton.q)
@@ -77,7 +78,7 @@ def test_newton_keeps_the_depth_bound_with_its_barrier_run_when_violated():
     setup = with_solver(build_setup(sampler.problem(sampler.sample(0, 39))), name="newton")
     init = ocp_initial_guess(setup)
     sol = solve_ocp(setup, init)
-    attempts = [(a["hessian"], a["status"], a["kept"]) for a in sol.extras["attempts"]]
+    attempts = [(a.label, a.status, a.kept) for a in sol.attempts]
     assert attempts == [("newton", "Depth_Bound_Violated", False), ("newton, depth barrier", "Solve_Succeeded", True)]
     assert sol.success and sol.extras["solver"] == "newton"
     ipopt = solve_ocp(with_solver(setup, name="ipopt", options={"mu_strategy": "monotone"}), init)
@@ -131,31 +132,36 @@ def test_newton_only_where_the_goal_fixes_the_last_joints(short):
     explicit `newton` is an error."""
     from types import SimpleNamespace
 
-    from surestep_ocp.solvers.ocp import newton_applies
+    from surestep_ocp.problem.solver_config import resolve
+    from surestep_ocp.solvers.ocp import resolved_solver
 
-    assert newton_applies(short, "condensed", "surrogate", False)
-    assert not newton_applies(short, "condensed", "exact", False) and not newton_applies(short, "condensed", "surrogate", True)
+    assert resolved_solver(short).newton_fits
+    spec = short.problem.solver
+    assert not resolve(replace(spec, hessian="exact"), short.model, 6).newton_fits
+    assert not resolve(replace(spec, hessian="surrogate"), short.model, 6).newton_fits
     for n in (5, 7):
         arm = SimpleNamespace(supporting_joints=lambda n=n: list(range(n)))
-        assert not newton_applies(replace(short, robot=arm), "condensed", "surrogate", False)
+        assert not resolved_solver(replace(short, robot=arm)).newton_fits
+        with pytest.raises(SurestepError, match="solver.name: newton needs"):
+            resolve(replace(spec, name="newton"), short.model, n)
 
 
 def test_newton_warm_resolve_after_a_camera_move(short):
     """A Newton solution returns its joints as the warm start; after a small camera move the warm Newton solve
     reaches the cold optimum, in fewer iterations."""
-    from surestep_ocp.solvers.ocp import NewtonWarm, solve_ocp_warm
+    from surestep_ocp.solvers.ocp import solve_ocp_warm
 
     setup = with_solver(short, name="auto")
     init = ocp_initial_guess(setup)
     first, warm = solve_ocp_warm(setup, init)
-    assert first.extras["solver"] == "newton" and isinstance(warm, NewtonWarm)
+    assert first.extras["solver"] == "newton" and not warm.has_duals
     np.testing.assert_array_equal(warm.q, np.array(first.q))
     D = np.eye(4)
     D[:3, 3] = [0.002, -0.001, 0.001]
     moved = setup.seen_from(setup.camera_pose @ D)
     again, _ = solve_ocp_warm(moved, init, warm=warm)
     cold = solve_ocp(moved, ocp_initial_guess(moved))
-    assert again.success and again.extras["attempts"][0]["hessian"] == "newton, warm start"
+    assert again.success and again.attempts[0].label == "newton, warm start"
     assert again.extras["init"].startswith("warm start")
     assert again.trace_final == pytest.approx(cold.trace_final, rel=1e-4)
     assert again.iterations < cold.iterations
@@ -178,8 +184,8 @@ def test_newton_stops_when_it_stalls(short):
     """From its own optimum with tol 0 (unreachable) Newton cannot decrease the objective: it stops as 'Stalled'
     after its window of iterations instead of running to max_iter, and hands over (not a success)."""
     from surestep_ocp.solvers.newton import STALL_WINDOW
-    from surestep_ocp.solvers.solver_setup import newton_solver
-    from surestep_ocp.solvers.transcription import InitialGuess
+    from surestep_ocp.solvers.nlp_cache import newton_solver
+    from surestep_ocp.solvers.iterate import InitialGuess
 
     solver = newton_solver(short)
     opt = solver.run(short, ocp_initial_guess(short), tol=1e-6)

@@ -19,7 +19,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from surestep_ocp.solvers.baseline import solve_baseline, straight_line
-from surestep_ocp.solvers.ocp import InitialGuess, solve_ocp
+from surestep_ocp.solvers.iterate import InitialGuess
+from surestep_ocp.solvers.ocp import solve_ocp
 from surestep_ocp.problem.setup import build_setup
 from surestep_ocp.output.solution import Solution
 

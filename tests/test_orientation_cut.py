@@ -173,7 +173,7 @@ def test_ocp_converges_where_the_straight_line_crosses_pi(sampler, c):
     base = solve_baseline(setup)
     assert np.max(np.linalg.norm(setup.poses_of(np.asarray(ocp_initial_guess(setup).q))[:, 3:], axis=1)) > np.pi
     sol = solve_ocp(setup, ocp_initial_guess(setup))
-    assert sol.status == "Solve_Succeeded", sol.extras.get("attempts")
+    assert sol.status == "Solve_Succeeded", sol.attempts
     assert sol.trace_final < base.trace_final
     poses = np.asarray(sol.poses)
     assert np.all(np.linalg.norm(poses[:, 3:], axis=1) <= np.pi + 1e-12)

@@ -12,7 +12,8 @@ from scipy.linalg.lapack import dpbtrf
 from surestep_ocp.problem.setup import build_setup
 from surestep_ocp.solvers.methods import ocp_initial_guess
 from surestep_ocp.solvers.newton import _SecantCorrection
-from surestep_ocp.solvers.ocp import newton_solver, solve_ocp
+from surestep_ocp.solvers.nlp_cache import newton_solver
+from surestep_ocp.solvers.ocp import solve_ocp
 
 
 def banded_spd(n: int, band: int, rng) -> np.ndarray:

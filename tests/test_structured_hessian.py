@@ -15,7 +15,8 @@ from surestep_ocp.solvers.baseline import solve_baseline
 from surestep_ocp.model.belief import COSINE_GUARD
 from surestep_ocp.errors import SurestepError
 from surestep_ocp.solvers.methods import ocp_initial_guess
-from surestep_ocp.solvers.ocp import solve_ocp, solve_ocp_warm, transcription
+from surestep_ocp.solvers.nlp_cache import transcription
+from surestep_ocp.solvers.ocp import solve_ocp, solve_ocp_warm
 from surestep_ocp.problem.problem import load_problem
 from surestep_ocp.problem.setup import build_setup
 
@@ -194,9 +195,9 @@ def test_structured_hessians_reach_the_exact_hessians_optimum():
     for h in ("surrogate", "gauss-newton", "exact"):
         assert sols[h].extras["hessian"] == h
     assert sols["auto"].extras["hessian"].startswith("surrogate")
-    attempts = sols["auto"].extras["attempts"]
-    assert sum(a["iterations"] for a in attempts) == sols["auto"].iterations
-    assert attempts[0]["iterations"] <= prob.solver.surrogate_max_iter
+    attempts = sols["auto"].attempts
+    assert sum(a.iterations for a in attempts) == sols["auto"].iterations
+    assert attempts[0].iterations <= prob.solver.surrogate_max_iter
 
 
 def test_warm_resolve_after_a_camera_move_reaches_the_cold_optimum(short):
@@ -223,9 +224,9 @@ def test_structured_hessians_need_the_mean_noise_form():
         solve_ocp(setup, ocp_initial_guess(setup))
     # auto picks the exact Hessian there
     auto = build_setup(with_solver(prob, hessian="auto"))
-    from surestep_ocp.solvers.ocp import resolve_hessian
+    from surestep_ocp.problem.solver_config import resolve_hessian
 
-    assert resolve_hessian(auto, "condensed") == "exact"
+    assert resolve_hessian(auto.model, "condensed", "auto") == "exact"
 
 
 def test_an_optimum_worse_than_the_start_keeps_the_start():
@@ -239,25 +240,25 @@ def test_an_optimum_worse_than_the_start_keeps_the_start():
     prob = replace(prob, noise=replace(prob.noise, cut_band=0.0))
     setup = build_setup(with_solver(prob, name="ipopt"))
     sol = solve_ocp(setup, ocp_initial_guess(setup))
-    attempts = sol.extras["attempts"]
-    assert attempts[0]["hessian"] == "surrogate"
-    converged = [a["objective"] for a in attempts if a["status"] in ("Solve_Succeeded", "Solved_To_Acceptable_Level")]
+    attempts = sol.attempts
+    assert attempts[0].label == "surrogate"
+    converged = [a.objective for a in attempts if a.status in ("Solve_Succeeded", "Solved_To_Acceptable_Level")]
     assert converged and min(converged) > sol.extras["initial_trace"]
-    assert attempts[-1]["hessian"].startswith("none: the feasible initial guess") and attempts[-1]["kept"]
-    assert sum(a["kept"] for a in attempts) == 1
+    assert attempts[-1].label.startswith("none: the feasible initial guess") and attempts[-1].kept
+    assert sum(a.kept for a in attempts) == 1
     assert sol.status == "Initial_Guess_Kept" and sol.success and not sol.extras["worse_than_initial_guess"]
     assert sol.objective == sol.extras["initial_trace"]
     baseline = solve_baseline(setup)
     assert sol.trace_final == pytest.approx(baseline.trace_final, rel=1e-6)  # the straight line, by its IK
     assert sol.objective == pytest.approx(sol.trace_final, rel=1e-6)  # the planner's trace is the EKF's
-    assert sol.iterations == sum(a["iterations"] for a in attempts)
+    assert sol.iterations == sum(a.iterations for a in attempts)
     assert max(sol.terminal_error) <= 1e-9  # the kept point meets the terminal pose (Pinocchio FK)
 
 
 def test_codegen_auto_follows_the_compiler(short, monkeypatch):
     """solver.codegen auto: compiled when a C compiler is found, not when none is; true without a
     compiler, or true with the exact Hessian, is an error (not a silent fallback)."""
-    from surestep_ocp.solvers.ocp import resolve_codegen
+    from surestep_ocp.solvers.nlp_cache import resolve_codegen
 
     auto = replace(short, problem=with_solver(short.problem, codegen="auto"))
     forced = replace(short, problem=with_solver(short.problem, codegen=True, hessian="exact"))

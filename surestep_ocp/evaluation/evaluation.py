@@ -106,8 +106,8 @@ def evaluate_configuration(eval_path: str, seed: int, index: int, methods: tuple
         solve = {"success": sol.success, "status": sol.status, "solve_time_s": sol.solve_time_s,
                  "iterations": sol.iterations, "evaluated": True}
         if sol.status == "Initial_Guess_Kept":  # why: what every solver attempt ended with
-            solve["kept_start"] = "; ".join(f"{a.get('hessian', '?')}: {a.get('status', '?')}"
-                                            for a in sol.extras.get("attempts", [])) or sol.extras.get("solver", "")
+            solve["kept_start"] = "; ".join(f"{a.label}: {a.status}" for a in sol.attempts) or sol.extras.get(
+                "solver", "")
         try:
             poses = executed_poses(setup, sol.poses, spec.pace)
             solve["rollout_steps"] = len(poses) - 1

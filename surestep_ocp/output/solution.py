@@ -16,6 +16,7 @@ from ..model.belief import entropy
 from ..model.lie import matrix_to_pose, np_angle, np_exp_many, np_log_many, pose_to_matrix
 from ..model.limits import recorded_limits
 from ..problem.setup import Setup
+from .attempt_record import AttemptRecord
 
 
 @dataclass
@@ -41,7 +42,8 @@ class Solution:
     sigma: list[list[list[float]]]
     sigma_final: list[list[float]]
     objective: float
-    extras: dict[str, Any] = field(default_factory=dict)
+    attempts: list[AttemptRecord] = field(default_factory=list)  # the solve strategy's attempts, in order
+    extras: dict[str, Any] = field(default_factory=dict)  # what is specific to a method or backend
 
     # ----------------------------------------------------------- derived numbers
     @property
@@ -111,8 +113,10 @@ class Solution:
     @classmethod
     def load(cls, path: str | Path) -> Solution:
         d = json.loads(Path(path).read_text())
-        names = set(cls.__dataclass_fields__) - {"extras"}
-        return cls(**{k: d[k] for k in names}, extras={k: v for k, v in d.items() if k not in names})
+        names = set(cls.__dataclass_fields__) - {"extras", "attempts"}
+        attempts = [AttemptRecord.from_dict(a) for a in d.get("attempts", [])]
+        return cls(**{k: d[k] for k in names}, attempts=attempts,
+                   extras={k: v for k, v in d.items() if k not in names and k != "attempts"})
 
 
 def write_json_atomic(path: str | Path, obj: Any) -> Path:

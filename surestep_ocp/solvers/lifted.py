@@ -35,7 +35,6 @@ import casadi as ca
 import numpy as np
 import scipy.sparse.linalg
 
-from ..errors import SurestepError
 from ..model.belief import DIAG, NM, NV, NX, BeliefModel, unvech, vech
 from ..model.robot import CAMERA_PARAMETERS, Robot
 from ..output.solution import Solution
@@ -61,14 +60,9 @@ class LiftedTranscription:
 
     def __init__(self, robot: Robot, model: BeliefModel, horizon: int, smoothness: float, options: dict,
                  codegen: bool = False, codegen_required: bool = False):
-        if not model.structured:
-            raise SurestepError("the lifted form's structured Hessian needs constant motion/observation maps and "
-                                "noise.observation_noise: mean")
-        if model.noise.objective != "posterior":
-            raise SurestepError("objective.covariance: predicted needs solver.covariance: condensed (or auto)")
-        if model.joint_noise:
-            raise SurestepError("noise.joint_motion_sigma: the lifted form's structured Hessian takes its noise "
-                                "coefficients from the means alone; use solver.covariance: condensed (or auto)")
+        if not model.structured or model.noise.objective != "posterior" or model.joint_noise:
+            raise ValueError("the lifted form's structured Hessian needs a structured model without joint-space noise "
+                             "minimising Tr(Sigma_T|T) (solver_config.resolve rejects the others for users)")
         t0 = time.perf_counter()
         self.robot, self.model, self.T = robot, model, horizon
         T, nq = horizon, robot.nq

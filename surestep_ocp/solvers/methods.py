@@ -17,7 +17,8 @@ from ..model.belief import COMPONENTS
 from ..errors import SurestepError
 from ..model.limits import enforce as enforce_limits
 from .method_names import BASE_METHODS, split_name
-from .ocp import InitialGuess, solve_ocp
+from .iterate import InitialGuess
+from .ocp import solve_ocp
 from ..problem.setup import Setup
 from ..output.solution import Solution
 

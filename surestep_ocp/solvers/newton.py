@@ -3,7 +3,7 @@
 With the condensed form of a scalar model the belief means are functions of the joints,
 `mu_t = pose(q_t)`; `q_0` is fixed, and the terminal equality `mu_T = x^G` with exactly six
 joints moving the tracked frame fixes `q_T` to the goal's IK solution, locally
-(`ocp.newton_applies`; IPOPT's solutions keep it: measured `|q_T - q_goal| <= 7e-16` on 19
+(`solver_config.resolve`, `newton_fits`; IPOPT's solutions keep it: measured `|q_T - q_goal| <= 7e-16` on 19
 evaluation instances). What is left is a box-constrained problem in the interior joints
 `q_1 .. q_T-1`:
 

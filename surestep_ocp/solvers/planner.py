@@ -28,14 +28,9 @@ from ..errors import SurestepError
 from ..model.lie import pose_mean
 from .methods import ocp_initial_guess
 from .newton import EXACT_BELOW
-from .ocp import (
-    InitialGuess,
-    newton_applies,
-    newton_solver,
-    resolve_form,
-    resolve_hessian,
-    solve_ocp_warm,
-)
+from .iterate import InitialGuess
+from .nlp_cache import newton_solver
+from .ocp import resolved_solver, solve_ocp_warm
 from ..problem.problem import Problem
 from ..problem.setup import Setup, build_setup
 from ..output.solution import Solution, evaluate
@@ -61,10 +56,8 @@ class Planner:
         self.horizon = prob.horizon
         self.builds: dict[int, float] = {}  # steps left -> seconds spent building its solver and evaluator
         self._solvers: dict[int, tuple] = {}
-        spec, form = prob.solver, resolve_form(self.setup.model, prob.solver.covariance)
-        self.fast = (spec.name in ("auto", "newton") and not prob.limits.enforce and self.setup.model.scalar
-                     and newton_applies(self.setup, form, resolve_hessian(self.setup, form),
-                                        spec.hessian in ("surrogate", "gauss-newton")))
+        self.fast = (resolved_solver(self.setup).newton_first and not prob.limits.enforce
+                     and self.setup.model.scalar)
         for n in (range(self.horizon, 0, -1) if prebuild else [self.horizon]) if self.fast else ():
             self._solver(n)  # timed apart from the solves
         self.plan, _ = solve_ocp_warm(self.setup, ocp_initial_guess(self.setup))

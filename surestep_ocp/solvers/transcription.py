@@ -16,7 +16,7 @@ value, plus an optional joint-step smoothness term. The covariance forms (`solve
 
 The NLP is parametric in the camera pose (the robot base in the camera frame), the scales and Sigma_0, so
 one built solver serves every start, goal and camera pose of a given structure and horizon
-(`solver_setup.transcription` caches it). Measurements: docs/method.md and docs/hessian_and_newton.md.
+(`nlp_cache.transcription` caches it). Measurements: docs/method.md and docs/hessian_and_newton.md.
 
 With `limits` (a problem's `limits.enforce: true`, `limits.py`) the NLP also carries the motion limits, each
 row normalised by its limit (so every bound is 1). By default (`limits.CURVE_ROWS = "curve"`, `_limit_rows`) they
@@ -42,6 +42,8 @@ import numpy as np
 from ..model.belief import DIAG, NM, NV, NX, BeliefModel, unvech, vech
 from .codegen import compiled_or_interpreted
 from ..errors import SurestepError
+from ..problem.solver_config import HESSIANS
+from .iterate import InitialGuess, PrimalDual
 from ..model.joint_noise import joint_noise_expr, joint_noise_factor, joint_noise_function, weight_matrix
 from ..model.limits import MotionLimits
 from ..model.robot import CAMERA_PARAMETERS, Robot
@@ -49,41 +51,6 @@ from ..problem.setup import Setup
 from ..output.solution import Solution, evaluate
 from .stages import assemble, entries, smoothness_matrix
 from .surrogate import interval_terms, pose_function, recursion_weights, scalar_trace
-
-FORMS = ("auto", "full", "diagonal", "condensed")
-HESSIANS = ("exact", "surrogate", "gauss-newton")  # what a Transcription is built with (`auto` resolves to one)
-
-
-@dataclass
-class InitialGuess:
-    """A joint trajectory to start from, and where it came from."""
-
-    q: np.ndarray  # (T+1, nq)
-    source: str
-
-
-@dataclass
-class WarmStart:
-    """Primal and dual values of a previous solve of the same transcription, and its scaling.
-
-    The scaling (covariance scales, objective reference) is reused by the warm solve: the
-    values and multipliers are those of the scaled NLP.
-    """
-
-    x: np.ndarray
-    lam_x: np.ndarray
-    lam_g: np.ndarray
-    scale: np.ndarray
-    trace_ref: float
-
-
-@dataclass
-class NewtonWarm:
-    """A previous Newton solution's joint trajectory, to start the next Newton solve from (primal only:
-    the bound multipliers are implicit in a projected method)."""
-
-    q: np.ndarray
-
 
 class _Layout:
     """Named blocks of the decision vector (no slicing by stride)."""
@@ -108,17 +75,6 @@ class _Layout:
 
     def join(self, values: dict[str, np.ndarray]) -> np.ndarray:
         return np.concatenate([np.asarray(values[name], float).ravel() for name, _, _ in self.blocks])
-
-
-def resolve_form(model: BeliefModel, form: str) -> str:
-    if form not in FORMS:
-        raise SurestepError(f"unknown covariance form '{form}'; allowed: {', '.join(FORMS)}")
-    if form == "auto":
-        return "condensed" if model.scalar or model.structured else "full"
-    if form == "diagonal" and not model.diagonal:
-        raise SurestepError("solver.covariance: the diagonal form is exact only with identity motion/observation "
-                            "maps and diagonal base covariances; use full, condensed or auto")
-    return form
 
 
 class Transcription:
@@ -155,9 +111,7 @@ class Transcription:
         wq = [self.joint_fn(qs[t], qs[t + 1], Tcb) if self.joint_fn else None for t in range(T)]  # W_q, vech
 
         g = [mus[t] - pose(qs[t], Tcb) for t in range(T + 1)]
-        predicted = model.noise.objective == "predicted"
-        if predicted and form != "condensed":
-            raise SurestepError("objective.covariance: predicted needs solver.covariance: condensed (or auto)")
+        predicted = model.noise.objective == "predicted"  # needs the condensed form (solver_config.resolve)
         if form == "condensed":  # the covariance is shot through the EKF steps inside the objective
             if self.scalar:  # exact: six scalar Kalman recursions (in Sigma_0's eigenbasis when isotropic)
                 trace_T = scalar_trace(
@@ -185,14 +139,9 @@ class Transcription:
         self._limit_rows(L.vector(), qs, g)
         self.ng = ca.vertcat(*g).shape[0]
         self.hessian, self.hess_lag = hessian, None
-        if hessian not in HESSIANS:
-            raise SurestepError(f"unknown Hessian '{hessian}'; allowed: {', '.join(HESSIANS)}")
-        if hessian != "exact":
-            if form != "condensed" or not model.structured:
-                raise SurestepError(f"the {hessian} Hessian needs the condensed form of a model with constant "
-                                    "motion/observation maps and the mean observation noise")
-        elif codegen:
-            raise SurestepError(CODEGEN_EXACT)
+        if hessian not in HESSIANS or (hessian != "exact" and (form != "condensed" or not model.structured)) or (
+                hessian == "exact" and codegen):  # solver_config.resolve rejects these for users: a caller's bug
+            raise ValueError(f"no {hessian} Hessian (codegen {codegen}) for the {form} form of this model")
         self.codegen, self.codegen_note = codegen, None
         t0 = time.perf_counter()
         if hessian != "exact":
@@ -581,7 +530,7 @@ class Transcription:
                                 "constraint_violation": violation})
 
     def solve(self, setup: Setup, init: InitialGuess, method: str = "ocp",
-              warm: WarmStart | None = None) -> tuple[Solution, WarmStart]:
+              warm: PrimalDual | None = None) -> tuple[Solution, PrimalDual]:
         T = self.T
         t0 = time.perf_counter()  # the solve time counts the set-up of the call (initial point, scales, bounds)
         if warm is None and self.form == "condensed":  # no covariance variables: means and the trace only
@@ -615,7 +564,7 @@ class Transcription:
 
 def ipopt_solution(tr, setup: Setup, method: str, init, warm, q: np.ndarray, res: dict, solve_s: float,
                    scale: np.ndarray, trace_ref: float, ocp_trace: float, violation: float,
-                   form: str) -> tuple[Solution, WarmStart]:
+                   form: str) -> tuple[Solution, PrimalDual]:
     """The Solution of one IPOPT solve of transcription `tr` (the exact EKF re-evaluates the plan from the
     Pinocchio FK of its joints), and its primal-dual point as a warm start."""
     stats = tr.solver.stats()
@@ -636,10 +585,5 @@ def ipopt_solution(tr, setup: Setup, method: str, init, warm, q: np.ndarray, res
             "constraint_violation": violation,
         },
     )
-    return sol, WarmStart(np.asarray(res["x"]).ravel(), np.asarray(res["lam_x"]).ravel(),
+    return sol, PrimalDual(np.asarray(res["x"]).ravel(), np.asarray(res["lam_x"]).ravel(),
                           np.asarray(res["lam_g"]).ravel(), scale, trace_ref)
-
-
-CODEGEN_EXACT = ("solver.codegen: true compiles the stage-wise derivatives of the surrogate and Gauss-Newton "
-                 "Hessians only (the exact condensed Hessian did not compile within 10 minutes); use "
-                 "solver.hessian: auto, surrogate or gauss-newton, or codegen: auto or false")

@@ -1,4 +1,4 @@
-"""Which transcription and solver run, with which IPOPT options, and the caches of built solvers.
+"""The built NLPs and Newton solvers, cached per structure, and the IPOPT options they are built with.
 
 A built NLP (and its compiled derivatives) is kept per structure: robot, belief model, horizon, form,
 smoothness, options, Hessian, codegen and the enforced motion limits (with the step time); a new start, goal,
@@ -8,13 +8,13 @@ camera pose or Sigma_0 reuses it.
 from __future__ import annotations
 
 from ..model import limits as limits_module
-from ..model.belief import NX
+from ..model.limits import problem_limits
+from ..problem.setup import Setup
+from ..problem.solver_config import resolve_form
 from .codegen import available as compiler_available
-from ..errors import SurestepError
 from .lifted import LiftedTranscription
 from .newton import NewtonSolver
-from ..problem.setup import Setup
-from .transcription import Transcription, resolve_form
+from .transcription import Transcription
 
 _CACHE: dict[tuple, Transcription] = {}
 
@@ -112,8 +112,6 @@ def enforced_limits(setup: Setup):
     """(step_s, MotionLimits) when the problem enforces its motion limits (`limits.enforce: true`), else None."""
     if not setup.problem.limits.enforce:
         return None
-    from ..model.limits import problem_limits
-
     return setup.problem.timing.step_s, problem_limits(setup)
 
 
@@ -131,32 +129,6 @@ def resolve_codegen(setup: Setup, hessian: str) -> bool:
     if hessian == "exact":
         return False
     return compiler_available() if choice == "auto" else bool(choice)
-
-
-def resolve_hessian(setup: Setup, form: str) -> str:
-    """`solver.hessian` of the problem resolved for this model and covariance form.
-
-    The surrogate and Gauss-Newton matrices exist for the condensed form of a scalar model
-    with the paper's (mean) observation noise; `auto` uses the surrogate there (then polishes
-    with the exact Hessian if needed) and the exact Hessian elsewhere.
-    """
-    choice, model = setup.problem.solver.hessian, setup.model
-    possible = form == "condensed" and model.structured
-    if form == "full" and model.structured and model.noise.objective == "posterior" and choice in ("auto", "surrogate"):
-        return "surrogate"  # the lifted form's structured Hessian (lifted.py)
-    if choice in ("surrogate", "gauss-newton") and not possible:
-        raise SurestepError(f"solver.hessian: {choice} needs a model with constant motion/observation maps and "
-                            "noise.observation_noise: mean (gauss-newton: the condensed form); use exact or auto")
-    if choice == "auto":
-        return "surrogate" if possible else "exact"
-    return choice
-
-
-def newton_applies(setup: Setup, form: str, hessian: str, forced: bool) -> bool:
-    """Whether the projected Newton solver's reformulation is exact here: the surrogate model (the condensed
-    scalar recursion with the mean noise, Hessian not forced) and exactly six joints moving the tracked frame,
-    so that the terminal pose fixes the last node's joints (locally); a redundant arm keeps IPOPT."""
-    return form == "condensed" and hessian != "exact" and not forced and len(setup.robot.supporting_joints()) == NX
 
 
 _NEWTON: dict[tuple, NewtonSolver] = {}

@@ -1,0 +1,32 @@
+"""The projected Newton solver (`newton.py`) on the condensed scalar recursion, and its barrier run for the depth
+bound; a plan over an enforced motion limit is reported as such (Newton has no step constraints)."""
+
+from __future__ import annotations
+
+from ...model.limits import enforce as enforce_limits
+from ..iterate import InitialGuess, Iterate
+from ..nlp_cache import newton_solver
+from .base import Context, Outcome
+
+
+class NewtonBackend:
+    """Exact for the surrogate model with six joints moving the tracked frame (`ResolvedSolver.newton_fits`).
+
+    Options: `barrier` (bool) runs Newton on IPOPT's barrier problem, which keeps the depth bound."""
+
+    name = "newton"
+
+    def applies(self, ctx: Context) -> str | None:
+        if not ctx.resolved.newton_fits:
+            return ("Newton needs the condensed scalar recursion with the mean observation noise and six joints "
+                    "moving the tracked frame")
+        return None
+
+    def solve(self, ctx: Context, start: InitialGuess, warm: Iterate | None, hessian: str | None,
+              options: dict) -> Outcome:
+        spec = ctx.setup.problem.solver
+        sol = newton_solver(ctx.setup).solve(ctx.setup, start, ctx.method, tol=spec.tol,
+                                             max_iter=min(spec.surrogate_max_iter, spec.max_iter),
+                                             verbose=spec.print_level > 0, barrier=bool(options.get("barrier")))
+        enforce_limits(ctx.setup, sol)  # a plan over an enforced limit is not a success: the strategy goes on
+        return Outcome(sol, Iterate(sol.joints) if sol.success else None)
