@@ -12,50 +12,37 @@ it is within every limit, else toppra). Reported per plan: status, Tr(Sigma_T), 
 
 from __future__ import annotations
 
-import argparse
-import platform
-import statistics
-import time
-from dataclasses import replace
-from pathlib import Path
+import harness as h  # first: one BLAS thread
 
-import numpy as np
+import platform  # noqa: E402
+import time  # noqa: E402
+from dataclasses import replace  # noqa: E402
 
-from surestep_ocp.evaluation.configs import ConfigurationSampler, load_evaluation
-from surestep_ocp.model import limits as lm
-from surestep_ocp.output.export import time_parametrise, within_position_limits
-from surestep_ocp.problem.problem import LimitsSpec, load_problem
-from surestep_ocp.problem.setup import build_setup
-from surestep_ocp.solvers import solver_setup
-from surestep_ocp.solvers.methods import run_method
+import numpy as np  # noqa: E402
 
-ROOT = Path(__file__).resolve().parents[1]
 MODES = ("steps", "curve")
 
 
 def solve(prob, mode: str, repeats: int = 1):
-    lm.CURVE_ROWS = mode
-    setup = build_setup(prob)
-    times, sol = [], None
-    for _ in range(repeats):
-        sol = run_method(setup, "ocp")
-        times.append(sol.solve_time_s)
-    row = {"status": sol.status, "ok": sol.success, "trace": sol.trace_final, "solve_s": statistics.median(times)}
+    h.set_curve_rows(mode)
+    setup = h.setup(prob)
+    sols = h.repeat(lambda: h.method(setup, "ocp"), max(1, repeats))
+    sol = sols[-1]
+    row = {"status": sol.status, "ok": sol.success, "trace": sol.trace_final,
+           "solve_s": h.median(s.solve_time_s for s in sols)}
     if sol.success:
-        q, _ = within_position_limits(np.array(sol.q, float), setup.robot)
-        traj = time_parametrise(q, prob.timing.step_s, lm.problem_limits(setup), robot=setup.robot,
-                                tool_frame=setup.robot.frame)
+        q, _ = h.within_position_limits(np.array(sol.q, float), setup.robot)
+        traj = h.time_parametrise(q, prob.timing.step_s, h.problem_limits(setup), robot=setup.robot,
+                                  tool_frame=setup.robot.frame)
         row.update(timing=traj.timing, export_s=traj.duration)
     return row
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--configs", type=int, default=24)
+    ap = h.parser(__doc__, configs=24, output=h.RESULTS / "curve_rows.md")
     ap.add_argument("--horizon", type=int, default=40)
     ap.add_argument("--step-s", type=float, default=0.05)
     ap.add_argument("--repeats", type=int, default=5, help="solves of the default problem per mode (median time)")
-    ap.add_argument("--output", default=str(ROOT / "benchmarks" / "results" / "curve_rows.md"))
     args = ap.parse_args()
     t0 = time.perf_counter()
 
@@ -63,13 +50,12 @@ def main() -> None:
         return replace(p, horizon=args.horizon, limits=replace(p.limits, enforce=True),
                        timing=replace(p.timing, step_s=args.step_s))
 
-    base = enforced(load_problem(ROOT / "problems" / "needle_regrasp_paper_pace.yaml"))
-    sampler = ConfigurationSampler(load_evaluation(ROOT / "problems" / "evaluations" / "evaluation.yaml"))
+    base = enforced(h.load_problem(h.PAPER_PACE_PROBLEM))
     cases = [("default", base, args.repeats)] + [
-        (f"config {i}", enforced(sampler.problem(sampler.sample(0, i))), 1) for i in range(args.configs)]
+        (f"config {i}", enforced(p), 1) for i, p in h.configurations(h.sampler(), args.configs)]
     results = {m: [] for m in MODES}
     for mode in MODES:
-        solver_setup._CACHE.clear()  # not needed for correctness (the key holds CURVE_ROWS): frees the other mode's NLPs
+        h.clear_solver_cache()  # not needed for correctness (the key holds CURVE_ROWS): frees the other mode's NLPs
         for name, prob, reps in cases:
             results[mode].append(solve(prob, mode, reps))
             r = results[mode][-1]
@@ -83,8 +69,8 @@ def main() -> None:
              f"{platform.node()}, 2 cores shared with other agents' jobs: times are noisy). The default problem's "
              f"solve time is the median of {args.repeats} solves; the configurations' one solve each (the first "
              "solve of each mode, the default problem's, builds and compiles the NLP; `solve` excludes builds).", "",
-             "| plan | steps: status | Tr | solve [s] | export [s] (timing) | curve: status | Tr | solve [s] | "
-             "export [s] (timing) | Tr curve / steps | solve curve / steps |", "|" + "---|" * 11]
+             *h.table(["plan", "steps: status", "Tr", "solve [s]", "export [s] (timing)", "curve: status", "Tr",
+                       "solve [s]", "export [s] (timing)", "Tr curve / steps", "solve curve / steps"])]
     ratios, tratios = [], []
     for k, (name, _, _) in enumerate(cases):
         a, b = results["steps"][k], results["curve"][k]
@@ -105,14 +91,14 @@ def main() -> None:
         played = sum(r.get("timing") == "planned" for r in ok)
         exp = [r["export_s"] for r in ok]
         lines.append(f"- {mode}: {len(ok)}/{len(rs)} configurations within the limits; solve median "
-                     f"{statistics.median(sol_t):.3f} s, worst {max(sol_t):.3f} s; exported at the planned pace "
-                     f"{played}/{len(ok)}; export duration median {statistics.median(exp) if exp else float('nan'):.3f} s, "
+                     f"{h.median(sol_t):.3f} s, worst {max(sol_t):.3f} s; exported at the planned pace "
+                     f"{played}/{len(ok)}; export duration median {h.median(exp):.3f} s, "
                      f"worst {max(exp) if exp else float('nan'):.3f} s (planned {planned:g} s)")
     if ratios:
-        lines.append(f"- both converged on {len(ratios)}: Tr curve / steps median {statistics.median(ratios):.3f}, "
-                     f"worst {max(ratios):.3f}, geometric mean {float(np.exp(np.mean(np.log(ratios)))):.3f}; solve "
-                     f"time curve / steps median {statistics.median(tratios):.2f}, worst {max(tratios):.2f}")
-    Path(args.output).write_text("\n".join(lines) + "\n")
+        lines.append(f"- both converged on {len(ratios)}: Tr curve / steps median {h.median(ratios):.3f}, "
+                     f"worst {max(ratios):.3f}, geometric mean {h.geomean(ratios):.3f}; solve "
+                     f"time curve / steps median {h.median(tratios):.2f}, worst {max(tratios):.2f}")
+    h.write_result(args.output, "\n".join(lines) + "\n")
     print("\n".join(lines[-3:]))
     print(f"wrote {args.output}")
 

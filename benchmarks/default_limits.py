@@ -16,35 +16,28 @@ Writes benchmarks/results/default_limits.md.
 
 from __future__ import annotations
 
-import argparse
-import platform
-import time
-from pathlib import Path
+import harness as h  # first: one BLAS thread
 
-import numpy as np
+import platform  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
 
-from surestep_ocp.model.limits import plan_report, problem_limits
-from surestep_ocp.output.export import time_parametrise, within_position_limits
-from surestep_ocp.problem.problem import load_problem
-from surestep_ocp.problem.setup import build_setup
-from surestep_ocp.solvers.methods import run_method
-
-ROOT = Path(__file__).resolve().parents[1]
+import numpy as np  # noqa: E402
 ROTARY = ["yaw", "pitch", "roll", "wrist_pitch", "wrist_yaw"]
 
 
 def plan_row(setup, sol, step, export_lim=None):
     q = np.array(sol.q, float)
-    robot, lim = setup.robot, export_lim or problem_limits(setup)
-    rep = plan_report(robot, q, step, lim, robot.frame)
+    robot, lim = setup.robot, export_lim or h.problem_limits(setup)
+    rep = h.plan_report(robot, q, step, lim, robot.frame)
     names = list(lim.joint_names)
     dq = np.abs(np.diff(q, axis=0))
     rot = max(dq[:, names.index(n)].max() for n in ROTARY)
     ins = dq[:, names.index("insertion")].max()
     tool_mm = 1e3 * np.array(rep["tool_speed_per_step_m_s"]) * step
-    qq, _ = within_position_limits(q, robot)
+    qq, _ = h.within_position_limits(q, robot)
     t0 = time.perf_counter()
-    traj = time_parametrise(qq, step, lim, robot=robot, tool_frame=robot.frame)
+    traj = h.time_parametrise(qq, step, lim, robot=robot, tool_frame=robot.frame)
     return {
         "ok": rep["ok"], "n_viol": len(rep["violations"]), "tool_max_mm": float(tool_mm.max()),
         "tool_steps_mm": tool_mm, "rot_max": float(rot), "ins_max_mm": 1e3 * float(ins),
@@ -55,14 +48,13 @@ def plan_row(setup, sol, step, export_lim=None):
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--problem", default=str(ROOT / "problems" / "needle_regrasp_paper_pace.yaml"))
+    ap = h.parser(__doc__, output=h.RESULTS / "default_limits.md")
+    ap.add_argument("--problem", default=str(h.PAPER_PACE_PROBLEM))
     ap.add_argument("--cases", nargs="+", default=["0.05:20:20", "0.06:20:0", "0.07:20:0", "0.08:20:0",
                                                   "0.1:20:20", "0.1:20:10", "0.05:30:20", "0.05:40:20", "0.05:40:20:0.5"])
     ap.add_argument("--repeats", type=int, default=1, help="solves per method and case; the solve time is their median")
-    ap.add_argument("--output", default=str(ROOT / "benchmarks" / "results" / "default_limits.md"))
     args = ap.parse_args()
-    base_prob = load_problem(args.problem)
+    base_prob = h.load_problem(args.problem)
     rows, steps_lines = [], []
     t_start = time.perf_counter()
     for case in args.cases:
@@ -76,19 +68,18 @@ def main() -> None:
         for tag, enforce, method in (("free", False, "ocp"), ("lim", True, "ocp"), ("base", False, "baseline")):
             limits = {"enforce": enforce}
             if enforce and acc_scale != 1.0:  # plan with a margin on the accelerations, export with the full ones
-                full = problem_limits(build_setup(base_prob.with_horizon(int(horizon))))
+                full = h.problem_limits(h.setup(base_prob.with_horizon(int(horizon))))
                 limits["joint_acceleration"] = {n: float(a) * acc_scale for n, a in
                                                 zip(full.joint_names, full.acceleration)}
                 export_lim = full
             # with_sections reads the problem again, so the noise is divided by the case's frames per step
-            setup = build_setup(base_prob.with_sections(horizon=int(horizon), timing=timing, limits=limits))
-            t0 = time.perf_counter()
-            sol = run_method(setup, method)
-            wall = time.perf_counter() - t0
-            solve_times = [sol.solve_time_s] + [run_method(setup, method).solve_time_s for _ in range(args.repeats - 1)]
+            setup = h.setup(base_prob.with_sections(horizon=int(horizon), timing=timing, limits=limits))
+            sol, wall = h.timed(lambda: h.method(setup, method))
+            again = h.repeat(lambda: h.method(setup, method), args.repeats - 1)
+            solve_times = [sol.solve_time_s] + [r.solve_time_s for r in again]
             r = plan_row(setup, sol, step, export_lim) if all(x is not None for x in sol.q) else {}
             r.update(status=sol.status, success=sol.success, tr=sol.trace_final,
-                     solve=float(np.median(solve_times)), wall=wall, attempts=[a.get("hessian") for a in
+                     solve=h.median(solve_times), wall=wall, attempts=[a.get("hessian") for a in
                                                                  sol.extras.get("attempts", [])])
             res[tag] = r
             print(case, tag, {k: v for k, v in r.items() if k != "tool_steps_mm"}, flush=True)
@@ -116,13 +107,13 @@ def main() -> None:
         "insertion [mm]. Peaks: the largest joint velocity / acceleration / tool speed over its limit at the "
         "planned pace (from and to rest). Export: the duration of the time-optimal trajectory within every "
         "joint and tool limit (`surestep export`), against the planned horizon x step_s.", "",
-        "| step_s | T | tracker_hz (obs/step) | planned [s] | plan | status | Tr(Sigma_T) | Tr / unconstrained "
-        "| solve / wall [s] | largest tool step [mm] | largest rotary step [rad] | largest insertion step [mm] "
-        "| peak v / a / tool over limit | within limits | export / planned [s] |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|", *rows, "",
+        *h.table(["step_s", "T", "tracker_hz (obs/step)", "planned [s]", "plan", "status", "Tr(Sigma_T)",
+                  "Tr / unconstrained", "solve / wall [s]", "largest tool step [mm]", "largest rotary step [rad]",
+                  "largest insertion step [mm]", "peak v / a / tool over limit", "within limits",
+                  "export / planned [s]"], rows), "",
         "## Tool step per planned step [mm]", "",
-        "| step_s | T | tracker_hz | planned [s] | plan | steps |", "|---|---|---|---|---|---|", *steps_lines]) + "\n"
-    Path(args.output).write_text(text)
+        *h.table(["step_s", "T", "tracker_hz", "planned [s]", "plan", "steps"], steps_lines)]) + "\n"
+    h.write_result(args.output, text)
     print(text)
 
 

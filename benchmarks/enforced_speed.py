@@ -21,7 +21,6 @@ import argparse
 import json
 import os
 import platform
-import statistics
 import subprocess
 import sys
 import tarfile
@@ -30,6 +29,10 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+
+
+# The worker imports `surestep_ocp` itself, not through benchmarks/harness.py: it runs the revision it measures,
+# whose modules may be laid out otherwise than the harness expects. The parent process uses the harness (report).
 
 
 def cases(horizon: int, step_s: float, configs: int):
@@ -109,6 +112,8 @@ def main() -> None:
     args = ap.parse_args()
     if args.worker:
         return worker(args.horizon, args.step_s, args.configs)
+    import harness as h  # the parent only (see `cases`)
+
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="enforced_speed_") as tmp:
         trees, names = {}, {}
@@ -132,8 +137,8 @@ def main() -> None:
                 for tree, proc in procs.items():
                     runs[tree][k].append(ask(proc, k))
             o, w = runs["old"][k][-1], runs["new"][k][-1]
-            print(f"{o['name']:10s} old {o['status']:27s} {statistics.median(r['solve_s'] for r in runs['old'][k]):.3f} s"
-                  f" | new {w['status']:27s} {statistics.median(r['solve_s'] for r in runs['new'][k]):.3f} s | Tr "
+            print(f"{o['name']:10s} old {o['status']:27s} {h.median(r['solve_s'] for r in runs['old'][k]):.3f} s"
+                  f" | new {w['status']:27s} {h.median(r['solve_s'] for r in runs['new'][k]):.3f} s | Tr "
                   f"new/old {w['trace'] / o['trace']:.9f}", flush=True)
         for proc in procs.values():
             proc.stdin.close()
@@ -147,13 +152,13 @@ def main() -> None:
              f"the solver's own (`solve_time_s`, Newton's included, builds excluded), median of {args.repeats} solves; "
              "iterations: IPOPT's in the attempt kept; export: `time_parametrise`'s timing (planned = the played curve "
              "within every limit at the planned times, by the export's own dense check).", "",
-             "| plan | old: status | Tr | solve [s] | IPOPT it. | new: status | Tr | solve [s] | IPOPT it. | "
-             "export old / new | Tr new / old | time new / old |", "|" + "---|" * 12]
+             *h.table(["plan", "old: status", "Tr", "solve [s]", "IPOPT it.", "new: status", "Tr", "solve [s]",
+                       "IPOPT it.", "export old / new", "Tr new / old", "time new / old"])]
     ratios, t_old, t_new, tr_rel = [], [], [], []
     for k in range(n):
         o, w = runs["old"][k][-1], runs["new"][k][-1]
-        so = statistics.median(r["solve_s"] for r in runs["old"][k])
-        sn = statistics.median(r["solve_s"] for r in runs["new"][k])
+        so = h.median(r["solve_s"] for r in runs["old"][k])
+        sn = h.median(r["solve_s"] for r in runs["new"][k])
         t_old.append(so)
         t_new.append(sn)
         ratios.append(sn / so)
@@ -168,12 +173,12 @@ def main() -> None:
         rs = last(tree)
         lines.append(f"- {tree}: {sum(r['ok'] for r in rs)}/{n} successes ({', '.join(sorted({r['status'] for r in rs}))});"
                      f" within the limits {sum(r['within'] for r in rs)}/{n}; exported at the planned pace "
-                     f"{sum(r.get('timing') == 'planned' for r in rs)}/{n}; solve median {statistics.median(ts):.3f} s, "
+                     f"{sum(r.get('timing') == 'planned' for r in rs)}/{n}; solve median {h.median(ts):.3f} s, "
                      f"worst {max(ts):.3f} s")
-    lines.append(f"- time new / old per plan: median {statistics.median(ratios):.3f}, worst {max(ratios):.3f}, best "
-                 f"{min(ratios):.3f}; median time old / new {statistics.median(t_old) / statistics.median(t_new):.2f}x")
+    lines.append(f"- time new / old per plan: median {h.median(ratios):.3f}, worst {max(ratios):.3f}, best "
+                 f"{min(ratios):.3f}; median time old / new {h.median(t_old) / h.median(t_new):.2f}x")
     lines.append(f"- Tr(Sigma_T) new / old - 1: largest {max(tr_rel):+.2e}, smallest {min(tr_rel):+.2e}")
-    Path(args.output).write_text("\n".join(lines) + "\n")
+    h.write_result(Path(args.output), "\n".join(lines) + "\n")
     print("\n".join(lines[-4:]))
     print(f"wrote {args.output}")
 

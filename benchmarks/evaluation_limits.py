@@ -13,31 +13,28 @@ Writes benchmarks/results/evaluation_100x50_limits.md (the OCP's rows side by si
 
 from __future__ import annotations
 
-import argparse
-import subprocess
-import sys
-import time
-from pathlib import Path
+import harness as h  # first: one BLAS thread
 
-import yaml
+import subprocess  # noqa: E402
+import sys  # noqa: E402
+import time  # noqa: E402
 
-from surestep_ocp.output.solution import write_text_atomic
+import yaml  # noqa: E402
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT, EVAL = h.ROOT, h.EVALUATION
 OUT = ROOT / "out" / "evaluation_limits"
-EVAL = ROOT / "problems" / "evaluations" / "evaluation.yaml"
 
 
 def files(step_s: float) -> Path:
     """The enforced base problem and the evaluation file that uses it; returns the evaluation file."""
-    base = yaml.safe_load((ROOT / "problems" / "needle_regrasp_paper_pace.yaml").read_text())
+    base = yaml.safe_load(h.PAPER_PACE_PROBLEM.read_text())
     base["limits"] = {"enforce": True}
     base["timing"] = {"step_s": step_s, "tracker_hz": 1.0 / step_s}
-    write_text_atomic(OUT / "needle_regrasp_limits.yaml", yaml.safe_dump(base, sort_keys=False))
+    h.write_result(OUT / "needle_regrasp_limits.yaml", yaml.safe_dump(base, sort_keys=False))
     text = EVAL.read_text()
     if "base: ../needle_regrasp_paper_pace.yaml" not in text:
         raise SystemExit(f"{EVAL}: its base is no longer ../needle_regrasp.yaml; update this script")
-    return write_text_atomic(OUT / "evaluation_limits.yaml",
+    return h.write_result(OUT / "evaluation_limits.yaml",
                              text.replace("base: ../needle_regrasp_paper_pace.yaml", "base: needle_regrasp_limits.yaml"))
 
 
@@ -53,8 +50,7 @@ def ocp_rows(table: str) -> dict[str, str]:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--configs", type=int, default=100)
+    ap = h.parser(__doc__, configs=100)
     ap.add_argument("--rollouts", type=int, default=50)
     ap.add_argument("--step-s", type=float, default=0.1)
     ap.add_argument("--methods", default="baseline,gradient,ocp")
@@ -82,7 +78,7 @@ def main() -> None:
              "observation per waypoint (the paper's belief model, as the unconstrained run), so the two runs "
              "differ by the limits only. Methods other than the OCP do not honour the limits: their plans are "
              "rolled out as they are and counted in `failed`. Relative to the baseline of the same run:", "",
-             head, "|" + "---|" * (head.count("|") - 1)]
+             head, "|" + "---|" * (head.count("|") - 1)]  # the evaluation's own header
     for mode in ("model", "true"):
         for name in runs:
             row = ocp_rows(tables[name]).get(mode, "")
@@ -90,8 +86,7 @@ def main() -> None:
     for name in runs:
         lines += ["", f"## {name.capitalize()} run (`{runs[name].relative_to(ROOT)}`)", "",
                   tables[name].split("\n", 1)[1]]
-    write_text_atomic(ROOT / "benchmarks" / "results" / f"evaluation_{args.configs}x{args.rollouts}_limits.md",
-                      "\n".join(lines) + "\n")
+    h.write_result(f"evaluation_{args.configs}x{args.rollouts}_limits.md", "\n".join(lines) + "\n")
     print("\n".join(lines[:14 + 4]))
 
 

@@ -11,27 +11,25 @@ rollout of all methods against the 0.37 m diagonal of the evaluation's workspace
 
 from __future__ import annotations
 
-import argparse
-import json
-from pathlib import Path
+import harness as h  # first: one BLAS thread
 
-import numpy as np
+import json  # noqa: E402
+from pathlib import Path  # noqa: E402
 
-from surestep_ocp.evaluation.evaluation import read_progress
-from surestep_ocp.output.solution import write_text_atomic
+import numpy as np  # noqa: E402
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = h.ROOT
 RUNS = ("t20-planned", "t20-limits", "t40-planned", "t40-limits")
 WORKSPACE_DIAGONAL_MM = 370.0
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = h.parser(__doc__)
     ap.add_argument("--sweep-dir", type=Path, default=ROOT / "out" / "execution_pace")
     args = ap.parse_args()
     worst_lines, rows = [], []
     for run in RUNS:
-        recs = list(read_progress(args.sweep_dir / run / "progress.jsonl").values())
+        recs = list(h.read_progress(args.sweep_dir / run / "progress.jsonl").values())
         methods = json.loads((args.sweep_dir / run / "run.json").read_text())["methods"]
         for mode in ("model", "true"):
             worst = (0.0, "", -1)
@@ -55,13 +53,12 @@ def main() -> None:
              "50 rollouts per mode, seed 0; `limits` runs split every plan step faster than 0.1 m/s or pi/2 rad/s "
              "into equal steps of 0.05 s (`surestep_ocp/evaluation/pacing.py`), the plans are the same.", "",
              "## The worst rollout of each run (every method)", "",
-             "| run | mode | worst final position error [mm] | method | configuration | above the 0.37 m diagonal |",
-             "|---|---|---|---|---|---|", *worst_lines, "",
+             *h.table(["run", "mode", "worst final position error [mm]", "method", "configuration",
+                       "above the 0.37 m diagonal"], worst_lines), "",
              "## Per method: pooled final position errors of every rollout", "",
-             "| run | mode | method | pos med [mm] | pos p90 [mm] | pos max [mm] | grasp | observed | rollout steps "
-             "(median / max) | configs |", "|---|---|---|---|---|---|---|---|---|---|", *rows, ""]
-    out = ROOT / "benchmarks" / "results" / "evaluation_execution_pace.md"
-    write_text_atomic(out, "\n".join(lines))
+             *h.table(["run", "mode", "method", "pos med [mm]", "pos p90 [mm]", "pos max [mm]", "grasp", "observed",
+                       "rollout steps (median / max)", "configs"], rows), ""]
+    h.write_result("evaluation_execution_pace.md", "\n".join(lines))
     print("\n".join(lines))
 
 

@@ -13,41 +13,30 @@ benchmarks/results/export_limits.md.
 
 from __future__ import annotations
 
-import argparse
-import time
-from pathlib import Path
+import harness as h  # first: one BLAS thread
 
-import numpy as np
+import time  # noqa: E402
 
-from surestep_ocp.evaluation.configs import ConfigurationSampler, load_evaluation
-from surestep_ocp.output.export import time_parametrise, within_position_limits
-from surestep_ocp.model.limits import motion_limits, plan_report
-from surestep_ocp.solvers.methods import run_method
-from surestep_ocp.output.plots_motion import tool_speeds
-
-ROOT = Path(__file__).resolve().parents[1]
+import numpy as np  # noqa: E402
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser()
-    ap.add_argument("--configs", type=int, default=100)
-    ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "export_limits.md"))
-    args = ap.parse_args()
-    sampler = ConfigurationSampler(load_evaluation(ROOT / "problems" / "evaluations" / "evaluation.yaml"))
+    args = h.parser(None, configs=100, output=h.RESULTS / "export_limits.md", output_flag="--out").parse_args()
+    sampler = h.sampler()
     rows = []
     for i in range(args.configs):
-        setup = sampler.setup_of(sampler.sample(0, i))
-        sol = run_method(setup, "ocp")
+        setup = h.config_setup(sampler, 0, i)
+        sol = h.method(setup, "ocp")
         q = np.array(sol.q, float)
         step = setup.problem.timing.step_s
-        lim = motion_limits(setup.robot.urdf, setup.robot.joint_names)
-        rep = plan_report(setup.robot, q, step, lim)
+        lim = h.motion_limits(setup.robot.urdf, setup.robot.joint_names)
+        rep = h.plan_report(setup.robot, q, step, lim)
         t0 = time.perf_counter()
-        qc, _ = within_position_limits(q, setup.robot)
-        tr = time_parametrise(qc, step, lim, robot=setup.robot, tool_frame=setup.robot.frame)
+        qc, _ = h.within_position_limits(q, setup.robot)
+        tr = h.time_parametrise(qc, step, lim, robot=setup.robot, tool_frame=setup.robot.frame)
         t_export = time.perf_counter() - t0
         dt = np.diff(tr.times)[:, None]
-        dp, dr = tool_speeds(setup.robot.urdf, setup.robot.frame, tr.times, tr.q)
+        dp, dr = h.tool_speeds(setup.robot.urdf, setup.robot.frame, tr.times, tr.q)
         ok = (np.all(tr.q >= setup.robot.lower - 1e-12) and np.all(tr.q <= setup.robot.upper + 1e-12)
               and np.all(np.abs(np.diff(tr.q, axis=0)) / dt <= lim.velocity * (1 + 1e-6))
               and np.all(np.abs(np.diff(tr.qd, axis=0)) / dt <= lim.acceleration * (1 + 1e-6))
@@ -78,8 +67,7 @@ def main() -> None:
         "",
         "`.venv/bin/python benchmarks/export_limits.py --configs " + str(n) + "`",
         "",
-        "| quantity | value |",
-        "|---|---|",
+        *h.table(["quantity", "value"]),
         f"| plans breaking some limit at the planned pace | {sum(r['violations'] > 0 for r in rows)} / {n} |",
     ]
     for k in sorted(kinds_total):
@@ -110,7 +98,7 @@ def main() -> None:
         f"Measured on a machine shared with other jobs (2 cores); {time.strftime('%Y-%m-%d')}.",
         "",
     ]
-    Path(args.out).write_text("\n".join(lines))
+    h.write_result(args.out, "\n".join(lines))
     print("\n".join(lines))
 
 

@@ -2,14 +2,12 @@
 in-process on N mutated shipped problems, then `surestep solve` on a sample of the accepted ones (tracebacks,
 timeouts over 120 s, NaN in outputs, multi-line errors). Usage: python benchmarks/fuzz_fresh.py SEED N SOLVES
 (issue 17: seed 4242, 1500, 25)."""
+import harness as h  # first: one BLAS thread
 import copy, json, math, random, subprocess, sys, time, glob, yaml, os
-REPO = __import__("pathlib").Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
+REPO = h.ROOT
 import tempfile
 WORK = tempfile.mkdtemp(prefix="surestep-fuzz-")
-from surestep_ocp.problem.problem import load_problem
-from surestep_ocp.problem.setup import build_setup
-from surestep_ocp.errors import ProblemError, SurestepError
+load_problem, build_setup, ProblemError, SurestepError = h.load_problem, h.setup, h.ProblemError, h.SurestepError
 rng = random.Random(int(sys.argv[1]) if len(sys.argv) > 1 else 4242)
 files = sorted(glob.glob(str(REPO / "problems" / "*.yaml")))
 trees = {f: yaml.safe_load(open(f)) for f in files}

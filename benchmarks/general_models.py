@@ -29,25 +29,11 @@ non-paper models.
 
 from __future__ import annotations
 
-import os
+import harness as h  # first: one BLAS thread
 
-os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
-os.environ.setdefault("OMP_NUM_THREADS", "1")
-
-import argparse  # noqa: E402
-import statistics  # noqa: E402
 from dataclasses import replace  # noqa: E402
-from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
-
-from surestep_ocp.evaluation.configs import ConfigurationSampler, load_evaluation  # noqa: E402
-from surestep_ocp.solvers.methods import ocp_initial_guess  # noqa: E402
-from surestep_ocp.solvers.ocp import diagonal_model_setup, solve_ocp  # noqa: E402
-from surestep_ocp.problem.setup import build_setup  # noqa: E402
-from surestep_ocp.output.solution import write_text_atomic  # noqa: E402
-
-ROOT = Path(__file__).resolve().parents[1]
 FLOOR = np.diag([1e-6, 1e-6, 4e-6, 1e-5, 1e-5, 1e-5])
 JOINT_SIGMA = (0.05, 0.05, 0.02, 0.05, 0.05, 0.05, 0.0)  # yaw, pitch, insertion, roll, wrist pitch, wrist yaw, jaw
 
@@ -84,31 +70,23 @@ def variant(problem, noise: dict, form: str, horizon: int | None = None):
     return replace(p, horizon=horizon) if horizon else p
 
 
-def pct(values, q) -> float:
-    return float(np.percentile(values, q))
-
-
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--configs", type=int, default=100)
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--horizons", type=int, nargs="*", default=[20, 40, 80, 160])
+    ap = h.parser(__doc__, configs=100, seed=0, horizons=[20, 40, 80, 160], horizons_nargs="*",
+                  output=h.RESULTS / "general_models.md")
     ap.add_argument("--scaling-configs", type=int, default=10)
     ap.add_argument("--models", nargs="*", choices=list(MODELS), default=list(MODELS))
     ap.add_argument("--scaling-model", choices=list(MODELS), default="correlated V_d0")
-    ap.add_argument("--output", type=Path, default=ROOT / "benchmarks" / "results" / "general_models.md")
     args = ap.parse_args()
     models = {k: v for k, v in MODELS.items() if k == "paper" or k in args.models}
-    sampler = ConfigurationSampler(load_evaluation(ROOT / "problems" / "evaluations" / "evaluation.yaml"))
+    sampler = h.sampler()
     res = {name: {"ok": [], "t": [], "tr": [], "worse": [], "worse_diag": [], "kept": [], "form": set()}
            for name in models}
-    for c in range(args.configs):
-        base = sampler.problem(sampler.sample(args.seed, c))
+    for c, base in h.configurations(sampler, args.configs, args.seed):
         paper_poses = paper_q = None
         line = [f"{c:3d}"]
         for name, (noise, form) in models.items():
-            setup = build_setup(variant(base, noise, form))
-            sol = solve_ocp(setup, ocp_initial_guess(setup))
+            setup = h.setup(variant(base, noise, form))
+            sol = h.ocp(setup)
             r = res[name]
             r["ok"].append(sol.success)
             r["t"].append(sol.solve_time_s)
@@ -122,8 +100,7 @@ def main() -> None:
             if setup.model.scalar and form == "auto":  # its own diagonal approximation: the same solve
                 r["worse_diag"].append(False)
             else:  # the diagonal approximation's condensed plan (the fast scalar path) evaluated in this model
-                approx = diagonal_model_setup(build_setup(variant(base, noise, "auto")))
-                dplan = solve_ocp(approx, ocp_initial_guess(approx))
+                dplan = h.ocp(h.diagonal_model(h.setup(variant(base, noise, "auto"))))
                 dref = float(np.trace(setup.eval_model.propagate(
                     np.array(dplan.poses), joint=setup.joint_noises(np.array(dplan.q)))[0][-1]))
                 r["worse_diag"].append(sol.trace_final > dref * (1 + 1e-6))
@@ -132,32 +109,31 @@ def main() -> None:
         print(" | ".join(line), flush=True)
 
     n = args.configs
-    t_paper = statistics.median(res["paper"]["t"])
+    t_paper = h.median(res["paper"]["t"])
     rows = []
     for name, r in res.items():
-        t = np.array(r["t"]) * 1e3
-        rows.append(f"| {name} | {sum(r['ok'])}/{n} | {sum(r['kept'])} | {np.median(t):.1f} | {pct(t, 95):.1f} | "
-                    f"{t.max():.1f} | {np.median(t) / (t_paper * 1e3):.2f} | {sum(r['worse'])}/{n} | {sum(r['worse_diag'])}/{n} | "
+        t = h.stats(np.array(r["t"]) * 1e3)
+        rows.append(f"| {name} | {sum(r['ok'])}/{n} | {sum(r['kept'])} | {t.median:.1f} | {t.p95:.1f} | "
+                    f"{t.worst:.1f} | {t.median / (t_paper * 1e3):.2f} | {sum(r['worse'])}/{n} | {sum(r['worse_diag'])}/{n} | "
                     f"{'; '.join(sorted(r['form']))} |")
     scaling = []
     for T in args.horizons:
         times, ok = [], 0
-        for c in range(args.scaling_configs):
-            setup = build_setup(variant(sampler.problem(sampler.sample(args.seed, c)),
-                                        MODELS[args.scaling_model][0], "auto", T))
-            sol = solve_ocp(setup, ocp_initial_guess(setup))
+        for c, problem in h.configurations(sampler, args.scaling_configs, args.seed):
+            sol = h.ocp(h.setup(variant(problem, MODELS[args.scaling_model][0], "auto", T)))
             times.append(sol.solve_time_s)
             ok += sol.success
-        scaling.append((T, statistics.median(times), max(times), ok))
+        scaling.append((T, h.median(times), max(times), ok))
         print(f"T={T}: median {scaling[-1][1] * 1e3:.1f} ms, worst {scaling[-1][2] * 1e3:.1f} ms, "
               f"{ok}/{args.scaling_configs} converged", flush=True)
 
     general = [name for name in models if not name.startswith("paper")]
-    t_gen = np.concatenate([np.array(res[k]["t"]) for k in general]) * 1e3
+    t_gen = h.stats(np.concatenate([np.array(res[k]["t"]) for k in general]) * 1e3)
     ok_gen = np.mean(np.concatenate([res[k]["ok"] for k in general]))
     worse_gen = np.mean(np.concatenate([res[k]["worse_diag"] for k in general]))
-    last = (f"general: success={ok_gen:.2f} median_ms={np.median(t_gen):.1f} p95_ms={pct(t_gen, 95):.1f} "
-            f"ratio_vs_condensed={np.median(t_gen) / (t_paper * 1e3):.2f} worse_optima={worse_gen:.2f}")
+    last = h.last_line("general", h.key_values(
+        success=f"{ok_gen:.2f}", median_ms=f"{t_gen.median:.1f}", p95_ms=f"{t_gen.p95:.1f}",
+        ratio_vs_condensed=f"{t_gen.median / (t_paper * 1e3):.2f}", worse_optima=f"{worse_gen:.2f}"))
     text = "\n".join([
         "# The OCP on general belief models", "",
         f"`.venv/bin/python benchmarks/general_models.py --configs {n} --seed {args.seed} --horizons "
@@ -167,14 +143,13 @@ def main() -> None:
         + "` (OPENBLAS_NUM_THREADS=1)", "",
         f"{n} configurations of problems/evaluations/evaluation.yaml at T = 20; times include the set-up of each "
         "solve, not the builds (compiled once per structure and cached).", "",
-        "| model | converged | kept start | median [ms] | p95 [ms] | worst [ms] | median / paper | worse than the "
-        "paper plan | worse than the diagonal model's plan | form / first solver |",
-        "|---|---|---|---|---|---|---|---|---|---|", *rows, "",
+        *h.table(["model", "converged", "kept start", "median [ms]", "p95 [ms]", "worst [ms]", "median / paper",
+                  "worse than the paper plan", "worse than the diagonal model's plan", "form / first solver"], rows), "",
         f"Solve time against T (`{args.scaling_model}`, default solver):", "",
-        "| T | median [ms] | worst [ms] | converged |", "|---|---|---|---|",
-        *[f"| {T} | {m * 1e3:.1f} | {w * 1e3:.1f} | {ok}/{args.scaling_configs} |" for T, m, w, ok in scaling], "",
+        *h.table(["T", "median [ms]", "worst [ms]", "converged"],
+                 [(T, f"{m * 1e3:.1f}", f"{w * 1e3:.1f}", f"{ok}/{args.scaling_configs}") for T, m, w, ok in scaling]), "",
         last]) + "\n"
-    write_text_atomic(args.output, text)
+    h.write_result(args.output, text)
     print(text)
 
 

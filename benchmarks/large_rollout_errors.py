@@ -13,45 +13,34 @@ ends behind the lens or outside the image. Prints a markdown table and a summary
 
 from __future__ import annotations
 
-import os
+import harness as h  # first: one BLAS thread
 
-os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
-os.environ.setdefault("OMP_NUM_THREADS", "1")
-
-import argparse  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 from scipy.spatial.transform import Rotation  # noqa: E402
 
-from surestep_ocp.evaluation.configs import ConfigurationSampler, load_evaluation  # noqa: E402
-from surestep_ocp.evaluation.rollout import MODES, rollout  # noqa: E402
-from surestep_ocp.solvers.methods import run_method  # noqa: E402
-
-ROOT = Path(__file__).resolve().parents[1]
+MODES, rollout = h.ROLLOUT_MODES, h.rollout
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser()
-    ap.add_argument("--evaluation", default=str(ROOT / "problems/evaluations/evaluation.yaml"))
-    ap.add_argument("--configs", type=int, default=100)
+    ap = h.parser(None, configs=100, seed=0)
+    ap.add_argument("--evaluation", default=str(h.EVALUATION))
     ap.add_argument("--rollouts", type=int, default=50)
-    ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--methods", nargs="+", default=["ocp", "ocp-expected"])
     ap.add_argument("--threshold", type=float, default=0.2)
     a = ap.parse_args(argv)
     t0 = time.perf_counter()
-    spec = load_evaluation(a.evaluation)
-    smp = ConfigurationSampler(spec)
+    spec = h.evaluation(a.evaluation)
+    smp = h.sampler(spec)
     rows, worst, counts = [], {}, {}
     for c in range(a.configs):
-        cfg = smp.sample(a.seed, c)
-        setup = smp.setup_of(cfg)
+        setup = h.config_setup(smp, a.seed, c)
         model, cam, noise = setup.eval_model, setup.eval_model.camera, setup.eval_model.noise
         cache = {}
         for name in a.methods:
-            sol = run_method(setup, name, cache)
+            sol = h.method(setup, name, cache)
             cache[name] = sol
             poses = np.asarray(sol.poses, float)
             for mode in MODES:
@@ -83,8 +72,7 @@ def main(argv=None) -> int:
     print(f"\n`OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/large_rollout_errors.py --evaluation "
           f"{Path(a.evaluation).name} --configs {a.configs} --rollouts {a.rollouts} --seed {a.seed} --methods "
           f"{' '.join(a.methods)} --threshold {a.threshold}` ({time.perf_counter() - t0:.0f} s)\n")
-    print("| method | mode | worst [mm] | rollouts above the threshold |")
-    print("|---|---|---|---|")
+    print("\n".join(h.table(["method", "mode", "worst [mm]", "rollouts above the threshold"])))
     for (name, mode), w in worst.items():
         print(f"| {name} | {mode} | {1e3 * w:.1f} | {counts[(name, mode)]} of {a.configs * a.rollouts} |")
     print("\n| method | mode | config | rollout | final error [mm] | step of largest w | abs w_p [mm] | commanded "
@@ -99,10 +87,10 @@ def main(argv=None) -> int:
         ang_dom = sum(r["ang_term"] > r["dp_term"] for r in rows)
         first2 = sum(r["step"] <= 1 for r in rows)
         lost = sum(r["last_seen"] < r["step"] for r in rows)
-        print(f"\nlarge_rollout_errors: n={len(rows)} angle_term_dominant={ang_dom} largest_draw_in_steps_0_1={first2} "
-              f"never_observed_after_it={lost} "
-              f"behind_lens={sum(r['where'] == 'behind the lens' for r in rows)} "
-              f"outside_image={sum(r['where'] == 'outside the image' for r in rows)}")
+        print("\n" + h.last_line("large_rollout_errors", h.key_values(
+            n=len(rows), angle_term_dominant=ang_dom, largest_draw_in_steps_0_1=first2, never_observed_after_it=lost,
+            behind_lens=sum(r["where"] == "behind the lens" for r in rows),
+            outside_image=sum(r["where"] == "outside the image" for r in rows))))
     return 0
 
 

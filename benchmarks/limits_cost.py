@@ -14,51 +14,34 @@ benchmarks/results/limits_cost.md.
 
 from __future__ import annotations
 
-import argparse
-import statistics
-import time
-from dataclasses import replace
-from pathlib import Path
+import harness as h  # first: one BLAS thread
 
-from surestep_ocp.evaluation.configs import ConfigurationSampler, load_evaluation
-from surestep_ocp.model.limits import plan_report, problem_limits
-from surestep_ocp.solvers.methods import ocp_initial_guess, run_method
-from surestep_ocp.solvers.ocp import solve_ocp
-from surestep_ocp.problem.problem import LimitsSpec, TimingSpec
-from surestep_ocp.problem.setup import build_setup
-from surestep_ocp.output.solution import write_text_atomic
+import time  # noqa: E402
+from dataclasses import replace  # noqa: E402
 
-ROOT = Path(__file__).resolve().parents[1]
-
-
-def geomean(xs):
-    import math
-
-    return math.exp(sum(math.log(x) for x in xs) / len(xs)) if xs else float("nan")
+geomean = h.geomean
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--configs", type=int, default=100)
-    ap.add_argument("--seed", type=int, default=0)
+    ap = h.parser(__doc__, configs=100, seed=0)
     ap.add_argument("--steps", type=float, nargs="+", default=[0.05, 0.1, 0.2])
     args = ap.parse_args()
-    sampler = ConfigurationSampler(load_evaluation(ROOT / "problems" / "evaluations" / "evaluation.yaml"))
+    sampler = h.sampler()
     summaries, detail = [], []
     t_start = time.perf_counter()
     for step in args.steps:
         n_ok = n_free_ok = n_newton = n_base_ok = 0
         vs_free, vs_base, t_free, t_lim, fail_status = [], [], [], [], {}
-        for c in range(args.configs):
-            prob = replace(sampler.problem(sampler.sample(args.seed, c)), timing=TimingSpec(step_s=step, tracker_hz=1.0 / step))
-            free_setup = build_setup(replace(prob, limits=LimitsSpec(enforce=False)))
-            lim_setup = build_setup(replace(prob, limits=LimitsSpec(enforce=True)))
-            init = ocp_initial_guess(free_setup)
-            free = solve_ocp(free_setup, init)
-            lim = solve_ocp(lim_setup, init)
-            base = run_method(free_setup, "baseline")
-            base_ok = plan_report(free_setup.robot, base.q, step, problem_limits(free_setup),
-                                  free_setup.robot.frame)["ok"]
+        for c, problem in h.configurations(sampler, args.configs, args.seed):
+            prob = replace(problem, timing=h.timing_spec(step))
+            free_setup = h.setup(replace(prob, limits=h.limits_spec(False)))
+            lim_setup = h.setup(replace(prob, limits=h.limits_spec(True)))
+            init = h.initial_guess(free_setup)
+            free = h.ocp(free_setup, init)
+            lim = h.ocp(lim_setup, init)
+            base = h.method(free_setup, "baseline")
+            base_ok = h.plan_report(free_setup.robot, base.q, step, h.problem_limits(free_setup),
+                                    free_setup.robot.frame)["ok"]
             n_base_ok += base_ok
             n_free_ok += free.success
             t_free.append(free.solve_time_s)
@@ -85,13 +68,14 @@ def main() -> None:
             f"({min(vs_free, default=float('nan')):.2f}-{max(vs_free, default=float('nan')):.2f}) "
             f"| {geomean(vs_base):.2f} ({min(vs_base, default=float('nan')):.2f}-"
             f"{max(vs_base, default=float('nan')):.2f}) | {n_base_ok}/{n} "
-            f"| {statistics.median(t_free) * 1e3:.0f} / {max(t_free) * 1e3:.0f} "
-            f"| {statistics.median(t_lim) * 1e3:.0f} / {max(t_lim) * 1e3:.0f} | {n_newton} | {fails} |")
+            f"| {h.median(t_free) * 1e3:.0f} / {max(t_free) * 1e3:.0f} "
+            f"| {h.median(t_lim) * 1e3:.0f} / {max(t_lim) * 1e3:.0f} | {n_newton} | {fails} |")
         print(summaries[-1], flush=True)
-    head = ["| step_s | unconstrained converged | enforced converged (all limits met) | enforced Tr / unconstrained Tr, "
-            "geo. mean (range) | enforced Tr / baseline Tr, geo. mean (range) | baseline within the limits "
-            "| unconstrained solve, median / worst [ms] | enforced solve, median / worst [ms] "
-            "| enforced: Newton's plan already within | enforced failures |", "|---|---|---|---|---|---|---|---|---|---|"]
+    head = h.table(["step_s", "unconstrained converged", "enforced converged (all limits met)",
+                    "enforced Tr / unconstrained Tr, geo. mean (range)", "enforced Tr / baseline Tr, geo. mean (range)",
+                    "baseline within the limits", "unconstrained solve, median / worst [ms]",
+                    "enforced solve, median / worst [ms]", "enforced: Newton's plan already within",
+                    "enforced failures"])
     text = "\n".join([
         "# What the motion limits cost the OCP", "",
         f"`OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/limits_cost.py --configs {args.configs} --seed {args.seed} "
@@ -102,9 +86,9 @@ def main() -> None:
         "plan at rest before and after. Ratios over the configurations where both converged; solve times exclude "
         "the one-off build and compile of each NLP.", "", *head, *summaries, "",
         "## Per configuration", "",
-        "| step_s | config | unconstrained Tr | enforced Tr | baseline Tr | baseline within | unconstrained [s] "
-        "| enforced [s] | enforced status | enforced attempts |", "|---|---|---|---|---|---|---|---|---|---|", *detail]) + "\n"
-    write_text_atomic(ROOT / "benchmarks" / "results" / "limits_cost.md", text)
+        *h.table(["step_s", "config", "unconstrained Tr", "enforced Tr", "baseline Tr", "baseline within",
+                  "unconstrained [s]", "enforced [s]", "enforced status", "enforced attempts"], detail)]) + "\n"
+    h.write_result("limits_cost.md", text)
     print("\n".join(head + summaries))
 
 

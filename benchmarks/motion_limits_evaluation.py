@@ -11,12 +11,11 @@ failed plans and the solve time; then the sweep's own summary.
 
 from __future__ import annotations
 
-import argparse
-from pathlib import Path
+import harness as h
 
-from surestep_ocp.output.solution import write_text_atomic
+from pathlib import Path  # noqa: E402
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = h.ROOT
 RUNS = ("paper-pace", "t40-free", "t40-enforced")
 LABEL = {"paper-pace": "20 x 0.05 s, reported", "t40-free": "40 x 0.05 s, reported",
          "t40-enforced": "40 x 0.05 s, enforced"}
@@ -42,7 +41,7 @@ def tables(path: Path) -> dict[str, dict[str, dict[str, dict[str, str]]]]:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = h.parser(__doc__)
     ap.add_argument("--sweep-dir", type=Path, default=ROOT / "out" / "motion_limits")
     args = ap.parse_args()
     data = {run: tables(args.sweep_dir / run / "table.md") for run in RUNS}
@@ -54,8 +53,8 @@ def main() -> None:
              "variant's over the enforced limits, rolled out as they are)", ""]
     for mode in ("model", "true"):
         lines += [f"## Rollout mode `{mode}`", "",
-                  "| method | steps, limits | Tr ML mean | pos mean | pos med [mm] | pos p90 [mm] | pos max [mm] | "
-                  "ori max [mrad] | grasp | failed | solve time [s] |", "|---|---|---|---|---|---|---|---|---|---|---|"]
+                  *h.table(["method", "steps, limits", "Tr ML mean", "pos mean", "pos med [mm]", "pos p90 [mm]",
+                            "pos max [mm]", "ori max [mrad]", "grasp", "failed", "solve time [s]"])]
         methods = list(data[RUNS[0]][mode]["rel"])
         for m in methods:
             for run in RUNS:
@@ -70,7 +69,7 @@ def main() -> None:
     if summary.is_file():
         lines += ["## The sweep's summary (`out/motion_limits/sweep.md`)", "", summary.read_text().strip(), ""]
     text = "\n".join(lines)
-    write_text_atomic(ROOT / "benchmarks" / "results" / "evaluation_motion_limits.md", text)
+    h.write_result("evaluation_motion_limits.md", text)
     print(text)
 
 

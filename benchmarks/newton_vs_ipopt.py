@@ -9,34 +9,19 @@ Newton needed the IPOPT fallback, and the median times. Writes benchmarks/result
 
 from __future__ import annotations
 
-import argparse
-import statistics
-from dataclasses import replace
-from pathlib import Path
-
-from surestep_ocp.evaluation.configs import ConfigurationSampler, load_evaluation
-from surestep_ocp.solvers.methods import ocp_initial_guess
-from surestep_ocp.solvers.ocp import solve_ocp
-from surestep_ocp.problem.setup import build_setup
-from surestep_ocp.output.solution import write_text_atomic
-
-ROOT = Path(__file__).resolve().parents[1]
+import harness as h  # first: one BLAS thread
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--configs", type=int, default=100)
-    ap.add_argument("--seed", type=int, default=0)
-    args = ap.parse_args()
-    sampler = ConfigurationSampler(load_evaluation(ROOT / "problems" / "evaluations" / "evaluation.yaml"))
+    args = h.parser(__doc__, configs=100, seed=0).parse_args()
+    sampler = h.sampler()
     same = lower = higher = fallback = failed = 0
     t_ipopt, t_newton, rows = [], [], []
-    for c in range(args.configs):
-        setup = build_setup(sampler.problem(sampler.sample(args.seed, c)))
-        init = ocp_initial_guess(setup)
-        ipopt = solve_ocp(setup, init)
-        newton = solve_ocp(replace(setup, problem=replace(setup.problem, solver=replace(setup.problem.solver,
-                                                                                        name="newton"))), init)
+    for c, problem in h.configurations(sampler, args.configs, args.seed):
+        setup = h.setup(problem)
+        init = h.initial_guess(setup)
+        ipopt = h.ocp(setup, init)
+        newton = h.ocp(h.with_solver(setup, name="newton"), init)
         ratio = newton.trace_final / ipopt.trace_final
         same += abs(ratio - 1) <= 1e-6
         lower += ratio < 1 - 1e-6
@@ -51,12 +36,12 @@ def main() -> None:
     n = args.configs
     summary = (f"{n} configurations (seed {args.seed}, T = 20): same plan (Tr within 1e-6) {same}, Newton lower {lower}, "
                f"Newton higher {higher}; Newton fell back to IPOPT on {fallback}, failed {failed}. Median solve time: "
-               f"IPOPT {statistics.median(t_ipopt) * 1e3:.1f} ms, Newton {statistics.median(t_newton) * 1e3:.1f} ms.")
+               f"IPOPT {h.median(t_ipopt) * 1e3:.1f} ms, Newton {h.median(t_newton) * 1e3:.1f} ms.")
     text = "\n".join(["# Newton against IPOPT", "", f"`.venv/bin/python benchmarks/newton_vs_ipopt.py --configs {n} "
                       f"--seed {args.seed}`", "", summary, "",
-                      "| config | IPOPT Tr | Newton Tr | Newton / IPOPT | IPOPT time [s] | Newton time [s] | Newton attempts "
-                      "| Newton status |", "|---|---|---|---|---|---|---|---|", *rows]) + "\n"
-    write_text_atomic(ROOT / "benchmarks" / "results" / "newton_vs_ipopt.md", text)
+                      *h.table(["config", "IPOPT Tr", "Newton Tr", "Newton / IPOPT", "IPOPT time [s]",
+                                "Newton time [s]", "Newton attempts", "Newton status"], rows)]) + "\n"
+    h.write_result("newton_vs_ipopt.md", text)
     print(summary)
 
 

@@ -11,37 +11,24 @@ true-mode rollouts' largest errors come from (docs/evaluation.md). Prints a Mark
 
 from __future__ import annotations
 
-import os
-
-os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
-
-import argparse  # noqa: E402
-from pathlib import Path  # noqa: E402
+import harness as h  # first: one BLAS thread
 
 import numpy as np  # noqa: E402
 from scipy.spatial.transform import Rotation  # noqa: E402
 
-from surestep_ocp.evaluation.configs import ConfigurationSampler, load_evaluation  # noqa: E402
-from surestep_ocp.problem.setup import build_setup  # noqa: E402
-from surestep_ocp.solvers.methods import run_method  # noqa: E402
-
-ROOT = Path(__file__).resolve().parents[1]
-
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = h.parser(__doc__, seed=0)
     ap.add_argument("--configs", type=int, nargs="+", default=[26, 79, 98, 38])
     ap.add_argument("--methods", nargs="+", default=["baseline", "ocp", "ocp-no-orientation"])
-    ap.add_argument("--seed", type=int, default=0)
     a = ap.parse_args()
-    sampler = ConfigurationSampler(load_evaluation(ROOT / "problems" / "evaluations" / "evaluation.yaml"))
-    print("| config | method | Tr(Sigma_T) | rotation total [rad] | largest step [rad] | largest step [mm] | "
-          "min depth [m] |")
-    print("|---|---|---|---|---|---|---|")
+    sampler = h.sampler()
+    print("\n".join(h.table(["config", "method", "Tr(Sigma_T)", "rotation total [rad]", "largest step [rad]",
+                              "largest step [mm]", "min depth [m]"])))
     for c in a.configs:
-        setup = build_setup(sampler.problem(sampler.sample(a.seed, c)))
+        setup = h.setup(h.config_problem(sampler, a.seed, c))
         for m in a.methods:
-            sol = run_method(setup, m)
+            sol = h.method(setup, m)
             P = np.asarray(sol.poses, float)
             R = Rotation.from_rotvec(P[:, 3:])
             turn = (R[:-1].inv() * R[1:]).magnitude()

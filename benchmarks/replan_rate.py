@@ -10,53 +10,37 @@ re-plans from the tracker's mean and covariance over the steps left. A re-plan's
     OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/replan_rate.py [--episodes 20] [--output F]
 """
 
-import os
+import harness as h  # first: one BLAS thread
 
-os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # before NumPy is imported: one BLAS thread
+import os  # noqa: E402
+import sys  # noqa: E402
+import time  # noqa: E402
 
-import argparse
-import statistics
-import sys
-import time
-from pathlib import Path
-
-import numpy as np
-
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
-from surestep_ocp.evaluation.configs import ConfigurationSampler, load_evaluation
-from surestep_ocp.errors import SurestepError
-from surestep_ocp.solvers.planner import Planner
-from surestep_ocp.evaluation.tracker import SimulatedTracker
+import numpy as np  # noqa: E402
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--episodes", type=int, default=20)
-    ap.add_argument("--evaluation", default=str(ROOT / "problems/evaluations/evaluation.yaml"))
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--output", default=str(ROOT / "benchmarks/results/replan_rate.md"))
+    ap = h.parser(__doc__, configs=20, configs_flag="--episodes", seed=0, output=h.RESULTS / "replan_rate.md")
+    ap.add_argument("--evaluation", default=str(h.EVALUATION))
     args = ap.parse_args()
 
     load = os.getloadavg()
-    sampler = ConfigurationSampler(load_evaluation(args.evaluation))
+    sampler = h.sampler(args.evaluation)
     times, solver_s, rows, builds, first_s, fallbacks, failed, ended = [], [], [], {}, [], 0, 0, []
-    for i in range(args.episodes):
-        problem = sampler.problem(sampler.sample(args.seed, i))
+    for i, problem in h.configurations(sampler, args.episodes, args.seed):
         t0 = time.perf_counter()
-        planner = Planner(problem)
+        planner = h.Planner(problem)
         first_s.append(time.perf_counter() - t0 - planner.build_time_s)
         for n, s in planner.builds.items():
             builds.setdefault(n, s)
         first_status = planner.plan.status
-        tracker = SimulatedTracker(planner.setup.eval_model, planner.plan.poses[0], rng=[args.seed, i])
+        tracker = h.SimulatedTracker(planner.setup.eval_model, planner.plan.poses[0], rng=[args.seed, i])
         ep = []
         for k in range(1, planner.horizon):  # the tool reaches waypoint k of the current plan, then re-plans
             mean, cov = tracker.move_to(planner.plan.poses[k - planner.step])
             try:
                 sol = planner.replan(mean, cov, step=k)
-            except SurestepError as exc:  # the noise carried the estimate out of the arm's reach: the episode ends
+            except h.SurestepError as exc:  # the noise carried the estimate out of the arm's reach: the episode ends
                 ended.append((i, k, str(exc)))
                 break
             info = sol.extras["replan"]
@@ -65,11 +49,12 @@ def main() -> int:
             fallbacks += info["solver"] != "newton"
             failed += not sol.success
         times += ep
-        rows.append((i, first_status, len(ep), statistics.median(ep) if ep else np.nan, max(ep, default=np.nan)))
+        rows.append((i, first_status, len(ep), h.median(ep), max(ep, default=np.nan)))
         print(f"episode {i:2d}: {len(ep)} re-plans, median {rows[-1][3] * 1e3:6.2f} ms, worst {rows[-1][4] * 1e3:6.2f} ms",
               flush=True)
     ms = np.array(times) * 1e3
-    med, p95, worst = float(np.median(ms)), float(np.percentile(ms, 95)), float(ms.max())
+    t = h.stats(ms)
+    med, p95, worst = t.median, t.p95, t.worst
     verdict = "met" if med < 10 and worst < 50 else "NOT met"
     lines = [
         "# Re-planning rate against a simulated 20 Hz tracker",
@@ -79,14 +64,13 @@ def main() -> int:
          "episode, the horizon shrinking from 19 steps to 1). A re-plan: IK of the tracker's mean, the warm-started "
          "projected Newton solve, the plan's evaluation (wall time of `Planner.replan`, builds excluded)."),
         "",
-        "| re-plans | median [ms] | p95 [ms] | worst [ms] | not Newton (IPOPT strategy) | failed |",
-        "|---|---|---|---|---|---|",
-        f"| {len(ms)} | {med:.2f} | {p95:.2f} | {worst:.2f} | {fallbacks} | {failed} |",
+        *h.table(["re-plans", "median [ms]", "p95 [ms]", "worst [ms]", "not Newton (IPOPT strategy)", "failed"],
+                 [(len(ms), f"{med:.2f}", f"{p95:.2f}", f"{worst:.2f}", fallbacks, failed)]),
         "",
         (f"Of a re-plan, the solver's own time (Newton's iterations): median {np.median(solver_s) * 1e3:.2f} ms, "
          f"worst {max(solver_s) * 1e3:.2f} ms; the rest is the IK of the mean, the setup and the evaluation. "
          f"Target (median < 10 ms, worst < 50 ms): {verdict}. Making a Planner (the setup, "
-         f"the cold first plan; builds excluded): median {statistics.median(first_s) * 1e3:.1f} ms, worst "
+         f"the cold first plan; builds excluded): median {h.median(first_s) * 1e3:.1f} ms, worst "
          f"{max(first_s) * 1e3:.1f} ms."),
         "",
         (f"Machine: {os.cpu_count()} cores, 1-minute load average {load[0]:.1f} at the start and "
@@ -99,14 +83,11 @@ def main() -> int:
          f"one-step jump; `Planner.replan` raises): {len(ended)}"
          + "".join(f"; episode {i} at step {k}" for i, k, _ in ended) + "."),
         "",
-        "| episode | first plan | re-plans | median [ms] | worst [ms] |",
-        "|---|---|---|---|---|",
-        *[f"| {i} | {st} | {n} | {m * 1e3:.2f} | {w * 1e3:.2f} |" for i, st, n, m, w in rows],
+        *h.table(["episode", "first plan", "re-plans", "median [ms]", "worst [ms]"],
+                 [(i, st, n, f"{m * 1e3:.2f}", f"{w * 1e3:.2f}") for i, st, n, m, w in rows]),
         "",
     ]
-    out = Path(args.output)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text("\n".join(lines))
+    out = h.write_result(args.output, "\n".join(lines))
     print(f"median {med:.2f} ms, p95 {p95:.2f} ms, worst {worst:.2f} ms ({verdict}); builds "
           f"{sum(builds.values()):.2f} s; wrote {out}")
     return 0

@@ -17,15 +17,13 @@ Prints the two paths. Evaluate each with `surestep evaluate FILE --configs 100 -
 
 from __future__ import annotations
 
-import argparse
-from pathlib import Path
+import harness as h
 
-import yaml
+from pathlib import Path  # noqa: E402
 
-from surestep_ocp.output.solution import write_text_atomic
+import yaml  # noqa: E402
 
-ROOT = Path(__file__).resolve().parents[1]
-EVAL = ROOT / "problems" / "evaluations" / "evaluation.yaml"
+ROOT, EVAL = h.ROOT, h.EVALUATION
 
 
 def write(out: Path) -> list[Path]:
@@ -36,17 +34,17 @@ def write(out: Path) -> list[Path]:
     for name, change in (("limits", {"limits": {"enforce": True}, "timing": {"step_s": 0.1, "tracker_hz": 10.0}}),
                          ("Wo_block", {"noise": {"W_o0": [[1e-3 if i == j and i >= 3 else 0.0 for j in range(6)]
                                                           for i in range(6)]}})):
-        base = yaml.safe_load((ROOT / "problems" / "needle_regrasp_paper_pace.yaml").read_text())
+        base = yaml.safe_load(h.PAPER_PACE_PROBLEM.read_text())
         for key, value in change.items():
             base[key] = {**base.get(key, {}), **value} if key == "noise" else value
-        write_text_atomic(out / f"needle_regrasp_{name}.yaml", yaml.safe_dump(base, sort_keys=False))
-        paths.append(write_text_atomic(out / f"evaluation_{name}.yaml",
+        h.write_result(out / f"needle_regrasp_{name}.yaml", yaml.safe_dump(base, sort_keys=False))
+        paths.append(h.write_result(out / f"evaluation_{name}.yaml",
                                        text.replace("base: ../needle_regrasp_paper_pace.yaml", f"base: needle_regrasp_{name}.yaml")))
     return paths
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = h.parser(__doc__)
     ap.add_argument("--output-dir", default=str(ROOT / "out" / "rollout_variants"))
     for p in write(Path(ap.parse_args().output_dir)):
         print(p)

@@ -13,24 +13,21 @@ scenarios_limits_step<S>[_T<T>].md).
 
 from __future__ import annotations
 
-import argparse
-import json
-import subprocess
-import sys
-from pathlib import Path
+import harness as h  # first: one BLAS thread
 
-import yaml
+import json  # noqa: E402
+import subprocess  # noqa: E402
+import sys  # noqa: E402
+from pathlib import Path  # noqa: E402
 
-from surestep_ocp.output.solution import write_text_atomic
+import yaml  # noqa: E402
 
-ROOT = Path(__file__).resolve().parents[1]
-SCENARIOS = ["needle_regrasp", "needle_regrasp_paper_pace", "type1_easy", "type1_medium", "type1_hard", "type2_needle_arm_moves",
-             "type3_camera_moves_once", "type4_camera_moves", "ur5_fixed_camera"]
+ROOT, SCENARIOS = h.ROOT, h.SCENARIOS
 METHODS = ["baseline", "gradient", "gradient-no-pose-loss", "ocp", "ocp-from-gradient"]
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = h.parser(__doc__)
     ap.add_argument("--output-dir", default=str(ROOT / "out" / "scenarios"))
     ap.add_argument("--reuse", action="store_true")
     ap.add_argument("--limits", action="store_true", help="enforce the motion limits (module docstring)")
@@ -39,11 +36,10 @@ def main() -> None:
     args = ap.parse_args()
     suffix = "" if not args.limits else f"_limits_step{args.step_s or 0.05:g}" + (f"_T{args.horizon}" if args.horizon else "")
     out = Path(args.output_dir + suffix)
-    head = "| scenario | " + " | ".join(f"{m} Tr(Σ_T)" for m in METHODS) + " | OCP / baseline | OCP time [s] |"
-    lines = [head, "|" + "---|" * (len(METHODS) + 3)]
+    lines = h.table(["scenario", *(f"{m} Tr(Σ_T)" for m in METHODS), "OCP / baseline", "OCP time [s]"])
     for name in SCENARIOS:
         d = out / name
-        problem = ROOT / "problems" / f"{name}.yaml"
+        problem = h.scenario_file(name)
         if args.limits:
             problem = with_limits(problem, out / f"{name}.yaml", args.step_s, args.horizon)
         if not args.reuse:
@@ -63,7 +59,7 @@ def main() -> None:
                  f"{f' --horizon {args.horizon}' if args.horizon else ''}`",
                  "", *lines]
     text = "\n".join(lines) + "\n"
-    write_text_atomic(ROOT / "benchmarks" / "results" / f"scenarios{suffix}.md", text)
+    h.write_result(f"scenarios{suffix}.md", text)
     print(text)
 
 
@@ -77,7 +73,7 @@ def with_limits(problem: Path, dest: Path, step_s: float | None, horizon: int | 
     if step_s is not None:
         tree["timing"] = {"step_s": step_s, "tracker_hz": 1.0 / step_s}
     dest.parent.mkdir(parents=True, exist_ok=True)
-    return write_text_atomic(dest, yaml.safe_dump(tree, sort_keys=False))
+    return h.write_result(Path(dest), yaml.safe_dump(tree, sort_keys=False))
 
 
 if __name__ == "__main__":

@@ -12,45 +12,32 @@ how many runs converged. Writes benchmarks/results/secant_endgame.md.
 
 from __future__ import annotations
 
-import argparse
-import sys
-from pathlib import Path
+import harness as h  # first: one BLAS thread
 
-import numpy as np
+import numpy as np  # noqa: E402
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from general_models import MODELS, variant
-
-from surestep_ocp.evaluation.configs import ConfigurationSampler, load_evaluation
-from surestep_ocp.output.solution import write_text_atomic
-from surestep_ocp.problem.setup import build_setup
-from surestep_ocp.solvers.methods import ocp_initial_guess
-from surestep_ocp.solvers.ocp import newton_solver
-
-ROOT = Path(__file__).resolve().parents[1]
+from general_models import MODELS, variant  # noqa: E402
 EXTRA = {"paper T=40": (MODELS["paper"][0], "auto", 40)}
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--configs", type=int, default=100)
+    ap = h.parser(__doc__, configs=100)
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--models", nargs="*", default=["correlated V_d0", "full V_d0", "joint-space", "paper T=40"])
     args = ap.parse_args()
-    sampler = ConfigurationSampler(load_evaluation(ROOT / "problems" / "evaluations" / "evaluation.yaml"))
+    sampler = h.sampler()
     rows = []
     for name in args.models:
         noise, form, T = EXTRA[name] if name in EXTRA else (*MODELS[name], None)
         res = {False: {"it": [], "t": [], "ok": 0, "f": []}, True: {"it": [], "t": [], "ok": 0, "f": []}}
-        for c in range(args.configs):
-            setup = build_setup(variant(sampler.problem(sampler.sample(0, c)), noise, form, T))
-            init, solver, tol = ocp_initial_guess(setup), newton_solver(setup), setup.problem.solver.tol
-            best = {False: None, True: None}
-            for _ in range(args.repeats):
+        for c, problem in h.configurations(sampler, args.configs):
+            setup = h.setup(variant(problem, noise, form, T))
+            init, solver, tol = h.initial_guess(setup), h.newton(setup), setup.problem.solver.tol
+            runs = {False: [], True: []}
+            for _ in range(args.repeats):  # interleaved
                 for sec in (False, True):
-                    r = solver.run(setup, init, tol=tol, max_iter=300, use_secant=sec)
-                    if best[sec] is None or r.solve_time_s < best[sec].solve_time_s:
-                        best[sec] = r
+                    runs[sec].append(solver.run(setup, init, tol=tol, max_iter=300, use_secant=sec))
+            best = {sec: min(rs, key=lambda r: r.solve_time_s) for sec, rs in runs.items()}
             for sec, r in best.items():
                 res[sec]["it"].append(r.iterations)
                 res[sec]["t"].append(r.solve_time_s * 1e3)
@@ -62,21 +49,21 @@ def main() -> None:
         f0, f1 = np.array(res[False]["f"]), np.array(res[True]["f"])
         rel = (f1 - f0) / np.abs(f0)
         for sec in (False, True):
-            t, it = np.array(res[sec]["t"]), np.array(res[sec]["it"])
-            tail = (f"{np.median(res[True]['t']) / np.median(res[False]['t']):.2f} | {rel.min():+.1e} / {rel.max():+.1e} |"
+            t, it = h.stats(res[sec]["t"]), np.array(res[sec]["it"])
+            tail = (f"{h.ratio_of_medians(res[True]['t'], res[False]['t']):.2f} | {rel.min():+.1e} / {rel.max():+.1e} |"
                     if sec else " | |")
             rows.append(f"| {name} | {'secant end-game' if sec else 'surrogate only'} | {res[sec]['ok']}/{args.configs} | "
-                        f"{np.median(it):.0f} | {it.sum()} | {np.median(t):.1f} | {np.percentile(t, 95):.1f} | "
-                        f"{t.max():.1f} | {tail}")
+                        f"{np.median(it):.0f} | {it.sum()} | {t.median:.1f} | {t.p95:.1f} | "
+                        f"{t.worst:.1f} | {tail}")
     text = "\n".join([
         "# Newton's secant end-game against the surrogate alone", "",
         f"`OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/secant_endgame.py --configs {args.configs} --repeats "
         f"{args.repeats} --models {' '.join(repr(m) for m in args.models)}` (Newton only, from the straight line; "
         "minimum of the repeats per configuration; both variants interleaved in the same run)", "",
-        "| model | Newton | converged | median iterations | total iterations | median [ms] | p95 [ms] | worst [ms] | "
-        "median time, secant / surrogate | objective, secant vs surrogate (rel., min / max) |",
-        "|---|---|---|---|---|---|---|---|---|---|", *rows]) + "\n"
-    write_text_atomic(ROOT / "benchmarks" / "results" / "secant_endgame.md", text)
+        *h.table(["model", "Newton", "converged", "median iterations", "total iterations", "median [ms]", "p95 [ms]",
+                  "worst [ms]", "median time, secant / surrogate", "objective, secant vs surrogate (rel., min / max)"],
+                 rows)]) + "\n"
+    h.write_result("secant_endgame.md", text)
     print(text)
 
 

@@ -30,31 +30,19 @@ solve_speed_interpreted.md with the flags); the last printed line is
 
 from __future__ import annotations
 
-import argparse
-import statistics
-import time
-from dataclasses import replace
-from pathlib import Path
+import harness as h  # first: one BLAS thread
 
-import numpy as np
+import argparse  # noqa: E402
+from dataclasses import replace  # noqa: E402
 
-from surestep_ocp.solvers import ocp as ocp_mod
-from surestep_ocp.evaluation.configs import ConfigurationSampler, load_evaluation
-from surestep_ocp.solvers.gradient import solve_gradient
-from surestep_ocp.model.lie import np_exp
-from surestep_ocp.solvers.methods import ocp_initial_guess
-from surestep_ocp.problem.problem import LimitsSpec, TimingSpec
-from surestep_ocp.problem.setup import build_setup
-from surestep_ocp.output.solution import write_text_atomic
-
-ROOT = Path(__file__).resolve().parents[1]
+import numpy as np  # noqa: E402
 
 
 def camera_nudge(setup, rng):
     """The same setup seen from a camera moved by 3 mm and 2 degrees."""
     D = np.eye(4)
     axis = rng.normal(size=3)
-    D[:3, :3] = np_exp(np.deg2rad(2.0) * axis / np.linalg.norm(axis))
+    D[:3, :3] = h.np_exp(np.deg2rad(2.0) * axis / np.linalg.norm(axis))
     d = rng.normal(size=3)
     D[:3, 3] = 0.003 * d / np.linalg.norm(d)
     return setup.seen_from(setup.camera_pose @ D)
@@ -64,35 +52,31 @@ def run(instances: int, horizons: list[int], seed: int, codegen: bool | None = N
         tol: float | None = None, hessian: str | None = None, solver_name: str | None = None,
         step_s: float | None = None) -> tuple[str, str]:
     """`step_s` given: the limits enforced at that pace (module docstring)."""
-    spec = load_evaluation(ROOT / "problems" / "evaluations" / "evaluation.yaml")
+    spec = h.evaluation()
     solver = replace(spec.base.solver, codegen=spec.base.solver.codegen if codegen is None else codegen,
                      tol=spec.base.solver.tol if tol is None else tol,
                      hessian=hessian or spec.base.solver.hessian, name=solver_name or spec.base.solver.name)
     spec = replace(spec, base=replace(spec.base, solver=solver))
     if step_s is not None:
-        spec = replace(spec, base=replace(spec.base, limits=LimitsSpec(enforce=True),
-                                          timing=TimingSpec(step_s=step_s, tracker_hz=1.0 / step_s)))
+        spec = replace(spec, base=replace(spec.base, limits=h.limits_spec(True), timing=h.timing_spec(step_s)))
     rows, summary = [], {}
     warm_ms, builds, cold_resolves = [], {}, 0
     rng = np.random.default_rng(seed)
     for T in horizons:
         spec_T = replace(spec, base=replace(spec.base, horizon=T), horizon=T)
-        sampler = ConfigurationSampler(spec_T)
+        sampler = h.sampler(spec_T)
         ratios, wins, t_ocp, t_grad, fails, alone, iters, t_grad_ik = [], 0, [], [], 0, 0, [], []
         t_free, tr_vs_free = [], []
-        for i in range(instances):
-            problem = sampler.problem(sampler.sample(seed, i))
-            setup = build_setup(problem)
-            t0 = time.perf_counter()
-            init = ocp_initial_guess(setup)
-            init_s = time.perf_counter() - t0
-            ocp, warm = ocp_mod.solve_ocp_warm(setup, init)
+        for i, problem in h.configurations(sampler, instances, seed):
+            setup = h.setup(problem)
+            init, init_s = h.timed(lambda: h.initial_guess(setup))
+            ocp, warm = h.ocp_warm(setup, init)
             if step_s is not None:  # the unconstrained OCP beside it, same start and pace
-                free = ocp_mod.solve_ocp(build_setup(replace(problem, limits=LimitsSpec(enforce=False))), init)
+                free = h.ocp(h.setup(replace(problem, limits=h.limits_spec(False))), init)
                 t_free.append(free.solve_time_s + init_s)
                 if ocp.success and free.success:
                     tr_vs_free.append(ocp.trace_final / free.trace_final)
-            grad = solve_gradient(setup, pose_loss=True)
+            grad = h.gradient(setup, pose_loss=True)
             ocp_time = ocp.solve_time_s + init_s  # the IK of the initial guess is part of the OCP's work
             ratios.append(ocp_time / grad.solve_time_s)
             wins += ocp.trace_final <= grad.trace_final
@@ -106,23 +90,22 @@ def run(instances: int, horizons: list[int], seed: int, codegen: bool | None = N
                          ocp.extras["constraint_violation"], grad.solve_time_s, grad.iterations, grad.trace_final))
             if T == 20:
                 moved = camera_nudge(setup, rng)
-                again, _ = ocp_mod.solve_ocp_warm(moved, init, warm=warm)  # warm None (a kept start): cold
+                again, _ = h.ocp_warm(moved, init, warm=warm)  # warm None (a kept start): cold
                 cold_resolves += warm is None
                 warm_ms.append(again.solve_time_s * 1e3)
             print(f"T={T} #{i}: ocp {ocp_time:.3f} s ({ocp.iterations} it, {ocp.status}, {ocp.extras['hessian']})"
                   f" tr {ocp.trace_final:.3e} | gradient {grad.solve_time_s:.3f} s tr {grad.trace_final:.3e}",
                   flush=True)
-        builds[T] = sum(tr.build_time_s for tr in ocp_mod.cached_transcriptions() if tr.T == T)
-        summary[T] = {"time_ratio": statistics.median(ratios), "trace_share": wins / instances,
-                      "ocp_median_s": statistics.median(t_ocp), "grad_median_s": statistics.median(t_grad),
-                      "failures": fails, "alone": alone / instances, "iters": statistics.median(iters),
-                      "grad_ik_median_s": statistics.median(t_grad_ik),
-                      "compiled": any(tr.codegen for tr in ocp_mod.cached_transcriptions() if tr.T == T),
-                      "free_median_s": statistics.median(t_free) if t_free else float("nan"),
-                      "tr_vs_free": statistics.geometric_mean(tr_vs_free) if tr_vs_free else float("nan"),
+        builds[T] = sum(tr.build_time_s for tr in h.transcriptions(T))
+        summary[T] = {"time_ratio": h.median(ratios), "trace_share": wins / instances,
+                      "ocp_median_s": h.median(t_ocp), "grad_median_s": h.median(t_grad),
+                      "failures": fails, "alone": alone / instances, "iters": h.median(iters),
+                      "grad_ik_median_s": h.median(t_grad_ik),
+                      "compiled": any(tr.codegen for tr in h.transcriptions(T)),
+                      "free_median_s": h.median(t_free), "tr_vs_free": h.geomean(tr_vs_free),
                       "n_vs_free": len(tr_vs_free)}
     growth = (summary[40]["ocp_median_s"] / summary[20]["ocp_median_s"]) if {20, 40} <= set(summary) else float("nan")
-    warm = statistics.median(warm_ms) if warm_ms else float("nan")
+    warm = h.median(warm_ms)
     lines = ["# Solve speed: OCP against the gradient variant (same run)", "",
              (f"`.venv/bin/python benchmarks/solve_speed.py --instances {instances} --horizons "
               f"{' '.join(map(str, horizons))}{ {None: '', True: ' --codegen', False: ' --no-codegen'}[codegen]}"
@@ -134,42 +117,38 @@ def run(instances: int, horizons: list[int], seed: int, codegen: bool | None = N
                  "observation per waypoint; a failure is a plan that does not meet them (mostly "
                  "Infeasible_Problem_Detected). The gradient variant does not honour them. Machine shared with "
                  "other jobs (2 cores).", ""]),
-             ("| T | median time OCP / gradient | share OCP Tr <= gradient Tr | median OCP time [s] "
-              "| median gradient time [s] | median gradient + IK of its waypoints [s] | median OCP iterations "
-              "| OCP failures | share solved by the first Hessian alone | OCP compiled | OCP builds (once) [s] |"),
-             "|---|---|---|---|---|---|---|---|---|---|---|"]
-    for T, s in summary.items():
-        lines.append(f"| {T} | {s['time_ratio']:.2f} | {s['trace_share']:.2f} | {s['ocp_median_s']:.3f} | "
-                     f"{s['grad_median_s']:.3f} | {s['grad_ik_median_s']:.3f} | {s['iters']:g} | {s['failures']} | "
-                     f"{s['alone']:.2f} | {'yes' if s['compiled'] else 'no'} | {builds[T]:.1f} |")
+             *h.table(["T", "median time OCP / gradient", "share OCP Tr <= gradient Tr", "median OCP time [s]",
+                       "median gradient time [s]", "median gradient + IK of its waypoints [s]", "median OCP iterations",
+                       "OCP failures", "share solved by the first Hessian alone", "OCP compiled",
+                       "OCP builds (once) [s]"],
+                      [(T, f"{s['time_ratio']:.2f}", f"{s['trace_share']:.2f}", f"{s['ocp_median_s']:.3f}",
+                        f"{s['grad_median_s']:.3f}", f"{s['grad_ik_median_s']:.3f}", f"{s['iters']:g}", s["failures"],
+                        f"{s['alone']:.2f}", "yes" if s["compiled"] else "no", f"{builds[T]:.1f}")
+                       for T, s in summary.items()])]
     if step_s is not None:
         lines += ["", "The unconstrained OCP in the same run (same configurations, start and pace):", "",
-                  "| T | median OCP time, enforced [s] | unconstrained [s] | enforced / unconstrained | "
-                  "Tr enforced / unconstrained, geo. mean (both converged) |", "|---|---|---|---|---|"]
-        lines += [f"| {T} | {s['ocp_median_s']:.3f} | {s['free_median_s']:.3f} | "
-                  f"{s['ocp_median_s'] / s['free_median_s']:.1f} | {s['tr_vs_free']:.2f} ({s['n_vs_free']}) |"
-                  for T, s in summary.items()]
+                  *h.table(["T", "median OCP time, enforced [s]", "unconstrained [s]", "enforced / unconstrained",
+                            "Tr enforced / unconstrained, geo. mean (both converged)"],
+                           [(T, f"{s['ocp_median_s']:.3f}", f"{s['free_median_s']:.3f}",
+                             f"{s['ocp_median_s'] / s['free_median_s']:.1f}", f"{s['tr_vs_free']:.2f} ({s['n_vs_free']})")
+                            for T, s in summary.items()])]
     how = ("warm-started from the previous solution: IPOPT's primal-dual point or Newton's joints"
            + ("" if not cold_resolves else f"; cold on {cold_resolves} of {len(warm_ms)} instances, where the "
               "previous solve kept its start and has no warm-start point"))
     lines += ["", f"Warm re-solve at T = 20 after a 3 mm / 2 deg camera move ({how}): median {warm:.1f} ms.",
               f"Growth of the median OCP time from T = 20 to T = 40: {growth:.2f}x.", "",
-              ("| T | instance | OCP time [s] | OCP iters | OCP status | OCP Hessian(s) | OCP Tr "
-               "| OCP max constraint violation | gradient time [s] | gradient iters | gradient Tr |"),
-              "|---|---|---|---|---|---|---|---|---|---|---|"]
-    lines += [f"| {r[0]} | {r[1]} | {r[2]:.3f} | {r[3]} | {r[4]} | {r[5]} | {r[6]:.3e} | {r[7]:.1e} | {r[8]:.3f} "
-              f"| {r[9]} | {r[10]:.3e} |" for r in rows]
+              *h.table(["T", "instance", "OCP time [s]", "OCP iters", "OCP status", "OCP Hessian(s)", "OCP Tr",
+                        "OCP max constraint violation", "gradient time [s]", "gradient iters", "gradient Tr"],
+                       [(r[0], r[1], f"{r[2]:.3f}", r[3], r[4], r[5], f"{r[6]:.3e}", f"{r[7]:.1e}", f"{r[8]:.3f}", r[9],
+                         f"{r[10]:.3e}") for r in rows])]
     s20 = summary.get(20, {"time_ratio": float("nan"), "trace_share": float("nan")})
-    last = (f"T=20 time_ratio={s20['time_ratio']:.2f} trace_share={s20['trace_share']:.2f} "
-            f"warm_ms={warm:.1f} growth_40_20={growth:.2f}")
+    last = h.key_values(T=20, time_ratio=f"{s20['time_ratio']:.2f}", trace_share=f"{s20['trace_share']:.2f}",
+                        warm_ms=f"{warm:.1f}", growth_40_20=f"{growth:.2f}")
     return "\n".join(lines) + "\n", last
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--instances", type=int, default=20)
-    ap.add_argument("--horizons", type=int, nargs="+", default=[10, 20, 40])
-    ap.add_argument("--seed", type=int, default=0)
+    ap = h.parser(__doc__, configs=20, configs_flag="--instances", seed=0, horizons=[10, 20, 40])
     ap.add_argument("--codegen", action=argparse.BooleanOptionalAction, default=None,
                     help="compile the OCP's derivatives, or not (default: the problem's solver.codegen, auto)")
     ap.add_argument("--tol", type=float, help="IPOPT tolerance instead of the problem's solver.tol (1e-8)")
@@ -186,7 +165,7 @@ def main() -> None:
     name = ("solve_speed" + {None: "", True: "_codegen", False: "_interpreted"}[args.codegen] + (f"_tol{args.tol:g}" if args.tol else "")
             + (f"_{args.hessian}" if args.hessian else "") + (f"_{args.solver}" if args.solver else "")
             + (f"_limits_step{step:g}" if step is not None else "") + ".md")
-    write_text_atomic(ROOT / "benchmarks" / "results" / name, text)
+    h.write_result(name, text)
     print(text)
     print(last)
 

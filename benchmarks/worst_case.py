@@ -14,28 +14,13 @@ Writes benchmarks/results/worst_case.md; the last line is
 
 from __future__ import annotations
 
-import os
+import harness as h  # first: one BLAS thread
 
-os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
-os.environ.setdefault("OMP_NUM_THREADS", "1")
-
-import argparse  # noqa: E402
 import sys  # noqa: E402
-from dataclasses import replace  # noqa: E402
-from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from surestep_ocp.solvers.baseline import solve_baseline  # noqa: E402
-from surestep_ocp.evaluation.configs import ConfigurationSampler, load_evaluation  # noqa: E402
-from surestep_ocp.solvers.gradient import solve_gradient  # noqa: E402
-from surestep_ocp.solvers.methods import ocp_initial_guess  # noqa: E402
-from surestep_ocp.solvers.ocp import solve_ocp  # noqa: E402
-from surestep_ocp.problem.setup import build_setup  # noqa: E402
-from surestep_ocp.output.solution import write_text_atomic  # noqa: E402
-
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "tests"))
+sys.path.insert(0, str(h.ROOT / "tests"))
 import numpy_ekf  # noqa: E402
 
 
@@ -47,11 +32,11 @@ def ekf_trace(setup, poses) -> float:
 
 def run(sampler, seed: int, configs: int, T: int) -> dict:
     rows = []
-    for c in range(configs):
-        setup = build_setup(replace(sampler.problem(sampler.sample(seed, c)), horizon=T))
-        base = solve_baseline(setup)
-        sol = solve_ocp(setup, ocp_initial_guess(setup))
-        grad = solve_gradient(setup)
+    for c, problem in h.configurations(sampler, configs, seed, horizon=T):
+        setup = h.setup(problem)
+        base = h.baseline(setup)
+        sol = h.ocp(setup)
+        grad = h.gradient(setup)
         attempts = "; ".join(f"{a['hessian']}: {a['status']} ({a['iterations']} it)" for a in sol.extras["attempts"])
         rows.append({"c": c, "ms": sol.solve_time_s * 1e3, "grad_ms": grad.solve_time_s * 1e3, "status": sol.status,
                      "ratio": sol.trace_final / base.trace_final, "attempts": attempts,
@@ -63,35 +48,30 @@ def run(sampler, seed: int, configs: int, T: int) -> dict:
 
 def summary(r: dict) -> tuple[list[str], str]:
     rows, T = r["rows"], r["T"]
-    t = np.array([x["ms"] for x in rows])
-    g = np.array([x["grad_ms"] for x in rows])
-    med, worst = float(np.median(t)), float(t.max())
+    t, g = h.stats(x["ms"] for x in rows), h.stats(x["grad_ms"] for x in rows)
+    med, worst, vs_grad = t.median, t.worst, h.ratio_of_medians([x["ms"] for x in rows], [x["grad_ms"] for x in rows])
     kept = [x for x in rows if x["status"] == "Initial_Guess_Kept"]
     failed = [x for x in rows if x["status"] not in ("Solve_Succeeded", "Initial_Guess_Kept")]
     slow = sorted(rows, key=lambda x: -x["ms"])[:5]
     lines = [f"## T = {T}", "",
-             f"OCP: median {med:.1f} ms, p95 {np.percentile(t, 95):.1f} ms, worst {worst:.1f} ms "
-             f"(worst / median {worst / med:.1f}); gradient variant median {np.median(g):.1f} ms, worst {g.max():.1f} ms "
-             f"(OCP / gradient, medians: {med / np.median(g):.2f}). Tr(Sigma_T) / straight line: median "
-             f"{np.median([x['ratio'] for x in rows]):.3f}, worst {max(x['ratio'] for x in rows):.3f}. "
+             f"OCP: median {med:.1f} ms, p95 {t.p95:.1f} ms, worst {worst:.1f} ms "
+             f"(worst / median {t.worst_over_median:.1f}); gradient variant median {g.median:.1f} ms, worst {g.worst:.1f} ms "
+             f"(OCP / gradient, medians: {vs_grad:.2f}). Tr(Sigma_T) / straight line: median "
+             f"{h.median(x['ratio'] for x in rows):.3f}, worst {max(x['ratio'] for x in rows):.3f}. "
              f"Kept their start: {len(kept)}; failed: {len(failed)}; largest relative difference from the NumPy "
              f"EKF's trace: {max(x['ekf'] for x in rows):.1e}.", "",
-             "| slowest | time [ms] | status | attempts |", "|---|---|---|---|",
-             *[f"| {x['c']} | {x['ms']:.1f} | {x['status']} | {x['attempts']} |" for x in slow], ""]
+             *h.table(["slowest", "time [ms]", "status", "attempts"],
+                      [(x["c"], f"{x['ms']:.1f}", x["status"], x["attempts"]) for x in slow]), ""]
     if kept or failed:
         lines += ["Kept or failed: " + "; ".join(f"{x['c']}: {x['status']} ({x['attempts']})" for x in kept + failed), ""]
-    last = (f"T={T} median_ms={med:.1f} worst_ms={worst:.1f} worst_over_median={worst / med:.1f} kept={len(kept)} "
-            f"failed={len(failed)} ratio_vs_gradient={med / np.median(g):.2f}")
+    last = h.key_values(T=T, median_ms=f"{med:.1f}", worst_ms=f"{worst:.1f}", worst_over_median=f"{t.worst_over_median:.1f}",
+                        kept=len(kept), failed=len(failed), ratio_vs_gradient=f"{vs_grad:.2f}")
     return lines, last
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--configs", type=int, default=100)
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--horizons", type=int, nargs="*", default=[20, 40])
-    args = ap.parse_args()
-    sampler = ConfigurationSampler(load_evaluation(ROOT / "problems" / "evaluations" / "evaluation.yaml"))
+    args = h.parser(__doc__, configs=100, seed=0, horizons=[20, 40], horizons_nargs="*").parse_args()
+    sampler = h.sampler()
     lines, lasts = ["# The OCP's worst case beside its median", "",
                     f"`.venv/bin/python benchmarks/worst_case.py --configs {args.configs} --seed {args.seed} --horizons "
                     f"{' '.join(map(str, args.horizons))}` (OPENBLAS_NUM_THREADS=1; builds cached, not counted).", ""], []
@@ -99,8 +79,8 @@ def main() -> None:
         block, last = summary(run(sampler, args.seed, args.configs, T))
         lines += block
         lasts.append(last)
-    text = "\n".join(lines + ["worst_case: " + " | ".join(lasts)]) + "\n"
-    write_text_atomic(ROOT / "benchmarks" / "results" / "worst_case.md", text)
+    text = "\n".join(lines + [h.last_line("worst_case", *lasts)]) + "\n"
+    h.write_result("worst_case.md", text)
     print(text)
 
 

@@ -16,30 +16,25 @@ the estimate error and the distance to the plan and to the goal.
 
 from __future__ import annotations
 
-import os
+import harness as h  # first: one BLAS thread
 
-os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
-os.environ.setdefault("OMP_NUM_THREADS", "1")
-
-import argparse  # noqa: E402
+import os  # noqa: E402
 import sys  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 from scipy.spatial.transform import Rotation  # noqa: E402
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = h.ROOT
 sys.path.insert(0, str(ROOT / "tests"))
 import numpy_rollout  # noqa: E402
 
-from surestep_ocp.evaluation.configs import ConfigurationSampler, load_evaluation  # noqa: E402
-from surestep_ocp.evaluation.rollout import MODES, rollout  # noqa: E402
-from surestep_ocp.solvers.methods import run_method  # noqa: E402
+MODES, rollout = h.ROLLOUT_MODES, h.rollout
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser()
-    ap.add_argument("--evaluation", default=str(ROOT / "problems/evaluations/evaluation.yaml"))
+    ap = h.parser(None)
+    ap.add_argument("--evaluation", default=str(h.EVALUATION))
     ap.add_argument("--config", type=int, default=73)
     ap.add_argument("--method", default="ocp-expected")
     ap.add_argument("--mode", default="true", choices=MODES)
@@ -49,11 +44,9 @@ def main(argv=None) -> int:
     ap.add_argument("--output", default=None)
     a = ap.parse_args(argv)
 
-    spec = load_evaluation(a.evaluation)
-    smp = ConfigurationSampler(spec)
-    cfg = smp.sample(a.seed, a.config)
-    setup = smp.setup_of(cfg)
-    sol = run_method(setup, a.method, {})
+    spec = h.evaluation(a.evaluation)
+    setup = h.config_setup(h.sampler(spec), a.seed, a.config)
+    sol = h.method(setup, a.method, {})
     poses = np.asarray(sol.poses, float)
     model, cam, noise = setup.eval_model, setup.eval_model.camera, setup.eval_model.noise
     rng = np.random.default_rng([a.seed, a.config, MODES.index(a.mode)])
@@ -102,9 +95,9 @@ def main(argv=None) -> int:
        "used (a measured pixel outside the detectable region is gated); V std = the observation noise std the measurement was drawn with [mm] (mode true: at the true pose when it is detectable, else at the waypoint, unused); K = EKF gain (position); "
        "est err = |p_true - p_mu| after the step [mm]; off plan = |p_true - p_t+1| [mm]; Sigma std = "
        "sqrt(Sigma_xx) [mm].\n")
-    pr("| t->t+1 | step [mm] | angle [rad] | W std [mm] | dp term | angle term | abs w_p [mm] | abs z_w | depth [m] | (u, v) | "
-       "measured (u, v) | det | V std [mm] | K | est err [mm] | off plan [mm] | Sigma std [mm] |")
-    pr("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    out += h.table(["t->t+1", "step [mm]", "angle [rad]", "W std [mm]", "dp term", "angle term", "abs w_p [mm]", "abs z_w",
+                    "depth [m]", "(u, v)", "measured (u, v)", "det", "V std [mm]", "K", "est err [mm]", "off plan [mm]",
+                    "Sigma std [mm]"])
     for r in rows:
         pr(f"| {r['t']}->{r['t'] + 1} | {r['step_mm']:.1f} | {r['angle']:.3f} | {r['w_std_mm']:.1f} | {r['w_dp_mm']:.1f} | "
            f"{r['w_ang_mm']:.1f} | {r['w_mm']:.1f} | {np.linalg.norm(z_w[r['t'], :3]):.2f} | {r['depth']:.3f} | "
@@ -124,9 +117,10 @@ def main(argv=None) -> int:
     text = "\n".join(out) + "\n"
     print(text)
     if a.output:
-        Path(a.output).write_text(text)
+        h.write_result(Path(a.output), text)
     ok = true_dev < 1e-9 and est_dev < 1e-9 and seen_same
-    print(f"worst_rollout: final_mm={1e3 * ro.pos_err[k]:.1f} replay_mm={final_mm:.1f} replay_ok={ok}")
+    print(h.last_line("worst_rollout", h.key_values(final_mm=f"{1e3 * ro.pos_err[k]:.1f}", replay_mm=f"{final_mm:.1f}",
+                                                    replay_ok=ok)))
     return 0 if ok else 1
 
 

@@ -1,0 +1,344 @@
+"""The benchmarks' harness: the test set, the solve calls, the statistics, the report and the command line that the
+studies in benchmarks/ share (after qpbenchmark: one harness, short studies on top of it).
+
+Import it first, before NumPy (`import harness as h` at the top of a study; a study run as
+`python benchmarks/<study>.py` finds it beside itself): it pins BLAS and OpenMP to one thread. It is also the
+one module of benchmarks/ that imports `surestep_ocp`: when the package's internals move, fix the imports below
+and the wrappers under them, not the studies. (The one exception is benchmarks/enforced_speed.py's worker, which
+imports the revision it measures, whatever its layout.)
+
+- The test set: the evaluation's configurations (`sampler`, `configurations`: problems/evaluations/*.yaml at a
+  given horizon), the default problems (`DEFAULT_PROBLEM`, `PAPER_PACE_PROBLEM`, `load_problem`), the scenario
+  files (`SCENARIOS`, `scenario_file`).
+- The methods: `initial_guess`, `ocp`, `ocp_warm`, `gradient`, `baseline`, `method` (the CLI's methods by name),
+  `newton` (the projected Newton solver), `diagonal_model`; `repeat` for repeated runs. Times are the solution's
+  own `solve_time_s` (builds excluded), as the studies report them.
+- The statistics: `stats` (median, p90, p95, worst, worst / median), `ratio_of_medians` (e.g. against the gradient
+  variant measured in the same run), `median_ratio`, `geomean`.
+- The report: `row`, `table` (markdown), `write_result` (benchmarks/results/*.md, atomically), `key_values` and
+  `last_line` (the one machine-readable line a study prints last: `name: key=value ...`).
+- The command line: `parser` (--configs, --seed, --horizons, --output, each where the study has it).
+
+The studies (benchmarks/README.md: each one's command and result files):
+
+- worst_case.py: the OCP's slowest configurations beside its median, against the gradient variant.
+- solve_speed.py: the OCP's solve speed against the gradient variant; the warm re-solve; `--limits`.
+- general_models.py: the OCP on belief models beyond the paper's constants, against the paper's model.
+- newton_vs_ipopt.py: the projected Newton solver against IPOPT.
+- diagonal_start.py: the default strategy against Newton from the diagonal model's plan.
+- secant_endgame.py: Newton's secant end-game against the plain surrogate.
+- second_start_gate.py: the second start's gate at long horizons.
+- limits_cost.py: what enforcing the motion limits costs the OCP.
+- default_limits.py: the default problem with its motion limits enforced, at several paces.
+- curve_rows.py: the played curve's limit rows against finite differences.
+- enforced_speed.py: the enforced OCP solve of one revision against an older one (worker processes).
+- export_limits.py: the OCP's plans against the motion limits, planned and exported.
+- replan_rate.py: the re-planning rate of `Planner` against a simulated 20 Hz tracker.
+- scenarios.py: `surestep compare` on every scenario file.
+- plan_steps.py, large_rollout_errors.py, worst_rollout.py: where the evaluation's large rollout errors come from.
+- evaluation_limits.py, motion_limits_evaluation.py, execution_pace.py, rollout_variants.py: evaluation runs
+  (`surestep evaluate` / `surestep sweep`) and their tables.
+- fuzz_fresh.py: a fresh fuzz of `surestep validate` and `surestep solve`.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+
+# One BLAS / OpenMP thread, before NumPy is imported (the studies import this module first). Forced, not
+# defaulted: every result file says it was measured so.
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ[_var] = "1"
+if "numpy" in sys.modules:  # imported before the harness: its BLAS read the variables already
+    try:
+        from threadpoolctl import threadpool_limits  # not a dependency of the package
+
+        threadpool_limits(1)
+    except ImportError:
+        print("harness: NumPy was imported before benchmarks/harness.py; its BLAS may use more than one thread "
+              "(import the harness first)", file=sys.stderr)
+
+import argparse  # noqa: E402
+import math  # noqa: E402
+from dataclasses import dataclass, replace  # noqa: E402
+from pathlib import Path  # noqa: E402
+from typing import Any, Callable, Iterable, Iterator, Sequence  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+# --- every import of the package's internals (the one place to fix when they move) ---------------------------------
+from surestep_ocp.errors import ProblemError, SurestepError  # noqa: E402
+from surestep_ocp.evaluation.configs import ConfigurationSampler, load_evaluation  # noqa: E402
+from surestep_ocp.evaluation.evaluation import read_progress  # noqa: E402
+from surestep_ocp.evaluation.rollout import MODES as ROLLOUT_MODES, rollout  # noqa: E402
+from surestep_ocp.evaluation.tracker import SimulatedTracker  # noqa: E402
+from surestep_ocp.model import limits as _limits  # noqa: E402
+from surestep_ocp.model.lie import np_exp  # noqa: E402
+from surestep_ocp.model.limits import motion_limits, plan_report, problem_limits  # noqa: E402
+from surestep_ocp.output.export import time_parametrise, within_position_limits  # noqa: E402
+from surestep_ocp.output.plots_motion import tool_speeds  # noqa: E402
+from surestep_ocp.output.solution import write_text_atomic  # noqa: E402
+from surestep_ocp.problem.problem import LimitsSpec, TimingSpec, load_problem  # noqa: E402
+from surestep_ocp.problem.setup import build_setup  # noqa: E402
+from surestep_ocp.solvers import solver_setup as _solver_setup  # noqa: E402
+from surestep_ocp.solvers.baseline import solve_baseline  # noqa: E402
+from surestep_ocp.solvers.gradient import solve_gradient  # noqa: E402
+from surestep_ocp.solvers.methods import ocp_initial_guess, run_method  # noqa: E402
+from surestep_ocp.solvers.ocp import (InitialGuess, _objective_at, cached_transcriptions, diagonal_model_setup,  # noqa: E402
+                                      newton_solver, solve_ocp, solve_ocp_warm)
+from surestep_ocp.solvers.planner import Planner  # noqa: E402
+
+__all__ = [
+    "ROOT", "RESULTS", "PROBLEMS", "EVALUATION", "DEFAULT_PROBLEM", "PAPER_PACE_PROBLEM", "SCENARIOS",
+    "scenario_file", "evaluation", "sampler", "config_problem", "configurations", "config_setup", "load_problem", "setup",
+    "limits_spec", "timing_spec", "with_solver", "initial_guess", "guess", "ocp", "ocp_warm", "gradient", "baseline",
+    "method", "newton", "diagonal_model", "objective_at", "transcriptions", "clear_solver_cache", "set_curve_rows",
+    "repeat", "timed", "Stats", "stats", "median", "percentile", "ratio_of_medians", "median_ratio", "geomean", "row",
+    "table", "write_result", "key_values", "last_line", "parser",
+    # package names the studies use as they are (classes, constants, helpers of the limits, export and evaluation)
+    "ProblemError", "SurestepError", "Planner", "SimulatedTracker", "ROLLOUT_MODES", "rollout", "read_progress",
+    "motion_limits", "plan_report", "problem_limits", "time_parametrise", "within_position_limits", "tool_speeds",
+    "np_exp", "write_text_atomic",
+]
+
+# --- the test set ----------------------------------------------------------------------------------------------------
+ROOT = Path(__file__).resolve().parents[1]
+RESULTS = ROOT / "benchmarks" / "results"
+PROBLEMS = ROOT / "problems"
+EVALUATION = PROBLEMS / "evaluations" / "evaluation.yaml"
+DEFAULT_PROBLEM = PROBLEMS / "needle_regrasp.yaml"
+PAPER_PACE_PROBLEM = PROBLEMS / "needle_regrasp_paper_pace.yaml"
+SCENARIOS = ["needle_regrasp", "needle_regrasp_paper_pace", "type1_easy", "type1_medium", "type1_hard",
+             "type2_needle_arm_moves", "type3_camera_moves_once", "type4_camera_moves", "ur5_fixed_camera"]
+
+
+def scenario_file(name: str) -> Path:
+    """problems/<name>.yaml."""
+    return PROBLEMS / f"{name}.yaml"
+
+
+def evaluation(path: str | Path = EVALUATION):
+    """The evaluation spec of problems/evaluations/*.yaml."""
+    return load_evaluation(path)
+
+
+def sampler(spec_or_path: Any = EVALUATION) -> ConfigurationSampler:
+    """The configurations of an evaluation (a spec, or its file)."""
+    spec = evaluation(spec_or_path) if isinstance(spec_or_path, (str, Path)) else spec_or_path
+    return ConfigurationSampler(spec)
+
+
+def config_problem(smp: ConfigurationSampler, seed: int, index: int, horizon: int | None = None):
+    """Configuration `index` of `seed` as a problem, at `horizon` steps if given."""
+    p = smp.problem(smp.sample(seed, index))
+    return replace(p, horizon=horizon) if horizon else p
+
+
+def configurations(smp: ConfigurationSampler, n: int, seed: int = 0,
+                   horizon: int | None = None) -> Iterator[tuple[int, Any]]:
+    """(index, problem) of the first `n` configurations."""
+    for c in range(n):
+        yield c, config_problem(smp, seed, c, horizon)
+
+
+def config_setup(smp: ConfigurationSampler, seed: int, index: int):
+    """Configuration `index` of `seed` as a setup, as `surestep evaluate` builds it (the sampler's robots)."""
+    return smp.setup_of(smp.sample(seed, index))
+
+
+def setup(problem):
+    """The problem's setup (robot, camera, models)."""
+    return build_setup(problem)
+
+
+def limits_spec(enforce: bool = True) -> LimitsSpec:
+    """The default limits, enforced or not."""
+    return LimitsSpec(enforce=enforce)
+
+
+def timing_spec(step_s: float, tracker_hz: float | None = None) -> TimingSpec:
+    """`step_s` per step; `tracker_hz` default 1 / step_s (one observation per waypoint)."""
+    return TimingSpec(step_s=step_s, tracker_hz=1.0 / step_s if tracker_hz is None else tracker_hz)
+
+
+def with_solver(obj, **changes):
+    """A problem, or a setup, with its `solver` settings changed."""
+    if hasattr(obj, "solver"):
+        return replace(obj, solver=replace(obj.solver, **changes))
+    return replace(obj, problem=with_solver(obj.problem, **changes))
+
+
+# --- the methods -----------------------------------------------------------------------------------------------------
+def initial_guess(setup):
+    """The OCP's initial guess (the straight line's IK)."""
+    return ocp_initial_guess(setup)
+
+
+def guess(q, label: str):
+    """An initial guess from joints `q`."""
+    return InitialGuess(np.array(q), label)
+
+
+def ocp(setup, init=None):
+    """The OCP, the default strategy (`solve_ocp`), from `init` (default: `initial_guess`)."""
+    return solve_ocp(setup, initial_guess(setup) if init is None else init)
+
+
+def ocp_warm(setup, init, warm=None):
+    """The OCP and its warm-start point (`solve_ocp_warm`); `warm` None: cold."""
+    return solve_ocp_warm(setup, init, warm=warm)
+
+
+def gradient(setup, **kwargs):
+    """The paper's gradient variant (L-BFGS)."""
+    return solve_gradient(setup, **kwargs)
+
+
+def baseline(setup):
+    """The straight-line baseline."""
+    return solve_baseline(setup)
+
+
+def method(setup, name: str, cache: dict | None = None):
+    """A method by the CLI's name (`surestep solve --method NAME`)."""
+    return run_method(setup, name, cache)
+
+
+def newton(setup):
+    """The projected Newton solver of the setup (its `.run`, `.solve`)."""
+    return newton_solver(setup)
+
+
+def diagonal_model(setup):
+    """The setup with every base covariance replaced by its diagonal (the fast scalar path)."""
+    return diagonal_model_setup(setup)
+
+
+def objective_at(setup, sol, other) -> float:
+    """The objective of `other`'s plan in `setup`'s model, as `sol` was measured (the second start's gate)."""
+    return _objective_at(setup, sol, other)
+
+
+def transcriptions(T: int | None = None) -> list:
+    """The cached OCP transcriptions (builds), of horizon `T` if given."""
+    return [tr for tr in cached_transcriptions() if T is None or tr.T == T]
+
+
+def clear_solver_cache() -> None:
+    """Drop the cached NLPs (their memory)."""
+    _solver_setup._CACHE.clear()
+
+
+def set_curve_rows(mode: str) -> None:
+    """The OCP's limit rows: "curve" (the played curve's, the default) or "steps" (finite differences)."""
+    _limits.CURVE_ROWS = mode
+
+
+def repeat(fn: Callable[[], Any], n: int) -> list:
+    """`fn()` run `n` times; the results."""
+    return [fn() for _ in range(n)]
+
+
+def timed(fn: Callable[[], Any]) -> tuple[Any, float]:
+    """`fn()` and its wall time [s]."""
+    import time
+
+    t0 = time.perf_counter()
+    out = fn()
+    return out, time.perf_counter() - t0
+
+
+# --- the statistics --------------------------------------------------------------------------------------------------
+def median(xs: Iterable[float]) -> float:
+    xs = list(xs)
+    return float(np.median(xs)) if xs else float("nan")
+
+
+def percentile(xs: Iterable[float], q: float) -> float:
+    xs = list(xs)
+    return float(np.percentile(xs, q)) if xs else float("nan")
+
+
+@dataclass(frozen=True)
+class Stats:
+    n: int
+    median: float
+    p90: float
+    p95: float
+    worst: float
+    best: float
+
+    @property
+    def worst_over_median(self) -> float:
+        return self.worst / self.median if self.median else float("nan")
+
+
+def stats(xs: Iterable[float]) -> Stats:
+    """Median, 90th and 95th percentile (NumPy's linear interpolation), worst (largest) and best."""
+    a = np.asarray(list(xs), float)
+    if not a.size:
+        nan = float("nan")
+        return Stats(0, nan, nan, nan, nan, nan)
+    return Stats(int(a.size), float(np.median(a)), float(np.percentile(a, 90)), float(np.percentile(a, 95)),
+                 float(a.max()), float(a.min()))
+
+
+def ratio_of_medians(xs: Iterable[float], ref: Iterable[float]) -> float:
+    """median(xs) / median(ref): e.g. the OCP's times against the gradient variant's in the same run."""
+    return median(xs) / median(ref)
+
+
+def median_ratio(xs: Sequence[float], ref: Sequence[float]) -> float:
+    """The median of the per-instance ratios xs[i] / ref[i]."""
+    return median(x / r for x, r in zip(xs, ref, strict=True))
+
+
+def geomean(xs: Iterable[float]) -> float:
+    xs = list(xs)
+    return math.exp(sum(math.log(x) for x in xs) / len(xs)) if xs else float("nan")
+
+
+# --- the report ------------------------------------------------------------------------------------------------------
+def row(*cells: Any) -> str:
+    """A markdown table row: `| a | b |`."""
+    return "| " + " | ".join(str(c) for c in cells) + " |"
+
+
+def table(header: Sequence[str], rows: Iterable[Any] = ()) -> list[str]:
+    """A markdown table's lines: the header, `|---|...`, then `rows` (lines, or sequences of cells)."""
+    return [row(*header), "|" + "---|" * len(header),
+            *(r if isinstance(r, str) else row(*r) for r in rows)]
+
+
+def write_result(name: str | Path, text: str) -> Path:
+    """`text` to benchmarks/results/<name> (a bare file name), or to the path `name` (a Path, or a str with a
+    folder), whole or not at all."""
+    return write_text_atomic(RESULTS / name if isinstance(name, str) and "/" not in name else Path(name), text)
+
+
+def key_values(**values: Any) -> str:
+    """`key=value key=value` (values formatted by the caller)."""
+    return " ".join(f"{k}={v}" for k, v in values.items())
+
+
+def last_line(name: str, *groups: str) -> str:
+    """The machine-readable last line: `name: key=value ... | key=value ...` (one group per horizon, say)."""
+    return f"{name}: " + " | ".join(groups)
+
+
+# --- the command line ------------------------------------------------------------------------------------------------
+def parser(doc: str | None, *, configs: int | None = None, configs_flag: str = "--configs", seed: int | None = None,
+           horizons: list[int] | None = None, horizons_nargs: str = "+", output: str | Path | None = None,
+           output_flag: str = "--output") -> argparse.ArgumentParser:
+    """The common options, each added when its default is given; the description is the docstring's first line."""
+    ap = argparse.ArgumentParser(description=doc.splitlines()[0] if doc else None)
+    if configs is not None:
+        ap.add_argument(configs_flag, type=int, default=configs)
+    if seed is not None:
+        ap.add_argument("--seed", type=int, default=seed)
+    if horizons is not None:
+        ap.add_argument("--horizons", type=int, nargs=horizons_nargs, default=list(horizons))
+    if output is not None:
+        ap.add_argument(output_flag, type=Path, default=Path(output))
+    return ap
