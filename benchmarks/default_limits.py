@@ -79,8 +79,7 @@ def main() -> None:
             solve_times = [sol.solve_time_s] + [r.solve_time_s for r in again]
             r = plan_row(setup, sol, step, export_lim) if all(x is not None for x in sol.q) else {}
             r.update(status=sol.status, success=sol.success, tr=sol.trace_final,
-                     solve=h.median(solve_times), wall=wall, attempts=[a.get("hessian") for a in
-                                                                 sol.extras.get("attempts", [])])
+                     solve=h.median(solve_times), wall=wall, attempts=[a.label for a in sol.attempts])
             res[tag] = r
             print(case, tag, {k: v for k, v in r.items() if k != "tool_steps_mm"}, flush=True)
         f, l, b = res["free"], res["lim"], res["base"]

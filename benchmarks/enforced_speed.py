@@ -72,7 +72,9 @@ def worker(horizon: int, step_s: float, configs: int) -> None:
         sol = run_method(setup, "ocp")
         row = {"name": name, "status": sol.status, "ok": bool(sol.success), "trace": sol.trace_final,
                "solve_s": sol.solve_time_s,
-               "attempts": [(a["hessian"], a["status"], a["iterations"]) for a in sol.extras.get("attempts", [])],
+               "attempts": [(a.label, a.status, a.iterations) if hasattr(a, "label") else  # before typed records
+                            (a["hessian"], a["status"], a["iterations"])
+                            for a in getattr(sol, "attempts", None) or sol.extras.get("attempts", [])],
                "within": bool(sol.extras.get("motion_limits", {}).get("ok", False))}
         if sol.success:
             q, _ = within_position_limits(np.array(sol.q, float), setup.robot)

@@ -81,12 +81,13 @@ from surestep_ocp.output.plots_motion import tool_speeds  # noqa: E402
 from surestep_ocp.output.solution import write_text_atomic  # noqa: E402
 from surestep_ocp.problem.problem import LimitsSpec, TimingSpec, load_problem  # noqa: E402
 from surestep_ocp.problem.setup import build_setup  # noqa: E402
-from surestep_ocp.solvers import solver_setup as _solver_setup  # noqa: E402
+from surestep_ocp.solvers import nlp_cache as _nlp_cache  # noqa: E402
 from surestep_ocp.solvers.baseline import solve_baseline  # noqa: E402
 from surestep_ocp.solvers.gradient import solve_gradient  # noqa: E402
 from surestep_ocp.solvers.methods import ocp_initial_guess, run_method  # noqa: E402
-from surestep_ocp.solvers.ocp import (InitialGuess, _objective_at, cached_transcriptions, diagonal_model_setup,  # noqa: E402
-                                      newton_solver, solve_ocp, solve_ocp_warm)
+from surestep_ocp.solvers.iterate import InitialGuess  # noqa: E402
+from surestep_ocp.solvers.nlp_cache import cached_transcriptions, newton_solver  # noqa: E402
+from surestep_ocp.solvers.ocp import _objective_at, diagonal_model_setup, solve_ocp, solve_ocp_warm  # noqa: E402
 from surestep_ocp.solvers.planner import Planner  # noqa: E402
 
 __all__ = [
@@ -227,7 +228,7 @@ def transcriptions(T: int | None = None) -> list:
 
 def clear_solver_cache() -> None:
     """Drop the cached NLPs (their memory)."""
-    _solver_setup._CACHE.clear()
+    _nlp_cache._CACHE.clear()
 
 
 def set_curve_rows(mode: str) -> None:

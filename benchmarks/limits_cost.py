@@ -46,8 +46,8 @@ def main() -> None:
             n_free_ok += free.success
             t_free.append(free.solve_time_s)
             t_lim.append(lim.solve_time_s)
-            att = lim.extras.get("attempts", [])
-            n_newton += bool(att) and att[0]["hessian"].startswith("newton") and att[0]["kept"]
+            att = lim.attempts
+            n_newton += bool(att) and att[0].solver == "newton" and att[0].kept
             if lim.success:
                 n_ok += 1
                 if free.success:

@@ -26,7 +26,7 @@ def main() -> None:
         same += abs(ratio - 1) <= 1e-6
         lower += ratio < 1 - 1e-6
         higher += ratio > 1 + 1e-6
-        fallback += newton.extras["attempts"][0]["kept"] is False
+        fallback += newton.attempts[0].kept is False
         failed += not newton.success
         t_ipopt.append(ipopt.solve_time_s)
         t_newton.append(newton.solve_time_s)

@@ -81,7 +81,7 @@ def run(instances: int, horizons: list[int], seed: int, codegen: bool | None = N
             ratios.append(ocp_time / grad.solve_time_s)
             wins += ocp.trace_final <= grad.trace_final
             fails += not ocp.success
-            alone += ocp.extras["hessian"] == ocp.extras["attempts"][0]["hessian"] != "exact"
+            alone += ocp.extras["hessian"] == ocp.attempts[0].label != "exact"
             t_ocp.append(ocp_time)
             t_grad.append(grad.solve_time_s)
             t_grad_ik.append(grad.solve_time_s + grad.extras["ik_time_s"])

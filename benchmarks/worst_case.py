@@ -37,7 +37,7 @@ def run(sampler, seed: int, configs: int, T: int) -> dict:
         base = h.baseline(setup)
         sol = h.ocp(setup)
         grad = h.gradient(setup)
-        attempts = "; ".join(f"{a['hessian']}: {a['status']} ({a['iterations']} it)" for a in sol.extras["attempts"])
+        attempts = "; ".join(f"{a.label}: {a.status} ({a.iterations} it)" for a in sol.attempts)
         rows.append({"c": c, "ms": sol.solve_time_s * 1e3, "grad_ms": grad.solve_time_s * 1e3, "status": sol.status,
                      "ratio": sol.trace_final / base.trace_final, "attempts": attempts,
                      "ekf": abs(ekf_trace(setup, sol.poses) / sol.trace_final - 1)})
