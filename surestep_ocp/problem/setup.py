@@ -14,6 +14,7 @@ from ..model.lie import (continued, matrix_to_pose, np_exp_many, np_means, np_po
                          pose_to_matrix, quat_mul)
 from .problem import EndpointSpec, Problem
 from ..model.robot import Robot
+from .solver_config import resolve
 
 # [rad or m] A batch-Newton IK solution farther than this from its guess (in any joint) is
 # taken as another IK branch and the waypoint is solved from the previous one instead.
@@ -228,6 +229,7 @@ def build_setup(problem: Problem) -> Setup:
     setup.x_start = _continued_at(setup, setup.x_start, setup.q_start)  # the principal vector
     setup.q_goal, setup.x_goal = _endpoint(problem, setup, problem.goal, setup.q_start)
     setup.x_goal = _continued_at(setup, setup.x_goal, setup.q_goal)
+    resolve(problem.solver, setup.model, len(robot.supporting_joints()), file=file)  # every solver rule, now
     return setup
 
 

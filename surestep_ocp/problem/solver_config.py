@@ -94,10 +94,11 @@ def resolve_hessian(model: BeliefModel, form: str, choice: str, file: str | None
     return choice
 
 
-def resolve(spec, model: BeliefModel, moving_joints: int, form: str | None = None,
+def resolve(spec, model: BeliefModel, moving_joints: int | None, form: str | None = None,
             file: str | None = None) -> ResolvedSolver:
     """Every rule on the solver choices `spec` (a SolverSpec) for a model and a robot with `moving_joints` joints
-    moving the tracked frame; `form` overrides `spec.covariance`. Raises ProblemError naming the key."""
+    moving the tracked frame (None: no robot yet, as when a file is read: the robot's rule is checked when the
+    problem is set up); `form` overrides `spec.covariance`. Raises ProblemError naming the key."""
     if spec.name not in SOLVER_NAMES:
         raise ProblemError(file, "solver.name", f"unknown solver '{spec.name}'; allowed: {', '.join(SOLVER_NAMES)}")
     if model.noise.objective == "predicted" and (form or spec.covariance) not in (Form.AUTO, Form.CONDENSED):
@@ -114,7 +115,7 @@ def resolve(spec, model: BeliefModel, moving_joints: int, form: str | None = Non
     forced = spec.hessian in (Hessian.SURROGATE, Hessian.GAUSS_NEWTON)
     # exact when the terminal pose fixes the last node's joints (six joints move the tracked frame): the
     # surrogate model's condensed scalar recursion with the mean noise; a redundant arm keeps IPOPT
-    fits = form == Form.CONDENSED and hessian != Hessian.EXACT and not forced and moving_joints == NX
+    fits = form == Form.CONDENSED and hessian != Hessian.EXACT and not forced and moving_joints in (NX, None)
     if spec.name == SolverName.NEWTON and not fits:
         raise ProblemError(file, "solver.name", "newton needs the condensed form of a model with constant motion "
                            "and observation maps, noise.observation_noise: mean, solver.hessian: auto and exactly "

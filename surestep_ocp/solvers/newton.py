@@ -228,7 +228,7 @@ class NewtonSolver:
         objective is 1 at the start), at most `max_iter` iterations; `verbose` prints one line per iteration.
         With `barrier`, `run_barrier` (the depth bound kept)."""
         run = self.run_barrier if barrier else self.run
-        return self._solution(setup, method, init, run(setup, init, tol, max_iter, verbose))
+        return self.solution(setup, method, init, run(setup, init, tol, max_iter, verbose))
 
     def run(self, setup: Setup, init, tol: float = 1e-6, max_iter: int = 300, verbose: bool = False,
             exact_below: float = EXACT_BELOW, use_secant: bool = True) -> NewtonRun:
@@ -459,7 +459,8 @@ class NewtonSolver:
         return NewtonRun(q, np_poses(mu), status, it, exact_steps, f_val * trace_ref, trace * trace_ref, trace_ref,
                          max(terminal, depth), solve_s, secant_steps)
 
-    def _solution(self, setup, method, init, r: NewtonRun) -> Solution:
+    def solution(self, setup, method, init, r: NewtonRun) -> Solution:
+        """The Solution of a run: its plan evaluated by the exact EKF (`output.solution.evaluate`)."""
         return evaluate(
             setup, method, r.poses, list(r.q),
             success=r.success, status=r.status, solve_time_s=r.solve_time_s, iterations=r.iterations,

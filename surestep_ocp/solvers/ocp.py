@@ -13,7 +13,6 @@ from dataclasses import replace
 import numpy as np
 
 from ..model.limits import enforce as enforce_limits
-from ..output.attempt_record import AttemptRecord
 from ..output.solution import Solution
 from ..problem.setup import Setup
 from ..problem.solver_config import resolve
@@ -21,7 +20,7 @@ from .backends import Context
 from .iterate import InitialGuess, Iterate
 from .newton import EXACT_MAX_N
 from .nlp_cache import newton_solver, transcription
-from .strategy import default_strategy, run
+from .strategy import default_strategy, record, run
 
 __all__ = ["resolved_solver", "solve_ocp", "solve_ocp_warm"]
 
@@ -90,7 +89,7 @@ def solve_ocp_warm(setup: Setup, init: InitialGuess, solver_options: dict | None
                           "none: the feasible initial guess (no attempt converged)", None, start, None))
             pick = len(tried) - 1
     sol, last = tried[pick][2], tried[pick][3]
-    sol.attempts = [_record(label, hess, s_k, k == pick) for k, (label, hess, s_k, _) in enumerate(tried)]
+    sol.attempts = [record(label, hess, s_k, k == pick) for k, (label, hess, s_k, _) in enumerate(tried)]
     sol.extras["hessian"] = " + ".join(label for label, _, _, _ in tried)
     sol.extras["initial_objective"] = start_objective(sol)
     sol.extras["worse_than_initial_guess"] = bool(sol.objective > sol.extras["initial_objective"])
@@ -112,13 +111,6 @@ def solve_ocp_warm(setup: Setup, init: InitialGuess, solver_options: dict | None
     if enforce_limits(setup, sol) and not sol.success:
         last = None  # no warm start from a plan that breaks a limit
     return sol, last
-
-
-def _record(label: str, hessian: str | None, s_k: Solution, kept: bool) -> AttemptRecord:
-    solver = str(s_k.extras["solver"])
-    return AttemptRecord(label, "none" if solver.startswith("none") else solver,
-                         hessian if solver == "ipopt" else None, s_k.status, s_k.iterations, s_k.solve_time_s,
-                         s_k.objective, kept, bool(s_k.extras["compiled"]))
 
 
 SECOND_START_ITER = 60
@@ -184,7 +176,7 @@ def _second_start(setup: Setup, cold: InitialGuess, sol: Solution, last, solver_
                 second.extras[key] = sol.extras[key]
             label = f"{second.extras['solver']} from the diagonal model's plan"
             second.attempts = [replace(a, kept=False) for a in sol.attempts] + [
-                _record(label, "surrogate", second, True)]
+                record(label, "surrogate", second, True)]
             second.extras["hessian"] = sol.extras["hessian"] + f" + {label}"
             second.extras["init"] = sol.extras["init"]
             second.extras["worse_than_initial_guess"] = bool(second.objective > second.extras["initial_objective"])

@@ -27,10 +27,12 @@ from ..model.belief import NV, NX, BeliefModel, unvech, vech
 from ..errors import SurestepError
 from ..model.lie import pose_mean
 from .methods import ocp_initial_guess
-from .newton import EXACT_BELOW
+from .backends import Context
 from .iterate import InitialGuess
 from .nlp_cache import newton_solver
 from .ocp import resolved_solver, solve_ocp_warm
+from .strategy import records, replan_strategy
+from .strategy import run as run_strategy
 from ..problem.problem import Problem
 from ..problem.setup import Setup, build_setup
 from ..output.solution import Solution, evaluate
@@ -106,24 +108,20 @@ class Planner:
         warm = InitialGuess(np.vstack([q[:1], self._q[step - self.step + 1:]]), "previous plan")
         built = self._solver(n) if self.fast and sub.model.scalar else None
         sol = None
-        if built is not None:
-            spec = prob.solver
-            # From a tracker update the previous plan is near the optimum: Newton's exact steps from the first (the
-            # surrogate's converge linearly: 20 iterations where 3 exact ones do). After a camera move it is not, and
-            # the exact Hessian is often indefinite there: the usual switch (type4_camera_moves: 2-5x faster).
-            # A run that stalls with exact steps from the first gets the usual switch from the same start next (the
-            # worst re-plan of benchmarks/replan_rate.py: 72 ms through the whole strategy, about 35 ms this way).
-            for exact_below in (EXACT_BELOW,) if moved else (np.inf, EXACT_BELOW):
-                run = built[0].run(sub, warm, tol=spec.tol, max_iter=min(spec.surrogate_max_iter, spec.max_iter),
-                                   exact_below=exact_below)
-                if run.status not in ("Stalled", "Maximum_Iterations_Exceeded", "Line_Search_Failed"):
-                    break  # converged, or a failure the switch does not change (a depth bound, an infeasible start)
-            if run.success:
+        if built is not None:  # the re-plan's Newton attempts (strategy.replan_strategy), evaluated in one call
+            def evaluate_run(setup, method, start, run):
                 sig = np.asarray(built[1](run.poses.T, vech(cov))).T[:, _UNVECH]
-                sol = evaluate(sub, "ocp-replan", run.poses, list(run.q), success=True, status=run.status,
-                               solve_time_s=run.solve_time_s, iterations=run.iterations, objective=run.objective,
-                               sigma=sig, extras={"solver": "newton", "init": warm.source,
-                                                  "initial_trace": run.initial_trace, "warm_start_q": warm.q})
+                return evaluate(setup, method, run.poses, list(run.q), success=run.success, status=run.status,
+                                solve_time_s=run.solve_time_s, iterations=run.iterations, objective=run.objective,
+                                sigma=sig, extras={"solver": "newton", "init": start.source,
+                                                   "initial_trace": run.initial_trace, "compiled": built[0].codegen})
+
+            ctx = Context(sub, resolved_solver(sub), "ocp-replan", {}, evaluate_newton=evaluate_run)
+            tried = run_strategy(replan_strategy(moved), ctx, warm, None)
+            if tried[-1].outcome.solution.success:
+                sol = tried[-1].outcome.solution
+                sol.attempts = records(tried, len(tried) - 1)
+                sol.extras["warm_start_q"] = warm.q
         if sol is None:  # IPOPT's models, or Newton did not converge: the whole strategy from the previous plan
             sol = solve_ocp_warm(sub, warm, method="ocp-replan")[0]
             sol.extras["warm_start_q"] = warm.q

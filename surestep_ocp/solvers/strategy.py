@@ -8,13 +8,16 @@ order of attempts".
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from enum import Enum
 
 import numpy as np
 
+from ..output.attempt_record import AttemptRecord
+from ..output.solution import Solution
 from .backends import BACKENDS, Context, Outcome
 from .iterate import InitialGuess, Iterate
+from .newton import EXACT_BELOW
 from .nlp_cache import LIFTED_FROM_CONDENSED
 
 DEPTH = "Depth_Bound_Violated"
@@ -22,6 +25,7 @@ INFEASIBLE = "Infeasible_Problem_Detected"
 # IPOPT statuses that, from a feasible start, say more about the barrier's path than about the problem
 FALSE_VERDICTS = ("Infeasible_Problem_Detected", "Restoration_Failed", "Error_In_Step_Computation")
 MONOTONE = {"ipopt.mu_strategy": "monotone"}
+HANDOVER = ("Stalled", "Maximum_Iterations_Exceeded", "Line_Search_Failed")  # Newton's ends the switch may change
 
 
 class Start(Enum):
@@ -135,6 +139,31 @@ def default_strategy(ctx: Context, warm: Iterate | None, pinned: bool, lifted_st
         if not pinned:
             out.append(Attempt("exact, monotone barrier", "ipopt", "exact", {**MONOTONE, **exact_cap}))
     return tuple(out)
+
+
+def replan_strategy(moved: bool) -> tuple:
+    """A re-plan's attempts from the previous plan (`Planner.replan`): near the optimum after a tracker update,
+    Newton's exact steps from the first iteration (the surrogate's converge linearly there); after a camera move,
+    or when exact steps from the first stall, the usual switch to exact steps near the optimum. What they leave
+    unsolved goes to `default_strategy` from the same start (the Planner's fallback)."""
+    switch = Attempt("newton", "newton", options={"exact_below": EXACT_BELOW}, start=Start.INIT)
+    if moved:
+        return (switch,)
+    return (Attempt("newton, exact steps", "newton", options={"exact_below": np.inf}, when=ALWAYS),
+            replace(switch, when=Condition(last_status_in=HANDOVER)))
+
+
+def records(tried: list[Tried], pick: int) -> list[AttemptRecord]:
+    """The typed records of the attempts that ran; `pick` is the one whose plan is returned."""
+    return [record(t.label, t.attempt.hessian, t.outcome.solution, k == pick) for k, t in enumerate(tried)]
+
+
+def record(label: str, hessian: str | None, sol: Solution, kept: bool) -> AttemptRecord:
+    """One attempt's record from its plan (the backend is the plan's `solver`; "none" for a kept start)."""
+    solver = str(sol.extras["solver"])
+    return AttemptRecord(label, "none" if solver.startswith("none") else solver,
+                         hessian if solver == "ipopt" else None, sol.status, sol.iterations, sol.solve_time_s,
+                         sol.objective, kept, bool(sol.extras.get("compiled", False)))
 
 
 def run(strategy: tuple, ctx: Context, init: InitialGuess, warm: Iterate | None) -> list[Tried]:

@@ -26,6 +26,8 @@ class Context:
     resolved: ResolvedSolver
     method: str
     options: dict  # extra raw IPOPT options (`solve_ocp`'s solver_options)
+    # (setup, method, start, NewtonRun) -> Solution: a faster evaluation of Newton's plans (the Planner's)
+    evaluate_newton: Callable | None = None
 
 
 @dataclass

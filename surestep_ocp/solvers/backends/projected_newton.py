@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from ...model.limits import enforce as enforce_limits
 from ..iterate import InitialGuess, Iterate
+from ..newton import EXACT_BELOW
 from ..nlp_cache import newton_solver
 from .base import Context, Outcome
 
@@ -12,7 +13,9 @@ from .base import Context, Outcome
 class NewtonBackend:
     """Exact for the surrogate model with six joints moving the tracked frame (`ResolvedSolver.newton_fits`).
 
-    Options: `barrier` (bool) runs Newton on IPOPT's barrier problem, which keeps the depth bound."""
+    Options: `barrier` (bool) runs Newton on IPOPT's barrier problem, which keeps the depth bound; `exact_below`
+    the projected gradient's norm below which it takes exact Hessian steps (inf: from the start, for warm starts).
+    The plan is evaluated by `ctx.evaluate_newton` when the caller has a faster evaluation (the Planner's)."""
 
     name = "newton"
 
@@ -25,8 +28,12 @@ class NewtonBackend:
     def solve(self, ctx: Context, start: InitialGuess, warm: Iterate | None, hessian: str | None,
               options: dict) -> Outcome:
         spec = ctx.setup.problem.solver
-        sol = newton_solver(ctx.setup).solve(ctx.setup, start, ctx.method, tol=spec.tol,
-                                             max_iter=min(spec.surrogate_max_iter, spec.max_iter),
-                                             verbose=spec.print_level > 0, barrier=bool(options.get("barrier")))
+        solver = newton_solver(ctx.setup)
+        kw = dict(tol=spec.tol, max_iter=min(spec.surrogate_max_iter, spec.max_iter), verbose=spec.print_level > 0)
+        if options.get("barrier"):
+            run = solver.run_barrier(ctx.setup, start, **kw)
+        else:
+            run = solver.run(ctx.setup, start, exact_below=options.get("exact_below", EXACT_BELOW), **kw)
+        sol = (ctx.evaluate_newton or solver.solution)(ctx.setup, ctx.method, start, run)
         enforce_limits(ctx.setup, sol)  # a plan over an enforced limit is not a success: the strategy goes on
         return Outcome(sol, Iterate(sol.joints) if sol.success else None)
