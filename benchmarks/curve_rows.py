@@ -24,7 +24,8 @@ import numpy as np
 from surestep_ocp.evaluation.configs import ConfigurationSampler, load_evaluation
 from surestep_ocp.model import limits as lm
 from surestep_ocp.output.export import time_parametrise, within_position_limits
-from surestep_ocp.problem.problem import LimitsSpec, load_problem
+from surestep_ocp.problem.spec import LimitsSpec
+from surestep_ocp.problem.load import load_problem
 from surestep_ocp.problem.setup import build_setup
 from surestep_ocp.solvers import solver_setup
 from surestep_ocp.solvers.methods import run_method

@@ -23,9 +23,10 @@ from pathlib import Path
 
 import numpy as np
 
-from surestep_ocp.model.limits import plan_report, problem_limits
+from surestep_ocp.model.limits.report import plan_report
+from surestep_ocp.model.limits.values import problem_limits
 from surestep_ocp.output.export import time_parametrise, within_position_limits
-from surestep_ocp.problem.problem import load_problem
+from surestep_ocp.problem.load import load_problem
 from surestep_ocp.problem.setup import build_setup
 from surestep_ocp.solvers.methods import run_method
 

@@ -21,7 +21,8 @@ import numpy as np
 
 from surestep_ocp.evaluation.configs import ConfigurationSampler, load_evaluation
 from surestep_ocp.output.export import time_parametrise, within_position_limits
-from surestep_ocp.model.limits import motion_limits, plan_report
+from surestep_ocp.model.limits.report import plan_report
+from surestep_ocp.model.limits.values import motion_limits
 from surestep_ocp.solvers.methods import run_method
 from surestep_ocp.output.plots_motion import tool_speeds
 

@@ -7,7 +7,7 @@ REPO = __import__("pathlib").Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 import tempfile
 WORK = tempfile.mkdtemp(prefix="surestep-fuzz-")
-from surestep_ocp.problem.problem import load_problem
+from surestep_ocp.problem.load import load_problem
 from surestep_ocp.problem.setup import build_setup
 from surestep_ocp.errors import ProblemError, SurestepError
 rng = random.Random(int(sys.argv[1]) if len(sys.argv) > 1 else 4242)

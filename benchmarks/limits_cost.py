@@ -21,10 +21,11 @@ from dataclasses import replace
 from pathlib import Path
 
 from surestep_ocp.evaluation.configs import ConfigurationSampler, load_evaluation
-from surestep_ocp.model.limits import plan_report, problem_limits
+from surestep_ocp.model.limits.report import plan_report
+from surestep_ocp.model.limits.values import problem_limits
 from surestep_ocp.solvers.methods import ocp_initial_guess, run_method
 from surestep_ocp.solvers.ocp import solve_ocp
-from surestep_ocp.problem.problem import LimitsSpec, TimingSpec
+from surestep_ocp.problem.spec import LimitsSpec, TimingSpec
 from surestep_ocp.problem.setup import build_setup
 from surestep_ocp.output.solution import write_text_atomic
 

@@ -43,7 +43,7 @@ from surestep_ocp.evaluation.configs import ConfigurationSampler, load_evaluatio
 from surestep_ocp.solvers.gradient import solve_gradient
 from surestep_ocp.model.lie import np_exp
 from surestep_ocp.solvers.methods import ocp_initial_guess
-from surestep_ocp.problem.problem import LimitsSpec, TimingSpec
+from surestep_ocp.problem.spec import LimitsSpec, TimingSpec
 from surestep_ocp.problem.setup import build_setup
 from surestep_ocp.output.solution import write_text_atomic
 

@@ -19,7 +19,7 @@ from numpy_ekf import ekf_step, propagate
 from surestep_ocp.model.belief import COSINE_GUARD
 from surestep_ocp.solvers.methods import ocp_initial_guess
 from surestep_ocp.solvers.ocp import InitialGuess, resolve_form, solve_ocp, transcription
-from surestep_ocp.problem.problem import load_problem
+from surestep_ocp.problem.load import load_problem
 from surestep_ocp.problem.setup import build_setup
 from surestep_ocp.solvers.surrogate import recursion_weights
 

@@ -22,7 +22,8 @@ from surestep_ocp.evaluation.configs import ConfigurationSampler, load_evaluatio
 from surestep_ocp.errors import ProblemError
 from surestep_ocp.solvers.methods import ocp_initial_guess, run_method
 from surestep_ocp.solvers.ocp import solve_ocp, transcription
-from surestep_ocp.problem.problem import LimitsSpec, load_problem
+from surestep_ocp.problem.load import load_problem
+from surestep_ocp.problem.spec import LimitsSpec
 from surestep_ocp.problem.setup import build_setup
 
 ROOT = Path(__file__).resolve().parents[1]

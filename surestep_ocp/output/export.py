@@ -45,8 +45,11 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import SurestepError, shown
-from ..model.limits import CURVE_NAME, JAW, MotionLimits, motion_limits, parse_overrides
-from .outputs import check_output_file, quiet_fd
+from ..model.limits.curve import CURVE_NAME, evaluate_curve
+from ..model.limits.values import JAW, REL_TOL, MotionLimits, motion_limits, parse_overrides
+from ..problem.paths import resolve_urdf
+from ..quiet import quiet_fd
+from .outputs import check_output_file
 from .solution import write_json_atomic, write_text_atomic
 
 FORMATS = ("csv", "json", "ros2")
@@ -280,8 +283,6 @@ def planned_curve(q: np.ndarray, step_s: float, limits: MotionLimits, rate_hz: f
     the joint velocity and acceleration limits and the tool's speeds at those samples and at CURVE_CHECK_PER_STEP
     points per step. Returns (the trajectory, or None when a limit is exceeded by more than REL_TOL; the check:
     peak ratios per family and `within`)."""
-    from ..model.limits import REL_TOL, evaluate_curve
-
     q = np.asarray(q, float)
     T, n = len(q) - 1, q.shape[1]
     wp_t = step_s * np.arange(T + 1)
@@ -514,7 +515,6 @@ def export_solution(solution: str | Path, fmt: str, output: str | Path, *, rate_
                     acceleration: dict | None = None, tool_speed: float | None = None,
                     tool_rotation: float | None = None, plot: bool = True,
                     timing: str = "auto") -> tuple[Trajectory, list[Path]]:
-    from ..problem.problem import resolve_urdf
     from ..model.robot import Robot
 
     if fmt not in FORMATS:

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..model.limits.report import rotation_angle
 from .solution import write_text_atomic
 from .styles import style_of, styles_of
 
@@ -129,7 +130,6 @@ def _decorate(axes, names, lo, hi, vmax, amax, tool_mm_s, tool_rad_s):
 
 def tool_speeds(urdf: str | Path, frame: str, times: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Tool translation [m/s] and rotation [rad/s] speeds between consecutive samples (Pinocchio FK)."""
-    from ..model.limits import rotation_angle
     from ..model.robot import Robot
 
     robot = Robot(urdf, frame=frame)

@@ -36,7 +36,7 @@ from .ocp import (
     resolve_hessian,
     solve_ocp_warm,
 )
-from ..problem.problem import Problem
+from ..problem.spec import Problem
 from ..problem.setup import Setup, build_setup
 from ..output.solution import Solution, evaluate
 
