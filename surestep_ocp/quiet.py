@@ -1,5 +1,5 @@
-"""`quiet_fd`: keeps C libraries' chatter off the terminal (urdfdom prints URDF parse errors on stderr;
-the callers say them in one line instead). Used by every layer, like `errors.py`."""
+"""`quiet_fd`: keeps C libraries' chatter off the terminal (urdfdom prints URDF parse errors on
+stderr; the callers say them in one line instead). Used by every layer, like `errors.py`."""
 
 from __future__ import annotations
 

@@ -1,7 +1,8 @@
-"""The IPOPT option check: whether IPOPT accepts a problem's raw `solver.options` (names and value types).
+"""The IPOPT option check: whether IPOPT accepts a problem's raw `solver.options` (names and value
+types).
 
-IPOPT itself is asked (a one-variable NLP built with the options), so the check knows every option of the
-installed IPOPT; its reason for a refusal is caught from stdout and said in one line.
+IPOPT itself is asked (a one-variable NLP built with the options), so the check knows every option
+of the installed IPOPT; its reason for a refusal is caught from stdout and said in one line.
 """
 
 from __future__ import annotations
@@ -40,6 +41,8 @@ def check_ipopt_options(options: dict) -> str | None:
             os.close(saved)
         printed.seek(0)
         said = caught.getvalue()[:4000] + "\n" + printed.read(4000).decode("utf-8", "replace")
-    reason = next((ln for ln in said.splitlines() if "valid setting" in ln or "Option" in ln), "") or error
-    reason = re.sub(r"^.*?\.cpp:\d+:\s*", "", reason.strip().splitlines()[-1] if reason.strip() else error)
+    reason = next((ln for ln in said.splitlines() if "valid setting" in ln or "Option" in ln),
+                  "") or error
+    reason = re.sub(r"^.*?\.cpp:\d+:\s*", "",
+                    reason.strip().splitlines()[-1] if reason.strip() else error)
     return f"IPOPT refused them: {shown(reason.strip(), 200)}"

@@ -1,8 +1,9 @@
 """What a problem is: the frozen dataclasses a problem file is read into (problems/README.md).
 
-`Problem` and the specs of its sections (robot, camera, start and goal, noise is `model.belief.NoiseParams`,
-solver, gradient variant, timing, motion limits), `GRADIENT_PRESETS`, and `Problem`'s `with_*` methods (changed
-copies, read again with the file's own checks by `parse.parse_problem`).
+`Problem` and the specs of its sections (robot, camera, start and goal, noise is
+`model.belief.NoiseParams`, solver, gradient variant, timing, motion limits), `GRADIENT_PRESETS`,
+and `Problem`'s `with_*` methods (changed copies, read again with the file's own checks by
+`parse.parse_problem`).
 """
 
 from __future__ import annotations
@@ -41,14 +42,16 @@ class RobotSpec:
     urdf_rel: str  # as written relative to the repository, for the solution file
     frame: str
     base_pose: np.ndarray  # 4x4, URDF root in world
-    grasp: np.ndarray | None = None  # 4x4: tracked needle in `frame` (None: the frame itself is tracked)
+    # 4x4: tracked needle in `frame` (None: the frame itself is tracked)
+    grasp: np.ndarray | None = None
     needle_radius: float | None = None  # [m]
     joints: np.ndarray | None = None  # fixed joint values (an arm that does not move)
 
 
 @dataclass(frozen=True)
 class RelativeGoal:
-    """A goal given in the frame of another arm's tracked object (e.g. the regrasp pose on its needle)."""
+    """A goal given in the frame of another arm's tracked object (e.g. the regrasp pose on its
+    needle)."""
 
     arm: RobotSpec
     pose: np.ndarray  # [px, py, pz, rx, ry, rz] in that object's frame
@@ -73,24 +76,28 @@ class CameraSpec:
 
 @dataclass(frozen=True)
 class SolverSpec:
-    name: str = "auto"  # auto (newton where it applies, else IPOPT) | ipopt | newton (see ocp.solve_ocp_warm)
+    # auto (newton where it applies, else IPOPT) | ipopt | newton (see ocp.solve_ocp_warm)
+    name: str = "auto"
     max_iter: int = 3000
     tol: float = 1e-6  # IPOPT tol (scaled NLP error); the constraints separately to min(tol, 1e-8)
     print_level: int = 0
     covariance: str = "auto"  # auto | full | diagonal | condensed (see ocp.py)
     hessian: str = "auto"  # auto | exact | surrogate | gauss-newton (see ocp.py)
-    surrogate_max_iter: int = 300  # surrogate iterations before the exact-Hessian polish (hessian: auto)
-    # compile the stage-wise derivatives of the surrogate / Gauss-Newton NLP to C (cached, see codegen.py):
-    # True, False, or "auto" (when a C compiler is found)
+    # surrogate iterations before the exact-Hessian polish (hessian: auto)
+    surrogate_max_iter: int = 300
+    # compile the stage-wise derivatives of the surrogate / Gauss-Newton NLP to C (cached, see
+    # codegen.py): True, False, or "auto" (when a C compiler is found)
     codegen: bool | str = "auto"
     options: dict = field(default_factory=dict)  # extra raw solver options
 
 
 @dataclass(frozen=True)
 class GradientSpec:
-    """The gradient variant's optimiser (see surestep_ocp/solvers/gradient.py and problems/README.md)."""
+    """The gradient variant's optimiser (see surestep_ocp/solvers/gradient.py and
+    problems/README.md)."""
 
-    optimizer: str = "scipy"  # scipy (L-BFGS-B, `iterations`) | torch (torch.optim.LBFGS's algorithm, lbfgs.py)
+    # scipy (L-BFGS-B, `iterations`) | torch (torch.optim.LBFGS's algorithm, lbfgs.py)
+    optimizer: str = "scipy"
     iterations: int = 50  # scipy: L-BFGS-B iterations
     memory: int = 10  # scipy: L-BFGS-B memory
     pose_loss_weight: float = 1.0
@@ -106,18 +113,22 @@ class GradientSpec:
     preset: str = ""
 
 
-# `gradient.preset`: values a preset sets (keys given beside it override them). `paper`: the reading that
-# reproduces the paper's Table I (docs/evaluation.md, "Table I"); `literal`: the same optimiser with the loss as written.
+# `gradient.preset`: values a preset sets (keys given beside it override them). `paper`: the reading
+# that reproduces the paper's Table I (docs/evaluation.md, "Table I"); `literal`: the same optimiser
+# with the loss as written.
 GRADIENT_PRESETS = {
-    "paper": {"optimizer": "torch", "steps": 50, "max_iter": 20, "line_search": "strong_wolfe", "trace_scale": 1e3},
-    "literal": {"optimizer": "torch", "steps": 50, "max_iter": 20, "line_search": "strong_wolfe", "trace_scale": 1.0},
+    "paper": {"optimizer": "torch", "steps": 50, "max_iter": 20, "line_search": "strong_wolfe",
+              "trace_scale": 1e3},
+    "literal": {"optimizer": "torch", "steps": 50, "max_iter": 20, "line_search": "strong_wolfe",
+                "trace_scale": 1.0},
     "scipy": {"optimizer": "scipy", "iterations": 50, "trace_scale": 1.0},
 }
 
 
 @dataclass(frozen=True)
 class TimingSpec:
-    """How long a step lasts and how fast the tracker runs (problems/README.md, "Time in the model").
+    """How long a step lasts and how fast the tracker runs (problems/README.md, "Time in the
+    model").
 
     A step spans `frames = step_s * tracker_hz` tracker frames, each an observation at the step's
     waypoint; the model folds them into one with the observation noise divided by `frames`. The
@@ -130,15 +141,16 @@ class TimingSpec:
     @property
     def frames(self) -> int:
         """Tracker frames (observations) per step."""
-        return int(round(self.step_s * self.tracker_hz))  # noqa: RUF046 (step_s may be a NumPy float)
+        # int(): step_s may be a NumPy float, whose round() is not an int
+        return int(round(self.step_s * self.tracker_hz))  # noqa: RUF046
 
 
 @dataclass(frozen=True)
 class LimitsSpec:
-    """`limits:` motion limits of a plan (problems/README.md, "Motion limits"). With `enforce: false` (the
-    default) they are only reported; with `true` the OCP honours them as constraints and a plan that breaks
-    one is not a success. None: the default (`limits.py`: URDF velocities, the dVRK's accelerations, 0.1 m/s,
-    pi/2 rad/s, 45 mm from the RCM)."""
+    """`limits:` motion limits of a plan (problems/README.md, "Motion limits"). With `enforce:
+    false` (the default) they are only reported; with `true` the OCP honours them as constraints and
+    a plan that breaks one is not a success. None: the default (`model/limits/values.py`: URDF
+    velocities, the dVRK's accelerations, 0.1 m/s, pi/2 rad/s, 45 mm from the RCM)."""
 
     enforce: bool = False
     joint_velocity: tuple[tuple[str, float], ...] = ()  # per-joint overrides [rad/s or m/s]
@@ -150,7 +162,8 @@ class LimitsSpec:
 
 @dataclass(frozen=True)
 class ObjectiveSpec:
-    smoothness: float = 0.0  # weight on sum_t ||q_t+1 - q_t||^2 [1/rad^2], relative to Tr(Sigma_T) scale
+    # weight on sum_t ||q_t+1 - q_t||^2 [1/rad^2], relative to Tr(Sigma_T) scale
+    smoothness: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -174,26 +187,31 @@ class Problem:
     limits: LimitsSpec = LimitsSpec()
     source: Any = field(default=None, repr=False, compare=False)  # the YAML tree it was read from
 
-    # Changed copies (the Python API). Each edits the tree the problem was read from and reads it again with the
-    # file's own checks, so a bad value is a ProblemError naming the file and the key (e.g. `goal.pose.position`).
+    # Changed copies (the Python API). Each edits the tree the problem was read from and reads it
+    # again with the file's own checks, so a bad value is a ProblemError naming the file and the key
+    # (e.g. `goal.pose.position`).
     def with_start(self, *, pose=None, joints=None) -> Problem:
-        """Start at a tool `pose` `[px, py, pz, rx, ry, rz]` (camera frame: position [m], axis-angle [rad]) or
-        at `joints` [rad; m for the insertion]."""
+        """Start at a tool `pose` `[px, py, pz, rx, ry, rz]` (camera frame: position [m], axis-angle
+        [rad]) or at `joints` [rad; m for the insertion]."""
         return self.with_sections(start=self._endpoint_tree("start", pose, joints))
 
     def with_goal(self, *, pose=None, joints=None) -> Problem:
-        """Goal at a tool `pose` `[px, py, pz, rx, ry, rz]` (camera frame, [m] and [rad]) or at `joints`."""
+        """Goal at a tool `pose` `[px, py, pz, rx, ry, rz]` (camera frame, [m] and [rad]) or at
+        `joints`."""
         return self.with_sections(goal=self._endpoint_tree("goal", pose, joints))
 
     def with_camera_pose(self, matrix) -> Problem:
-        """The camera fixed at `matrix` (4x4, camera in world, position [m]; OpenCV axes: z forward), in place
-        of the ECM. A goal given in the camera frame stays there (it moves with the camera)."""
-        camera = {k: v for k, v in self._tree().get("camera", {}).items() if k not in ("pose", "ecm")}
+        """The camera fixed at `matrix` (4x4, camera in world, position [m]; OpenCV axes: z
+        forward), in place of the ECM. A goal given in the camera frame stays there (it moves with
+        the camera)."""
+        camera = {k: v for k, v in self._tree().get("camera", {}).items()
+                  if k not in ("pose", "ecm")}
         return self.with_sections(camera={**camera, "pose": {"matrix": matrix}})
 
     def with_noise(self, **values) -> Problem:
-        """Noise constants replaced, as the file's `noise:` keys take them: `Sigma0` (scalar or 6x6 [m^2, rad^2]),
-        `W_p0`, `W_o0`, `V_d0`, `V_f0`, `V_o0`, `V_min`, `depth_star` [m], `o_star` [rad], `components`, ..."""
+        """Noise constants replaced, as the file's `noise:` keys take them: `Sigma0` (scalar or 6x6
+        [m^2, rad^2]), `W_p0`, `W_o0`, `V_d0`, `V_f0`, `V_o0`, `V_min`, `depth_star` [m], `o_star`
+        [rad], `components`, ..."""
         return self.with_sections(noise={**self._tree().get("noise", {}), **values})
 
     def with_horizon(self, steps: int) -> Problem:
@@ -201,11 +219,13 @@ class Problem:
         return self.with_sections(horizon=steps)
 
     def with_solver(self, **values) -> Problem:
-        """Solver settings replaced (`name`: auto | newton | ipopt, `hessian`, `tol`, `max_iter`, `codegen`, ...)."""
+        """Solver settings replaced (`name`: auto | newton | ipopt, `hessian`, `tol`, `max_iter`,
+        `codegen`, ...)."""
         return self.with_sections(solver={**self._tree().get("solver", {}), **values})
 
     def with_sections(self, **sections) -> Problem:
-        """Top-level sections of the problem file replaced (`name=`, `timing=`, `limits=`, ...), read again."""
+        """Top-level sections of the problem file replaced (`name=`, `timing=`, `limits=`, ...),
+        read again."""
         # imported here: parse builds Problems (a module-level import would be a cycle)
         from .parse import parse_problem
 
@@ -213,8 +233,9 @@ class Problem:
 
     def _tree(self) -> dict:
         if not isinstance(self.source, dict):
-            raise ProblemError(str(self.path), None, "this Problem was not read from a file or a dict (load_problem, "
-                                                     "problem_from_dict), so it cannot be changed by with_*")
+            raise ProblemError(str(self.path), None,
+                               "this Problem was not read from a file or a dict (load_problem, "
+                               "problem_from_dict), so it cannot be changed by with_*")
         return self.source
 
     def _endpoint_tree(self, key: str, pose, joints) -> dict:
@@ -223,11 +244,13 @@ class Problem:
         pose = plain_tree(pose)
         if isinstance(pose, list):
             if len(pose) != 6:
-                raise ProblemError(str(self.path), f"{key}.pose", "expected 6 numbers [px, py, pz, rx, ry, rz] "
+                raise ProblemError(str(self.path), f"{key}.pose",
+                                   "expected 6 numbers [px, py, pz, rx, ry, rz] "
                                    f"(position [m], axis-angle [rad]), got {len(pose)}")
             tree["pose"] = {"position": pose[:3], "axis_angle": pose[3:]}
         elif pose is not None:
-            tree["pose"] = pose  # a mapping {position, axis_angle}, or what the reader says is wrong
+            # a mapping {position, axis_angle}, or what the reader says is wrong
+            tree["pose"] = pose
         return tree
 
 

@@ -1,4 +1,5 @@
-"""Motion limits of a plan: what a dVRK would refuse or struggle with; reported, and enforced on request.
+"""Motion limits of a plan: what a dVRK would refuse or struggle with; reported, and enforced on
+request.
 
 A problem's `limits:` section (problems/README.md, "Motion limits") gives overrides; with
 `limits.enforce: true` the OCP (IPOPT's condensed transcription) carries them as constraints, and
@@ -12,16 +13,42 @@ every method's plan that breaks one is not a success (`enforce`, status `Motion_
 Every public name is importable from here too.
 """
 
-from .curve import (CURVE_NAME, CURVE_PIECES, TOOL_MARGIN, TOOL_POINTS, curve_coefficients,
-                    curve_control_rows, curve_point_weights, derivative_power, evaluate_curve,
-                    knot_derivatives)
+from .curve import (
+    CURVE_NAME,
+    CURVE_PIECES,
+    TOOL_MARGIN,
+    TOOL_POINTS,
+    curve_coefficients,
+    curve_control_rows,
+    curve_point_weights,
+    derivative_power,
+    evaluate_curve,
+    knot_derivatives,
+)
 from .enforcement import enforce
 from .report import markdown_rows, plan_report, rotation_angle, summary_row
-from .values import (DEFAULT_ACCEL_PER_VELOCITY, DEFAULT_ACCELERATION, INSERTION, JAW,
-                     PROBLEM_SOURCE, RCM_FRAME, RCM_MIN_DISTANCE_M, RCM_ROOT, REL_TOL,
-                     TOOL_ROTATION_RAD_S, TOOL_SPEED_M_S, VIOLATED, MotionLimits, is_psm,
-                     motion_limits, parse_overrides, problem_limits, rcm_insertion_bound,
-                     recorded_limits, urdf_velocity_limits)
+from .values import (
+    DEFAULT_ACCEL_PER_VELOCITY,
+    DEFAULT_ACCELERATION,
+    INSERTION,
+    JAW,
+    PROBLEM_SOURCE,
+    RCM_FRAME,
+    RCM_MIN_DISTANCE_M,
+    RCM_ROOT,
+    REL_TOL,
+    TOOL_ROTATION_RAD_S,
+    TOOL_SPEED_M_S,
+    VIOLATED,
+    MotionLimits,
+    is_psm,
+    motion_limits,
+    parse_overrides,
+    problem_limits,
+    rcm_insertion_bound,
+    recorded_limits,
+    urdf_velocity_limits,
+)
 
 # The OCP's limit rows: "curve" (the played curve's, `curve.py`) or "steps" (finite differences,
 # before). A switch read here when an NLP is built (solvers/solver_setup.py, transcription.py);
@@ -29,11 +56,12 @@ from .values import (DEFAULT_ACCEL_PER_VELOCITY, DEFAULT_ACCELERATION, INSERTION
 CURVE_ROWS = "curve"
 
 __all__ = [
-    "CURVE_NAME", "CURVE_PIECES", "CURVE_ROWS", "DEFAULT_ACCELERATION", "DEFAULT_ACCEL_PER_VELOCITY",
-    "INSERTION", "JAW", "PROBLEM_SOURCE", "RCM_FRAME", "RCM_MIN_DISTANCE_M", "RCM_ROOT", "REL_TOL",
-    "TOOL_MARGIN", "TOOL_POINTS", "TOOL_ROTATION_RAD_S", "TOOL_SPEED_M_S", "VIOLATED", "MotionLimits",
-    "curve_coefficients", "curve_control_rows", "curve_point_weights", "derivative_power", "enforce",
-    "evaluate_curve", "is_psm", "knot_derivatives", "markdown_rows", "motion_limits",
-    "parse_overrides", "plan_report", "problem_limits", "rcm_insertion_bound", "recorded_limits",
-    "rotation_angle", "summary_row", "urdf_velocity_limits",
+    "CURVE_NAME", "CURVE_PIECES", "CURVE_ROWS", "DEFAULT_ACCELERATION",
+    "DEFAULT_ACCEL_PER_VELOCITY", "INSERTION", "JAW", "PROBLEM_SOURCE", "RCM_FRAME",
+    "RCM_MIN_DISTANCE_M", "RCM_ROOT", "REL_TOL", "TOOL_MARGIN", "TOOL_POINTS",
+    "TOOL_ROTATION_RAD_S", "TOOL_SPEED_M_S", "VIOLATED", "MotionLimits", "curve_coefficients",
+    "curve_control_rows", "curve_point_weights", "derivative_power", "enforce", "evaluate_curve",
+    "is_psm", "knot_derivatives", "markdown_rows", "motion_limits", "parse_overrides",
+    "plan_report", "problem_limits", "rcm_insertion_bound", "recorded_limits", "rotation_angle",
+    "summary_row", "urdf_velocity_limits",
 ]

@@ -10,6 +10,8 @@
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 
 from ...errors import SurestepError
@@ -22,25 +24,29 @@ def rotation_angle(Ra: np.ndarray, Rb: np.ndarray) -> float:
     return float(np.arccos(np.clip(c, -1.0, 1.0)))
 
 
-def plan_report(robot, q: np.ndarray, step_s: float, limits: MotionLimits, tool_frame: str | None = None) -> dict:
-    """Every limit violation of the joint plan `q` ((T+1, nq), robot joint order) at one step per `step_s`.
+def plan_report(robot, q: np.ndarray, step_s: float, limits: MotionLimits,
+                tool_frame: str | None = None) -> dict:
+    """Every limit violation of the joint plan `q` ((T+1, nq), robot joint order) at one step per
+    `step_s`.
 
-    `robot` is a `surestep_ocp.model.robot.Robot`; the tool is its `tool_frame` (default: its tracked frame,
-    without a needle offset). Returns a JSON-ready dict: per-joint peak velocity and acceleration and
-    their ratio to the limit, the tool's peak speeds, the minimum RCM distance (PSM only), `violations`
-    (one entry per step and quantity over its limit) and `ok`.
+    `robot` is a `surestep_ocp.model.robot.Robot`; the tool is its `tool_frame` (default: its
+    tracked frame, without a needle offset). Returns a JSON-ready dict: per-joint peak velocity and
+    acceleration and their ratio to the limit, the tool's peak speeds, the minimum RCM distance (PSM
+    only), `violations` (one entry per step and quantity over its limit) and `ok`.
     """
     q = np.asarray(q, float)
     if q.ndim != 2 or q.shape[1] != len(limits.joint_names):
-        raise SurestepError(f"plan of shape {q.shape} does not match the {len(limits.joint_names)} joints "
-                            f"{', '.join(limits.joint_names)}")
+        raise SurestepError(f"plan of shape {q.shape} does not match the "
+                            f"{len(limits.joint_names)} joints {', '.join(limits.joint_names)}")
     vel = np.diff(q, axis=0) / step_s  # (T, nq): velocity over step t
-    padded = np.vstack([np.zeros((1, q.shape[1])), vel, np.zeros((1, q.shape[1]))])  # at rest before and after
+    # at rest before and after
+    padded = np.vstack([np.zeros((1, q.shape[1])), vel, np.zeros((1, q.shape[1]))])
     acc = np.diff(padded, axis=0) / step_s  # (T+1, nq): at waypoint t
     frame = tool_frame or robot.frame
     poses = [robot.frame_pose(qi, frame) for qi in q]
-    dp = np.array([np.linalg.norm(b[:3, 3] - a[:3, 3]) for a, b in zip(poses, poses[1:])]) / step_s
-    dr = np.array([rotation_angle(a[:3, :3], b[:3, :3]) for a, b in zip(poses, poses[1:])]) / step_s
+    pairs = list(itertools.pairwise(poses))
+    dp = np.array([np.linalg.norm(b[:3, 3] - a[:3, 3]) for a, b in pairs]) / step_s
+    dr = np.array([rotation_angle(a[:3, :3], b[:3, :3]) for a, b in pairs]) / step_s
     violations = []
     for kind, values, lim in (("joint_velocity", vel, limits.velocity), ("joint_acceleration", acc,
                                                                        limits.acceleration)):
@@ -48,9 +54,11 @@ def plan_report(robot, q: np.ndarray, step_s: float, limits: MotionLimits, tool_
         for t, j in over:
             violations.append({"kind": kind, "step": int(t), "joint": limits.joint_names[j],
                                "value": float(values[t, j]), "limit": float(lim[j])})
-    for kind, values, lim in (("tool_speed", dp, limits.tool_speed), ("tool_rotation", dr, limits.tool_rotation)):
+    for kind, values, lim in (("tool_speed", dp, limits.tool_speed),
+                              ("tool_rotation", dr, limits.tool_rotation)):
         for t in np.flatnonzero(values > lim * (1 + REL_TOL)):
-            violations.append({"kind": kind, "step": int(t), "value": float(values[t]), "limit": float(lim)})
+            violations.append({"kind": kind, "step": int(t), "value": float(values[t]),
+                               "limit": float(lim)})
     rcm = None
     if is_psm(robot):
         dist = np.array([np.linalg.norm(robot.frame_pose(qi, RCM_FRAME)[:3, 3]) for qi in q])
@@ -77,7 +85,8 @@ def plan_report(robot, q: np.ndarray, step_s: float, limits: MotionLimits, tool_
 
 
 def summary_row(method: str, report: dict) -> dict:
-    """One row of the compare table: worst ratios and their joints, tool speeds, RCM distance, count."""
+    """One row of the compare table: worst ratios and their joints, tool speeds, RCM distance,
+    count."""
     names = report["limits"]["joint_names"]
     jv, ja = int(np.argmax(report["velocity_ratio"])), int(np.argmax(report["acceleration_ratio"]))
     rcm = report["min_rcm_distance_m"]
@@ -90,7 +99,8 @@ def summary_row(method: str, report: dict) -> dict:
         "tool rotation [rad/s]": f"{report['peak_tool_rotation_rad_s']:.2f} / "
                                  f"{report['limits']['tool_rotation_rad_s']:.2f}",
         "min RCM distance [mm]": "-" if rcm is None else
-                                 f"{1e3 * rcm:.1f} / {1e3 * report['limits']['rcm_min_distance_m']:.0f}",
+                                 f"{1e3 * rcm:.1f} / "
+                                 f"{1e3 * report['limits']['rcm_min_distance_m']:.0f}",
         "violations": str(len(report["violations"])),
     }
 
