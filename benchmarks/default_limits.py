@@ -9,7 +9,7 @@ on the same belief model (the case's timing: `step_s * tracker_hz` observations 
 compare plans, not models. Reported: status, Tr(Sigma_T), the enforced trace over the unconstrained one,
 solve time (one run each; the NLP's build and compile excluded where the solver reports it: `solve_time_s`),
 the largest tool step [mm] and joint steps of each plan, whether it meets every limit at its planned pace
-(`limits.py`), and its exported trajectory's duration (`surestep export`'s time parametrisation, toppra,
+(`model/limits/`), and its exported trajectory's duration (`surestep export`'s time parametrisation, toppra,
 within the joint and tool limits) against the planned `horizon * step_s`.
 Writes benchmarks/results/default_limits.md.
 """

@@ -6,7 +6,7 @@ Per configuration of problems/evaluations/evaluation.yaml (T = 20) and per step 
 `tracker_hz = 1 / step_s`: one observation per waypoint, the paper's belief model whatever the pace, so only
 the limits change with the step): the OCP (the default strategy) with
 `limits.enforce: false` and `true` from the same initial guess, and the straight-line baseline; the share
-that converged (enforced: a success, so every limit met, `limits.py`), Tr(Sigma_T) of the enforced plan over
+that converged (enforced: a success, so every limit met, `model/limits/`), Tr(Sigma_T) of the enforced plan over
 the unconstrained OCP's and over the baseline's (on the converged ones), the median and worst solve times,
 and how often Newton's plan already met the limits (no IPOPT needed). Writes
 benchmarks/results/limits_cost.md.

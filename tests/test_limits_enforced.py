@@ -65,7 +65,7 @@ def check_plan(setup, sol, velocity=None, accel=None, tool_speed=0.1, tool_rotat
     return vr.max(), ar.max(), speed.max() / tool_speed
 
 
-# The curve `surestep export` plays at the planned times (limits.py, "the played curve"), written out here: per step
+# The curve `surestep export` plays at the planned times (model/limits/curve.py), written out here: per step
 # the quintic Hermite polynomial with the waypoints' finite-difference velocities and accelerations at both ends.
 HERMITE = np.array([[1, 0, 0, -10, 15, -6], [0, 1, 0, -6, 8, -3], [0, 0, 0.5, -1.5, 1.5, -0.5],
                     [0, 0, 0, 10, -15, 6], [0, 0, 0, -4, 7, -3], [0, 0, 0, 0.5, -1, 0.5]])  # p0, v0, a0, p1, v1, a1

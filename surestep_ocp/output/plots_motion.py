@@ -5,7 +5,7 @@ pace (waypoint t at t * step_s), each method in its `styles` look. `plot_traject
 (written by `surestep export` as `<stem>_motion.png`): the exported trajectory, its waypoints
 marked. Both: one row per joint, its position against the position limits (dashed), its velocity
 and its acceleration against theirs (a plan's acceleration is the change of its step velocity at
-each waypoint, at rest before the first and after the last, as `limits.py` checks it); last row
+each waypoint, at rest before the first and after the last, as `model/limits/report.py` checks it); last row
 the tool's translation and rotation speed.
 """
 
