@@ -40,7 +40,7 @@ def cases(horizon: int, step_s: float, configs: int):
     from dataclasses import replace
 
     from surestep_ocp.evaluation.configs import ConfigurationSampler, load_evaluation
-    from surestep_ocp.problem.problem import load_problem
+    from surestep_ocp.problem.load import load_problem
 
     def enforced(p):
         return replace(p, horizon=horizon, limits=replace(p.limits, enforce=True),

@@ -79,7 +79,8 @@ from surestep_ocp.model.limits import motion_limits, plan_report, problem_limits
 from surestep_ocp.output.export import time_parametrise, within_position_limits  # noqa: E402
 from surestep_ocp.output.plots_motion import tool_speeds  # noqa: E402
 from surestep_ocp.output.solution import write_text_atomic  # noqa: E402
-from surestep_ocp.problem.problem import LimitsSpec, TimingSpec, load_problem  # noqa: E402
+from surestep_ocp.problem.load import load_problem  # noqa: E402
+from surestep_ocp.problem.spec import LimitsSpec, TimingSpec  # noqa: E402
 from surestep_ocp.problem.setup import build_setup  # noqa: E402
 from surestep_ocp.solvers import nlp_cache as _nlp_cache  # noqa: E402
 from surestep_ocp.solvers.baseline import solve_baseline  # noqa: E402

@@ -14,7 +14,7 @@ Names are imported on first use, so `import surestep_ocp` stays light (the CLI s
 __version__ = "0.1.0"
 
 _EXPORTS = {
-    "load_problem": "problem.problem", "problem_from_dict": "problem.problem", "Problem": "problem.problem",
+    "load_problem": "problem.load", "problem_from_dict": "problem.load", "Problem": "problem.spec",
     "solve": "api", "Solution": "output.solution", "Planner": "solvers.planner", "SimulatedTracker": "evaluation.tracker",
     "SurestepError": "errors", "ProblemError": "errors", "METHODS": "solvers.methods",
 }

@@ -8,7 +8,7 @@
 
 from __future__ import annotations
 
-from .problem.problem import Problem
+from .problem.spec import Problem
 from .output.solution import Solution
 
 

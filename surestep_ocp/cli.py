@@ -14,7 +14,7 @@ from .errors import SolverError, SurestepError
 
 
 def _load(path: str):
-    from .problem.problem import load_problem
+    from .problem.load import load_problem
     from .problem.setup import build_setup
 
     return build_setup(load_problem(path))
@@ -37,7 +37,7 @@ LONG_HORIZON = 60
 def _long_work_note(setup) -> None:
     T = setup.problem.horizon
     if T > LONG_HORIZON:
-        from .problem.problem import MAX_HORIZON
+        from .problem.parse import MAX_HORIZON
 
         print(f"note: horizon T = {T} (at most {MAX_HORIZON}): the first OCP solve at a new horizon compiles its "
               f"derivatives, up to about {20 + 0.55 * T:.0f} s (measured: 46 s at T = 50, 130 s at T = 200; "
@@ -195,7 +195,7 @@ OCP_FLAGS = ("solver", "hessian", "codegen")  # act on the OCP only (method_name
 
 def _solver_flags(parser: argparse.ArgumentParser) -> None:
     """--solver, --hessian, --codegen: the OCP's settings over the problem file's `solver:` section."""
-    from .problem.problem import SolverSpec
+    from .problem.spec import SolverSpec
 
     d = SolverSpec()
     parser.add_argument("--solver", choices=("auto", "ipopt", "newton"),

@@ -27,7 +27,7 @@ def default_problem_tree() -> dict:
 @pytest.fixture(scope="session")
 def default_problem():
     """The default problem, loaded once per session (a frozen dataclass: safe to share)."""
-    from surestep_ocp.problem.problem import load_problem
+    from surestep_ocp.problem.load import load_problem
 
     return load_problem(DEFAULT_PROBLEM)
 

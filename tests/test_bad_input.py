@@ -22,7 +22,8 @@ import yaml
 
 from surestep_ocp import cli
 from surestep_ocp.errors import ProblemError, SurestepError
-from surestep_ocp.problem.problem import MAX_HORIZON, load_problem
+from surestep_ocp.problem.load import load_problem
+from surestep_ocp.problem.parse import MAX_HORIZON
 from surestep_ocp.problem.setup import build_setup
 
 REPO = Path(__file__).resolve().parents[1]

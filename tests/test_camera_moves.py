@@ -12,7 +12,8 @@ from scipy.spatial.transform import Rotation
 from surestep_ocp.model.belief import BeliefModel, NoiseParams, unvech, vech
 from surestep_ocp.model.camera import Intrinsics
 from surestep_ocp.model.lie import matrix_to_pose, np_exp, np_means, np_poses, pose_to_matrix
-from surestep_ocp.problem.problem import CameraMove, load_problem
+from surestep_ocp.problem.load import load_problem
+from surestep_ocp.problem.spec import CameraMove
 from surestep_ocp.solvers.replan import replan
 from surestep_ocp.problem.setup import build_setup
 

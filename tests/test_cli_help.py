@@ -45,7 +45,8 @@ def test_every_stated_default_is_argparses(monkeypatch):
 
 def test_solver_flag_defaults_are_the_solver_specs(monkeypatch, write_problem):
     """--solver/--hessian/--codegen state SolverSpec's defaults; every offered --solver is one a problem accepts."""
-    from surestep_ocp.problem.problem import SolverSpec, load_problem
+    from surestep_ocp.problem.load import load_problem
+    from surestep_ocp.problem.spec import SolverSpec
 
     d = SolverSpec()
     text = help_text(subparsers()["solve"], monkeypatch)

@@ -10,7 +10,7 @@ import pytest
 
 from surestep_ocp.model import limits as lm
 from surestep_ocp.output.export import time_parametrise, within_position_limits
-from surestep_ocp.problem.problem import load_problem
+from surestep_ocp.problem.load import load_problem
 from surestep_ocp.problem.setup import build_setup
 from surestep_ocp.solvers.methods import ocp_initial_guess, run_method
 from surestep_ocp.solvers.nlp_cache import transcription

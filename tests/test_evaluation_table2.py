@@ -10,7 +10,7 @@ from scipy.spatial.transform import Rotation
 
 from surestep_ocp.evaluation.rollout import Detection, rollout
 from surestep_ocp.evaluation.table2 import RolloutReplanner
-from surestep_ocp.problem.problem import load_problem
+from surestep_ocp.problem.load import load_problem
 from surestep_ocp.problem.setup import build_setup
 from surestep_ocp.solvers.replan import _belief_after_move, replan
 

@@ -127,7 +127,7 @@ def test_expected_noise_never_vanishes_while_uncertain():
 def predicted_setup():
     from pathlib import Path
 
-    from surestep_ocp.problem.problem import load_problem
+    from surestep_ocp.problem.load import load_problem
     from surestep_ocp.problem.setup import build_setup
 
     p = load_problem(Path(__file__).resolve().parents[1] / "problems" / "needle_regrasp_paper_pace.yaml")
@@ -149,7 +149,7 @@ def test_unknown_objective_is_a_problem_error(tmp_path):
     from pathlib import Path
 
     from surestep_ocp.errors import ProblemError
-    from surestep_ocp.problem.problem import load_problem
+    from surestep_ocp.problem.load import load_problem
 
     text = (Path(__file__).resolve().parents[1] / "problems" / "needle_regrasp_paper_pace.yaml").read_text()
     path = tmp_path / "bad.yaml"

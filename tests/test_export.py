@@ -52,7 +52,7 @@ def plans(tmp_path_factory):
     """The default problem's OCP and straight-line plans, and an evaluation configuration whose OCP plan
     turns the roll joint by most of its range in one step (issue 14, configuration 72)."""
     from surestep_ocp.evaluation.configs import ConfigurationSampler, load_evaluation
-    from surestep_ocp.problem.problem import load_problem
+    from surestep_ocp.problem.load import load_problem
     from surestep_ocp.problem.setup import build_setup
 
     d = tmp_path_factory.mktemp("plans")
@@ -368,7 +368,7 @@ def test_export_never_overwrites_its_inputs(plans, tmp_path, capsys):
     src = tmp_path / "plan.json"
     src.write_text(Path(plans["ocp"]).read_text())
     before = src.read_bytes()
-    from surestep_ocp.problem.problem import resolve_urdf
+    from surestep_ocp.problem.paths import resolve_urdf
 
     urdf = resolve_urdf(json.loads(before)["robot"]["urdf"])
     urdf_before = urdf.read_bytes()
@@ -414,7 +414,7 @@ def test_malformed_solution_files_are_one_line_errors(plans, tmp_path, capsys, c
 def enforced_plan(tmp_path_factory):
     """The default problem as shipped: 40 steps of 0.05 s (2 s) with its limits enforced, so the OCP's rows bound
     the curve the export plays at the planned times."""
-    from surestep_ocp.problem.problem import load_problem
+    from surestep_ocp.problem.load import load_problem
     from surestep_ocp.problem.setup import build_setup
 
     prob = load_problem(REPO / "problems" / "needle_regrasp.yaml")

@@ -28,7 +28,7 @@ from hypothesis import strategies as st  # noqa: E402
 
 from surestep_ocp.evaluation.configs import load_evaluation  # noqa: E402
 from surestep_ocp.errors import ProblemError  # noqa: E402
-from surestep_ocp.problem.problem import load_problem  # noqa: E402
+from surestep_ocp.problem.load import load_problem  # noqa: E402
 from surestep_ocp.model.robot import Robot  # noqa: E402
 from surestep_ocp.problem.setup import build_setup  # noqa: E402
 

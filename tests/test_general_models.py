@@ -22,7 +22,7 @@ from surestep_ocp.problem.solver_config import resolve_form
 from surestep_ocp.solvers.iterate import InitialGuess
 from surestep_ocp.solvers.nlp_cache import transcription
 from surestep_ocp.solvers.ocp import solve_ocp
-from surestep_ocp.problem.problem import load_problem
+from surestep_ocp.problem.load import load_problem
 from surestep_ocp.problem.setup import build_setup
 from surestep_ocp.solvers.surrogate import recursion_weights
 

@@ -9,7 +9,7 @@ import yaml
 
 from surestep_ocp.solvers.baseline import solve_baseline, straight_line
 from surestep_ocp.solvers.gradient import build_loss, solve_gradient
-from surestep_ocp.problem.problem import load_problem
+from surestep_ocp.problem.load import load_problem
 from surestep_ocp.problem.setup import build_setup
 
 PROBLEM = Path(__file__).resolve().parents[1] / "problems" / "needle_regrasp_paper_pace.yaml"
@@ -103,7 +103,7 @@ def test_ablation_without_orientation(setup):
 
 
 def _with_gradient(setup, **kw):
-    from surestep_ocp.problem.problem import GradientSpec
+    from surestep_ocp.problem.spec import GradientSpec
 
     spec = dataclasses.replace(GradientSpec(), **kw)
     return dataclasses.replace(setup, problem=dataclasses.replace(setup.problem, gradient=spec))
@@ -150,7 +150,7 @@ def test_torch_semantics_optimiser(setup):
 def test_paper_preset_moves_where_the_literal_reading_stalls(setup, baseline):
     """With the pose loss as written (trace ~1e-5, pose loss ~1e-2) torch's absolute tolerance_change stops
     L-BFGS once the clip step is gone; weighting the trace by 1e3 (the paper preset) lowers the trace."""
-    from surestep_ocp.problem.problem import GRADIENT_PRESETS
+    from surestep_ocp.problem.spec import GRADIENT_PRESETS
 
     literal = solve_gradient(_with_gradient(setup, **GRADIENT_PRESETS["literal"]))
     paper = solve_gradient(_with_gradient(setup, **GRADIENT_PRESETS["paper"]))

@@ -23,7 +23,8 @@ from surestep_ocp.errors import ProblemError
 from surestep_ocp.solvers.methods import ocp_initial_guess, run_method
 from surestep_ocp.solvers.nlp_cache import transcription
 from surestep_ocp.solvers.ocp import solve_ocp
-from surestep_ocp.problem.problem import LimitsSpec, load_problem
+from surestep_ocp.problem.load import load_problem
+from surestep_ocp.problem.spec import LimitsSpec
 from surestep_ocp.problem.setup import build_setup
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -65,7 +66,7 @@ def check_plan(setup, sol, velocity=None, accel=None, tool_speed=0.1, tool_rotat
     return vr.max(), ar.max(), speed.max() / tool_speed
 
 
-# The curve `surestep export` plays at the planned times (limits.py, "the played curve"), written out here: per step
+# The curve `surestep export` plays at the planned times (model/limits/curve.py), written out here: per step
 # the quintic Hermite polynomial with the waypoints' finite-difference velocities and accelerations at both ends.
 HERMITE = np.array([[1, 0, 0, -10, 15, -6], [0, 1, 0, -6, 8, -3], [0, 0, 0.5, -1.5, 1.5, -0.5],
                     [0, 0, 0, 10, -15, 6], [0, 0, 0, -4, 7, -3], [0, 0, 0, 0.5, -1, 0.5]])  # p0, v0, a0, p1, v1, a1

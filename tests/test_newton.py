@@ -14,7 +14,7 @@ from surestep_ocp.errors import SurestepError
 from surestep_ocp.solvers.methods import ocp_initial_guess
 from surestep_ocp.solvers.nlp_cache import newton_solver
 from surestep_ocp.solvers.ocp import solve_ocp
-from surestep_ocp.problem.problem import load_problem
+from surestep_ocp.problem.load import load_problem
 from surestep_ocp.problem.setup import build_setup
 
 DEFAULT = Path(__file__).resolve().parents[1] / "problems" / "needle_regrasp_paper_pace.yaml"

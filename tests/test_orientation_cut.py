@@ -21,7 +21,7 @@ from surestep_ocp.evaluation.configs import ConfigurationSampler, load_evaluatio
 from surestep_ocp.errors import ProblemError
 from surestep_ocp.solvers.methods import ocp_initial_guess, run_method
 from surestep_ocp.solvers.ocp import solve_ocp
-from surestep_ocp.problem.problem import load_problem
+from surestep_ocp.problem.load import load_problem
 from surestep_ocp.evaluation.rollout import rollout
 from surestep_ocp.model.lie import np_means, pose_mean
 from surestep_ocp.problem.setup import build_setup

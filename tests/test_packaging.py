@@ -18,8 +18,10 @@ from pathlib import Path
 
 import pytest
 
-from surestep_ocp.problem import problem as problem_mod
-from surestep_ocp.problem.problem import find_shipped, load_problem
+from surestep_ocp.errors import ProblemError
+from surestep_ocp.problem import paths
+from surestep_ocp.problem.load import load_problem
+from surestep_ocp.problem.paths import find_shipped
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -28,8 +30,8 @@ def test_problem_copied_elsewhere_finds_the_shipped_urdf(tmp_path, monkeypatch):
     """An installed layout (no checkout, data under the package): a copied problem resolves robots/psm.urdf."""
     fake_site = tmp_path / "site"
     shutil.copytree(REPO / "robots", fake_site / "surestep_ocp" / "data" / "robots")
-    monkeypatch.setattr(problem_mod, "REPO_ROOT", fake_site)  # site-packages: no pyproject.toml, no robots/
-    monkeypatch.setattr(problem_mod, "PACKAGE_DATA", fake_site / "surestep_ocp" / "data")
+    monkeypatch.setattr(paths, "REPO_ROOT", fake_site)  # site-packages: no pyproject.toml, no robots/
+    monkeypatch.setattr(paths, "PACKAGE_DATA", fake_site / "surestep_ocp" / "data")
     elsewhere = tmp_path / "elsewhere"
     elsewhere.mkdir()
     shutil.copy(REPO / "problems" / "needle_regrasp.yaml", elsewhere / "mine.yaml")
@@ -37,14 +39,14 @@ def test_problem_copied_elsewhere_finds_the_shipped_urdf(tmp_path, monkeypatch):
     p = load_problem(elsewhere / "mine.yaml")
     assert p.robot.urdf == (fake_site / "surestep_ocp" / "data" / "robots" / "psm.urdf").resolve()
     assert p.robot.urdf_rel == "robots/psm.urdf"
-    assert problem_mod.resolve_urdf(p.robot.urdf_rel) == fake_site / "surestep_ocp" / "data" / "robots" / "psm.urdf"
+    assert paths.resolve_urdf(p.robot.urdf_rel) == fake_site / "surestep_ocp" / "data" / "robots" / "psm.urdf"
 
 
 def test_missing_urdf_names_every_folder_looked_in(tmp_path, monkeypatch):
-    monkeypatch.setattr(problem_mod, "REPO_ROOT", tmp_path / "nowhere")
-    monkeypatch.setattr(problem_mod, "PACKAGE_DATA", tmp_path / "nodata")
+    monkeypatch.setattr(paths, "REPO_ROOT", tmp_path / "nowhere")
+    monkeypatch.setattr(paths, "PACKAGE_DATA", tmp_path / "nodata")
     shutil.copy(REPO / "problems" / "needle_regrasp.yaml", tmp_path / "p.yaml")
-    with pytest.raises(problem_mod.ProblemError) as exc:
+    with pytest.raises(ProblemError) as exc:
         load_problem(tmp_path / "p.yaml")
     msg = str(exc.value)
     assert "robot.urdf" in msg and "robots/psm.urdf" in msg and str(tmp_path) in msg and "\n" not in msg

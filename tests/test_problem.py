@@ -9,7 +9,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from surestep_ocp.errors import ProblemError, SurestepError
-from surestep_ocp.problem.problem import load_problem
+from surestep_ocp.problem.load import load_problem
 from surestep_ocp.problem.setup import build_setup
 
 PROBLEMS_DIR = Path(__file__).resolve().parents[1] / "problems"

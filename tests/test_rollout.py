@@ -154,7 +154,7 @@ def test_detection_changes_nothing_where_the_tool_is_always_seen(default_setup, 
 @pytest.fixture(scope="module")
 def moving():
     """Type 4 (the camera moves four times) at T = 20 and its straight-line plan in each step's camera frame."""
-    from surestep_ocp.problem.problem import load_problem
+    from surestep_ocp.problem.load import load_problem
     from surestep_ocp.problem.setup import build_setup
 
     setup = build_setup(load_problem(Path(__file__).resolve().parents[1] / "problems" / "type4_camera_moves.yaml"))

@@ -11,7 +11,7 @@ import pytest
 
 from surestep_ocp.model.lie import pose_to_matrix
 from surestep_ocp.solvers.methods import run_method
-from surestep_ocp.problem.problem import load_problem
+from surestep_ocp.problem.load import load_problem
 from surestep_ocp.problem.setup import build_setup
 
 PROBLEMS = Path(__file__).resolve().parents[1] / "problems"

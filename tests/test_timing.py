@@ -19,7 +19,8 @@ from surestep_ocp.solvers.baseline import straight_line
 from surestep_ocp.model.belief import COSINE_GUARD
 from surestep_ocp.errors import ProblemError
 from surestep_ocp.solvers.methods import run_method
-from surestep_ocp.problem.problem import TimingSpec, load_problem
+from surestep_ocp.problem.load import load_problem
+from surestep_ocp.problem.spec import TimingSpec
 from surestep_ocp.problem.setup import build_setup
 
 

@@ -81,10 +81,10 @@ def resolve_file(path: str | Path, repo_root: Path | None, sol: Solution | None 
     Tries `repo_root`, the current directory, the package's repository root, the
     solution's problem-file folder and the folders above the solution's source
     file; `example-robot-data:<path>` is looked up in that package
-    (`surestep_ocp.problem.problem.resolve_urdf`). Raises FileNotFoundError.
+    (`surestep_ocp.problem.paths.resolve_urdf`). Raises FileNotFoundError.
     """
     if str(path).startswith(ERD_PREFIX):
-        from surestep_ocp.problem.problem import resolve_urdf
+        from surestep_ocp.problem.paths import resolve_urdf
 
         found = resolve_urdf(str(path))
         if found.exists():

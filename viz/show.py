@@ -130,7 +130,7 @@ def _scene_errors(sols: Sequence[Solution]):
     import sys
     import warnings
 
-    from surestep_ocp.output.outputs import quiet_fd
+    from surestep_ocp.quiet import quiet_fd
 
     @contextlib.contextmanager
     def guard():

@@ -22,17 +22,10 @@ import numpy as np
 
 from ..errors import SurestepError
 from ..model.lie import matrix_to_pose
-from ..problem.problem import (
-    MAX_HORIZON,
-    EndpointSpec,
-    Problem,
-    _gradient,
-    _limits,
-    find_shipped,
-    load_problem,
-    read_yaml,
-    resolve_path,
-)
+from ..problem.load import load_problem, read_yaml
+from ..problem.parse import MAX_HORIZON, _gradient, _limits
+from ..problem.paths import find_shipped, resolve_path
+from ..problem.spec import EndpointSpec, Problem
 from ..model.robot import Robot
 from .pacing import PACES
 from .rollout import Detection

@@ -37,6 +37,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import SurestepError
+from ..model.limits.values import problem_limits
 from .evaluation_report import write_outputs
 from .rollout import MODES
 from ..output.solution import _jsonable, write_json_atomic, write_text_atomic
@@ -67,7 +68,6 @@ def executed_poses(setup, poses, pace: str) -> np.ndarray:
     poses = np.asarray(poses, float)
     if pace == "planned":
         return poses
-    from ..model.limits import problem_limits
     from .pacing import paced
 
     lim = problem_limits(setup)

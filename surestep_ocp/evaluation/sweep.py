@@ -66,7 +66,8 @@ def _merge(base: dict, over: dict) -> dict:
 
 def load_sweep(path: str | Path) -> dict:
     """Read a sweep file strictly and expand it: {'evaluation': Path, 'runs': [run dicts]}."""
-    from ..problem.problem import find_shipped, read_yaml
+    from ..problem.load import read_yaml
+    from ..problem.paths import find_shipped
 
     path = Path(path)
     tree = read_yaml(path)
@@ -138,7 +139,7 @@ def _methods(rd: Reader, node: Any, key: str) -> tuple[str, ...]:
 def write_run_files(sweep: dict, run: dict, out: Path) -> Path:
     """The run's evaluation file (and derived base problem) in `out`; returns the evaluation file's path."""
     from .configs import load_evaluation
-    from ..problem.problem import read_yaml
+    from ..problem.load import read_yaml
 
     ev_path = Path(sweep["evaluation"]).resolve()
     tree = read_yaml(ev_path)

@@ -42,7 +42,7 @@ def plans(setup, methods=METHODS, replanned: bool = False) -> dict:
     """Each method's waypoints, each in its step's camera frame (as `Solution.poses` holds them: `evaluate`
     re-expresses a plan made in the first camera frame); `gradient-paper` is `gradient` with `preset: paper`."""
     from ..solvers.methods import run_method
-    from ..problem.problem import GRADIENT_PRESETS, GradientSpec
+    from ..problem.spec import GRADIENT_PRESETS, GradientSpec
 
     out = {}
     for m in methods:
@@ -134,7 +134,7 @@ def success_table(problems_dir: Path, rollouts: int = 500, seed: int = 0, detect
     `rollouts`; 0 leaves it out); results[type]["ocp-replanned"]["replans"] has its re-plans' count, failures
     and times.
     """
-    from ..problem.problem import load_problem
+    from ..problem.load import load_problem
     from ..problem.setup import build_setup
 
     replan_rollouts = rollouts if replan_rollouts is None else replan_rollouts

@@ -11,6 +11,10 @@ from ..solvers.gradient import JOINT_NOISE_UNSUPPORTED
 from ..solvers.method_names import split_name
 from ..solvers.methods import COMPARE_METHODS, run_method
 from ..evaluation.metrics import comparison_rows, markdown_table
+from ..model.limits.enforcement import enforce
+from ..model.limits.report import markdown_rows, plan_report, summary_row
+from ..model.limits.values import problem_limits
+from ..problem.paths import resolve_urdf
 from .plots_compare import write_figures
 from ..problem.setup import Setup
 from .solution import Solution, write_json_atomic, write_text_atomic
@@ -34,8 +38,6 @@ def run_comparison(setup: Setup, methods: tuple[str, ...] = COMPARE_METHODS, pro
 def attach_motion_limits(setup: Setup, sol: Solution) -> None:
     """Record the plan's motion-limit report (limits.plan_report, with the problem's `limits:` overrides) in
     `sol.extras["motion_limits"]` (with `limits.enforce: true` also a failure over a limit, `limits.enforce`)."""
-    from ..model.limits import enforce, plan_report, problem_limits
-
     if any(q is None for q in sol.q):
         sol.extras["motion_limits"] = {"skipped": "a waypoint has no IK solution (see reachability)"}
         if setup.problem.limits.enforce:
@@ -76,16 +78,12 @@ def write_comparison(solutions: list[Solution], out_dir: Path, problem_path: str
 
 
 def _robot_urdf(solutions: list[Solution]):
-    from ..problem.problem import resolve_urdf
-
     p = resolve_urdf(str(solutions[0].robot.get("urdf", ""))) if solutions else None
     return p if p is not None and p.is_file() else None
 
 
 def limits_table(solutions: list[Solution]) -> str:
     """Markdown: each method's motion limits at the planned pace (docs/motion_limits_and_export.md; not enforced by the planners)."""
-    from ..model.limits import markdown_rows, summary_row
-
     reps = [(s.method, s.extras.get("motion_limits")) for s in solutions]
     rows = [summary_row(m, r) for m, r in reps if isinstance(r, dict) and "violations" in r]
     if not rows:

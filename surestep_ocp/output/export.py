@@ -1,7 +1,7 @@
 """`surestep export SOLUTION.json --format csv|json|ros2 --output F`: a time-stamped joint trajectory.
 
 First (`--timing auto`, the default) the planned curve is tried: the curve through the waypoints at the planned
-times that the OCP's limit rows bound with `limits.enforce: true` (`limits.py`, "the played curve": a quintic
+times that the OCP's limit rows bound with `limits.enforce: true` (`model/limits/curve.py`: a quintic
 Hermite per step with the waypoints' finite-difference velocities and accelerations). It is checked at every
 sample written and at CURVE_CHECK_PER_STEP points per step against the joint velocity and acceleration limits and
 the tool's speeds (Pinocchio's frame Jacobian); within them (to REL_TOL) it is written as it is, the duration the
@@ -45,8 +45,11 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import SurestepError, shown
-from ..model.limits import CURVE_NAME, JAW, MotionLimits, motion_limits, parse_overrides
-from .outputs import check_output_file, quiet_fd
+from ..model.limits.curve import CURVE_NAME, evaluate_curve
+from ..model.limits.values import JAW, REL_TOL, MotionLimits, motion_limits, parse_overrides
+from ..problem.paths import resolve_urdf
+from ..quiet import quiet_fd
+from .outputs import check_output_file
 from .solution import write_json_atomic, write_text_atomic
 
 FORMATS = ("csv", "json", "ros2")
@@ -275,13 +278,11 @@ def within_position_limits(q: np.ndarray, robot) -> tuple[np.ndarray, float]:
 
 def planned_curve(q: np.ndarray, step_s: float, limits: MotionLimits, rate_hz: float = DEFAULT_RATE_HZ,
                   robot=None, tool_frame: str | None = None) -> tuple[Trajectory | None, dict]:
-    """The planned curve (`limits.py`, "the played curve": the curve the OCP's rows bound with `limits.enforce`)
+    """The planned curve (`model/limits/curve.py`: the curve the OCP's rows bound with `limits.enforce`)
     through the waypoints `q` at the planned times, sampled every 1/rate_hz s and at every waypoint; checked against
     the joint velocity and acceleration limits and the tool's speeds at those samples and at CURVE_CHECK_PER_STEP
     points per step. Returns (the trajectory, or None when a limit is exceeded by more than REL_TOL; the check:
     peak ratios per family and `within`)."""
-    from ..model.limits import REL_TOL, evaluate_curve
-
     q = np.asarray(q, float)
     T, n = len(q) - 1, q.shape[1]
     wp_t = step_s * np.arange(T + 1)
@@ -514,7 +515,6 @@ def export_solution(solution: str | Path, fmt: str, output: str | Path, *, rate_
                     acceleration: dict | None = None, tool_speed: float | None = None,
                     tool_rotation: float | None = None, plot: bool = True,
                     timing: str = "auto") -> tuple[Trajectory, list[Path]]:
-    from ..problem.problem import resolve_urdf
     from ..model.robot import Robot
 
     if fmt not in FORMATS:

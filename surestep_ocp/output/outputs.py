@@ -8,17 +8,16 @@ special file; its folder must exist or be creatable, and be writable. Every refu
 one-line `SurestepError` (exit 2).
 
 Also here: `check_finite`, which refuses to write NaN or Infinity (naming the key that
-diverged), and `quiet_fd`, which keeps C libraries' chatter off the terminal.
+diverged).
 """
 
 from __future__ import annotations
 
-import contextlib
 import math
 import os
 import stat
 import tempfile
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
@@ -158,20 +157,3 @@ def check_finite(obj: Any, what: str) -> None:
     bad = first_non_finite(obj)
     if bad is not None:
         raise NonFinite(what, *bad)
-
-
-@contextlib.contextmanager
-def quiet_fd(fd: int = 2) -> Iterator[None]:
-    """Silence a file descriptor (C libraries printing to stderr) for the duration of the block."""
-    try:
-        saved = os.dup(fd)
-    except OSError:  # no such descriptor: nothing to silence
-        yield
-        return
-    try:
-        with open(os.devnull, "wb") as null:
-            os.dup2(null.fileno(), fd)
-            yield
-    finally:
-        os.dup2(saved, fd)
-        os.close(saved)

@@ -5,7 +5,7 @@ pace (waypoint t at t * step_s), each method in its `styles` look. `plot_traject
 (written by `surestep export` as `<stem>_motion.png`): the exported trajectory, its waypoints
 marked. Both: one row per joint, its position against the position limits (dashed), its velocity
 and its acceleration against theirs (a plan's acceleration is the change of its step velocity at
-each waypoint, at rest before the first and after the last, as `limits.py` checks it); last row
+each waypoint, at rest before the first and after the last, as `model/limits/report.py` checks it); last row
 the tool's translation and rotation speed.
 """
 
@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..model.limits.report import rotation_angle
 from .solution import write_text_atomic
 from .styles import style_of, styles_of
 
@@ -129,7 +130,6 @@ def _decorate(axes, names, lo, hi, vmax, amax, tool_mm_s, tool_rad_s):
 
 def tool_speeds(urdf: str | Path, frame: str, times: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Tool translation [m/s] and rotation [rad/s] speeds between consecutive samples (Pinocchio FK)."""
-    from ..model.limits import rotation_angle
     from ..model.robot import Robot
 
     robot = Robot(urdf, frame=frame)

@@ -12,9 +12,10 @@ from ..errors import FrameNotFound, ProblemError, UnreachablePose, UnsupportedJo
 from ..model.joint_noise import joint_noises
 from ..model.lie import (continued, matrix_to_pose, np_exp_many, np_means, np_poses, np_quat_of_matrix,
                          pose_to_matrix, quat_mul)
-from .problem import EndpointSpec, Problem
+from .spec import EndpointSpec, Problem
 from ..model.robot import Robot
 from .solver_config import resolve
+from ..quiet import quiet_fd
 
 # [rad or m] A batch-Newton IK solution farther than this from its guess (in any joint) is
 # taken as another IK branch and the waypoint is solved from the previous one instead.
@@ -184,8 +185,6 @@ def load_robot(file: str, key: str, spec, moving: bool = False) -> Robot:
 
     `moving`: the tracked frame must be moved by at least one joint (not the model's root).
     """
-    from ..output.outputs import quiet_fd
-
     try:
         with quiet_fd(2):  # urdfdom prints parse errors on stderr; the error below says it in one line
             robot = Robot(spec.urdf, spec.base_pose, spec.frame, spec.grasp)

@@ -33,7 +33,7 @@ from .nlp_cache import newton_solver
 from .ocp import resolved_solver, solve_ocp_warm
 from .strategy import records, replan_strategy
 from .strategy import run as run_strategy
-from ..problem.problem import Problem
+from ..problem.spec import Problem
 from ..problem.setup import Setup, build_setup
 from ..output.solution import Solution, evaluate
 

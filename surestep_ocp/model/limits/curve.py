@@ -1,0 +1,156 @@
+"""The curve played at a plan's pace (a quintic Hermite through the waypoints) and the linear rows
+that bound its velocity and acceleration (the OCP's limit rows, `CURVE_ROWS = "curve"`).
+
+`surestep export` plays it (`evaluate_curve`); the OCP's transcription bounds it
+(`curve_control_rows`, `curve_point_weights`); docs/motion_limits_and_export.md, "The curve and its
+rows", derives and measures it.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+# The curve `surestep export` plays at the planned times when it is within the limits, and the one
+# whose limits the OCP's rows bound (with `limits.CURVE_ROWS = "curve"`): between waypoints t and
+# t+1 the quintic Hermite polynomial with the waypoints' positions and their finite-difference
+# velocities and accelerations at both ends,
+#   v_t = (q_t+1 - q_t-1) / (2 dt),  a_t = (q_t+1 - 2 q_t + q_t-1) / dt^2   (interior waypoints),
+#   v_0 = v_T = 0,  a_0 = (q_1 - q_0) / dt^2,  a_T = (q_T-1 - q_T) / dt^2
+#                                                         (from and to rest, as plan_report),
+# so it is twice continuously differentiable, passes every waypoint at its planned time, and its
+# knot accelerations are exactly the finite-difference accelerations `plan_report` checks. Each
+# piece depends on four waypoints (t-1 .. t+2), so every row is local. Velocity (a quartic) and
+# acceleration (a cubic) are linear in the waypoints, so their Bernstein control points are too, and
+# a polynomial lies between its smallest and largest control point: bounding the control points
+# bounds the curve everywhere (a sufficient linear condition). The tool's speed is nonlinear:
+# bounded at TOOL_POINTS of every piece (the export checks it densely and says so).
+
+# parts of a step for the control-point bounds (tighter with more)
+CURVE_PIECES = {"velocity": 1, "acceleration": 3}
+# fractions of a step where the tool-speed rows bound the curve
+TOOL_POINTS = (0.0, 0.25, 0.5, 0.75)
+TOOL_MARGIN = 0.02  # the rows bound the tool's speeds at those points to (1 - this) of their limits
+CURVE_NAME = ("quintic Hermite through the waypoints, finite-difference velocities and "
+              "accelerations at them")
+
+
+def _quintic_basis() -> np.ndarray:
+    """(6, 6): power coefficients c_0..c_5 of p(s), s in [0, 1], from (p0, p0', p0'', p1, p1', p1'')
+    (d/ds)."""
+    M = np.zeros((6, 6))
+    for row, (s, d) in enumerate(((0, 0), (0, 1), (0, 2), (1, 0), (1, 1), (1, 2))):
+        for k in range(6):
+            if k >= d:
+                M[row, k] = math.perm(k, d) * (s ** (k - d) if k > d else 1.0)
+    return np.linalg.inv(M)
+
+
+_QUINTIC = _quintic_basis()
+
+
+def knot_derivatives(T: int, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """(T+1, T+1) maps of one joint's waypoints to its knot velocities and accelerations (see
+    above)."""
+    Dv, Da = np.zeros((T + 1, T + 1)), np.zeros((T + 1, T + 1))
+    for i in range(1, T):
+        Dv[i, i + 1], Dv[i, i - 1] = 1 / (2 * dt), -1 / (2 * dt)
+        Da[i, i - 1], Da[i, i], Da[i, i + 1] = 1 / dt**2, -2 / dt**2, 1 / dt**2
+    Da[0, 0], Da[0, 1] = -1 / dt**2, 1 / dt**2
+    Da[T, T], Da[T, T - 1] = -1 / dt**2, 1 / dt**2
+    return Dv, Da
+
+
+def curve_coefficients(T: int, dt: float) -> np.ndarray:
+    """(T, 6, T+1): for piece t, the power coefficients in s = (time - t dt) / dt of the curve, as a
+    linear map of one joint's waypoints (the same for every joint)."""
+    Dv, Da = knot_derivatives(T, dt)
+    E = np.eye(T + 1)
+    out = np.zeros((T, 6, T + 1))
+    for t in range(T):
+        data = np.vstack([E[t], dt * Dv[t], dt**2 * Da[t],
+                          E[t + 1], dt * Dv[t + 1], dt**2 * Da[t + 1]])
+        out[t] = _QUINTIC @ data
+    out[np.abs(out) < 1e-12 * np.abs(out).max()] = 0.0  # rounding of exact zeros
+    return out
+
+
+def _to_bernstein(n: int) -> np.ndarray:
+    """(n+1, n+1): Bernstein control points of a degree-n polynomial on [0, 1] from its power
+    coefficients."""
+    B = np.zeros((n + 1, n + 1))
+    for j in range(n + 1):
+        for k in range(j + 1):
+            B[j, k] = math.comb(j, k) / math.comb(n, k)
+    return B
+
+
+def derivative_power(order: int, dt: float) -> np.ndarray:
+    """(6 - order, 6): power coefficients of the order-th time derivative of a quintic in s = time /
+    dt."""
+    D = np.zeros((6 - order, 6))
+    for k in range(order, 6):
+        D[k - order, k] = math.perm(k, order) / dt**order
+    return D
+
+
+def _reparametrise(n: int, lo: float, hi: float) -> np.ndarray:
+    """(n+1, n+1): power coefficients in sigma of p(lo + (hi - lo) sigma) from those of p(s)."""
+    R = np.zeros((n + 1, n + 1))
+    for j in range(n + 1):
+        for k in range(j, n + 1):
+            R[j, k] = math.comb(k, j) * lo ** (k - j) * (hi - lo) ** j
+    return R
+
+
+def curve_control_rows(T: int, dt: float,
+                       pieces: dict | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Rows (linear maps of one joint's waypoints) whose absolute values bound the curve's
+    |velocity| and |acceleration| everywhere: the knot values once, and the interior Bernstein
+    control points of each step split in `pieces[kind]` equal parts (default CURVE_PIECES; more
+    parts, tighter bounds: the control points converge to the curve's values, measured in
+    docs/motion_limits_and_export.md)."""
+    pieces = {**CURVE_PIECES, **(pieces or {})}
+    C = curve_coefficients(T, dt)
+    out = []
+    for order, kind in ((1, "velocity"), (2, "acceleration")):
+        m = int(pieces[kind])
+        n = 5 - order
+        D = derivative_power(order, dt)
+        B = _to_bernstein(n)
+        rows = [(B @ D)[0] @ C[0]]
+        for t in range(T):
+            for k in range(m):
+                ctrl = B @ _reparametrise(n, k / m, (k + 1) / m) @ D @ C[t]  # (n+1, T+1)
+                rows += list(ctrl[1:])  # its first is the last one of the part before
+        out.append(np.array(rows))
+    return out[0], out[1]
+
+
+def curve_point_weights(T: int, dt: float, t: int, s: float) -> tuple[np.ndarray, np.ndarray]:
+    """(T+1,) weights of one joint's waypoints giving the curve's position and velocity in piece t
+    at fraction s."""
+    C = curve_coefficients(T, dt)[t]
+    powers = np.array([s**k for k in range(6)])
+    dpow = np.array([k * s ** (k - 1) if k else 0.0 for k in range(6)]) / dt
+    return powers @ C, dpow @ C
+
+
+def evaluate_curve(q: np.ndarray, dt: float,
+                   times: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The curve through the waypoints `q` ((T+1, n)) at the planned pace: positions, velocities and
+    accelerations at `times` ([0, T dt]), each (len(times), n)."""
+    q = np.asarray(q, float)
+    T = len(q) - 1
+    coef = np.einsum("tkm,mj->tkj", curve_coefficients(T, dt), q)  # (T, 6, n)
+    x = np.asarray(times, float) / dt
+    piece = np.clip(np.floor(x).astype(int), 0, T - 1)
+    s = x - piece
+    out = []
+    for order in range(3):
+        D = derivative_power(order, dt) if order else np.eye(6)
+        c = np.einsum("ik,tkj->tij", D, coef)[piece]  # (N, 6 - order, n)
+        p = np.stack([s**k for k in range(6 - order)], axis=1)  # (N, 6 - order)
+        out.append(np.einsum("nk,nkj->nj", p, c))
+    return out[0], out[1], out[2]

@@ -1,0 +1,32 @@
+"""`enforce`: with `limits.enforce: true`, a successful Solution whose plan breaks a motion limit
+becomes a failure (status `Motion_Limits_Violated`), its limit report recorded in its extras."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .report import plan_report
+from .values import VIOLATED, MotionLimits, problem_limits
+
+
+def enforce(setup, sol, limits: MotionLimits | None = None) -> dict:
+    """With `limits.enforce: true`: check the plan of `sol` (a Solution), record the report in
+    `sol.extras["motion_limits"]`, and turn a successful solution that breaks a limit into a failure
+    with status `Motion_Limits_Violated` (the solver's own status kept as `extras["solver_status"]`;
+    a failed solution keeps its status). Returns the report (an empty dict when the limits are not
+    enforced)."""
+    if not setup.problem.limits.enforce:
+        return {}
+    if any(q is None for q in sol.q):
+        rep = {"skipped": "a waypoint has no IK solution (see reachability)", "ok": False}
+    else:
+        rep = plan_report(setup.robot, np.array(sol.q, float), setup.problem.timing.step_s,
+                          limits or problem_limits(setup), tool_frame=setup.robot.frame)
+    rep["enforced"] = True
+    sol.extras["motion_limits"] = rep
+    # a failure keeps its own status (the report says what it breaks)
+    if not rep["ok"] and sol.success:
+        sol.extras["solver_status"] = sol.status
+        sol.success, sol.status = False, VIOLATED
+    return rep
+

@@ -1,0 +1,113 @@
+"""A plan measured against its motion limits at its planned pace, one step per `timing.step_s`.
+
+- joint velocity `|q_t+1 - q_t| / step_s`;
+- joint acceleration `|v_t - v_t-1| / step_s`, the plan starting and ending at rest;
+- the tool's Cartesian speed, translation and rotation per step;
+- the distance of the end of the shaft from the RCM (PSM only).
+
+`plan_report` gives every violation; `summary_row` and `markdown_rows` make the compare table.
+"""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+
+from ...errors import SurestepError
+from .values import RCM_FRAME, REL_TOL, MotionLimits, is_psm
+
+
+def rotation_angle(Ra: np.ndarray, Rb: np.ndarray) -> float:
+    """Angle [rad] of Ra^T Rb."""
+    c = (np.trace(Ra.T @ Rb) - 1.0) / 2.0
+    return float(np.arccos(np.clip(c, -1.0, 1.0)))
+
+
+def plan_report(robot, q: np.ndarray, step_s: float, limits: MotionLimits,
+                tool_frame: str | None = None) -> dict:
+    """Every limit violation of the joint plan `q` ((T+1, nq), robot joint order) at one step per
+    `step_s`.
+
+    `robot` is a `surestep_ocp.model.robot.Robot`; the tool is its `tool_frame` (default: its
+    tracked frame, without a needle offset). Returns a JSON-ready dict: per-joint peak velocity and
+    acceleration and their ratio to the limit, the tool's peak speeds, the minimum RCM distance (PSM
+    only), `violations` (one entry per step and quantity over its limit) and `ok`.
+    """
+    q = np.asarray(q, float)
+    if q.ndim != 2 or q.shape[1] != len(limits.joint_names):
+        raise SurestepError(f"plan of shape {q.shape} does not match the "
+                            f"{len(limits.joint_names)} joints {', '.join(limits.joint_names)}")
+    vel = np.diff(q, axis=0) / step_s  # (T, nq): velocity over step t
+    # at rest before and after
+    padded = np.vstack([np.zeros((1, q.shape[1])), vel, np.zeros((1, q.shape[1]))])
+    acc = np.diff(padded, axis=0) / step_s  # (T+1, nq): at waypoint t
+    frame = tool_frame or robot.frame
+    poses = [robot.frame_pose(qi, frame) for qi in q]
+    pairs = list(itertools.pairwise(poses))
+    dp = np.array([np.linalg.norm(b[:3, 3] - a[:3, 3]) for a, b in pairs]) / step_s
+    dr = np.array([rotation_angle(a[:3, :3], b[:3, :3]) for a, b in pairs]) / step_s
+    violations = []
+    for kind, values, lim in (("joint_velocity", vel, limits.velocity), ("joint_acceleration", acc,
+                                                                       limits.acceleration)):
+        over = np.argwhere(np.abs(values) > lim * (1 + REL_TOL))
+        for t, j in over:
+            violations.append({"kind": kind, "step": int(t), "joint": limits.joint_names[j],
+                               "value": float(values[t, j]), "limit": float(lim[j])})
+    for kind, values, lim in (("tool_speed", dp, limits.tool_speed),
+                              ("tool_rotation", dr, limits.tool_rotation)):
+        for t in np.flatnonzero(values > lim * (1 + REL_TOL)):
+            violations.append({"kind": kind, "step": int(t), "value": float(values[t]),
+                               "limit": float(lim)})
+    rcm = None
+    if is_psm(robot):
+        dist = np.array([np.linalg.norm(robot.frame_pose(qi, RCM_FRAME)[:3, 3]) for qi in q])
+        rcm = float(dist.min())
+        for t in np.flatnonzero(dist < limits.rcm_min_distance * (1 - REL_TOL)):
+            violations.append({"kind": "rcm_distance", "step": int(t), "value": float(dist[t]),
+                               "limit": float(limits.rcm_min_distance)})
+    peak_v, peak_a = np.abs(vel).max(axis=0), np.abs(acc).max(axis=0)
+    return {
+        "step_s": float(step_s),
+        "limits": limits.to_dict(),
+        "peak_joint_velocity": peak_v.tolist(),
+        "peak_joint_acceleration": peak_a.tolist(),
+        "velocity_ratio": (peak_v / limits.velocity).tolist(),
+        "acceleration_ratio": (peak_a / limits.acceleration).tolist(),
+        "peak_tool_speed_m_s": float(dp.max()) if len(dp) else 0.0,
+        "peak_tool_rotation_rad_s": float(dr.max()) if len(dr) else 0.0,
+        "min_rcm_distance_m": rcm,
+        "tool_speed_per_step_m_s": dp.tolist(),
+        "tool_rotation_per_step_rad_s": dr.tolist(),
+        "violations": violations,
+        "ok": not violations,
+    }
+
+
+def summary_row(method: str, report: dict) -> dict:
+    """One row of the compare table: worst ratios and their joints, tool speeds, RCM distance,
+    count."""
+    names = report["limits"]["joint_names"]
+    jv, ja = int(np.argmax(report["velocity_ratio"])), int(np.argmax(report["acceleration_ratio"]))
+    rcm = report["min_rcm_distance_m"]
+    return {
+        "method": method,
+        "max velocity / limit": f"{report['velocity_ratio'][jv]:.2f} ({names[jv]})",
+        "max accel. / limit": f"{report['acceleration_ratio'][ja]:.1f} ({names[ja]})",
+        "tool speed [mm/s]": f"{1e3 * report['peak_tool_speed_m_s']:.0f} / "
+                             f"{1e3 * report['limits']['tool_speed_m_s']:.0f}",
+        "tool rotation [rad/s]": f"{report['peak_tool_rotation_rad_s']:.2f} / "
+                                 f"{report['limits']['tool_rotation_rad_s']:.2f}",
+        "min RCM distance [mm]": "-" if rcm is None else
+                                 f"{1e3 * rcm:.1f} / "
+                                 f"{1e3 * report['limits']['rcm_min_distance_m']:.0f}",
+        "violations": str(len(report["violations"])),
+    }
+
+
+def markdown_rows(rows: list[dict]) -> str:
+    keys = list(rows[0])
+    lines = ["| " + " | ".join(keys) + " |", "|" + "---|" * len(keys)]
+    lines += ["| " + " | ".join(r[k] for k in keys) + " |" for r in rows]
+    return "\n".join(lines)
+
