@@ -5,14 +5,30 @@ PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed-stamp
 PROBLEM ?= problems/needle_regrasp.yaml
 OUT    ?= out
+# The lock: pinned versions of the run and test environments (Python 3.11, linux), written by `make lock`.
+LOCK   := requirements/run.txt requirements/test.txt
+LATEST := .venv-latest
 
-.PHONY: run test install browser compiler clean package-check
+.PHONY: run test install browser compiler clean package-check lock test-latest
 
-$(STAMP): pyproject.toml
+# .venv from the lock (the test lock holds the run one's pins), then the package itself without dependencies.
+$(STAMP): pyproject.toml $(LOCK)
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e ".[test]"
+	$(PY) -m pip install --quiet -r requirements/test.txt
+	$(PY) -m pip install --quiet --no-deps -e .
 	touch $(STAMP)
+
+# Refresh the lock: the newest versions pyproject.toml allows, resolved by uv (the dev extra's tool) for
+# CPython 3.11 on x86-64 linux; the test lock is constrained to the run lock's pins.
+# `make lock LOCK_UPGRADE=` keeps the current pins and only adds or removes what pyproject.toml changed.
+LOCK_UPGRADE ?= --upgrade
+UV_COMPILE = $(VENV)/bin/uv pip compile --quiet $(LOCK_UPGRADE) --python-version 3.11 \
+	--python-platform x86_64-unknown-linux-gnu --custom-compile-command "make lock" --annotation-style line pyproject.toml
+lock:
+	test -x $(VENV)/bin/uv || ($(PYTHON) -m venv $(VENV) && $(PY) -m pip install --quiet "uv>=0.5")
+	$(UV_COMPILE) -o requirements/run.txt
+	$(UV_COMPILE) --extra test --constraint requirements/run.txt -o requirements/test.txt
 
 install: $(STAMP)
 
@@ -37,6 +53,15 @@ compiler:
 test: $(STAMP) browser compiler
 	$(PY) -m pytest -n 2 -q
 
+# The tests against the newest releases pyproject.toml allows (CI's early warning; not part of `make test`):
+# a fresh $(LATEST) with the test extra installed unpinned.
+test-latest: browser compiler
+	$(PYTHON) -m venv --clear $(LATEST)
+	$(LATEST)/bin/python -m pip install --quiet --upgrade pip
+	$(LATEST)/bin/python -m pip install --quiet --upgrade -e ".[test]"
+	$(LATEST)/bin/python -m pip list --format=freeze | grep -iE "^(numpy|scipy|casadi|pin)=="
+	$(LATEST)/bin/python -m pytest -n 2 -q
+
 # The installable package from scratch: a wheel built from a clean clone of HEAD, installed with its
 # dependencies from the package index into a fresh venv, solves a problem file copied to another folder.
 # (Slow: it downloads and installs every dependency; `make test` runs a lighter version of it.)
@@ -56,4 +81,4 @@ package-check:
 	@echo "package-check: ok ($(PKG_TMP))"
 
 clean:
-	rm -rf $(VENV) $(OUT)
+	rm -rf $(VENV) $(LATEST) $(OUT)
