@@ -1,8 +1,9 @@
-"""`surestep export SOLUTION.json --format csv|json|ros2 --output F`: a time-stamped joint trajectory.
+"""`surestep export SOLUTION.json --format csv|json|ros2|rosbag2 --output F`: a time-stamped joint trajectory.
 
 The command: the solution read (`export_load.py`), its waypoints timed within its motion limits
 (`export_timing.py`: the planned curve at the planned times when within them, else toppra's retiming) and
-written (`export_writers.py`), with `<stem>_motion.png` beside it (`plots_motion.py`). `time_parametrise` and
+written (`export_writers.py`; the bag: `export_rosbag.py`) with the joints named for the consumer
+(`joint_names.py`), and `<stem>_motion.png` beside it (`plots_motion.py`). `time_parametrise` and
 `within_position_limits` stay importable from here (the benchmarks import them, in older trees too).
 """
 
@@ -14,11 +15,12 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import SurestepError, shown
-from ..model.limits import parse_overrides
+from ..model.limits import JAW, parse_overrides
 from .export_load import limits_of, load_solution, step_of, within_position_limits
 from .export_timing import DEFAULT_RATE_HZ, TIMINGS, Trajectory, time_parametrise
 from .export_writers import FORMATS, jaw_path, timing_text, write
-from .outputs import check_output_file, quiet_fd
+from .joint_names import PRESETS, joint_naming
+from .outputs import check_new_dir, check_output_file, quiet_fd
 
 __all__ = ["export_solution", "summary", "register", "time_parametrise", "within_position_limits", "Trajectory"]
 
@@ -26,14 +28,24 @@ __all__ = ["export_solution", "summary", "register", "time_parametrise", "within
 def export_solution(solution: str | Path, fmt: str, output: str | Path, *, rate_hz: float = DEFAULT_RATE_HZ,
                     step_s: float | None = None, velocity: dict | None = None,
                     acceleration: dict | None = None, tool_speed: float | None = None,
-                    tool_rotation: float | None = None, plot: bool = True,
-                    timing: str = "auto") -> tuple[Trajectory, list[Path]]:
+                    tool_rotation: float | None = None, plot: bool = True, timing: str = "auto",
+                    joint_names: str | None = None, arm: str | None = None) -> tuple[Trajectory, list[Path]]:
+    """Export the plan in `solution` (module docstring); `joint_names`: `--joint-names` (`joint_names.py`);
+    `arm`: the bag's arm name (rosbag2 only, default PSM1). Returns the trajectory and the files written."""
     from ..problem.problem import resolve_urdf
     from ..model.robot import Robot
 
     if fmt not in FORMATS:
         raise SurestepError(f"unknown format '{fmt}'; allowed: {', '.join(FORMATS)}")
+    if arm is not None and fmt != "rosbag2":
+        raise SurestepError(f"--arm names the bag's topics: it applies to --format rosbag2 only, not {fmt}")
+    if fmt == "rosbag2":
+        from .export_rosbag import DEFAULT_ARM, check_arm
+
+        arm = check_arm(DEFAULT_ARM if arm is None else arm)
     sol = load_solution(solution)
+    names = list(sol["joint_names"])
+    naming = joint_naming(joint_names, [n for n in names if n != JAW], [n for n in names if n == JAW])
     urdf = resolve_urdf(str(sol["robot"].get("urdf", "")))
     if not urdf.is_file():
         raise SurestepError(f"{solution}: robot.urdf '{sol['robot'].get('urdf')}' not found ({urdf})")
@@ -41,8 +53,10 @@ def export_solution(solution: str | Path, fmt: str, output: str | Path, *, rate_
         if x is not None and not (math.isfinite(x) and x > 0):
             raise SurestepError(f"{flag} must be a positive number, got {x:g}")
     output = Path(output)
-    targets = [output] + ([jaw_path(output)] if fmt == "ros2" else []) + (
+    targets = ([] if fmt == "rosbag2" else [output]) + ([jaw_path(output)] if fmt == "ros2" else []) + (
         [output.with_name(f"{output.stem}_motion.png")] if plot else [])
+    if fmt == "rosbag2":  # a new (or empty) directory, written whole
+        check_new_dir(output, inputs=[solution, urdf], what="the bag")
     for path in targets:  # before any work: never the solution or the URDF read here, never a folder or a device
         check_output_file(path, inputs=[solution, urdf], what="the export")
     frame = str(sol["robot"].get("frame") or "tool")
@@ -64,8 +78,8 @@ def export_solution(solution: str | Path, fmt: str, output: str | Path, *, rate_
     meta = {"source": str(solution), "method": sol.get("method"), "problem": sol.get("problem"),
             "robot": {"urdf": sol["robot"].get("urdf"), "frame": sol["robot"].get("frame")},
             "step_s_source": step_source, "limits_enforced_in_plan": (sol.get("limits") or {}).get("enforce"),
-            "waypoints_clipped_by": clipped}
-    files = write(traj, fmt, output, meta)
+            "waypoints_clipped_by": clipped, "joint_naming": naming.to_dict()}
+    files = write(traj, fmt, output, meta, naming, **({"rate_hz": rate_hz, "arm": arm} if fmt == "rosbag2" else {}))
     if plot:
         from .plots_motion import plot_trajectory
 
@@ -102,7 +116,7 @@ def cmd_export(args) -> int:
         velocity=parse_overrides(args.velocity_limit, "--velocity-limit"),
         acceleration=parse_overrides(args.acceleration_limit, "--acceleration-limit"),
         tool_speed=args.tool_speed, tool_rotation=args.tool_rotation_speed, plot=not args.no_plot,
-        timing=args.timing)
+        timing=args.timing, joint_names=args.joint_names, arm=args.arm)
     print(summary(traj))
     for f in files:
         print(f"wrote       {f}")
@@ -112,12 +126,19 @@ def cmd_export(args) -> int:
 def register(sub) -> None:
     """The `export` subcommand (surestep_ocp/cli.py)."""
     e = sub.add_parser("export", help="time-parametrise a solution's joint plan within its motion limits "
-                                      "and write it as CSV, JSON or a ROS 2 JointTrajectory (YAML)")
+                                      "and write it as CSV, JSON, a ROS 2 JointTrajectory (YAML) or a ROS 2 bag")
     e.add_argument("solution", metavar="SOLUTION.json")
     e.add_argument("--format", required=True, choices=FORMATS)
-    e.add_argument("--output", "-o", required=True, help="file to write (ros2: the jaw goes to <stem>_jaw<suffix>)")
+    e.add_argument("--output", "-o", required=True, help="file to write (ros2: the jaw goes to <stem>_jaw<suffix>; "
+                   "rosbag2: a new or empty directory)")
     e.add_argument("--rate", type=float, default=DEFAULT_RATE_HZ, help="samples per second (default 100; "
-                   "every waypoint's time is a sample too)")
+                   "every waypoint's time is a sample too; rosbag2: the servo_jp set-points' rate)")
+    e.add_argument("--joint-names", metavar="PRESET|NAMES",
+                   help=f"the joint names written: {', '.join(PRESETS)} (outer_yaw, ..., outer_wrist_yaw: the dVRK's "
+                        "ROS model and older kinematics files) or 6 comma-separated names (default: dvrk, the dVRK's "
+                        "current kinematics files' yaw, ..., wrist_yaw; other robots: their URDF's names)")
+    e.add_argument("--arm", metavar="NAME", help="rosbag2: the arm's name in the topics, /NAME/servo_jp ... "
+                   "(default: PSM1)")
     e.add_argument("--step-s", type=float, help="seconds per planned step (default: the solution's "
                    "timing.step_s, else 0.05)")
     e.add_argument("--velocity-limit", action="append", metavar="JOINT=V",

@@ -183,7 +183,7 @@ def planned_curve(q: np.ndarray, step_s: float, limits: MotionLimits, rate_hz: f
     from ..model.limits import REL_TOL, evaluate_curve
 
     q = np.asarray(q, float)
-    T, n = len(q) - 1, q.shape[1]
+    T = len(q) - 1
     wp_t = step_s * np.arange(T + 1)
     times = _sample_times(float(wp_t[-1]), wp_t, rate_hz)
     check = np.union1d(times, np.linspace(0.0, wp_t[-1], CURVE_CHECK_PER_STEP * T + 1))
