@@ -27,7 +27,7 @@ from ..errors import SurestepError, shown
 from .export_timing import Trajectory
 from .export_writers import FORMAT_ID, channels, timing_text, to_joint_trajectory, written_names
 from .joint_names import JointNaming
-from .outputs import write_dir_atomic
+from .outputs import check_finite, write_dir_atomic
 
 DEFAULT_ARM = "PSM1"
 ARM_NAME = re.compile(r"[A-Za-z][A-Za-z0-9_]*\Z")
@@ -79,6 +79,7 @@ def write_bag(traj: Trajectory, output: Path, meta: dict, naming: JointNaming | 
         T["std_msgs/msg/Header"]
     JointState, JT, JTP = T["sensor_msgs/msg/JointState"], T["trajectory_msgs/msg/JointTrajectory"], \
         T["trajectory_msgs/msg/JointTrajectoryPoint"]
+    check_finite({"q": traj.q, "qd": traj.qd, "qdd": traj.qdd}, "the trajectory")  # never NaN or Infinity in a bag
     arm_idx, jaw_idx = channels(traj)
     names = written_names(traj, naming)
     start = time.time_ns() if start_ns is None else int(start_ns)
