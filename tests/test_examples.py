@@ -16,6 +16,7 @@ ROOT = Path(__file__).resolve().parents[1]
     ("solve_and_plot.py", ["--horizon", "6"], "solve_and_plot.png"),
     ("replan_loop.py", ["--horizon", "6"], None),
     ("batch_evaluation.py", ["--horizon", "6", "--methods", "baseline", "ocp"], "batch.csv"),
+    ("dvrk_servo_jp.py", ["--horizon", "6"], "servo_jp_trajectory.json"),  # a dry run (no --robot)
 ])
 def test_example_runs(tmp_path, script, extra, wrote):
     args = [sys.executable, str(ROOT / "examples" / script), *extra]
@@ -26,6 +27,8 @@ def test_example_runs(tmp_path, script, extra, wrote):
     assert run.returncode == 0, run.stderr[-2000:]
     if wrote:
         assert (tmp_path / wrote).stat().st_size > 0
+        if script == "dvrk_servo_jp.py":  # without the dVRK's client: what would be sent, at 100 Hz
+            assert "dry run: " in run.stdout and "servo_jp([" in run.stdout and "at 100 Hz" in run.stdout
     else:
         assert "re-plan median" in run.stdout
 

@@ -1,8 +1,9 @@
 """Where commands may write: output files and folders checked before the work starts.
 
-A command's outputs are checked up front (`check_output_file`, `check_output_dir`) and
-written whole or not at all (`solution.write_text_atomic`: a temporary file beside the
-target, renamed over it). An output may replace a regular file, never one of the
+A command's outputs are checked up front (`check_output_file`, `check_output_dir`,
+`check_new_dir`) and written whole or not at all (`solution.write_text_atomic`: a temporary
+file beside the target, renamed over it; `write_dir_atomic`: a temporary directory beside it,
+renamed onto a missing or empty one). An output may replace a regular file, never one of the
 command's inputs (the same file under any name), a directory, a device or another
 special file; its folder must exist or be creatable, and be writable. Every refusal is a
 one-line `SurestepError` (exit 2).
@@ -15,6 +16,7 @@ from __future__ import annotations
 
 import math
 import os
+import shutil
 import stat
 import tempfile
 from collections.abc import Iterable
@@ -108,6 +110,51 @@ def check_output_dir(path: str | Path, inputs: Iterable[str | Path] = (), what: 
         raise SurestepError(f"{name}: cannot create {what} directory ({exc.strerror or exc})") from None
     _probe_writable(path, what)
     return path
+
+
+def check_new_dir(path: str | Path, inputs: Iterable[str | Path] = (), what: str = "the output") -> Path:
+    """Check, before any work, that `path` can become a new directory written whole (`write_dir_atomic`): missing or
+    an empty directory, never replacing files; its parent is created and must be writable."""
+    path = Path(path)
+    name = shown(str(path), 200)
+    if str(path) == "" or path.name in ("", ".", ".."):
+        raise SurestepError(f"'{name}': {what} must be a directory name")
+    for inp in inputs:
+        if inp is not None and _same_file(path, Path(inp)):
+            raise SurestepError(f"{name}: {what} would overwrite the input {shown(str(inp), 200)}; "
+                                "choose another directory")
+    if path.is_symlink() or (path.exists() and not path.is_dir()):
+        raise SurestepError(f"{name}: exists and is not a directory; {what} is a new directory")
+    if path.is_dir() and any(path.iterdir()):
+        raise SurestepError(f"{name}: exists and is not empty; {what} is written to a new or empty directory "
+                            "(remove it or choose another)")
+    existing = _nearest_existing(path.parent)
+    if not existing.is_dir():
+        raise SurestepError(f"{name}: {shown(str(existing), 200)} is not a directory")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise SurestepError(f"{name}: cannot create the folder {shown(str(path.parent), 200)} "
+                            f"({exc.strerror or exc})") from None
+    _probe_writable(path.parent, what)
+    return path
+
+
+@contextlib.contextmanager
+def write_dir_atomic(path: Path, what: str = "the output") -> Iterator[Path]:
+    """Yield a fresh directory beside `path` to fill (named as `path`); on success it is renamed onto `path` (which
+    must be missing or empty, as `check_new_dir` checked), on any error removed: the directory whole or not at all."""
+    path = Path(path)
+    tmp = Path(tempfile.mkdtemp(dir=path.parent, prefix=f".{path.name}.tmp-"))
+    try:
+        yield tmp / path.name
+        try:
+            os.rename(tmp / path.name, path)  # replaces an empty directory, never a non-empty one
+        except OSError as exc:
+            raise SurestepError(f"{shown(str(path), 200)}: cannot write {what} there ({exc.strerror or exc}; "
+                                "a new or empty directory only)") from None
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
 
 
 def check_replaceable(path: Path) -> None:
