@@ -18,6 +18,7 @@ import harness as h  # first: one BLAS thread
 import subprocess  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
+from pathlib import Path  # noqa: E402
 
 import yaml  # noqa: E402
 

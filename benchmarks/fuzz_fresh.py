@@ -3,7 +3,7 @@ in-process on N mutated shipped problems, then `surestep solve` on a sample of t
 timeouts over 120 s, NaN in outputs, multi-line errors). Usage: python benchmarks/fuzz_fresh.py SEED N SOLVES
 (issue 17: seed 4242, 1500, 25)."""
 import harness as h  # first: one BLAS thread
-import copy, json, math, random, subprocess, sys, time, glob, yaml, os
+import copy, random, subprocess, sys, time, glob, yaml, os
 REPO = h.ROOT
 import tempfile
 WORK = tempfile.mkdtemp(prefix="surestep-fuzz-")

@@ -14,12 +14,13 @@ diverged).
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 import shutil
 import stat
 import tempfile
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import Any
 

@@ -17,6 +17,7 @@ import numpy as np
 
 from ..errors import shown
 from ..model.belief import (
+    BeliefModel,
     COMPONENTS,
     OBJECTIVES,
     OBSERVATION_NOISE_FORMS,
@@ -29,6 +30,7 @@ from ..model.limits.values import urdf_velocity_limits
 from .ipopt_options import check_ipopt_options
 from .paths import resolve_path
 from .schema import Reader
+from .solver_config import resolve
 from .spec import (
     GRADIENT_PRESETS,
     CameraMove,
@@ -71,7 +73,7 @@ def parse_problem(tree: Any, path: Path) -> Problem:
     # governs the executed error under closed-loop control (section 8)
     noise = replace(noise, objective=rd.string(obj.get("covariance", "posterior"),
                                                "objective.covariance", OBJECTIVES))
-    return Problem(
+    problem = Problem(
         name=rd.string(top.get("name", path.stem), "name"),
         description=rd.string(top.get("description", ""), "description"),
         path=path,
@@ -92,6 +94,9 @@ def parse_problem(tree: Any, path: Path) -> Problem:
         limits=_limits(rd, top.get("limits", {}), robot),
         source=tree,
     )
+    # the solver choices against the noise model, when the file is read (the robot's rule: build_setup)
+    resolve(problem.solver, BeliefModel(problem.noise, problem.camera.intrinsics), None, file=str(path))
+    return problem
 
 
 def _timing(rd: Reader, node: Any) -> TimingSpec:

@@ -148,17 +148,17 @@ def _second_start(setup: Setup, cold: InitialGuess, sol: Solution, last, solver_
         # strategy took 9.8 s for configuration 9 at T = 80 with a correlated V_d0, where the plan itself took 0.4 s)
         spec = setup.problem.solver
         approx = newton_solver(diag).solve(diag, cold, method, tol=spec.tol, max_iter=min(GATE_ITER, spec.max_iter))
-    record = {"status": approx.status, "iterations": approx.iterations, "solve_time_s": approx.solve_time_s}
+    gate = {"status": approx.status, "iterations": approx.iterations, "solve_time_s": approx.solve_time_s}
     extra_time, extra_it = approx.solve_time_s, approx.iterations
     ahead = approx.success and approx.status != "Initial_Guess_Kept" and _objective_at(setup, sol, approx) < sol.objective
-    record["ahead"] = bool(ahead)  # the diagonal plan itself scores below the first plan: worth a Newton run from it
+    gate["ahead"] = bool(ahead)  # the diagonal plan itself scores below the first plan: worth a Newton run from it
     if ahead:
         spec = setup.problem.solver
         # a short Newton run (the surrogate converges linearly on the 6x6 recursion: 300 iterations cost about 2 s
         # on the default problem with a correlated V_d0), then IPOPT finishes it if it is the better point
         second = newton_solver(setup).solve(setup, InitialGuess(np.array(approx.q), "diagonal model's plan"),
                                             method, tol=spec.tol, max_iter=min(SECOND_START_ITER, spec.max_iter))
-        record.update(newton_status=second.status, newton_iterations=second.iterations,
+        gate.update(newton_status=second.status, newton_iterations=second.iterations,
                       newton_objective=second.objective)
         extra_time += second.solve_time_s
         extra_it += second.iterations
@@ -168,7 +168,7 @@ def _second_start(setup: Setup, cold: InitialGuess, sol: Solution, last, solver_
             tr = transcription(setup, "condensed", solver_options, hessian="surrogate")
             second, _ = tr.solve(setup, InitialGuess(np.array(second.q), "Newton from the diagonal model's plan"),
                                  method)
-            record.update(ipopt_status=second.status, ipopt_iterations=second.iterations)
+            gate.update(ipopt_status=second.status, ipopt_iterations=second.iterations)
             extra_time += second.solve_time_s
             extra_it += second.iterations
         if second.success and (not sol.success or second.objective < sol.objective * (1 - 1e-9)):
@@ -182,7 +182,7 @@ def _second_start(setup: Setup, cold: InitialGuess, sol: Solution, last, solver_
             second.extras["worse_than_initial_guess"] = bool(second.objective > second.extras["initial_objective"])
             second.solve_time_s, second.iterations = sol.solve_time_s, sol.iterations
             sol, last = second, Iterate(np.array(second.q)) if second.extras["solver"] == "newton" else None
-    sol.extras["second_start"] = record
+    sol.extras["second_start"] = gate
     sol.solve_time_s += extra_time
     sol.iterations += extra_it
     return sol, last

@@ -34,7 +34,7 @@ frame's FK (no needle offset); and the RCM distance as a lower bound on the PSM'
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+
 
 import casadi as ca
 import numpy as np

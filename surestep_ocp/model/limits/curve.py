@@ -50,24 +50,32 @@ def _quintic_basis() -> np.ndarray:
 _QUINTIC = _quintic_basis()
 
 
-def knot_derivatives(T: int, dt: float) -> tuple[np.ndarray, np.ndarray]:
-    """(T+1, T+1) maps of one joint's waypoints to its knot velocities and accelerations (see
-    above)."""
-    Dv, Da = np.zeros((T + 1, T + 1)), np.zeros((T + 1, T + 1))
+def knot_derivatives(T: int, dt: float, moving: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """(T+1, m) maps of one joint's waypoints to its knot velocities and accelerations (see above).
+
+    `moving`: the curve starts in motion (a re-plan from the executed curve's state): the first knot's
+    velocity and acceleration are given, as two more entries after the waypoints (m = T + 3: the
+    waypoints, then v_0, then a_0); else m = T + 1 and the curve starts at rest."""
+    m = T + 3 if moving else T + 1
+    Dv, Da = np.zeros((T + 1, m)), np.zeros((T + 1, m))
     for i in range(1, T):
         Dv[i, i + 1], Dv[i, i - 1] = 1 / (2 * dt), -1 / (2 * dt)
         Da[i, i - 1], Da[i, i], Da[i, i + 1] = 1 / dt**2, -2 / dt**2, 1 / dt**2
-    Da[0, 0], Da[0, 1] = -1 / dt**2, 1 / dt**2
+    if moving:
+        Dv[0, T + 1], Da[0, T + 2] = 1.0, 1.0
+    else:
+        Da[0, 0], Da[0, 1] = -1 / dt**2, 1 / dt**2
     Da[T, T], Da[T, T - 1] = -1 / dt**2, 1 / dt**2
     return Dv, Da
 
 
-def curve_coefficients(T: int, dt: float) -> np.ndarray:
-    """(T, 6, T+1): for piece t, the power coefficients in s = (time - t dt) / dt of the curve, as a
-    linear map of one joint's waypoints (the same for every joint)."""
-    Dv, Da = knot_derivatives(T, dt)
-    E = np.eye(T + 1)
-    out = np.zeros((T, 6, T + 1))
+def curve_coefficients(T: int, dt: float, moving: bool = False) -> np.ndarray:
+    """(T, 6, m): for piece t, the power coefficients in s = (time - t dt) / dt of the curve, as a
+    linear map of one joint's waypoints, then (`moving`) its start velocity and acceleration (the same
+    for every joint; `knot_derivatives`)."""
+    Dv, Da = knot_derivatives(T, dt, moving)
+    E = np.eye(T + 1, Dv.shape[1])
+    out = np.zeros((T, 6, Dv.shape[1]))
     for t in range(T):
         data = np.vstack([E[t], dt * Dv[t], dt**2 * Da[t],
                           E[t + 1], dt * Dv[t + 1], dt**2 * Da[t + 1]])
@@ -104,15 +112,15 @@ def _reparametrise(n: int, lo: float, hi: float) -> np.ndarray:
     return R
 
 
-def curve_control_rows(T: int, dt: float,
-                       pieces: dict | None = None) -> tuple[np.ndarray, np.ndarray]:
+def curve_control_rows(T: int, dt: float, pieces: dict | None = None,
+                       moving: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """Rows (linear maps of one joint's waypoints) whose absolute values bound the curve's
     |velocity| and |acceleration| everywhere: the knot values once, and the interior Bernstein
     control points of each step split in `pieces[kind]` equal parts (default CURVE_PIECES; more
     parts, tighter bounds: the control points converge to the curve's values, measured in
     docs/motion_limits_and_export.md)."""
     pieces = {**CURVE_PIECES, **(pieces or {})}
-    C = curve_coefficients(T, dt)
+    C = curve_coefficients(T, dt, moving)
     out = []
     for order, kind in ((1, "velocity"), (2, "acceleration")):
         m = int(pieces[kind])
@@ -128,22 +136,27 @@ def curve_control_rows(T: int, dt: float,
     return out[0], out[1]
 
 
-def curve_point_weights(T: int, dt: float, t: int, s: float) -> tuple[np.ndarray, np.ndarray]:
-    """(T+1,) weights of one joint's waypoints giving the curve's position and velocity in piece t
-    at fraction s."""
-    C = curve_coefficients(T, dt)[t]
+def curve_point_weights(T: int, dt: float, t: int, s: float,
+                        moving: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """(m,) weights of one joint's waypoints (and start derivatives, `moving`) giving the curve's
+    position and velocity in piece t at fraction s."""
+    C = curve_coefficients(T, dt, moving)[t]
     powers = np.array([s**k for k in range(6)])
     dpow = np.array([k * s ** (k - 1) if k else 0.0 for k in range(6)]) / dt
     return powers @ C, dpow @ C
 
 
-def evaluate_curve(q: np.ndarray, dt: float,
-                   times: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def evaluate_curve(q: np.ndarray, dt: float, times: np.ndarray,
+                   start: tuple[np.ndarray, np.ndarray] | None = None
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The curve through the waypoints `q` ((T+1, n)) at the planned pace: positions, velocities and
-    accelerations at `times` ([0, T dt]), each (len(times), n)."""
+    accelerations at `times` ([0, T dt]), each (len(times), n). `start`: the first knot's velocity
+    and acceleration ((n,) each) when the curve starts in motion (a re-plan); default at rest."""
     q = np.asarray(q, float)
     T = len(q) - 1
-    coef = np.einsum("tkm,mj->tkj", curve_coefficients(T, dt), q)  # (T, 6, n)
+    if start is not None:
+        q = np.vstack([q, np.asarray(start[0], float)[None], np.asarray(start[1], float)[None]])
+    coef = np.einsum("tkm,mj->tkj", curve_coefficients(T, dt, start is not None), q)  # (T, 6, n)
     x = np.asarray(times, float) / dt
     piece = np.clip(np.floor(x).astype(int), 0, T - 1)
     s = x - piece
