@@ -30,7 +30,7 @@ from ..model.limits.values import urdf_velocity_limits
 from .ipopt_options import check_ipopt_options
 from .paths import resolve_path
 from .schema import Reader
-from .solver_config import resolve
+from .solver_config import SOLVER_NAMES, resolve
 from .spec import (
     GRADIENT_PRESETS,
     CameraMove,
@@ -95,7 +95,8 @@ def parse_problem(tree: Any, path: Path) -> Problem:
         source=tree,
     )
     # the solver choices against the noise model, when the file is read (the robot's rule: build_setup)
-    resolve(problem.solver, BeliefModel(problem.noise, problem.camera.intrinsics), None, file=str(path))
+    resolve(problem.solver, BeliefModel(problem.noise, problem.camera.intrinsics), None, file=str(path),
+            limited=problem.limits.enforce)
     return problem
 
 
@@ -328,7 +329,7 @@ def _solver(rd: Reader, node: Any) -> SolverSpec:
     if not isinstance(opts, dict):
         raise rd.fail("solver.options", "expected a mapping of raw solver options")
     return SolverSpec(
-        name=rd.string(m.get("name", d.name), "solver.name", ("auto", "ipopt", "newton")),
+        name=rd.string(m.get("name", d.name), "solver.name", SOLVER_NAMES),
         max_iter=rd.integer(m.get("max_iter", d.max_iter), "solver.max_iter", minimum=1,
                             maximum=1_000_000),
         tol=rd.number(m.get("tol", d.tol), "solver.tol", positive=True, low=1e-14, high=1.0),

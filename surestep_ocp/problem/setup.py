@@ -228,7 +228,8 @@ def build_setup(problem: Problem) -> Setup:
     setup.x_start = _continued_at(setup, setup.x_start, setup.q_start)  # the principal vector
     setup.q_goal, setup.x_goal = _endpoint(problem, setup, problem.goal, setup.q_start)
     setup.x_goal = _continued_at(setup, setup.x_goal, setup.q_goal)
-    resolve(problem.solver, setup.model, len(robot.supporting_joints()), file=file)  # every solver rule, now
+    resolve(problem.solver, setup.model, len(robot.supporting_joints()), file=file,  # every solver rule, now
+            limited=problem.limits.enforce)
     return setup
 
 

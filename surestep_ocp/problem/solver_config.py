@@ -22,6 +22,7 @@ class SolverName(str, Enum):
     AUTO = "auto"  # projected Newton where it applies (and the limits are not enforced), else IPOPT
     IPOPT = "ipopt"
     NEWTON = "newton"
+    INTERIOR = "interior"  # the interior-point Newton method within enforced limits (experimental), IPOPT fallback
 
 
 class Form(str, Enum):
@@ -95,10 +96,11 @@ def resolve_hessian(model: BeliefModel, form: str, choice: str, file: str | None
 
 
 def resolve(spec, model: BeliefModel, moving_joints: int | None, form: str | None = None,
-            file: str | None = None) -> ResolvedSolver:
+            file: str | None = None, limited: bool = True) -> ResolvedSolver:
     """Every rule on the solver choices `spec` (a SolverSpec) for a model and a robot with `moving_joints` joints
     moving the tracked frame (None: no robot yet, as when a file is read: the robot's rule is checked when the
-    problem is set up); `form` overrides `spec.covariance`. Raises ProblemError naming the key."""
+    problem is set up); `form` overrides `spec.covariance`; `limited`: the problem enforces its motion limits.
+    Raises ProblemError naming the key."""
     if spec.name not in SOLVER_NAMES:
         raise ProblemError(file, "solver.name", f"unknown solver '{spec.name}'; allowed: {', '.join(SOLVER_NAMES)}")
     if model.noise.objective == "predicted" and (form or spec.covariance) not in (Form.AUTO, Form.CONDENSED):
@@ -116,6 +118,11 @@ def resolve(spec, model: BeliefModel, moving_joints: int | None, form: str | Non
     # exact when the terminal pose fixes the last node's joints (six joints move the tracked frame): the
     # surrogate model's condensed scalar recursion with the mean noise; a redundant arm keeps IPOPT
     fits = form == Form.CONDENSED and hessian != Hessian.EXACT and not forced and moving_joints in (NX, None)
+    if spec.name == SolverName.INTERIOR and not (fits and limited):
+        raise ProblemError(file, "solver.name", "interior needs limits.enforce: true and what newton needs: the "
+                           "condensed form of a model with constant motion and observation maps, "
+                           "noise.observation_noise: mean, solver.hessian: auto and six joints moving the tracked "
+                           "frame; use solver.name: auto or ipopt")
     if spec.name == SolverName.NEWTON and not fits:
         raise ProblemError(file, "solver.name", "newton needs the condensed form of a model with constant motion "
                            "and observation maps, noise.observation_noise: mean, solver.hessian: auto and exactly "

@@ -11,10 +11,12 @@ from ..problem.setup import Setup
 from ..output.solution import Solution, evaluate
 
 
-def straight_line(x_start: np.ndarray, x_goal: np.ndarray, horizon: int) -> np.ndarray:
+def straight_line(x_start: np.ndarray, x_goal: np.ndarray, horizon: int,
+                  fractions: np.ndarray | None = None) -> np.ndarray:
     """(T+1, 6) waypoints from start to goal, evenly spaced in position and in angle (the shortest rotation),
-    the rotation vector continued along them from the start's (it may end on the goal's other side)."""
-    s = np.linspace(0.0, 1.0, horizon + 1)
+    the rotation vector continued along them from the start's (it may end on the goal's other side);
+    `fractions` (T+1 from 0 to 1): the waypoints at these fractions of the way instead (a time law)."""
+    s = np.linspace(0.0, 1.0, horizon + 1) if fractions is None else np.asarray(fractions, float)
     p = (1 - s)[:, None] * x_start[:3] + s[:, None] * x_goal[:3]
     r = slerp_many(x_start[3:], x_goal[3:], s)
     r[0], r[-1] = x_start[3:], x_goal[3:]

@@ -34,10 +34,12 @@ class PrimalDual:
 
 @dataclass(frozen=True)
 class Iterate:
-    """The end of a converged solve: its joints, and IPOPT's primal-dual point when IPOPT made it."""
+    """The end of a converged solve: its joints, and IPOPT's primal-dual point when IPOPT made it, or the interior
+    point method's row multipliers when it did."""
 
     q: np.ndarray  # (T+1, nq)
     dual: PrimalDual | None = None
+    multipliers: np.ndarray | None = None  # `interior.InteriorNewton`'s, in the order of its rows
 
     @property
     def has_duals(self) -> bool:

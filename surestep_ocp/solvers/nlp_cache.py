@@ -12,6 +12,7 @@ from ..model.limits import problem_limits
 from ..problem.setup import Setup
 from ..problem.solver_config import resolve_form
 from .codegen import available as compiler_available
+from .interior import InteriorNewton
 from .lifted import LiftedTranscription
 from .newton import NewtonSolver
 from .transcription import Transcription
@@ -144,6 +145,23 @@ def newton_solver(setup: Setup) -> NewtonSolver:
         _NEWTON[key] = NewtonSolver(setup.robot, model, prob.horizon, prob.objective.smoothness, codegen,
                                     codegen_required=prob.solver.codegen is True)
     return _NEWTON[key]
+
+
+_INTERIOR: dict[tuple, InteriorNewton] = {}
+
+
+def interior_solver(setup: Setup, moving: bool = False) -> InteriorNewton:
+    """The (cached) interior-point Newton solver of this setup's structure with its enforced limits; `moving`: the
+    plan starts in motion (a re-plan from the executed curve's state)."""
+    prob = setup.problem
+    dt, lim = enforced_limits(setup)
+    codegen = resolve_codegen(setup, "surrogate")
+    key = (str(setup.robot.urdf), setup.robot.frame, setup.robot.offset.tobytes(), setup.model.key(),
+           setup.model.scalar, prob.horizon, prob.objective.smoothness, codegen, limits_key((dt, lim)), moving)
+    if key not in _INTERIOR:
+        _INTERIOR[key] = InteriorNewton(newton_solver(setup), setup.robot, dt, lim, moving, codegen,
+                                        codegen_required=prob.solver.codegen is True)
+    return _INTERIOR[key]
 
 
 def cached_transcriptions() -> list[Transcription]:

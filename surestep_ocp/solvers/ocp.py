@@ -28,7 +28,7 @@ __all__ = ["resolved_solver", "solve_ocp", "solve_ocp_warm"]
 def resolved_solver(setup: Setup, form: str | None = None):
     """The problem's solver choices resolved for its model and robot (`solver_config.resolve`)."""
     return resolve(setup.problem.solver, setup.model, len(setup.robot.supporting_joints()), form,
-                   str(setup.problem.path))
+                   str(setup.problem.path), limited=setup.problem.limits.enforce)
 
 
 def solve_ocp(setup: Setup, init: InitialGuess, solver_options: dict | None = None,

@@ -103,9 +103,11 @@ def default_strategy(ctx: Context, warm: Iterate | None, pinned: bool, lifted_st
     cap = spec.max_iter if r.forced else min(spec.surrogate_max_iter, spec.max_iter)
     exact_cap = {"ipopt.max_iter": min(spec.surrogate_max_iter, spec.max_iter)} if limited else {}
     out: list = []
-    # Newton first where it applies; not with enforced limits under `auto` (it has no step constraints)
-    if (r.name == "newton" or (r.name == "auto" and not limited)) and r.newton_fits and (
-            warm is None or not warm.has_duals):
+    if r.name == "interior" and (warm is None or not warm.has_duals):
+        # within enforced limits: the interior-point Newton method, which carries them (projected Newton does not)
+        out.append(Attempt("interior point", "interior", start=Start.GIVEN))
+    elif (r.name == "newton" or (r.name == "auto" and not limited)) and r.newton_fits and (
+            warm is None or not warm.has_duals):  # Newton first where it applies
         out.append(Attempt("newton", "newton", start=Start.GIVEN))
         if setup.model.scalar:  # the depth bound broken: Newton on IPOPT's barrier problem, which has it
             out.append(Attempt("newton, depth barrier", "newton", options={"barrier": True},

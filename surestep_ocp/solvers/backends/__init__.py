@@ -6,9 +6,10 @@ Adding a solver is one module implementing `base.Backend` and one entry in `BACK
 from __future__ import annotations
 
 from .base import Backend, Context, Outcome
+from .interior_point import InteriorPointBackend
 from .ipopt import IpoptBackend
 from .projected_newton import NewtonBackend
 
-BACKENDS: dict[str, Backend] = {b.name: b for b in (NewtonBackend(), IpoptBackend())}
+BACKENDS: dict[str, Backend] = {b.name: b for b in (NewtonBackend(), InteriorPointBackend(), IpoptBackend())}
 
 __all__ = ["BACKENDS", "Backend", "Context", "Outcome"]

@@ -1,0 +1,95 @@
+"""Plans within the motion limits at tracker rate: the interior-point Newton method against IPOPT, cold and in a
+20 Hz re-planning loop.
+
+    OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/realtime.py [--configs 100] [--seed 0] [--episodes 20]
+
+Cold: the default problem (problems/needle_regrasp.yaml: 40 steps of 50 ms, the limits enforced) and the first
+`--configs` configurations of problems/evaluations/evaluation.yaml at the same horizon, pace and limits, each solved
+by the default strategy (`solver.name: auto`: the interior-point method first) and by IPOPT (`solver.name: ipopt`,
+the reference) in the same run; the solve times (builds cached and not counted), statuses and Tr(Sigma_T) of both.
+Loop: `--episodes` episodes of `Planner` on the default problem against a simulated tracker at 20 Hz, re-planning
+at every frame from the executed curve's state; every re-plan's time, the infeasible ones, and every executed
+trajectory (the stitched pieces of the curves that ran) checked against every limit by
+`model/limits.plan_report`-style checks on its samples (not the planner's own). Writes benchmarks/results/realtime.md;
+the last line is `realtime: cold_median_ms=... cold_worst_ms=... replan_median_ms=... replan_worst_ms=...
+infeasible=... violations=...`.
+"""
+
+from __future__ import annotations
+
+import harness as h  # first: one BLAS thread
+
+from dataclasses import replace  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+
+def cold(args) -> tuple[list[str], dict]:
+    """Every cold problem by both solvers: table lines and the figures."""
+    problems = [("default", h.load_problem(h.DEFAULT_PROBLEM))]
+    base = problems[0][1]
+    for c, p in h.configurations(h.sampler(), args.configs, args.seed, horizon=base.horizon):
+        problems.append((str(c), replace(p, timing=base.timing, limits=base.limits)))
+    rows, ours, ref, worse, failed, disagree = [], [], [], [], [], []
+    for name, prob in problems:
+        setup = h.setup(prob)
+        h.ocp(setup)  # builds (and compiles) outside the timed solves
+        sol = h.ocp(setup)
+        ipopt = h.ocp(h.with_solver(setup, name="ipopt"))
+        ours.append(sol.solve_time_s * 1e3)
+        ref.append(ipopt.solve_time_s * 1e3)
+        rel = sol.trace_final / ipopt.trace_final - 1 if ipopt.success and sol.success else float("nan")
+        if sol.success and ipopt.success and rel > 1e-6:
+            worse.append((name, rel))
+        if not sol.success:
+            failed.append((name, sol.status, ipopt.status))
+            if ipopt.success:
+                disagree.append(name)
+        first = sol.attempts[0].label if sol.attempts else "-"
+        rows.append((name, sol.status, f"{ours[-1]:.1f}", first, f"{sum(a.iterations for a in sol.attempts)}",
+                     ipopt.status, f"{ref[-1]:.1f}", f"{rel:.1e}"))
+        print(name, sol.status, f"{ours[-1]:.1f} ms", ipopt.status, f"{ref[-1]:.1f} ms", f"rel {rel:.1e}", flush=True)
+    so, sr = h.stats(ours), h.stats(ref)
+    lines = ["## Cold, within the limits (T = 40, 50 ms steps)", "",
+             f"{len(problems)} problems: the default and {args.configs} evaluation configurations (seed {args.seed}).",
+             f"Default strategy: median {so.median:.1f} ms, p90 {so.p90:.1f} ms, worst {so.worst:.1f} ms; IPOPT in the "
+             f"same run: median {sr.median:.1f} ms, worst {sr.worst:.1f} ms (IPOPT / ours, medians: "
+             f"{sr.median / so.median:.1f}x). Not solved: {len(failed)} ({', '.join(f'{n}: {s} (IPOPT {i})' for n, s, i in failed) or 'none'}); "
+             f"of those, solved by IPOPT: {len(disagree)}. Tr(Sigma_T) more than 1e-6 above IPOPT's: {len(worse)} "
+             f"({', '.join(f'{n}: {r:.1e}' for n, r in worse) or 'none'}).", "",
+             *h.table(["problem", "status", "ms", "first attempt", "iterations", "IPOPT status", "IPOPT ms",
+                       "Tr / IPOPT's - 1"], rows), ""]
+    return lines, {"cold_median_ms": so.median, "cold_worst_ms": so.worst, "cold_failed": len(failed),
+                   "cold_disagree": len(disagree), "cold_worse": len(worse)}
+
+
+def main() -> None:
+    ap = h.parser(__doc__, configs=100, seed=0)
+    ap.add_argument("--episodes", type=int, default=20)
+    ap.add_argument("--no-loop", action="store_true", help="the cold part only")
+    args = ap.parse_args()
+    lines = ["# Plans within the motion limits at tracker rate", "",
+             f"`OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/realtime.py --configs {args.configs} --seed "
+             f"{args.seed} --episodes {args.episodes}` (one BLAS thread; builds cached, not counted).", ""]
+    block, figs = cold(args)
+    lines += block
+    loop = {"replan_median_ms": float("nan"), "replan_worst_ms": float("nan"), "infeasible": 0, "violations": 0}
+    if not args.no_loop:
+        from realtime_loop import loop_episodes
+
+        block, loop = loop_episodes(args)
+        lines += block
+    last = h.last_line("realtime", h.key_values(
+        cold_median_ms=f"{figs['cold_median_ms']:.1f}", cold_worst_ms=f"{figs['cold_worst_ms']:.1f}",
+        replan_median_ms=f"{loop['replan_median_ms']:.1f}", replan_worst_ms=f"{loop['replan_worst_ms']:.1f}",
+        infeasible=loop["infeasible"], violations=loop["violations"]))
+    text = "\n".join(lines + [last]) + "\n"
+    if args.no_loop:
+        print(text)
+        return
+    h.write_result("realtime.md", text)
+    print(text)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,59 @@
+"""The interior-point Newton method (`interior.py`) on the OCP within the enforced motion limits: the joint-space
+problem of the projected Newton solver plus the limit rows, solved with a banded system per iteration."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ...model.limits import enforce as enforce_limits
+from ..baseline import straight_line
+from ..iterate import InitialGuess, Iterate
+from ..nlp_cache import interior_solver
+from .base import Context, Outcome
+
+
+def minimum_jerk(T: int) -> np.ndarray:
+    """(T+1,) fractions of the way at the waypoints of a rest-to-rest minimum-jerk time law, 10 s^3 - 15 s^4 + 6 s^5:
+    zero velocity and acceleration at both ends, so the straight line keeps within the acceleration limits where a
+    constant pace breaks them in its first and last step."""
+    s = np.linspace(0.0, 1.0, T + 1)
+    return 10 * s**3 - 15 * s**4 + 6 * s**5
+
+
+def timed_line(setup) -> InitialGuess:
+    """The straight line from start to goal (the baseline's) at a minimum-jerk pace, by IK from the joint line."""
+    T = setup.problem.horizon
+    poses = straight_line(setup.x_start, setup.x_goal, T, minimum_jerk(T))
+    q = setup.joints_along(poses, setup.q_start, guesses=setup.joint_line(T))[0]
+    q[0], q[-1] = setup.q_start, setup.q_goal
+    return InitialGuess(q, "straight line at a minimum-jerk pace")
+
+
+class InteriorPointBackend:
+    """The OCP with enforced limits where projected Newton's reformulation is exact (`newton_fits`); a start within
+    every row (the caller's, else the straight line at a minimum-jerk pace)."""
+
+    name = "interior"
+
+    def applies(self, ctx: Context) -> str | None:
+        if not ctx.setup.problem.limits.enforce:
+            return "the interior-point method is for problems with enforced motion limits (limits.enforce: true)"
+        if not ctx.resolved.newton_fits:
+            return ("it needs the condensed scalar recursion with the mean observation noise and six joints moving "
+                    "the tracked frame")
+        return None
+
+    def solve(self, ctx: Context, start: InitialGuess, warm: Iterate | None, hessian: str | None,
+              options: dict) -> Outcome:
+        setup, spec = ctx.setup, ctx.setup.problem.solver
+        solver = interior_solver(setup)
+        kw = dict(tol=spec.tol, max_iter=min(spec.surrogate_max_iter, spec.max_iter), verbose=spec.print_level > 0)
+        multipliers = warm.multipliers if warm is not None else None
+        run = solver.run(setup, start, warm=multipliers, **kw)
+        if run.status == "Infeasible_Start" and warm is None:  # a start at a constant pace: the same line, timed
+            start = timed_line(setup)
+            run = solver.run(setup, start, **kw)
+        sol = solver.newton.solution(setup, ctx.method, start, run)
+        sol.extras["solver"] = "interior"
+        enforce_limits(setup, sol)  # the played curve checked densely, as every plan within the limits
+        return Outcome(sol, Iterate(sol.joints, multipliers=run.multipliers) if sol.success else None)

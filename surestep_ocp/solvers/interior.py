@@ -1,0 +1,406 @@
+"""A primal-dual interior-point Newton method for the OCP within the motion limits, built for its stage structure.
+
+The problem is `newton.py`'s joint-space one (the condensed scalar recursion with the surrogate Hessian, q_0 and
+q_T fixed, the interior joints free) plus the rows the IPOPT transcription carries with `limits.enforce: true`,
+all local in time: the joint bounds (the RCM distance as the insertion's lower bound), the means' minimum depth,
+the played curve's velocity and acceleration control points (linear in a window of four waypoints of one joint,
+`model/limits/curve.py`) and the tool's speeds at points of each step (nonlinear in a window of four waypoints).
+
+Each iteration solves the primal-dual Newton system reduced to the joints, `(H + sum_i (z_i / c_i) grad c_i grad
+c_i^T + sum_i z_i Hess(-c_i)) dx = -grad f + sum_i (mu / c_i) grad c_i`, whose matrix is banded (half-bandwidth
+four waypoints): a banded Cholesky, linear in T. Barrier parameter: IPOPT's monotone update; steps: fraction to the
+boundary for the primal and dual variables, Armijo on the barrier function. A re-plan may start in motion: the
+curve's first knot then has the executed curve's velocity and acceleration (`curve.knot_derivatives(moving=True)`).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import casadi as ca
+import numpy as np
+from scipy.linalg.lapack import dpbtrf, dpbtrs
+
+from ..model import limits as lm
+from ..model.limits import MotionLimits
+from ..model.robot import CAMERA_PARAMETERS, Robot
+from .buffered import Buffered
+from .codegen import compiled_or_interpreted
+from .newton import BOUND_PUSH, TAU_MIN, NewtonRun, NewtonSolver, _backtrack
+
+MU_INIT = 0.1  # IPOPT's mu_init (the objective is 1 at the start)
+# The last barrier parameter (IPOPT's mu_min): the barrier's optimum is above the problem's by up to (rows) x mu, and
+# the problem has thousands of rows (docs/realtime.md)
+MU_FINAL = 1e-11
+# Converged at the acceptable level when the objective changed by at most this (relative) over ACCEPTABLE_ITER
+# iterations with the complementarity at MU_FINAL: the surrogate Hessian converges linearly near the optimum
+# (IPOPT's acceptable_obj_change_tol on the enforced NLP, nlp_cache.ENFORCED_OPTIONS)
+ACCEPTABLE_CHANGE, ACCEPTABLE_ITER = 1e-9, 3
+WARM_MU = 1e-4  # a warm start (a re-plan from the previous plan) starts on the central path of this mu
+WINDOW = 4  # waypoints each curve piece depends on (t-1 .. t+2)
+
+
+@dataclass
+class InteriorRun(NewtonRun):
+    """Where an interior-point run ended, with its constraint multipliers (a warm start for the next run)."""
+
+    multipliers: np.ndarray | None = None
+
+    @property
+    def success(self) -> bool:
+        return self.status in ("Solve_Succeeded", "Solved_To_Acceptable_Level")
+
+
+class InteriorNewton:
+    """The limit rows of one structure (robot, horizon, step time, limits, start at rest or in motion) around a
+    projected Newton solver of the same structure, built once; `run` solves from a strictly feasible start."""
+
+    def __init__(self, newton: NewtonSolver, robot: Robot, step_s: float, limits: MotionLimits, moving: bool,
+                 codegen: bool, codegen_required: bool = False):
+        t0 = time.perf_counter()
+        self.newton, self.robot, self.dt, self.limits, self.moving = newton, robot, step_s, limits, moving
+        T, nq = newton.T, robot.nq
+        self.T, self.nq, self.n = T, nq, newton.n
+        mov = robot.supporting_joints()
+        self.mov = mov
+        # linear rows on the extended vector of one joint (waypoints, then v_0, a_0 when moving), as transcription.py
+        dt, lim = step_s, limits
+        Rv, Ra = lm.curve_control_rows(T, dt, moving=moving)
+        v_scale = lim.velocity
+        slack = lim.velocity - lim.acceleration * dt / 2
+        if np.all(slack[mov] > 0):  # knot velocities within v_max - a_max dt / 2 (sufficient given the a rows)
+            Rv = lm.knot_derivatives(T, dt, moving)[0][1:T]
+            v_scale = slack
+        rows, joints, ext = [], [], []  # per row: coefficients on x (node-major), the joint, the (v0, a0) part
+        for R, scale in ((Rv, v_scale), (Ra, lim.acceleration)):
+            for row in R:
+                for j in mov:
+                    r = row / scale[j]
+                    rows.append(r[:T + 1])
+                    ext.append(r[T + 1:] if moving else np.zeros(2))
+                    joints.append(j)
+        W = np.array(rows)
+        big = np.abs(np.hstack([W, np.array(ext)])).max(axis=1, keepdims=True)
+        W[np.abs(W) < 1e-12 * big] = 0.0
+        E = np.array(ext)
+        E[np.abs(E) < 1e-12 * big] = 0.0
+        keep = np.any(W != 0, axis=1)  # rows that are 0 by construction (velocities at rest) or constant
+        self.lin_w, self.lin_ext, self.lin_joint = W[keep], E[keep], np.array(joints)[keep]
+        # per row: its (<= WINDOW) nonzero waypoints as variable indices and their coefficients
+        nz = [np.flatnonzero(w) for w in self.lin_w]
+        width = max(len(z) for z in nz)
+        self.lin_idx = np.zeros((len(nz), width), int)
+        self.lin_coef = np.zeros((len(nz), width))
+        for i, z in enumerate(nz):
+            self.lin_idx[i, :len(z)] = z * nq + self.lin_joint[i]
+            self.lin_coef[i, :len(z)] = self.lin_w[i, z]
+        self.n_lin = len(nz)
+        # the tool's speeds at TOOL_POINTS of each piece, each a function of its window of waypoints (plus the start
+        # derivatives' part when moving)
+        qa, qd = ca.SX.sym("qa", nq), ca.SX.sym("qd", nq)
+        Ta = robot.fk_expr(qa, robot.frame)
+        pv, Rd = ca.jtimes(Ta[:3, 3], qa, qd), ca.jtimes(ca.vec(Ta[:3, :3]), qa, qd)
+        k = 1 - lm.TOOL_MARGIN
+        # the tool's squared speeds at a point of the curve, (q(s), q'(s)), over their limits
+        out = ca.vertcat(ca.sumsqr(pv) / (k * lim.tool_speed) ** 2, 0.5 * ca.sumsqr(Rd) / (k * lim.tool_rotation) ** 2)
+        self.tool_k = out.shape[0]
+        lam, y = ca.SX.sym("lam", self.tool_k), ca.vertcat(qa, qd)
+        windows, weights, consts = [], [], []
+        for t in range(T):
+            nodes = [min(max(m, 0), T) for m in (t - 1, t, t + 1, t + 2)]
+            for frac in lm.TOOL_POINTS:
+                if t == 0 and frac == 0.0:
+                    continue  # the start: at rest, or the executed curve's own state (nothing to choose)
+                wq, wv = lm.curve_point_weights(T, dt, t, frac, moving)
+                cw = np.zeros(2 * WINDOW)
+                for slot, m in enumerate(nodes):
+                    if m not in nodes[:slot]:  # a repeated end node: its weight in the first slot only
+                        cw[slot], cw[WINDOW + slot] = wq[m], wv[m]
+                windows.append(nodes)
+                weights.append(cw)
+                consts.append(np.concatenate([wq[T + 1:], wv[T + 1:]]) if moving else np.zeros(4))
+        self.n_pts = len(windows)
+        self.tool_nodes = np.array(windows)
+        self.tool_weights = np.array(weights).T  # (2 WINDOW, points)
+        self.tool_consts = np.array(consts)  # (points, 4): position (v0, a0) weights, then velocity's
+        npts = self.n_pts
+        Qm, Dm, Lm = ca.MX.sym("Q", nq, npts), ca.MX.sym("D", nq, npts), ca.MX.sym("L", self.tool_k, npts)
+        f_val = ca.Function("tool", [qa, qd], [out])
+        f_der = ca.Function("tool_der", [qa, qd, lam], [ca.densify(ca.jacobian(out, y)),
+                                                       ca.densify(ca.hessian(ca.dot(lam, out), y)[0])])
+        fns = {"tool_rows": ca.Function("tool_rows", [Qm, Dm], [f_val.map(npts)(Qm, Dm)]),
+               "tool_derivs": ca.Function("tool_derivs", [Qm, Dm, Lm], f_der.map(npts)(Qm, Dm, Lm))}
+        self.codegen_note = None
+        if codegen:
+            fns, self.codegen_note = compiled_or_interpreted(fns, codegen_required)
+        self.tool_rows, self.tool_derivs = Buffered(fns["tool_rows"]), Buffered(fns["tool_derivs"])
+        # variable indices of each point's window (node-major), and the band layout (lower storage, half-bandwidth
+        # WINDOW nodes)
+        self.tool_var = (self.tool_nodes[:, :, None] * nq + np.arange(nq)[None, None, :]).reshape(npts, -1)
+        eye = np.eye(nq)
+        self.tool_map = np.array([np.vstack([np.hstack([cw[m] * eye for m in range(WINDOW)]),
+                                             np.hstack([cw[WINDOW + m] * eye for m in range(WINDOW)])])
+                                  for cw in self.tool_weights.T])  # (points, 2 nq, W nq)
+        self.bw = WINDOW * nq
+        n = self.n
+        r, cc = np.meshgrid(np.arange(WINDOW * nq), np.arange(WINDOW * nq), indexing="ij")
+        vr, vc = self.tool_var[:, r.ravel()], self.tool_var[:, cc.ravel()]  # (points, (W nq)^2)
+        self.tool_low = vr >= vc
+        self.tool_band = ((vr - vc) * n + vc)[self.tool_low]
+        li = self.lin_idx
+        lr, lc = li[:, :, None].repeat(width, 2), li[:, None, :].repeat(width, 1)
+        self.lin_low = (lr >= lc) & (self.lin_coef[:, :, None] != 0) & (self.lin_coef[:, None, :] != 0)
+        self.lin_band = ((lr - lc) * n + lc)[self.lin_low]
+        self.lin_pair = (self.lin_coef[:, :, None] * self.lin_coef[:, None, :])[self.lin_low]
+        self.lin_pair_row = np.broadcast_to(np.arange(self.n_lin)[:, None, None], lr.shape)[self.lin_low]
+        hr, hc = newton.h_rows, newton.h_cols
+        self.h_low = hr >= hc
+        self.h_band = ((hr - hc) * n + hc)[self.h_low]
+        a, b = newton.node_pairs
+        self.node_band = np.concatenate([(a - b) * n + t * nq + b for t in range(T + 1)])
+        self.band_partner = np.minimum(np.arange(n)[None, :] + np.arange(self.bw)[:, None], n)
+        self.rcm = lm.rcm_insertion_bound(robot, lim.rcm_min_distance)
+        self.build_time_s = time.perf_counter() - t0
+
+    # ------------------------------------------------------------------------------------------ constraint values
+    def _lin_const(self, v0: np.ndarray | None, a0: np.ndarray | None) -> np.ndarray:
+        """The linear rows' constant part from the start's velocity and acceleration (zero at rest)."""
+        if not self.moving:
+            return np.zeros(self.n_lin)
+        return self.lin_ext[:, 0] * v0[self.lin_joint] + self.lin_ext[:, 1] * a0[self.lin_joint]
+
+    def _tool_offsets(self, v0, a0) -> np.ndarray:
+        """(2 nq, points): each tool point's position and velocity offsets from the start's derivatives."""
+        if not self.moving:
+            return np.zeros((2 * self.nq, self.n_pts))
+        C = self.tool_consts
+        return np.vstack([np.outer(v0, C[:, 0]) + np.outer(a0, C[:, 1]), np.outer(v0, C[:, 2]) + np.outer(a0, C[:, 3])])
+
+    def _points(self, x: np.ndarray, offsets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(nq, points) each tool point's joints q(s) and joint velocities q'(s) on the curve."""
+        X = x[self.tool_var].reshape(self.n_pts, WINDOW, self.nq)
+        cw = self.tool_weights
+        return (np.einsum("pmj,mp->jp", X, cw[:WINDOW]) + offsets[:self.nq],
+                np.einsum("pmj,mp->jp", X, cw[WINDOW:]) + offsets[self.nq:])
+
+    def bounds(self, q_start: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(lower, upper, free mask) of the node-major joints: the interior moving joints free within the joint
+        limits (the insertion above the RCM bound), the others held."""
+        T, nq, robot = self.T, self.nq, self.robot
+        lo, hi = np.tile(robot.lower, T + 1), np.tile(robot.upper, T + 1)
+        if self.rcm is not None:
+            j, b = self.rcm
+            lo[j::nq] = np.minimum(np.maximum(lo[j::nq], b), hi[j::nq])
+        free = np.zeros((T + 1, nq), bool)
+        free[1:T, self.mov] = True
+        return lo, hi, free.ravel()
+
+    def constraints(self, x, P, lin_c, offsets, min_depth, idx, lo, hi) -> tuple[float, np.ndarray]:
+        """(objective, row values c >= 0) in the rows' order: the direct ones (joint bounds lower and upper, linear
+        rows lower and upper: exact under linearisation), then the nonlinear ones (depths of the interior nodes,
+        tool rows), which the method gives slacks."""
+        f_y, z_y = self.newton.fz(x, P)
+        lin = self.lin_coef_dot(x) + lin_c
+        tool = np.asarray(self.tool_rows(*self._points(x, offsets))).ravel(order="F")
+        return float(f_y[0]), np.concatenate([x[idx] - lo[idx], hi[idx] - x[idx], 1.0 + lin, 1.0 - lin,
+                                              z_y[1:self.T] - min_depth, 1.0 - tool])
+
+    def lin_coef_dot(self, x: np.ndarray) -> np.ndarray:
+        return np.einsum("ij,ij->i", self.lin_coef, x[self.lin_idx])
+
+    # ---------------------------------------------------------------------------------------------------- solve
+    def run(self, setup, init, v0=None, a0=None, tol: float = 1e-6, max_iter: int = 300, verbose: bool = False,
+            warm: np.ndarray | None = None, mu0: float | None = None) -> InteriorRun:
+        """From `init` (strictly within the bounds and the linear rows, else status `Infeasible_Start`; the
+        nonlinear rows get slacks), with the start's velocity and acceleration `v0`, `a0` when the structure starts
+        in motion; `warm`: multipliers of a previous run of the same structure (with `mu0`, the barrier parameter to
+        start from).
+
+        The nonlinear rows c_n(x) >= 0 are written c_n(x) = s, s > 0 (IPOPT's slack form): the steps keep the slacks
+        and the direct rows within the fraction to the boundary (exact: both are linear in the step), and the
+        equality is reached through an l1 penalty in the merit function, so a step is not cut short by a curved
+        row's second-order change (which stalled the plain barrier). The reduced matrix keeps its band: the slacks
+        and multipliers are eliminated."""
+        t0 = time.perf_counter()
+        nw, T, nq, n = self.newton, self.T, self.nq, self.n
+        sigma0 = setup.model.recursion_sigma0(setup.problem.noise.Sigma0)
+        P = np.concatenate([setup.camera_parameter(), [1.0], sigma0])
+        x = np.array(init.q, float).ravel()
+        lo, hi, free = self.bounds(setup.q_start)
+        idx = np.flatnonzero(free)
+        min_depth = setup.problem.min_depth
+        lin_c = self._lin_const(v0, a0)
+        offsets = self._tool_offsets(v0, a0)
+        P[CAMERA_PARAMETERS] = trace_ref = float(nw.step(x, P)[0][0])
+        m = MU_INIT if mu0 is None else mu0
+        push_lo = BOUND_PUSH * np.minimum(np.maximum(1.0, np.abs(lo)), hi - lo)
+        push_hi = BOUND_PUSH * np.minimum(np.maximum(1.0, np.abs(hi)), hi - lo)
+        nb, nl = len(idx), self.n_lin
+        nd_ = 2 * nb + 2 * nl  # the direct rows come first
+        inside = np.where(free, np.clip(x, lo + push_lo, hi - push_hi), x)
+        f_val, c = self.constraints(inside, P, lin_c, offsets, min_depth, idx, lo, hi)
+        if not np.all(c[:nd_] > 0):  # the pushed start breaks a linear row: the start itself if that is inside
+            f_val, c = self.constraints(x, P, lin_c, offsets, min_depth, idx, lo, hi)
+        else:
+            x = inside
+        start_ok = bool(np.all(c[:nd_] > 0) and np.allclose(x[:nq], setup.q_start, atol=1e-12))
+        nc = len(c)
+        s = np.maximum(c[nd_:], 1e-2)  # the slacks of the nonlinear rows
+        b = np.concatenate([c[:nd_], s])  # the barrier's arguments: direct rows, slacks
+        w = (np.asarray(warm, float).copy() if warm is not None and len(warm) == nc else m / b)  # their multipliers
+        status = "Maximum_Iterations_Exceeded" if start_ok else "Infeasible_Start"
+        it, shift, f_hist, nu = 0, 0.0, [], 1.0
+        while start_ok and it <= max_iter:
+            _, f_val, G, HB, _ = nw.step(x, P)
+            f_val = float(f_val[0])
+            Z, DZ, D2Z = nw.depth(x, P)
+            DZ, D2Z = DZ.reshape(T + 1, nq), D2Z.reshape(T + 1, nq, nq)
+            wt = w[nd_ + T - 1:]
+            gy, hy = self.tool_derivs(*self._points(x, offsets), wt.reshape(self.n_pts, self.tool_k).T)
+            gy = gy.reshape(self.tool_k, 2 * nq, self.n_pts, order="F")  # d g / d(q(s), q'(s))
+            hy = hy.reshape(2 * nq, 2 * nq, self.n_pts, order="F").transpose(2, 0, 1)  # Hess of w . g
+            K = self.tool_map  # (points, 2 nq, W nq): (q(s), q'(s)) from the window
+            tj = np.einsum("kyp,pyw->kwp", gy, K)  # (k, W nq, points): the rows' gradients in the window
+            g = np.bincount(nw.g_index, weights=G, minlength=n)  # grad f
+            jac = _RowJacobian(self, idx, DZ, tj)
+            h = c[nd_:] - s  # the nonlinear rows' equality residual
+            err_d = float(np.max(np.abs((g - jac.T(w))[idx]))) if nb else 0.0
+            err_p = float(np.max(np.abs(h), initial=0.0))
+            gap = float(w @ b) / nc  # the average complementarity
+            f_hist.append(f_val)
+            stalled = (len(f_hist) > ACCEPTABLE_ITER and abs(f_hist[-1 - ACCEPTABLE_ITER] - f_val)
+                       <= ACCEPTABLE_CHANGE * max(abs(f_val), 1e-12))
+            if verbose:
+                print(f"interior {it:4d}  f {f_val:.10e}  mu {m:.1e}  dual {err_d:.2e}  primal {err_p:.1e}  "
+                      f"gap {gap:.2e}", flush=True)
+            if gap <= MU_FINAL and err_p <= 1e-9 and (err_d <= tol or stalled):
+                status = "Solve_Succeeded" if err_d <= tol else "Solved_To_Acceptable_Level"
+                break
+            if it == max_iter:
+                break
+            # the reduced matrix in band storage: the surrogate, then sum (w / b) grad c grad c^T + w Hess(-c)
+            sig = w / b
+            ab = np.bincount(self.h_band, weights=HB[self.h_low], minlength=self.bw * n).reshape(self.bw, n)
+            ab[0, idx] += sig[:nb] + sig[nb:2 * nb]
+            wl = sig[2 * nb:2 * nb + nl] + sig[2 * nb + nl:nd_]
+            ab += np.bincount(self.lin_band, weights=wl[self.lin_pair_row] * self.lin_pair,
+                              minlength=self.bw * n).reshape(self.bw, n)
+            wd, zdn = np.zeros(T + 1), np.zeros(T + 1)
+            wd[1:T], zdn[1:T] = sig[nd_:nd_ + T - 1], w[nd_:nd_ + T - 1]
+            a_, b_ = nw.node_pairs
+            blocks = wd[:, None, None] * DZ[:, :, None] * DZ[:, None, :] - zdn[:, None, None] * D2Z
+            ab += np.bincount(self.node_band, weights=blocks[:, a_, b_].ravel(), minlength=self.bw * n).reshape(self.bw, n)
+            st = sig[nd_ + T - 1:].reshape(self.n_pts, self.tool_k)  # (points, k)
+            G_ = tj.transpose(2, 1, 0)  # (points, W nq, k)
+            JJ = (G_ * st[:, None, :]) @ G_.transpose(0, 2, 1)  # sum_k (w/s) grad g grad g^T
+            JJ += K.transpose(0, 2, 1) @ hy @ K  # plus w Hess g, the rows' own curvature
+            ab += np.bincount(self.tool_band, weights=JJ.reshape(self.n_pts, -1)[self.tool_low],
+                              minlength=self.bw * n).reshape(self.bw, n)
+            factor = self._factor(ab, idx, shift)
+            if factor is None:
+                status = "Singular_Hessian"
+                break
+            solve, shift = factor
+            hh = np.concatenate([np.zeros(nd_), h])
+
+            def direction(mu_t):  # (dx, db, dw) for the barrier parameter mu_t
+                dx = solve(-(g - jac.T(mu_t / b - sig * hh)))
+                db = jac.dot(dx) + hh  # the direct rows' change (exact), the slacks' step
+                return dx, db, mu_t / b - w - sig * db
+
+            # Mehrotra's probe: the affine step (mu = 0) says how far the complementarity can fall
+            _, dba, dwa = direction(0.0)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                ap = float(np.min(np.where(dba < 0, -b / dba, np.inf), initial=1.0))
+                ad = float(np.min(np.where(dwa < 0, -w / dwa, np.inf), initial=1.0))
+            gap_aff = float((b + ap * dba) @ (w + ad * dwa)) / nc
+            m = max(MU_FINAL / 10, min(m, gap * min(1.0, (gap_aff / max(gap, 1e-300)) ** 3)))
+            dx, db, dw = direction(m)
+            tau = max(TAU_MIN, 1.0 - m)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                a_max = float(np.min(np.where(db < 0, -tau * b / db, np.inf), initial=1.0))
+                az = float(np.min(np.where(dw < 0, -tau * w / dw, np.inf), initial=1.0))
+            nu = max(nu, 2.0 * float(np.max(np.abs(w[nd_:] + dw[nd_:]), initial=0.0)))  # the penalty on |c_n - s|
+            value = f_val - m * float(np.sum(np.log(b))) + nu * float(np.sum(np.abs(h)))
+            slope = float((g - jac.T(np.concatenate([m / b[:nd_], np.zeros(nc - nd_)]))) @ dx
+                          - m * np.sum(db[nd_:] / s) - nu * np.sum(np.abs(h)))
+
+            def accept(a, x=x, dx=dx, db=db, m=m, value=value, slope=slope):
+                trial = x + a * dx
+                f_t, c_t = self.constraints(trial, P, lin_c, offsets, min_depth, idx, lo, hi)
+                if not np.all(c_t[:nd_] > 0):
+                    return None
+                s_t = s + a * db[nd_:]
+                s_t = np.maximum(s_t, c_t[nd_:])  # the slack reset: a row inside its bound lifts its slack
+                v_t = (f_t - m * (float(np.sum(np.log(c_t[:nd_]))) + float(np.sum(np.log(s_t))))
+                       + nu * float(np.sum(np.abs(c_t[nd_:] - s_t))))
+                return (trial, c_t, s_t) if v_t <= value + 1e-4 * a * min(slope, 0.0) else None
+
+            found = _backtrack(a_max, accept)
+            if found is None:
+                status = "Line_Search_Failed"
+                break
+            x, c, s = found
+            b = np.concatenate([c[:nd_], s])
+            w = w + min(1.0, az) * dw
+            w = np.clip(w, m / (1e10 * b), 1e10 * m / b)  # IPOPT's safeguard keeps w b within a band around mu
+            it += 1
+        run = nw._end(setup, x, P, trace_ref, status, it, 0, t0)
+        return InteriorRun(**{k: getattr(run, k) for k in NewtonRun.__dataclass_fields__}, multipliers=w)
+
+    def _factor(self, ab: np.ndarray, idx: np.ndarray, shift: float):
+        """The banded matrix on the free variables (held ones: identity) factorised, shifted until positive
+        definite: (solve(rhs), shift) or None."""
+        n = self.n
+        fixed = np.ones(n + 1, bool)
+        fixed[idx] = False
+        ab[fixed[:n][None, :] | fixed[self.band_partner]] = 0.0
+        fixed = fixed[:n]
+        ab[0, fixed] = 1.0
+        shift = shift / 4 if shift > 1e-14 else 0.0
+        scale = max(float(np.max(np.abs(ab[0, ~fixed]))) if (~fixed).any() else 0.0, 1e-12)
+        while shift <= 1e12 * scale:
+            shifted = ab.copy()
+            shifted[0, ~fixed] += shift
+            factor, info = dpbtrf(shifted, lower=1, overwrite_ab=1)
+            if info == 0:
+                def solve(rhs, factor=factor):
+                    d = dpbtrs(factor, np.where(fixed, 0.0, rhs)[:, None], lower=1)[0][:, 0]
+                    return d if np.all(np.isfinite(d)) else np.zeros(n)
+                return solve, shift
+            shift = max(1e-8 * scale, 10 * shift)
+        return None
+
+
+class _RowJacobian:
+    """The rows' Jacobian at one iterate, in the order of `InteriorNewton.constraints`: products with it and with
+    its transpose (bounds +-e_i, linear rows +-a_i, depths grad z, tool rows -grad g)."""
+
+    def __init__(self, ip: InteriorNewton, idx: np.ndarray, DZ: np.ndarray, tj: np.ndarray):
+        self.ip, self.idx, self.DZ, self.tj = ip, idx, DZ, tj
+        self.nb, self.nd, self.nl = len(idx), ip.T - 1, ip.n_lin
+
+    def T(self, v: np.ndarray) -> np.ndarray:
+        """sum_i v_i grad c_i"""
+        ip, nb, nd, nl, n = self.ip, self.nb, self.nd, self.nl, self.ip.n
+        out = np.zeros(n)
+        out[self.idx] += v[:nb] - v[nb:2 * nb]
+        lin = v[2 * nb:2 * nb + nl] - v[2 * nb + nl:2 * nb + 2 * nl]
+        out += np.bincount(ip.lin_idx.ravel(), weights=(ip.lin_coef * lin[:, None]).ravel(), minlength=n)
+        o = 2 * nb + 2 * nl
+        vd = np.zeros(ip.T + 1)
+        vd[1:ip.T] = v[o:o + nd]
+        out += (vd[:, None] * self.DZ).ravel()
+        vv = v[o + nd:].reshape(ip.n_pts, ip.tool_k).T  # (k, points)
+        contrib = np.einsum("kwp,kp->pw", self.tj, vv)
+        out -= np.bincount(ip.tool_var.ravel(), weights=contrib.ravel(), minlength=n)
+        return out
+
+    def dot(self, dx: np.ndarray) -> np.ndarray:
+        """grad c_i . dx for every row"""
+        ip = self.ip
+        dd = (self.DZ * dx.reshape(ip.T + 1, ip.nq)).sum(axis=1)[1:ip.T]
+        dl = ip.lin_coef_dot(dx)
+        dt_ = -np.einsum("kwp,wp->pk", self.tj, dx[ip.tool_var].T).ravel()
+        return np.concatenate([dx[self.idx], -dx[self.idx], dl, -dl, dd, dt_])
