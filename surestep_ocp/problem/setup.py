@@ -14,6 +14,7 @@ from ..model.lie import (continued, matrix_to_pose, np_exp_many, np_means, np_po
                          pose_to_matrix, quat_mul)
 from .spec import EndpointSpec, Problem
 from ..model.robot import Robot
+from .ocp_spec import SAME_NAME, OcpSpec
 from .solver_config import resolve
 from ..quiet import quiet_fd
 
@@ -65,6 +66,26 @@ class Setup:
     def T_cam_base(self) -> np.ndarray:
         """4x4 pose of the robot's URDF root in the camera frame."""
         return np.linalg.inv(self.camera_pose) @ self.robot.base_pose
+
+    @property
+    def ocp(self) -> OcpSpec:
+        """What the solvers read of the problem (`ocp_spec.py`)."""
+        return OcpSpec.of(self.problem)
+
+    def with_ocp(self, *, smoothness: float | None = None, sigma0=None, **changes) -> Setup:
+        """The same setup with OCP data changed (`OcpSpec`'s fields: horizon, noise, min_depth, solver, gradient,
+        limits, timing; `sigma0` the initial covariance, `smoothness` the joint-step weight); its models are
+        rebuilt for the new noise."""
+        unknown = set(changes) - set(SAME_NAME)
+        if unknown:
+            raise TypeError(f"with_ocp: unknown field(s) {sorted(unknown)}; allowed: smoothness, sigma0, "
+                            f"{', '.join(SAME_NAME)}")
+        prob = self.problem
+        if sigma0 is not None:
+            changes["noise"] = replace(changes.get("noise", prob.noise), Sigma0=np.asarray(sigma0, float))
+        if smoothness is not None:
+            changes["objective"] = replace(prob.objective, smoothness=smoothness)
+        return replace(self, problem=replace(prob, **changes))
 
     @cached_property
     def model(self) -> BeliefModel:

@@ -39,7 +39,7 @@ def reachability(setup: Setup, poses: np.ndarray) -> tuple[list, dict]:
 
 def solve_baseline(setup: Setup) -> Solution:
     t0 = time.perf_counter()
-    poses = straight_line(setup.x_start, setup.x_goal, setup.problem.horizon)
+    poses = straight_line(setup.x_start, setup.x_goal, setup.ocp.horizon)
     elapsed = time.perf_counter() - t0
     qs, info = reachability(setup, poses)
     sol = evaluate(setup, "baseline", poses, qs, success=True, status="not optimised", solve_time_s=elapsed,

@@ -66,7 +66,7 @@ def build_loss(setup: Setup, model, pose_loss: bool, weight: float,
         step_rad are the smoothed final step sizes (the pose-loss terms before weighting),
         and `loss_grad(d) -> (loss, dloss/dd)`.
     """
-    T = setup.problem.horizon
+    T = setup.ocp.horizon
     d = ca.SX.sym("d", NX * T)
     x = ca.DM(setup.x_start)
     s = ca.DM(model.sigma0_vech())
@@ -115,7 +115,7 @@ def solve_gradient(
     """The paper's gradient-descent variant (L-BFGS-B, fixed number of iterations).
 
     Args:
-        setup: the problem; `setup.problem.gradient` gives iterations, memory and the
+        setup: the problem; `setup.ocp.gradient` gives iterations, memory and the
             pose-loss weight.
         pose_loss: include w (||p_T - p_{T-1}|| + angle(r_{T-1}, r_T)) in the loss.
         components: observation components used in optimisation (default
@@ -126,7 +126,7 @@ def solve_gradient(
     Returns:
         The evaluated Solution, method "gradient" or "gradient-no-pose-loss".
     """
-    prob = setup.problem
+    prob = setup.ocp
     if setup.model.joint_noise:
         raise SurestepError(JOINT_NOISE_UNSUPPORTED)
     spec = prob.gradient

@@ -224,12 +224,12 @@ class InteriorNewton:
         and multipliers are eliminated."""
         t0 = time.perf_counter()
         nw, T, nq, n = self.newton, self.T, self.nq, self.n
-        sigma0 = setup.model.recursion_sigma0(setup.problem.noise.Sigma0)
+        sigma0 = setup.model.recursion_sigma0(setup.ocp.sigma0)
         P = np.concatenate([setup.camera_parameter(), [1.0], sigma0])
         x = np.array(init.q, float).ravel()
         lo, hi, free = self.bounds(setup.q_start)
         idx = np.flatnonzero(free)
-        min_depth = setup.problem.min_depth
+        min_depth = setup.ocp.min_depth
         lin_c = self._lin_const(v0, a0)
         offsets = self._tool_offsets(v0, a0)
         P[CAMERA_PARAMETERS] = trace_ref = float(nw.step(x, P)[0][0])

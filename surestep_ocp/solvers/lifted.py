@@ -164,7 +164,7 @@ class LiftedTranscription:
         """Consistent initial point (joints, means by FK, covariances by the recursion), scales, initial trace."""
         T = self.T
         mu = np.asarray(self.poses(q.T, setup.camera_parameter()))  # 7 x T+1
-        s0 = vech(np.asarray(setup.problem.noise.Sigma0, float))
+        s0 = vech(np.asarray(setup.ocp.sigma0, float))
         S = np.hstack([s0[:, None], np.asarray(self.roll(mu, s0))])  # 21 x T+1
         tr = S[DIAG, :].sum(axis=0)
         scale = np.maximum(tr / NX, 1e-14)
@@ -202,7 +202,7 @@ class LiftedTranscription:
         return sel, rows[sel], indptr, rows, col_of, cols
 
     def bounds(self, setup: Setup, scale: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        prob, T, nq = setup.problem, self.T, self.robot.nq
+        prob, T, nq = setup.ocp, self.T, self.robot.nq
         movable = self.robot.supporting_joints()
         lo, hi = np.full((self.nz, T + 1), -np.inf), np.full((self.nz, T + 1), np.inf)
         lo[:nq, :], hi[:nq, :] = self.robot.lower[:, None], self.robot.upper[:, None]
@@ -224,7 +224,7 @@ class LiftedTranscription:
             x0, scale, trace_ref = warm.x, warm.scale, warm.trace_ref
         lbx, ubx = self.bounds(setup, scale)
         p = np.concatenate([setup.camera_parameter(), scale, [trace_ref],
-                            setup.model.recursion_sigma0(setup.problem.noise.Sigma0)])  # for the Hessian's weights
+                            setup.model.recursion_sigma0(setup.ocp.sigma0)])  # for the Hessian's weights
         args = dict(x0=x0, lbx=lbx, ubx=ubx, lbg=0.0, ubg=0.0, p=p)
         if warm is not None:
             args.update(lam_x0=warm.lam_x, lam_g0=warm.lam_g)

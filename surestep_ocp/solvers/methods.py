@@ -44,16 +44,16 @@ def _variant(setup: Setup, components: tuple[str, ...] | None, form: str | None,
     """The same setup planning with other observation components, noise form or objective."""
     if components is None and form is None and objective is None:
         return setup
-    noise = setup.problem.noise
+    noise = setup.ocp.noise
     noise = replace(noise, components=components or noise.components, observation_noise=form or
                     noise.observation_noise, objective=objective or noise.objective)
-    return replace(setup, problem=replace(setup.problem, noise=noise))
+    return setup.with_ocp(noise=noise)
 
 
 def ocp_initial_guess(setup: Setup, source: str = "baseline", gradient: Solution | None = None) -> InitialGuess:
     """Joint trajectory to start the OCP from: IK of the straight line or of a gradient solution."""
     if source == "baseline":
-        poses = straight_line(setup.x_start, setup.x_goal, setup.problem.horizon)
+        poses = straight_line(setup.x_start, setup.x_goal, setup.ocp.horizon)
     else:
         poses = np.asarray(gradient.poses)
     q_best, ok, _, _ = setup.joints_along(poses, setup.q_start, guesses=setup.joint_line(len(poses) - 1))

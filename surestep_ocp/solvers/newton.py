@@ -237,7 +237,7 @@ class NewtonSolver:
         once the projected gradient is at most `exact_below` (inf: from a warm start on)."""
         t0 = time.perf_counter()
         T, nq, n, robot = self.T, self.robot.nq, self.n, self.robot
-        sigma0 = setup.model.recursion_sigma0(setup.problem.noise.Sigma0)
+        sigma0 = setup.model.recursion_sigma0(setup.ocp.sigma0)
         P = np.concatenate([setup.camera_parameter(), [1.0], sigma0])
         x = np.array(init.q, float).ravel()  # node-major: x[t*nq + j]
         lo, hi = np.tile(robot.lower, T + 1), np.tile(robot.upper, T + 1)
@@ -269,7 +269,7 @@ class NewtonSolver:
             if it == max_iter:
                 break
             pg = np.max(np.abs(g[idx]), initial=0.0)
-            if pg <= DEPTH_CHECK_BELOW and float(depth[0]) < setup.problem.min_depth:
+            if pg <= DEPTH_CHECK_BELOW and float(depth[0]) < setup.ocp.min_depth:
                 status = "Depth_Bound_Violated"
                 break
             d = self._exact_step(x, P, HB, g, idx) if pg <= exact_below and self.curv is not None else None
@@ -313,14 +313,14 @@ class NewtonSolver:
         fraction to the boundary. Converged when the barrier gradient is at most `tol` at mu = tol / 10."""
         t0 = time.perf_counter()
         T, nq, n, robot = self.T, self.robot.nq, self.n, self.robot
-        sigma0 = setup.model.recursion_sigma0(setup.problem.noise.Sigma0)
+        sigma0 = setup.model.recursion_sigma0(setup.ocp.sigma0)
         P = np.concatenate([setup.camera_parameter(), [1.0], sigma0])
         x = np.array(init.q, float).ravel()
         lo, hi = np.tile(robot.lower, T + 1), np.tile(robot.upper, T + 1)
         free = np.zeros((T + 1, nq), bool)
         free[1:T, robot.supporting_joints()] = True
         free = free.ravel()
-        idx, min_depth = np.flatnonzero(free), setup.problem.min_depth
+        idx, min_depth = np.flatnonzero(free), setup.ocp.min_depth
         start_ok = bool(np.all(x >= lo - 1e-12) and np.all(x <= hi + 1e-12)
                         and np.allclose(x[:nq], setup.q_start, atol=1e-12))
         P[CAMERA_PARAMETERS] = trace_ref = float(self.step(x, P)[0][0])  # at `init`, as `run`
@@ -451,7 +451,7 @@ class NewtonSolver:
         q = x.reshape(T + 1, nq)
         mu = np.asarray(self.poses(q.T, setup.camera_parameter())).T  # means (p, Q)
         terminal = float(np.max(np.abs(mu[T] - setup.m_goal)))
-        depth = float(max(0.0, setup.problem.min_depth - mu[:, 2].min()))
+        depth = float(max(0.0, setup.ocp.min_depth - mu[:, 2].min()))
         if status == "Solve_Succeeded" and (depth > 0 or terminal > 1e-9):
             status = "Depth_Bound_Violated" if depth > 0 else "Terminal_Pose_Not_Met"
         solve_s = time.perf_counter() - t0

@@ -66,7 +66,7 @@ ENFORCED_OPTIONS = {
 
 
 def solver_options(setup: Setup, extra: dict | None = None) -> dict:
-    prob = setup.problem
+    prob = setup.ocp
     opts = {
         "ipopt.print_level": prob.solver.print_level,
         "print_time": False,
@@ -92,28 +92,28 @@ def transcription(setup: Setup, form: str | None = None, extra_options: dict | N
                   horizon: int | None = None, hessian: str = "exact") -> Transcription:
     """The (cached) transcription for this setup's structure (form: default from the problem file)."""
     model = setup.model
-    form = resolve_form(model, form or setup.problem.solver.covariance)
-    T = setup.problem.horizon if horizon is None else horizon
+    form = resolve_form(model, form or setup.ocp.solver.covariance)
+    T = setup.ocp.horizon if horizon is None else horizon
     opts = solver_options(setup, extra_options)
     codegen = resolve_codegen(setup, hessian)
     limits = enforced_limits(setup)
     key = (str(setup.robot.urdf), setup.robot.frame, setup.robot.offset.tobytes(), model.key(), model.scalar, T, form,
-           setup.problem.objective.smoothness, tuple(sorted((k, repr(v)) for k, v in opts.items())), hessian, codegen,
-           setup.problem.solver.codegen is True, limits_key(limits))
+           setup.ocp.smoothness, tuple(sorted((k, repr(v)) for k, v in opts.items())), hessian, codegen,
+           setup.ocp.solver.codegen is True, limits_key(limits))
     if key not in _CACHE and form == "full" and hessian == "surrogate":  # the lifted form's structured Hessian
-        _CACHE[key] = LiftedTranscription(setup.robot, model, T, setup.problem.objective.smoothness, opts, codegen,
-                                          codegen_required=setup.problem.solver.codegen is True)
+        _CACHE[key] = LiftedTranscription(setup.robot, model, T, setup.ocp.smoothness, opts, codegen,
+                                          codegen_required=setup.ocp.solver.codegen is True)
     elif key not in _CACHE:
-        _CACHE[key] = Transcription(setup.robot, model, T, form, setup.problem.objective.smoothness, opts, hessian,
-                                    codegen, codegen_required=setup.problem.solver.codegen is True, limits=limits)
+        _CACHE[key] = Transcription(setup.robot, model, T, form, setup.ocp.smoothness, opts, hessian,
+                                    codegen, codegen_required=setup.ocp.solver.codegen is True, limits=limits)
     return _CACHE[key]
 
 
 def enforced_limits(setup: Setup):
     """(step_s, MotionLimits) when the problem enforces its motion limits (`limits.enforce: true`), else None."""
-    if not setup.problem.limits.enforce:
+    if not setup.ocp.limits.enforce:
         return None
-    return setup.problem.timing.step_s, problem_limits(setup)
+    return setup.ocp.timing.step_s, problem_limits(setup)
 
 
 def limits_key(limits) -> tuple | None:
@@ -126,7 +126,7 @@ def limits_key(limits) -> tuple | None:
 
 def resolve_codegen(setup: Setup, hessian: str) -> bool:
     """Whether the transcription with this Hessian is compiled: `solver.codegen` true, or auto with a C compiler."""
-    choice = setup.problem.solver.codegen
+    choice = setup.ocp.solver.codegen
     if hessian == "exact":
         return False
     return compiler_available() if choice == "auto" else bool(choice)
@@ -137,12 +137,12 @@ _NEWTON: dict[tuple, NewtonSolver] = {}
 
 def newton_solver(setup: Setup) -> NewtonSolver:
     """The (cached) projected Newton solver of this setup's structure (`solver.name: newton`)."""
-    model, prob = setup.model, setup.problem
+    model, prob = setup.model, setup.ocp
     codegen = resolve_codegen(setup, "surrogate")
     key = (str(setup.robot.urdf), setup.robot.frame, setup.robot.offset.tobytes(), model.key(), model.scalar,
-           prob.horizon, prob.objective.smoothness, codegen, prob.solver.codegen is True)
+           prob.horizon, prob.smoothness, codegen, prob.solver.codegen is True)
     if key not in _NEWTON:
-        _NEWTON[key] = NewtonSolver(setup.robot, model, prob.horizon, prob.objective.smoothness, codegen,
+        _NEWTON[key] = NewtonSolver(setup.robot, model, prob.horizon, prob.smoothness, codegen,
                                     codegen_required=prob.solver.codegen is True)
     return _NEWTON[key]
 
@@ -153,11 +153,11 @@ _INTERIOR: dict[tuple, InteriorNewton] = {}
 def interior_solver(setup: Setup, moving: bool = False) -> InteriorNewton:
     """The (cached) interior-point Newton solver of this setup's structure with its enforced limits; `moving`: the
     plan starts in motion (a re-plan from the executed curve's state)."""
-    prob = setup.problem
+    prob = setup.ocp
     dt, lim = enforced_limits(setup)
     codegen = resolve_codegen(setup, "surrogate")
     key = (str(setup.robot.urdf), setup.robot.frame, setup.robot.offset.tobytes(), setup.model.key(),
-           setup.model.scalar, prob.horizon, prob.objective.smoothness, codegen, limits_key((dt, lim)), moving)
+           setup.model.scalar, prob.horizon, prob.smoothness, codegen, limits_key((dt, lim)), moving)
     if key not in _INTERIOR:
         _INTERIOR[key] = InteriorNewton(newton_solver(setup), setup.robot, dt, lim, moving, codegen,
                                         codegen_required=prob.solver.codegen is True)

@@ -27,8 +27,8 @@ __all__ = ["resolved_solver", "solve_ocp", "solve_ocp_warm"]
 
 def resolved_solver(setup: Setup, form: str | None = None):
     """The problem's solver choices resolved for its model and robot (`solver_config.resolve`)."""
-    return resolve(setup.problem.solver, setup.model, len(setup.robot.supporting_joints()), form,
-                   str(setup.problem.path), limited=setup.problem.limits.enforce)
+    return resolve(setup.ocp.solver, setup.model, len(setup.robot.supporting_joints()), form,
+                   str(setup.ocp.source), limited=setup.ocp.limits.enforce)
 
 
 def solve_ocp(setup: Setup, init: InitialGuess, solver_options: dict | None = None,
@@ -49,10 +49,10 @@ def solve_ocp_warm(setup: Setup, init: InitialGuess, solver_options: dict | None
     a failure into an error carrying the status).
     """
     resolved = resolved_solver(setup, form)
-    spec, opts = setup.problem.solver, dict(solver_options or {})
+    spec, opts = setup.ocp.solver, dict(solver_options or {})
     ctx = Context(setup, resolved, method, opts)
     pinned = "ipopt.mu_strategy" in opts or "mu_strategy" in spec.options
-    limited = setup.problem.limits.enforce
+    limited = setup.ocp.limits.enforce
     pre, cold = None, init
     if resolved.form == "full" and resolved.hessian == "surrogate" and warm is None:
         # The lifted NLP starts at the condensed solution (joints; means, covariances and multipliers follow):
@@ -69,7 +69,7 @@ def solve_ocp_warm(setup: Setup, init: InitialGuess, solver_options: dict | None
     tried = [(t.label, t.attempt.hessian, t.outcome.solution, t.outcome.iterate) for t in ran]
     finished = [k for k, (_, _, s_k, _) in enumerate(tried) if s_k.success]
     pick = min(finished, key=lambda k: tried[k][2].objective) if finished else len(tried) - 1
-    smooth0 = setup.problem.objective.smoothness * float(np.sum(np.diff(np.asarray(cold.q, float), axis=0) ** 2))
+    smooth0 = setup.ocp.smoothness * float(np.sum(np.diff(np.asarray(cold.q, float), axis=0) ** 2))
     costly = setup.model.structured and not setup.model.scalar
 
     def start_objective(s_k: Solution) -> float:  # the planner's objective at the cold start (trace + smoothness)
@@ -120,10 +120,10 @@ GATE_ITER = 100  # Newton iterations for the diagonal model's plan beyond EXACT_
 def diagonal_model_setup(setup: Setup) -> Setup:
     """The same setup with every base covariance replaced by its diagonal and no joint-space motion noise: a scalar
     model, cheap to solve."""
-    n = setup.problem.noise
+    n = setup.ocp.noise
     diag = {k: np.diag(np.diag(np.asarray(getattr(n, k), float)))
             for k in ("W_p0", "W_o0", "V_d0", "V_f0", "V_o0", "V_min", "Sigma0")}
-    return replace(setup, problem=replace(setup.problem, noise=replace(n, **diag, joint_sigma=None)))
+    return setup.with_ocp(noise=replace(n, **diag, joint_sigma=None))
 
 
 def _objective_at(setup: Setup, sol: Solution, other: Solution) -> float:
@@ -132,7 +132,7 @@ def _objective_at(setup: Setup, sol: Solution, other: Solution) -> float:
     q = np.asarray(other.q, float)
     sig, pred = setup.model.propagate(setup.poses_of(q), joint=setup.joint_noises(q))
     trace = float(np.trace(pred[-1] if setup.model.noise.objective == "predicted" else sig[-1]))
-    smooth = setup.problem.objective.smoothness * float(np.sum(np.diff(np.asarray(other.q, float), axis=0) ** 2))
+    smooth = setup.ocp.smoothness * float(np.sum(np.diff(np.asarray(other.q, float), axis=0) ** 2))
     return trace + smooth * sol.extras["initial_trace"]
 
 
@@ -142,18 +142,18 @@ def _second_start(setup: Setup, cold: InitialGuess, sol: Solution, last, solver_
     the plan is never above the diagonal model's. Measured on 100 evaluation configurations: from the straight
     line alone 1-4 % of the optima were above the paper plan evaluated in the same model."""
     diag = diagonal_model_setup(setup)
-    if setup.robot.nq * (setup.problem.horizon + 1) <= EXACT_MAX_N:
+    if setup.robot.nq * (setup.ocp.horizon + 1) <= EXACT_MAX_N:
         approx = solve_ocp_warm(diag, cold, solver_options, method, "condensed")[0]
     else:  # long horizons: the scalar recursion has no exact end-game there; a capped Newton run or no gate (its full
         # strategy took 9.8 s for configuration 9 at T = 80 with a correlated V_d0, where the plan itself took 0.4 s)
-        spec = setup.problem.solver
+        spec = setup.ocp.solver
         approx = newton_solver(diag).solve(diag, cold, method, tol=spec.tol, max_iter=min(GATE_ITER, spec.max_iter))
     gate = {"status": approx.status, "iterations": approx.iterations, "solve_time_s": approx.solve_time_s}
     extra_time, extra_it = approx.solve_time_s, approx.iterations
     ahead = approx.success and approx.status != "Initial_Guess_Kept" and _objective_at(setup, sol, approx) < sol.objective
     gate["ahead"] = bool(ahead)  # the diagonal plan itself scores below the first plan: worth a Newton run from it
     if ahead:
-        spec = setup.problem.solver
+        spec = setup.ocp.solver
         # a short Newton run (the surrogate converges linearly on the 6x6 recursion: 300 iterations cost about 2 s
         # on the default problem with a correlated V_d0), then IPOPT finishes it if it is the better point
         second = newton_solver(setup).solve(setup, InitialGuess(np.array(approx.q), "diagonal model's plan"),

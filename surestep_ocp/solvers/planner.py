@@ -58,7 +58,7 @@ class Planner:
         self.horizon = prob.horizon
         self.builds: dict[int, float] = {}  # steps left -> seconds spent building its solver and evaluator
         self._solvers: dict[int, tuple] = {}
-        self.fast = (resolved_solver(self.setup).newton_first and not prob.limits.enforce
+        self.fast = (resolved_solver(self.setup).newton_first and not setup.ocp.limits.enforce
                      and self.setup.model.scalar)
         for n in (range(self.horizon, 0, -1) if prebuild else [self.horizon]) if self.fast else ():
             self._solver(n)  # timed apart from the solves
@@ -102,8 +102,7 @@ class Planner:
             raise SurestepError(f"replan: the tracker's mean {np.round(mean, 4).tolist()} is not reachable (IK "
                                 f"residual {res_m[0] * 1e3:.3f} mm, {res_rad[0]:.4f} rad)")
         n = self.horizon - step
-        prob = base.problem
-        sub = replace(base, problem=replace(prob, horizon=n, noise=replace(prob.noise, Sigma0=cov)), q_start=q[0])
+        sub = replace(base.with_ocp(horizon=n, sigma0=cov), q_start=q[0])
         sub.x_start, sub.x_goal = sub.pose_of(q[0]), sub.pose_of(sub.q_goal)  # the goal's as seen from this start
         warm = InitialGuess(np.vstack([q[:1], self._q[step - self.step + 1:]]), "previous plan")
         built = self._solver(n) if self.fast and sub.model.scalar else None
@@ -136,7 +135,7 @@ class Planner:
         """(projected Newton solver, compiled EKF over n steps) for n steps left, built on first use."""
         if n not in self._solvers:
             t0 = time.perf_counter()
-            sub = replace(self.setup, problem=replace(self.setup.problem, horizon=n))
+            sub = self.setup.with_ocp(horizon=n)
             self._solvers[n] = (newton_solver(sub), _propagation(self.setup.eval_model, n))
             self.builds[n] = time.perf_counter() - t0
         return self._solvers[n]

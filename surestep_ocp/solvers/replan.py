@@ -43,7 +43,7 @@ def replan(setup: Setup, out_dir: Path, progress=None) -> dict:
     """
     changes = setup.camera_changes()
     if not changes or not any(c is not None for c in changes):
-        raise SurestepError(f"{setup.problem.path}: camera.moves: the camera never moves; nothing to re-plan")
+        raise SurestepError(f"{setup.ocp.source}: camera.moves: the camera never moves; nothing to re-plan")
     out_dir = Path(out_dir)
     baseline = run_method(setup, "baseline")
     planner = Planner(setup, prebuild=False)
@@ -83,11 +83,11 @@ def replan(setup: Setup, out_dir: Path, progress=None) -> dict:
              "|---|---|---|---|---|"]
     lines += [f"| {m} | {tr:.3e} | {e:.1e} | {t:.2f} | {it} |" for m, tr, e, t, it in rows]
     table = "\n".join(lines)
-    write_text_atomic(out_dir / "replan.md", f"# Re-planning on `{setup.problem.path}`\n\n"
+    write_text_atomic(out_dir / "replan.md", f"# Re-planning on `{setup.ocp.source}`\n\n"
                       "`ocp-once`: planned at the start for a fixed camera, executed while the camera moves. "
                       "`ocp-replanned`: re-optimised after each camera move from the current belief.\n\n"
                       f"{table}\n")
-    write_json_atomic(out_dir / "replan.json", {"problem": str(setup.problem.path), "rows": [
+    write_json_atomic(out_dir / "replan.json", {"problem": str(setup.ocp.source), "rows": [
         {"method": m, "trace_final": tr, "terminal_error_m": e, "solve_time_s": t, "iterations": it}
         for m, tr, e, t, it in rows]})
     return {"table": table, "executed": executed, "once": once, "plans": plans, "build_time_s": planner.build_time_s,

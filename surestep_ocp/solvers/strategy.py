@@ -97,8 +97,8 @@ def default_strategy(ctx: Context, warm: Iterate | None, pinned: bool, lifted_st
         lifted_start: the lifted form starts at a converged condensed solution (a KKT point with multipliers).
     """
     r, setup = ctx.resolved, ctx.setup
-    spec = setup.problem.solver
-    limited = setup.problem.limits.enforce
+    spec = setup.ocp.solver
+    limited = setup.ocp.limits.enforce
     costly = setup.model.structured and not setup.model.scalar  # the 6x6 recursion: no unrolled exact Hessian
     cap = spec.max_iter if r.forced else min(spec.surrogate_max_iter, spec.max_iter)
     exact_cap = {"ipopt.max_iter": min(spec.surrogate_max_iter, spec.max_iter)} if limited else {}

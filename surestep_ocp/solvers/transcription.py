@@ -465,7 +465,7 @@ class Transcription:
         return out, scale
 
     def bounds(self, setup: Setup, scale: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        prob, T, nq = setup.problem, self.T, self.robot.nq
+        prob, T, nq = setup.ocp, self.T, self.robot.nq
         movable = set(self.robot.supporting_joints())
         s0 = np.asarray(prob.noise.Sigma0, float)
         lo, hi = {}, {}
@@ -495,7 +495,7 @@ class Transcription:
         return self.layout.join(lo), self.layout.join(hi)
 
     def _parameters(self, setup: Setup, scale: np.ndarray, trace_ref: float) -> np.ndarray:
-        sigma0 = np.asarray(setup.problem.noise.Sigma0, float)
+        sigma0 = np.asarray(setup.ocp.sigma0, float)
         # the scalar recursions start from their channel variances (the trace is the same)
         s0 = setup.model.recursion_sigma0(sigma0) if self.form == "condensed" else vech(sigma0)
         return np.concatenate([setup.camera_parameter(), scale, [trace_ref], s0])

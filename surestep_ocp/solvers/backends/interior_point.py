@@ -22,7 +22,7 @@ def minimum_jerk(T: int) -> np.ndarray:
 
 def timed_line(setup) -> InitialGuess:
     """The straight line from start to goal (the baseline's) at a minimum-jerk pace, by IK from the joint line."""
-    T = setup.problem.horizon
+    T = setup.ocp.horizon
     poses = straight_line(setup.x_start, setup.x_goal, T, minimum_jerk(T))
     q = setup.joints_along(poses, setup.q_start, guesses=setup.joint_line(T))[0]
     q[0], q[-1] = setup.q_start, setup.q_goal
@@ -36,7 +36,7 @@ class InteriorPointBackend:
     name = "interior"
 
     def applies(self, ctx: Context) -> str | None:
-        if not ctx.setup.problem.limits.enforce:
+        if not ctx.setup.ocp.limits.enforce:
             return "the interior-point method is for problems with enforced motion limits (limits.enforce: true)"
         if not ctx.resolved.newton_fits:
             return ("it needs the condensed scalar recursion with the mean observation noise and six joints moving "
@@ -45,7 +45,7 @@ class InteriorPointBackend:
 
     def solve(self, ctx: Context, start: InitialGuess, warm: Iterate | None, hessian: str | None,
               options: dict) -> Outcome:
-        setup, spec = ctx.setup, ctx.setup.problem.solver
+        setup, spec = ctx.setup, ctx.setup.ocp.solver
         solver = interior_solver(setup)
         kw = dict(tol=spec.tol, max_iter=min(spec.surrogate_max_iter, spec.max_iter), verbose=spec.print_level > 0)
         multipliers = warm.multipliers if warm is not None else None

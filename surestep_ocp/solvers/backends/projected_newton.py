@@ -27,7 +27,7 @@ class NewtonBackend:
 
     def solve(self, ctx: Context, start: InitialGuess, warm: Iterate | None, hessian: str | None,
               options: dict) -> Outcome:
-        spec = ctx.setup.problem.solver
+        spec = ctx.setup.ocp.solver
         solver = newton_solver(ctx.setup)
         kw = dict(tol=spec.tol, max_iter=min(spec.surrogate_max_iter, spec.max_iter), verbose=spec.print_level > 0)
         if options.get("barrier"):
