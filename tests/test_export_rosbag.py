@@ -30,7 +30,7 @@ JS, JT = "sensor_msgs/msg/JointState", "trajectory_msgs/msg/JointTrajectory"
 def plans(tmp_path_factory):
     """The straight line at the paper's pace (retimed by toppra: waypoints between the ticks) and the default
     problem's plan (limits enforced: played at its planned times)."""
-    from surestep_ocp.problem.problem import load_problem
+    from surestep_ocp.problem.load import load_problem
     from surestep_ocp.problem.setup import build_setup
 
     d = tmp_path_factory.mktemp("plans")
