@@ -278,3 +278,43 @@ def test_raw_csv_says_why_a_value_is_missing(tmp_path):
     missing = [r for r in rows if r["method"] == "ocp"]
     assert missing and all(r["value"] == "" and r["missing"] == "error: UnreachablePose: no IK" for r in missing)
     assert all(r["missing"] == "" and np.isfinite(float(r["value"])) for r in rows if r["method"] == "baseline")
+
+
+# An evaluation file's own `limits:` (replacing its base problem's).
+
+
+def write_evaluation(tmp_path, base=None, **keys):
+    tree = yaml.safe_load(EVAL.read_text())
+    tree["base"] = str(base or (EVAL.parent / tree["base"]).resolve())
+    tree.update(keys)
+    path = tmp_path / "e.yaml"
+    path.write_text(yaml.safe_dump(tree))
+    return path
+
+
+def test_an_evaluation_file_sets_its_own_limits(tmp_path, write_problem):
+    assert not load_evaluation(EVAL).base.limits.enforce  # inherited from needle_regrasp_paper_pace.yaml
+    spec = load_evaluation(write_evaluation(tmp_path, limits={"enforce": True, "tool_speed": 0.05,
+                                                              "joint_velocity": {"yaw": 0.3}}))
+    lim = spec.base.limits
+    assert lim.enforce and lim.tool_speed == 0.05 and lim.joint_velocity == (("yaw", 0.3),)
+    sampler = ConfigurationSampler(spec)
+    assert sampler.problem(sampler.sample(0, 1)).limits == lim  # every configuration's problem
+    # a base problem that enforces them, an evaluation file that does not: the evaluation's section replaces it
+    base = write_problem(lambda t: t.update(limits={"enforce": True, "tool_speed": 0.2}), "enforcing")
+    assert load_evaluation(write_evaluation(tmp_path, base=base)).base.limits.enforce
+    spec = load_evaluation(write_evaluation(tmp_path, base=base, limits={"enforce": False}))
+    assert not spec.base.limits.enforce and spec.base.limits.tool_speed is None
+
+
+@pytest.mark.parametrize("section, key", [({"enforce": "yes"}, "limits.enforce"),
+                                          ({"joint_velocity": {"elbow": 1.0}}, "limits.joint_velocity.elbow"),
+                                          ({"tool_speed": -1}, "limits.tool_speed"),
+                                          ({"rcm": 0.04}, "limits.rcm"),
+                                          ([1, 2], "limits")])
+def test_bad_limits_in_an_evaluation_file_are_named_errors(tmp_path, section, key):
+    path = write_evaluation(tmp_path, limits=section)
+    with pytest.raises(ProblemError) as exc:
+        load_evaluation(path)
+    msg = str(exc.value)
+    assert "e.yaml" in msg and key in msg and len(msg.splitlines()) == 1, msg

@@ -254,14 +254,3 @@ def test_bad_limits_sections_are_named_errors(write_problem, section, key):
     path = write_problem(lambda t: t.update(limits=section), "bad_limits")
     with pytest.raises(ProblemError, match=key.replace(".", r"\.")):
         load_problem(path)
-
-
-def test_transcription_cache_keys_on_the_row_kind(monkeypatch):
-    """Switching `limits.CURVE_ROWS` gives another cached NLP, not the one built with the other rows."""
-    from surestep_ocp.model import limits as lm
-    from surestep_ocp.solvers import nlp_cache
-
-    limits = nlp_cache.enforced_limits(build_setup(enforced(load_problem(DEFAULT))))
-    curve = nlp_cache.limits_key(limits)
-    monkeypatch.setattr(lm, "CURVE_ROWS", "steps")
-    assert nlp_cache.limits_key(limits) != curve

@@ -1,12 +1,14 @@
-"""The enforced NLP's acceptable-level stop (`nlp_cache.ENFORCED_OPTIONS`) against independent checks: a tighter
-IPOPT solve of the same NLP without the acceptable level, the plan's finite-difference limit report and the export's
-own dense check of the played curve."""
+"""The NLP cache (surestep_ocp.solvers.nlp_cache): the enforced NLP's acceptable-level stop (`ENFORCED_OPTIONS`)
+against independent checks: a tighter IPOPT solve of the same NLP without the acceptable level, the plan's
+finite-difference limit report and the export's own dense check of the played curve; and its key on the limit
+rows' kind."""
 
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
+from test_limits import DEFAULT, enforced
 
 from surestep_ocp.model import limits as lm
 from surestep_ocp.output.export import time_parametrise, within_position_limits
@@ -60,3 +62,14 @@ def test_acceptable_plan_meets_every_limit(enforced_default):
                             tool_frame=setup.robot.frame)
     assert traj.timing == "planned"
     assert traj.duration == pytest.approx(setup.problem.horizon * setup.problem.timing.step_s)
+
+
+def test_transcription_cache_keys_on_the_row_kind(monkeypatch):
+    """Switching `limits.CURVE_ROWS` gives another cached NLP, not the one built with the other rows."""
+    from surestep_ocp.model import limits as lm
+    from surestep_ocp.solvers import nlp_cache
+
+    limits = nlp_cache.enforced_limits(build_setup(enforced(load_problem(DEFAULT))))
+    curve = nlp_cache.limits_key(limits)
+    monkeypatch.setattr(lm, "CURVE_ROWS", "steps")
+    assert nlp_cache.limits_key(limits) != curve
