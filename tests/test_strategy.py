@@ -174,7 +174,7 @@ def context(r: ResolvedSolver, limits=False, scalar=True, structured=True, max_i
     """A Context with only what the strategy reads: the resolved choices, the solver spec's caps, whether the
     limits are enforced and the model's structure."""
     spec = SimpleNamespace(max_iter=max_iter, surrogate_max_iter=surrogate_max_iter)
-    setup = SimpleNamespace(problem=SimpleNamespace(solver=spec, limits=SimpleNamespace(enforce=limits)),
+    setup = SimpleNamespace(ocp=SimpleNamespace(solver=spec, limits=SimpleNamespace(enforce=limits)),
                             model=SimpleNamespace(scalar=scalar, structured=structured))
     return Context(setup, r, "ocp", {})
 

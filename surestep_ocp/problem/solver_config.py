@@ -103,6 +103,11 @@ def resolve(spec, model: BeliefModel, moving_joints: int | None, form: str | Non
     Raises ProblemError naming the key."""
     if spec.name not in SOLVER_NAMES:
         raise ProblemError(file, "solver.name", f"unknown solver '{spec.name}'; allowed: {', '.join(SOLVER_NAMES)}")
+    if spec.hessian not in (Hessian.AUTO, *HESSIANS):
+        raise ProblemError(file, "solver.hessian", f"unknown Hessian '{spec.hessian}'; allowed: auto, "
+                           f"{', '.join(HESSIANS)}")
+    if spec.codegen not in (True, False, "auto") or not isinstance(spec.codegen, (bool, str)):
+        raise ProblemError(file, "solver.codegen", f"expected true, false or auto, got {spec.codegen!r}")
     if model.noise.objective == "predicted" and (form or spec.covariance) not in (Form.AUTO, Form.CONDENSED):
         raise ProblemError(file, "objective.covariance", "predicted needs solver.covariance: condensed (or auto)")
     form = resolve_form(model, form or spec.covariance, file)
