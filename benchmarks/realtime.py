@@ -55,7 +55,7 @@ def cold(args) -> tuple[list[str], dict]:
     so, sr, sa = h.stats(ours), h.stats(ref), h.stats(alone)
     lines = ["## Cold, within the limits (T = 40, 50 ms steps)", "",
              f"{len(problems)} problems: the default and {args.configs} evaluation configurations (seed {args.seed}).",
-             f"Default strategy: median {so.median:.1f} ms, p90 {so.p90:.1f} ms, worst {so.worst:.1f} ms; IPOPT in the "
+             f"solver.name: interior (IPOPT its fallback): median {so.median:.1f} ms, p90 {so.p90:.1f} ms, worst {so.worst:.1f} ms; IPOPT in the "
              f"same run: median {sr.median:.1f} ms, worst {sr.worst:.1f} ms (IPOPT / ours, medians: "
              f"{sr.median / so.median:.1f}x). Not solved: {len(failed)} ({', '.join(f'{n}: {s} (IPOPT {i})' for n, s, i in failed) or 'none'}); "
              f"of those, solved by IPOPT: {len(disagree)}. Tr(Sigma_T) more than 1e-6 above IPOPT's: {len(worse)} "
