@@ -8,9 +8,11 @@ the played curve's velocity and acceleration control points (linear in a window 
 
 Each iteration solves the primal-dual Newton system reduced to the joints, `(H + sum_i (z_i / c_i) grad c_i grad
 c_i^T + sum_i z_i Hess(-c_i)) dx = -grad f + sum_i (mu / c_i) grad c_i`, whose matrix is banded (half-bandwidth
-four waypoints): a banded Cholesky, linear in T. Barrier parameter: IPOPT's monotone update; steps: fraction to the
-boundary for the primal and dual variables, Armijo on the barrier function. A re-plan may start in motion: the
-curve's first knot then has the executed curve's velocity and acceleration (`curve.knot_derivatives(moving=True)`).
+four waypoints): a banded Cholesky, linear in T. Barrier parameter: Mehrotra's probe, re-centred after a short
+step; steps: fraction to the boundary for the rows (with second-order corrections for the curved ones) and the
+multipliers, Armijo on the barrier function. It needs a start strictly within every row (the backend tries the
+straight line at several time laws, `backends/interior_point.py`). A re-plan may start in motion: the curve's
+first knot then has the executed curve's velocity and acceleration (`curve.knot_derivatives(moving=True)`).
 """
 
 from __future__ import annotations
@@ -37,7 +39,8 @@ MU_FINAL = 1e-11
 # iterations with the complementarity at MU_FINAL: the surrogate Hessian converges linearly near the optimum
 # (IPOPT's acceptable_obj_change_tol on the enforced NLP, nlp_cache.ENFORCED_OPTIONS)
 ACCEPTABLE_CHANGE, ACCEPTABLE_ITER = 1e-9, 3
-WARM_MU = 1e-4  # a warm start (a re-plan from the previous plan) starts on the central path of this mu
+MAX_SOC = 4  # second-order corrections per iteration (IPOPT's max_soc)
+SHORT_STEP = 0.2  # a step cut below this fraction: the next barrier parameter re-centres (no Mehrotra decrease)
 WINDOW = 4  # waypoints each curve piece depends on (t-1 .. t+2)
 
 
@@ -206,22 +209,30 @@ class InteriorNewton:
         return float(f_y[0]), np.concatenate([x[idx] - lo[idx], hi[idx] - x[idx], 1.0 + lin, 1.0 - lin,
                                               z_y[1:self.T] - min_depth, 1.0 - tool])
 
+    def start_margin(self, setup, init, v0=None, a0=None) -> float:
+        """The smallest row value at `init` (positive: strictly within every row)."""
+        sigma0 = setup.model.recursion_sigma0(setup.ocp.sigma0)
+        P = np.concatenate([setup.camera_parameter(), [1.0], sigma0])
+        lo, hi, free = self.bounds(setup.q_start)
+        c = self.constraints(np.asarray(init.q, float).ravel(), P, self._lin_const(v0, a0),
+                             self._tool_offsets(v0, a0), setup.ocp.min_depth, np.flatnonzero(free), lo, hi)[1]
+        return float(c.min())
+
     def lin_coef_dot(self, x: np.ndarray) -> np.ndarray:
         return np.einsum("ij,ij->i", self.lin_coef, x[self.lin_idx])
 
     # ---------------------------------------------------------------------------------------------------- solve
     def run(self, setup, init, v0=None, a0=None, tol: float = 1e-6, max_iter: int = 300, verbose: bool = False,
             warm: np.ndarray | None = None, mu0: float | None = None) -> InteriorRun:
-        """From `init` (strictly within the bounds and the linear rows, else status `Infeasible_Start`; the
-        nonlinear rows get slacks), with the start's velocity and acceleration `v0`, `a0` when the structure starts
-        in motion; `warm`: multipliers of a previous run of the same structure (with `mu0`, the barrier parameter to
-        start from).
+        """From `init`, which must be strictly within every row (else status `Infeasible_Start`: the caller starts
+        elsewhere or hands over to IPOPT), with the start's velocity and acceleration `v0`, `a0` when the structure
+        starts in motion; `warm`: multipliers of a previous run of the same structure (with `mu0`, the barrier
+        parameter to start from).
 
-        The nonlinear rows c_n(x) >= 0 are written c_n(x) = s, s > 0 (IPOPT's slack form): the steps keep the slacks
-        and the direct rows within the fraction to the boundary (exact: both are linear in the step), and the
-        equality is reached through an l1 penalty in the merit function, so a step is not cut short by a curved
-        row's second-order change (which stalled the plain barrier). The reduced matrix keeps its band: the slacks
-        and multipliers are eliminated."""
+        Steps keep every row within the fraction to the boundary: exactly for the bounds and linear rows (linear in
+        the step), and for the curved ones (depths, tool speeds) by up to MAX_SOC second-order corrections before
+        the step is shortened (IPOPT's), re-solving with what the linearisation missed. The barrier parameter follows
+        Mehrotra's probe (the affine step's complementarity, cubed), and re-centres after a step cut short."""
         t0 = time.perf_counter()
         nw, T, nq, n = self.newton, self.T, self.nq, self.n
         sigma0 = setup.model.recursion_sigma0(setup.ocp.sigma0)
@@ -237,20 +248,18 @@ class InteriorNewton:
         push_lo = BOUND_PUSH * np.minimum(np.maximum(1.0, np.abs(lo)), hi - lo)
         push_hi = BOUND_PUSH * np.minimum(np.maximum(1.0, np.abs(hi)), hi - lo)
         nb, nl = len(idx), self.n_lin
-        nd_ = 2 * nb + 2 * nl  # the direct rows come first
+        nd_ = 2 * nb + 2 * nl  # the direct rows (bounds, linear) come first, then the curved ones
         inside = np.where(free, np.clip(x, lo + push_lo, hi - push_hi), x)
         f_val, c = self.constraints(inside, P, lin_c, offsets, min_depth, idx, lo, hi)
-        if not np.all(c[:nd_] > 0):  # the pushed start breaks a linear row: the start itself if that is inside
+        if not np.all(c > 0):  # the pushed start breaks a row: the start itself if that is inside
             f_val, c = self.constraints(x, P, lin_c, offsets, min_depth, idx, lo, hi)
         else:
             x = inside
-        start_ok = bool(np.all(c[:nd_] > 0) and np.allclose(x[:nq], setup.q_start, atol=1e-12))
+        start_ok = bool(np.all(c > 0) and np.allclose(x[:nq], setup.q_start, atol=1e-12))
         nc = len(c)
-        s = np.maximum(c[nd_:], 1e-2)  # the slacks of the nonlinear rows
-        b = np.concatenate([c[:nd_], s])  # the barrier's arguments: direct rows, slacks
-        w = (np.asarray(warm, float).copy() if warm is not None and len(warm) == nc else m / b)  # their multipliers
+        w = (np.asarray(warm, float).copy() if warm is not None and len(warm) == nc else m / c)  # the multipliers
         status = "Maximum_Iterations_Exceeded" if start_ok else "Infeasible_Start"
-        it, shift, f_hist, nu = 0, 0.0, [], 1.0
+        it, shift, f_hist, last_step = 0, 0.0, [], 1.0
         while start_ok and it <= max_iter:
             _, f_val, G, HB, _ = nw.step(x, P)
             f_val = float(f_val[0])
@@ -264,23 +273,20 @@ class InteriorNewton:
             tj = np.einsum("kyp,pyw->kwp", gy, K)  # (k, W nq, points): the rows' gradients in the window
             g = np.bincount(nw.g_index, weights=G, minlength=n)  # grad f
             jac = _RowJacobian(self, idx, DZ, tj)
-            h = c[nd_:] - s  # the nonlinear rows' equality residual
             err_d = float(np.max(np.abs((g - jac.T(w))[idx]))) if nb else 0.0
-            err_p = float(np.max(np.abs(h), initial=0.0))
-            gap = float(w @ b) / nc  # the average complementarity
+            gap = float(w @ c) / nc  # the average complementarity
             f_hist.append(f_val)
             stalled = (len(f_hist) > ACCEPTABLE_ITER and abs(f_hist[-1 - ACCEPTABLE_ITER] - f_val)
                        <= ACCEPTABLE_CHANGE * max(abs(f_val), 1e-12))
             if verbose:
-                print(f"interior {it:4d}  f {f_val:.10e}  mu {m:.1e}  dual {err_d:.2e}  primal {err_p:.1e}  "
-                      f"gap {gap:.2e}", flush=True)
-            if gap <= MU_FINAL and err_p <= 1e-9 and (err_d <= tol or stalled):
+                print(f"interior {it:4d}  f {f_val:.10e}  mu {m:.1e}  dual {err_d:.2e}  gap {gap:.2e}", flush=True)
+            if gap <= MU_FINAL and (err_d <= tol or stalled):
                 status = "Solve_Succeeded" if err_d <= tol else "Solved_To_Acceptable_Level"
                 break
             if it == max_iter:
                 break
-            # the reduced matrix in band storage: the surrogate, then sum (w / b) grad c grad c^T + w Hess(-c)
-            sig = w / b
+            # the reduced matrix in band storage: the surrogate, then sum (w / c) grad c grad c^T + w Hess(-c)
+            sig = w / c
             ab = np.bincount(self.h_band, weights=HB[self.h_low], minlength=self.bw * n).reshape(self.bw, n)
             ab[0, idx] += sig[:nb] + sig[nb:2 * nb]
             wl = sig[2 * nb:2 * nb + nl] + sig[2 * nb + nl:nd_]
@@ -290,10 +296,11 @@ class InteriorNewton:
             wd[1:T], zdn[1:T] = sig[nd_:nd_ + T - 1], w[nd_:nd_ + T - 1]
             a_, b_ = nw.node_pairs
             blocks = wd[:, None, None] * DZ[:, :, None] * DZ[:, None, :] - zdn[:, None, None] * D2Z
-            ab += np.bincount(self.node_band, weights=blocks[:, a_, b_].ravel(), minlength=self.bw * n).reshape(self.bw, n)
+            ab += np.bincount(self.node_band, weights=blocks[:, a_, b_].ravel(),
+                              minlength=self.bw * n).reshape(self.bw, n)
             st = sig[nd_ + T - 1:].reshape(self.n_pts, self.tool_k)  # (points, k)
             G_ = tj.transpose(2, 1, 0)  # (points, W nq, k)
-            JJ = (G_ * st[:, None, :]) @ G_.transpose(0, 2, 1)  # sum_k (w/s) grad g grad g^T
+            JJ = (G_ * st[:, None, :]) @ G_.transpose(0, 2, 1)  # sum_k (w/c) grad g grad g^T
             JJ += K.transpose(0, 2, 1) @ hy @ K  # plus w Hess g, the rows' own curvature
             ab += np.bincount(self.tool_band, weights=JJ.reshape(self.n_pts, -1)[self.tool_low],
                               minlength=self.bw * n).reshape(self.bw, n)
@@ -302,49 +309,53 @@ class InteriorNewton:
                 status = "Singular_Hessian"
                 break
             solve, shift = factor
-            hh = np.concatenate([np.zeros(nd_), h])
 
-            def direction(mu_t):  # (dx, db, dw) for the barrier parameter mu_t
-                dx = solve(-(g - jac.T(mu_t / b - sig * hh)))
-                db = jac.dot(dx) + hh  # the direct rows' change (exact), the slacks' step
-                return dx, db, mu_t / b - w - sig * db
+            def direction(mu_t):  # (dx, dc, dw) for the barrier parameter mu_t; dc the rows' linearised change
+                dx = solve(-(g - jac.T(mu_t / c)))
+                dc = jac.dot(dx)
+                return dx, dc, mu_t / c - w - sig * dc
 
             # Mehrotra's probe: the affine step (mu = 0) says how far the complementarity can fall
-            _, dba, dwa = direction(0.0)
+            _, dca, dwa = direction(0.0)
             with np.errstate(divide="ignore", invalid="ignore"):
-                ap = float(np.min(np.where(dba < 0, -b / dba, np.inf), initial=1.0))
+                ap = float(np.min(np.where(dca < 0, -c / dca, np.inf), initial=1.0))
                 ad = float(np.min(np.where(dwa < 0, -w / dwa, np.inf), initial=1.0))
-            gap_aff = float((b + ap * dba) @ (w + ad * dwa)) / nc
-            m = max(MU_FINAL / 10, min(m, gap * min(1.0, (gap_aff / max(gap, 1e-300)) ** 3)))
-            dx, db, dw = direction(m)
+            gap_aff = float((c + ap * dca) @ (w + ad * dwa)) / nc
+            if last_step >= SHORT_STEP:  # sigma = (gap_aff / gap)^3; the barrier parameter is never raised here
+                m = max(MU_FINAL / 10, min(m, gap * min(1.0, (gap_aff / max(gap, 1e-300)) ** 3)))
+            else:  # the last step was cut short (the iterate off the central path): re-centre at the current gap
+                m = max(MU_FINAL / 10, gap)
+            dx, dc, dw = direction(m)
             tau = max(TAU_MIN, 1.0 - m)
             with np.errstate(divide="ignore", invalid="ignore"):
-                a_max = float(np.min(np.where(db < 0, -tau * b / db, np.inf), initial=1.0))
+                a_max = float(np.min(np.where(dc < 0, -tau * c / dc, np.inf), initial=1.0))
                 az = float(np.min(np.where(dw < 0, -tau * w / dw, np.inf), initial=1.0))
-            nu = max(nu, 2.0 * float(np.max(np.abs(w[nd_:] + dw[nd_:]), initial=0.0)))  # the penalty on |c_n - s|
-            value = f_val - m * float(np.sum(np.log(b))) + nu * float(np.sum(np.abs(h)))
-            slope = float((g - jac.T(np.concatenate([m / b[:nd_], np.zeros(nc - nd_)]))) @ dx
-                          - m * np.sum(db[nd_:] / s) - nu * np.sum(np.abs(h)))
+            value = f_val - m * float(np.sum(np.log(c)))
+            slope = min(float((g - jac.T(m / c)) @ dx), 0.0)
 
-            def accept(a, x=x, dx=dx, db=db, m=m, value=value, slope=slope):
-                trial = x + a * dx
-                f_t, c_t = self.constraints(trial, P, lin_c, offsets, min_depth, idx, lo, hi)
-                if not np.all(c_t[:nd_] > 0):
-                    return None
-                s_t = s + a * db[nd_:]
-                s_t = np.maximum(s_t, c_t[nd_:])  # the slack reset: a row inside its bound lifts its slack
-                v_t = (f_t - m * (float(np.sum(np.log(c_t[:nd_]))) + float(np.sum(np.log(s_t))))
-                       + nu * float(np.sum(np.abs(c_t[nd_:] - s_t))))
-                return (trial, c_t, s_t) if v_t <= value + 1e-4 * a * min(slope, 0.0) else None
+            def accept(a, x=x, dx=dx, dc=dc, m=m, value=value, slope=slope, c=c, tau=tau, sig=sig):
+                """(point, rows) at step a if within the boundary fraction and Armijo's decrease, else None."""
+                d = a * dx
+                for k in range(MAX_SOC + 1):  # the step, then its second-order corrections (at the first length)
+                    f_t, c_t = self.constraints(x + d, P, lin_c, offsets, min_depth, idx, lo, hi)
+                    if np.all(c_t >= (1 - tau) * c):
+                        v_t = f_t - m * float(np.sum(np.log(c_t)))
+                        return (x + d, c_t) if v_t <= value + 1e-4 * a * slope else None
+                    if a < a_max or k == MAX_SOC or not np.all(c_t[:nd_] > 0):
+                        return None
+                    e = np.zeros(nc)  # what the linearisation of the curved rows missed
+                    e[nd_:] = c_t[nd_:] - (c[nd_:] + jac.dot(d)[nd_:])
+                    d = d + solve(-jac.T(sig * e))
+                return None
 
             found = _backtrack(a_max, accept)
             if found is None:
                 status = "Line_Search_Failed"
                 break
-            x, c, s = found
-            b = np.concatenate([c[:nd_], s])
+            last_step = float(np.max(np.abs(found[0] - x)) / max(float(np.max(np.abs(dx))), 1e-300))
+            x, c = found
             w = w + min(1.0, az) * dw
-            w = np.clip(w, m / (1e10 * b), 1e10 * m / b)  # IPOPT's safeguard keeps w b within a band around mu
+            w = np.clip(w, m / (1e10 * c), 1e10 * m / c)  # IPOPT's safeguard keeps w c within a band around mu
             it += 1
         run = nw._end(setup, x, P, trace_ref, status, it, 0, t0)
         return InteriorRun(**{k: getattr(run, k) for k in NewtonRun.__dataclass_fields__}, multipliers=w)

@@ -20,13 +20,42 @@ def minimum_jerk(T: int) -> np.ndarray:
     return 10 * s**3 - 15 * s**4 + 6 * s**5
 
 
-def timed_line(setup) -> InitialGuess:
-    """The straight line from start to goal (the baseline's) at a minimum-jerk pace, by IK from the joint line."""
+def trapezoid(T: int, ramp: float) -> np.ndarray:
+    """(T+1,) fractions of the way at the waypoints of a rest-to-rest trapezoidal speed profile that accelerates and
+    decelerates over `ramp` of the time each: a peak speed 1 / (1 - ramp) of the mean, where the minimum-jerk law's
+    is 1.875 of it (for moves near the tool's speed limits)."""
+    s = np.linspace(0.0, 1.0, T + 1)
+    v = 1.0 / (1.0 - ramp)  # the cruise speed (the fraction of the way per unit time)
+    a = v / ramp
+    return np.where(s < ramp, 0.5 * a * s**2,
+                    np.where(s > 1 - ramp, 1 - 0.5 * a * (1 - s) ** 2, 0.5 * a * ramp**2 + v * (s - ramp)))
+
+
+TIME_LAWS = (("minimum-jerk", minimum_jerk), *((f"trapezoidal ({r:g} ramps)", lambda T, r=r: trapezoid(T, r))
+                                                for r in (0.3, 0.2, 0.12)))
+
+
+def timed_line(setup, law=minimum_jerk, name: str = "minimum-jerk") -> InitialGuess:
+    """The straight line from start to goal (the baseline's) at the pace of a time law, by IK from the joint line."""
     T = setup.ocp.horizon
-    poses = straight_line(setup.x_start, setup.x_goal, T, minimum_jerk(T))
+    poses = straight_line(setup.x_start, setup.x_goal, T, law(T))
     q = setup.joints_along(poses, setup.q_start, guesses=setup.joint_line(T))[0]
     q[0], q[-1] = setup.q_start, setup.q_goal
-    return InitialGuess(q, "straight line at a minimum-jerk pace")
+    return InitialGuess(q, f"straight line at a {name} pace")
+
+
+def feasible_line(setup, solver) -> InitialGuess:
+    """The straight line at the first of TIME_LAWS whose curve keeps within every row (the interior-point method
+    then keeps them); else at the one closest to them (the rows outside get slacks)."""
+    best, margin = None, -np.inf
+    for name, law in TIME_LAWS:
+        guess = timed_line(setup, law, name)
+        m = solver.start_margin(setup, guess)
+        if m > 0:
+            return guess
+        if m > margin:
+            best, margin = guess, m
+    return best
 
 
 class InteriorPointBackend:
@@ -51,7 +80,7 @@ class InteriorPointBackend:
         multipliers = warm.multipliers if warm is not None else None
         run = solver.run(setup, start, warm=multipliers, **kw)
         if run.status == "Infeasible_Start" and warm is None:  # a start at a constant pace: the same line, timed
-            start = timed_line(setup)
+            start = feasible_line(setup, solver)
             run = solver.run(setup, start, **kw)
         sol = solver.newton.solution(setup, ctx.method, start, run)
         sol.extras["solver"] = "interior"
