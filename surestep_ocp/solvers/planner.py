@@ -25,11 +25,12 @@ import numpy as np
 
 from ..model.belief import NV, NX, BeliefModel, unvech, vech
 from ..errors import SurestepError
-from ..model.lie import pose_mean
+from ..model.lie import pose_mean, pose_to_matrix
+from ..model.limits import evaluate_curve
 from .methods import ocp_initial_guess
 from .backends import Context
 from .iterate import InitialGuess
-from .nlp_cache import newton_solver
+from .nlp_cache import interior_solver, newton_solver
 from .ocp import resolved_solver, solve_ocp_warm
 from .strategy import records, replan_strategy
 from .strategy import run as run_strategy
@@ -38,6 +39,7 @@ from ..problem.setup import Setup, build_setup
 from ..output.solution import Solution, evaluate
 
 _UNVECH = unvech(np.arange(NV, dtype=float)).astype(int)  # (6, 6) positions of each entry in vech
+REPLAN_MU = 1e-4  # a re-plan starts near the optimum: the barrier parameter of its first step
 
 
 class Planner:
@@ -58,13 +60,17 @@ class Planner:
         self.horizon = prob.horizon
         self.builds: dict[int, float] = {}  # steps left -> seconds spent building its solver and evaluator
         self._solvers: dict[int, tuple] = {}
-        self.fast = (resolved_solver(self.setup).newton_first and not setup.ocp.limits.enforce
-                     and self.setup.model.scalar)
+        resolved = resolved_solver(self.setup)
+        self.fast = resolved.newton_first and not setup.ocp.limits.enforce and self.setup.model.scalar
+        # `solver.name: interior` within enforced limits (experimental, docs/realtime.md): the interior-point method
+        # plans, and re-plans from the executed curve's state; else a re-plan runs the whole strategy from rest
+        self.limited = bool(setup.ocp.limits.enforce and resolved.name == "interior")
         for n in (range(self.horizon, 0, -1) if prebuild else [self.horizon]) if self.fast else ():
             self._solver(n)  # timed apart from the solves
         self.plan, _ = solve_ocp_warm(self.setup, ocp_initial_guess(self.setup))
         self.step = 0  # the waypoint the current plan starts at
         self._q = np.array(self.plan.q, float)
+        self._start = None  # the current plan's curve starts at rest, or in motion: (velocity, acceleration)
         self._camera = (self.setup.camera_pose.tobytes(), self.setup)
 
     @property
@@ -96,6 +102,8 @@ class Planner:
                                 f"starts at waypoint {self.step}; the goal is waypoint {self.horizon})")
         mean, cov = _estimate(mean, covariance)
         base, moved = self._seen_from(camera_pose)
+        if self.limited:
+            return self._replan_within_limits(mean, cov, base, step, t0, builds_before)
         seed = self._q[step - self.step]
         q, ok, res_m, res_rad = base.joints_along(mean[None], seed, guesses=seed[None])
         if not ok[0]:
@@ -129,6 +137,49 @@ class Planner:
                                 "solver": sol.extras.get("solver"), "build_time_s": built_s}
         if sol.success:  # else the previous plan stays current
             self.plan, self.step, self._q = sol, step, np.array(sol.q, float)
+        return sol
+
+    def executed_state(self, step: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(joints, velocities, accelerations) of the curve being executed (the current plan's, played at its
+        pace) at waypoint `step`."""
+        dt = self.setup.ocp.timing.step_s
+        p, v, a = evaluate_curve(self._q, dt, np.array([(step - self.step) * dt]), start=self._start)
+        return p[0], v[0], a[0]
+
+    def _replan_within_limits(self, mean, cov, base: Setup, step: int, t0: float, builds_before: float) -> Solution:
+        """A re-plan within the enforced limits: from the executed curve's state at `step` (joints, velocity,
+        acceleration: the commanded motion stays twice continuously differentiable), with the camera registered to
+        the tracker (the kinematics at those joints see the tool at the tracker's mean), to the goal where the
+        camera sees it; the interior-point method from the previous plan's rest. A failure keeps the previous plan
+        (said in `extras["replan"]`)."""
+        q0, v0, a0 = self.executed_state(step)
+        world_tool = base.camera_pose @ pose_to_matrix(base.pose_of(q0))
+        registered = base.seen_from(world_tool @ np.linalg.inv(pose_to_matrix(mean)))
+        n = self.horizon - step
+        q_goal, res_m, res_rad = registered.joints_for(base.x_goal, base.q_goal, raise_on_fail=False)
+        sub = replace(registered.with_ocp(horizon=n, sigma0=cov), q_start=q0, q_goal=q_goal)
+        sub.x_start, sub.x_goal = sub.pose_of(q0), sub.pose_of(q_goal)
+        tail = np.array(self._q[step - self.step:], float)
+        s = np.linspace(0.0, 1.0, n + 1)  # the goal's shift, eased in and out (no velocity or acceleration added at
+        tail += (10 * s**3 - 15 * s**4 + 6 * s**5)[:, None] * (q_goal - tail[-1])[None]  # either end)
+        tail[0] = q0
+        warm = InitialGuess(tail, "previous plan")
+        t_build = time.perf_counter()
+        solver = interior_solver(sub, moving=True)
+        self.builds[-n] = self.builds.get(-n, 0.0) + time.perf_counter() - t_build  # first use of this horizon
+        spec = sub.ocp.solver
+        run = solver.run(sub, warm, v0=v0, a0=a0, tol=spec.tol, max_iter=min(spec.surrogate_max_iter, spec.max_iter),
+                         mu0=REPLAN_MU)
+        sol = solver.newton.solution(sub, "ocp-replan", warm, run)
+        sol.extras.update(solver="interior", start_state={"velocity": v0.tolist(), "acceleration": a0.tolist()},
+                          warm_start_q=warm.q)
+        if res_m > 1e-6 or res_rad > 1e-5:
+            sol.success, sol.status = False, "Goal_Unreachable"
+        built_s = self.build_time_s - builds_before
+        sol.extras["replan"] = {"step": step, "time_s": time.perf_counter() - t0 - built_s, "solver": "interior",
+                                "build_time_s": built_s, "kept_previous": not sol.success}
+        if sol.success:
+            self.plan, self.step, self._q, self._start = sol, step, np.array(sol.q, float), (v0, a0)
         return sol
 
     def _solver(self, n: int) -> tuple:
