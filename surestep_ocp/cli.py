@@ -166,8 +166,11 @@ def cmd_validate(args) -> int:
         try:
             setup = _load(path)
             print(f"ok    {path}  (T={setup.problem.horizon}, goal depth {setup.x_goal[2]:.3f} m)")
-        except SurestepError as exc:
-            print(f"error {exc}", file=sys.stderr)
+        except SurestepError as exc:  # every error of the file, one line each
+            from .errors import error_lines
+
+            for line in error_lines(exc):
+                print(f"error {line}", file=sys.stderr)
             bad += 1
     return 2 if bad else 0
 
@@ -343,7 +346,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"surestep: {exc}", file=sys.stderr)
         return 1
     except SurestepError as exc:
-        print(f"surestep: {exc}", file=sys.stderr)
+        from .errors import error_lines
+
+        for line in error_lines(exc):  # a problem file's every error, one line each
+            print(f"surestep: {line}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         _say("surestep: interrupted")
