@@ -40,9 +40,9 @@ from ..errors import SurestepError
 FLAGS = ("-O1", "-fPIC", "-shared")  # measured on the T = 20 Hessian: -O1 5x faster than the VM, -O0 2x
 DEFAULT_MAX_MB = 1024  # the cache's size bound [MB] unless $SURESTEP_CACHE_MAX_MB says otherwise (0: unbounded)
 # wall-clock seconds per megabyte of generated C at -O1 (the batch's compilers in parallel) before this cache
-# has measured its own: measured on the default problem's Newton functions at T = 10 (1.02 MB of C in 5
-# functions) on 2 cores shared with other work, 9.3 s
-PRIOR_S_PER_MB = 9.0
+# has measured its own: measured on the default problem's Newton functions (0.8 to 1.3 MB of C in 5 functions
+# per horizon, 2 at a time) on 2 cores shared with other work, 2.6 to 6.4 s per MB (9.1 s under a heavier load)
+PRIOR_S_PER_MB = 5.0
 TIMING_FILE = "timing.json"
 
 
@@ -189,9 +189,16 @@ def _touch(path: Path) -> None:
         pass  # a read-only cache is still usable
 
 
-def _signature(fn: ca.Function) -> str:
-    dims = ", ".join(f"{fn.size1_in(i)}x{fn.size2_in(i)}" for i in range(fn.n_in()))
-    return f"{fn.name()}({dims})"
+def _inputs(fn: ca.Function) -> str:
+    return ", ".join(f"{fn.size1_in(i)}x{fn.size2_in(i)}" for i in range(fn.n_in()))
+
+
+def _what(fns: list[ca.Function]) -> str:
+    """The functions' names with their input sizes (said once when they all take the same, as a horizon's do)."""
+    sizes = {_inputs(f) for f in fns}
+    if len(sizes) == 1:
+        return f"{', '.join(f.name() for f in fns)}; inputs {sizes.pop()}"
+    return ", ".join(f"{f.name()}({_inputs(f)})" for f in fns)
 
 
 def _compile(cc: str, todo: list[_Job], folder: Path) -> None:
@@ -201,10 +208,9 @@ def _compile(cc: str, todo: list[_Job], folder: Path) -> None:
     workers = max(1, min(len(todo), os.cpu_count() or 1))
     rate, basis = _rate(folder)
     estimate = sum(sizes) / 1e6 * rate
-    what = ", ".join(_signature(j.fn) for j in todo)
-    _note(f"compiling {len(todo)} function{'s' if len(todo) > 1 else ''} to C ({what}; {sum(sizes) / 1e6:.2f} MB "
-          f"of C, {workers} at a time): about {_duration(estimate)} ({basis}); cached in {folder}, once per "
-          "problem structure and horizon")
+    _note(f"compiling {len(todo)} function{'s' if len(todo) > 1 else ''} to C ({_what([j.fn for j in todo])}; "
+          f"{sum(sizes) / 1e6:.2f} MB of C, {workers} at a time): about {_duration(estimate)} ({basis}); once per "
+          f"problem structure and horizon, cached in {folder}")
     t0 = time.perf_counter()
     with ThreadPoolExecutor(max_workers=workers) as pool:
         for _ in pool.map(lambda j: _timed_build(cc, j), todo):
