@@ -9,7 +9,7 @@ OUT    ?= out
 LOCK   := requirements/run.txt requirements/test.txt
 LATEST := .venv-latest
 
-.PHONY: run test install browser compiler clean package-check lock test-latest
+.PHONY: run test install browser compiler clean package-check lock test-latest docs
 
 # .venv from the lock (the test lock holds the run one's pins), then the package itself without dependencies.
 $(STAMP): pyproject.toml $(LOCK)
@@ -49,6 +49,11 @@ compiler:
 	@command -v $${CC:-gcc} >/dev/null 2>&1 || (command -v apt-get >/dev/null 2>&1 && \
 	  (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq gcc libc6-dev >/dev/null) \
 	  || echo "no C compiler installed: the OCP runs interpreted, compiled-path tests will be skipped")
+
+# The API reference from the docstrings (pdoc, in the test extra): docs/api/index.html. `make test` builds it
+# too, into a temporary folder (tests/test_discoverable.py).
+docs: $(STAMP)
+	$(PY) docs/api_reference.py docs/api
 
 test: $(STAMP) browser compiler
 	$(PY) -m pytest -n 2 -q

@@ -1,4 +1,4 @@
-"""Command line: `surestep solve|compare|replan|evaluate|sweep|validate|show|export`.
+"""Command line: `surestep solve|compare|replan|evaluate|sweep|validate|show|export|cache`.
 
 User errors (bad problem files, unknown methods, unreachable poses) print one line
 and exit 2; a solver that fails prints its status and exits 1.
@@ -155,7 +155,8 @@ def cmd_replan(args) -> int:
     built = ", ".join(f"T={n}" for n in sorted(res["builds"]))
     print(f"\nbuild time  {res['build_time_s']:.2f} s ({len(res['builds'])} solvers: {built or 'none timed apart'})")
     print(f"solve time  {res['solve_time_s']:.3f} s (the first plan and {len(res['plans'])} re-plans, without builds)")
-    print(f"\nwrote {args.output_dir}/{{baseline, ocp-once, ocp-replanned, ocp-replan-<step>}}.json, replan.md")
+    print(f"\nwrote {args.output_dir}/{{baseline, ocp-once, ocp-replanned, ocp-replan-<step>}}.json, replan.md, "
+          "replan.json")
     return 0
 
 
@@ -165,8 +166,11 @@ def cmd_validate(args) -> int:
         try:
             setup = _load(path)
             print(f"ok    {path}  (T={setup.problem.horizon}, goal depth {setup.x_goal[2]:.3f} m)")
-        except SurestepError as exc:
-            print(f"error {exc}", file=sys.stderr)
+        except SurestepError as exc:  # every error of the file, one line each
+            from .errors import error_lines
+
+            for line in error_lines(exc):
+                print(f"error {line}", file=sys.stderr)
             bad += 1
     return 2 if bad else 0
 
@@ -291,8 +295,11 @@ def build_parser() -> argparse.ArgumentParser:
     c.set_defaults(func=cmd_compare)
 
     r = sub.add_parser("replan", help="plan, then re-plan after every camera move (problems with camera.moves)")
-    r.add_argument("problem")
-    r.add_argument("--output-dir", required=True)
+    r.add_argument("problem", help="problem YAML with camera.moves (problems/README.md; e.g. "
+                                   "problems/type4_camera_moves.yaml)")
+    r.add_argument("--output-dir", required=True,
+                   help="folder for baseline.json, ocp-once.json (planned once), ocp-replanned.json (the motion as "
+                        "re-planned), ocp-replan-<step>.json (each re-plan), replan.md and replan.json (the table)")
     _solver_flags(r)
     r.set_defaults(func=cmd_replan)
 
@@ -319,6 +326,9 @@ def build_parser() -> argparse.ArgumentParser:
     from .evaluation.sweep import register as register_sweep
 
     register_sweep(sub)
+    from .cache_cli import register as register_cache
+
+    register_cache(sub)
     return p
 
 
@@ -336,7 +346,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"surestep: {exc}", file=sys.stderr)
         return 1
     except SurestepError as exc:
-        print(f"surestep: {exc}", file=sys.stderr)
+        from .errors import error_lines
+
+        for line in error_lines(exc):  # a problem file's every error, one line each
+            print(f"surestep: {line}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         _say("surestep: interrupted")

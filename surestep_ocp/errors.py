@@ -50,6 +50,31 @@ class ProblemError(SurestepError):
         super().__init__(f"{where}: {message}" if where else message)
 
 
+class ProblemErrors(ProblemError):
+    """Every error found in one problem (each section of a file is read even when another has an error).
+
+    `errors` holds them in the order of the file's sections, each a one-line ProblemError; `lines()` gives their texts, one
+    per error, as `surestep validate` and the CLI print them. `str()` stays one line (the first error, then
+    the others after it), `file` and `key` are the first error's.
+    """
+
+    def __init__(self, errors: list[ProblemError]):
+        self.errors = list(errors)
+        first = self.errors[0]
+        more = len(self.errors) - 1
+        rest = "; ".join(str(e) for e in self.errors[1:])
+        SurestepError.__init__(self, f"{first} (and {more} more error{'s' if more > 1 else ''}: {rest})")
+        self.file, self.key = first.file, first.key
+
+    def lines(self) -> list[str]:
+        return [str(e) for e in self.errors]
+
+
+def error_lines(exc: BaseException) -> list[str]:
+    """An error's text as the CLI prints it: one line per error (several for ProblemErrors)."""
+    return exc.lines() if isinstance(exc, ProblemErrors) else [str(exc)]
+
+
 class FrameNotFound(SurestepError):
     """A frame name that the robot model does not have; lists the valid ones."""
 

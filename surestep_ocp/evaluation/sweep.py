@@ -257,8 +257,9 @@ def register(subparsers):
     s = subparsers.add_parser("sweep", help="expand a sweep file into several evaluations and run them",
                               description="Run every run of SWEEP.yaml as a `surestep evaluate` in OUT/<run>/ and "
                                           "write OUT/sweep.md.")
-    s.add_argument("sweep", metavar="SWEEP.yaml")
-    s.add_argument("--output-dir", required=True)
+    s.add_argument("sweep", metavar="SWEEP.yaml", help="a sweep file: an evaluation file and its runs' overrides "
+                   "(e.g. problems/evaluations/table1_readings.yaml)")
+    s.add_argument("--output-dir", required=True, help="folder for each run's evaluation (<run>/) and sweep.md")
     s.add_argument("--jobs", type=int, default=1, help="worker processes per run (default 1)")
     s.add_argument("--scheduler", metavar="ADDRESS", help="run on an existing Dask cluster (see evaluate)")
     s.add_argument("--resume", action="store_true", help="continue runs already started in OUTPUT_DIR")

@@ -25,6 +25,7 @@ from functools import cached_property
 import casadi as ca
 import numpy as np
 
+from ..equality import ArrayEquality
 from .camera import Intrinsics
 from .lie import SMALL, np_log, np_means, np_quat_of_matrix, quat_cos_angle, quat_mul, quat_of, quat_step, quat_tangent
 
@@ -112,8 +113,8 @@ def trace_vech(v):
     return sum(v[k] for k in DIAG)
 
 
-@dataclass(frozen=True)
-class NoiseParams:
+@dataclass(frozen=True, eq=False)
+class NoiseParams(ArrayEquality):
     """Noise constants (6x6 matrices; the paper's values by default) and options."""
 
     W_p0: np.ndarray = field(default_factory=lambda: 1e-3 * np.eye(NX))

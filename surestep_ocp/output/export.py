@@ -11,28 +11,33 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..errors import SurestepError, shown
 from ..model.limits import JAW, parse_overrides
-from .export_load import limits_of, load_solution, step_of, within_position_limits
+from .export_load import limits_of, load_solution, solution_label, step_of, within_position_limits
 from .export_timing import DEFAULT_RATE_HZ, TIMINGS, Trajectory, time_parametrise
 from .export_writers import FORMATS, jaw_path, timing_text, write
 from .joint_names import PRESETS, joint_naming
 from ..quiet import quiet_fd
 from .outputs import check_new_dir, check_output_file
 
+if TYPE_CHECKING:
+    from .solution import Solution
+
 __all__ = ["export_solution", "summary", "register", "time_parametrise", "within_position_limits", "Trajectory"]
 
 
-def export_solution(solution: str | Path, fmt: str, output: str | Path, *, rate_hz: float = DEFAULT_RATE_HZ,
+def export_solution(solution: str | Path | Solution, fmt: str, output: str | Path, *, rate_hz: float = DEFAULT_RATE_HZ,
                     step_s: float | None = None, velocity: dict | None = None,
                     acceleration: dict | None = None, tool_speed: float | None = None,
                     tool_rotation: float | None = None, plot: bool = True, timing: str = "auto",
                     joint_names: str | None = None, arm: str | None = None) -> tuple[Trajectory, list[Path]]:
-    """Export the plan in `solution` (module docstring); `joint_names`: `--joint-names` (`joint_names.py`);
-    `arm`: the bag's arm name (rosbag2 only, default PSM1). Returns the trajectory and the files written."""
+    """Export the plan in `solution` (a solution file, or a `Solution` object; module docstring); `joint_names`:
+    `--joint-names` (`joint_names.py`); `arm`: the bag's arm name (rosbag2 only, default PSM1). Returns the
+    trajectory and the files written."""
     from ..problem.paths import resolve_urdf
     from ..model.robot import Robot
 
@@ -45,11 +50,13 @@ def export_solution(solution: str | Path, fmt: str, output: str | Path, *, rate_
 
         arm = check_arm(DEFAULT_ARM if arm is None else arm)
     sol = load_solution(solution)
+    label = solution_label(solution)
+    inputs = [] if hasattr(solution, "to_dict") else [solution]  # the files read: never an output
     names = list(sol["joint_names"])
     naming = joint_naming(joint_names, [n for n in names if n != JAW], [n for n in names if n == JAW])
     urdf = resolve_urdf(str(sol["robot"].get("urdf", "")))
     if not urdf.is_file():
-        raise SurestepError(f"{solution}: robot.urdf '{sol['robot'].get('urdf')}' not found ({urdf})")
+        raise SurestepError(f"{label}: robot.urdf '{sol['robot'].get('urdf')}' not found ({urdf})")
     for flag, x in (("--tool-speed", tool_speed), ("--tool-rotation-speed", tool_rotation)):
         if x is not None and not (math.isfinite(x) and x > 0):
             raise SurestepError(f"{flag} must be a positive number, got {x:g}")
@@ -57,26 +64,26 @@ def export_solution(solution: str | Path, fmt: str, output: str | Path, *, rate_
     targets = ([] if fmt == "rosbag2" else [output]) + ([jaw_path(output)] if fmt == "ros2" else []) + (
         [output.with_name(f"{output.stem}_motion.png")] if plot else [])
     if fmt == "rosbag2":  # a new (or empty) directory, written whole
-        check_new_dir(output, inputs=[solution, urdf], what="the bag")
+        check_new_dir(output, inputs=[*inputs, urdf], what="the bag")
     for path in targets:  # before any work: never the solution or the URDF read here, never a folder or a device
-        check_output_file(path, inputs=[solution, urdf], what="the export")
+        check_output_file(path, inputs=[*inputs, urdf], what="the export")
     frame = str(sol["robot"].get("frame") or "tool")
     try:
         with quiet_fd(2):  # urdfdom prints parse errors on stderr; the error below says it in one line
             robot = Robot(urdf, frame=frame)
     except (ValueError, RuntimeError, OSError, SurestepError) as exc:
-        raise SurestepError(f"{solution}: robot.urdf {shown(str(urdf), 120)}: cannot load it "
+        raise SurestepError(f"{label}: robot.urdf {shown(str(urdf), 120)}: cannot load it "
                             f"({shown(str(exc).splitlines()[0] if str(exc) else type(exc).__name__, 160)})") from None
     try:
         limits = limits_of(sol, urdf, velocity, acceleration, tool_speed, tool_rotation)
     except SurestepError as exc:
-        raise SurestepError(f"{solution}: {exc}") from None
+        raise SurestepError(f"{label}: {exc}") from None
     step, step_source = step_of(sol, step_s)
     if robot.joint_names != list(sol["joint_names"]):
-        raise SurestepError(f"{solution}: joint_names {', '.join(sol['joint_names'])} are not those of {urdf}")
+        raise SurestepError(f"{label}: joint_names {', '.join(sol['joint_names'])} are not those of {urdf}")
     q, clipped = within_position_limits(np.array(sol["q"], float), robot)
     traj = time_parametrise(q, step, limits, rate_hz, robot=robot, tool_frame=frame, timing=timing)
-    meta = {"source": str(solution), "method": sol.get("method"), "problem": sol.get("problem"),
+    meta = {"source": label, "method": sol.get("method"), "problem": sol.get("problem"),
             "robot": {"urdf": sol["robot"].get("urdf"), "frame": sol["robot"].get("frame")},
             "step_s_source": step_source, "limits_enforced_in_plan": (sol.get("limits") or {}).get("enforce"),
             "waypoints_clipped_by": clipped, "joint_naming": naming.to_dict()}
@@ -128,8 +135,11 @@ def register(sub) -> None:
     """The `export` subcommand (surestep_ocp/cli.py)."""
     e = sub.add_parser("export", help="time-parametrise a solution's joint plan within its motion limits "
                                       "and write it as CSV, JSON, a ROS 2 JointTrajectory (YAML) or a ROS 2 bag")
-    e.add_argument("solution", metavar="SOLUTION.json")
-    e.add_argument("--format", required=True, choices=FORMATS)
+    e.add_argument("solution", metavar="SOLUTION.json", help="a solution file (surestep solve --output, or one of "
+                   "surestep compare's <method>.json)")
+    e.add_argument("--format", required=True, choices=FORMATS,
+                   help="csv, json, ros2 (a trajectory_msgs/JointTrajectory as YAML) or rosbag2 (a bag directory "
+                        "for `ros2 bag play`; docs/motion_limits_and_export.md)")
     e.add_argument("--output", "-o", required=True, help="file to write (ros2: the jaw goes to <stem>_jaw<suffix>; "
                    "rosbag2: a new or empty directory)")
     e.add_argument("--rate", type=float, default=DEFAULT_RATE_HZ, help="samples per second (default 100; "

@@ -20,8 +20,22 @@ POSITION_TOL = 1e-6  # [relative] a waypoint this far beyond a position limit is
 COMMAND_LINE = "command line"  # the source of a limit given by an export flag
 
 
-def load_solution(path: str | Path) -> dict:
-    """The solution JSON as a dict; a missing or malformed file is a one-line error naming it."""
+def solution_label(solution) -> str:
+    """How errors and the export's metadata name a solution: its file, or `<the METHOD Solution>`."""
+    if hasattr(solution, "to_dict"):
+        return f"<the {shown(getattr(solution, 'method', ''), 60)} Solution>"
+    return str(solution)
+
+
+def load_solution(path) -> dict:
+    """The solution JSON as a dict (`path`: its file, or a `Solution` as it would be saved); a missing or
+    malformed one is a one-line error naming it."""
+    if hasattr(path, "to_dict"):  # a Solution object: its dict as `Solution.save` writes it
+        from .solution import _jsonable
+
+        p = solution_label(path)
+        d = json.loads(json.dumps(path.to_dict(), default=_jsonable))
+        return _checked(d, p)
     p = Path(path)
     if not p.is_file():
         raise SurestepError(f"{p}: no such solution file")
@@ -29,6 +43,11 @@ def load_solution(path: str | Path) -> dict:
         d = json.loads(p.read_text())
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise SurestepError(f"{p}: not a solution JSON file ({str(exc).splitlines()[0]})") from None
+    return _checked(d, p)
+
+
+def _checked(d, p) -> dict:
+    """`d` if it is a solution's dict (the keys export reads, well-formed), else a one-line error naming `p`."""
     missing = [k for k in ("q", "joint_names", "robot") if not isinstance(d, dict) or k not in d]
     if missing:
         raise SurestepError(f"{p}: not a solution file (missing key(s) {', '.join(missing)}; written by "

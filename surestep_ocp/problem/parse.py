@@ -9,13 +9,14 @@ Every error is a one-line `ProblemError` naming the file, the key path and what 
 from __future__ import annotations
 
 import re
+from collections.abc import Mapping
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from ..errors import shown
+from ..errors import ProblemError, ProblemErrors, shown
 from ..model.belief import (
     BeliefModel,
     COMPONENTS,
@@ -57,47 +58,93 @@ MAX_FRAMES_PER_STEP = 10_000
 
 _TOP = {"name", "description", "robot", "camera", "start", "goal", "horizon", "noise",
         "constraints", "objective", "solver", "gradient", "timing", "limits"}
+_REQUIRED_TOP = {"robot", "camera", "start", "goal", "horizon"}
 
 
 def parse_problem(tree: Any, path: Path) -> Problem:
+    """`tree` (a problem file's YAML) read into a Problem. Each top-level section is read even when another
+    has an error, so every error of a file is reported at once: one error is a ProblemError, several a
+    `ProblemErrors` (one line each; a section stops at its first error, and a section that needs another,
+    `limits` the robot's joints, is read only when that one is right)."""
     rd = Reader(str(path))
-    top = rd.mapping(tree, "", _TOP, {"robot", "camera", "start", "goal", "horizon"})
-    robot = _robot(rd, top["robot"], "robot", path, default_frame="tool")
-    camera = _camera(rd, top["camera"], path)
-    horizon = rd.integer(top["horizon"], "horizon", minimum=1, maximum=MAX_HORIZON)
-    timing = _timing(rd, top.get("timing", {}))
-    noise = _noise(rd, top.get("noise", {}), frames=timing.frames)
-    cons = rd.mapping(top.get("constraints", {}), "constraints", {"min_depth"})
-    obj = rd.mapping(top.get("objective", {}), "objective", {"smoothness", "covariance"})
+    errors: list[ProblemError] = []
+    top = _top(rd, tree, errors)
+
+    def section(key: str, read, *args, required: bool = False, **kwargs):
+        if required and key not in top:  # (its error is the top level's)
+            return None
+        try:
+            return read(*args, **kwargs)
+        except ProblemError as exc:
+            errors.append(exc)
+            return None
+
+    robot = section("robot", _robot, rd, top.get("robot"), "robot", path, default_frame="tool", required=True)
+    camera = section("camera", _camera, rd, top.get("camera"), path, required=True)
+    start = section("start", _endpoint, rd, top.get("start"), "start", path, required=True)
+    goal = section("goal", _endpoint, rd, top.get("goal"), "goal", path, required=True)
+    horizon = section("horizon", rd.integer, top.get("horizon"), "horizon", minimum=1, maximum=MAX_HORIZON,
+                      required=True)
+    timing = section("timing", _timing, rd, top.get("timing", {}))
+    # (a wrong timing: the noise read with one frame per step, so that its own errors are still found)
+    noise = section("noise", _noise, rd, top.get("noise", {}), frames=(timing or TimingSpec()).frames)
+    cons = section("constraints", rd.mapping, top.get("constraints", {}), "constraints", {"min_depth"})
+    min_depth = None if cons is None else section(
+        "constraints", rd.number, cons.get("min_depth", 0.03), "constraints.min_depth", positive=True, low=1e-4,
+        high=10.0)
+    objective, covariance = section("objective", _objective, rd, top.get("objective", {})) or (None, None)
+    solver = section("solver", _solver, rd, top.get("solver", {}))
+    gradient = section("gradient", _gradient, rd, top.get("gradient", {}))
+    limits = None if robot is None else section("limits", _limits, rd, top.get("limits", {}), robot)
+    name = section("name", rd.string, top.get("name", path.stem), "name")
+    description = section("description", rd.string, top.get("description", ""), "description")
+    if errors:
+        order = {str(k): i for i, k in enumerate(tree)}  # the file's order of its sections
+        errors.sort(key=lambda e: order.get(re.split(r"[.\[]", e.key or "")[0], len(order)))
+        raise errors[0] if len(errors) == 1 else ProblemErrors(errors)
     # which covariance the planners minimise: Sigma_T|T (the paper's) or Sigma_T|T-1, the one that
     # governs the executed error under closed-loop control (section 8)
-    noise = replace(noise, objective=rd.string(obj.get("covariance", "posterior"),
-                                               "objective.covariance", OBJECTIVES))
+    noise = replace(noise, objective=covariance)
     problem = Problem(
-        name=rd.string(top.get("name", path.stem), "name"),
-        description=rd.string(top.get("description", ""), "description"),
+        name=name,
+        description=description,
         path=path,
         robot=robot,
         camera=camera,
-        start=_endpoint(rd, top["start"], "start", path),
-        goal=_endpoint(rd, top["goal"], "goal", path),
+        start=start,
+        goal=goal,
         horizon=horizon,
         noise=noise,
-        min_depth=rd.number(cons.get("min_depth", 0.03), "constraints.min_depth", positive=True,
-                            low=1e-4, high=10.0),
-        objective=ObjectiveSpec(smoothness=rd.number(obj.get("smoothness", 0.0),
-                                                     "objective.smoothness", nonneg=True,
-                                                     high=1e6)),
-        solver=_solver(rd, top.get("solver", {})),
-        gradient=_gradient(rd, top.get("gradient", {})),
+        min_depth=min_depth,
+        objective=objective,
+        solver=solver,
+        gradient=gradient,
         timing=timing,
-        limits=_limits(rd, top.get("limits", {}), robot),
+        limits=limits,
         source=tree,
     )
     # the solver choices against the noise model, when the file is read (the robot's rule: build_setup)
     resolve(problem.solver, BeliefModel(problem.noise, problem.camera.intrinsics), None, file=str(path),
             limited=problem.limits.enforce)
     return problem
+
+
+def _top(rd: Reader, tree: Any, errors: list[ProblemError]) -> dict:
+    """The top-level mapping's known keys; each unknown and each missing required key an error in `errors`
+    (not a mapping at all: raised, nothing else can be read)."""
+    if not isinstance(tree, Mapping):
+        rd.mapping(tree, "", _TOP)  # raises, naming what is expected
+    errors += [rd.fail(str(k), f"unknown key; allowed keys here: {', '.join(sorted(_TOP))}")
+               for k in sorted(set(tree) - _TOP, key=str)]
+    errors += [rd.fail(k, "missing required key") for k in sorted(_REQUIRED_TOP - set(tree))]
+    return {k: v for k, v in tree.items() if k in _TOP}
+
+
+def _objective(rd: Reader, node: Any) -> tuple[ObjectiveSpec, str]:
+    obj = rd.mapping(node, "objective", {"smoothness", "covariance"})
+    return (ObjectiveSpec(smoothness=rd.number(obj.get("smoothness", 0.0), "objective.smoothness", nonneg=True,
+                                               high=1e6)),
+            rd.string(obj.get("covariance", "posterior"), "objective.covariance", OBJECTIVES))
 
 
 def _timing(rd: Reader, node: Any) -> TimingSpec:
@@ -163,7 +210,12 @@ def _robot(rd: Reader, node: Any, key: str, path: Path, default_frame: str,
 
 def _pose(rd: Reader, node: Any, key: str) -> np.ndarray:
     """A pose: `position` plus one of `rpy`, `axis_angle`, `minus_z_toward` (a point), or a 4x4
-    `matrix`."""
+    `matrix`; or the list of 6 `[px, py, pz, rx, ry, rz]` (position, axis-angle) the start and goal take."""
+    if isinstance(node, (list, tuple)):
+        p = _pose6(rd, node, key)
+        T = np.eye(4)
+        T[:3, :3], T[:3, 3] = np_exp(p[3:]), p[:3]
+        return T
     m = rd.mapping(node, key, {"position", "rpy", "axis_angle", "minus_z_toward", "matrix"})
     if "matrix" in m:
         if len(m) != 1:
@@ -252,6 +304,13 @@ def _endpoint(rd: Reader, node: Any, key: str, path: Path) -> EndpointSpec:
 
 
 def _pose6(rd: Reader, node: Any, key: str) -> np.ndarray:
+    """A tool pose `{position: [x, y, z], axis_angle: [rx, ry, rz]}` or the same as one list of 6 numbers."""
+    if isinstance(node, (list, tuple)):
+        if len(node) != 6:
+            raise rd.fail(key, f"expected 6 numbers [px, py, pz, rx, ry, rz] (position [m], axis-angle [rad]) "
+                               f"or {{position, axis_angle}}, got a list of {len(node)}")
+        return np.array([rd.number(v, f"{key}[{i}]", limit=MAX_POSITION if i < 3 else MAX_ANGLE)
+                         for i, v in enumerate(node)])
     p = rd.mapping(node, key, {"position", "axis_angle"}, {"position", "axis_angle"})
     return np.concatenate([rd.vector(p["position"], f"{key}.position", 3, limit=MAX_POSITION),
                            rd.vector(p["axis_angle"], f"{key}.axis_angle", 3, limit=MAX_ANGLE)])

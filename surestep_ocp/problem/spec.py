@@ -14,20 +14,21 @@ from typing import Any
 
 import numpy as np
 
+from ..equality import ArrayEquality
 from ..errors import ProblemError
 from ..model.belief import NoiseParams
 from ..model.camera import Intrinsics
 
 
-@dataclass(frozen=True)
-class PoseSpec:
+@dataclass(frozen=True, eq=False)
+class PoseSpec(ArrayEquality):
     """A pose given in a problem file, as a 4x4 matrix (frame stated by the field using it)."""
 
     matrix: np.ndarray
 
 
-@dataclass(frozen=True)
-class EndpointSpec:
+@dataclass(frozen=True, eq=False)
+class EndpointSpec(ArrayEquality):
     """Start or goal: joint values, or a tool pose `[p, r]` in the camera frame."""
 
     joints: np.ndarray | None = None
@@ -36,8 +37,8 @@ class EndpointSpec:
     key: str = ""
 
 
-@dataclass(frozen=True)
-class RobotSpec:
+@dataclass(frozen=True, eq=False)
+class RobotSpec(ArrayEquality):
     urdf: Path  # absolute
     urdf_rel: str  # as written relative to the repository, for the solution file
     frame: str
@@ -48,8 +49,8 @@ class RobotSpec:
     joints: np.ndarray | None = None  # fixed joint values (an arm that does not move)
 
 
-@dataclass(frozen=True)
-class RelativeGoal:
+@dataclass(frozen=True, eq=False)
+class RelativeGoal(ArrayEquality):
     """A goal given in the frame of another arm's tracked object (e.g. the regrasp pose on its
     needle)."""
 
@@ -57,16 +58,16 @@ class RelativeGoal:
     pose: np.ndarray  # [px, py, pz, rx, ry, rz] in that object's frame
 
 
-@dataclass(frozen=True)
-class CameraMove:
+@dataclass(frozen=True, eq=False)
+class CameraMove(ArrayEquality):
     """The ECM moves to `ecm_joints` between waypoint `step - 1` and waypoint `step`."""
 
     step: int
     ecm_joints: np.ndarray
 
 
-@dataclass(frozen=True)
-class CameraSpec:
+@dataclass(frozen=True, eq=False)
+class CameraSpec(ArrayEquality):
     intrinsics: Intrinsics
     pose: np.ndarray | None = None  # 4x4 camera in world (given directly)
     ecm: RobotSpec | None = None  # or: the ECM arm whose `frame` is the camera
@@ -166,9 +167,12 @@ class ObjectiveSpec:
     smoothness: float = 0.0
 
 
-@dataclass(frozen=True)
-class Problem:
-    """A validated problem file."""
+@dataclass(frozen=True, eq=False)
+class Problem(ArrayEquality):
+    """A validated problem file (`load_problem`, `problem_from_dict`; changed copies by the `with_*` methods).
+
+    Problems compare equal (`==`) when every field does, arrays by value; where it was read from (`source`,
+    the YAML tree) is not compared."""
 
     name: str
     path: Path
@@ -190,23 +194,33 @@ class Problem:
     # Changed copies (the Python API). Each edits the tree the problem was read from and reads it
     # again with the file's own checks, so a bad value is a ProblemError naming the file and the key
     # (e.g. `goal.pose.position`).
-    def with_start(self, *, pose=None, joints=None) -> Problem:
-        """Start at a tool `pose` `[px, py, pz, rx, ry, rz]` (camera frame: position [m], axis-angle
-        [rad]) or at `joints` [rad; m for the insertion]."""
-        return self.with_sections(start=self._endpoint_tree("start", pose, joints))
+    def with_start(self, *, pose=None, joints=None, position=None, axis_angle=None, **unknown) -> Problem:
+        """Start at a tool pose (camera frame: position [m], axis-angle [rad]) or at `joints` [rad; m for
+        the insertion]. The pose in any of the file's forms: `pose=[px, py, pz, rx, ry, rz]`,
+        `pose={"position": [...], "axis_angle": [...]}`, or `position=[...], axis_angle=[...]`."""
+        return self.with_sections(start=self._endpoint_tree("start", pose, joints, position, axis_angle, unknown))
 
-    def with_goal(self, *, pose=None, joints=None) -> Problem:
-        """Goal at a tool `pose` `[px, py, pz, rx, ry, rz]` (camera frame, [m] and [rad]) or at
-        `joints`."""
-        return self.with_sections(goal=self._endpoint_tree("goal", pose, joints))
+    def with_goal(self, *, pose=None, joints=None, position=None, axis_angle=None, **unknown) -> Problem:
+        """Goal at a tool pose (camera frame: position [m], axis-angle [rad]) or at `joints`. The pose in any
+        of the file's forms: `pose=[px, py, pz, rx, ry, rz]`, `pose={"position": [...], "axis_angle": [...]}`,
+        or `position=[...], axis_angle=[...]`.
+
+            problem.with_goal(pose=[0.035, -0.01, 0.11, 0.6, 0.1, 1.4])
+            problem.with_goal(position=[0.035, -0.01, 0.11], axis_angle=[0.6, 0.1, 1.4])
+        """
+        return self.with_sections(goal=self._endpoint_tree("goal", pose, joints, position, axis_angle, unknown))
 
     def with_camera_pose(self, matrix) -> Problem:
-        """The camera fixed at `matrix` (4x4, camera in world, position [m]; OpenCV axes: z
-        forward), in place of the ECM. A goal given in the camera frame stays there (it moves with
-        the camera)."""
+        """The camera fixed at `matrix` (camera in world, position [m]; OpenCV axes: z forward), in place of
+        the ECM: a 4x4 matrix, or a pose in the file's forms (`[px, py, pz, rx, ry, rz]`, `{position,
+        axis_angle}`, `{position, rpy}`, ...). A goal given in the camera frame stays there (it moves with the
+        camera)."""
         camera = {k: v for k, v in self._tree().get("camera", {}).items()
                   if k not in ("pose", "ecm")}
-        return self.with_sections(camera={**camera, "pose": {"matrix": matrix}})
+        pose = plain_tree(matrix)
+        if isinstance(pose, list) and any(isinstance(row, list) for row in pose):  # rows: a matrix
+            pose = {"matrix": pose}
+        return self.with_sections(camera={**camera, "pose": pose})
 
     def with_noise(self, **values) -> Problem:
         """Noise constants replaced, as the file's `noise:` keys take them: `Sigma0` (scalar or 6x6
@@ -238,20 +252,27 @@ class Problem:
                                "problem_from_dict), so it cannot be changed by with_*")
         return self.source
 
-    def _endpoint_tree(self, key: str, pose, joints) -> dict:
-        """A `start:` / `goal:` section of a pose [px, py, pz, rx, ry, rz] or joint values."""
-        tree = {} if joints is None else {"joints": joints}
-        pose = plain_tree(pose)
-        if isinstance(pose, list):
-            if len(pose) != 6:
-                raise ProblemError(str(self.path), f"{key}.pose",
-                                   "expected 6 numbers [px, py, pz, rx, ry, rz] "
-                                   f"(position [m], axis-angle [rad]), got {len(pose)}")
-            tree["pose"] = {"position": pose[:3], "axis_angle": pose[3:]}
-        elif pose is not None:
-            # a mapping {position, axis_angle}, or what the reader says is wrong
-            tree["pose"] = pose
-        return tree
+    def _endpoint_tree(self, key: str, pose, joints, position, axis_angle, unknown: dict) -> dict:
+        """A `start:` / `goal:` section: a pose (a list of 6, a mapping, or `position` and `axis_angle`) or
+        joint values (the reader checks the values and says what is wrong)."""
+        if unknown:
+            raise TypeError(f"with_{key}() got an unexpected keyword argument '{sorted(unknown)[0]}'; "
+                            "valid keywords: pose, joints, position, axis_angle")
+        pose, position, axis_angle = plain_tree(pose), plain_tree(position), plain_tree(axis_angle)
+        if position is not None or axis_angle is not None:
+            if pose is not None:
+                raise TypeError(f"with_{key}(): give pose= or position= and axis_angle=, not both")
+            if position is None or axis_angle is None:
+                raise TypeError(f"with_{key}(): position= and axis_angle= go together (or pose=[px, py, pz, rx, "
+                                "ry, rz])")
+            pose = {"position": position, "axis_angle": axis_angle}
+        given = [name for name, v in (("pose", pose), ("joints", joints)) if v is not None]
+        if len(given) != 1:
+            raise TypeError(f"with_{key}(): give exactly one of pose= (or position= and axis_angle=) and joints=, "
+                            f"got {' and '.join(given) or 'none'}")
+        if isinstance(pose, list) and len(pose) == 6:  # (as the mapping: an error names goal.pose.position[2])
+            pose = {"position": pose[:3], "axis_angle": pose[3:]}
+        return {"joints": joints} if joints is not None else {"pose": pose}
 
 
 def plain_tree(value: Any) -> Any:

@@ -1,21 +1,36 @@
 """CasADi code generation: a Function as C, compiled once into a shared library, cached by content.
 
-The cache directory is `$SURESTEP_CACHE`, else `~/.cache/surestep_ocp`. A library's name
-carries a hash of its C source, the compiler flags and the CasADi version, so a change in
-the problem's structure (robot, horizon, noise constants) compiles anew and an unchanged
-one is loaded in milliseconds. Libraries are written to a temporary name and renamed, so
-concurrent processes never load a half-written file, and each is loaded only after its SHA-256
-matches the checksum stored beside it (`<lib>.so.sha256`); a corrupt or truncated one is rebuilt.
+Where: `$SURESTEP_CACHE` when set, else `$XDG_CACHE_HOME/surestep_ocp` (`~/.cache/surestep_ocp` when
+`XDG_CACHE_HOME` is unset or not an absolute path, as the XDG base directory specification says).
+`surestep cache --info` shows it, `surestep cache --clear` empties it (README, "The compile cache").
+
+A library's name carries a hash of its C source, the compiler flags and the CasADi version, so a change in
+the problem's structure (robot, horizon, noise constants) compiles anew and an unchanged one is loaded in
+milliseconds. Libraries are written to a temporary name and renamed, so concurrent processes never load a
+half-written file, and each is loaded only after its SHA-256 matches the checksum stored beside it
+(`<lib>.so.sha256`); a corrupt or truncated one is rebuilt.
+
+First use compiles: each batch of functions compiled says so on stderr (what, how much C, an estimate
+from the seconds per megabyte of C measured by this cache's previous compiles, kept in `timing.json`), the
+functions of a batch are compiled in parallel (one compiler per core), and the line after says how long it
+took. The cache is bounded: after a compile, when it holds more than `$SURESTEP_CACHE_MAX_MB` (default
+`DEFAULT_MAX_MB`) the least recently used libraries are removed until it holds at most that (a library's
+last use is the modification time of its checksum file, touched at each load).
 """
 
 from __future__ import annotations
 
 import hashlib
+import json
 import os
 import shutil
 import subprocess
 import sys
 import tempfile
+import threading
+import time
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
 from pathlib import Path
 
 import casadi as ca
@@ -23,10 +38,35 @@ import casadi as ca
 from ..errors import SurestepError
 
 FLAGS = ("-O1", "-fPIC", "-shared")  # measured on the T = 20 Hessian: -O1 5x faster than the VM, -O0 2x
+DEFAULT_MAX_MB = 1024  # the cache's size bound [MB] unless $SURESTEP_CACHE_MAX_MB says otherwise (0: unbounded)
+# wall-clock seconds per megabyte of generated C at -O1 (the batch's compilers in parallel) before this cache
+# has measured its own: measured on the default problem's Newton functions (0.8 to 1.3 MB of C in 5 functions
+# per horizon, 2 at a time) on 2 cores shared with other work, 2.6 to 6.4 s per MB (9.1 s under a heavier load)
+PRIOR_S_PER_MB = 5.0
+TIMING_FILE = "timing.json"
 
 
 def cache_dir() -> Path:
-    return Path(os.environ.get("SURESTEP_CACHE") or Path.home() / ".cache" / "surestep_ocp")
+    """The compile cache's folder (module docstring): `$SURESTEP_CACHE`, else `$XDG_CACHE_HOME/surestep_ocp`,
+    else `~/.cache/surestep_ocp`."""
+    override = os.environ.get("SURESTEP_CACHE")
+    if override:
+        return Path(override)
+    xdg = os.environ.get("XDG_CACHE_HOME")
+    base = Path(xdg) if xdg and os.path.isabs(xdg) else Path.home() / ".cache"
+    return base / "surestep_ocp"
+
+
+def max_bytes() -> int | None:
+    """The cache's size bound in bytes (`$SURESTEP_CACHE_MAX_MB`, default `DEFAULT_MAX_MB`; 0: None, unbounded)."""
+    text = os.environ.get("SURESTEP_CACHE_MAX_MB", "").strip()
+    try:
+        mb = float(text) if text else DEFAULT_MAX_MB
+    except ValueError:
+        raise SurestepError(f"SURESTEP_CACHE_MAX_MB must be a number of megabytes, got '{text[:40]}'") from None
+    if not mb >= 0:
+        raise SurestepError(f"SURESTEP_CACHE_MAX_MB must be >= 0 (0: unbounded), got {text[:40]}")
+    return None if mb == 0 else int(mb * 1e6)
 
 
 def compiler() -> str:
@@ -45,7 +85,8 @@ def compiled_or_interpreted(fns: dict[str, ca.Function], required: bool) -> tupl
     """`fns` compiled; if compiling fails and it is not `required` (`solver.codegen: auto`), the interpreted
     ones and a note saying why (`solver.codegen: true` keeps the error)."""
     try:
-        return {k: compiled(fn)[0] for k, fn in fns.items()}, None
+        done = compiled_all(list(fns.values()))
+        return {k: f for k, (f, _) in zip(fns, done)}, None
     except SurestepError as exc:
         if required:
             raise
@@ -75,11 +116,17 @@ def verified(lib: Path) -> str | None:
     return None if actual == stored else "its content does not match its checksum (corrupt or truncated)"
 
 
-_ANNOUNCED = False  # the compile note is said once per process
-
-
 def _note(text: str) -> None:
     print(f"note: solver.codegen: {text}", file=sys.stderr, flush=True)
+
+
+@dataclass
+class _Job:
+    fn: ca.Function
+    source: Path
+    lib: Path
+    fresh: bool = False
+    seconds: float = 0.0
 
 
 def compiled(fn: ca.Function) -> tuple[ca.Function, bool]:
@@ -89,41 +136,236 @@ def compiled(fn: ca.Function) -> tuple[ca.Function, bool]:
     it was built (`<lib>.so.sha256`); otherwise it is rebuilt, with a note on stderr (a truncated shared
     library loaded as such kills the process with SIGBUS).
     """
+    return compiled_all([fn])[0]
+
+
+def compiled_all(fns: list[ca.Function]) -> list[tuple[ca.Function, bool]]:
+    """Each of `fns` compiled (as `compiled`): the cached ones loaded, the others compiled in parallel (one
+    compiler per core), announced on stderr with an estimate, then timed; the cache pruned after a compile."""
     cc = compiler()
-    name = fn.name()
+    folder = cache_dir()
     with tempfile.TemporaryDirectory() as tmp:
-        gen = ca.CodeGenerator(f"{name}.c")
-        gen.add(fn)
-        gen.generate(tmp + os.sep)
-        source = Path(tmp, f"{name}.c")
-        key = hashlib.sha256(source.read_bytes() + " ".join(FLAGS).encode() + ca.__version__.encode()).hexdigest()
-        lib = cache_dir() / f"{name}_{key[:20]}.so"
-        fresh = not lib.exists()
-        if not fresh:
-            problem = verified(lib)
-            if problem is not None:  # (no checksum: built by an older version; rebuilt without a note)
-                if not problem.startswith("it has no checksum"):
-                    _note(f"the cached {lib.name} was not loaded: {problem}; rebuilding it")
-                fresh = True
-        if fresh:
-            global _ANNOUNCED
-            if not _ANNOUNCED:  # long work made visible: seconds per structure, minutes on a loaded machine
-                _note(f"compiling derivatives to C (a new problem structure or horizon; cached in {lib.parent})")
-                _ANNOUNCED = True
-            _build(cc, source, lib)
+        jobs = [_job(fn, Path(tmp), folder) for fn in fns]
+        todo = list({j.lib: j for j in jobs if j.fresh}.values())  # (a function given twice: compiled once)
+        if todo:
+            _compile(cc, todo, folder)
+    out = []
+    for j in jobs:
+        try:
+            out.append((ca.external(j.fn.name(), str(j.lib)), j.fresh))
+        except RuntimeError as exc:
+            raise SurestepError(f"solver.codegen: cannot load the compiled {j.lib} "
+                                f"({str(exc).strip().splitlines()[-1]})") from None
+    return out
+
+
+def _job(fn: ca.Function, tmp: Path, folder: Path) -> _Job:
+    """`fn`'s C source generated in its own folder under `tmp`, its library's name, and whether it is to be
+    compiled (absent, or failing its checksum: said on stderr); a cached one's last use recorded."""
+    name = fn.name()
+    where = Path(tempfile.mkdtemp(dir=tmp))
+    gen = ca.CodeGenerator(f"{name}.c")
+    gen.add(fn)
+    gen.generate(str(where) + os.sep)
+    source = where / f"{name}.c"
+    key = hashlib.sha256(source.read_bytes() + " ".join(FLAGS).encode() + ca.__version__.encode()).hexdigest()
+    job = _Job(fn, source, folder / f"{name}_{key[:20]}.so")
+    job.fresh = not job.lib.exists()
+    if not job.fresh:
+        problem = verified(job.lib)
+        if problem is not None:  # (no checksum: built by an older version; rebuilt without a note)
+            if not problem.startswith("it has no checksum"):
+                _note(f"the cached {job.lib.name} was not loaded: {problem}; rebuilding it")
+            job.fresh = True
+        else:
+            _touch(_checksum_file(job.lib))  # its last use, for the least-recently-used bound
+    return job
+
+
+def _touch(path: Path) -> None:
     try:
-        return ca.external(name, str(lib)), fresh
-    except RuntimeError as exc:
-        raise SurestepError(f"solver.codegen: cannot load the compiled {lib} ({str(exc).strip().splitlines()[-1]})"
-                            ) from None
+        os.utime(path)
+    except OSError:
+        pass  # a read-only cache is still usable
+
+
+def _inputs(fn: ca.Function) -> str:
+    return ", ".join(f"{fn.size1_in(i)}x{fn.size2_in(i)}" for i in range(fn.n_in()))
+
+
+def _what(fns: list[ca.Function]) -> str:
+    """The functions' names with their input sizes (said once when they all take the same, as a horizon's do)."""
+    sizes = {_inputs(f) for f in fns}
+    if len(sizes) == 1:
+        return f"{', '.join(f.name() for f in fns)}; inputs {sizes.pop()}"
+    return ", ".join(f"{f.name()}({_inputs(f)})" for f in fns)
+
+
+def _compile(cc: str, todo: list[_Job], folder: Path) -> None:
+    """Compile `todo` (in parallel), announced with an estimate and timed on stderr; the measured rate kept for
+    the next estimate; the cache pruned to its bound."""
+    sizes = [j.source.stat().st_size for j in todo]
+    workers = max(1, min(len(todo), os.cpu_count() or 1))
+    rate, basis = _rate(folder)
+    estimate = sum(sizes) / 1e6 * rate
+    _note(f"compiling {len(todo)} function{'s' if len(todo) > 1 else ''} to C ({_what([j.fn for j in todo])}; "
+          f"{sum(sizes) / 1e6:.2f} MB of C, {workers} at a time): about {_duration(estimate)} ({basis}); once per "
+          f"problem structure and horizon, cached in {folder}")
+    t0 = time.perf_counter()
+    with ThreadPoolExecutor(max_workers=workers) as pool:
+        for _ in pool.map(lambda j: _timed_build(cc, j), todo):
+            pass
+    took = time.perf_counter() - t0
+    measured = took / (sum(sizes) / 1e6)
+    _note(f"compiling took {_duration(took)} (estimated {_duration(estimate)}; {measured:.1f} s per MB of C)")
+    _record_rate(folder, measured, sum(sizes))
+    prune(max_bytes())
+
+
+def _timed_build(cc: str, job: _Job) -> None:
+    t = time.perf_counter()
+    _build(cc, job.source, job.lib)
+    job.seconds = time.perf_counter() - t
+
+
+def _duration(seconds: float) -> str:
+    return f"{seconds:.0f} s" if seconds >= 10 else f"{seconds:.1f} s"
+
+
+def _rate(folder: Path) -> tuple[float, str]:
+    """Wall-clock seconds per MB of C: this cache's measurements, else `PRIOR_S_PER_MB`."""
+    try:
+        record = json.loads((folder / TIMING_FILE).read_text())
+        rate = float(record["s_per_mb"])
+        if rate > 0 and rate < 1e4:
+            return rate, f"{rate:.1f} s per MB of C measured here before"
+    except (OSError, ValueError, KeyError, TypeError):
+        pass
+    return PRIOR_S_PER_MB, f"{PRIOR_S_PER_MB:g} s per MB of C, a first guess"
+
+
+def _record_rate(folder: Path, rate: float, size: int) -> None:
+    """Keep the measured rate (the mean with the previous one, weighted by megabytes compiled, the old
+    weight capped so that the machine's present speed dominates)."""
+    path = folder / TIMING_FILE
+    try:
+        old = json.loads(path.read_text())
+        w_old, r_old = min(float(old["mb"]), 2.0), float(old["s_per_mb"])
+    except (OSError, ValueError, KeyError, TypeError):
+        w_old, r_old = 0.0, 0.0
+    w = size / 1e6
+    record = {"s_per_mb": (w_old * r_old + w * rate) / (w_old + w), "mb": w_old + w,
+              "note": "wall-clock seconds per megabyte of generated C compiled (the compile estimate)"}
+    part = path.with_name(f"{path.name}.{os.getpid()}.part")
+    try:
+        part.write_text(json.dumps(record) + "\n")
+        os.replace(part, path)
+    except OSError:
+        part.unlink(missing_ok=True)
+
+
+# ------------------------------------------------------------------ the cache as a whole (surestep cache)
+
+@dataclass(frozen=True)
+class Entry:
+    """A compiled library in the cache, its checksum file, their bytes and its last use [s since the epoch]."""
+
+    lib: Path
+    size: int
+    last_use: float
+
+
+def entries(folder: Path | None = None) -> list[Entry]:
+    """The cache's libraries, least recently used first."""
+    folder = cache_dir() if folder is None else folder
+    out = []
+    try:
+        libs = list(folder.glob("*.so"))
+    except OSError:
+        return []
+    for lib in libs:
+        try:
+            st = lib.stat()
+        except OSError:
+            continue
+        size, last = st.st_size, st.st_mtime
+        try:
+            cs = _checksum_file(lib).stat()
+            size, last = size + cs.st_size, max(last, cs.st_mtime)
+        except OSError:
+            pass
+        out.append(Entry(lib, size, last))
+    return sorted(out, key=lambda e: (e.last_use, e.lib.name))
+
+
+def total_bytes(folder: Path | None = None) -> int:
+    """Bytes of every file in the cache (libraries, checksums, partial writes, the timing record)."""
+    folder = cache_dir() if folder is None else folder
+    total = 0
+    try:
+        for p in folder.iterdir():
+            try:
+                total += p.stat().st_size if p.is_file() else 0
+            except OSError:
+                pass
+    except OSError:
+        return 0
+    return total
+
+
+def _remove(entry: Entry) -> bool:
+    try:
+        entry.lib.unlink(missing_ok=True)  # (a process that loaded it keeps its mapping)
+        _checksum_file(entry.lib).unlink(missing_ok=True)
+        return True
+    except OSError:
+        return False
+
+
+def prune(limit: int | None, folder: Path | None = None) -> list[Entry]:
+    """Remove the least recently used libraries until the cache's libraries take at most `limit` bytes (None:
+    nothing removed). Returns what was removed."""
+    if limit is None:
+        return []
+    all_entries = entries(folder)
+    total = sum(e.size for e in all_entries)
+    removed = []
+    for e in all_entries:
+        if total <= limit:
+            break
+        if _remove(e):
+            total -= e.size
+            removed.append(e)
+    return removed
+
+
+def clear(folder: Path | None = None) -> int:
+    """Remove every library, checksum, partial write and the timing record from the cache; the bytes freed.
+    Only the cache's own files are removed (a folder given as SURESTEP_CACHE may hold others)."""
+    folder = cache_dir() if folder is None else folder
+    freed = 0
+    try:
+        files = [p for p in folder.iterdir() if p.is_file() and (
+            p.name.endswith((".so", ".so.sha256", ".part")) or p.name == TIMING_FILE)]
+    except OSError:
+        return 0
+    for p in files:
+        try:
+            size = p.stat().st_size
+            p.unlink()
+            freed += size
+        except OSError:
+            pass
+    return freed
 
 
 def _build(cc: str, source: Path, lib: Path) -> None:
     """Compile `source` into `lib` with its checksum beside it (both written to temporary names, then renamed;
     compiled in the source's folder by relative name, so the library's bytes do not depend on the temp path)."""
-    part = lib.with_name(f"{lib.name}.{os.getpid()}.part")
+    tag = f"{os.getpid()}.{threading.get_ident()}"  # one writer per name: processes and their compile threads
+    part = lib.with_name(f"{lib.name}.{tag}.part")
     check = _checksum_file(lib)
-    check_part = check.with_name(f"{check.name}.{os.getpid()}.part")
+    check_part = check.with_name(f"{check.name}.{tag}.part")
     try:
         lib.parent.mkdir(parents=True, exist_ok=True)
         run = subprocess.run([cc, *FLAGS, source.name, "-o", str(part.resolve())], capture_output=True, text=True,

@@ -1,0 +1,135 @@
+"""The compile cache (issue 29 item 4): where it is (XDG), its compile notes with an estimate, its size bound
+(least recently used first), and `surestep cache --info/--clear/--prune`."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import casadi as ca
+import pytest
+
+from surestep_ocp.cli import main
+from surestep_ocp.solvers import codegen
+
+REPO = Path(__file__).resolve().parents[1]
+needs_cc = pytest.mark.skipif(not codegen.available(), reason="no C compiler on this machine")
+
+
+@pytest.fixture()
+def cache_env(monkeypatch, tmp_path):
+    for name in ("SURESTEP_CACHE", "XDG_CACHE_HOME", "SURESTEP_CACHE_MAX_MB"):
+        monkeypatch.delenv(name, raising=False)
+    monkeypatch.setenv("HOME", str(tmp_path / "home"))
+    return tmp_path
+
+
+def test_the_folder_follows_xdg_and_the_override(cache_env, monkeypatch):
+    assert codegen.cache_dir() == cache_env / "home" / ".cache" / "surestep_ocp"
+    monkeypatch.setenv("XDG_CACHE_HOME", str(cache_env / "xdg"))
+    assert codegen.cache_dir() == cache_env / "xdg" / "surestep_ocp"
+    monkeypatch.setenv("XDG_CACHE_HOME", "relative/path")  # the XDG specification: relative paths are ignored
+    assert codegen.cache_dir() == cache_env / "home" / ".cache" / "surestep_ocp"
+    monkeypatch.setenv("SURESTEP_CACHE", str(cache_env / "mine"))
+    assert codegen.cache_dir() == cache_env / "mine"
+
+
+def test_the_bound(cache_env, monkeypatch):
+    assert codegen.max_bytes() == codegen.DEFAULT_MAX_MB * 10**6
+    monkeypatch.setenv("SURESTEP_CACHE_MAX_MB", "0")
+    assert codegen.max_bytes() is None
+    monkeypatch.setenv("SURESTEP_CACHE_MAX_MB", "2.5")
+    assert codegen.max_bytes() == 2_500_000
+    monkeypatch.setenv("SURESTEP_CACHE_MAX_MB", "lots")
+    with pytest.raises(codegen.SurestepError, match="SURESTEP_CACHE_MAX_MB"):
+        codegen.max_bytes()
+
+
+def _fake_library(folder: Path, name: str, size: int, age_s: float) -> Path:
+    folder.mkdir(parents=True, exist_ok=True)
+    lib = folder / f"{name}_0123456789abcdef0123.so"
+    lib.write_bytes(b"x" * size)
+    check = lib.with_name(lib.name + ".sha256")
+    check.write_text("0" * 64 + "\n")
+    t = time.time() - age_s
+    os.utime(lib, (t, t))
+    os.utime(check, (t, t))
+    return lib
+
+
+def test_prune_removes_the_least_recently_used_first(tmp_path):
+    folder = tmp_path / "c"
+    libs = {n: _fake_library(folder, n, 1000, age) for n, age in (("old", 300), ("mid", 200), ("new", 100))}
+    os.utime(libs["old"].with_name(libs["old"].name + ".sha256"))  # "old" loaded just now: the most recent use
+    (folder / "unrelated.txt").write_text("not the cache's")
+    removed = codegen.prune(2 * 1065 + 10, folder)  # room for two libraries with their checksums
+    assert [e.lib.name for e in removed] == [libs["mid"].name]
+    assert not libs["mid"].exists() and not libs["mid"].with_name(libs["mid"].name + ".sha256").exists()
+    assert libs["old"].exists() and libs["new"].exists()
+    assert codegen.prune(None, folder) == []
+    assert codegen.clear(folder) > 2000
+    assert [p.name for p in folder.iterdir()] == ["unrelated.txt"]  # only the cache's own files are removed
+
+
+@needs_cc
+def test_a_compile_is_announced_with_an_estimate_and_timed(cache_env, monkeypatch, capsys):
+    monkeypatch.setenv("SURESTEP_CACHE", str(cache_env / "c"))
+    x = ca.SX.sym("x", 3)
+    fns = [ca.Function(f"cache_probe_{i}", [x], [ca.sin(x) * (i + 1)]) for i in range(3)]
+    done = codegen.compiled_all(fns)
+    assert [fresh for _, fresh in done] == [True] * 3
+    for i, (f, _) in enumerate(done):
+        assert float(f([1, 2, 3])[1]) == pytest.approx((i + 1) * __import__("math").sin(2))
+    err = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("note: solver.codegen:")]
+    assert len(err) == 2, err
+    assert "compiling 3 functions" in err[0] and "cache_probe_0, cache_probe_1, cache_probe_2; inputs 3x1" in err[0]
+    assert "about" in err[0]
+    assert "a first guess" in err[0] and str(cache_env / "c") in err[0]
+    assert err[1].startswith("note: solver.codegen: compiling took")
+    record = json.loads((cache_env / "c" / codegen.TIMING_FILE).read_text())
+    assert record["s_per_mb"] > 0
+    # the next compile's estimate is this cache's measured rate; a cached load says nothing
+    assert codegen.compiled_all(fns[:1])[0][1] is False and capsys.readouterr().err == ""
+    codegen.compiled(ca.Function("cache_probe_new", [x], [ca.cos(x)]))
+    assert "measured here before" in capsys.readouterr().err
+
+
+@needs_cc
+def test_a_compile_keeps_the_cache_within_its_bound(cache_env, monkeypatch):
+    folder = cache_env / "c"
+    monkeypatch.setenv("SURESTEP_CACHE", str(folder))
+    stale = _fake_library(folder, "stale", 50_000, 3600)
+    monkeypatch.setenv("SURESTEP_CACHE_MAX_MB", "0.04")  # 40 kB: the fake library must go, the new one stays
+    x = ca.SX.sym("x", 2)
+    f, fresh = codegen.compiled(ca.Function("cache_bound_probe", [x], [x * 2]))
+    assert fresh and not stale.exists() and [e.lib.name for e in codegen.entries(folder)] == [
+        p.name for p in folder.glob("cache_bound_probe_*.so")]
+
+
+def test_the_cache_command(cache_env, monkeypatch, capsys):
+    folder = cache_env / "xdg" / "surestep_ocp"
+    monkeypatch.setenv("XDG_CACHE_HOME", str(cache_env / "xdg"))
+    for n, age in (("a", 300), ("b", 200), ("c", 100)):
+        _fake_library(folder, n, 400_000, age)
+    assert main(["cache"]) == 0
+    out = capsys.readouterr().out
+    assert str(folder) in out and "$XDG_CACHE_HOME/surestep_ocp" in out and "libraries   3 (1.2 MB" in out
+    assert "surestep cache --clear" in out
+    assert main(["cache", "--prune", "--max-mb", "0.9"]) == 0
+    assert "pruned      1 libraries" in capsys.readouterr().out
+    assert sorted(p.name.split("_")[0] for p in folder.glob("*.so")) == ["b", "c"]
+    assert main(["cache", "--clear"]) == 0
+    assert "cleared" in capsys.readouterr().out and not list(folder.iterdir())
+    assert main(["cache", "--max-mb", "3"]) == 2  # --max-mb without --prune
+    assert "--max-mb applies to --prune only" in capsys.readouterr().err
+
+
+def test_the_cache_command_runs_as_a_program(cache_env):
+    env = {**os.environ, "SURESTEP_CACHE": str(cache_env / "empty")}
+    res = subprocess.run([sys.executable, "-m", "surestep_ocp.cli", "cache", "--info"], capture_output=True,
+                         text=True, cwd=REPO, env=env, timeout=120, check=False)
+    assert res.returncode == 0 and "not created yet" in res.stdout and "$SURESTEP_CACHE" in res.stdout, res.stderr
