@@ -22,7 +22,6 @@ import harness as h  # first: one BLAS thread
 
 from dataclasses import replace  # noqa: E402
 
-import numpy as np  # noqa: E402
 
 
 def cold(args) -> tuple[list[str], dict]:

@@ -5,7 +5,6 @@ Where it is and how it is bounded: `solvers/codegen.py` (README, "The compile ca
 
 from __future__ import annotations
 
-import argparse
 import time
 
 

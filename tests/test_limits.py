@@ -149,8 +149,9 @@ def test_default_problem_plan_meets_every_limit(default_enforced):
     assert max(curve) > 0.9  # the limits are active (the unconstrained plan moves 31 mm in its first step)
     assert max(ratios) <= max(curve) + 1e-9  # the finite differences are averages of the curve's values
     assert sol.extras["motion_limits"]["ok"] and sol.extras["motion_limits"]["enforced"]
-    # IPOPT, which carries them, solves it (Newton's unconstrained plan would break them: not run under auto)
-    assert sol.extras["solver"] == "ipopt" and "newton" not in sol.extras["hessian"]
+    # the interior-point method, which carries them, solves it (projected Newton's unconstrained plan would break
+    # them: not run under auto)
+    assert sol.extras["solver"] == "interior" and "newton" not in [a.solver for a in sol.attempts]
     first = newton_attempt(setup)
     assert first.status == "Motion_Limits_Violated" and first.objective < sol.objective
 

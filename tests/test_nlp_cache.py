@@ -24,8 +24,8 @@ ROOT = Path(__file__).resolve().parents[1]
 def enforced_default():
     """The default problem at 40 steps of 0.05 s with the limits enforced (set here, whatever the file holds)."""
     prob = load_problem(ROOT / "problems" / "needle_regrasp.yaml")
-    prob = replace(prob, horizon=40, limits=replace(prob.limits, enforce=True),
-                   timing=replace(prob.timing, step_s=0.05))
+    prob = replace(prob, horizon=40, limits=replace(prob.limits, enforce=True),  # IPOPT's (auto: interior first)
+                   timing=replace(prob.timing, step_s=0.05), solver=replace(prob.solver, name="ipopt"))
     setup = build_setup(prob)
     return setup, run_method(setup, "ocp")
 

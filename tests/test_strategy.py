@@ -200,13 +200,14 @@ SURROGATE_THEN_EXACT = [
     ("exact, monotone barrier", "ipopt", "exact", "init"),
 ]
 NEWTON = [("newton", "newton", None, "given"), ("newton, depth barrier", "newton", None, "init")]
+INTERIOR = [("interior point", "interior", None, "given")]  # within enforced limits, under auto or interior
 EXPECTED = {
     "auto": NEWTON + SURROGATE_THEN_EXACT,
     "auto, 6x6 recursion": NEWTON[:1] + SURROGATE_THEN_EXACT[:3],  # no barrier run, no unrolled exact Hessian
     "ipopt": SURROGATE_THEN_EXACT,
     "newton": NEWTON + SURROGATE_THEN_EXACT,
     # enforced limits: no Newton under auto, no barrier retry; an infeasibility verdict is the limits' (stop)
-    "auto, limits": SURROGATE_THEN_EXACT[:2] + ["STOP"] + SURROGATE_THEN_EXACT[3:],
+    "auto, limits": INTERIOR + SURROGATE_THEN_EXACT[:2] + ["STOP"] + SURROGATE_THEN_EXACT[3:],
     "newton, limits": NEWTON + SURROGATE_THEN_EXACT[:2] + ["STOP"] + SURROGATE_THEN_EXACT[3:],
     # a forced Hessian: its own runs only, no exact-Hessian attempt
     "gauss-newton": [("gauss-newton, monotone barrier", "ipopt", "gauss-newton", "init"),
@@ -270,7 +271,7 @@ def test_default_strategy_caps_and_barrier_options():
                                       surrogate_max_iter=40), None, False, False)
     assert {s.options["ipopt.max_iter"] for s in forced} == {900}
     limited = default_strategy(context(resolved(), limits=True, surrogate_max_iter=40), None, False, False)
-    assert all(s.options.get("ipopt.max_iter") == 40 for s in limited if isinstance(s, Attempt))
+    assert all(s.options.get("ipopt.max_iter") == 40 for s in limited if isinstance(s, Attempt) and s.backend == "ipopt")
     lifted = default_strategy(context(resolved(form="full", fits=False)), None, False, True)
     assert lifted[0].options == {"ipopt.max_iter": 300, **LIFTED_FROM_CONDENSED}
     assert lifted[1].options == {"ipopt.max_iter": 300}
@@ -350,7 +351,7 @@ def test_run_retries_a_false_infeasibility_verdict_with_the_monotone_barrier(fak
 
 
 def test_run_stops_at_an_infeasibility_verdict_with_the_limits_enforced(fake):
-    ctx = context(resolved(), limits=True)
+    ctx = context(resolved("ipopt"), limits=True)
     fake(strategy.INFEASIBLE, "Solve_Succeeded")
     ran = run(default_strategy(ctx, None, False, False), ctx, INIT, None)
     assert labels(ran) == [("surrogate", strategy.INFEASIBLE)]  # the Stop: no exact-Hessian attempt

@@ -19,10 +19,10 @@ from ..model.belief import NX, BeliefModel
 class SolverName(str, Enum):
     """`solver.name`: which solver runs first."""
 
-    AUTO = "auto"  # projected Newton where it applies (and the limits are not enforced), else IPOPT
+    AUTO = "auto"  # Newton where it applies (projected; interior-point with enforced limits), else IPOPT
     IPOPT = "ipopt"
     NEWTON = "newton"
-    INTERIOR = "interior"  # the interior-point Newton method within enforced limits (experimental), IPOPT fallback
+    INTERIOR = "interior"  # the interior-point Newton method (enforced limits only), IPOPT its fallback
 
 
 class Form(str, Enum):

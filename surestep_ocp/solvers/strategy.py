@@ -103,8 +103,9 @@ def default_strategy(ctx: Context, warm: Iterate | None, pinned: bool, lifted_st
     cap = spec.max_iter if r.forced else min(spec.surrogate_max_iter, spec.max_iter)
     exact_cap = {"ipopt.max_iter": min(spec.surrogate_max_iter, spec.max_iter)} if limited else {}
     out: list = []
-    if r.name == "interior" and (warm is None or not warm.has_duals):
-        # within enforced limits: the interior-point Newton method, which carries them (projected Newton does not)
+    if limited and r.newton_fits and r.name in ("auto", "interior") and (warm is None or not warm.has_duals):
+        # within enforced limits: the interior-point Newton method, which carries them (projected Newton does not);
+        # IPOPT follows where it does not converge (benchmarks/results/realtime.md)
         out.append(Attempt("interior point", "interior", start=Start.GIVEN))
     elif (r.name == "newton" or (r.name == "auto" and not limited)) and r.newton_fits and (
             warm is None or not warm.has_duals):  # Newton first where it applies
