@@ -52,13 +52,13 @@ from .codegen import compiled_or_interpreted
 from .surrogate import interval_terms, pose_function, recursion_weights
 
 EXACT_BELOW = 1e-3  # projected gradient (objective 1 at the start) below which Newton tries the exact Hessian
-# The exact Hessian is dense (S couples every interval): its cost grows as n^3 and its curvature's as T^2, so above
-# this many joint variables (T of about 27 for the PSM) Newton keeps the banded surrogate, linear in T. (With 400,
-# i.e. T = 40 included, the T = 40 median of benchmarks/solve_speed.py rose from 0.79 to 1.04 of the gradient
-# variant's: two dense steps cost more than the surrogate iterations they save.)
+# The exact Hessian is dense (S couples every interval): its cost grows as n^3 and its curvature's as T^2, so
+# above this many joint variables (T of about 27 for the PSM) Newton keeps the banded surrogate, linear in T: at
+# T = 40 two dense steps cost more than the surrogate iterations they save (docs/hessian_and_newton.md).
 EXACT_MAX_N = 200
-# Newton stops as "Stalled" when the objective fell by less than STALL_DECREASE (relative) over STALL_WINDOW iterations
-# (a warm re-plan with exact steps ran its 300-iteration cap in 1 s this way, where the fallback took 50 ms)
+# Newton stops as "Stalled" when the objective fell by less than STALL_DECREASE (relative) over STALL_WINDOW
+# iterations, so a warm re-plan that no longer progresses hands over to the fallback rather than running its
+# iteration cap (docs/hessian_and_newton.md)
 STALL_WINDOW, STALL_DECREASE = 10, 1e-10
 # In its end phase (projected gradient below this) Newton stops as soon as an iterate is below the depth bound, which
 # its formulation does not carry, and a solver that has it takes over (`run_barrier`, then IPOPT): most such runs
@@ -164,8 +164,8 @@ class NewtonSolver:
                "newton_depth": ca.Function("newton_depth", [Q, P], [Z, DZ, D2Z]),
                "newton_fz": ca.Function("newton_fz", [Q, P], [S_x + smooth, Z])}
         self.nm, self.no = w_m.shape[0], w_o.shape[0]
-        # S's curvature costs nc T Hessian-vector products: cheap for the scalar recursion (1.8 ms at T = 20),
-        # not for the 6x6 one (0.36 s measured), where Newton keeps the surrogate throughout
+        # S's curvature costs nc T Hessian-vector products: cheap for the scalar recursion, not for the 6x6 one,
+        # where Newton keeps the surrogate throughout (docs/hessian_and_newton.md, "The solvers")
         if model.scalar and nq * (T + 1) <= EXACT_MAX_N:
             fns["newton_curv"] = self._curvature(weights, coef, coefficients, qa, qb, Tcb, Q, P, w_m, w_o)
         self.codegen, self.codegen_note = codegen, None
