@@ -147,7 +147,8 @@ class Transcription:
         t0 = time.perf_counter()
         if hessian != "exact":
             staged = self._staged_derivatives(pose, sigma0, trace_ref, smoothness)
-            if codegen:  # compiled: the derivatives' time per solve several times lower (docs/solve_speed.md)
+            # compiled: the derivatives' time per solve several times lower (docs/solve_speed.md)
+            if codegen:
                 staged, self.codegen_note = compiled_or_interpreted(staged, codegen_required)
                 self.codegen = self.codegen_note is None
             self.hess_lag = staged["hess_lag"]
