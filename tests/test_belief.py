@@ -28,7 +28,6 @@ from surestep_ocp.model.belief import (
 )
 from surestep_ocp.model.camera import Intrinsics
 from surestep_ocp.model.lie import np_means, pose_mean
-from surestep_ocp.model.belief import BeliefModel, NoiseParams, vech
 
 
 def mean(x):

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from surestep_ocp.solvers.method_names import BASE_METHODS, REPLAN_METHODS, all_names
-from surestep_ocp.output.styles import known, style_of, styles_of
+from surestep_ocp.output.plot_styles import known, style_of, styles_of
 
 UNIT = re.compile(r"\[[^\]]+\]")
 

@@ -14,7 +14,6 @@ from surestep_ocp.solvers.baseline import straight_line
 from surestep_ocp.model.belief import BeliefModel
 from surestep_ocp.model.lie import np_means
 from surestep_ocp.evaluation.rollout import METRICS, BatchedNoise, Detection, plan_metrics, rollout
-from surestep_ocp.evaluation.rollout import Detection, rollout
 
 
 T = 6

@@ -22,7 +22,6 @@ from surestep_ocp.problem.load import load_problem
 from surestep_ocp.problem.setup import build_setup
 from surestep_ocp.problem.solver_config import resolve_form
 from surestep_ocp.solvers.iterate import InitialGuess
-from surestep_ocp.solvers.ocp import solve_ocp
 
 
 DEFAULT = Path(__file__).resolve().parents[1] / "problems" / "needle_regrasp_paper_pace.yaml"
@@ -379,7 +378,7 @@ def test_isotropic_noise_with_a_full_sigma0_runs_scalar_recursions_on_its_eigenv
     assert sol.extras["ocp_trace_final"] == pytest.approx(np.trace(sig[-1]), rel=1e-9)
     assert sol.trace_final == pytest.approx(np.trace(sig[-1]), rel=1e-9)
     # a non-isotropic, non-diagonal model is not scalar, but structured (constant maps, mean noise): auto keeps
-    # the condensed form, with the 6x6 matrix recursion (tests/test_general_models.py)
+    # the condensed form, with the 6x6 matrix recursion (tests/test_lifted.py, tests/test_surrogate.py)
     aniso = build_setup(replace(prob, horizon=6, noise=replace(prob.noise, Sigma0=sigma0,
                                                                W_p0=np.diag([1e-3, 2e-3, 1e-3, 1e-3, 1e-3, 1e-3]))))
     assert not aniso.model.scalar and aniso.model.structured and resolve_form(aniso.model, "auto") == "condensed"

@@ -38,6 +38,8 @@ import meshcat.geometry as mg
 import numpy as np
 from meshcat.animation import Animation
 
+from surestep_ocp.problem.paths import resolve_urdf
+
 from . import style
 from .arms import Needle, animate_arm, arm_q, draw_needle, draw_other_arms, first_q, load_arm
 from .camera import animate_camera, depth_star, draw_camera
@@ -84,8 +86,6 @@ def resolve_file(path: str | Path, repo_root: Path | None, sol: Solution | None 
     (`surestep_ocp.problem.paths.resolve_urdf`). Raises FileNotFoundError.
     """
     if str(path).startswith(ERD_PREFIX):
-        from surestep_ocp.problem.paths import resolve_urdf
-
         found = resolve_urdf(str(path))
         if found.exists():
             return found

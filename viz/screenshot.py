@@ -57,7 +57,7 @@ def find_chromium() -> str | None:
 
 def _read_png(path: Path):
     """The PNG as a float array (H, W, C) in [0, 1] (matplotlib is a dependency of the package)."""
-    import matplotlib.image as mpimg
+    import matplotlib.image as mpimg  # loaded on use: keeps `surestep show` start-up light
 
     return mpimg.imread(str(path))
 

@@ -3,19 +3,27 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
 import signal
+import sys
 import tempfile
 import threading
 import time
+import warnings
 import webbrowser
 from pathlib import Path
 from typing import Sequence, Union
 
+import meshcat
+
 from surestep_ocp.errors import SurestepError, shown
+from surestep_ocp.output.outputs import check_output_file
+from surestep_ocp.quiet import quiet_fd
 
 from .scene import build_scene, write_static_html
+from .screenshot import screenshot_html
 from .solutions import Solution, load_solutions
 
 Target = Union[Path, str, Solution, Sequence[Solution]]
@@ -115,8 +123,6 @@ def check_solution(sol: Solution) -> None:
 
 def _checked_outputs(sols: Sequence[Solution], *outputs) -> None:
     """Output files checked before any work (never one of the solution files read)."""
-    from surestep_ocp.output.outputs import check_output_file
-
     inputs = [s.get("_source") for s in sols if isinstance(s, dict)]
     for out in outputs:
         if out is not None:
@@ -125,13 +131,6 @@ def _checked_outputs(sols: Sequence[Solution], *outputs) -> None:
 
 def _scene_errors(sols: Sequence[Solution]):
     """A solution file that passes `check_solution` but still breaks the scene: one line, not a traceback."""
-    import contextlib
-
-    import sys
-    import warnings
-
-    from surestep_ocp.quiet import quiet_fd
-
     @contextlib.contextmanager
     def guard():
         try:
@@ -165,8 +164,6 @@ def serve(
     (meshcat registers its cleanup with `atexit`). `zmq_url` connects to an already
     running `meshcat-server` instead of starting one.
     """
-    import meshcat
-
     vis = meshcat.Visualizer(zmq_url=zmq_url)
     info = build_scene(solutions, repo_root=repo_root, vis=vis, animate=animate,
                        endoscope=endoscope_view)
@@ -240,8 +237,6 @@ def show(
 def _screenshot(sols: Sequence[Solution], png: Path, html: Path | str | None,
                 size: Sequence[int], open_browser: bool, **scene_kwargs) -> int:
     """Write the static page (to `html`, or a temporary file) and screenshot it to `png`."""
-    from .screenshot import screenshot_html
-
     with tempfile.TemporaryDirectory(prefix="surestep-show-") as tmp:
         page = Path(html) if html is not None else Path(tmp) / "scene.html"
         info = write_static_html(sols, page, **scene_kwargs)

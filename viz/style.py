@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-from surestep_ocp.output.styles import (
+from surestep_ocp.output.plot_styles import (
     BASE_STYLES,
     GOAL_COLOUR,
     REPLAN_STYLES,
@@ -14,7 +14,8 @@ from surestep_ocp.output.styles import (
     styles_of,
 )
 
-# Method colours come from surestep_ocp.output.styles (the PNGs use the same table); RGB in [0, 1].
+# Method colours come from surestep_ocp.output.plot_styles (the PNGs use the same table);
+# RGB in [0, 1].
 METHOD_COLORS: dict[str, tuple[float, float, float]] = {
     m: style_of(m).rgb for m in (*BASE_STYLES, *REPLAN_STYLES)}
 GOAL_COLOR: tuple[float, float, float] = rgb_of(GOAL_COLOUR)  # magenta, as in the PNGs
@@ -43,7 +44,8 @@ N_SIGMA = 3.0  # ellipsoid radii are N_SIGMA * sqrt(eigenvalue)
 
 
 def method_colors(methods: Sequence[str]) -> dict[str, tuple[float, float, float]]:
-    """Colour of each method (`surestep_ocp.output.styles`: fixed by name, others from its palette in order)."""
+    """Colour of each method (`surestep_ocp.output.plot_styles`: fixed by name, others from its
+    palette in order)."""
     return {m: st.rgb for m, st in styles_of(methods).items()}
 
 

@@ -26,21 +26,30 @@ the same records, the same `progress.jsonl`, resume and progress bar in each cas
 from __future__ import annotations
 
 import contextlib
+import ctypes
 import hashlib
 import json
+import multiprocessing
 import os
+import signal
 import sys
+import threading
 import time
 import uuid
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import SurestepError
 from ..model.limits.values import problem_limits
+from .configs import ConfigurationSampler, load_evaluation
 from .evaluation_report import write_outputs
-from .rollout import MODES
+from .pacing import paced
+from .rollout import MODES, plan_metrics
+from ..output.outputs import check_output_dir, check_output_file
 from ..output.solution import _jsonable, write_json_atomic, write_text_atomic
+from ..solvers.methods import parse_method, run_method
 
 MAX_CONFIGS = 100_000
 MAX_ROLLOUTS = 100_000
@@ -54,8 +63,6 @@ _SAMPLERS: dict = {}
 
 
 def _sampler(eval_path: str):
-    from .configs import ConfigurationSampler, load_evaluation
-
     key = str(Path(eval_path).resolve())
     if key not in _SAMPLERS:
         _SAMPLERS[key] = ConfigurationSampler(load_evaluation(eval_path))
@@ -68,8 +75,6 @@ def executed_poses(setup, poses, pace: str) -> np.ndarray:
     poses = np.asarray(poses, float)
     if pace == "planned":
         return poses
-    from .pacing import paced
-
     lim = problem_limits(setup)
     return paced(poses, setup.problem.timing.step_s, lim.tool_speed, lim.tool_rotation)
 
@@ -82,9 +87,6 @@ def evaluate_configuration(eval_path: str, seed: int, index: int, methods: tuple
     that raises is recorded with its error (no plan, no metrics); a plan whose solver
     reports failure is still rolled out, and flagged.
     """
-    from ..solvers.methods import run_method
-    from .rollout import plan_metrics
-
     smp = _sampler(eval_path)
     cfg = smp.sample(seed, index)
     setup = smp.setup_of(cfg)
@@ -132,13 +134,8 @@ def evaluate_configuration(eval_path: str, seed: int, index: int, methods: tuple
 
 
 def _worker_init() -> None:
-    import signal
-
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent handles Ctrl-C and stops the workers
     if sys.platform.startswith("linux"):  # a parent killed outright (SIGKILL) takes its workers with it
-        import ctypes
-        import multiprocessing
-
         try:
             ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGTERM))  # 1: PR_SET_PDEATHSIG
         except (OSError, AttributeError):
@@ -156,9 +153,6 @@ class Terminated(KeyboardInterrupt):
 @contextlib.contextmanager
 def _sigterm_raises():
     """While inside: SIGTERM raises `Terminated` (in the main thread only; elsewhere nothing changes)."""
-    import signal
-    import threading
-
     if threading.current_thread() is not threading.main_thread():
         yield
         return
@@ -269,9 +263,6 @@ def run_evaluation(eval_path: str | Path, out_dir: str | Path, configs: int = 10
 
 def _run_evaluation(eval_path, out_dir, configs, rollouts, seed, methods, modes, jobs, resume, progress,
                     scheduler) -> str:
-    from .configs import load_evaluation
-    from ..solvers.methods import parse_method
-
     if configs < 1 or rollouts < 2 or jobs < 1:
         raise SurestepError(f"need --configs >= 1, --rollouts >= 2, --jobs >= 1 (got {configs}, {rollouts}, {jobs})")
     for flag, value, most in (("--configs", configs, MAX_CONFIGS), ("--rollouts", rollouts, MAX_ROLLOUTS),
@@ -285,8 +276,6 @@ def _run_evaluation(eval_path, out_dir, configs, rollouts, seed, methods, modes,
     methods = tuple(dict.fromkeys(("baseline", *methods)))  # the baseline is the reference of the table
     eval_path = str(eval_path)
     spec = load_evaluation(eval_path)
-    from ..output.outputs import check_output_dir, check_output_file
-
     inputs = (spec.path, spec.base_path)
     out = check_output_dir(out_dir, inputs, "the evaluation")
     for name in ("run.json", "progress.jsonl", "table.md", "raw.csv", "solves.csv", "boxplot.png"):
@@ -318,7 +307,7 @@ def _run_evaluation(eval_path, out_dir, configs, rollouts, seed, methods, modes,
     args = (eval_path, seed)
     rest = (methods, rollouts, modes)
 
-    from tqdm import tqdm
+    from tqdm import tqdm  # loaded on use: only a run draws the bar
 
     bar = tqdm(total=configs, initial=configs - len(todo), desc="configurations", unit="config", file=sys.stderr,
                disable=not progress, dynamic_ncols=True, mininterval=0.5)
@@ -358,9 +347,6 @@ def _run_evaluation(eval_path, out_dir, configs, rollouts, seed, methods, modes,
 
 
 def _run_pool(todo, args, rest, jobs, finish) -> None:
-    import multiprocessing
-    from concurrent.futures import ProcessPoolExecutor, as_completed
-
     ex = ProcessPoolExecutor(max_workers=min(jobs, len(todo)), mp_context=multiprocessing.get_context("spawn"),
                              initializer=_worker_init)
     futures = []
@@ -384,7 +370,7 @@ DASK_CONNECT_TIMEOUT = "10s"
 def _dask_client(scheduler):
     """(client, whether we opened it) for a scheduler address, or a `distributed.Client` passed in."""
     try:
-        from distributed import Client
+        from distributed import Client  # optional: the `dask` extra
     except ImportError as exc:
         raise SurestepError(f"--scheduler needs dask.distributed (pip install 'surestep_ocp[dask]'): {exc}") from None
     if not isinstance(scheduler, str):
@@ -398,7 +384,7 @@ def _dask_client(scheduler):
 
 def _run_dask(todo, args, rest, client, finish) -> None:
     """The configurations as Dask futures on the client's cluster; records handed to `finish` as they complete."""
-    from distributed import as_completed
+    from distributed import as_completed  # optional (the `dask` extra), loaded on use
 
     futures = []
     tag = uuid.uuid4().hex[:8]

@@ -23,6 +23,7 @@ import numpy as np
 
 from .metrics import relative
 from .rollout import METRICS
+from ..output.plot_styles import styles_of
 from ..output.solution import write_text_atomic
 
 LABELS = {"pos_err_mean": "pos mean", "pos_err_std": "pos std", "ori_err_mean": "ori mean",
@@ -267,12 +268,10 @@ def boxplot(records, methods, modes, path: Path, rollouts: int | None = None, gr
 
     Tick labels count the method's failed solves (their plans are in the boxes too).
     """
-    import matplotlib
+    import matplotlib  # loaded on use: only the box plot needs it (keeps `surestep` start-up light)
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-
-    from ..output.styles import styles_of
 
     fig, axes = plt.subplots(1, len(modes), figsize=(1.0 + 0.75 * len(methods) * len(modes), 4.6), squeeze=False,
                              sharey=True)

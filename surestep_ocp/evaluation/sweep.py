@@ -37,7 +37,12 @@ import yaml
 
 from ..errors import SurestepError
 from ..output.solution import write_text_atomic
+from ..problem.load import read_yaml
+from ..problem.paths import find_shipped
 from ..problem.schema import Reader
+from .configs import load_evaluation
+from .evaluation import Terminated, _sigterm_raises, read_progress, run_evaluation, say_terminated
+from .evaluation_report import relative_stats, success_share
 
 _TOP = {"evaluation", "configs", "rollouts", "seed", "rollout_mode", "methods", "runs", "grid", "description"}
 _RUN_SETTINGS = {"name", "methods", "configs", "rollouts", "rollout_mode", "noise"}
@@ -66,9 +71,6 @@ def _merge(base: dict, over: dict) -> dict:
 
 def load_sweep(path: str | Path) -> dict:
     """Read a sweep file strictly and expand it: {'evaluation': Path, 'runs': [run dicts]}."""
-    from ..problem.load import read_yaml
-    from ..problem.paths import find_shipped
-
     path = Path(path)
     tree = read_yaml(path)
     rd = Reader(str(path))
@@ -138,9 +140,6 @@ def _methods(rd: Reader, node: Any, key: str) -> tuple[str, ...]:
 
 def write_run_files(sweep: dict, run: dict, out: Path) -> Path:
     """The run's evaluation file (and derived base problem) in `out`; returns the evaluation file's path."""
-    from .configs import load_evaluation
-    from ..problem.load import read_yaml
-
     ev_path = Path(sweep["evaluation"]).resolve()
     tree = read_yaml(ev_path)
     base = (ev_path.parent / tree["base"]).resolve()
@@ -180,8 +179,6 @@ def _absolutise(tree: Any, folder: Path) -> None:
 def run_sweep(sweep_path: str | Path, out_dir: str | Path, jobs: int = 1, scheduler=None, resume: bool = False,
               progress: bool = True, only: tuple[str, ...] = ()) -> str:
     """Run every run of a sweep (or those named in `only`); returns the summary table (Markdown)."""
-    from .evaluation import Terminated, _sigterm_raises
-
     with _sigterm_raises():  # between runs too: SIGTERM raises Terminated, files whole or absent
         try:
             return _run_sweep(sweep_path, out_dir, jobs, scheduler, resume, progress, only)
@@ -193,8 +190,6 @@ def run_sweep(sweep_path: str | Path, out_dir: str | Path, jobs: int = 1, schedu
 
 
 def _run_sweep(sweep_path, out_dir, jobs, scheduler, resume, progress, only) -> str:
-    from .evaluation import run_evaluation
-
     sweep = load_sweep(sweep_path)
     out = Path(out_dir)
     runs = [r for r in sweep["runs"] if not only or r["name"] in only]
@@ -214,9 +209,6 @@ def _run_sweep(sweep_path, out_dir, jobs, scheduler, resume, progress, only) -> 
 
 def summary(out: Path, runs: list[dict]) -> str:
     """One line per run, method and mode from each run's progress.jsonl."""
-    from .evaluation import read_progress
-    from .evaluation_report import relative_stats, success_share
-
     lines = ["| run | mode | method | pos mean | pos med | Tr ML mean | Tr ML med | grasp | configs |",
              "|---|---|---|---|---|---|---|---|---|"]
     for run in runs:
@@ -240,8 +232,6 @@ def summary(out: Path, runs: list[dict]) -> str:
 
 
 def cmd_sweep(args) -> int:
-    from .evaluation import Terminated, say_terminated
-
     try:
         table = run_sweep(args.sweep, args.output_dir, args.jobs, args.scheduler, args.resume, not args.quiet,
                           tuple(args.only or ()))

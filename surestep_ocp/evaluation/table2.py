@@ -27,7 +27,15 @@ from pathlib import Path
 
 import numpy as np
 
+from ..errors import SurestepError
 from ..model.lie import matrix_to_pose
+from ..output.solution import write_text_atomic
+from ..problem.load import load_problem
+from ..problem.setup import build_setup
+from ..problem.spec import GRADIENT_PRESETS, GradientSpec
+from ..solvers.methods import run_method
+from ..solvers.planner import Planner
+from ..solvers.replan import replan
 from .configs import GRASP_ANGLE_RAD, GRASP_POSITION_M
 from .rollout import MODES, Detection, rollout
 
@@ -41,9 +49,6 @@ METHODS = ("baseline", "gradient", "gradient-paper", "gradient-no-pose-loss", "o
 def plans(setup, methods=METHODS, replanned: bool = False) -> dict:
     """Each method's waypoints, each in its step's camera frame (as `Solution.poses` holds them: `evaluate`
     re-expresses a plan made in the first camera frame); `gradient-paper` is `gradient` with `preset: paper`."""
-    from ..solvers.methods import run_method
-    from ..problem.spec import GRADIENT_PRESETS, GradientSpec
-
     out = {}
     for m in methods:
         if m == "gradient-paper":
@@ -54,8 +59,6 @@ def plans(setup, methods=METHODS, replanned: bool = False) -> dict:
             sol = run_method(setup, m)
         out[m] = (np.asarray(sol.poses, float), sol.success)
     if replanned:
-        from ..solvers.replan import replan
-
         with tempfile.TemporaryDirectory() as d:
             res = replan(setup, Path(d))
         out["ocp-replanned-ml"] = (np.asarray(res["executed"].poses, float), True)
@@ -74,8 +77,6 @@ class RolloutReplanner:
     """
 
     def __init__(self, setup, planner=None):
-        from ..solvers.planner import Planner
-
         self.setup = setup
         self.planner = Planner(setup, prebuild=False) if planner is None else planner
         self.cameras = setup.camera_poses()
@@ -98,8 +99,6 @@ class RolloutReplanner:
                          for j, qj in enumerate(np.asarray(q, float))])
 
     def __call__(self, t: int, mean: np.ndarray, cov: np.ndarray, waypoints: np.ndarray) -> np.ndarray:
-        from ..errors import SurestepError
-
         if self.planners is None or len(self.planners) != len(mean):
             self.planners = [copy.copy(self.planner) for _ in range(len(mean))]  # shallow: the solvers are shared
         out = np.array(waypoints, float)
@@ -134,9 +133,6 @@ def success_table(problems_dir: Path, rollouts: int = 500, seed: int = 0, detect
     `rollouts`; 0 leaves it out); results[type]["ocp-replanned"]["replans"] has its re-plans' count, failures
     and times.
     """
-    from ..problem.load import load_problem
-    from ..problem.setup import build_setup
-
     replan_rollouts = rollouts if replan_rollouts is None else replan_rollouts
     res: dict = {}
     for k, (label, fname) in enumerate(types):
@@ -209,8 +205,6 @@ def success_table(problems_dir: Path, rollouts: int = 500, seed: int = 0, detect
 
 
 def main(argv=None) -> None:
-    from ..output.solution import write_text_atomic
-
     root = Path(__file__).resolve().parents[2]
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--problems", default=str(root / "problems"))

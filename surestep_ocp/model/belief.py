@@ -19,7 +19,7 @@ gradient variant, baseline, rollouts) uses these.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import cached_property
 
 import casadi as ca
@@ -279,8 +279,6 @@ class BeliefModel:
 
     def evaluation_model(self) -> BeliefModel:
         """The model every plan is evaluated with: all components, the paper's (mean) noise."""
-        from dataclasses import replace
-
         noise = replace(self.noise, observation_noise="mean", components=COMPONENTS)
         return BeliefModel(noise, self.camera, COMPONENTS, None if self.identity_maps else self.jacobians)
 

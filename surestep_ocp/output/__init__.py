@@ -1,1 +1,2 @@
-"""Outputs: the solution file, safe writes, trajectory export, comparison and its figures, styles."""
+"""Outputs: the solution file, safe writes, trajectory export, comparison and its figures, the plot
+styles."""

@@ -16,6 +16,7 @@ from ..model.limits.report import markdown_rows, plan_report, summary_row
 from ..model.limits.values import problem_limits
 from ..problem.paths import resolve_urdf
 from .plots_compare import write_figures
+from .plots_motion import plot_plans
 from ..problem.setup import Setup
 from .solution import Solution, write_json_atomic, write_text_atomic
 
@@ -71,8 +72,6 @@ def write_comparison(solutions: list[Solution], out_dir: Path, problem_path: str
     write_figures(solutions, out_dir)
     urdf = _robot_urdf(solutions)
     if urdf is not None:
-        from .plots_motion import plot_plans
-
         plot_plans(solutions, urdf, out_dir / "motion.png")
     return table + (f"\n\n{limits_text}" if limits_text else "")
 

@@ -17,10 +17,14 @@ import numpy as np
 
 from ..errors import SurestepError, shown
 from ..model.limits import JAW, parse_overrides
+from .export_rosbag import DEFAULT_ARM, check_arm
 from .export_load import limits_of, load_solution, solution_label, step_of, within_position_limits
 from .export_timing import DEFAULT_RATE_HZ, TIMINGS, Trajectory, time_parametrise
 from .export_writers import FORMATS, jaw_path, timing_text, write
 from .joint_names import PRESETS, joint_naming
+from .plots_motion import plot_trajectory
+from ..model.robot import Robot
+from ..problem.paths import resolve_urdf
 from ..quiet import quiet_fd
 from .outputs import check_new_dir, check_output_file
 
@@ -38,16 +42,11 @@ def export_solution(solution: str | Path | Solution, fmt: str, output: str | Pat
     """Export the plan in `solution` (a solution file, or a `Solution` object; module docstring); `joint_names`:
     `--joint-names` (`joint_names.py`); `arm`: the bag's arm name (rosbag2 only, default PSM1). Returns the
     trajectory and the files written."""
-    from ..problem.paths import resolve_urdf
-    from ..model.robot import Robot
-
     if fmt not in FORMATS:
         raise SurestepError(f"unknown format '{fmt}'; allowed: {', '.join(FORMATS)}")
     if arm is not None and fmt != "rosbag2":
         raise SurestepError(f"--arm names the bag's topics: it applies to --format rosbag2 only, not {fmt}")
     if fmt == "rosbag2":
-        from .export_rosbag import DEFAULT_ARM, check_arm
-
         arm = check_arm(DEFAULT_ARM if arm is None else arm)
     sol = load_solution(solution)
     label = solution_label(solution)
@@ -89,8 +88,6 @@ def export_solution(solution: str | Path | Solution, fmt: str, output: str | Pat
             "waypoints_clipped_by": clipped, "joint_naming": naming.to_dict()}
     files = write(traj, fmt, output, meta, naming, **({"rate_hz": rate_hz, "arm": arm} if fmt == "rosbag2" else {}))
     if plot:
-        from .plots_motion import plot_trajectory
-
         files.append(plot_trajectory(traj, sol, urdf, output.with_name(f"{output.stem}_motion.png")))
     return traj, files
 

@@ -70,7 +70,7 @@ def _stamp(ns: int) -> tuple[int, int]:
 def write_bag(traj: Trajectory, output: Path, meta: dict, naming: JointNaming | None = None, *,
               rate_hz: float, arm: str = DEFAULT_ARM, start_ns: int | None = None) -> Path:
     """Write the bag directory `output` (module docstring); `start_ns`: the bag's start time (default now)."""
-    from rosbags.rosbag2 import Writer
+    from rosbags.rosbag2 import Writer  # loaded on use: only --format rosbag2 needs it
     from rosbags.typesys import Stores, get_typestore
 
     ts = get_typestore(getattr(Stores, TYPESTORE))

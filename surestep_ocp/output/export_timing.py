@@ -37,9 +37,10 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.interpolate import PchipInterpolator
 
 from ..errors import SurestepError
-from ..model.limits import CURVE_NAME, MotionLimits
+from ..model.limits import CURVE_NAME, REL_TOL, MotionLimits, evaluate_curve
 
 DEFAULT_RATE_HZ = 100.0
 MAX_TRIES = 12  # toppra runs, each with the limits over which the last one went scaled down
@@ -83,8 +84,6 @@ class _PchipPath:
     only when exporting): scipy's PCHIP through the waypoints, plus the path parameter as a last joint."""
 
     def __init__(self, ss: np.ndarray, qs: np.ndarray):
-        from scipy.interpolate import PchipInterpolator
-
         self._ss = np.asarray(ss, float)
         self._f = [PchipInterpolator(self._ss, np.column_stack([qs, self._ss]), axis=0)]
         self._f += [self._f[0].derivative(1), self._f[0].derivative(2)]
@@ -129,7 +128,7 @@ class _ToolSpeed:
 
     def constraint(self, path, scale: float):
         """A toppra velocity constraint: `s_dot^2 <= min_i (scale * vmax_i / rate_i(s))^2` at every grid point."""
-        from toppra.constraint import DiscretizationType, LinearConstraint
+        from toppra.constraint import DiscretizationType, LinearConstraint  # loaded on use (slow)
 
         tool, n = self, self.robot.nq
 
@@ -180,8 +179,6 @@ def planned_curve(q: np.ndarray, step_s: float, limits: MotionLimits, rate_hz: f
     the joint velocity and acceleration limits and the tool's speeds at those samples and at CURVE_CHECK_PER_STEP
     points per step. Returns (the trajectory, or None when a limit is exceeded by more than REL_TOL; the check:
     peak ratios per family and `within`)."""
-    from ..model.limits import REL_TOL, evaluate_curve
-
     q = np.asarray(q, float)
     T = len(q) - 1
     wp_t = step_s * np.arange(T + 1)
@@ -217,7 +214,7 @@ def time_parametrise(q: np.ndarray, step_s: float, limits: MotionLimits, rate_hz
     curve at the planned times when it is within every limit (`planned_curve`), else (and with "toppra") the
     time-optimal one (module docstring); with `robot` (a `surestep_ocp.model.robot.Robot` of the plan's joints) and
     `tool_frame`, within the tool's translation and rotation speed limits too."""
-    import toppra.algorithm as algo
+    import toppra.algorithm as algo  # loaded on use: toppra is slow to import
     import toppra.constraint as constraint
 
     q = np.asarray(q, float)

@@ -12,6 +12,8 @@ import io
 import math
 from pathlib import Path
 
+import yaml
+
 from ..errors import SurestepError
 from ..model.limits import CURVE_NAME, JAW
 from .export_timing import Trajectory
@@ -111,8 +113,6 @@ def to_joint_trajectory(traj: Trajectory, idx: list[int], naming: JointNaming | 
 
 
 def _ros2_text(traj: Trajectory, idx: list[int], what: str, naming: JointNaming | None = None) -> str:
-    import yaml
-
     times = ", ".join(f"{t:.6f}" for t in traj.waypoint_times)
     head = (f"# trajectory_msgs/JointTrajectory ({what}), written by surestep export\n"
             f"# planned waypoints 0..{len(traj.waypoint_times) - 1} at time_from_start [s]: {times}\n"
@@ -149,7 +149,7 @@ def write(traj: Trajectory, fmt: str, output: Path, meta: dict, naming: JointNam
             files.append(write_text_atomic(jaw_path(output), _ros2_text(traj, jaw, "jaw", naming)))
         return files
     if fmt == "rosbag2":
-        from .export_rosbag import write_bag
+        from .export_rosbag import write_bag  # here: export_rosbag imports this module
 
         return [write_bag(traj, output, meta, naming, **bag)]
     raise SurestepError(f"unknown format '{fmt}'; allowed: {', '.join(FORMATS)}")

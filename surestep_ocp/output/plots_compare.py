@@ -1,6 +1,6 @@
 """The figures of `surestep compare`: `trace.png` (the covariance along each plan) and `path.png`.
 
-Every method in its `styles` look, in the given order (later on top). Methods that coincide (ocp and
+Every method in its `plot_styles` look, in the given order (later on top). Methods that coincide (ocp and
 ocp-from-gradient often do) stay apart: ocp is wide with large markers, ocp-from-gradient dashed and
 thin over it, all slightly transparent. The figure builders return the matplotlib Figure, so tests can read axes
 and legends before anything is written.
@@ -14,7 +14,7 @@ import numpy as np
 
 from ..model.camera import Intrinsics
 from .plots_motion import pyplot, save_png
-from .styles import GOAL_COLOUR, START_COLOUR, styles_of
+from .plot_styles import GOAL_COLOUR, START_COLOUR, styles_of
 
 
 def draw_kwargs(solutions: list, k: int) -> dict:
@@ -86,7 +86,7 @@ def path_figure(solutions: list):
 
 def _step_axis(ax) -> None:
     """The x axis of the waypoint index t (a count: whole ticks, no unit)."""
-    from matplotlib.ticker import MaxNLocator
+    from matplotlib.ticker import MaxNLocator  # loaded on use, as in `pyplot`
 
     ax.set_xlabel("step t")
     ax.xaxis.set_major_locator(MaxNLocator(integer=True))

@@ -1,7 +1,7 @@
 """Pictures to look at before running a robot: joints against their limits, the tool's speed over time.
 
 `plot_plans` (written by `surestep compare` as `motion.png`): every method's plan at its planned
-pace (waypoint t at t * step_s), each method in its `styles` look. `plot_trajectory`
+pace (waypoint t at t * step_s), each method in its `plot_styles` look. `plot_trajectory`
 (written by `surestep export` as `<stem>_motion.png`): the exported trajectory, its waypoints
 marked. Both: one row per joint, its position against the position limits (dashed), its velocity
 and its acceleration against theirs (a plan's acceleration is the change of its step velocity at
@@ -12,18 +12,20 @@ the tool's translation and rotation speed.
 from __future__ import annotations
 
 import io
+import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import numpy as np
 
 from ..model.limits.report import rotation_angle
+from ..model.robot import Robot
 from .solution import write_text_atomic
-from .styles import style_of, styles_of
+from .plot_styles import style_of, styles_of
 
 
 def pyplot():
     """matplotlib.pyplot on the Agg backend (no display needed)."""
-    import matplotlib
+    import matplotlib  # loaded on use: keeps `surestep` start-up light
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -39,8 +41,6 @@ def save_png(fig, path: Path, dpi: int = 90) -> Path:
 
 
 def _joint_limits(urdf: str | Path, names: list[str]) -> tuple[np.ndarray, np.ndarray]:
-    import xml.etree.ElementTree as ET
-
     lim = {}
     for j in ET.parse(str(urdf)).getroot().iter("joint"):
         el = j.find("limit")
@@ -130,8 +130,6 @@ def _decorate(axes, names, lo, hi, vmax, amax, tool_mm_s, tool_rad_s):
 
 def tool_speeds(urdf: str | Path, frame: str, times: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Tool translation [m/s] and rotation [rad/s] speeds between consecutive samples (Pinocchio FK)."""
-    from ..model.robot import Robot
-
     robot = Robot(urdf, frame=frame)
     T = [robot.frame_pose(qi, frame) for qi in q]
     dt = np.diff(times)

@@ -11,12 +11,13 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import SurestepError
+from ..errors import SurestepError, shown
 from ..model.belief import entropy
 from ..model.lie import matrix_to_pose, np_angle, np_exp_many, np_log_many, pose_to_matrix
 from ..model.limits import recorded_limits
 from ..problem.setup import Setup
 from .attempt_record import AttemptRecord
+from .outputs import check_finite, check_replaceable
 
 
 @dataclass
@@ -104,8 +105,6 @@ class Solution:
 
     def save(self, path: str | Path) -> Path:
         """Write the solution (atomically); NaN or Infinity anywhere in it is an error naming the key."""
-        from .outputs import check_finite
-
         d = self.to_dict()
         check_finite(d, f"the {self.method} solution")
         return write_json_atomic(path, d)
@@ -127,9 +126,6 @@ def write_json_atomic(path: str | Path, obj: Any) -> Path:
 def write_text_atomic(path: str | Path, text: str | bytes) -> Path:
     """Write `text` whole or not at all: a temporary file beside `path`, renamed over it. Never replaces a
     directory, a device or another non-regular file; a file-system refusal is a one-line SurestepError."""
-    from ..errors import SurestepError, shown
-    from .outputs import check_replaceable
-
     path = Path(path)
     check_replaceable(path)
     try:

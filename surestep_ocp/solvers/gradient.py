@@ -33,6 +33,7 @@ import numpy as np
 import scipy.optimize
 
 from .baseline import reachability, straight_line
+from .lbfgs import LBFGS
 from ..model.belief import NX, trace_vech
 from ..model.lie import angle_sq, np_angle, pose_mean, so3_exp
 from ..errors import SurestepError
@@ -233,8 +234,6 @@ def _run_scipy(fun, d0: np.ndarray, spec) -> dict:
 
 def _run_torch(fun, d0: np.ndarray, spec) -> dict:
     """`spec.steps` step() calls of torch.optim.LBFGS's algorithm (`lbfgs.LBFGS`); stops early on a non-finite loss."""
-    from .lbfgs import LBFGS
-
     opt = LBFGS(d0, lr=spec.lr, max_iter=spec.max_iter, max_eval=spec.max_eval, tolerance_grad=spec.tolerance_grad,
                 tolerance_change=spec.tolerance_change, history_size=spec.history_size,
                 line_search=spec.line_search)

@@ -1,6 +1,6 @@
 """The method names `surestep` accepts: a base method, then optional suffixes (the one registry).
 
-`methods.run_method` dispatches on these names, `styles` gives every one of them a look and the CLI's
+`methods.run_method` dispatches on these names, `plot_styles` gives every one of them a look and the CLI's
 help lists them from here, so a new method or suffix is added in one place. Kept free of the solvers
 so that the plots and the 3D scene can read it cheaply.
 """

@@ -13,9 +13,10 @@ from dataclasses import replace
 import numpy as np
 
 from .baseline import solve_baseline, straight_line
+from .gradient import solve_gradient
 from ..model.belief import COMPONENTS
 from ..errors import SurestepError
-from ..model.limits import enforce as enforce_limits
+from ..model.limits import VIOLATED, enforce as enforce_limits
 from .method_names import BASE_METHODS, split_name
 from .iterate import InitialGuess
 from .ocp import solve_ocp
@@ -71,8 +72,6 @@ def counted_failures(sols: list[Solution]) -> tuple[list[str], list[str]]:
     """(failed, over the limits only): methods whose failure counts (any failure of a method that honours the limits,
     any other failure of one that cannot), and methods that cannot honour them reported over them
     (`Motion_Limits_Violated`), which `surestep compare` prints and does not count."""
-    from ..model.limits import VIOLATED
-
     failed = [s.method for s in sols if not s.success and (honours_limits(s.method) or s.status != VIOLATED)]
     reported = [s.method for s in sols if not s.success and s.method not in failed]
     return failed, reported
@@ -89,8 +88,6 @@ def run_method(setup: Setup, name: str, cache: dict[str, Solution] | None = None
     if base == "baseline":
         sol = solve_baseline(s)
     elif base in ("gradient", "gradient-no-pose-loss"):
-        from .gradient import solve_gradient
-
         sol = solve_gradient(s, pose_loss=(base == "gradient"), components=comps)
     elif base == "ocp":
         sol = solve_ocp(s, ocp_initial_guess(s), solver_options)

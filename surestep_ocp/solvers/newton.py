@@ -52,23 +52,26 @@ from .codegen import compiled_or_interpreted
 from .surrogate import interval_terms, pose_function, recursion_weights
 
 EXACT_BELOW = 1e-3  # projected gradient (objective 1 at the start) below which Newton tries the exact Hessian
-# The exact Hessian is dense (S couples every interval): its cost grows as n^3 and its curvature's as T^2, so above
-# this many joint variables (T of about 27 for the PSM) Newton keeps the banded surrogate, linear in T. (With 400,
-# i.e. T = 40 included, the T = 40 median of benchmarks/solve_speed.py rose from 0.79 to 1.04 of the gradient
-# variant's: two dense steps cost more than the surrogate iterations they save.)
+# The exact Hessian is dense (S couples every interval): its cost grows as n^3 and its curvature's
+# as T^2, so above this many joint variables (T of about 27 for the PSM) Newton keeps the banded
+# surrogate, linear in T: at T = 40 two dense steps cost more than the surrogate iterations they
+# save (docs/hessian_and_newton.md).
 EXACT_MAX_N = 200
-# Newton stops as "Stalled" when the objective fell by less than STALL_DECREASE (relative) over STALL_WINDOW iterations
-# (a warm re-plan with exact steps ran its 300-iteration cap in 1 s this way, where the fallback took 50 ms)
+# Newton stops as "Stalled" when the objective fell by less than STALL_DECREASE (relative) over
+# STALL_WINDOW iterations, so a warm re-plan that no longer progresses hands over to the fallback
+# rather than running its iteration cap (docs/hessian_and_newton.md)
 STALL_WINDOW, STALL_DECREASE = 10, 1e-10
-# In its end phase (projected gradient below this) Newton stops as soon as an iterate is below the depth bound, which
-# its formulation does not carry, and a solver that has it takes over (`run_barrier`, then IPOPT): most such runs
-# converged below it anyway after tens more iterations (evaluation configuration 73 at T = 40: below it from iteration
-# 22 to the end at 66); where one came back above it (5 of 100 at T = 40), IPOPT's plan was lower
-# (docs/solve_speed.md, "Worst case")
+# In its end phase (projected gradient below this) Newton stops as soon as an iterate is below the
+# depth bound, which its formulation does not carry, and a solver that has it takes over
+# (`run_barrier`, then IPOPT): most such runs converged below it anyway after tens more iterations
+# (evaluation configuration 73 at T = 40: below it from iteration 22 to the end at 66); where one
+# came back above it (5 of 100 at T = 40), IPOPT's plan was lower (docs/solve_speed.md, "Worst
+# case")
 DEPTH_CHECK_BELOW = 1e-3
 SECANT_MEMORY = 20  # rank-one terms the secant end-game keeps (its tail is a few iterations: rarely reached)
-# `run_barrier`: IPOPT's defaults for its barrier problem and the monotone update (mu_init, barrier_tol_factor,
-# mu_linear_decrease_factor, mu_superlinear_decrease_power, tau_min, bound_push = bound_frac)
+# `run_barrier`: IPOPT's defaults for its barrier problem and the monotone update (mu_init,
+# barrier_tol_factor, mu_linear_decrease_factor, mu_superlinear_decrease_power, tau_min, bound_push
+# = bound_frac)
 MU_INIT, KAPPA_EPS, KAPPA_MU, THETA_MU, TAU_MIN, BOUND_PUSH = 0.1, 10.0, 0.2, 1.5, 0.99, 1e-2
 
 
@@ -151,10 +154,12 @@ class NewtonSolver:
         S_x, w_m, w_o, w_j = weights(*coef.map(T)(Q[:, :T], Q[:, 1:], Tc), s0, r)
         G, HB = interval.map(T)(Q[:, :T], Q[:, 1:], w_m, w_o, w_j, Tc)
         smooth = smoothness * ca.sumsqr(Q[:, 1:] - Q[:, :T])
-        # S's own curvature in the coefficients (dense, 5T x 5T, negative semidefinite) and the coefficients'
-        # Jacobians per interval: the exact Hessian is the surrogate's plus C^T (d2S/dc2) C (the end-game)
+        # S's own curvature in the coefficients (dense, 5T x 5T, negative semidefinite) and the
+        # coefficients' Jacobians per interval: the exact Hessian is the surrogate's plus C^T
+        # (d2S/dc2) C (the end-game)
         depth = ca.mmin(pose.map(T + 1)(Q, Tc)[2, :])  # the means' smallest depth (the end phase's check)
-        # each node's depth with its gradient and Hessian in the node's joints (the barrier of `run_barrier`)
+        # each node's depth with its gradient and Hessian in the node's joints (the barrier of
+        # `run_barrier`)
         z = pose(qa, Tcb)[2]
         node_depth = ca.Function("node_depth", [qa, Tcb], [z, ca.densify(ca.gradient(z, qa)),
                                                          ca.densify(ca.vec(ca.hessian(z, qa)[0]))])
@@ -164,8 +169,9 @@ class NewtonSolver:
                "newton_depth": ca.Function("newton_depth", [Q, P], [Z, DZ, D2Z]),
                "newton_fz": ca.Function("newton_fz", [Q, P], [S_x + smooth, Z])}
         self.nm, self.no = w_m.shape[0], w_o.shape[0]
-        # S's curvature costs nc T Hessian-vector products: cheap for the scalar recursion (1.8 ms at T = 20),
-        # not for the 6x6 one (0.36 s measured), where Newton keeps the surrogate throughout
+        # S's curvature costs nc T Hessian-vector products: cheap for the scalar recursion, not for
+        # the 6x6 one, where Newton keeps the surrogate throughout (docs/hessian_and_newton.md, "The
+        # solvers")
         if model.scalar and nq * (T + 1) <= EXACT_MAX_N:
             fns["newton_curv"] = self._curvature(weights, coef, coefficients, qa, qb, Tcb, Q, P, w_m, w_o)
         self.codegen, self.codegen_note = codegen, None
@@ -176,12 +182,14 @@ class NewtonSolver:
         self.depth, self.fz = Buffered(fns["newton_depth"]), Buffered(fns["newton_fz"])
         self.curv = Buffered(fns["newton_curv"]) if "newton_curv" in fns else None
         self.poses = pose.map(T + 1)
-        # scatter maps: interval t covers the joint vectors of nodes t, t+1 (positions t*nq .. (t+2)*nq)
+        # scatter maps: interval t covers the joint vectors of nodes t, t+1 (positions t*nq ..
+        # (t+2)*nq)
         n = self.n = nq * (T + 1)
         rows = [np.arange(t * nq, (t + 2) * nq) for t in range(T)]
         self.g_index = np.concatenate(rows)
-        # the Hessian in LAPACK's lower band storage, ab[r - c, c] = H[r, c] (r >= c), half-bandwidth 2 nq - 1:
-        # block entries above the diagonal are dropped (symmetric), the others summed into their band slot
+        # the Hessian in LAPACK's lower band storage, ab[r - c, c] = H[r, c] (r >= c),
+        # half-bandwidth 2 nq - 1: block entries above the diagonal are dropped (symmetric), the
+        # others summed into their band slot
         hr = np.concatenate([np.tile(r, 2 * nq) for r in rows])
         hc = np.concatenate([np.repeat(r, 2 * nq) for r in rows])
         self.band = 2 * nq
@@ -194,8 +202,9 @@ class NewtonSolver:
         self.node_pairs = (a, b)
         self.node_band = np.concatenate([(a - b) * n + t * nq + b for t in range(T + 1)])
         self.h_rows, self.h_cols = hr, hc
-        # the coefficient Jacobians (nc x 2nq per interval, column-major) into C (nc T x n): coefficient k of
-        # interval t is row k + nm t (motion) or nm T + (k - nm) + no t (observation), as d2S/dc2 orders them
+        # the coefficient Jacobians (nc x 2nq per interval, column-major) into C (nc T x n):
+        # coefficient k of interval t is row k + nm t (motion) or nm T + (k - nm) + no t
+        # (observation), as d2S/dc2 orders them
         nm, no = self.nm, self.no
         c_row = [[k + nm * t if k < nm else nm * T + (k - nm) + no * t for k in range(nm + no)] for t in range(T)]
         self.nc = (nm + no) * T

@@ -28,13 +28,15 @@ WARM_OPTIONS = {
 }
 
 
-# IPOPT options for the lifted NLP started at the condensed solution (a KKT point up to tol, with its
-# multipliers): a small monotone barrier. Measured on the default problem at T = 20: 15 and 1 iterations (paper
-# constants, correlated V_d0) against 65-73 with the adaptive update, which raised mu to 1e-3 and walked away.
-# With the structured Hessian the dual infeasibility then falls linearly (about 0.9 per iteration on evaluation
-# configuration 9) while the objective stays put: an acceptable-level stop like ENFORCED_OPTIONS' (objective change at
-# most 1e-9 over 3 iterations, constraints 1e-6, complementarity 1e-6: at 1e-9 it never triggered) ends that tail as
-# Solved_To_Acceptable_Level (configuration 9: 3 iterations, the same trace to 10 digits; docs/general_models.md).
+# IPOPT options for the lifted NLP started at the condensed solution (a KKT point up to tol, with
+# its multipliers): a small monotone barrier. Measured on the default problem at T = 20: 15 and 1
+# iterations (paper constants, correlated V_d0) against 65-73 with the adaptive update, which raised
+# mu to 1e-3 and walked away. With the structured Hessian the dual infeasibility then falls linearly
+# (about 0.9 per iteration on evaluation configuration 9) while the objective stays put: an
+# acceptable-level stop like ENFORCED_OPTIONS' (objective change at most 1e-9 over 3 iterations,
+# constraints 1e-6, complementarity 1e-6: at 1e-9 it never triggered) ends that tail as
+# Solved_To_Acceptable_Level (configuration 9: 3 iterations, the same trace to 10 digits;
+# docs/general_models.md).
 LIFTED_FROM_CONDENSED = {
     "ipopt.mu_init": 1e-9,
     "ipopt.mu_strategy": "monotone",
@@ -47,15 +49,14 @@ LIFTED_FROM_CONDENSED = {
 }
 
 
-# IPOPT options for the NLP with enforced motion limits (`limits.enforce: true`: at T = 40 2718 limit rows, 64 of
-# them active at the default problem's optimum). MUMPS without its permuting scaling (MC64): the same iterations on
-# 24 of 25 plans (configuration 3: 50 instead of 67), the solve 0.69x (median over 25, the linear algebra a third
-# cheaper). Acceptable-level termination for the surrogate Hessian's linear tail: the
-# objective (1 at the start) changes by at most 1e-9 in 3 consecutive iterations with the complementarity at 1e-9
-# (the barrier at its end) and the constraints within acceptable_constr_viol_tol (1e-6): IPOPT's status is then
-# Solved_To_Acceptable_Level, a success. Measured with benchmarks/enforced_speed.py
-# (docs/motion_limits_and_export.md, "The enforced solve's speed"): the default problem 54 -> 35 iterations, Tr(Sigma_T)
-# within 1e-8 of the Solve_Succeeded plan on every configuration.
+# IPOPT options for the NLP with enforced motion limits (`limits.enforce: true`: thousands of limit
+# rows, few of them active at the optimum). MUMPS without its permuting scaling (MC64): the same
+# iterations, cheaper linear algebra. Acceptable-level termination for the surrogate Hessian's
+# linear tail: the objective (1 at the start) changes by at most 1e-9 in 3 consecutive iterations
+# with the complementarity at 1e-9 (the barrier at its end) and the constraints within
+# acceptable_constr_viol_tol (1e-6): IPOPT's status is then Solved_To_Acceptable_Level, a success,
+# with the same plans. Measured with benchmarks/enforced_speed.py: docs/motion_limits_and_export.md,
+# "The enforced solve's speed", and benchmarks/results/enforced_speed.md.
 ENFORCED_OPTIONS = {
     "ipopt.mumps_permuting_scaling": 0,
     "ipopt.acceptable_tol": 1e-3,
@@ -73,11 +74,11 @@ def solver_options(setup: Setup, extra: dict | None = None) -> dict:
         "ipopt.sb": "yes",
         "ipopt.tol": prob.solver.tol,
         "ipopt.max_iter": prob.solver.max_iter,
-        # Measured (full form): the adaptive barrier update needed 2.6-3.3x fewer
-        # iterations than the monotone default and avoided its restoration failures.
+        # The adaptive barrier update needs fewer iterations than the monotone default and avoids
+        # its restoration failures (measured with the full form: docs/method.md).
         "ipopt.mu_strategy": "adaptive",
-        # The terminal equality is hard: IPOPT's defaults accept a violation of 1e-4, and 1e-2 at its
-        # "acceptable" level, whatever `tol` is.
+        # The terminal equality is hard: IPOPT's defaults accept a violation of 1e-4, and 1e-2 at
+        # its "acceptable" level, whatever `tol` is.
         "ipopt.constr_viol_tol": min(prob.solver.tol, 1e-8),
         "ipopt.acceptable_constr_viol_tol": 1e-6,
     }

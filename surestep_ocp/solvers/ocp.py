@@ -55,8 +55,9 @@ def solve_ocp_warm(setup: Setup, init: InitialGuess, solver_options: dict | None
     limited = setup.ocp.limits.enforce
     pre, cold = None, init
     if resolved.form == "full" and resolved.hessian == "surrogate" and warm is None:
-        # The lifted NLP starts at the condensed solution (joints; means, covariances and multipliers follow):
-        # from the straight line IPOPT's first steps left the recursion and the PSD cone (docs/general_models.md).
+        # The lifted NLP starts at the condensed solution (joints; means, covariances and
+        # multipliers follow): from the straight line IPOPT's first steps left the recursion and the
+        # PSD cone (docs/general_models.md).
         pre = solve_ocp_warm(setup, init, solver_options, method, "condensed")[0]
         if pre.status == "Initial_Guess_Kept":  # no stationary point to start the lifted NLP from: the same plan
             pre.extras["lifted"] = ("not run: the condensed solve kept its start, where the lifted NLP does not "
@@ -77,9 +78,10 @@ def solve_ocp_warm(setup: Setup, init: InitialGuess, solver_options: dict | None
 
     if warm is None and ((finished and tried[pick][2].objective > start_objective(tried[pick][2]))
                          or ((costly or limited) and not finished and tried)):
-        # Every converged point is above the (cold) start: keep the start if it is a feasible plan, rather than
-        # return a plan worse than the one we began from. With enforced limits also when nothing converged and the
-        # start meets every limit (docs/hessian_and_newton.md, "Fallbacks").
+        # Every converged point is above the (cold) start: keep the start if it is a feasible plan,
+        # rather than return a plan worse than the one we began from. With enforced limits also when
+        # nothing converged and the start meets every limit (docs/hessian_and_newton.md,
+        # "Fallbacks").
         nlps = [t.outcome.start_solution for t in ran if t.outcome.start_solution is not None]
         start = nlps[-1](init) if nlps else None  # the last NLP's start point and bounds
         if start is not None:
@@ -139,13 +141,14 @@ def _objective_at(setup: Setup, sol: Solution, other: Solution) -> float:
 def _second_start(setup: Setup, cold: InitialGuess, sol: Solution, last, solver_options, method: str):
     """A 6x6-recursion model also solves its diagonal approximation (a scalar model, a few ms); where that plan
     scores below the first one in this model, Newton starts from it too and the better converged plan is kept, so
-    the plan is never above the diagonal model's. Measured on 100 evaluation configurations: from the straight
-    line alone 1-4 % of the optima were above the paper plan evaluated in the same model."""
+    the plan is never above the diagonal model's: from the straight line alone a few per cent of the
+    optima were above the paper plan evaluated in the same model (docs/general_models.md)."""
     diag = diagonal_model_setup(setup)
     if setup.robot.nq * (setup.ocp.horizon + 1) <= EXACT_MAX_N:
         approx = solve_ocp_warm(diag, cold, solver_options, method, "condensed")[0]
-    else:  # long horizons: the scalar recursion has no exact end-game there; a capped Newton run or no gate (its full
-        # strategy took 9.8 s for configuration 9 at T = 80 with a correlated V_d0, where the plan itself took 0.4 s)
+    else:
+        # long horizons: the scalar recursion has no exact end-game there; a capped Newton run, not
+        # the full strategy, which can cost many times the plan itself (docs/general_models.md)
         spec = setup.ocp.solver
         approx = newton_solver(diag).solve(diag, cold, method, tol=spec.tol, max_iter=min(GATE_ITER, spec.max_iter))
     gate = {"status": approx.status, "iterations": approx.iterations, "solve_time_s": approx.solve_time_s}
@@ -154,8 +157,9 @@ def _second_start(setup: Setup, cold: InitialGuess, sol: Solution, last, solver_
     gate["ahead"] = bool(ahead)  # the diagonal plan itself scores below the first plan: worth a Newton run from it
     if ahead:
         spec = setup.ocp.solver
-        # a short Newton run (the surrogate converges linearly on the 6x6 recursion: 300 iterations cost about 2 s
-        # on the default problem with a correlated V_d0), then IPOPT finishes it if it is the better point
+        # a short Newton run (the surrogate converges linearly on the 6x6 recursion, so a long run
+        # is slow: docs/general_models.md, "The secant end-game"), then IPOPT finishes it if it is
+        # the better point
         second = newton_solver(setup).solve(setup, InitialGuess(np.array(approx.q), "diagonal model's plan"),
                                             method, tol=spec.tol, max_iter=min(SECOND_START_ITER, spec.max_iter))
         gate.update(newton_status=second.status, newton_iterations=second.iterations,
@@ -163,8 +167,8 @@ def _second_start(setup: Setup, cold: InitialGuess, sol: Solution, last, solver_
         extra_time += second.solve_time_s
         extra_it += second.iterations
         if not second.success and second.status == "Maximum_Iterations_Exceeded" and second.objective < sol.objective:
-            # Newton's surrogate converges linearly on the 6x6 recursion; a better unfinished point is finished by
-            # IPOPT (same surrogate Hessian, with the depth bound)
+            # Newton's surrogate converges linearly on the 6x6 recursion; a better unfinished point
+            # is finished by IPOPT (same surrogate Hessian, with the depth bound)
             tr = transcription(setup, "condensed", solver_options, hessian="surrogate")
             second, _ = tr.solve(setup, InitialGuess(np.array(second.q), "Newton from the diagonal model's plan"),
                                  method)

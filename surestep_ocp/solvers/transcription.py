@@ -45,6 +45,7 @@ from ..errors import SurestepError
 from ..problem.solver_config import HESSIANS
 from .iterate import InitialGuess, PrimalDual
 from ..model.joint_noise import joint_noise_expr, joint_noise_factor, joint_noise_function, weight_matrix
+from ..model import limits as lm
 from ..model.limits import MotionLimits
 from ..model.robot import CAMERA_PARAMETERS, Robot
 from ..problem.setup import Setup
@@ -146,7 +147,8 @@ class Transcription:
         t0 = time.perf_counter()
         if hessian != "exact":
             staged = self._staged_derivatives(pose, sigma0, trace_ref, smoothness)
-            if codegen:  # measured at T = 20: function time 22 -> 3.5 ms per solve (24 iterations)
+            # compiled: the derivatives' time per solve several times lower (docs/solve_speed.md)
+            if codegen:
                 staged, self.codegen_note = compiled_or_interpreted(staged, codegen_required)
                 self.codegen = self.codegen_note is None
             self.hess_lag = staged["hess_lag"]
@@ -171,8 +173,6 @@ class Transcription:
         self.tool_rate = None  # the curve's tool rows as a function of (q(s), q'(s)) (`_tool_stages`)
         if self.limits is None:
             return
-        from ..model import limits as lm
-
         dt, lim = self.limits
         T, nq, n = self.T, self.robot.nq, x.shape[0]
         idx = self._q_index()
