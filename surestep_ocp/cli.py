@@ -202,7 +202,7 @@ def _solver_flags(parser: argparse.ArgumentParser) -> None:
     from .problem.spec import SolverSpec
 
     d = SolverSpec()
-    parser.add_argument("--solver", choices=("auto", "ipopt", "newton"),
+    parser.add_argument("--solver", choices=("auto", "ipopt", "newton", "interior"),
                         help=f"OCP solver (default: the problem file's solver.name, else {d.name}: projected Newton "
                              "in the joints where it applies, IPOPT as its fallback; docs/solve_speed.md); "
                              "OCP methods only")
