@@ -84,7 +84,7 @@ def _with_solver_flags(setup, args):
 def cmd_solve(args) -> int:
     from .solvers.methods import run_method
 
-    from .output.outputs import check_finite, check_output_file
+    from .output.files import check_finite, check_output_file
 
     method = _with_init(args.method, args.init)
     _check_ocp_flags([method], args, "--method")
@@ -107,10 +107,10 @@ def cmd_solve(args) -> int:
 
 
 def cmd_compare(args) -> int:
-    from .output.compare import run_comparison, write_comparison
+    from .comparison import run_comparison, write_comparison
     from .solvers.methods import COMPARE_METHODS, counted_failures
 
-    from .output.outputs import check_finite, check_output_dir, check_output_file
+    from .output.files import check_finite, check_output_dir, check_output_file
 
     methods = tuple(args.methods) if args.methods else COMPARE_METHODS
     _check_ocp_flags(methods, args, "--methods")
@@ -142,14 +142,14 @@ def cmd_compare(args) -> int:
 
 
 def cmd_replan(args) -> int:
-    from .solvers.replan import replan
+    from .solvers.camera_move_replan import replan_after_camera_moves
 
-    from .output.outputs import check_output_dir
+    from .output.files import check_output_dir
 
     setup = _with_solver_flags(_load(args.problem), args)
     check_output_dir(args.output_dir, _inputs(setup, args.problem), "the re-planning")
     _long_work_note(setup)
-    res = replan(setup, Path(args.output_dir), progress=lambda k: print(f"re-planning after the camera move at "
+    res = replan_after_camera_moves(setup, Path(args.output_dir), progress=lambda k: print(f"re-planning after the camera move at "
                                                                         f"step {k}", file=sys.stderr, flush=True))
     print(res["table"])
     built = ", ".join(f"T={n}" for n in sorted(res["builds"]))
@@ -194,7 +194,7 @@ def cmd_show(args) -> int:
                 screenshot=Path(args.screenshot) if args.screenshot else None) or 0
 
 
-OCP_FLAGS = ("solver", "hessian", "codegen")  # act on the OCP only (method_names.OCP_METHODS)
+OCP_FLAGS = ("solver", "hessian", "codegen")  # act on the OCP only (method_grammar.OCP_METHODS)
 
 
 def _solver_flags(parser: argparse.ArgumentParser) -> None:
@@ -217,7 +217,7 @@ def _solver_flags(parser: argparse.ArgumentParser) -> None:
 
 def _method_name(name: str) -> str:
     """argparse type of a method name: unknown names are a usage error listing the grammar."""
-    from .solvers.method_names import split_name
+    from .method_grammar import split_name
 
     try:
         split_name(name)
@@ -228,7 +228,7 @@ def _method_name(name: str) -> str:
 
 def _with_init(method: str, init: str | None) -> str:
     """The method `--init` asks for: `--init gradient` turns ocp (or a variant) into ocp-from-gradient."""
-    from .solvers.method_names import split_name
+    from .method_grammar import split_name
 
     if init is None:
         return method
@@ -240,7 +240,7 @@ def _with_init(method: str, init: str | None) -> str:
 
 def _check_ocp_flags(methods, args, flag: str) -> None:
     """An OCP flag (--solver, --hessian, --codegen) with no OCP method to act on is an error."""
-    from .solvers.method_names import OCP_METHODS, split_name
+    from .method_grammar import OCP_METHODS, split_name
 
     given = [f"--{n}" for n in OCP_FLAGS if getattr(args, n, None) is not None]
     if given and not any(split_name(m)[0] in OCP_METHODS for m in methods):
@@ -270,7 +270,7 @@ class _OneLineParser(argparse.ArgumentParser):
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from .solvers.method_names import BASE_METHODS, grammar
+    from .method_grammar import BASE_METHODS, grammar
 
     p = _OneLineParser(prog="surestep", description="Uncertainty-aware trajectory optimisation (SURESTEP).")
     p.add_argument("--version", action="version", version=f"surestep {_version()}")

@@ -128,7 +128,7 @@ def test_replan_output_dir_under_a_file_is_refused_before_the_work(tmp_path, cap
 def test_a_non_finite_solution_is_not_written(tmp_path, default_setup):
     """NaN in a solution: an error naming the key that diverged, and no file."""
     from surestep_ocp.solvers.baseline import solve_baseline
-    from surestep_ocp.output.outputs import NonFinite
+    from surestep_ocp.output.files import NonFinite
 
     sol = solve_baseline(default_setup)
     sol.trace[3] = math.nan

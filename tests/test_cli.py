@@ -14,7 +14,7 @@ import pytest
 import yaml
 
 from surestep_ocp.cli import build_parser, main
-from surestep_ocp.solvers.method_names import ABLATIONS, BASE_METHODS, EXPECTED, PREDICTED
+from surestep_ocp.method_grammar import ABLATIONS, BASE_METHODS, EXPECTED, PREDICTED
 
 
 REPO = Path(__file__).resolve().parents[1]
@@ -187,8 +187,9 @@ def test_solver_flag_defaults_are_the_solver_specs(monkeypatch, write_problem):
     assert f"solver.codegen, else {d.codegen}" in text
     solver = next(a for a in subparsers()["solve"]._actions if a.dest == "solver")
     assert "fatrop" not in solver.choices
-    for choice in solver.choices:
-        assert load_problem(write_problem(lambda t, c=choice: t.update(solver={"name": c}))).solver.name == choice
+    for choice in solver.choices:  # interior: for problems with enforced limits only
+        tree = {"solver": {"name": choice}, **({"limits": {"enforce": True}} if choice == "interior" else {})}
+        assert load_problem(write_problem(lambda t, u=tree: t.update(u))).solver.name == choice
 
 
 def test_help_lists_every_method_name_from_the_registry(monkeypatch):

@@ -12,7 +12,7 @@ import re
 import numpy as np
 import pytest
 
-from surestep_ocp.solvers.method_names import BASE_METHODS, REPLAN_METHODS, all_names
+from surestep_ocp.method_grammar import BASE_METHODS, REPLAN_METHODS, all_names
 from surestep_ocp.output.plot_styles import known, style_of, styles_of
 
 UNIT = re.compile(r"\[[^\]]+\]")

@@ -19,7 +19,7 @@ from numpy_ekf import joint_motion_noise, propagate
 
 from surestep_ocp.errors import ProblemError, SurestepError
 from surestep_ocp.model.belief import COSINE_GUARD, unvech
-from surestep_ocp.output.compare import run_comparison
+from surestep_ocp.comparison import run_comparison
 from surestep_ocp.problem.load import load_problem
 from surestep_ocp.problem.setup import build_setup
 from surestep_ocp.solvers.methods import ocp_initial_guess, run_method

@@ -14,7 +14,7 @@ from surestep_ocp.model.camera import Intrinsics
 from surestep_ocp.model.lie import matrix_to_pose, np_exp, np_means, np_poses, pose_to_matrix
 from surestep_ocp.problem.load import load_problem
 from surestep_ocp.problem.spec import CameraMove
-from surestep_ocp.solvers.replan import replan
+from surestep_ocp.solvers.camera_move_replan import replan_after_camera_moves
 from surestep_ocp.problem.setup import build_setup
 
 PROBLEMS = Path(__file__).resolve().parents[1] / "problems"
@@ -76,7 +76,7 @@ def test_replan_runs_and_beats_the_plan_made_once(tmp_path):
     moves = tuple(CameraMove(step, m.ecm_joints) for step, m in zip((3, 6), problem.camera.moves[1::2]))
     problem = replace(problem, horizon=8, camera=replace(problem.camera, moves=moves))
     setup = build_setup(problem)
-    res = replan(setup, tmp_path)
+    res = replan_after_camera_moves(setup, tmp_path)
     assert [p.method for p in res["plans"]] == ["ocp-replan-3", "ocp-replan-6"]
     assert all(p.success for p in res["plans"])
     executed, once = res["executed"], res["once"]

@@ -12,7 +12,7 @@ from surestep_ocp.evaluation.rollout import Detection, rollout
 from surestep_ocp.evaluation.table2 import RolloutReplanner
 from surestep_ocp.problem.load import load_problem
 from surestep_ocp.problem.setup import build_setup
-from surestep_ocp.solvers.replan import _belief_after_move, replan
+from surestep_ocp.solvers.camera_move_replan import _belief_after_move, replan_after_camera_moves
 
 TYPE4 = Path(__file__).resolve().parents[1] / "problems" / "type4_camera_moves.yaml"
 
@@ -32,7 +32,7 @@ def test_a_rollout_with_the_ml_belief_replans_as_surestep_replan(type4, tmp_path
     joints), a rollout's re-plans give `surestep replan`'s executed trajectory (its frames: `Setup.pose_of` and
     `in_step_frames`); a second rollout with another belief re-plans on its own copy and leaves the first as is."""
     setup = type4
-    executed = replan(setup, tmp_path)["executed"]
+    executed = replan_after_camera_moves(setup, tmp_path)["executed"]
     expect = np.asarray(executed.poses, float)  # in each step's camera frame (Solution.poses)
     hook = RolloutReplanner(setup)
     waypoints = np.stack([hook.initial_poses()] * 2)

@@ -19,7 +19,7 @@ from typing import Sequence, Union
 import meshcat
 
 from surestep_ocp.errors import SurestepError, shown
-from surestep_ocp.output.outputs import check_output_file
+from surestep_ocp.output.files import check_output_file
 from surestep_ocp.quiet import quiet_fd
 
 from .scene import build_scene, write_static_html

@@ -47,7 +47,7 @@ from .configs import ConfigurationSampler, load_evaluation
 from .evaluation_report import write_outputs
 from .pacing import paced
 from .rollout import MODES, plan_metrics
-from ..output.outputs import check_output_dir, check_output_file
+from ..output.files import check_output_dir, check_output_file
 from ..output.solution import _jsonable, write_json_atomic, write_text_atomic
 from ..solvers.methods import parse_method, run_method
 

@@ -35,7 +35,7 @@ from ..problem.setup import build_setup
 from ..problem.spec import GRADIENT_PRESETS, GradientSpec
 from ..solvers.methods import run_method
 from ..solvers.planner import Planner
-from ..solvers.replan import replan
+from ..solvers.camera_move_replan import replan_after_camera_moves
 from .configs import GRASP_ANGLE_RAD, GRASP_POSITION_M
 from .rollout import MODES, Detection, rollout
 
@@ -60,7 +60,7 @@ def plans(setup, methods=METHODS, replanned: bool = False) -> dict:
         out[m] = (np.asarray(sol.poses, float), sol.success)
     if replanned:
         with tempfile.TemporaryDirectory() as d:
-            res = replan(setup, Path(d))
+            res = replan_after_camera_moves(setup, Path(d))
         out["ocp-replanned-ml"] = (np.asarray(res["executed"].poses, float), True)
     return out
 

@@ -26,7 +26,7 @@ from .plots_motion import plot_trajectory
 from ..model.robot import Robot
 from ..problem.paths import resolve_urdf
 from ..quiet import quiet_fd
-from .outputs import check_new_dir, check_output_file
+from .files import check_new_dir, check_output_file
 
 if TYPE_CHECKING:
     from .solution import Solution

@@ -27,7 +27,7 @@ from ..errors import SurestepError, shown
 from .export_timing import Trajectory
 from .export_writers import FORMAT_ID, channels, timing_text, to_joint_trajectory, written_names
 from .joint_names import JointNaming
-from .outputs import check_finite, write_dir_atomic
+from .files import check_finite, write_dir_atomic
 
 DEFAULT_ARM = "PSM1"
 ARM_NAME = re.compile(r"[A-Za-z][A-Za-z0-9_]*\Z")

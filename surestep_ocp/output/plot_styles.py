@@ -1,6 +1,6 @@
 """One look per method name (colour, marker, line style), shared by every PNG and the 3D scene.
 
-Each base method (`method_names.BASE_METHODS`) and each `surestep replan` name has a fixed colour
+Each base method (`method_grammar.BASE_METHODS`) and each `surestep replan` name has a fixed colour
 and marker. A variant keeps its base's marker: an ablation suffix shades the colour and hollows the
 marker, `-expected` / `-predicted` shade it again and change the line style, so every accepted name
 looks unlike every other. Names outside the grammar (`ocp-replan-<step>`, hand-made files) take PALETTE in order.
@@ -11,7 +11,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from ..solvers.method_names import ABLATIONS, REPLAN_METHODS, split_name
+from ..method_grammar import ABLATIONS, REPLAN_METHODS, split_name
 
 
 @dataclass(frozen=True)

@@ -17,7 +17,7 @@ from ..model.lie import matrix_to_pose, np_angle, np_exp_many, np_log_many, pose
 from ..model.limits import recorded_limits
 from ..problem.setup import Setup
 from .attempt_record import AttemptRecord
-from .outputs import check_finite, check_replaceable
+from .files import check_finite, check_replaceable
 
 
 @dataclass

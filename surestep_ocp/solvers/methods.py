@@ -1,6 +1,6 @@
 """Method names and dispatch: every method takes a Setup and returns a Solution.
 
-Names (`method_names`): `baseline`, `gradient`, `gradient-no-pose-loss`, `ocp`, `ocp-from-gradient`
+Names (`method_grammar`): `baseline`, `gradient`, `gradient-no-pose-loss`, `ocp`, `ocp-from-gradient`
 (the OCP started from the gradient solution), each optionally with an ablation suffix
 `-no-depth`, `-no-fov` or `-no-orientation` (that observation component is left out
 during optimisation; evaluation always uses all components), then `-expected`, then `-predicted`.
@@ -17,7 +17,7 @@ from .gradient import solve_gradient
 from ..model.belief import COMPONENTS
 from ..errors import SurestepError
 from ..model.limits import VIOLATED, enforce as enforce_limits
-from .method_names import BASE_METHODS, split_name
+from ..method_grammar import BASE_METHODS, split_name
 from .iterate import InitialGuess
 from .ocp import solve_ocp
 from ..problem.setup import Setup
@@ -30,7 +30,7 @@ def parse_method(name: str) -> tuple[str, tuple[str, ...] | None, str | None, st
     """Split a method name into (base, components or None, observation-noise form or None, objective or None).
 
     A trailing `-predicted` minimises Tr(Sigma_T|T-1); before it, `-expected` plans with the
-    belief-aware observation noise (section 8). The grammar is `method_names.split_name`'s.
+    belief-aware observation noise (section 8). The grammar is `method_grammar.split_name`'s.
     """
     try:
         base, ablated, expected, predicted = split_name(name)

@@ -6,19 +6,19 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import SurestepError
-from ..solvers.gradient import JOINT_NOISE_UNSUPPORTED
-from ..solvers.method_names import split_name
-from ..solvers.methods import COMPARE_METHODS, run_method
-from ..evaluation.metrics import comparison_rows, markdown_table
-from ..model.limits.enforcement import enforce
-from ..model.limits.report import markdown_rows, plan_report, summary_row
-from ..model.limits.values import problem_limits
-from ..problem.paths import resolve_urdf
-from .plots_compare import write_figures
-from .plots_motion import plot_plans
-from ..problem.setup import Setup
-from .solution import Solution, write_json_atomic, write_text_atomic
+from .errors import SurestepError
+from .solvers.gradient import JOINT_NOISE_UNSUPPORTED
+from .method_grammar import split_name
+from .solvers.methods import COMPARE_METHODS, run_method
+from .evaluation.metrics import comparison_rows, markdown_table
+from .model.limits.enforcement import enforce
+from .model.limits.report import markdown_rows, plan_report, summary_row
+from .model.limits.values import problem_limits
+from .problem.paths import resolve_urdf
+from .output.plots_compare import write_figures
+from .output.plots_motion import plot_plans
+from .problem.setup import Setup
+from .output.solution import Solution, write_json_atomic, write_text_atomic
 
 
 def run_comparison(setup: Setup, methods: tuple[str, ...] = COMPARE_METHODS, progress=None) -> list[Solution]:

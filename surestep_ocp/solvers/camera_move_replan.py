@@ -17,7 +17,7 @@ from ..model.belief import unvech, vech
 from ..errors import SurestepError
 from ..model.lie import matrix_to_pose, np_means, np_poses
 from .methods import run_method
-from ..output.outputs import check_finite
+from ..output.files import check_finite
 from .planner import Planner
 from ..problem.setup import Setup
 from ..output.solution import Solution, evaluate, write_json_atomic, write_text_atomic
@@ -35,7 +35,7 @@ def _belief_after_move(setup: Setup, q_exec: np.ndarray, k: int) -> tuple[np.nda
     return np_poses(m_new, flip_w=0.0)[0], unvech(s_new)  # the principal vector
 
 
-def replan(setup: Setup, out_dir: Path, progress=None) -> dict:
+def replan_after_camera_moves(setup: Setup, out_dir: Path, progress=None) -> dict:
     """Plan once, then re-plan after every camera move; write the plans and the executed trajectory.
 
     One `Planner` makes every plan: each re-plan starts from the previous plan's rest (warm), over the steps

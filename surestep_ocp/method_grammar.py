@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from itertools import product
 
-from ..model.belief import COMPONENTS
+from .model.belief import COMPONENTS
 
 BASE_METHODS = ("baseline", "gradient", "gradient-no-pose-loss", "ocp", "ocp-from-gradient")
 OCP_METHODS = ("ocp", "ocp-from-gradient")  # the bases the OCP solver flags (--solver, --hessian, ...) act on
