@@ -1,19 +1,17 @@
 """Plans within the motion limits at tracker rate: the interior-point Newton method against IPOPT, cold and in a
 20 Hz re-planning loop.
 
-    OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/realtime.py [--configs 100] [--seed 0] [--episodes 20]
+    OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/realtime.py [--configs 100] [--seed 0]
 
 Cold: the default problem (problems/needle_regrasp.yaml: 40 steps of 50 ms, the limits enforced) and the first
 `--configs` configurations of problems/evaluations/evaluation.yaml at the same horizon, pace and limits, each solved
 by `solver.name: interior` (the interior-point method, IPOPT as its fallback) and by IPOPT (`solver.name: ipopt`,
 the reference and today's default) in the same run; the solve times (builds cached and not counted), the interior
 attempt's own status, iterations and time, and Tr(Sigma_T) of both.
-Loop: `--episodes` episodes of `Planner` on the default problem against a simulated tracker at 20 Hz, re-planning
-at every frame from the executed curve's state; every re-plan's time, the infeasible ones, and every executed
-trajectory (the stitched pieces of the curves that ran) checked against every limit by
-`model/limits.plan_report`-style checks on its samples (not the planner's own). Writes benchmarks/results/realtime.md;
-the last line is `realtime: cold_median_ms=... cold_worst_ms=... replan_median_ms=... replan_worst_ms=...
-infeasible=... violations=...`.
+The 20 Hz loop (re-plans from the executed curve's state) is not measured yet: those re-plans do not converge
+(docs/realtime.md); its fields in the last line read `na`. Writes benchmarks/results/realtime.md; the last line is
+`realtime: cold_median_ms=... cold_worst_ms=... replan_median_ms=na replan_worst_ms=na infeasible=na
+violations=na`.
 """
 
 from __future__ import annotations
@@ -68,28 +66,18 @@ def cold(args) -> tuple[list[str], dict]:
 
 def main() -> None:
     ap = h.parser(__doc__, configs=100, seed=0)
-    ap.add_argument("--episodes", type=int, default=20)
-    ap.add_argument("--no-loop", action="store_true", help="the cold part only")
     args = ap.parse_args()
     lines = ["# Plans within the motion limits at tracker rate", "",
              f"`OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/realtime.py --configs {args.configs} --seed "
-             f"{args.seed} --episodes {args.episodes}` (one BLAS thread; builds cached, not counted).", ""]
+             f"{args.seed}` (one BLAS thread; builds cached, not counted).", ""]
     block, figs = cold(args)
     lines += block
-    loop = {"replan_median_ms": float("nan"), "replan_worst_ms": float("nan"), "infeasible": 0, "violations": 0}
-    if not args.no_loop:
-        from realtime_loop import loop_episodes
-
-        block, loop = loop_episodes(args)
-        lines += block
+    lines += ["## The 20 Hz loop within the limits", "",
+              "Not measured: re-plans from the executed curve's state do not converge yet (docs/realtime.md).", ""]
     last = h.last_line("realtime", h.key_values(
         cold_median_ms=f"{figs['cold_median_ms']:.1f}", cold_worst_ms=f"{figs['cold_worst_ms']:.1f}",
-        replan_median_ms=f"{loop['replan_median_ms']:.1f}", replan_worst_ms=f"{loop['replan_worst_ms']:.1f}",
-        infeasible=loop["infeasible"], violations=loop["violations"]))
+        replan_median_ms="na", replan_worst_ms="na", infeasible="na", violations="na"))
     text = "\n".join(lines + [last]) + "\n"
-    if args.no_loop:
-        print(text)
-        return
     h.write_result("realtime.md", text)
     print(text)
 
