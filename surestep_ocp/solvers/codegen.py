@@ -93,6 +93,50 @@ def compiled_or_interpreted(fns: dict[str, ca.Function], required: bool) -> tupl
         return fns, f"interpreted: {exc}"
 
 
+_BACKGROUND = ThreadPoolExecutor(max_workers=1, thread_name_prefix="surestep-compile")
+
+
+class Deferred:
+    """Functions compiled in the background: their C is generated now, in the calling thread, and only the C
+    compiler runs in a worker thread (no CasADi call off the calling thread); `result()` waits for it and loads
+    them, as `compiled_or_interpreted` returns them (the interpreted ones and a note if compiling failed and it is
+    not `required`)."""
+
+    def __init__(self, fns: dict[str, ca.Function], required: bool):
+        self.fns, self.required, self.future, self.error = fns, required, None, None
+        self._tmp = tempfile.TemporaryDirectory()
+        try:
+            cc, folder = compiler(), cache_dir()
+            self.jobs = [_job(fn, Path(self._tmp.name), folder) for fn in fns.values()]
+        except SurestepError as exc:
+            self.jobs, self.error = None, exc
+            return
+        todo = list({j.lib: j for j in self.jobs if j.fresh}.values())
+        if todo:
+            self.future = _BACKGROUND.submit(_compile, cc, todo, folder, _what([j.fn for j in todo]))
+
+    def result(self) -> tuple[dict[str, ca.Function], str | None]:
+        try:
+            if self.error is not None:
+                raise self.error
+            if self.future is not None:
+                self.future.result()
+            out = {}
+            for name, j in zip(self.fns, self.jobs):
+                try:
+                    out[name] = ca.external(j.fn.name(), str(j.lib))
+                except RuntimeError as exc:
+                    raise SurestepError(f"solver.codegen: cannot load the compiled {j.lib} "
+                                        f"({str(exc).strip().splitlines()[-1]})") from None
+            return out, None
+        except SurestepError as exc:
+            if self.required:
+                raise
+            return self.fns, f"interpreted: {exc}"
+        finally:
+            self._tmp.cleanup()
+
+
 def _digest(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()
 
@@ -201,14 +245,15 @@ def _what(fns: list[ca.Function]) -> str:
     return ", ".join(f"{f.name()}({_inputs(f)})" for f in fns)
 
 
-def _compile(cc: str, todo: list[_Job], folder: Path) -> None:
+def _compile(cc: str, todo: list[_Job], folder: Path, what: str | None = None) -> None:
     """Compile `todo` (in parallel), announced with an estimate and timed on stderr; the measured rate kept for
     the next estimate; the cache pruned to its bound."""
     sizes = [j.source.stat().st_size for j in todo]
     workers = max(1, min(len(todo), os.cpu_count() or 1))
     rate, basis = _rate(folder)
     estimate = sum(sizes) / 1e6 * rate
-    _note(f"compiling {len(todo)} function{'s' if len(todo) > 1 else ''} to C ({_what([j.fn for j in todo])}; "
+    what = _what([j.fn for j in todo]) if what is None else what
+    _note(f"compiling {len(todo)} function{'s' if len(todo) > 1 else ''} to C ({what}; "
           f"{sum(sizes) / 1e6:.2f} MB of C, {workers} at a time): about {_duration(estimate)} ({basis}); once per "
           f"problem structure and horizon, cached in {folder}")
     t0 = time.perf_counter()

@@ -48,7 +48,7 @@ from ..model.robot import CAMERA_PARAMETERS, Robot
 from ..output.solution import Solution, evaluate
 from ..problem.setup import Setup
 from .buffered import Buffered
-from .codegen import compiled_or_interpreted
+from .codegen import Deferred, compiled_or_interpreted
 from .surrogate import interval_terms, pose_function, recursion_weights
 
 EXACT_BELOW = 1e-3  # projected gradient (objective 1 at the start) below which Newton tries the exact Hessian
@@ -129,7 +129,7 @@ class NewtonSolver:
     """The joint-space problem of one structure (robot, model, horizon, smoothness), built once."""
 
     def __init__(self, robot: Robot, model: BeliefModel, horizon: int, smoothness: float, codegen: bool,
-                 codegen_required: bool = False):
+                 codegen_required: bool = False, background: bool = False):
         t0 = time.perf_counter()
         self.robot, self.T, nq = robot, horizon, robot.nq
         T = horizon
@@ -174,13 +174,14 @@ class NewtonSolver:
         # solvers")
         if model.scalar and nq * (T + 1) <= EXACT_MAX_N:
             fns["newton_curv"] = self._curvature(weights, coef, coefficients, qa, qb, Tcb, Q, P, w_m, w_o)
-        self.codegen, self.codegen_note = codegen, None
-        if codegen:
-            fns, self.codegen_note = compiled_or_interpreted(fns, codegen_required)
-            self.codegen = self.codegen_note is None
-        self.step, self.f = Buffered(fns["newton_step"]), Buffered(fns["newton_f"])
-        self.depth, self.fz = Buffered(fns["newton_depth"]), Buffered(fns["newton_fz"])
-        self.curv = Buffered(fns["newton_curv"]) if "newton_curv" in fns else None
+        self.codegen, self.codegen_note, self._pending = codegen, None, None
+        if codegen and background:  # compiled in the background; the Functions are loaded on first use (`ready`)
+            self._pending = Deferred(fns, codegen_required)
+        else:
+            if codegen:
+                fns, self.codegen_note = compiled_or_interpreted(fns, codegen_required)
+                self.codegen = self.codegen_note is None
+            self._install(fns)
         self.poses = pose.map(T + 1)
         # scatter maps: interval t covers the joint vectors of nodes t, t+1 (positions t*nq ..
         # (t+2)*nq)
@@ -211,6 +212,28 @@ class NewtonSolver:
         self.c_index = np.array([c_row[t][k] * n + rows[t][j] for t in range(T) for j in range(2 * nq)
                                  for k in range(nm + no)])
         self.build_time_s = time.perf_counter() - t0
+
+    def _install(self, fns: dict) -> None:
+        self.step, self.f = Buffered(fns["newton_step"]), Buffered(fns["newton_f"])
+        self.depth, self.fz = Buffered(fns["newton_depth"]), Buffered(fns["newton_fz"])
+        self.curv = Buffered(fns["newton_curv"]) if "newton_curv" in fns else None
+
+    def ready(self) -> float:
+        """Wait for a background compile and load its Functions (seconds waited; 0 when there was none)."""
+        if self.__dict__.get("_pending") is None:
+            return 0.0
+        t0 = time.perf_counter()
+        fns, self.codegen_note = self._pending.result()
+        self.codegen, self._pending = self.codegen_note is None, None
+        self._install(fns)
+        return time.perf_counter() - t0
+
+    def __getattr__(self, name: str):
+        """The compiled Functions of a background compile, loaded when first used."""
+        if name in ("step", "f", "depth", "fz", "curv") and self.__dict__.get("_pending") is not None:
+            self.ready()
+            return getattr(self, name)
+        raise AttributeError(f"'{type(self).__name__}' object has no attribute '{name}'")
 
     def _curvature(self, weights, coef, coefficients, qa, qb, Tcb, Q, P, w_m, w_o) -> ca.Function:
         """`(Q, P) -> (d2S/dc2, coefficient Jacobians per interval)`: the exact Hessian is the surrogate's plus

@@ -136,15 +136,16 @@ def resolve_codegen(setup: Setup, hessian: str) -> bool:
 _NEWTON: dict[tuple, NewtonSolver] = {}
 
 
-def newton_solver(setup: Setup) -> NewtonSolver:
-    """The (cached) projected Newton solver of this setup's structure (`solver.name: newton`)."""
+def newton_solver(setup: Setup, background: bool = False) -> NewtonSolver:
+    """The (cached) projected Newton solver of this setup's structure (`solver.name: newton`); `background`: a
+    new one's C compiled in a background thread, loaded on first use (`NewtonSolver.ready`)."""
     model, prob = setup.model, setup.ocp
     codegen = resolve_codegen(setup, "surrogate")
     key = (str(setup.robot.urdf), setup.robot.frame, setup.robot.offset.tobytes(), model.key(), model.scalar,
            prob.horizon, prob.smoothness, codegen, prob.solver.codegen is True)
     if key not in _NEWTON:
         _NEWTON[key] = NewtonSolver(setup.robot, model, prob.horizon, prob.smoothness, codegen,
-                                    codegen_required=prob.solver.codegen is True)
+                                    codegen_required=prob.solver.codegen is True, background=background)
     return _NEWTON[key]
 
 

@@ -48,9 +48,10 @@ class Planner:
     Args:
         problem: a Problem (or a built Setup); its camera moves, if any, are ignored (give the camera pose to
             `replan`).
-        prebuild: build the solvers of every remaining horizon now (else the first one now, the others when
-            first needed); their build times are in `builds`, never in a plan's time (the IPOPT path builds its
-            NLPs inside the solve).
+        prebuild: build the solvers of every remaining horizon now: the first one compiled now, the others' C
+            compiled in a background thread while the loop runs, each loaded when first needed (else each built
+            when first needed); their build times, waits included, are in `builds`, never in a plan's time (the
+            IPOPT path builds its NLPs inside the solve).
     """
 
     def __init__(self, problem: Problem | Setup, prebuild: bool = True):
@@ -66,7 +67,7 @@ class Planner:
         # plans, and re-plans from the executed curve's state; else a re-plan runs the whole strategy from rest
         self.limited = bool(setup.ocp.limits.enforce and resolved.name == "interior")
         for n in (range(self.horizon, 0, -1) if prebuild else [self.horizon]) if self.fast else ():
-            self._solver(n)  # timed apart from the solves
+            self._solver(n, background=n != self.horizon)  # timed apart from the solves
         self.plan, _ = solve_ocp_warm(self.setup, ocp_initial_guess(self.setup))
         self.step = 0  # the waypoint the current plan starts at
         self._q = np.array(self.plan.q, float)
@@ -182,13 +183,17 @@ class Planner:
             self.plan, self.step, self._q, self._start = sol, step, np.array(sol.q, float), (v0, a0)
         return sol
 
-    def _solver(self, n: int) -> tuple:
-        """(projected Newton solver, compiled EKF over n steps) for n steps left, built on first use."""
+    def _solver(self, n: int, background: bool = False) -> tuple:
+        """(projected Newton solver, compiled EKF over n steps) for n steps left, built on first use; `background`:
+        its C compiled in a background thread (loaded, and waited for if need be, when it is first used: the wait
+        counts as build time, not as a plan's)."""
         if n not in self._solvers:
             t0 = time.perf_counter()
             sub = self.setup.with_ocp(horizon=n)
-            self._solvers[n] = (newton_solver(sub), _propagation(self.setup.eval_model, n))
+            self._solvers[n] = (newton_solver(sub, background=background), _propagation(self.setup.eval_model, n))
             self.builds[n] = time.perf_counter() - t0
+        if not background:
+            self.builds[n] += self._solvers[n][0].ready()
         return self._solvers[n]
 
     def _seen_from(self, camera_pose) -> tuple[Setup, bool]:
