@@ -164,10 +164,20 @@ class Planner:
         s = np.linspace(0.0, 1.0, n + 1)  # the goal's shift, eased in and out (no velocity or acceleration added at
         tail += (10 * s**3 - 15 * s**4 + 6 * s**5)[:, None] * (q_goal - tail[-1])[None]  # either end)
         tail[0] = q0
-        warm = InitialGuess(tail, "previous plan")
         t_build = time.perf_counter()
         solver = interior_solver(sub, moving=True)
         self.builds[-n] = self.builds.get(-n, 0.0) + time.perf_counter() - t_build  # first use of this horizon
+        # the interior-point method starts strictly inside every row: the previous plan's rest sits on its active
+        # rows, so it is blended towards a quintic from the executed state to the goal at rest, which has slack
+        dt = sub.ocp.timing.step_s
+        safe = _quintic_to_rest(q0, v0, a0, q_goal, n, dt)
+        warm = InitialGuess(tail, "previous plan")
+        for lam in BLENDS:
+            guess = InitialGuess((1 - lam) * tail + lam * safe, "previous plan" if lam == 0 else
+                                 f"previous plan blended {lam:g} towards a quintic to the goal")
+            if solver.start_margin(sub, guess, v0, a0) > 0:
+                warm = guess
+                break
         spec = sub.ocp.solver
         run = solver.run(sub, warm, v0=v0, a0=a0, tol=spec.tol, max_iter=min(spec.surrogate_max_iter, spec.max_iter),
                          mu0=REPLAN_MU)
@@ -206,6 +216,20 @@ class Planner:
             if C.tobytes() != self._camera[0]:
                 self._camera, moved = (C.tobytes(), self.setup.seen_from(C)), True
         return self._camera[1], moved
+
+
+BLENDS = (0.0, 0.1, 0.25, 0.5, 1.0)  # a re-plan's start: the previous plan's rest blended this much to a quintic
+
+
+def _quintic_to_rest(q0: np.ndarray, v0: np.ndarray, a0: np.ndarray, q1: np.ndarray, n: int, dt: float) -> np.ndarray:
+    """(n+1, nq) the waypoints of the quintic in time from (q0, v0, a0) to q1 at rest (velocity and acceleration 0)
+    in n steps of dt: the smoothest curve that continues the executed motion to the goal."""
+    T = n * dt
+    A = np.array([[T**3, T**4, T**5], [3 * T**2, 4 * T**3, 5 * T**4], [6 * T, 12 * T**2, 20 * T**3]])
+    rhs = np.vstack([q1 - q0 - v0 * T - a0 / 2 * T**2, -v0 - a0 * T, -a0])
+    c3, c4, c5 = np.linalg.solve(A, rhs)
+    t = np.arange(n + 1)[:, None] * dt
+    return q0 + v0 * t + a0 / 2 * t**2 + c3 * t**3 + c4 * t**4 + c5 * t**5
 
 
 def _estimate(mean, covariance) -> tuple[np.ndarray, np.ndarray]:
