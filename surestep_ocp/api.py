@@ -12,6 +12,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from .errors import SurestepError
+from .method_grammar import grammar
 from .problem.spec import Problem
 from .output.solution import Solution
 
@@ -27,6 +29,9 @@ def solve(problem: Problem, method: str = "ocp") -> Solution:
     a solver failure returns a Solution with its `status`. Raises ProblemError (naming the key) when the
     problem cannot be set up (an unreachable goal, joints outside their limits).
     """
+    if not isinstance(method, str):
+        raise SurestepError(f"solve: method must be a method name (a string), got {type(method).__name__}; "
+                            f"{grammar()}")
     from .solvers.methods import run_method
     from .problem.setup import build_setup
 

@@ -97,12 +97,21 @@ class Planner:
             becomes `plan` (and `step`); after a failure (check `success`) the previous plan stays current.
         """
         t0, builds_before = time.perf_counter(), self.build_time_s
-        step = self.step + 1 if step is None else int(step)
+        step = self.step + 1 if step is None else _step(step)
         if not self.step <= step < self.horizon:
             raise SurestepError(f"replan: step {step} is not in [{self.step}, {self.horizon - 1}] (the current plan "
                                 f"starts at waypoint {self.step}; the goal is waypoint {self.horizon})")
-        mean, cov = _estimate(mean, covariance)
+        mean, cov = _estimate(mean, covariance, self.setup.ocp.min_depth)
+        camera = self._camera
         base, moved = self._seen_from(camera_pose)
+        try:
+            return self._replan(mean, cov, base, moved, step, t0, builds_before)
+        except BaseException:
+            self._camera = camera  # a rejected call changes nothing: the camera of the last plan stays
+            raise
+
+    def _replan(self, mean, cov, base: Setup, moved: bool, step: int, t0: float, builds_before: float) -> Solution:
+        """`replan` with checked inputs (its docstring)."""
         if self.limited:
             return self._replan_within_limits(mean, cov, base, step, t0, builds_before)
         seed = self._q[step - self.step]
@@ -210,9 +219,15 @@ class Planner:
         """The setup seen from `camera_pose` (None: the last one), and whether the camera moved since the last plan."""
         moved = False
         if camera_pose is not None:
-            C = np.asarray(camera_pose, float)
+            C = _real(camera_pose, "camera_pose")
             if C.shape != (4, 4) or not np.all(np.isfinite(C)):
                 raise SurestepError(f"replan: camera_pose must be a finite 4x4 matrix, got shape {C.shape}")
+            R = C[:3, :3]
+            if (np.abs(R.T @ R - np.eye(3)).max() > RIGID_TOL or np.linalg.det(R) <= 0
+                    or np.abs(C[3] - [0, 0, 0, 1]).max() > RIGID_TOL or np.abs(C[:3, 3]).max() > MAX_POSITION):
+                raise SurestepError("replan: camera_pose must be a rigid transform: a rotation (orthonormal, "
+                                    f"determinant +1, to {RIGID_TOL:g}), a translation within {MAX_POSITION:g} m, "
+                                    "and a last row 0 0 0 1")
             if C.tobytes() != self._camera[0]:
                 self._camera, moved = (C.tobytes(), self.setup.seen_from(C)), True
         return self._camera[1], moved
@@ -232,14 +247,51 @@ def _quintic_to_rest(q0: np.ndarray, v0: np.ndarray, a0: np.ndarray, q1: np.ndar
     return q0 + v0 * t + a0 / 2 * t**2 + c3 * t**3 + c4 * t**4 + c5 * t**5
 
 
-def _estimate(mean, covariance) -> tuple[np.ndarray, np.ndarray]:
-    """The tracker's mean (6,) and covariance (6, 6, symmetrised), checked."""
-    mean, cov = np.asarray(mean, float), np.asarray(covariance, float)
+RIGID_TOL = 1e-6  # a camera pose's rotation is orthonormal to this
+MAX_POSITION = 100.0  # [m] as the problem files' positions (problem/parse.py)
+MAX_COVARIANCE = 1e6  # as the problem files' covariances: an entry at most this [m^2, m rad, rad^2]
+
+
+def _real(value, name: str) -> np.ndarray:
+    """`value` as a float array; a complex or non-numeric one is an error naming the argument."""
+    try:
+        arr = np.asarray(value)
+    except (TypeError, ValueError, RecursionError):
+        raise SurestepError(f"replan: {name} must be an array of real numbers") from None
+    if np.iscomplexobj(arr) or arr.dtype == object or arr.dtype.kind not in "biuf":
+        raise SurestepError(f"replan: {name} must be an array of real numbers, got {arr.dtype}")
+    return arr.astype(float)
+
+
+def _step(step) -> int:
+    """The waypoint index given to `replan`: a whole number (a bool, a fraction, infinity or a list is an error)."""
+    if isinstance(step, (bool, np.bool_)) or not isinstance(step, (int, np.integer, float, np.floating)):
+        raise SurestepError(f"replan: step must be a whole number, got {type(step).__name__}")
+    if not np.isfinite(step) or step != int(step):
+        raise SurestepError(f"replan: step must be a whole number, got {step}")
+    return int(step)
+
+
+def _estimate(mean, covariance, min_depth: float) -> tuple[np.ndarray, np.ndarray]:
+    """The tracker's mean (6,) and covariance (6, 6), checked as the problem files' are: finite, real, the mean in
+    front of the camera (at least the minimum depth), the covariance symmetric (to 1e-9 relative: it is not
+    silently symmetrised), positive definite and no entry beyond MAX_COVARIANCE."""
+    mean, cov = _real(mean, "mean"), _real(covariance, "covariance")
     if mean.shape != (NX,) or not np.all(np.isfinite(mean)):
         raise SurestepError(f"replan: mean must be 6 finite numbers [px, py, pz, rx, ry, rz], got shape {mean.shape}")
+    if np.abs(mean[:3]).max() > MAX_POSITION:
+        raise SurestepError(f"replan: mean's position must be within {MAX_POSITION:g} m, got {mean[:3].tolist()}")
+    if mean[2] < min_depth:
+        raise SurestepError(f"replan: mean's depth {mean[2]:.4g} m is below the minimum depth {min_depth:g} m "
+                            "(constraints.min_depth): the tool would be behind or at the camera")
     if cov.shape != (NX, NX) or not np.all(np.isfinite(cov)):
         raise SurestepError(f"replan: covariance must be a finite 6x6 matrix, got shape {cov.shape}")
-    cov = 0.5 * (cov + cov.T)
+    if np.abs(cov).max() > MAX_COVARIANCE:
+        raise SurestepError(f"replan: covariance entries must be at most {MAX_COVARIANCE:g}, got "
+                            f"{np.abs(cov).max():.3g}")
+    if np.abs(cov - cov.T).max() > 1e-9 * max(np.abs(cov).max(), 1e-300):
+        raise SurestepError("replan: covariance must be symmetric (to 1e-9 relative)")
+    cov = 0.5 * (cov + cov.T)  # the rounding left
     if np.linalg.eigvalsh(cov)[0] <= 0:
         raise SurestepError("replan: covariance must be positive definite")
     return mean, cov
