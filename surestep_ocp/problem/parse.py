@@ -61,11 +61,71 @@ _TOP = {"name", "description", "robot", "camera", "start", "goal", "horizon", "n
 _REQUIRED_TOP = {"robot", "camera", "start", "goal", "horizon"}
 
 
+MAX_SECTION_ERRORS = 20  # errors reported per section (each found by reading it again without the last bad key)
+
+
+def _key_path(key: str | None, section: str) -> list[str]:
+    """The mapping keys inside `section` of an error's key path, up to the first list index: `goal.pose.position[2]`
+    in `goal` -> [`pose`, `position`]."""
+    if not key or not (key == section or key.startswith(section + ".") or key.startswith(section + "[")):
+        return []
+    out = []
+    for part in key[len(section):].lstrip(".").split("."):
+        if not part:
+            break
+        name = part.split("[")[0]
+        if not name:
+            break
+        out.append(name)
+        if "[" in part:
+            break
+    return out
+
+
+def _more_errors(section: str, node: Any, read, args: tuple, kwargs: dict, first: ProblemError) -> list[ProblemError]:
+    """The section's further errors: it is read again with each bad key removed, until it reads or an error repeats
+    (a key that was removed and is then missing is not another error)."""
+    if not isinstance(node, Mapping):
+        return []
+    where = next((i for i, a in enumerate(args) if a is node), None)
+    if where is None:
+        return []
+    copy, exc, found, removed = copy_tree(node), first, [], []
+    for _ in range(MAX_SECTION_ERRORS - 1):
+        path = _key_path(exc.key, section)
+        parent = copy
+        for name in path[:-1]:
+            parent = parent.get(name) if isinstance(parent, Mapping) else None
+        if not path or not isinstance(parent, dict) or path[-1] not in parent:
+            break
+        del parent[path[-1]]
+        removed.append(".".join([section, *path]))
+        try:
+            read(*args[:where], copy, *args[where + 1:], **kwargs)
+            break
+        except ProblemError as again:
+            if any(r == again.key or r.startswith((again.key or "") + ".") for r in removed) or any(
+                    again.key == e.key for e in [first, *found]):
+                break  # the removed key reported missing, or the same error again
+            found.append(again)
+            exc = again
+    return found
+
+
+def copy_tree(node: Any) -> Any:
+    """A copy of a YAML tree's mappings and lists (the leaves shared)."""
+    if isinstance(node, Mapping):
+        return {k: copy_tree(v) for k, v in node.items()}
+    if isinstance(node, list):
+        return [copy_tree(v) for v in node]
+    return node
+
+
 def parse_problem(tree: Any, path: Path) -> Problem:
     """`tree` (a problem file's YAML) read into a Problem. Each top-level section is read even when another
     has an error, so every error of a file is reported at once: one error is a ProblemError, several a
-    `ProblemErrors` (one line each; a section stops at its first error, and a section that needs another,
-    `limits` the robot's joints, is read only when that one is right)."""
+    `ProblemErrors` (one line each; a section is read again without each bad key until it reads, so all its
+    errors are found; `limits`, which needs the robot's joints, is read only when the robot is right)."""
     rd = Reader(str(path))
     errors: list[ProblemError] = []
     top = _top(rd, tree, errors)
@@ -77,6 +137,7 @@ def parse_problem(tree: Any, path: Path) -> Problem:
             return read(*args, **kwargs)
         except ProblemError as exc:
             errors.append(exc)
+            errors.extend(_more_errors(key, top.get(key), read, args, kwargs, exc))
             return None
 
     robot = section("robot", _robot, rd, top.get("robot"), "robot", path, default_frame="tool", required=True)
