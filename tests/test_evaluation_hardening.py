@@ -1,0 +1,194 @@
+"""Issue 30 for `surestep evaluate` and `surestep sweep`: every entry point keeps the file reader's promises.
+
+Inputs are never overwritten (nor written through a symbolic link), one writer per output folder, a resumed run
+uses only whole, finite records of the same settings, and a bad sweep file is a one-line user error (exit 2).
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import math
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import yaml
+
+from surestep_ocp.errors import SurestepError
+from surestep_ocp.evaluation import evaluation
+
+REPO = Path(__file__).resolve().parents[1]
+EVAL = REPO / "problems" / "evaluations" / "evaluation.yaml"
+TINY = ["--configs", "2", "--rollouts", "2", "--methods", "baseline", "--rollout-mode", "model", "--quiet"]
+
+
+def _run(argv: list[str]) -> int:
+    parser = argparse.ArgumentParser(prog="surestep")
+    evaluation.register(parser.add_subparsers(dest="command", required=True))
+    args = parser.parse_args(argv)
+    return args.func(args)
+
+
+def _cli(*argv: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "surestep_ocp.cli", *map(str, argv)], capture_output=True,
+                          text=True, timeout=300, cwd=REPO)
+
+
+def _user_error(res: subprocess.CompletedProcess, *words: str) -> str:
+    """Exit 2, one line on stderr naming what is wrong, no traceback."""
+    err = res.stderr.strip()
+    assert res.returncode == 2, (res.returncode, res.stderr)
+    assert len(err.splitlines()) == 1 and err.startswith("surestep: "), err
+    assert "Traceback" not in err and "internal error" not in err
+    for w in words:
+        assert w in err, (w, err)
+    return err
+
+
+def _evaluation_copy(path: Path) -> Path:
+    """The shipped evaluation file at `path`, its base problem made absolute."""
+    tree = yaml.safe_load(EVAL.read_text())
+    tree["base"] = str((EVAL.parent / tree["base"]).resolve())
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(yaml.safe_dump(tree, sort_keys=False))
+    return path
+
+
+def _sweep(path: Path, evaluation_file: str, **keys) -> Path:
+    tree = {"evaluation": evaluation_file, "configs": 1, "rollouts": 2, "rollout_mode": "model",
+            "methods": ["baseline"], "runs": [{"name": "runA"}], **keys}
+    path.write_text(yaml.safe_dump(tree, sort_keys=False))
+    return path
+
+
+# ------------------------------------------------------------------ 2. one writer per folder; settings in records
+def test_a_second_writer_into_the_same_folder_is_refused(tmp_path):
+    from surestep_ocp.evaluation.run_lock import hold
+
+    out = tmp_path / "run"
+    out.mkdir()
+    with hold(out):
+        err = _user_error(_cli("evaluate", EVAL, *TINY, "--output-dir", out), "another surestep process")
+        assert str(out) in err
+        with pytest.raises(SurestepError, match="another surestep process"):
+            _run(["evaluate", str(EVAL), *TINY, "--output-dir", str(out)])
+    assert not (out / "progress.jsonl").exists()
+    assert _run(["evaluate", str(EVAL), *TINY, "--output-dir", str(out)]) == 0  # released: the run goes ahead
+    assert sorted(p.name for p in out.iterdir()) == sorted(
+        ["run.json", "progress.jsonl", "table.md", "raw.csv", "solves.csv", "boxplot.png"])
+
+
+@pytest.fixture(scope="module")
+def finished(tmp_path_factory) -> Path:
+    """A finished tiny run (2 configurations, the baseline, rollouts in mode `model`)."""
+    out = tmp_path_factory.mktemp("finished") / "run"
+    assert _run(["evaluate", str(EVAL), *TINY, "--seed", "0", "--output-dir", str(out)]) == 0
+    return out
+
+
+def _copy(finished: Path, tmp_path: Path) -> Path:
+    out = tmp_path / "run"
+    shutil.copytree(finished, out)
+    return out
+
+
+@pytest.mark.parametrize("flag,value", [("--seed", "1"), ("--rollouts", "3")])
+def test_resume_without_run_json_checks_the_settings_in_the_records(finished, tmp_path, flag, value):
+    out = _copy(finished, tmp_path)
+    (out / "run.json").unlink()
+    before = (out / "progress.jsonl").read_text()
+    argv = [a for a in TINY]
+    i = argv.index(flag) if flag in argv else None
+    if i is None:
+        argv += [flag, value]
+    else:
+        argv[i + 1] = value
+    _user_error(_cli("evaluate", EVAL, *argv, "--output-dir", out, "--resume"), "other settings", flag[2:])
+    assert (out / "progress.jsonl").read_text() == before
+    assert not (out / "run.json").exists()
+
+
+def test_records_carry_their_settings(finished):
+    for line in (finished / "progress.jsonl").read_text().splitlines():
+        rec = json.loads(line)
+        assert rec["seed"] == 0 and rec["rollouts"] == 2
+
+
+# ------------------------------------------------------------------ 3. --resume re-runs any record not whole
+def _nan_metric(rec):
+    rec["metrics"]["model"]["baseline"]["pos_err_mean"] = math.nan
+
+
+def _nan_success(rec):
+    rec["success"]["model"]["baseline"] = math.nan
+
+
+def _string_metric(rec):
+    rec["metrics"]["model"]["baseline"]["trace_ml"] = "abc"
+
+
+def _null_metric(rec):
+    rec["metrics"]["model"]["baseline"]["trace_ml"] = None
+
+
+def _no_solve(rec):
+    del rec["solves"]["baseline"]
+
+
+def _no_metric(rec):
+    del rec["metrics"]["model"]["baseline"]["entropy_ml"]
+
+
+def _no_mode(rec):
+    del rec["metrics"]["model"]
+
+
+def _no_method(rec):
+    del rec["metrics"]["model"]["baseline"]
+
+
+def _short_errors(rec):
+    rec["pos_errors"]["model"]["baseline"] = rec["pos_errors"]["model"]["baseline"][:1]
+
+
+def _no_settings_no_run_json(rec):
+    del rec["seed"]
+
+
+BREAKS = [_nan_metric, _nan_success, _string_metric, _null_metric, _no_solve, _no_metric, _no_mode, _no_method,
+          _short_errors, _no_settings_no_run_json]
+
+
+@pytest.mark.parametrize("brk", BREAKS, ids=[b.__name__.lstrip("_") for b in BREAKS])
+def test_resume_runs_a_broken_record_again(finished, tmp_path, monkeypatch, capsys, brk):
+    out = _copy(finished, tmp_path)
+    if brk is _no_settings_no_run_json:
+        (out / "run.json").unlink()
+    lines = (out / "progress.jsonl").read_text().splitlines()
+    rec = json.loads(lines[1])
+    brk(rec)
+    lines[1] = json.dumps(rec)
+    (out / "progress.jsonl").write_text("\n".join(lines) + "\n")
+    calls = []
+    real = evaluation.evaluate_configuration
+
+    def counting(*args):
+        calls.append(args[2])
+        return real(*args)
+
+    monkeypatch.setattr(evaluation, "evaluate_configuration", counting)
+    capsys.readouterr()
+    assert _run(["evaluate", str(EVAL), *TINY, "--seed", "0", "--output-dir", str(out), "--resume"]) == 0
+    assert calls == [1]
+    err = capsys.readouterr().err
+    assert "line 2" in err and "run again" in err
+    with open(out / "raw.csv") as fh:
+        rows = list(csv.DictReader(fh))
+    assert rows and all(r["missing"] == "" and math.isfinite(float(r["value"])) for r in rows)
+    assert (out / "raw.csv").read_text() == (finished / "raw.csv").read_text()
+    assert [json.loads(x)["config"] for x in (out / "progress.jsonl").read_text().splitlines()] == [0, 1]
