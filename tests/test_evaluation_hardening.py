@@ -66,6 +66,49 @@ def _sweep(path: Path, evaluation_file: str, **keys) -> Path:
     return path
 
 
+# ------------------------------------------------------------------ 1. sweep outputs never replace its inputs
+def test_sweep_refuses_to_overwrite_its_own_evaluation_file(tmp_path):
+    d = tmp_path / "D"
+    ev = _evaluation_copy(d / "runA" / "evaluation.yaml")
+    before = ev.read_bytes()
+    sweep = _sweep(d / "sweep.yaml", "runA/evaluation.yaml")
+    _user_error(_cli("sweep", sweep, "--output-dir", d, "--quiet"), "input", "evaluation.yaml")
+    assert ev.read_bytes() == before
+    assert not (d / "runA" / "progress.jsonl").exists()
+
+
+def test_sweep_refuses_to_write_through_a_symbolic_link(tmp_path):
+    ev = _evaluation_copy(tmp_path / "in" / "e.yaml")
+    sweep = _sweep(tmp_path / "in" / "sweep.yaml", "e.yaml")
+    target = tmp_path / "elsewhere.yaml"
+    target.write_text("precious\n")
+    (tmp_path / "out" / "runA").mkdir(parents=True)
+    (tmp_path / "out" / "runA" / "evaluation.yaml").symlink_to(target)
+    _user_error(_cli("sweep", sweep, "--output-dir", tmp_path / "out", "--quiet"), "symbolic link")
+    assert target.read_text() == "precious\n" and ev.is_file()
+
+
+def test_sweep_writes_its_run_files_atomically(tmp_path):
+    """A run file is replaced by a rename (a new file), never rewritten in place: a hard link to it keeps its text."""
+    from surestep_ocp.evaluation.sweep import load_sweep, write_run_files
+
+    _evaluation_copy(tmp_path / "in" / "e.yaml")
+    sweep = load_sweep(_sweep(tmp_path / "in" / "sweep.yaml", "e.yaml",
+                              runs=[{"name": "runA", "noise": {"V_f0": 0.04}}]))
+    out = tmp_path / "out" / "runA"
+    out.mkdir(parents=True)
+    other = tmp_path / "other"
+    other.mkdir()
+    for name in ("evaluation.yaml", "base.yaml"):
+        (other / name).write_text("old\n")
+        os.link(other / name, out / name)
+    write_run_files(sweep, sweep["runs"][0], out)
+    for name in ("evaluation.yaml", "base.yaml"):
+        assert (other / name).read_text() == "old\n"
+        assert (out / name).read_text() != "old\n"
+    assert sorted(p.name for p in out.iterdir()) == ["base.yaml", "evaluation.yaml"]  # no temporary file left
+
+
 # ------------------------------------------------------------------ 2. one writer per folder; settings in records
 def test_a_second_writer_into_the_same_folder_is_refused(tmp_path):
     from surestep_ocp.evaluation.run_lock import hold
@@ -192,3 +235,38 @@ def test_resume_runs_a_broken_record_again(finished, tmp_path, monkeypatch, caps
     assert rows and all(r["missing"] == "" and math.isfinite(float(r["value"])) for r in rows)
     assert (out / "raw.csv").read_text() == (finished / "raw.csv").read_text()
     assert [json.loads(x)["config"] for x in (out / "progress.jsonl").read_text().splitlines()] == [0, 1]
+
+
+# ------------------------------------------------------------------ 4. bad sweep files: one line, exit 2
+def test_sweep_of_a_problem_file_is_a_user_error(tmp_path):
+    problem = REPO / "problems" / "needle_regrasp.yaml"
+    sweep = _sweep(tmp_path / "s.yaml", str(problem))
+    _user_error(_cli("sweep", sweep, "--output-dir", tmp_path / "out", "--quiet"), "not an evaluation file")
+
+
+@pytest.mark.parametrize("name", ["a\x00b", "tab\there", "x" * 300, "back\\slash"])
+def test_a_run_name_that_is_no_folder_name_is_a_user_error(tmp_path, name):
+    from surestep_ocp.evaluation.sweep import load_sweep
+
+    _evaluation_copy(tmp_path / "e.yaml")
+    sweep = _sweep(tmp_path / "s.yaml", "e.yaml", runs=[{"name": name}])
+    with pytest.raises(SurestepError, match=r"runs\[0\]\.name"):
+        load_sweep(sweep)
+    if "\x00" in name:
+        _user_error(_cli("sweep", sweep, "--output-dir", tmp_path / "out", "--quiet"), "runs[0].name")
+
+
+def test_a_grid_has_a_stated_bound(tmp_path):
+    from surestep_ocp.evaluation.sweep import MAX_RUNS, load_sweep
+
+    assert MAX_RUNS == 1000
+    _evaluation_copy(tmp_path / "e.yaml")
+    grid = {f"detection.k{i}": list(range(6)) for i in range(4)}  # 1296 points
+    sweep = _sweep(tmp_path / "s.yaml", "e.yaml", grid=grid)
+    with pytest.raises(SurestepError, match="at most 1000"):
+        load_sweep(sweep)
+    big = _sweep(tmp_path / "big.yaml", "e.yaml", grid={f"k{i}": list(range(10)) for i in range(10)})
+    _user_error(_cli("sweep", big, "--output-dir", tmp_path / "out", "--quiet"), "grid", "at most 1000")
+    ok = _sweep(tmp_path / "ok.yaml", "e.yaml", runs=[],
+                grid={"detection.falloff": [0.0, 0.1, 0.2], "seedless": list(range(333))})
+    assert len(load_sweep(ok)["runs"]) == 999
