@@ -18,6 +18,11 @@ Rollouts observe only when the true pose is detectable (the evaluation file's
 `detection`, `rollout.Detection`); a rollout is a successful grasp when its final true
 pose is within the file's `grasp` tolerances of the goal (the simulated Table II).
 
+One writer per output folder: the run holds an exclusive lock on `DIR` (`run_lock.py`); a second
+`evaluate` into it is refused. Every record carries its `seed` and `rollouts`, so `--resume` checks the
+settings even when `run.json` is gone; a record that is not whole (a method, mode, metric or rollout
+missing, a value not a finite number) is dropped and its configuration run again (said on stderr).
+
 Where the configurations run: in this process (`--jobs 1`), a process pool
 (`--jobs N`), or an existing Dask cluster (`--scheduler ADDRESS`, dask.distributed):
 the same records, the same `progress.jsonl`, resume and progress bar in each case.
@@ -29,6 +34,7 @@ import contextlib
 import ctypes
 import hashlib
 import json
+import math
 import multiprocessing
 import os
 import signal
@@ -46,7 +52,8 @@ from ..model.limits.values import problem_limits
 from .configs import ConfigurationSampler, load_evaluation
 from .evaluation_report import write_outputs
 from .pacing import paced
-from .rollout import MODES, plan_metrics
+from .rollout import METRICS, MODES, plan_metrics
+from .run_lock import hold
 from ..output.files import check_output_dir, check_output_file
 from ..output.solution import _jsonable, write_json_atomic, write_text_atomic
 from ..solvers.methods import parse_method, run_method
@@ -91,7 +98,8 @@ def evaluate_configuration(eval_path: str, seed: int, index: int, methods: tuple
     cfg = smp.sample(seed, index)
     setup = smp.setup_of(cfg)
     spec = smp.spec
-    rec = {"config": index, **cfg.to_dict(), "solves": {}, "metrics": {m: {} for m in modes},
+    rec = {"config": index, "seed": seed, "rollouts": rollouts, **cfg.to_dict(), "solves": {},
+           "metrics": {m: {} for m in modes},
            "pos_errors": {m: {} for m in modes}, "ori_errors": {m: {} for m in modes},
            "success": {m: {} for m in modes}, "detected": {m: {} for m in modes}}
     per_rollout = ("pos_errors", "ori_errors", "success", "detected")
@@ -186,14 +194,63 @@ def _record_problem(rec) -> str | None:
     if not isinstance(solves, dict) or not all(isinstance(v, dict) and isinstance(v.get("success"), bool)
                                                for v in solves.values()):
         return "'solves' is not a mapping of method -> {success, ...}"
+    for key in ("seed", "rollouts"):  # written by every record since the settings' check (older records: absent)
+        if key in rec and (isinstance(rec[key], bool) or not isinstance(rec[key], int)):
+            return f"'{key}' is not an integer"
     for key in ("metrics", "pos_errors"):
         if not isinstance(rec.get(key), dict) or not all(isinstance(v, dict) for v in rec[key].values()):
             return f"'{key}' is not a mapping of mode -> method -> values"
     return None
 
 
-def read_progress(path: Path) -> dict[int, dict]:
+def _real(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def _record_gap(rec: dict, methods, modes, rollouts: int, configs: int) -> str | None:
+    """None if the record is a whole, finite record of this run (every method, mode, metric, rollout), else
+    what is wrong with it: such a record is run again, never copied into the results."""
+    if rec["config"] >= configs:
+        return None  # beyond this run's --configs: kept in the file, not used
+    if not isinstance(rec.get("x_goal"), list):
+        return "no 'x_goal'"
+    for m in methods:
+        s = rec["solves"].get(m)
+        if s is None:
+            return f"no solve of method '{m}'"
+        if not isinstance(s.get("status"), str) or not isinstance(s.get("evaluated"), bool):
+            return f"solves.{m}: no 'status' text or 'evaluated' flag"
+        if not _real(s.get("solve_time_s")) or s["solve_time_s"] < 0:
+            return f"solves.{m}.solve_time_s is not a finite number >= 0"
+        if isinstance(s.get("iterations"), bool) or not isinstance(s.get("iterations"), int) or s["iterations"] < 0:
+            return f"solves.{m}.iterations is not an integer >= 0"
+        if not s["evaluated"]:
+            continue
+        for mode in modes:
+            met = rec["metrics"].get(mode, {}).get(m)
+            if not isinstance(met, dict):
+                return f"no metrics of '{m}' in mode '{mode}'"
+            for k in METRICS:
+                if not _real(met.get(k)):
+                    return f"metrics.{mode}.{m}.{k} is {'missing' if k not in met else repr(met[k])}, not a finite number"
+            for key in ("pos_errors", "ori_errors"):
+                e = (rec.get(key) or {}).get(mode, {}).get(m) if isinstance(rec.get(key), dict) else None
+                if not isinstance(e, list) or len(e) != rollouts or not all(_real(x) for x in e):
+                    return f"{key}.{mode}.{m} is not {rollouts} finite numbers"
+            for key in ("success", "detected"):
+                node = rec.get(key)
+                v = node.get(mode, {}).get(m) if isinstance(node, dict) and isinstance(node.get(mode), dict) else None
+                if not _real(v) or not 0.0 <= v <= 1.0:
+                    return f"{key}.{mode}.{m} is {v!r}, not a share in [0, 1]"
+    return None
+
+
+def read_progress(path: Path, check=None) -> dict[int, dict]:
     """Finished configurations of `progress.jsonl`; a torn last line (interrupted write) is dropped.
+
+    `check(rec)` (a resume): None, or why a record of the right shape cannot be used (a missing method, mode,
+    metric or rollout, a non-finite or non-numeric value): it is then dropped from the file, said on stderr, and
+    its configuration run again; never copied into the results.
 
     Raises:
         SurestepError: a line that is JSON but not a record of an evaluation (named by its number).
@@ -212,9 +269,14 @@ def read_progress(path: Path) -> dict[int, dict]:
         except (ValueError, RecursionError):
             continue  # a torn (interrupted) write
         problem = _record_problem(rec)
-        if problem is not None:
+        if problem is not None:  # not the shape of a record at all: another file, not a torn or partial record
             raise SurestepError(f"{path}: line {n} is not a record of this evaluation ({problem}); remove the "
                                 "line, or run without --resume into another --output-dir")
+        gap = check(rec) if check is not None else None
+        if gap is not None:
+            print(f"surestep: {path}: line {n} (configuration {rec['config']}) is not a whole record of this run "
+                  f"({gap}); it is dropped and run again", file=sys.stderr)
+            continue
         done[rec["config"]] = rec
         good.append(line)
     if len(good) != len(lines):  # rewrite without the torn line so appends start on a fresh line
@@ -278,72 +340,85 @@ def _run_evaluation(eval_path, out_dir, configs, rollouts, seed, methods, modes,
     spec = load_evaluation(eval_path)
     inputs = (spec.path, spec.base_path)
     out = check_output_dir(out_dir, inputs, "the evaluation")
-    for name in ("run.json", "progress.jsonl", "table.md", "raw.csv", "solves.csv", "boxplot.png"):
-        check_output_file(out / name, inputs, "the evaluation")
-    prog = out / "progress.jsonl"
-    header = {"evaluation": str(Path(eval_path).resolve()), "fingerprint": _fingerprint(spec), "seed": seed,
-              "rollouts": rollouts, "methods": list(methods), "modes": list(modes), "horizon": spec.horizon}
-    if resume and (out / "run.json").is_file():
+    with hold(out, "an evaluation"):  # one writer per folder, for the whole run
+        for name in ("run.json", "progress.jsonl", "table.md", "raw.csv", "solves.csv", "boxplot.png"):
+            check_output_file(out / name, inputs, "the evaluation")
+        prog = out / "progress.jsonl"
+        header = {"evaluation": str(Path(eval_path).resolve()), "fingerprint": _fingerprint(spec), "seed": seed,
+                  "rollouts": rollouts, "methods": list(methods), "modes": list(modes), "horizon": spec.horizon}
+        if resume and (out / "run.json").is_file():
+            try:
+                old = json.loads((out / "run.json").read_text(encoding="utf-8"))
+            except (OSError, ValueError, RecursionError) as exc:
+                raise SurestepError(f"{out / 'run.json'}: not a run record ({exc}); use another --output-dir") from None
+            if not isinstance(old, dict):
+                raise SurestepError(f"{out / 'run.json'}: not a run record (a JSON {type(old).__name__}, not an object); "
+                                    "use another --output-dir")
+            diff = [k for k in header if k != "evaluation" and old.get(k) != header[k]]
+            if diff:
+                raise SurestepError(f"{out}: --resume of a run with other settings ({', '.join(diff)}: "
+                                    f"{', '.join(f'{old.get(k)} vs {header[k]}' for k in diff)}); use another --output-dir")
+        elif not resume and prog.is_file() and prog.stat().st_size > 0:
+            raise SurestepError(f"{out} already holds a run (progress.jsonl); pass --resume to continue it "
+                                "or choose another --output-dir")
+        checked = resume and (out / "run.json").is_file()  # the settings were compared with run.json above
+
+        def check(rec: dict) -> str | None:
+            for key, want in (("seed", seed), ("rollouts", rollouts)):
+                if key not in rec:
+                    if not checked:
+                        return f"no '{key}' recorded and no run.json to compare with"
+                elif rec[key] != want:
+                    raise SurestepError(f"{out}: --resume of a run with other settings ({key}: {rec[key]} vs {want}, "
+                                        f"configuration {rec['config']} of progress.jsonl); use another --output-dir")
+            return _record_gap(rec, methods, modes, rollouts, configs)
+
+        done = read_progress(prog, check) if resume else {}
+        client, own_client = _dask_client(scheduler) if scheduler is not None else (None, False)  # fail before writing
+        write_json_atomic(out / "run.json", header)
+        if not resume:
+            write_text_atomic(prog, "")
+        todo = [i for i in range(configs) if i not in done]
+        args = (eval_path, seed)
+        rest = (methods, rollouts, modes)
+
+        from tqdm import tqdm  # loaded on use: only a run draws the bar
+
+        bar = tqdm(total=configs, initial=configs - len(todo), desc="configurations", unit="config", file=sys.stderr,
+                   disable=not progress, dynamic_ncols=True, mininterval=0.5)
+        failed = sum(not s["success"] for i in range(configs) if i in done for s in done[i]["solves"].values())
+
+        def finish(rec: dict) -> None:
+            nonlocal failed
+            append_line(prog, rec)
+            done[rec["config"]] = rec
+            failed += sum(not s["success"] for s in rec["solves"].values())
+            bar.set_postfix(failed_solves=failed)
+            bar.update(1)
+
         try:
-            old = json.loads((out / "run.json").read_text(encoding="utf-8"))
-        except (OSError, ValueError, RecursionError) as exc:
-            raise SurestepError(f"{out / 'run.json'}: not a run record ({exc}); use another --output-dir") from None
-        if not isinstance(old, dict):
-            raise SurestepError(f"{out / 'run.json'}: not a run record (a JSON {type(old).__name__}, not an object); "
-                                "use another --output-dir")
-        diff = [k for k in header if k != "evaluation" and old.get(k) != header[k]]
-        if diff:
-            raise SurestepError(f"{out}: --resume of a run with other settings ({', '.join(diff)}: "
-                                f"{', '.join(f'{old.get(k)} vs {header[k]}' for k in diff)}); use another --output-dir")
-    elif not resume and prog.is_file() and prog.stat().st_size > 0:
-        raise SurestepError(f"{out} already holds a run (progress.jsonl); pass --resume to continue it "
-                            "or choose another --output-dir")
-    client, own_client = _dask_client(scheduler) if scheduler is not None else (None, False)  # fail before writing
-    write_json_atomic(out / "run.json", header)
-    done = read_progress(prog) if resume else {}
-    if not resume:
-        write_text_atomic(prog, "")
-    todo = [i for i in range(configs) if i not in done]
-    args = (eval_path, seed)
-    rest = (methods, rollouts, modes)
-
-    from tqdm import tqdm  # loaded on use: only a run draws the bar
-
-    bar = tqdm(total=configs, initial=configs - len(todo), desc="configurations", unit="config", file=sys.stderr,
-               disable=not progress, dynamic_ncols=True, mininterval=0.5)
-    failed = sum(not s["success"] for i in range(configs) if i in done for s in done[i]["solves"].values())
-
-    def finish(rec: dict) -> None:
-        nonlocal failed
-        append_line(prog, rec)
-        done[rec["config"]] = rec
-        failed += sum(not s["success"] for s in rec["solves"].values())
-        bar.set_postfix(failed_solves=failed)
-        bar.update(1)
-
-    try:
-        if client is not None and todo:
-            _run_dask(todo, args, rest, client, finish)
-        elif jobs == 1 or len(todo) <= 1:
-            for i in todo:
-                finish(evaluate_configuration(*args, i, *rest))
-        else:
-            _run_pool(todo, args, rest, jobs, finish)
-    except Terminated:
-        bar.close()
-        raise Terminated(f"{len(done)} of {configs} configurations kept in {prog}; continue with the same "
-                         "command plus --resume") from None
-    except KeyboardInterrupt:
-        bar.close()
-        print(f"\ninterrupted: {len(done)} of {configs} configurations kept in {prog}; "
-              "continue with the same command plus --resume", file=sys.stderr)
-        raise
-    finally:
-        bar.close()
-        if own_client:
-            client.close()
-    records = [done[i] for i in range(configs)]
-    return write_outputs(records, out, methods, modes, header, spec)
+            if client is not None and todo:
+                _run_dask(todo, args, rest, client, finish)
+            elif jobs == 1 or len(todo) <= 1:
+                for i in todo:
+                    finish(evaluate_configuration(*args, i, *rest))
+            else:
+                _run_pool(todo, args, rest, jobs, finish)
+        except Terminated:
+            bar.close()
+            raise Terminated(f"{len(done)} of {configs} configurations kept in {prog}; continue with the same "
+                             "command plus --resume") from None
+        except KeyboardInterrupt:
+            bar.close()
+            print(f"\ninterrupted: {len(done)} of {configs} configurations kept in {prog}; "
+                  "continue with the same command plus --resume", file=sys.stderr)
+            raise
+        finally:
+            bar.close()
+            if own_client:
+                client.close()
+        records = [done[i] for i in range(configs)]
+        return write_outputs(records, out, methods, modes, header, spec)
 
 
 def _run_pool(todo, args, rest, jobs, finish) -> None:

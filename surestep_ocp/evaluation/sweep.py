@@ -23,6 +23,13 @@ Each run gets its own folder `OUT/<name>/` holding the derived `evaluation.yaml`
 (resume, progress, `--jobs` or `--scheduler` as there); `OUT/sweep.md` sums the runs up
 (the mean ratio to the baseline of the final position error and of Tr ML, and the
 grasp success share, per method and mode).
+
+A sweep has at most 1,000 runs (its `runs` plus the grid's product, checked before the grid is
+expanded); a run's name is a folder name (no '/', '\\', control characters, leading '.'; at most
+200 characters); `evaluation:` must name an evaluation file (one with a `base:`). Every file the sweep
+writes is checked before any run starts: none may be one of its inputs (the sweep file, the evaluation
+file, its base problem) or a symbolic link; each is written whole (a temporary file renamed over it).
+The output folder is locked for the sweep (`run_lock.py`), each run's folder for its run.
 """
 
 from __future__ import annotations
@@ -30,12 +37,14 @@ from __future__ import annotations
 import copy
 import itertools
 import json
+import math
 from pathlib import Path
 from typing import Any
 
 import yaml
 
-from ..errors import SurestepError
+from ..errors import SurestepError, shown
+from ..output.files import check_output_dir, check_output_file
 from ..output.solution import write_text_atomic
 from ..problem.load import read_yaml
 from ..problem.paths import find_shipped
@@ -43,10 +52,13 @@ from ..problem.schema import Reader
 from .configs import load_evaluation
 from .evaluation import Terminated, _sigterm_raises, read_progress, run_evaluation, say_terminated
 from .evaluation_report import relative_stats, success_share
+from .run_lock import hold
 
 _TOP = {"evaluation", "configs", "rollouts", "seed", "rollout_mode", "methods", "runs", "grid", "description"}
 _RUN_SETTINGS = {"name", "methods", "configs", "rollouts", "rollout_mode", "noise"}
 _MODES = {"model": ("model",), "true": ("true",), "both": ("model", "true")}
+MAX_RUNS = 1000  # runs of one sweep (its `runs` plus the grid's product), checked before the grid is expanded
+MAX_NAME = 200  # characters of a run's name (a folder name)
 
 
 def _set_dotted(tree: dict, key: str, value: Any) -> None:
@@ -81,6 +93,10 @@ def load_sweep(path: str | Path) -> dict:
         ev = find_shipped(ev_text)
         if not ev.is_file():
             raise rd.fail("evaluation", f"file '{ev_text}' not found (relative to {path.parent})")
+    ev_tree = read_yaml(ev)
+    if not isinstance(ev_tree, dict) or not isinstance(ev_tree.get("base"), str):
+        raise rd.fail("evaluation", f"'{ev_text}' is not an evaluation file (it has no 'base:' naming its problem "
+                                    "file; a problem file is named by an evaluation file's 'base')")
     shared = {
         "configs": rd.integer(top.get("configs", 100), "configs", minimum=1),
         "rollouts": rd.integer(top.get("rollouts", 50), "rollouts", minimum=2),
@@ -94,11 +110,19 @@ def load_sweep(path: str | Path) -> dict:
     grid = top.get("grid") or {}
     if not isinstance(grid, dict):
         raise rd.fail("grid", "expected a mapping of keys to lists of values")
+    if len(raw_runs) > MAX_RUNS:
+        raise rd.fail("runs", f"{len(raw_runs)} runs: at most {MAX_RUNS} in one sweep")
     if grid:
         keys = list(grid)
         for k in keys:
+            if not isinstance(k, str) or not k:
+                raise rd.fail("grid", f"key {shown(repr(k), 60)}: expected a (dotted) key name")
             if not isinstance(grid[k], list) or not grid[k]:
                 raise rd.fail(f"grid.{k}", "expected a non-empty list of values")
+        points = math.prod(len(grid[k]) for k in keys)
+        if points + len(raw_runs) > MAX_RUNS:
+            raise rd.fail("grid", f"{points} grid points{f' and {len(raw_runs)} runs' if raw_runs else ''}: at most "
+                                  f"{MAX_RUNS} runs in one sweep")
         for combo in itertools.product(*(grid[k] for k in keys)):
             run: dict = {"name": ",".join(f"{k}={v}" for k, v in zip(keys, combo))}
             for k, v in zip(keys, combo):
@@ -112,6 +136,9 @@ def load_sweep(path: str | Path) -> dict:
         if not isinstance(r, dict) or "name" not in r:
             raise rd.fail(key, "each run is a mapping with a name")
         name = rd.string(r["name"], f"{key}.name")
+        if any(ord(c) < 32 or ord(c) == 127 for c in name) or "\\" in name or len(name) > MAX_NAME:
+            raise rd.fail(f"{key}.name", f"{shown(repr(name), 80)}: a run's name is a folder name: printable, "
+                                         f"without control characters or '\\', at most {MAX_NAME} characters")
         if not name or "/" in name or name in names or name.startswith("."):
             raise rd.fail(f"{key}.name", f"'{name}': names must be unique, non-empty, without '/'")
         names.add(name)
@@ -148,16 +175,35 @@ def write_run_files(sweep: dict, run: dict, out: Path) -> Path:
         base = Path(spec.base_path).resolve()
     tree["base"] = str(base)
     tree = _merge(tree, run["overrides"])
-    out.mkdir(parents=True, exist_ok=True)
+    inputs = sweep_inputs(sweep)
+    for name in run_files(run):  # never onto an input, nor through a symbolic link
+        check_output_file(out / name, inputs, f"the run '{run['name']}'")
     if run["noise"]:
         btree = read_yaml(base)
+        if not isinstance(btree.get("noise", {}), dict):
+            raise SurestepError(f"{base}: its 'noise' is not a section; the run '{run['name']}' cannot override it")
         btree["noise"] = _merge(btree.get("noise", {}), run["noise"])
         _absolutise(btree, base.parent)
-        (out / "base.yaml").write_text(yaml.safe_dump(btree, sort_keys=False))
+        write_text_atomic(out / "base.yaml", yaml.safe_dump(btree, sort_keys=False))
         tree["base"] = str((out / "base.yaml").resolve())
     path = out / "evaluation.yaml"
-    path.write_text(yaml.safe_dump(tree, sort_keys=False))
+    write_text_atomic(path, yaml.safe_dump(tree, sort_keys=False))
     return path
+
+
+def run_files(run: dict) -> tuple[str, ...]:
+    """The files a sweep writes into a run's folder before its evaluation."""
+    return ("evaluation.yaml", "base.yaml") if run["noise"] else ("evaluation.yaml",)
+
+
+def sweep_inputs(sweep: dict) -> list[Path]:
+    """The files a sweep reads: the sweep file, its evaluation file and that file's base problem."""
+    ev = Path(sweep["evaluation"]).resolve()
+    inputs = [Path(sweep["path"]), ev]
+    tree = read_yaml(ev)
+    if isinstance(tree, dict) and isinstance(tree.get("base"), str):
+        inputs.append(ev.parent / tree["base"])
+    return inputs
 
 
 def _absolutise(tree: Any, folder: Path) -> None:
@@ -196,15 +242,25 @@ def _run_sweep(sweep_path, out_dir, jobs, scheduler, resume, progress, only) -> 
     if only and len(runs) != len(set(only)):
         missing = sorted(set(only) - {r["name"] for r in sweep["runs"]})
         raise SurestepError(f"{sweep_path}: no run named {', '.join(missing)}")
-    for run in runs:
-        d = out / run["name"]
-        ev = write_run_files(sweep, run, d)
-        run_evaluation(ev, d, run["configs"], run["rollouts"], run["seed"], run["methods"],
-                       _MODES[run["rollout_mode"]], jobs, resume,
-                       progress=progress, scheduler=scheduler)
-    table = summary(out, sweep["runs"])
-    write_text_atomic(out / "sweep.md", table + "\n")
-    return table
+    inputs = sweep_inputs(sweep)
+    out = check_output_dir(out, inputs, "the sweep")
+    with hold(out, "a sweep"):
+        # every file the sweep writes, checked before any run starts: none is an input or a symbolic link
+        check_output_file(out / "sweep.md", inputs, "the sweep's summary")
+        for run in runs:
+            d = out / run["name"]
+            check_output_dir(d, inputs, f"the run '{run['name']}'")
+            for name in run_files(run):
+                check_output_file(d / name, inputs, f"the run '{run['name']}'")
+        for run in runs:
+            d = out / run["name"]
+            ev = write_run_files(sweep, run, d)
+            run_evaluation(ev, d, run["configs"], run["rollouts"], run["seed"], run["methods"],
+                           _MODES[run["rollout_mode"]], jobs, resume,
+                           progress=progress, scheduler=scheduler)
+        table = summary(out, sweep["runs"])
+        write_text_atomic(out / "sweep.md", table + "\n")
+        return table
 
 
 def summary(out: Path, runs: list[dict]) -> str:
