@@ -18,6 +18,8 @@ geometry objects `<link>_<k>`, so `needle` never clashes with a link's node.
 from __future__ import annotations
 
 import math
+import os
+import stat
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
@@ -26,6 +28,8 @@ from typing import Callable, Sequence
 import meshcat.geometry as mg
 import numpy as np
 from meshcat.animation import Animation
+
+from surestep_ocp.errors import SurestepError, shown
 
 from . import style
 from .robot_visual import RobotVisual
@@ -158,12 +162,36 @@ def animate_arm(anim: Animation, scene, robot: RobotVisual, sol: Solution, timel
     return timeline.node_frame(len(qs) - 1) + timeline.per_sub if len(qs) > 1 else 0
 
 
+MAX_URDF_BYTES = 10_000_000  # a URDF read (the dVRK's are about 20 kB; meshes are separate files)
+
+
+def check_urdf_file(urdf: Path, root: str, given, source: str | None = None) -> None:
+    """A one-line SurestepError unless `urdf` is a regular file of at most MAX_URDF_BYTES: a device (/dev/zero)
+    would be read until memory runs out, a pipe would block forever."""
+    name = "robot" if root == "robot" else "ecm" if root == "ecm" else f"other_arms[{root}]"
+    name = f"{shown(str(source), 200)}: {name}" if source else name
+    try:
+        st = os.stat(urdf)
+    except OSError as exc:
+        raise FileNotFoundError(str(urdf)) from exc  # a warning: the rest of the scene is drawn
+    if not stat.S_ISREG(st.st_mode):
+        raise SurestepError(f"{name}.urdf {shown(str(given), 120)}: not a regular file (a directory, device or "
+                            "pipe); a URDF file is read")
+    if st.st_size > MAX_URDF_BYTES:
+        raise SurestepError(f"{name}.urdf {shown(str(given), 120)}: a file of {st.st_size} bytes; a URDF of at "
+                            f"most {MAX_URDF_BYTES} bytes is read")
+
+
 def load_arm(spec: dict, root: str, resolve: Callable[[str], Path],
-             package_dirs: Sequence[Path]) -> RobotVisual | None:
+             package_dirs: Sequence[Path], source: str | None = None) -> RobotVisual | None:
     """RobotVisual of an arm entry (`urdf`, `base_pose`), or None with a warning."""
     try:
         base = np.asarray(spec.get("base_pose", np.eye(4)), dtype=float).reshape(4, 4)
-        return RobotVisual.load(resolve(spec["urdf"]), base, root, package_dirs)
+        urdf = resolve(spec["urdf"])
+        check_urdf_file(urdf, root, spec["urdf"], source)
+        return RobotVisual.load(urdf, base, root, package_dirs)
+    except SurestepError:  # a device, a pipe or a huge file: an error, not a warning
+        raise
     except Exception as exc:  # a missing robot must not hide the paths
         warnings.warn(f"cannot draw {root} from {spec.get('urdf')!r}: {exc}")
         return None

@@ -36,8 +36,10 @@ from typing import Sequence
 import meshcat
 import meshcat.geometry as mg
 import numpy as np
+import umsgpack
 from meshcat.animation import Animation
 
+from surestep_ocp.output.files import check_finite
 from surestep_ocp.problem.paths import resolve_urdf
 
 from . import style
@@ -109,7 +111,8 @@ def resolve_file(path: str | Path, repo_root: Path | None, sol: Solution | None 
 def _loader(repo_root: Path | None, sol: Solution):
     """`load(spec, root) -> RobotVisual | None` for the arms of one solution."""
     dirs = [p for p in (repo_root, PACKAGE_ROOT) if p]
-    return lambda spec, root: load_arm(spec, root, lambda u: resolve_file(u, repo_root, sol), dirs)
+    return lambda spec, root: load_arm(spec, root, lambda u: resolve_file(u, repo_root, sol), dirs,
+                                       sol.get("_source"))
 
 
 def _draw_goal(vis, sol: Solution, info: SceneInfo) -> None:
@@ -244,6 +247,26 @@ def build_scene(
     return info
 
 
+def _unpacked(obj):
+    """A lowered Meshcat command with its packed float arrays (msgpack Ext) as numpy arrays."""
+    if isinstance(obj, dict):
+        if obj.get("type") in ("Float32Array", "Float64Array") and isinstance(obj.get("array"), umsgpack.Ext):
+            dtype = np.float32 if obj["type"] == "Float32Array" else np.float64
+            return {**obj, "array": np.frombuffer(obj["array"].data, dtype=dtype)}
+        return {k: _unpacked(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_unpacked(v) for v in obj]
+    return obj
+
+
+def check_scene_finite(window) -> None:
+    """`files.NonFinite` naming the first scene node holding NaN or Infinity (its transform, property, object
+    or animation), so that no page or picture is written with one."""
+    for path, commands in window.decoded.items():
+        for command in commands:
+            check_finite({path: _unpacked(command)}, "surestep show")
+
+
 def write_static_html(
     solutions: Sequence[Solution], path: Path | str, repo_root: Path | None = None, **kwargs
 ) -> SceneInfo:
@@ -255,6 +278,7 @@ def write_static_html(
     path = Path(path)
     vis, window = recording_visualizer()
     info = build_scene(solutions, repo_root=repo_root, vis=vis, **kwargs)
+    check_scene_finite(window)
     html = window.get_scene(overlay=legend_html(info))
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)

@@ -10,6 +10,7 @@ written (`export_writers.py`; the bag: `export_rosbag.py`) with the joints named
 from __future__ import annotations
 
 import math
+import stat
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -54,8 +55,7 @@ def export_solution(solution: str | Path | Solution, fmt: str, output: str | Pat
     names = list(sol["joint_names"])
     naming = joint_naming(joint_names, [n for n in names if n != JAW], [n for n in names if n == JAW])
     urdf = resolve_urdf(str(sol["robot"].get("urdf", "")))
-    if not urdf.is_file():
-        raise SurestepError(f"{label}: robot.urdf '{sol['robot'].get('urdf')}' not found ({urdf})")
+    check_urdf_file(urdf, f"{label}: robot.urdf {shown(str(sol['robot'].get('urdf')), 120)}")
     for flag, x in (("--tool-speed", tool_speed), ("--tool-rotation-speed", tool_rotation)):
         if x is not None and not (math.isfinite(x) and x > 0):
             raise SurestepError(f"{flag} must be a positive number, got {x:g}")
@@ -90,6 +90,22 @@ def export_solution(solution: str | Path | Solution, fmt: str, output: str | Pat
     if plot:
         files.append(plot_trajectory(traj, sol, urdf, output.with_name(f"{output.stem}_motion.png")))
     return traj, files
+
+
+MAX_URDF_BYTES = 10_000_000  # a URDF read (the dVRK's are about 20 kB; meshes are separate files)
+
+
+def check_urdf_file(urdf: Path, name: str) -> None:
+    """A one-line error unless `urdf` is a regular file of at most MAX_URDF_BYTES (never a device or a pipe,
+    which would be read forever or block)."""
+    try:
+        st = urdf.stat()
+    except OSError:
+        raise SurestepError(f"{name}: not found ({shown(str(urdf), 120)})") from None
+    if not stat.S_ISREG(st.st_mode):
+        raise SurestepError(f"{name}: not a regular file (a directory, device or pipe); a URDF file is read")
+    if st.st_size > MAX_URDF_BYTES:
+        raise SurestepError(f"{name}: a file of {st.st_size} bytes; a URDF of at most {MAX_URDF_BYTES} bytes is read")
 
 
 def summary(traj: Trajectory) -> str:

@@ -2,12 +2,18 @@
 
 Every malformed file is a one-line error naming it and the key; the limits are those the plan was made with
 (the solution's recorded `limits`), else the defaults for its URDF, with the command line's overrides on top.
+
+The reader keeps the problem reader's promises (issue 30): the file is a regular file of at most
+MAX_SOLUTION_BYTES; every number read is finite and within the problem file's ranges (joint values within
+MAX_JOINT_VALUE, a step within STEP_RANGE, joint limits within LIMIT_RANGE, the tool's within TOOL_RANGES); at most
+MAX_WAYPOINTS waypoints. Anything else (a 100000-deep `[`, a 5000-digit integer) is a one-line error too.
 """
 
 from __future__ import annotations
 
 import json
 import math
+import stat
 from pathlib import Path
 
 import numpy as np
@@ -18,6 +24,26 @@ from ..model.limits import MotionLimits, motion_limits
 DEFAULT_STEP_S = 0.05  # the paper's pace when a solution file records no timing (timing.step_s default)
 POSITION_TOL = 1e-6  # [relative] a waypoint this far beyond a position limit is clipped onto it, further is an error
 COMMAND_LINE = "command line"  # the source of a limit given by an export flag
+MAX_SOLUTION_BYTES = 50_000_000  # a solution file read (10,000 waypoints with their covariances: about 10 MB)
+MAX_WAYPOINTS = 10_000  # q's rows (a plan of T steps has T + 1; problem files allow T <= 200)
+MAX_JOINTS = 64
+MAX_JOINT_VALUE = 1000.0  # [rad or m] any joint value (the problem reader's MAX_ANGLE)
+STEP_RANGE = (1e-6, 3600.0)  # [s] seconds per planned step (the problem reader allows at most 3600)
+LIMIT_RANGE = (1e-6, 1e6)  # a joint's velocity [rad/s, m/s] or acceleration limit [rad/s^2, m/s^2]
+TOOL_RANGES = {"tool_speed_m_s": (1e-6, 100.0), "tool_rotation_rad_s": (1e-6, 1000.0),
+               "rcm_min_distance_m": (1e-6, 10.0)}  # the problem reader's highs
+
+
+def _real(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+
+def _in_range(v, lo: float, hi: float) -> bool:
+    return _real(v) and math.isfinite(v) and lo <= v <= hi
+
+
+def _range_text(lo: float, hi: float) -> str:
+    return f"a number in [{lo:g}, {hi:g}]"
 
 
 def solution_label(solution) -> str:
@@ -37,12 +63,20 @@ def load_solution(path) -> dict:
         d = json.loads(json.dumps(path.to_dict(), default=_jsonable))
         return _checked(d, p)
     p = Path(path)
-    if not p.is_file():
-        raise SurestepError(f"{p}: no such solution file")
+    try:
+        st = p.stat()
+    except OSError:
+        raise SurestepError(f"{p}: no such solution file") from None
+    if not stat.S_ISREG(st.st_mode):
+        raise SurestepError(f"{p}: no such solution file (not a regular file: a directory, device or pipe)")
+    if st.st_size > MAX_SOLUTION_BYTES:
+        raise SurestepError(f"{p}: a solution file of {st.st_size} bytes; at most {MAX_SOLUTION_BYTES} are read")
     try:
         d = json.loads(p.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise SurestepError(f"{p}: not a solution JSON file ({str(exc).splitlines()[0]})") from None
+    except (OSError, UnicodeDecodeError, ValueError) as exc:  # JSONDecodeError; an integer of over 4300 digits
+        raise SurestepError(f"{p}: not a solution JSON file ({shown(str(exc).splitlines()[0], 200)})") from None
+    except RecursionError:
+        raise SurestepError(f"{p}: not a solution JSON file (nested too deeply)") from None
     return _checked(d, p)
 
 
@@ -53,15 +87,21 @@ def _checked(d, p) -> dict:
         raise SurestepError(f"{p}: not a solution file (missing key(s) {', '.join(missing)}; written by "
                             "`surestep solve --output` or `surestep compare`)")
     names, q = d["joint_names"], d["q"]
+    if not isinstance(names, list) or not 1 <= len(names) <= MAX_JOINTS or not all(
+            isinstance(n, str) and 0 < len(n) <= 200 for n in names) or len(set(names)) != len(names):
+        raise SurestepError(f"{p}: key 'joint_names' must list 1 to {MAX_JOINTS} distinct joint names (strings)")
     if not isinstance(q, list) or len(q) < 2:
         raise SurestepError(f"{p}: key 'q' must list at least 2 waypoints")
+    if len(q) > MAX_WAYPOINTS:
+        raise SurestepError(f"{p}: key 'q' lists {len(q)} waypoints; at most {MAX_WAYPOINTS} are exported")
     for i, qi in enumerate(q):
         if qi is None:
             raise SurestepError(f"{p}: q[{i}] is null (no IK solution for that waypoint); a plan with an "
                                 "unreachable waypoint cannot be exported")
         if not isinstance(qi, list) or len(qi) != len(names) or not all(
-                isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in qi):
-            raise SurestepError(f"{p}: q[{i}] must be {len(names)} finite numbers ({', '.join(names)})")
+                _in_range(v, -MAX_JOINT_VALUE, MAX_JOINT_VALUE) for v in qi):
+            raise SurestepError(f"{p}: q[{i}] must be {len(names)} finite numbers within +-{MAX_JOINT_VALUE:g} "
+                                f"({shown(', '.join(names), 200)})")
     robot = d["robot"]
     if not isinstance(robot, dict) or not isinstance(robot.get("urdf"), str) or not robot["urdf"] or \
             not isinstance(robot.get("frame", "tool"), (str, type(None))):
@@ -73,17 +113,41 @@ def _checked(d, p) -> dict:
     if limits and "velocity" not in limits and "unavailable" not in limits:
         raise SurestepError(f"{p}: key 'limits' is not the recorded form (joint_names, velocity, acceleration, "
                             "tool_speed_m_s, ...; as `surestep solve` writes it)")
+    if "velocity" in limits:
+        _check_recorded_limits(limits, p)
     step = (d.get("timing") or {}).get("step_s", DEFAULT_STEP_S)
-    if isinstance(step, bool) or not isinstance(step, (int, float)) or not (math.isfinite(step) and step > 0):
-        raise SurestepError(f"{p}: timing.step_s must be a positive number of seconds, got {shown(repr(step), 40)}")
+    if not _in_range(step, *STEP_RANGE):
+        raise SurestepError(f"{p}: timing.step_s must be a positive number of seconds, "
+                            f"{_range_text(*STEP_RANGE)}, got {shown(repr(step), 40)}")
     return d
+
+
+def _check_recorded_limits(limits: dict, p) -> None:
+    """The recorded limits' numbers: finite and within the problem reader's ranges (a one-line error naming the key)."""
+    names = limits.get("joint_names")
+    if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
+        raise SurestepError(f"{p}: limits.joint_names must be a list of joint names (strings)")
+    for key in ("velocity", "acceleration"):
+        values = limits.get(key)
+        if not isinstance(values, list) or len(values) != len(names):
+            raise SurestepError(f"{p}: limits.{key} must list one number per joint of limits.joint_names "
+                                f"({len(names)})")
+        for i, v in enumerate(values):
+            if not _in_range(v, *LIMIT_RANGE):
+                raise SurestepError(f"{p}: limits.{key}[{i}] ({shown(names[i], 40)}) must be "
+                                    f"{_range_text(*LIMIT_RANGE)}, got {shown(repr(v), 40)}")
+    for key, (lo, hi) in TOOL_RANGES.items():
+        if not _in_range(limits.get(key), lo, hi):
+            raise SurestepError(f"{p}: limits.{key} must be {_range_text(lo, hi)}, "
+                                f"got {shown(repr(limits.get(key)), 40)}")
 
 
 def step_of(sol: dict, override: float | None) -> tuple[float, str]:
     """Seconds per planned step and where that value came from."""
     if override is not None:
-        if not (math.isfinite(override) and override > 0):
-            raise SurestepError(f"--step-s must be a positive number of seconds, got {override:g}")
+        if not _in_range(override, *STEP_RANGE):
+            raise SurestepError(f"--step-s must be a positive number of seconds, {_range_text(*STEP_RANGE)}, "
+                                f"got {override:g}")
         return float(override), "command line (--step-s)"
     timing = sol.get("timing") or {}
     if "step_s" in timing:
@@ -107,6 +171,14 @@ def limits_of(sol: dict, urdf: Path, velocity: dict | None = None, acceleration:
     else:
         base = motion_limits(urdf, names)
         base.sources["recorded"] = "none: defaults (the solution records no limits)"
+    for flag, over in (("--velocity-limit", velocity), ("--acceleration-limit", acceleration)):
+        for n, x in (over or {}).items():
+            if not _in_range(x, *LIMIT_RANGE):
+                raise SurestepError(f"{flag} {shown(str(n), 40)}={x:g}: must be {_range_text(*LIMIT_RANGE)}")
+    for flag, x, key in (("--tool-speed", tool_speed, "tool_speed_m_s"),
+                         ("--tool-rotation-speed", tool_rotation, "tool_rotation_rad_s")):
+        if x is not None and not _in_range(x, *TOOL_RANGES[key]):
+            raise SurestepError(f"{flag} must be {_range_text(*TOOL_RANGES[key])}, got {x:g}")
     return base.overridden(velocity, acceleration, tool_speed, tool_rotation, label=COMMAND_LINE)
 
 

@@ -51,6 +51,7 @@ CLOCK_ACCELERATION = 100.0  # [1/s] bound on s-ddot (not binding in practice: th
 PRE_KNOT = 1e-6  # grid point this fraction of a step before each waypoint
 TIMINGS = ("auto", "planned", "toppra")  # auto: the planned curve when within the limits, else toppra
 CURVE_CHECK_PER_STEP = 40  # points per planned step where the planned curve is checked (and every sample)
+MAX_SAMPLES = 1_000_000  # rows written (duration x rate): more is refused before they are made
 
 
 @dataclass
@@ -164,7 +165,11 @@ def _grid(ss: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _sample_times(duration: float, wp_t: np.ndarray, rate_hz: float) -> np.ndarray:
-    """Every 1/rate_hz s and every waypoint's time (exactly; a uniform sample on one: one row)."""
+    """Every 1/rate_hz s and every waypoint's time (exactly; a uniform sample on one: one row); at most MAX_SAMPLES."""
+    if not duration * rate_hz <= MAX_SAMPLES:
+        raise SurestepError(f"the trajectory would take {duration:.6g} s, {duration * rate_hz:.6g} samples at "
+                            f"{rate_hz:g} Hz; at most {MAX_SAMPLES} samples are written (lower --rate, --step-s "
+                            "or raise the limits)")
     times = np.union1d(np.arange(0.0, duration, 1.0 / rate_hz), wp_t)
     times = times[np.concatenate([[True], np.diff(times) > 1e-9])]
     for t in wp_t:

@@ -2,7 +2,8 @@
 bag (`export_rosbag.py`); the joints named for the consumer (`joint_names.py`).
 
 The six arm joints (every joint but `jaw` for other robots) and the jaw are separate channels.
-Files are written atomically (temporary file and rename).
+Files are written atomically (temporary file and rename), and never with a NaN or an Infinity in them
+(`files.check_finite` on everything each format writes: the trajectory, its limits and the metadata).
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ import yaml
 from ..errors import SurestepError
 from ..model.limits import CURVE_NAME, JAW
 from .export_timing import Trajectory
+from .files import check_finite
 from .joint_names import JointNaming
 from .solution import write_json_atomic, write_text_atomic
 
@@ -137,9 +139,15 @@ def jaw_path(output: Path) -> Path:
 def write(traj: Trajectory, fmt: str, output: Path, meta: dict, naming: JointNaming | None = None,
           **bag) -> list[Path]:
     """Write the trajectory in `fmt` (atomically) with the joints named by `naming`; returns the files written.
-    `bag`: rosbag2's `rate_hz` and `arm` (`export_rosbag.write_bag`)."""
+    `bag`: rosbag2's `rate_hz` and `arm` (`export_rosbag.write_bag`). Nothing is written when any number in
+    them is NaN or Infinity (`files.NonFinite`, naming the key)."""
+    check_finite({"meta": meta, "times": traj.times, "q": traj.q, "qd": traj.qd, "qdd": traj.qdd,
+                  "waypoint_times": traj.waypoint_times, "step_s": traj.step_s, "limits": traj.limits.to_dict(),
+                  "limit_scales": traj.scales, "planned_curve": traj.planned_curve, **bag}, "surestep export")
     if fmt == "json":
-        return [write_json_atomic(output, to_json(traj, meta, naming))]
+        doc = to_json(traj, meta, naming)
+        check_finite(doc, "surestep export")
+        return [write_json_atomic(output, doc)]
     if fmt == "csv":
         return [write_text_atomic(output, to_csv(traj, naming))]
     if fmt == "ros2":

@@ -1,0 +1,194 @@
+"""`surestep export` keeps the file reader's promises (issue 30): every malformed or extreme solution file or
+option is a one-line error naming the file or the flag, exit code 2, and nothing is written; no NaN or Infinity
+reaches an output; the work is bounded (waypoints, samples, the URDF read)."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from surestep_ocp.cli import main
+from surestep_ocp.errors import SurestepError
+from surestep_ocp.output.files import NonFinite
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def baseline(tmp_path_factory) -> dict:
+    """The default problem's straight-line plan (fast: no optimisation), as its solution file's dict."""
+    from surestep_ocp.problem.load import load_problem
+    from surestep_ocp.problem.setup import build_setup
+    from surestep_ocp.solvers.methods import run_method
+
+    d = tmp_path_factory.mktemp("baseline")
+    setup = build_setup(load_problem(REPO / "problems" / "needle_regrasp_paper_pace.yaml"))
+    path = run_method(setup, "baseline").save(d / "baseline.json")
+    sol = json.loads(Path(path).read_text())
+    sol["robot"]["urdf"] = str(REPO / "robots" / "psm.urdf")
+    if sol.get("ecm"):
+        sol["ecm"]["urdf"] = str(REPO / "robots" / "ecm.urdf")
+    return sol
+
+
+def run_export(tmp_path, capsys, text: str | None, *extra, sol=None, fmt="json"):
+    """Export `text` (a solution file's text) or the dict `sol`; the exit code and stderr's lines."""
+    src = tmp_path / "plan.json"
+    src.write_text(text if text is not None else json.dumps(sol))
+    out = tmp_path / f"out.{fmt}"
+    capsys.readouterr()
+    code = main(["export", str(src), "--format", fmt, "--output", str(out), "--no-plot", *extra])
+    err = capsys.readouterr().err.strip().splitlines()
+    return code, err, out
+
+
+def assert_user_error(code, err, out, *needles):
+    assert code == 2, (code, err)
+    assert len(err) == 1 and "Traceback" not in err[0], err
+    for n in needles:
+        assert n in err[0], (n, err)
+    assert not out.exists()
+
+
+def edited(sol: dict, edit) -> dict:
+    d = json.loads(json.dumps(sol))
+    edit(d)
+    return d
+
+
+def test_the_baseline_exports(baseline, tmp_path, capsys):
+    code, err, out = run_export(tmp_path, capsys, None, sol=baseline)
+    assert code == 0, err
+    assert "Infinity" not in out.read_text() and "NaN" not in out.read_text()
+
+
+@pytest.mark.parametrize("value", [math.inf, math.nan, -math.inf])
+def test_a_non_finite_recorded_limit_is_an_error(baseline, tmp_path, capsys, value):
+    """Reproducer: `limits.velocity[0]` of Infinity exported with exit 0 and a bare `Infinity` in the JSON."""
+    sol = edited(baseline, lambda d: d["limits"]["velocity"].__setitem__(0, value))
+    code, err, out = run_export(tmp_path, capsys, json.dumps(sol))
+    assert_user_error(code, err, out, "plan.json", "limits.velocity")
+
+
+@pytest.mark.parametrize(("key", "value"), [("tool_speed_m_s", math.inf), ("tool_rotation_rad_s", math.nan),
+                                            ("rcm_min_distance_m", math.inf)])
+def test_a_non_finite_recorded_tool_limit_is_an_error(baseline, tmp_path, capsys, key, value):
+    sol = edited(baseline, lambda d: d["limits"].__setitem__(key, value))
+    code, err, out = run_export(tmp_path, capsys, json.dumps(sol))
+    assert_user_error(code, err, out, "plan.json", key)
+
+
+def test_a_deeply_nested_file_is_an_error(tmp_path, capsys):
+    """Reproducer: a 100000-deep `[` was a RecursionError (exit 1)."""
+    code, err, out = run_export(tmp_path, capsys, "[" * 100_000)
+    assert_user_error(code, err, out, "plan.json")
+
+
+def test_a_5000_digit_integer_is_an_error(baseline, tmp_path, capsys):
+    """Reproducer: a 5000-digit integer was a ValueError from the int conversion (exit 1)."""
+    text = json.dumps(baseline).replace('"step_s": 0.05', '"step_s": ' + "9" * 5000)
+    code, err, out = run_export(tmp_path, capsys, text)
+    assert_user_error(code, err, out, "plan.json")
+
+
+def test_integer_joint_names_are_an_error(baseline, tmp_path, capsys):
+    sol = edited(baseline, lambda d: d.update(joint_names=list(range(len(d["joint_names"])))))
+    code, err, out = run_export(tmp_path, capsys, json.dumps(sol))
+    assert_user_error(code, err, out, "plan.json", "joint_names")
+
+
+@pytest.mark.parametrize("step", [1e300, 1e-300])
+def test_an_extreme_step_in_the_file_is_an_error(baseline, tmp_path, capsys, step):
+    sol = edited(baseline, lambda d: d["timing"].update(step_s=step))
+    code, err, out = run_export(tmp_path, capsys, json.dumps(sol))
+    assert_user_error(code, err, out, "plan.json", "timing.step_s")
+
+
+@pytest.mark.parametrize("step", ["1e300", "1e-300"])
+def test_an_extreme_step_option_is_an_error(baseline, tmp_path, capsys, step):
+    code, err, out = run_export(tmp_path, capsys, None, "--step-s", step, sol=baseline)
+    assert_user_error(code, err, out, "--step-s")
+
+
+def test_a_tiny_recorded_velocity_limit_is_an_error(baseline, tmp_path, capsys):
+    """Reproducer: a velocity limit of 1e-300 was an internal error (exit 1)."""
+    sol = edited(baseline, lambda d: d["limits"]["velocity"].__setitem__(0, 1e-300))
+    code, err, out = run_export(tmp_path, capsys, json.dumps(sol))
+    assert_user_error(code, err, out, "plan.json", "limits.velocity")
+
+
+@pytest.mark.parametrize("flag", ["--velocity-limit", "--acceleration-limit"])
+@pytest.mark.parametrize("value", ["1e-300", "1e300"])
+def test_an_extreme_limit_option_is_an_error(baseline, tmp_path, capsys, flag, value):
+    code, err, out = run_export(tmp_path, capsys, None, flag, f"yaw={value}", sol=baseline)
+    assert_user_error(code, err, out, flag)
+
+
+def test_too_many_waypoints_is_an_error(baseline, tmp_path, capsys):
+    """Reproducer: 1e5 waypoints took 72 s and then ran out of memory."""
+    sol = edited(baseline, lambda d: d.update(q=[d["q"][0]] * 100_000))
+    code, err, out = run_export(tmp_path, capsys, json.dumps(sol))
+    assert_user_error(code, err, out, "plan.json", "10000")
+
+
+def test_a_huge_solution_file_is_an_error(tmp_path, capsys):
+    code, err, out = run_export(tmp_path, capsys, " " * 60_000_000 + "{}")
+    assert_user_error(code, err, out, "plan.json", "bytes")
+
+
+def test_a_urdf_that_is_not_a_regular_file_is_an_error(baseline, tmp_path, capsys):
+    sol = edited(baseline, lambda d: d["robot"].update(urdf="/dev/zero"))
+    code, err, out = run_export(tmp_path, capsys, json.dumps(sol))
+    assert_user_error(code, err, out, "plan.json", "robot.urdf")
+
+
+def test_a_too_large_urdf_is_an_error(baseline, tmp_path, capsys):
+    big = tmp_path / "big.urdf"
+    with big.open("wb") as f:
+        f.truncate(60_000_000)
+    sol = edited(baseline, lambda d: d["robot"].update(urdf=str(big)))
+    code, err, out = run_export(tmp_path, capsys, json.dumps(sol))
+    assert_user_error(code, err, out, "plan.json", "robot.urdf", "bytes")
+
+
+def test_too_many_samples_is_an_error(baseline, tmp_path, capsys):
+    """A slow limit and a fast rate would write more than a million samples: refused before the work."""
+    code, err, out = run_export(tmp_path, capsys, None, "--rate", "10000", "--step-s", "100", sol=baseline)
+    assert_user_error(code, err, out, "samples")
+
+
+def test_the_writers_refuse_non_finite_numbers(baseline, tmp_path):
+    """check_finite at every writer: a trajectory holding NaN writes nothing."""
+    from surestep_ocp.output.export import export_solution
+
+    traj, _ = export_solution(_saved(baseline, tmp_path), "json", tmp_path / "ok.json", plot=False)
+    traj.q[3, 1] = math.nan
+    from surestep_ocp.output.export_writers import write
+
+    for fmt, name in (("json", "a.json"), ("csv", "a.csv"), ("ros2", "a.yaml"), ("rosbag2", "bag")):
+        extra = {"rate_hz": 100.0, "arm": "PSM1"} if fmt == "rosbag2" else {}
+        with pytest.raises(NonFinite):
+            write(traj, fmt, tmp_path / name, {"source": "x"}, None, **extra)
+        assert not (tmp_path / name).exists()
+    traj.q[3, 1] = 0.0
+    with pytest.raises(NonFinite):
+        write(traj, "json", tmp_path / "b.json", {"source": math.inf}, None)
+
+
+def _saved(sol: dict, tmp_path: Path) -> Path:
+    p = tmp_path / "saved.json"
+    p.write_text(json.dumps(sol))
+    return p
+
+
+def test_a_solution_object_is_checked_too(baseline, tmp_path):
+    """`export_solution` given a dict-backed object checks it as the file reader does."""
+    from surestep_ocp.output.export_load import load_solution
+
+    with pytest.raises(SurestepError, match="limits.velocity"):
+        load_solution(_saved(edited(baseline, lambda d: d["limits"]["velocity"].__setitem__(0, 1e-300)), tmp_path))
+    assert np.isfinite(np.array(load_solution(_saved(baseline, tmp_path))["q"])).all()
