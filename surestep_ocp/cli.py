@@ -181,6 +181,9 @@ def cmd_show(args) -> int:
     except ImportError as exc:
         raise SurestepError(f"the visualisation needs meshcat: {exc}") from None
     target = Path(args.target)
+    for flag, value in (("--html", args.html), ("--screenshot", args.screenshot)):
+        if value is not None and not str(value).strip():
+            raise SurestepError(f"{flag}: an empty file name; give the file to write")
     if not target.exists():
         raise SurestepError(f"{target}: no such file or directory")
     solutions = None

@@ -207,3 +207,13 @@ def test_the_page_writer_refuses_non_finite_numbers(tmp_path):
     vis2["p"].set_object(mg.PointsGeometry(np.array([[0.0, math.inf], [0.0, 0.0], [0.0, 0.0]])))
     with pytest.raises(NonFinite):
         check_scene_finite(window2)
+
+
+def test_show_cli_refuses_an_empty_html_name(tmp_path):
+    """`surestep show DIR --html ""` is a one-line error (it used to start the live server and block)."""
+    import subprocess
+    import sys
+
+    run = subprocess.run([sys.executable, "-m", "surestep_ocp.cli", "show", str(tmp_path), "--html", ""],
+                         capture_output=True, text=True, timeout=60)
+    assert run.returncode == 2 and "--html: an empty file name" in run.stderr and "Traceback" not in run.stderr
