@@ -275,13 +275,20 @@ class Problem(ArrayEquality):
         return {"joints": joints} if joints is not None else {"pose": pose}
 
 
-def plain_tree(value: Any) -> Any:
-    """NumPy arrays and scalars as the lists and numbers a YAML file gives."""
+MAX_TREE_DEPTH = 40  # nesting levels of a value given in Python (as the YAML reader's MAX_YAML_DEPTH)
+
+
+def plain_tree(value: Any, depth: int = 0) -> Any:
+    """NumPy arrays and scalars as the lists and numbers a YAML file gives; a value nested deeper than
+    MAX_TREE_DEPTH (or one that contains itself) is a ProblemError, not a RecursionError."""
+    if depth > MAX_TREE_DEPTH:
+        raise ProblemError(None, None, f"a value nested deeper than {MAX_TREE_DEPTH} levels (or one that contains "
+                                       "itself); give numbers, lists of numbers or mappings of them")
     if isinstance(value, dict):
-        return {k: plain_tree(v) for k, v in value.items()}
+        return {k: plain_tree(v, depth + 1) for k, v in value.items()}
     if isinstance(value, (list, tuple)):
-        return [plain_tree(v) for v in value]
+        return [plain_tree(v, depth + 1) for v in value]
     if isinstance(value, np.ndarray):
-        return plain_tree(value.tolist())
+        return plain_tree(value.tolist(), depth)
     return value.item() if isinstance(value, np.generic) else value
 
