@@ -18,8 +18,6 @@ geometry objects `<link>_<k>`, so `needle` never clashes with a link's node.
 from __future__ import annotations
 
 import math
-import os
-import stat
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
@@ -30,6 +28,7 @@ import numpy as np
 from meshcat.animation import Animation
 
 from surestep_ocp.errors import SurestepError, shown
+from surestep_ocp.output.files import MAX_URDF_BYTES, input_file_problem
 
 from . import style
 from .robot_visual import RobotVisual
@@ -162,7 +161,6 @@ def animate_arm(anim: Animation, scene, robot: RobotVisual, sol: Solution, timel
     return timeline.node_frame(len(qs) - 1) + timeline.per_sub if len(qs) > 1 else 0
 
 
-MAX_URDF_BYTES = 10_000_000  # a URDF read (the dVRK's are about 20 kB; meshes are separate files)
 
 
 def check_urdf_file(urdf: Path, root: str, given, source: str | None = None) -> None:
@@ -171,15 +169,11 @@ def check_urdf_file(urdf: Path, root: str, given, source: str | None = None) -> 
     name = "robot" if root == "robot" else "ecm" if root == "ecm" else f"other_arms[{root}]"
     name = f"{shown(str(source), 200)}: {name}" if source else name
     try:
-        st = os.stat(urdf)
+        problem = input_file_problem(urdf, MAX_URDF_BYTES)
     except OSError as exc:
         raise FileNotFoundError(str(urdf)) from exc  # a warning: the rest of the scene is drawn
-    if not stat.S_ISREG(st.st_mode):
-        raise SurestepError(f"{name}.urdf {shown(str(given), 120)}: not a regular file (a directory, device or "
-                            "pipe); a URDF file is read")
-    if st.st_size > MAX_URDF_BYTES:
-        raise SurestepError(f"{name}.urdf {shown(str(given), 120)}: a file of {st.st_size} bytes; a URDF of at "
-                            f"most {MAX_URDF_BYTES} bytes is read")
+    if problem is not None:
+        raise SurestepError(f"{name}.urdf {shown(str(given), 120)}: {problem}; a URDF file is read")
 
 
 def load_arm(spec: dict, root: str, resolve: Callable[[str], Path],

@@ -9,16 +9,16 @@ the 6x6 covariances (position block first).
 from __future__ import annotations
 
 import json
-import stat
 from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
 
+from surestep_ocp.output.files import MAX_SOLUTION_BYTES, input_file_problem
+
 Solution = dict[str, Any]
 
 COMPARISON_FILE = "comparison.json"
-MAX_SOLUTION_BYTES = 50_000_000  # a solution file read (10,000 waypoints with their covariances: about 10 MB)
 
 
 def load_solutions(path: Path | str) -> list[Solution]:
@@ -37,11 +37,9 @@ def load_solutions(path: Path | str) -> list[Solution]:
         files = [path]
     out: list[Solution] = []
     for f in files:
-        st = f.stat()
-        if not stat.S_ISREG(st.st_mode):
-            raise ValueError("not a regular file (a device or a pipe)")
-        if st.st_size > MAX_SOLUTION_BYTES:
-            raise ValueError(f"a file of {st.st_size} bytes; at most {MAX_SOLUTION_BYTES} are read")
+        problem = input_file_problem(f, MAX_SOLUTION_BYTES)
+        if problem is not None:
+            raise ValueError(problem)
         data = json.loads(f.read_text(encoding="utf-8"))
         for sol in data if isinstance(data, list) else [data]:
             if not isinstance(sol, dict) or ("poses" not in sol and path.is_dir()):

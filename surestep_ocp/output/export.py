@@ -10,7 +10,6 @@ written (`export_writers.py`; the bag: `export_rosbag.py`) with the joints named
 from __future__ import annotations
 
 import math
-import stat
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -27,7 +26,7 @@ from .plots_motion import plot_trajectory
 from ..model.robot import Robot
 from ..problem.paths import resolve_urdf
 from ..quiet import quiet_fd
-from .files import check_new_dir, check_output_file
+from .files import MAX_URDF_BYTES, check_new_dir, check_output_file, input_file_problem
 
 if TYPE_CHECKING:
     from .solution import Solution
@@ -92,20 +91,14 @@ def export_solution(solution: str | Path | Solution, fmt: str, output: str | Pat
     return traj, files
 
 
-MAX_URDF_BYTES = 10_000_000  # a URDF read (the dVRK's are about 20 kB; meshes are separate files)
-
-
 def check_urdf_file(urdf: Path, name: str) -> None:
-    """A one-line error unless `urdf` is a regular file of at most MAX_URDF_BYTES (never a device or a pipe,
-    which would be read forever or block)."""
+    """A one-line error unless `urdf` can be read as a URDF (`files.input_file_problem`)."""
     try:
-        st = urdf.stat()
+        problem = input_file_problem(urdf, MAX_URDF_BYTES)
     except OSError:
         raise SurestepError(f"{name}: not found ({shown(str(urdf), 120)})") from None
-    if not stat.S_ISREG(st.st_mode):
-        raise SurestepError(f"{name}: not a regular file (a directory, device or pipe); a URDF file is read")
-    if st.st_size > MAX_URDF_BYTES:
-        raise SurestepError(f"{name}: a file of {st.st_size} bytes; a URDF of at most {MAX_URDF_BYTES} bytes is read")
+    if problem is not None:
+        raise SurestepError(f"{name}: {problem}; a URDF file is read")
 
 
 def summary(traj: Trajectory) -> str:

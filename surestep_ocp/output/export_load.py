@@ -13,18 +13,17 @@ from __future__ import annotations
 
 import json
 import math
-import stat
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import SurestepError, shown
 from ..model.limits import MotionLimits, motion_limits
+from .files import MAX_SOLUTION_BYTES, input_file_problem
 
 DEFAULT_STEP_S = 0.05  # the paper's pace when a solution file records no timing (timing.step_s default)
 POSITION_TOL = 1e-6  # [relative] a waypoint this far beyond a position limit is clipped onto it, further is an error
 COMMAND_LINE = "command line"  # the source of a limit given by an export flag
-MAX_SOLUTION_BYTES = 50_000_000  # a solution file read (10,000 waypoints with their covariances: about 10 MB)
 MAX_WAYPOINTS = 10_000  # q's rows (a plan of T steps has T + 1; problem files allow T <= 200)
 MAX_JOINTS = 64
 MAX_JOINT_VALUE = 1000.0  # [rad or m] any joint value (the problem reader's MAX_ANGLE)
@@ -64,13 +63,11 @@ def load_solution(path) -> dict:
         return _checked(d, p)
     p = Path(path)
     try:
-        st = p.stat()
+        problem = input_file_problem(p, MAX_SOLUTION_BYTES)
     except OSError:
         raise SurestepError(f"{p}: no such solution file") from None
-    if not stat.S_ISREG(st.st_mode):
-        raise SurestepError(f"{p}: no such solution file (not a regular file: a directory, device or pipe)")
-    if st.st_size > MAX_SOLUTION_BYTES:
-        raise SurestepError(f"{p}: a solution file of {st.st_size} bytes; at most {MAX_SOLUTION_BYTES} are read")
+    if problem is not None:
+        raise SurestepError(f"{p}: {problem}; a solution file is read")
     try:
         d = json.loads(p.read_text())
     except (OSError, UnicodeDecodeError, ValueError) as exc:  # JSONDecodeError; an integer of over 4300 digits

@@ -52,6 +52,22 @@ def _nearest_existing(folder: Path) -> Path:
     return p
 
 
+MAX_SOLUTION_BYTES = 50_000_000  # a solution file read (10,000 waypoints with their covariances: about 10 MB)
+MAX_URDF_BYTES = 10_000_000  # a URDF read (the dVRK's are about 20 kB; meshes are separate files)
+
+
+def input_file_problem(path: str | Path, max_bytes: int) -> str | None:
+    """Why `path` is not read as an input file, or None: it must be a regular file (a device such as /dev/zero
+    would be read until memory runs out, a pipe would block forever) of at most `max_bytes`. A missing file raises
+    OSError (the caller says what was missing)."""
+    st = os.stat(path)
+    if not stat.S_ISREG(st.st_mode):
+        return "not a regular file (a directory, device or pipe)"
+    if st.st_size > max_bytes:
+        return f"a file of {st.st_size} bytes; at most {max_bytes} bytes are read"
+    return None
+
+
 def check_output_file(path: str | Path, inputs: Iterable[str | Path] = (), what: str = "the output") -> Path:
     """Check, before any work, that `path` can be written whole and replaces nothing it must not.
 
