@@ -109,24 +109,11 @@ class InteriorNewton:
         out = ca.vertcat(ca.sumsqr(pv) / (k * lim.tool_speed) ** 2, 0.5 * ca.sumsqr(Rd) / (k * lim.tool_rotation) ** 2)
         self.tool_k = out.shape[0]
         lam, y = ca.SX.sym("lam", self.tool_k), ca.vertcat(qa, qd)
-        windows, weights, consts = [], [], []
-        for t in range(T):
-            nodes = [min(max(m, 0), T) for m in (t - 1, t, t + 1, t + 2)]
-            for frac in lm.TOOL_POINTS:
-                if t == 0 and frac == 0.0:
-                    continue  # the start: at rest, or the executed curve's own state (nothing to choose)
-                wq, wv = lm.curve_point_weights(T, dt, t, frac, moving)
-                cw = np.zeros(2 * WINDOW)
-                for slot, m in enumerate(nodes):
-                    if m not in nodes[:slot]:  # a repeated end node: its weight in the first slot only
-                        cw[slot], cw[WINDOW + slot] = wq[m], wv[m]
-                windows.append(nodes)
-                weights.append(cw)
-                consts.append(np.concatenate([wq[T + 1:], wv[T + 1:]]) if moving else np.zeros(4))
+        windows, weights, consts = lm.tool_point_windows(T, dt, moving)
         self.n_pts = len(windows)
         self.tool_nodes = np.array(windows)
-        self.tool_weights = np.array(weights).T  # (2 WINDOW, points)
-        self.tool_consts = np.array(consts)  # (points, 4): position (v0, a0) weights, then velocity's
+        self.tool_weights = weights.T  # (2 WINDOW, points)
+        self.tool_consts = consts  # (points, 4): position (v0, a0) weights, then velocity's
         npts = self.n_pts
         Qm, Dm, Lm = ca.MX.sym("Q", nq, npts), ca.MX.sym("D", nq, npts), ca.MX.sym("L", self.tool_k, npts)
         f_val = ca.Function("tool", [qa, qd], [out])

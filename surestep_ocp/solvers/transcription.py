@@ -215,19 +215,7 @@ class Transcription:
             ws = ca.reshape(w, nq, win)
             out = rate(ws @ c[:win], ws @ c[win:])
             self.tool_rate = rate
-            windows, weights = [], []
-            for t in range(T):
-                nodes = [min(max(m, 0), T) for m in (t - 1, t, t + 1, t + 2)]
-                for frac in lm.TOOL_POINTS:
-                    if t == 0 and frac == 0.0:
-                        continue  # at rest
-                    wq, wv = lm.curve_point_weights(T, dt, t, frac)
-                    cw = np.zeros(2 * win)
-                    for slot, m in enumerate(nodes):
-                        if m not in nodes[:slot]:  # a repeated end node: its weight in the first slot only
-                            cw[slot], cw[win + slot] = wq[m], wv[m]
-                    windows.append(nodes)
-                    weights.append(cw)
+            windows, weights, _ = lm.tool_point_windows(T, dt)
         else:
             win = 2
             w, c = ca.SX.sym("w", win * nq), ca.SX.sym("c", 2 * win)  # c unused: the chord of (q_t, q_t+1)

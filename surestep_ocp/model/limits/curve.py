@@ -146,6 +146,30 @@ def curve_point_weights(T: int, dt: float, t: int, s: float,
     return powers @ C, dpow @ C
 
 
+def tool_point_windows(T: int, dt: float, moving: bool = False
+                       ) -> tuple[list[list[int]], np.ndarray, np.ndarray]:
+    """The points where the OCP bounds the tool's speeds (TOOL_POINTS of every piece but the first piece's
+    start, which is at rest or the executed curve's own state): per point the four waypoints its piece depends
+    on (t-1 .. t+2, clipped at the ends), its weights (8: the curve's position from the four, then its
+    velocity; a repeated end node weighted in its first slot only), and, `moving`, the weights of the start's
+    velocity and acceleration (4: in the position, then in the velocity; zeros at rest)."""
+    windows, weights, consts = [], [], []
+    for t in range(T):
+        nodes = [min(max(m, 0), T) for m in (t - 1, t, t + 1, t + 2)]
+        for frac in TOOL_POINTS:
+            if t == 0 and frac == 0.0:
+                continue
+            wq, wv = curve_point_weights(T, dt, t, frac, moving)
+            cw = np.zeros(8)
+            for slot, m in enumerate(nodes):
+                if m not in nodes[:slot]:
+                    cw[slot], cw[4 + slot] = wq[m], wv[m]
+            windows.append(nodes)
+            weights.append(cw)
+            consts.append(np.concatenate([wq[T + 1:], wv[T + 1:]]) if moving else np.zeros(4))
+    return windows, np.array(weights), np.array(consts)
+
+
 def evaluate_curve(q: np.ndarray, dt: float, times: np.ndarray,
                    start: tuple[np.ndarray, np.ndarray] | None = None
                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
