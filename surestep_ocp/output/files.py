@@ -68,19 +68,25 @@ def input_file_problem(path: str | Path, max_bytes: int) -> str | None:
     return None
 
 
+def _named_apart_from_inputs(path: Path, inputs: Iterable[str | Path], what: str, kind: str) -> str:
+    """`path` shown for messages, once it is a real name (not empty, `.` or `..`) and none of `inputs`."""
+    name = shown(str(path), 200)
+    if str(path) == "" or path.name in ("", ".", ".."):
+        raise SurestepError(f"'{name}': {what} must be a {kind} name")
+    for inp in inputs:
+        if inp is not None and _same_file(path, Path(inp)):
+            raise SurestepError(f"{name}: {what} would overwrite the input {shown(str(inp), 200)}; "
+                                f"choose another {kind}")
+    return name
+
+
 def check_output_file(path: str | Path, inputs: Iterable[str | Path] = (), what: str = "the output") -> Path:
     """Check, before any work, that `path` can be written whole and replaces nothing it must not.
 
     Creates the missing parent folders (so the check is the real one).
     """
     path = Path(path)
-    name = shown(str(path), 200)
-    if str(path) == "" or path.name in ("", ".", ".."):
-        raise SurestepError(f"'{name}': {what} must be a file name")
-    for inp in inputs:
-        if inp is not None and _same_file(path, Path(inp)):
-            raise SurestepError(f"{name}: {what} would overwrite the input {shown(str(inp), 200)}; "
-                                "choose another file")
+    name = _named_apart_from_inputs(path, inputs, what, "file")
     if path.exists() or path.is_symlink():
         try:
             mode = path.stat().st_mode
@@ -133,13 +139,7 @@ def check_new_dir(path: str | Path, inputs: Iterable[str | Path] = (), what: str
     """Check, before any work, that `path` can become a new directory written whole (`write_dir_atomic`): missing or
     an empty directory, never replacing files; its parent is created and must be writable."""
     path = Path(path)
-    name = shown(str(path), 200)
-    if str(path) == "" or path.name in ("", ".", ".."):
-        raise SurestepError(f"'{name}': {what} must be a directory name")
-    for inp in inputs:
-        if inp is not None and _same_file(path, Path(inp)):
-            raise SurestepError(f"{name}: {what} would overwrite the input {shown(str(inp), 200)}; "
-                                "choose another directory")
+    name = _named_apart_from_inputs(path, inputs, what, "directory")
     if path.is_symlink() or (path.exists() and not path.is_dir()):
         raise SurestepError(f"{name}: exists and is not a directory; {what} is a new directory")
     if path.is_dir() and any(path.iterdir()):
