@@ -18,6 +18,7 @@ import pytest
 from surestep_ocp.cli import main
 from surestep_ocp.errors import SurestepError
 from surestep_ocp.output.files import NonFinite
+from user_errors import assert_user_error  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 PSM = str(REPO / "robots" / "psm.urdf")
@@ -56,12 +57,6 @@ def run_show(tmp_path, capsys, sol: dict | None = None, text: str | None = None)
     return code, err, out
 
 
-def assert_user_error(code, err, out, *needles):
-    assert code == 2, (code, err)
-    assert len(err) == 1 and "Traceback" not in err[0], err
-    for n in needles:
-        assert n in err[0], (n, err)
-    assert not out.exists()
 
 
 def test_the_baseline_is_shown(baseline, tmp_path, capsys):
