@@ -21,7 +21,9 @@ def main() -> None:
     planner = h.Planner(problem)
     tracker = h.SimulatedTracker(planner.setup.eval_model, planner.plan.poses[0], rng=args.seed)
     rows, ok_ms, first_kept = [], [], None
-    for k in range(1, planner.horizon):
+    k = 0
+    while k + 1 < planner.horizon:
+        k += 1
         mean, cov = tracker.move_to(planner.plan.poses[k - planner.step])
         plan = planner.replan(mean, cov, step=k)
         r = plan.extras["replan"]

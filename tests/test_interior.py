@@ -67,20 +67,3 @@ def test_a_curve_started_in_motion_continues_the_executed_one():
     jerk_bound = 1e4  # [rad/s^3] far above either curve's jerk here (|q| steps of 0.05 rad in 0.05 s)
     for order in range(3):
         assert np.abs(right[order] - left[order]).max() <= 2 * h * jerk_bound * (1 + dt) ** 3
-
-
-def test_the_quintic_start_continues_the_motion_and_ends_at_rest():
-    """The re-plan's safe start (`planner._quintic_to_rest`) leaves the executed state with its velocity and
-    acceleration and reaches the goal at rest: checked by finite differences of a finely sampled curve."""
-    from surestep_ocp.solvers.planner import _quintic_to_rest
-
-    rng = np.random.default_rng(1)
-    q0, v0, a0, q1 = rng.normal(size=4 * 6).reshape(4, 6)
-    n, dt = 2000, 1e-3
-    q = _quintic_to_rest(q0, v0, a0, q1, n, dt)
-    np.testing.assert_allclose(q[0], q0, atol=1e-12)
-    np.testing.assert_allclose(q[-1], q1, atol=1e-9)
-    np.testing.assert_allclose((q[1] - q[0]) / dt, v0 + a0 * dt / 2, atol=1e-3)
-    np.testing.assert_allclose((q[2] - 2 * q[1] + q[0]) / dt**2, a0, atol=5e-2)  # a(dt): a0 + O(dt jerk)
-    np.testing.assert_allclose((q[-1] - q[-2]) / dt, 0.0, atol=1e-3)
-    np.testing.assert_allclose((q[-1] - 2 * q[-2] + q[-3]) / dt**2, 0.0, atol=5e-2)

@@ -39,7 +39,14 @@ MU_FINAL = 1e-11
 # iterations with the complementarity at MU_FINAL: the surrogate Hessian converges linearly near the optimum
 # (IPOPT's acceptable_obj_change_tol on the enforced NLP, nlp_cache.ENFORCED_OPTIONS)
 ACCEPTABLE_CHANGE, ACCEPTABLE_ITER = 1e-9, 3
+# `feasible_ok`: a run that reaches max_iter with every row kept (not relaxed) ends with this status, a success:
+# its plan keeps every limit and reaches the goal, not yet optimal (a re-planning loop's iteration budget)
+FEASIBLE = "Feasible_Point_Found"
+RELAXED_CAP = 3  # with `feasible_ok`, the steps that shrink a relaxation do not count, up to this x max_iter in all
 MAX_SOC = 4  # second-order corrections per iteration (IPOPT's max_soc)
+RELAX_TO = 1e-2  # `relax`: a start's rows below this (of their limit) get it as slack, the relaxation then shrinks
+# relaxed rows: STUCK_ITER steps in a row shorter than STUCK_STEP end the run as (locally) infeasible
+STUCK_STEP, STUCK_ITER = 1e-3, 3
 SHORT_STEP = 0.2  # a step cut below this fraction: the next barrier parameter re-centres (no Mehrotra decrease)
 WINDOW = 4  # waypoints each curve piece depends on (t-1 .. t+2)
 
@@ -52,7 +59,7 @@ class InteriorRun(NewtonRun):
 
     @property
     def success(self) -> bool:
-        return self.status in ("Solve_Succeeded", "Solved_To_Acceptable_Level")
+        return self.status in ("Solve_Succeeded", "Solved_To_Acceptable_Level", FEASIBLE)
 
 
 class InteriorNewton:
@@ -106,7 +113,9 @@ class InteriorNewton:
         pv, Rd = ca.jtimes(Ta[:3, 3], qa, qd), ca.jtimes(ca.vec(Ta[:3, :3]), qa, qd)
         k = 1 - lm.TOOL_MARGIN
         # the tool's squared speeds at a point of the curve, (q(s), q'(s)), over their limits
-        out = ca.vertcat(ca.sumsqr(pv) / (k * lim.tool_speed) ** 2, 0.5 * ca.sumsqr(Rd) / (k * lim.tool_rotation) ** 2)
+        out = ca.vertcat(ca.sumsqr(pv), 0.5 * ca.sumsqr(Rd))  # over tool_scale's squared limits in `constraints`
+        # (numbers, not in the compiled code: structures that differ in their limits share their libraries)
+        self.tool_scale = np.array([1 / (k * lim.tool_speed) ** 2, 1 / (k * lim.tool_rotation) ** 2])
         self.tool_k = out.shape[0]
         lam, y = ca.SX.sym("lam", self.tool_k), ca.vertcat(qa, qd)
         windows, weights, consts = lm.tool_point_windows(T, dt, moving)
@@ -192,7 +201,8 @@ class InteriorNewton:
         tool rows), which the method gives slacks."""
         f_y, z_y = self.newton.fz(x, P)
         lin = self.lin_coef_dot(x) + lin_c
-        tool = np.asarray(self.tool_rows(*self._points(x, offsets))).ravel(order="F")
+        raw = self.tool_rows(*self._points(x, offsets))[0].reshape(self.tool_k, self.n_pts, order="F")
+        tool = (self.tool_scale[:, None] * raw).ravel(order="F")
         return float(f_y[0]), np.concatenate([x[idx] - lo[idx], hi[idx] - x[idx], 1.0 + lin, 1.0 - lin,
                                               z_y[1:self.T] - min_depth, 1.0 - tool])
 
@@ -210,7 +220,8 @@ class InteriorNewton:
 
     # ---------------------------------------------------------------------------------------------------- solve
     def run(self, setup, init, v0=None, a0=None, tol: float = 1e-6, max_iter: int = 300, verbose: bool = False,
-            warm: np.ndarray | None = None, mu0: float | None = None) -> InteriorRun:
+            warm: np.ndarray | None = None, mu0: float | None = None, relax: bool = False,
+            feasible_ok: bool = False, acceptable_change: float = ACCEPTABLE_CHANGE) -> InteriorRun:
         """From `init`, which must be strictly within every row (else status `Infeasible_Start`: the caller starts
         elsewhere or hands over to IPOPT), with the start's velocity and acceleration `v0`, `a0` when the structure
         starts in motion; `warm`: multipliers of a previous run of the same structure (with `mu0`, the barrier
@@ -239,41 +250,57 @@ class InteriorNewton:
         inside = np.where(free, np.clip(x, lo + push_lo, hi - push_hi), x)
         f_val, c = self.constraints(inside, P, lin_c, offsets, min_depth, idx, lo, hi)
         if not np.all(c > 0):  # the pushed start breaks a row: the start itself if that is inside
-            f_val, c = self.constraints(x, P, lin_c, offsets, min_depth, idx, lo, hi)
+            f_in, c_in = self.constraints(x, P, lin_c, offsets, min_depth, idx, lo, hi)
+            if np.all(c_in > 0) or not relax:
+                f_val, c = f_in, c_in
+            else:
+                x = inside
         else:
             x = inside
-        start_ok = bool(np.all(c > 0) and np.allclose(x[:nq], setup.q_start, atol=1e-12))
+        # rows outside (or within RELAX_TO of) their boundary at the start are relaxed by rho, which every step of
+        # length a shrinks by (1 - a): the Newton step aims at rho = 0 (an infeasible-start interior point)
+        rho = np.maximum(RELAX_TO - c, 0.0) if relax and not np.all(c > 0) else np.zeros(len(c))
+        start_ok = bool(np.all(np.isfinite(c)) and np.all(c + rho > 0)
+                        and np.allclose(x[:nq], setup.q_start, atol=1e-12))
         nc = len(c)
-        w = (np.asarray(warm, float).copy() if warm is not None and len(warm) == nc else m / c)  # the multipliers
+        s = c + rho  # the rows' slacks
+        w = (np.asarray(warm, float).copy() if warm is not None and len(warm) == nc else m / s)  # the multipliers
+        if warm is not None and len(warm) == nc:
+            w = np.clip(w, m / (1e10 * s), 1e10 * m / s)
         status = "Maximum_Iterations_Exceeded" if start_ok else "Infeasible_Start"
-        it, shift, f_hist, last_step = 0, 0.0, [], 1.0
-        while start_ok and it <= max_iter:
+        it, shift, f_hist, last_step, stuck, relaxed_its = 0, 0.0, [], 1.0, 0, 0
+        while start_ok:
             _, f_val, G, HB, _ = nw.step(x, P)
             f_val = float(f_val[0])
             Z, DZ, D2Z = nw.depth(x, P)
             DZ, D2Z = DZ.reshape(T + 1, nq), D2Z.reshape(T + 1, nq, nq)
             wt = w[nd_ + T - 1:]
-            gy, hy = self.tool_derivs(*self._points(x, offsets), wt.reshape(self.n_pts, self.tool_k).T)
+            gy, hy = self.tool_derivs(*self._points(x, offsets),
+                                      wt.reshape(self.n_pts, self.tool_k).T * self.tool_scale[:, None])
             gy = gy.reshape(self.tool_k, 2 * nq, self.n_pts, order="F")  # d g / d(q(s), q'(s))
+            gy = gy * self.tool_scale[:, None, None]
             hy = hy.reshape(2 * nq, 2 * nq, self.n_pts, order="F").transpose(2, 0, 1)  # Hess of w . g
             K = self.tool_map  # (points, 2 nq, W nq): (q(s), q'(s)) from the window
             tj = np.einsum("kyp,pyw->kwp", gy, K)  # (k, W nq, points): the rows' gradients in the window
             g = np.bincount(nw.g_index, weights=G, minlength=n)  # grad f
             jac = _RowJacobian(self, idx, DZ, tj)
             err_d = float(np.max(np.abs((g - jac.T(w))[idx]))) if nb else 0.0
-            gap = float(w @ c) / nc  # the average complementarity
+            gap = float(w @ s) / nc  # the average complementarity
             f_hist.append(f_val)
             stalled = (len(f_hist) > ACCEPTABLE_ITER and abs(f_hist[-1 - ACCEPTABLE_ITER] - f_val)
-                       <= ACCEPTABLE_CHANGE * max(abs(f_val), 1e-12))
+                       <= acceptable_change * max(abs(f_val), 1e-12))
             if verbose:
-                print(f"interior {it:4d}  f {f_val:.10e}  mu {m:.1e}  dual {err_d:.2e}  gap {gap:.2e}", flush=True)
-            if gap <= MU_FINAL and (err_d <= tol or stalled):
+                print(f"interior {it:4d}  f {f_val:.10e}  mu {m:.1e}  dual {err_d:.2e}  gap {gap:.2e}  "
+                      f"relaxed {rho.max(initial=0):.1e}  step {last_step:.2e}", flush=True)
+            if gap <= MU_FINAL and (err_d <= tol or stalled) and not rho.any():
                 status = "Solve_Succeeded" if err_d <= tol else "Solved_To_Acceptable_Level"
                 break
-            if it == max_iter:
+            if it - relaxed_its == max_iter or it == RELAXED_CAP * max_iter:
+                if feasible_ok and not rho.any() and np.all(c > 0):
+                    status = FEASIBLE
                 break
             # the reduced matrix in band storage: the surrogate, then sum (w / c) grad c grad c^T + w Hess(-c)
-            sig = w / c
+            sig = w / s
             ab = np.bincount(self.h_band, weights=HB[self.h_low], minlength=self.bw * n).reshape(self.bw, n)
             ab[0, idx] += sig[:nb] + sig[nb:2 * nb]
             wl = sig[2 * nb:2 * nb + nl] + sig[2 * nb + nl:nd_]
@@ -298,16 +325,16 @@ class InteriorNewton:
             solve, shift = factor
 
             def direction(mu_t):  # (dx, dc, dw) for the barrier parameter mu_t; dc the rows' linearised change
-                dx = solve(-(g - jac.T(mu_t / c)))
-                dc = jac.dot(dx)
-                return dx, dc, mu_t / c - w - sig * dc
+                dx = solve(-(g - jac.T(mu_t / s + sig * rho)))
+                dc = jac.dot(dx) - rho  # the slacks' change: the rows' linearised change, the relaxation gone
+                return dx, dc, mu_t / s - w - sig * dc
 
             # Mehrotra's probe: the affine step (mu = 0) says how far the complementarity can fall
             _, dca, dwa = direction(0.0)
             with np.errstate(divide="ignore", invalid="ignore"):
-                ap = float(np.min(np.where(dca < 0, -c / dca, np.inf), initial=1.0))
+                ap = float(np.min(np.where(dca < 0, -s / dca, np.inf), initial=1.0))
                 ad = float(np.min(np.where(dwa < 0, -w / dwa, np.inf), initial=1.0))
-            gap_aff = float((c + ap * dca) @ (w + ad * dwa)) / nc
+            gap_aff = float((s + ap * dca) @ (w + ad * dwa)) / nc
             if last_step >= SHORT_STEP:  # sigma = (gap_aff / gap)^3; the barrier parameter is never raised here
                 m = max(MU_FINAL / 10, min(m, gap * min(1.0, (gap_aff / max(gap, 1e-300)) ** 3)))
             else:  # the last step was cut short (the iterate off the central path): re-centre at the current gap
@@ -315,20 +342,24 @@ class InteriorNewton:
             dx, dc, dw = direction(m)
             tau = max(TAU_MIN, 1.0 - m)
             with np.errstate(divide="ignore", invalid="ignore"):
-                a_max = float(np.min(np.where(dc < 0, -tau * c / dc, np.inf), initial=1.0))
+                a_max = float(np.min(np.where(dc < 0, -tau * s / dc, np.inf), initial=1.0))
                 az = float(np.min(np.where(dw < 0, -tau * w / dw, np.inf), initial=1.0))
-            value = f_val - m * float(np.sum(np.log(c)))
-            slope = min(float((g - jac.T(m / c)) @ dx), 0.0)
+            value = f_val - m * float(np.sum(np.log(s)))
+            slope = min(float((g - jac.T(m / s)) @ dx), 0.0)
 
-            def accept(a, x=x, dx=dx, dc=dc, m=m, value=value, slope=slope, c=c, tau=tau, sig=sig):
-                """(point, rows) at step a if within the boundary fraction and Armijo's decrease, else None."""
+            def accept(a, x=x, dx=dx, dc=dc, m=m, value=value, slope=slope, c=c, s=s, rho=rho, tau=tau, sig=sig):
+                """(point, rows, step) at step a if within the boundary fraction and Armijo's decrease (while rows
+                are relaxed: the boundary fraction alone, the relaxation shrinking with a), else None."""
                 d = a * dx
                 for k in range(MAX_SOC + 1):  # the step, then its second-order corrections (at the first length)
                     f_t, c_t = self.constraints(x + d, P, lin_c, offsets, min_depth, idx, lo, hi)
-                    if np.all(c_t >= (1 - tau) * c):
-                        v_t = f_t - m * float(np.sum(np.log(c_t)))
-                        return (x + d, c_t) if v_t <= value + 1e-4 * a * slope else None
-                    if a < a_max or k == MAX_SOC or not np.all(c_t[:nd_] > 0):
+                    s_t = c_t + (1.0 - a) * rho
+                    if np.all(s_t >= (1 - tau) * s):
+                        if rho.any():
+                            return x + d, c_t, a
+                        v_t = f_t - m * float(np.sum(np.log(s_t)))
+                        return (x + d, c_t, a) if v_t <= value + 1e-4 * a * slope else None
+                    if a < a_max or k == MAX_SOC or not np.all(s_t[:nd_] > 0):
                         return None
                     e = np.zeros(nc)  # what the linearisation of the curved rows missed
                     e[nd_:] = c_t[nd_:] - (c[nd_:] + jac.dot(d)[nd_:])
@@ -337,13 +368,32 @@ class InteriorNewton:
 
             found = _backtrack(a_max, accept)
             if found is None:
-                status = "Line_Search_Failed"
+                status = "Infeasible_Problem_Detected" if rho.any() else "Line_Search_Failed"
                 break
             last_step = float(np.max(np.abs(found[0] - x)) / max(float(np.max(np.abs(dx))), 1e-300))
-            x, c = found
+            stuck = stuck + 1 if rho.any() and found[2] < STUCK_STEP else 0
+            if stuck == STUCK_ITER:  # the relaxation no longer shrinks: no point within every row near here
+                status = "Infeasible_Problem_Detected"
+                break
+            x, c = found[0], found[1]
+            rho = (1.0 - found[2]) * rho if found[2] < 1.0 else np.zeros(nc)
+            s = c + rho
             w = w + min(1.0, az) * dw
-            w = np.clip(w, m / (1e10 * c), 1e10 * m / c)  # IPOPT's safeguard keeps w c within a band around mu
+            w = np.clip(w, m / (1e10 * s), 1e10 * m / s)  # IPOPT's safeguard keeps w s within a band around mu
             it += 1
+            relaxed_its += bool(feasible_ok and rho.any())
+        if verbose and rho.any():
+            groups = {"lower": nb, "upper": nb, "lin_lo": nl, "lin_hi": nl, "depth": T - 1, "tool": len(c) - nd_ - T + 1}
+            o = 0
+            for name, k in groups.items():
+                sl = slice(o, o + k)
+                if (rho[sl] > 0).any():
+                    bad = np.flatnonzero(c[sl] < 0)
+                    print("  relaxed", name, "rows", np.flatnonzero(rho[sl] > 0)[:20], "c<0 at", bad[:20],
+                          np.round(c[sl][bad][:20], 6))
+                    if name.startswith("lin"):
+                        print("    joints", self.lin_joint[bad], "nodes", [np.flatnonzero(self.lin_w[i]) for i in bad[:6]])
+                o += k
         run = nw._end(setup, x, P, trace_ref, status, it, 0, t0)
         return InteriorRun(**{k: getattr(run, k) for k in NewtonRun.__dataclass_fields__}, multipliers=w)
 

@@ -26,6 +26,7 @@ import numpy as np
 from ..model.belief import NV, NX, BeliefModel, unvech, vech
 from ..errors import SurestepError
 from ..model.lie import pose_mean, pose_to_matrix
+from ..model.limits import enforce as enforce_limits
 from ..model.limits import evaluate_curve
 from .methods import ocp_initial_guess
 from .backends import Context
@@ -40,6 +41,9 @@ from ..output.solution import Solution, evaluate
 
 _UNVECH = unvech(np.arange(NV, dtype=float)).astype(int)  # (6, 6) positions of each entry in vech
 REPLAN_MU = 1e-4  # a re-plan starts near the optimum: the barrier parameter of its first step
+# within the limits: a re-plan's iteration budget (its last iterate, within every limit, is the plan: the next frame
+# improves it) and the objective change (relative, over 3 iterations) at which it stops early
+REPLAN_ITERATIONS, REPLAN_ACCEPTABLE = 12, 1e-7
 
 
 class Planner:
@@ -54,11 +58,12 @@ class Planner:
             IPOPT path builds its NLPs inside the solve).
     """
 
-    def __init__(self, problem: Problem | Setup, prebuild: bool = True):
+    def __init__(self, problem: Problem | Setup, prebuild: bool = True, replan_iterations: int = REPLAN_ITERATIONS):
         setup = problem if isinstance(problem, Setup) else build_setup(problem)
         prob = setup.problem
         self.setup = replace(setup, problem=replace(prob, camera=replace(prob.camera, moves=())), camera_schedule=[])
         self.horizon = prob.horizon
+        self.replan_iterations = int(replan_iterations)
         self.builds: dict[int, float] = {}  # steps left -> seconds spent building its solver and evaluator
         self._solvers: dict[int, tuple] = {}
         resolved = resolved_solver(self.setup)
@@ -69,6 +74,8 @@ class Planner:
         for n in (range(self.horizon, 0, -1) if prebuild else [self.horizon]) if self.fast else ():
             self._solver(n, background=n != self.horizon)  # timed apart from the solves
         self.plan, _ = solve_ocp_warm(self.setup, ocp_initial_guess(self.setup))
+        if self.limited and self.plan.success:
+            self.plan = self._within_reserve(self.plan)
         self.step = 0  # the waypoint the current plan starts at
         self._q = np.array(self.plan.q, float)
         self._start = None  # the current plan's curve starts at rest, or in motion: (velocity, acceleration)
@@ -167,32 +174,31 @@ class Planner:
         registered = base.seen_from(world_tool @ np.linalg.inv(pose_to_matrix(mean)))
         n = self.horizon - step
         q_goal, res_m, res_rad = registered.joints_for(base.x_goal, base.q_goal, raise_on_fail=False)
-        sub = replace(registered.with_ocp(horizon=n, sigma0=cov), q_start=q0, q_goal=q_goal)
-        sub.x_start, sub.x_goal = sub.pose_of(q0), sub.pose_of(q_goal)
         tail = np.array(self._q[step - self.step:], float)
         s = np.linspace(0.0, 1.0, n + 1)  # the goal's shift, eased in and out (no velocity or acceleration added at
         tail += (10 * s**3 - 15 * s**4 + 6 * s**5)[:, None] * (q_goal - tail[-1])[None]  # either end)
         tail[0] = q0
-        t_build = time.perf_counter()
-        solver = interior_solver(sub, moving=True)
-        self.builds[-n] = self.builds.get(-n, 0.0) + time.perf_counter() - t_build  # first use of this horizon
-        # the interior-point method starts strictly inside every row: the previous plan's rest sits on its active
-        # rows, so it is blended towards a quintic from the executed state to the goal at rest, which has slack
-        dt = sub.ocp.timing.step_s
-        safe = _quintic_to_rest(q0, v0, a0, q_goal, n, dt)
-        warm = InitialGuess(tail, "previous plan")
-        for lam in BLENDS:
-            guess = InitialGuess((1 - lam) * tail + lam * safe, "previous plan" if lam == 0 else
-                                 f"previous plan blended {lam:g} towards a quintic to the goal")
-            if solver.start_margin(sub, guess, v0, a0) > 0:
-                warm = guess
+        spec = self.setup.ocp.solver
+        # within the limits less RESERVE (room for the next corrections), else within the limits themselves, else
+        # (the correction too large for the time left) EXTEND steps later; from the previous plan with the rows it
+        # breaks relaxed (the goal's shift, the active rows it sits on)
+        for reserve, extra in ATTEMPTS:
+            sub = replace(registered.with_ocp(horizon=n + extra, sigma0=cov), q_start=q0, q_goal=q_goal)
+            sub.x_start, sub.x_goal = sub.pose_of(q0), sub.pose_of(q_goal)
+            warm = InitialGuess(np.vstack([tail, np.repeat(tail[-1:], extra, axis=0)]), "previous plan"
+                                + (f", {extra} steps at the goal added" if extra else ""))
+            t_build = time.perf_counter()
+            solver = interior_solver(sub, moving=True, reserve=reserve)
+            self.builds[-n - extra] = (self.builds.get(-n - extra, 0.0)
+                                       + time.perf_counter() - t_build)  # first use of a horizon
+            run = solver.run(sub, warm, v0=v0, a0=a0, tol=spec.tol, mu0=REPLAN_MU, relax=True,
+                             max_iter=min(self.replan_iterations, spec.max_iter), feasible_ok=True,
+                             acceptable_change=REPLAN_ACCEPTABLE)
+            if run.success:
                 break
-        spec = sub.ocp.solver
-        run = solver.run(sub, warm, v0=v0, a0=a0, tol=spec.tol, max_iter=min(spec.surrogate_max_iter, spec.max_iter),
-                         mu0=REPLAN_MU)
         sol = solver.newton.solution(sub, "ocp-replan", warm, run)
         sol.extras.update(solver="interior", start_state={"velocity": v0.tolist(), "acceleration": a0.tolist()},
-                          warm_start_q=warm.q)
+                          warm_start_q=warm.q, reserve=reserve, extended_steps=extra)
         if res_m > 1e-6 or res_rad > 1e-5:
             sol.success, sol.status = False, "Goal_Unreachable"
         built_s = self.build_time_s - builds_before
@@ -200,7 +206,24 @@ class Planner:
                                 "build_time_s": built_s, "kept_previous": not sol.success}
         if sol.success:
             self.plan, self.step, self._q, self._start = sol, step, np.array(sol.q, float), (v0, a0)
+            self.horizon += extra
         return sol
+
+    def _within_reserve(self, plan: Solution) -> Solution:
+        """The first plan again within the limits less RESERVE (from the plan within the limits, the rows it breaks
+        relaxed), so that the re-plans have room for corrections; the plan itself if that fails."""
+        setup, spec = self.setup, self.setup.ocp.solver
+        solver = interior_solver(setup, reserve=RESERVE)
+        start = InitialGuess(np.array(plan.q, float), "the plan within the limits")
+        run = solver.run(setup, start, tol=spec.tol, max_iter=min(spec.surrogate_max_iter, spec.max_iter),
+                         mu0=REPLAN_MU, relax=True)
+        if not run.success:
+            return plan
+        sol = solver.newton.solution(setup, plan.method, start, run)
+        sol.solve_time_s += plan.solve_time_s
+        sol.extras.update(solver="interior", reserve=RESERVE, attempts_within_limits=plan.attempts)
+        enforce_limits(setup, sol)
+        return sol if sol.success else plan
 
     def _solver(self, n: int, background: bool = False) -> tuple:
         """(projected Newton solver, compiled EKF over n steps) for n steps left, built on first use; `background`:
@@ -233,18 +256,9 @@ class Planner:
         return self._camera[1], moved
 
 
-BLENDS = (0.0, 0.1, 0.25, 0.5, 1.0)  # a re-plan's start: the previous plan's rest blended this much to a quintic
-
-
-def _quintic_to_rest(q0: np.ndarray, v0: np.ndarray, a0: np.ndarray, q1: np.ndarray, n: int, dt: float) -> np.ndarray:
-    """(n+1, nq) the waypoints of the quintic in time from (q0, v0, a0) to q1 at rest (velocity and acceleration 0)
-    in n steps of dt: the smoothest curve that continues the executed motion to the goal."""
-    T = n * dt
-    A = np.array([[T**3, T**4, T**5], [3 * T**2, 4 * T**3, 5 * T**4], [6 * T, 12 * T**2, 20 * T**3]])
-    rhs = np.vstack([q1 - q0 - v0 * T - a0 / 2 * T**2, -v0 - a0 * T, -a0])
-    c3, c4, c5 = np.linalg.solve(A, rhs)
-    t = np.arange(n + 1)[:, None] * dt
-    return q0 + v0 * t + a0 / 2 * t**2 + c3 * t**3 + c4 * t**4 + c5 * t**5
+RESERVE = 0.02  # re-plans keep this fraction of the velocity, acceleration and tool-speed limits for corrections
+EXTEND = 2  # steps a re-plan may add when the correction does not fit in the time left
+ATTEMPTS = ((RESERVE, 0), (0.0, 0), (RESERVE, EXTEND))  # a re-plan's (reserve, steps added), in order
 
 
 RIGID_TOL = 1e-6  # a camera pose's rotation is orthonormal to this
