@@ -195,15 +195,16 @@ class InteriorNewton:
         free[1:T, self.mov] = True
         return lo, hi, free.ravel()
 
-    def constraints(self, x, P, lin_c, offsets, min_depth, idx, lo, hi) -> tuple[float, np.ndarray]:
+    def constraints(self, x, P, lin_c, offsets, min_depth, idx, lo, hi, keep: float = 1.0
+                    ) -> tuple[float, np.ndarray]:
         """(objective, row values c >= 0) in the rows' order: the direct ones (joint bounds lower and upper, linear
         rows lower and upper: exact under linearisation), then the nonlinear ones (depths of the interior nodes,
         tool rows), which the method gives slacks."""
         f_y, z_y = self.newton.fz(x, P)
         lin = self.lin_coef_dot(x) + lin_c
         raw = self.tool_rows(*self._points(x, offsets))[0].reshape(self.tool_k, self.n_pts, order="F")
-        tool = (self.tool_scale[:, None] * raw).ravel(order="F")
-        return float(f_y[0]), np.concatenate([x[idx] - lo[idx], hi[idx] - x[idx], 1.0 + lin, 1.0 - lin,
+        tool = (self.tool_scale[:, None] / keep**2 * raw).ravel(order="F")
+        return float(f_y[0]), np.concatenate([x[idx] - lo[idx], hi[idx] - x[idx], keep + lin, keep - lin,
                                               z_y[1:self.T] - min_depth, 1.0 - tool])
 
     def start_margin(self, setup, init, v0=None, a0=None) -> float:
@@ -220,7 +221,7 @@ class InteriorNewton:
 
     # ---------------------------------------------------------------------------------------------------- solve
     def run(self, setup, init, v0=None, a0=None, tol: float = 1e-6, max_iter: int = 300, verbose: bool = False,
-            warm: np.ndarray | None = None, mu0: float | None = None, relax: bool = False,
+            warm: np.ndarray | None = None, mu0: float | None = None, relax: bool = False, reserve: float = 0.0,
             feasible_ok: bool = False, acceptable_change: float = ACCEPTABLE_CHANGE) -> InteriorRun:
         """From `init`, which must be strictly within every row (else status `Infeasible_Start`: the caller starts
         elsewhere or hands over to IPOPT), with the start's velocity and acceleration `v0`, `a0` when the structure
@@ -241,6 +242,8 @@ class InteriorNewton:
         min_depth = setup.ocp.min_depth
         lin_c = self._lin_const(v0, a0)
         offsets = self._tool_offsets(v0, a0)
+        keep = 1.0 - reserve  # the fraction of the velocity, acceleration and tool-speed limits the plan may use
+        tool_scale = self.tool_scale / keep**2
         P[CAMERA_PARAMETERS] = trace_ref = float(nw.step(x, P)[0][0])
         m = MU_INIT if mu0 is None else mu0
         push_lo = BOUND_PUSH * np.minimum(np.maximum(1.0, np.abs(lo)), hi - lo)
@@ -248,9 +251,9 @@ class InteriorNewton:
         nb, nl = len(idx), self.n_lin
         nd_ = 2 * nb + 2 * nl  # the direct rows (bounds, linear) come first, then the curved ones
         inside = np.where(free, np.clip(x, lo + push_lo, hi - push_hi), x)
-        f_val, c = self.constraints(inside, P, lin_c, offsets, min_depth, idx, lo, hi)
+        f_val, c = self.constraints(inside, P, lin_c, offsets, min_depth, idx, lo, hi, keep)
         if not np.all(c > 0):  # the pushed start breaks a row: the start itself if that is inside
-            f_in, c_in = self.constraints(x, P, lin_c, offsets, min_depth, idx, lo, hi)
+            f_in, c_in = self.constraints(x, P, lin_c, offsets, min_depth, idx, lo, hi, keep)
             if np.all(c_in > 0) or not relax:
                 f_val, c = f_in, c_in
             else:
@@ -276,9 +279,9 @@ class InteriorNewton:
             DZ, D2Z = DZ.reshape(T + 1, nq), D2Z.reshape(T + 1, nq, nq)
             wt = w[nd_ + T - 1:]
             gy, hy = self.tool_derivs(*self._points(x, offsets),
-                                      wt.reshape(self.n_pts, self.tool_k).T * self.tool_scale[:, None])
+                                      wt.reshape(self.n_pts, self.tool_k).T * tool_scale[:, None])
             gy = gy.reshape(self.tool_k, 2 * nq, self.n_pts, order="F")  # d g / d(q(s), q'(s))
-            gy = gy * self.tool_scale[:, None, None]
+            gy = gy * tool_scale[:, None, None]
             hy = hy.reshape(2 * nq, 2 * nq, self.n_pts, order="F").transpose(2, 0, 1)  # Hess of w . g
             K = self.tool_map  # (points, 2 nq, W nq): (q(s), q'(s)) from the window
             tj = np.einsum("kyp,pyw->kwp", gy, K)  # (k, W nq, points): the rows' gradients in the window
@@ -352,7 +355,7 @@ class InteriorNewton:
                 are relaxed: the boundary fraction alone, the relaxation shrinking with a), else None."""
                 d = a * dx
                 for k in range(MAX_SOC + 1):  # the step, then its second-order corrections (at the first length)
-                    f_t, c_t = self.constraints(x + d, P, lin_c, offsets, min_depth, idx, lo, hi)
+                    f_t, c_t = self.constraints(x + d, P, lin_c, offsets, min_depth, idx, lo, hi, keep)
                     s_t = c_t + (1.0 - a) * rho
                     if np.all(s_t >= (1 - tau) * s):
                         if rho.any():

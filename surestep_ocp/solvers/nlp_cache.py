@@ -7,8 +7,6 @@ camera pose or Sigma_0 reuses it.
 
 from __future__ import annotations
 
-from dataclasses import replace
-
 from ..model import limits as limits_module
 from ..model.limits import problem_limits
 from ..problem.setup import Setup
@@ -154,16 +152,11 @@ def newton_solver(setup: Setup, background: bool = False) -> NewtonSolver:
 _INTERIOR: dict[tuple, InteriorNewton] = {}
 
 
-def interior_solver(setup: Setup, moving: bool = False, reserve: float = 0.0) -> InteriorNewton:
+def interior_solver(setup: Setup, moving: bool = False) -> InteriorNewton:
     """The (cached) interior-point Newton solver of this setup's structure with its enforced limits; `moving`: the
-    plan starts in motion (a re-plan from the executed curve's state); `reserve`: the velocity, acceleration and
-    tool-speed limits tightened by this fraction (a re-planning loop's room for corrections)."""
+    plan starts in motion (a re-plan from the executed curve's state)."""
     prob = setup.ocp
     dt, lim = enforced_limits(setup)
-    if reserve:
-        k = 1.0 - reserve
-        lim = replace(lim, velocity=k * lim.velocity, acceleration=k * lim.acceleration,
-                      tool_speed=k * lim.tool_speed, tool_rotation=k * lim.tool_rotation)
     codegen = resolve_codegen(setup, "surrogate")
     key = (str(setup.robot.urdf), setup.robot.frame, setup.robot.offset.tobytes(), setup.model.key(),
            setup.model.scalar, prob.horizon, prob.smoothness, codegen, limits_key((dt, lim)), moving)

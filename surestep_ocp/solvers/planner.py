@@ -73,6 +73,8 @@ class Planner:
         self.limited = bool(setup.ocp.limits.enforce and resolved.name == "interior")
         for n in (range(self.horizon, 0, -1) if prebuild else [self.horizon]) if self.fast else ():
             self._solver(n, background=n != self.horizon)  # timed apart from the solves
+        for n in range(self.horizon, 0, -1) if self.limited and prebuild else ():  # every re-plan's structure
+            self._interior(self.setup.with_ocp(horizon=n))
         self.plan, _ = solve_ocp_warm(self.setup, ocp_initial_guess(self.setup))
         if self.limited and self.plan.success:
             self.plan = self._within_reserve(self.plan)
@@ -187,11 +189,8 @@ class Planner:
             sub.x_start, sub.x_goal = sub.pose_of(q0), sub.pose_of(q_goal)
             warm = InitialGuess(np.vstack([tail, np.repeat(tail[-1:], extra, axis=0)]), "previous plan"
                                 + (f", {extra} steps at the goal added" if extra else ""))
-            t_build = time.perf_counter()
-            solver = interior_solver(sub, moving=True, reserve=reserve)
-            self.builds[-n - extra] = (self.builds.get(-n - extra, 0.0)
-                                       + time.perf_counter() - t_build)  # first use of a horizon
-            run = solver.run(sub, warm, v0=v0, a0=a0, tol=spec.tol, mu0=REPLAN_MU, relax=True,
+            solver = self._interior(sub)
+            run = solver.run(sub, warm, v0=v0, a0=a0, tol=spec.tol, mu0=REPLAN_MU, relax=True, reserve=reserve,
                              max_iter=min(self.replan_iterations, spec.max_iter), feasible_ok=True,
                              acceptable_change=REPLAN_ACCEPTABLE)
             if run.success:
@@ -209,14 +208,23 @@ class Planner:
             self.horizon += extra
         return sol
 
+    def _interior(self, sub: Setup):
+        """The interior-point solver of a re-plan over `sub`'s horizon from a moving start, built on first use
+        (its build time in `builds`, keyed by minus the horizon)."""
+        t0, n = time.perf_counter(), sub.ocp.horizon
+        solver = interior_solver(sub, moving=True)
+        if -n not in self.builds:
+            self.builds[-n] = time.perf_counter() - t0
+        return solver
+
     def _within_reserve(self, plan: Solution) -> Solution:
         """The first plan again within the limits less RESERVE (from the plan within the limits, the rows it breaks
         relaxed), so that the re-plans have room for corrections; the plan itself if that fails."""
         setup, spec = self.setup, self.setup.ocp.solver
-        solver = interior_solver(setup, reserve=RESERVE)
+        solver = interior_solver(setup)
         start = InitialGuess(np.array(plan.q, float), "the plan within the limits")
         run = solver.run(setup, start, tol=spec.tol, max_iter=min(spec.surrogate_max_iter, spec.max_iter),
-                         mu0=REPLAN_MU, relax=True)
+                         mu0=REPLAN_MU, relax=True, reserve=RESERVE)
         if not run.success:
             return plan
         sol = solver.newton.solution(setup, plan.method, start, run)
