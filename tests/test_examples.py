@@ -14,7 +14,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 @pytest.mark.parametrize(("script", "extra", "wrote"), [
     ("solve_and_plot.py", ["--horizon", "6"], "solve_and_plot.png"),
-    ("replan_loop.py", ["--horizon", "6"], None),
+    ("replan_loop.py", ["--interpreted"], None),
     ("batch_evaluation.py", ["--horizon", "6", "--methods", "baseline", "ocp"], "batch.csv"),
     ("dvrk_servo_jp.py", ["--horizon", "6"], "servo_jp_trajectory.json"),  # a dry run (no --robot)
 ])

@@ -385,18 +385,6 @@ class InteriorNewton:
             w = np.clip(w, m / (1e10 * s), 1e10 * m / s)  # IPOPT's safeguard keeps w s within a band around mu
             it += 1
             relaxed_its += bool(feasible_ok and rho.any())
-        if verbose and rho.any():
-            groups = {"lower": nb, "upper": nb, "lin_lo": nl, "lin_hi": nl, "depth": T - 1, "tool": len(c) - nd_ - T + 1}
-            o = 0
-            for name, k in groups.items():
-                sl = slice(o, o + k)
-                if (rho[sl] > 0).any():
-                    bad = np.flatnonzero(c[sl] < 0)
-                    print("  relaxed", name, "rows", np.flatnonzero(rho[sl] > 0)[:20], "c<0 at", bad[:20],
-                          np.round(c[sl][bad][:20], 6))
-                    if name.startswith("lin"):
-                        print("    joints", self.lin_joint[bad], "nodes", [np.flatnonzero(self.lin_w[i]) for i in bad[:6]])
-                o += k
         run = nw._end(setup, x, P, trace_ref, status, it, 0, t0)
         return InteriorRun(**{k: getattr(run, k) for k in NewtonRun.__dataclass_fields__}, multipliers=w)
 

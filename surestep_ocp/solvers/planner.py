@@ -36,6 +36,7 @@ from .ocp import resolved_solver, solve_ocp_warm
 from .strategy import records, replan_strategy
 from .strategy import run as run_strategy
 from ..problem.spec import Problem
+from ..problem.solver_config import SolverName
 from ..problem.setup import Setup, build_setup
 from ..output.solution import Solution, evaluate
 
@@ -68,9 +69,10 @@ class Planner:
         self._solvers: dict[int, tuple] = {}
         resolved = resolved_solver(self.setup)
         self.fast = resolved.newton_first and not setup.ocp.limits.enforce and self.setup.model.scalar
-        # `solver.name: interior` within enforced limits (experimental, docs/realtime.md): the interior-point method
-        # plans, and re-plans from the executed curve's state; else a re-plan runs the whole strategy from rest
-        self.limited = bool(setup.ocp.limits.enforce and resolved.name == "interior")
+        # within enforced limits, where the interior-point method applies (`solver.name` auto or interior): it
+        # re-plans from the executed curve's state (docs/realtime.md); else a re-plan runs the whole strategy
+        self.limited = bool(setup.ocp.limits.enforce and resolved.newton_fits
+                            and resolved.name in (SolverName.AUTO, SolverName.INTERIOR))
         for n in (range(self.horizon, 0, -1) if prebuild else [self.horizon]) if self.fast else ():
             self._solver(n, background=n != self.horizon)  # timed apart from the solves
         for n in range(self.horizon, 0, -1) if self.limited and prebuild else ():  # every re-plan's structure
