@@ -41,11 +41,11 @@ DIAG = [k for k, (i, j) in enumerate(_TRIL) if i == j]  # positions of the diago
 _UNVECH_INDEX = np.zeros((NX, NX), int)  # (6, 6) position in vech of each entry
 for _k, (_i, _j) in enumerate(_TRIL):
     _UNVECH_INDEX[_i, _j] = _UNVECH_INDEX[_j, _i] = _k
-# The default guard g of |r| in the paper's cosine formula, cos = r.o* / (sqrt(|r|^2 + g^2) |o*|), as its square
-# [rad^2] (`NoiseParams.cosine_guard` is g [rad]). The formula is undefined at r = 0, and near it the direction of
-# r is free: an optimiser found that a rotation of 1e-4 rad about o*'s axis makes the orientation noise vanish
-# (an OCP optimum whose true trace was 16x the straight line's). With g = 0.05 rad small rotations see the full
-# orientation noise; beyond 0.5 rad the guard changes cos by < 0.5 %.
+# The default guard g of |r| in the paper's cosine formula, cos = r.o* / (sqrt(|r|^2 + g^2) |o*|), as
+# its square [rad^2] (`NoiseParams.cosine_guard` is g [rad]). The formula is undefined at r = 0, and
+# near it the direction of r is free, which an optimiser exploits to make the orientation noise
+# vanish; with the guard small rotations see the full orientation noise and larger ones nearly the
+# paper's cosine (docs/orientation.md, "The paper's cosine": the guard).
 DEFAULT_COSINE_GUARD = 0.05  # [rad]
 DEFAULT_CUT_BAND = 0.2  # [rad] (see `paper_cosine`)
 COSINE_GUARD = DEFAULT_COSINE_GUARD**2

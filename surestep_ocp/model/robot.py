@@ -123,7 +123,8 @@ class Robot:
         self.offset = np.eye(4) if offset is None else np.asarray(offset, dtype=float)
         self.frame_id = self.frame_index(frame)
         # IK Functions are shared by every Robot of the same file, frame and offset (a new setup per
-        # problem, e.g. per evaluation instance, would otherwise rebuild them: ~7 ms each)
+        # problem, e.g. per evaluation instance, would otherwise rebuild them; the cost is in
+        # docs/solve_speed.md, "Builds shared between set-ups")
         self._ik_key = (str(self.urdf.resolve()), self.urdf.stat().st_mtime_ns, frame, self.offset.tobytes())
         self._ik_maps = _IK_MAPS.setdefault(self._ik_key, {})
 
