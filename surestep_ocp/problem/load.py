@@ -26,8 +26,8 @@ MAX_YAML_DEPTH = 40  # nesting levels
 MAX_YAML_NODES = 100_000
 
 
-# libyaml's scanner and parser in C (faster: the fuzz tests read hundreds of files; measured in
-# commit 52c58fa); the composer stays in Python (it bounds the tree)
+# libyaml's scanner and parser in C (faster: the fuzz tests read hundreds of files; docs/cli.md,
+# "Reading problem files"); the composer stays in Python (it bounds the tree)
 try:
     from yaml._yaml import CParser as _Parser
 except ImportError:  # pragma: no cover - PyYAML without libyaml
