@@ -1,7 +1,8 @@
 """Re-plan at tracker rate: a Planner against a simulated 20 Hz tracker (the model's noise and EKF).
 
-At each frame the tool reaches the plan's next waypoint, the tracker reports its mean and covariance, and the
-planner plans the rest of the way over the steps left (warm-started, no solver built in the loop).
+At each frame the tool reaches the plan's next waypoint, the tracker reports its mean and
+covariance, and the planner plans the rest of the way over the steps left (warm-started, no
+solver built in the loop).
 
     .venv/bin/python examples/replan_loop.py [--horizon 20] [--seed 0]
 """
@@ -34,4 +35,5 @@ for k in range(1, planner.horizon):
 tracker.move_to(planner.plan.poses[-1])
 error = np.linalg.norm(tracker.true_pose[:3] - planner.plan.positions[-1]) * 1e3
 print(f"re-plan median {np.median(times) * 1e3:.1f} ms, worst {max(times) * 1e3:.1f} ms; "
-      f"final position error {error:.2f} mm, Tr(Sigma_T) of the tracker {np.trace(tracker.covariance):.3e}")
+      f"final position error {error:.2f} mm, "
+      f"Tr(Sigma_T) of the tracker {np.trace(tracker.covariance):.3e}")
