@@ -1,9 +1,9 @@
-"""The API reference from the docstrings: `make docs` (or `python docs/api_reference.py OUT_DIR`) writes
-OUT_DIR/index.html with pdoc, the Python API (`surestep_ocp`'s exports, documented in full on its page) and the
-modules behind it.
+"""The API reference from the docstrings: `make docs` (or `python docs/api_reference.py OUT_DIR`)
+writes OUT_DIR/index.html with pdoc, the Python API (`surestep_ocp`'s exports, documented in full on
+its page) and the modules behind it.
 
-The package imports its exports on first use (`surestep_ocp.__getattr__`); they are resolved here first so that
-pdoc finds them in the package's namespace.
+The package imports its exports on first use (`surestep_ocp.__getattr__`); they are resolved here
+first so that pdoc finds them in the package's namespace.
 """
 
 from __future__ import annotations
@@ -13,8 +13,9 @@ from pathlib import Path
 
 # the package page (every export in full), then the modules a user of the API reads further in
 MODULES = ["surestep_ocp", "surestep_ocp.api", "surestep_ocp.errors", "surestep_ocp.problem.spec",
-           "surestep_ocp.problem.load", "surestep_ocp.output.solution", "surestep_ocp.output.export",
-           "surestep_ocp.solvers.planner", "surestep_ocp.evaluation.tracker", "surestep_ocp.solvers.codegen"]
+           "surestep_ocp.problem.load", "surestep_ocp.output.solution",
+           "surestep_ocp.output.export", "surestep_ocp.solvers.planner",
+           "surestep_ocp.evaluation.tracker", "surestep_ocp.solvers.codegen"]
 
 
 def build(out: Path) -> Path:
@@ -24,7 +25,8 @@ def build(out: Path) -> Path:
 
     for name in surestep_ocp.__all__:  # the lazy exports, resolved
         getattr(surestep_ocp, name)
-    pdoc.render.configure(docformat="google", footer_text=f"surestep_ocp {surestep_ocp.__version__}",
+    pdoc.render.configure(docformat="google",
+                          footer_text=f"surestep_ocp {surestep_ocp.__version__}",
                           search=True, show_source=True)
     pdoc.pdoc(*MODULES, output_directory=out)
     return out / "index.html"

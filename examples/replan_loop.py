@@ -16,24 +16,28 @@ import surestep_ocp as ss
 ap = argparse.ArgumentParser()
 ap.add_argument("--problem", default="problems/needle_regrasp.yaml")
 ap.add_argument("--seed", type=int, default=0)
-ap.add_argument("--interpreted", action="store_true", help="no derivatives compiled to C (no compile on first use)")
+ap.add_argument("--interpreted", action="store_true",
+                help="no derivatives compiled to C (no compile on first use)")
 args = ap.parse_args()
 
 problem = ss.load_problem(args.problem)
-planner = ss.Planner(problem.with_solver(codegen=False) if args.interpreted else problem)  # builds the solver of every horizon left, then plans
+# builds the solver of every horizon left, then plans
+planner = ss.Planner(problem.with_solver(codegen=False) if args.interpreted else problem)
 print(f"built in {planner.build_time_s:.2f} s; first plan {planner.plan.status}, "
       f"Tr(Sigma_T) = {planner.plan.trace_final:.3e}")
 tracker = ss.SimulatedTracker(planner.setup.eval_model, planner.plan.poses[0], rng=args.seed)
 times, k = [], 0
-while k + 1 < planner.horizon:  # the goal is waypoint `planner.horizon` (later if a correction needed more time)
+# the goal is waypoint `planner.horizon` (later if a correction needed more time)
+while k + 1 < planner.horizon:
     k += 1
     mean, covariance = tracker.move_to(planner.plan.poses[k - planner.step])  # 1/20 s later
     plan = planner.replan(mean, covariance, step=k)  # camera_pose=... when the endoscope moves
     times.append(plan.extras["replan"]["time_s"])
     kept = " (previous plan kept)" if plan.extras["replan"].get("kept_previous") else ""
-    print(f"step {k:2d}: {plan.horizon:2d} steps left, {plan.status}, {times[-1] * 1e3:5.1f} ms{kept}")
+    print(f"step {k:2d}: {plan.horizon:2d} steps left, {plan.status}, "
+          f"{times[-1] * 1e3:5.1f} ms{kept}")
 tracker.move_to(planner.plan.poses[-1])
 error = np.linalg.norm(tracker.true_pose[:3] - planner.plan.positions[-1]) * 1e3
-print(f"re-plan median {np.median(times) * 1e3:.1f} ms, worst {max(times) * 1e3:.1f} ms; goal reached at step "
-      f"{planner.horizon} ({planner.horizon - planner.setup.ocp.horizon} later than planned); final position "
-      f"error {error:.2f} mm")
+print(f"re-plan median {np.median(times) * 1e3:.1f} ms, worst {max(times) * 1e3:.1f} ms; goal "
+      f"reached at step {planner.horizon} ({planner.horizon - planner.setup.ocp.horizon} later than "
+      f"planned); final position error {error:.2f} mm")

@@ -1,16 +1,19 @@
 """SURESTEP belief-space trajectory optimisation: the Python API.
 
     import surestep_ocp as ss
-    problem = ss.load_problem("problems/needle_regrasp_paper_pace.yaml")   # or ss.problem_from_dict({...})
-    problem = problem.with_goal(pose=[0.035, -0.010, 0.110, 0.6, 0.1, 1.4])  # camera frame: [m], axis-angle [rad]
+    # or ss.problem_from_dict({...})
+    problem = ss.load_problem("problems/needle_regrasp_paper_pace.yaml")
+    # camera frame: [m], axis-angle [rad]
+    problem = problem.with_goal(pose=[0.035, -0.010, 0.110, 0.6, 0.1, 1.4])
     sol = ss.solve(problem, method="ocp")                          # any method name of the CLI
     sol.joints, sol.positions, sol.covariances, sol.trace_final    # arrays with units (Solution)
-    ss.export(sol, "ros2", "out/plan.yaml")                        # a joint trajectory, as `surestep export`
+    # a joint trajectory, as `surestep export`
+    ss.export(sol, "ros2", "out/plan.yaml")
     planner = ss.Planner(problem)                                  # re-planning at tracker rate
     plan = planner.replan(mean, covariance)                        # from a tracker's estimate
 
-Names are imported on first use, so `import surestep_ocp` stays light (the CLI starts fast); editors and type
-checkers see them through the imports under `TYPE_CHECKING` (the package ships `py.typed`).
+Names are imported on first use, so `import surestep_ocp` stays light (the CLI starts fast); editors
+and type checkers see them through the imports under `TYPE_CHECKING` (the package ships `py.typed`).
 """
 
 from __future__ import annotations
@@ -25,10 +28,11 @@ _EXPORTS = {
     "SimulatedTracker": "evaluation.tracker", "SurestepError": "errors", "ProblemError": "errors",
     "ProblemErrors": "errors", "METHODS": "solvers.methods",
 }
-__all__ = ["METHODS", "Planner", "Problem", "ProblemError", "ProblemErrors", "SimulatedTracker", "Solution",
-           "SurestepError", "export", "load_problem", "problem_from_dict", "solve"]
+__all__ = ["METHODS", "Planner", "Problem", "ProblemError", "ProblemErrors", "SimulatedTracker",
+           "Solution", "SurestepError", "export", "load_problem", "problem_from_dict", "solve"]
 
-if TYPE_CHECKING:  # what __getattr__ imports on first use, for editors and type checkers (never run)
+if TYPE_CHECKING:
+    # what __getattr__ imports on first use, for editors and type checkers (never run)
     from .api import export, solve
     from .errors import ProblemError, ProblemErrors, SurestepError
     from .evaluation.tracker import SimulatedTracker
@@ -45,7 +49,8 @@ def __getattr__(name: str):
     from importlib import import_module
 
     module = import_module(f".{_EXPORTS[name]}", __name__)
-    value = globals()[name] = getattr(module, "BASE_METHODS" if name == "METHODS" else name)  # imported once
+    # imported once
+    value = globals()[name] = getattr(module, "BASE_METHODS" if name == "METHODS" else name)
     return value
 
 

@@ -10,7 +10,8 @@ from __future__ import annotations
 import re
 from typing import Any
 
-# Longest text echoed back from user input (a string value, a key, a file name) and longest whole message.
+# Longest text echoed back from user input (a string value, a key, a file name) and
+# longest whole message.
 ECHO_LIMIT = 80
 MESSAGE_LIMIT = 1000
 
@@ -18,14 +19,16 @@ _CONTROL = re.compile(r"[\x00-\x1f\x7f-\x9f\u2028\u2029]+")
 
 
 def one_line(text: Any, limit: int = MESSAGE_LIMIT) -> str:
-    """`text` on one line (control characters and line breaks as one space), cut to `limit` characters."""
+    """`text` on one line (control characters and line breaks as one space), cut to
+    `limit` characters."""
     text = _CONTROL.sub(" ", str(text)).strip()
     return text if len(text) <= limit else text[: limit - 25] + f"... ({len(text)} characters)"
 
 
 def shown(value: Any, limit: int = ECHO_LIMIT) -> str:
     """A user-given value as echoed in a message: one line, at most `limit` characters."""
-    text = value if isinstance(value, str) else str(value) if isinstance(value, BaseException) else repr(value)
+    text = (value if isinstance(value, str) else str(value) if isinstance(value, BaseException)
+            else repr(value))
     text = text.encode("unicode_escape").decode("ascii") if _CONTROL.search(text) else text
     return text if len(text) <= limit else text[: limit - 3] + "..."
 
@@ -51,11 +54,12 @@ class ProblemError(SurestepError):
 
 
 class ProblemErrors(ProblemError):
-    """Every error found in one problem (each section of a file is read even when another has an error).
+    """Every error found in one problem (each section of a file is read even when
+    another has an error).
 
-    `errors` holds them in the order of the file's sections, each a one-line ProblemError; `lines()` gives their texts, one
-    per error, as `surestep validate` and the CLI print them. `str()` stays one line (the first error, then
-    the others after it), `file` and `key` are the first error's.
+    `errors` holds them in the order of the file's sections, each a one-line ProblemError; `lines()`
+    gives their texts, one per error, as `surestep validate` and the CLI print them. `str()` stays
+    one line (the first error, then the others after it), `file` and `key` are the first error's.
     """
 
     def __init__(self, errors: list[ProblemError]):
@@ -63,7 +67,8 @@ class ProblemErrors(ProblemError):
         first = self.errors[0]
         more = len(self.errors) - 1
         rest = "; ".join(str(e) for e in self.errors[1:])
-        SurestepError.__init__(self, f"{first} (and {more} more error{'s' if more > 1 else ''}: {rest})")
+        SurestepError.__init__(self, f"{first} (and {more} more "
+                                     f"error{'s' if more > 1 else ''}: {rest})")
         self.file, self.key = first.file, first.key
 
     def lines(self) -> list[str]:
@@ -81,7 +86,8 @@ class FrameNotFound(SurestepError):
     def __init__(self, name: str, available: list[str]):
         self.name = name
         self.available = available
-        names = ", ".join(shown(a) for a in available[:40]) + (f", ... ({len(available)} in all)" if len(available) > 40 else "")
+        names = ", ".join(shown(a) for a in available[:40]) + (
+            f", ... ({len(available)} in all)" if len(available) > 40 else "")
         super().__init__(f"frame '{shown(name)}' not in the model; available frames: {names}")
 
 

@@ -1,8 +1,8 @@
 """The method names `surestep` accepts: a base method, then optional suffixes (the one registry).
 
-`methods.run_method` dispatches on these names, `plot_styles` gives every one of them a look and the CLI's
-help lists them from here, so a new method or suffix is added in one place. Kept free of the solvers
-so that the plots and the 3D scene can read it cheaply.
+`methods.run_method` dispatches on these names, `plot_styles` gives every one of them a look and the
+CLI's help lists them from here, so a new method or suffix is added in one place. Kept free of the
+solvers so that the plots and the 3D scene can read it cheaply.
 """
 
 from __future__ import annotations
@@ -12,15 +12,19 @@ from itertools import product
 from .model.belief import COMPONENTS
 
 BASE_METHODS = ("baseline", "gradient", "gradient-no-pose-loss", "ocp", "ocp-from-gradient")
-OCP_METHODS = ("ocp", "ocp-from-gradient")  # the bases the OCP solver flags (--solver, --hessian, ...) act on
-ABLATIONS = {f"-no-{c}": c for c in COMPONENTS}  # that observation component left out while planning
+# the bases the OCP solver flags (--solver, --hessian, ...) act on
+OCP_METHODS = ("ocp", "ocp-from-gradient")
+# that observation component left out while planning
+ABLATIONS = {f"-no-{c}": c for c in COMPONENTS}
 EXPECTED = "-expected"  # plan with the observation noise expected under the belief
 PREDICTED = "-predicted"  # minimise Tr(Sigma_T|T-1)
-REPLAN_METHODS = ("ocp-once", "ocp-replanned")  # written by `surestep replan`, with ocp-replan-<step>
+# written by `surestep replan`, with ocp-replan-<step>
+REPLAN_METHODS = ("ocp-once", "ocp-replanned")
 
 
 def split_name(name: str) -> tuple[str, str | None, bool, bool]:
-    """(base, ablated component or None, -expected?, -predicted?) of a method name; ValueError if unknown."""
+    """(base, ablated component or None, -expected?, -predicted?) of a method name;
+    ValueError if unknown."""
     rest = name
     predicted = rest.endswith(PREDICTED)
     rest = rest[: -len(PREDICTED)] if predicted else rest
@@ -42,4 +46,5 @@ def grammar() -> str:
 
 def all_names() -> list[str]:
     """Every name `split_name` accepts, grouped by base method."""
-    return [b + a + e + p for b, a, e, p in product(BASE_METHODS, ("", *ABLATIONS), ("", EXPECTED), ("", PREDICTED))]
+    return [b + a + e + p for b, a, e, p
+            in product(BASE_METHODS, ("", *ABLATIONS), ("", EXPECTED), ("", PREDICTED))]

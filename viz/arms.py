@@ -164,8 +164,8 @@ def animate_arm(anim: Animation, scene, robot: RobotVisual, sol: Solution, timel
 
 
 def check_urdf_file(urdf: Path, root: str, given, source: str | None = None) -> None:
-    """A one-line SurestepError unless `urdf` is a regular file of at most MAX_URDF_BYTES: a device (/dev/zero)
-    would be read until memory runs out, a pipe would block forever."""
+    """A one-line SurestepError unless `urdf` is a regular file of at most MAX_URDF_BYTES: a device
+    (/dev/zero) would be read until memory runs out, a pipe would block forever."""
     name = "robot" if root == "robot" else "ecm" if root == "ecm" else f"other_arms[{root}]"
     name = f"{shown(str(source), 200)}: {name}" if source else name
     try:

@@ -98,7 +98,8 @@ def draw_path(parent, sol: Solution, color: tuple[float, float, float],
         T = np.eye(4)
         T[:3, :3], T[:3, 3] = V, p
         e = node["ellipsoids"][str(t)]
-        mat = mg.MeshPhongMaterial(color=style.rgb_int(color), opacity=opacity_scale * ellipsoid_opacity(r.max()),
+        mat = mg.MeshPhongMaterial(color=style.rgb_int(color),
+                                   opacity=opacity_scale * ellipsoid_opacity(r.max()),
                                    depthWrite=False, side=0)
         e.set_object(mg.Ellipsoid(np.maximum(r, 1e-6).tolist()), mat)
         e.set_transform(T)

@@ -250,7 +250,8 @@ def build_scene(
 def _unpacked(obj):
     """A lowered Meshcat command with its packed float arrays (msgpack Ext) as numpy arrays."""
     if isinstance(obj, dict):
-        if obj.get("type") in ("Float32Array", "Float64Array") and isinstance(obj.get("array"), umsgpack.Ext):
+        if (obj.get("type") in ("Float32Array", "Float64Array")
+                and isinstance(obj.get("array"), umsgpack.Ext)):
             dtype = np.float32 if obj["type"] == "Float32Array" else np.float64
             return {**obj, "array": np.frombuffer(obj["array"].data, dtype=dtype)}
         return {k: _unpacked(v) for k, v in obj.items()}
@@ -260,8 +261,8 @@ def _unpacked(obj):
 
 
 def check_scene_finite(window) -> None:
-    """`files.NonFinite` naming the first scene node holding NaN or Infinity (its transform, property, object
-    or animation), so that no page or picture is written with one."""
+    """`files.NonFinite` naming the first scene node holding NaN or Infinity (its transform,
+    property, object or animation), so that no page or picture is written with one."""
     for path, commands in window.decoded.items():
         for command in commands:
             check_finite({path: _unpacked(command)}, "surestep show")

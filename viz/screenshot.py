@@ -97,7 +97,8 @@ def _page_copy(html: Path, folder: Path) -> Path:
     """Copy of a (self-contained) page in `folder` with HIDE_CONTROLS_CSS in its head."""
     text = html.read_text(encoding="utf-8")
     head = text.find("</head>")
-    text = (text[:head] + HIDE_CONTROLS_CSS + text[head:]) if head >= 0 else HIDE_CONTROLS_CSS + text
+    text = ((text[:head] + HIDE_CONTROLS_CSS + text[head:]) if head >= 0
+            else HIDE_CONTROLS_CSS + text)
     page = folder / "page.html"
     page.write_text(text, encoding="utf-8")
     return page
@@ -148,7 +149,8 @@ def screenshot_html(
                                              ignore_cleanup_errors=True) as work:
                 page = _page_copy(html, Path(work)) if hide_controls else html.resolve()
                 args = [exe, *CHROMIUM_FLAGS, f"--user-data-dir={Path(work) / 'profile'}",
-                        f"--window-size={width},{height}", f"--virtual-time-budget={int(budget_ms)}",
+                        f"--window-size={width},{height}",
+                        f"--virtual-time-budget={int(budget_ms)}",
                         f"--screenshot={tmp_png}", page.as_uri()]
                 stderr = _run(args, timeout_s)
             if stderr is None:

@@ -98,7 +98,8 @@ def tube(points: np.ndarray, radius: float, sides: int = 8) -> mg.TriangularMesh
 
 
 def ring_faces(n_rings: int, n: int) -> np.ndarray:
-    """Triangles joining consecutive rings of `n` vertices each (vertices stored ring after ring)."""
+    """Triangles joining consecutive rings of `n` vertices each (vertices stored
+    ring after ring)."""
     faces = []
     for i in range(n_rings - 1):
         for j in range(n):

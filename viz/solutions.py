@@ -98,7 +98,8 @@ def node_camera_poses(sol: Solution) -> list[np.ndarray]:
 def world_points(sol: Solution) -> np.ndarray:
     """(N, 3) tool positions in the world [m], `camera_pose_t @ p_t`, for the valid nodes."""
     C = node_camera_poses(sol)
-    pts = [C[t][:3, :3] @ np.asarray(sol["poses"][t][:3], dtype=float) + C[t][:3, 3] for t in valid_nodes(sol)]
+    pts = [C[t][:3, :3] @ np.asarray(sol["poses"][t][:3], dtype=float) + C[t][:3, 3]
+           for t in valid_nodes(sol)]
     return np.array(pts, dtype=float).reshape(-1, 3)
 
 

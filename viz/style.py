@@ -1,4 +1,5 @@
-"""Colours and sizes of the 3D scene (one place, so tests and legend agree); method colours are the PNGs'."""
+"""Colours and sizes of the 3D scene (one place, so tests and legend agree); method
+colours are the PNGs'."""
 
 from __future__ import annotations
 
@@ -35,8 +36,10 @@ TRIAD_SCALE = 0.012  # [m] axis length of the goal and camera triads
 ELLIPSOID_OPACITY = 0.3  # opacity of the 3-sigma ellipsoids up to ELLIPSOID_REF_RADIUS
 ELLIPSOID_REF_RADIUS = 0.006  # [m] larger ellipsoids get fainter (opacity ~ 1 / radius)
 ELLIPSOID_MIN_OPACITY = 0.04
-OTHER_ELLIPSOIDS = 4  # paths the arm does not follow show at most this many ellipsoids (the last among them) ...
-OTHER_ELLIPSOID_OPACITY = 0.5  # ... at this fraction of the opacity, so they do not hide the other paths
+# paths the arm does not follow show at most this many ellipsoids (the last among them) ...
+OTHER_ELLIPSOIDS = 4
+# ... at this fraction of the opacity, so they do not hide the other paths
+OTHER_ELLIPSOID_OPACITY = 0.5
 NEEDLE_TUBE_RADIUS = 0.00025  # [m] the needle is drawn 0.5 mm thick
 NEEDLE_SWEEP_DEG = 270.0  # the needle is drawn as a 3/4 circle
 CAMERA_HISTORY_OPACITY = (0.12, 0.35)  # frusta of earlier camera poses: first .. last

@@ -1,1 +1,2 @@
-"""The model: rotations, the robot's kinematics, the camera, the belief (EKF) and the motion limits."""
+"""The model: rotations, the robot's kinematics, the camera, the belief (EKF) and
+the motion limits."""

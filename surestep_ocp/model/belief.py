@@ -13,7 +13,8 @@ so no axis-angle chart enters the model; poses `(p, r)` are converted at the bou
 triangle column by column). All maps are named CasADi Functions built once; every method (OCP,
 gradient variant, baseline, rollouts) uses these.
 
-    predict:  P  = F Sigma F^T + Q (W(x_t, x_t+1) + W_q) Q^T    (W_q: the optional joint-space term, joint_noise.py)
+    predict:  P  = F Sigma F^T + Q (W(x_t, x_t+1) + W_q) Q^T
+              (W_q: the optional joint-space term, joint_noise.py)
     update:   S  = H P H^T + R V(x_t+1) R^T,  K = P H^T S^-1,  Sigma+ = sym((I - K H) P)
 """
 
@@ -27,7 +28,8 @@ import numpy as np
 
 from ..equality import ArrayEquality
 from .camera import Intrinsics
-from .lie import SMALL, np_log, np_means, np_quat_of_matrix, quat_cos_angle, quat_mul, quat_of, quat_step, quat_tangent
+from .lie import (SMALL, np_log, np_means, np_quat_of_matrix, quat_cos_angle, quat_mul, quat_of,
+                  quat_step, quat_tangent)
 
 COMPONENTS = ("depth", "fov", "orientation")
 ORIENTATION_FORMULAS = ("cosine", "geodesic")
@@ -41,11 +43,11 @@ DIAG = [k for k, (i, j) in enumerate(_TRIL) if i == j]  # positions of the diago
 _UNVECH_INDEX = np.zeros((NX, NX), int)  # (6, 6) position in vech of each entry
 for _k, (_i, _j) in enumerate(_TRIL):
     _UNVECH_INDEX[_i, _j] = _UNVECH_INDEX[_j, _i] = _k
-# The default guard g of |r| in the paper's cosine formula, cos = r.o* / (sqrt(|r|^2 + g^2) |o*|), as its square
-# [rad^2] (`NoiseParams.cosine_guard` is g [rad]). The formula is undefined at r = 0, and near it the direction of
-# r is free: an optimiser found that a rotation of 1e-4 rad about o*'s axis makes the orientation noise vanish
-# (an OCP optimum whose true trace was 16x the straight line's). With g = 0.05 rad small rotations see the full
-# orientation noise; beyond 0.5 rad the guard changes cos by < 0.5 %.
+# The default guard g of |r| in the paper's cosine formula, cos = r.o* / (sqrt(|r|^2 + g^2) |o*|),
+# as its square [rad^2] (`NoiseParams.cosine_guard` is g [rad]). The formula is undefined at r = 0,
+# and near it the direction of r is free, which an optimiser exploits to make the orientation noise
+# vanish; with the guard small rotations see the full orientation noise and larger ones nearly the
+# paper's cosine (docs/orientation.md, "The paper's cosine": the guard).
 DEFAULT_COSINE_GUARD = 0.05  # [rad]
 DEFAULT_CUT_BAND = 0.2  # [rad] (see `paper_cosine`)
 COSINE_GUARD = DEFAULT_COSINE_GUARD**2
@@ -55,10 +57,10 @@ _SHARED: dict[tuple, ca.Function] = {}
 
 
 def _shared(model, name, build) -> ca.Function:
-    """`build()` once per model constants (`BeliefModel.key`) and `name`, shared by every BeliefModel with those
-    constants (a setup's variants, e.g. the second start's diagonal model or a re-plan's Sigma_0, are new models
-    with the same Functions); models with their own maps keep theirs (keyed by the maps' id, which a collected
-    Function's successor may reuse)."""
+    """`build()` once per model constants (`BeliefModel.key`) and `name`, shared by every
+    BeliefModel with those constants (a setup's variants, e.g. the second start's diagonal model or
+    a re-plan's Sigma_0, are new models with the same Functions); models with their own maps keep
+    theirs (keyed by the maps' id, which a collected Function's successor may reuse)."""
     if not model.identity_maps:
         return build()
     key = (model.key(), name)
@@ -127,25 +129,34 @@ class NoiseParams(ArrayEquality):
     o_star: tuple[float, float, float] = (0.0, 0.0, 1.0)  # [rad] axis-angle
     components: tuple[str, ...] = COMPONENTS
     orientation_formula: str = "cosine"
-    observation_noise: str = "mean"  # mean (the paper's) | expected (under the predicted belief, section 8)
-    objective: str = "posterior"  # planners minimise Tr(Sigma_T|T) (posterior) or Tr(Sigma_T|T-1) (predicted)
-    camera_W_p0: np.ndarray = field(default_factory=lambda: 1e-3 * np.eye(NX))  # per camera move [1/m^2 scale]
+    # mean (the paper's) | expected (under the predicted belief, section 8)
+    observation_noise: str = "mean"
+    # planners minimise Tr(Sigma_T|T) (posterior) or Tr(Sigma_T|T-1) (predicted)
+    objective: str = "posterior"
+    # per camera move [1/m^2 scale]
+    camera_W_p0: np.ndarray = field(default_factory=lambda: 1e-3 * np.eye(NX))
     camera_W_o0: np.ndarray = field(default_factory=lambda: 1e-3 * np.eye(NX))
-    V_min: np.ndarray = field(default_factory=lambda: np.zeros((NX, NX)))  # observation noise floor (PSD)
-    cosine_guard: float = DEFAULT_COSINE_GUARD  # [rad] g in the cosine formula; 0: the paper's formula (r != 0)
-    cut_band: float = DEFAULT_CUT_BAND  # [rad] below pi where the cosine fades to 0 (`paper_cosine`); 0: a jump
-    # joint-space motion noise `W_q = J diag(sigma_q^2 dq^2) J^T` (joint_noise.py): sigma_q per joint [-], or None
+    # observation noise floor (PSD)
+    V_min: np.ndarray = field(default_factory=lambda: np.zeros((NX, NX)))
+    # [rad] g in the cosine formula; 0: the paper's formula (r != 0)
+    cosine_guard: float = DEFAULT_COSINE_GUARD
+    # [rad] below pi where the cosine fades to 0 (`paper_cosine`); 0: a jump
+    cut_band: float = DEFAULT_CUT_BAND
+    # joint-space motion noise `W_q = J diag(sigma_q^2 dq^2) J^T` (joint_noise.py): sigma_q per
+    # joint [-], or None
     joint_sigma: tuple[float, ...] | None = None
 
 
 def paper_cosine(Q, o_star, guard: float, band: float):
-    """The paper's `cos = r.o* / (|r| |o*|)` as a function of the rotation (CasADi), from its unit quaternion Q.
+    """The paper's `cos = r.o* / (|r| |o*|)` as a function of the rotation (CasADi), from
+    its unit quaternion Q.
 
-    The paper's formula is one of the axis-angle chart: it is evaluated on the rotation's principal vector r_p
-    (angle in [0, pi]), so both signs of Q give the same value; the guard g [rad] makes it
-    `r_p.o* / (sqrt(|r_p|^2 + g^2) |o*|)` (defined at r = 0); within `band` [rad] below pi it fades to 0 at pi
-    by a smoothstep in Q's w, where the paper's formula jumps (r_p and -r_p are the same rotation there):
-    continuous on SO(3), smooth in the joints, the paper's own value at angles up to pi - band.
+    The paper's formula is one of the axis-angle chart: it is evaluated on the rotation's principal
+    vector r_p (angle in [0, pi]), so both signs of Q give the same value; the guard g [rad] makes
+    it `r_p.o* / (sqrt(|r_p|^2 + g^2) |o*|)` (defined at r = 0); within `band` [rad] below pi it
+    fades to 0 at pi by a smoothstep in Q's w, where the paper's formula jumps (r_p and -r_p are
+    the same rotation there): continuous on SO(3), smooth in the joints, the paper's own value at
+    angles up to pi - band.
     """
     w, v = Q[0], Q[1:]
     aw, s2 = ca.fabs(w), ca.dot(v, v)
@@ -157,14 +168,16 @@ def paper_cosine(Q, o_star, guard: float, band: float):
         side = ca.if_else(ca.fabs(u) >= 1, ca.sign(u), 0.5 * (3 * u - u**3))
     else:
         side = ca.sign(w)
-    norm = ca.sqrt(ca.fmax(f**2 * s2 + guard**2, 1e-300))  # sqrt(|r_p|^2 + g^2); cos = 0 at r = 0 unguarded
+    # sqrt(|r_p|^2 + g^2); cos = 0 at r = 0 unguarded
+    norm = ca.sqrt(ca.fmax(f**2 * s2 + guard**2, 1e-300))
     return side * f * ca.dot(v, ca.DM(o_star)) / (norm * float(np.linalg.norm(o_star)))
 
 
 def _identity_jacobians() -> ca.Function:
     x0, x1 = ca.SX.sym("x0", NM), ca.SX.sym("x1", NM)
     eye = ca.SX.eye(NX)
-    return ca.Function("jacobians", [x0, x1], [eye, eye, eye, eye], ["x0", "x1"], ["F", "Q", "H", "R"])
+    return ca.Function("jacobians", [x0, x1], [eye, eye, eye, eye], ["x0", "x1"],
+                       ["F", "Q", "H", "R"])
 
 
 class BeliefModel:
@@ -174,9 +187,9 @@ class BeliefModel:
         noise: constants and options.
         camera: intrinsics (for the field-of-view term).
         components: observation components to include; defaults to `noise.components`.
-        jacobians: optional Function `(m0, m1) -> (F, Q, H, R)` of the step's two means (7 numbers each)
-            for models whose motion or observation maps (in the tangent) are not the identity (e.g. built
-            with `casadi.jacobian`).
+        jacobians: optional Function `(m0, m1) -> (F, Q, H, R)` of the step's two means (7 numbers
+            each) for models whose motion or observation maps (in the tangent) are not the identity
+            (e.g. built with `casadi.jacobian`).
     """
 
     def __init__(
@@ -191,7 +204,8 @@ class BeliefModel:
         self.components = tuple(noise.components if components is None else components)
         unknown = set(self.components) - set(COMPONENTS)
         if unknown:
-            raise ValueError(f"unknown observation components {sorted(unknown)}; allowed: {COMPONENTS}")
+            raise ValueError(f"unknown observation components {sorted(unknown)}; "
+                             f"allowed: {COMPONENTS}")
         self.identity_maps = jacobians is None
         self.jacobians = jacobians or _identity_jacobians()
 
@@ -209,13 +223,15 @@ class BeliefModel:
 
     @property
     def joint_noise(self) -> bool:
-        """Whether the motion noise has the joint-space term `J diag(sigma_q^2 dq^2) J^T` (joint_noise.py): then
-        every step also takes that matrix (vech, from the joints), and the covariance is not diagonal."""
+        """Whether the motion noise has the joint-space term `J diag(sigma_q^2 dq^2) J^T`
+        (joint_noise.py): then every step also takes that matrix (vech, from the joints), and the
+        covariance is not diagonal."""
         return self.noise.joint_sigma is not None and any(v > 0 for v in self.noise.joint_sigma)
 
     @property
     def isotropic(self) -> bool:
-        """Whether F = Q = H = R = I and every motion and observation base matrix is a multiple of I.
+        """Whether F = Q = H = R = I and every motion and observation base
+        matrix is a multiple of I.
 
         Then each step adds `w I` and observes with `v I`, which keeps the eigenvectors of the
         covariance: from any Sigma_0 the EKF runs as six scalar recursions on its eigenvalues.
@@ -232,7 +248,8 @@ class BeliefModel:
 
     @cached_property
     def constant_maps(self) -> tuple[np.ndarray, ...] | None:
-        """(F, Q, H, R) as NumPy arrays when they do not depend on the means (identity maps always), else None."""
+        """(F, Q, H, R) as NumPy arrays when they do not depend on the means (identity maps
+        always), else None."""
         if self.identity_maps:
             return tuple(np.eye(NX) for _ in range(4))
         x0, x1 = ca.SX.sym("m0", NM), ca.SX.sym("m1", NM)
@@ -243,49 +260,56 @@ class BeliefModel:
 
     @property
     def structured(self) -> bool:
-        """Whether Tr(Sigma_T) is a function S(c) of the scalar noise coefficients alone, concave and
-        nondecreasing: constant F, Q, H, R and the mean observation noise (any SPD base matrices).
+        """Whether Tr(Sigma_T) is a function S(c) of the scalar noise coefficients alone,
+        concave and nondecreasing: constant F, Q, H, R and the mean observation noise
+        (any SPD base matrices).
 
-        The posterior `P - P H^T (H P H^T + R V R^T)^-1 H P` is a Schur complement, jointly concave and
-        nondecreasing in (P, V); the predict step is affine in (Sigma, W); each noise matrix is
-        `sum_k c_k M_k` with constant M_k >= 0, and the joint-space term enters W as a matrix whose weight is
-        `dS/dW` (positive semidefinite). So the surrogate Hessian and the Newton solver apply.
+        The posterior `P - P H^T (H P H^T + R V R^T)^-1 H P` is a Schur complement, jointly concave
+        and nondecreasing in (P, V); the predict step is affine in (Sigma, W); each noise matrix is
+        `sum_k c_k M_k` with constant M_k >= 0, and the joint-space term enters W as a matrix
+        whose weight is `dS/dW` (positive semidefinite). So the surrogate Hessian and the
+        Newton solver apply.
         """
         return self.noise.observation_noise == "mean" and self.constant_maps is not None
 
     def channel_variances(self, sigma0: np.ndarray) -> np.ndarray:
-        """The six scalar recursions' initial variances: Sigma_0's diagonal, or its eigenvalues (isotropic)."""
+        """The six scalar recursions' initial variances: Sigma_0's diagonal, or its
+        eigenvalues (isotropic)."""
         sigma0 = np.asarray(sigma0, float)
         return np.diag(sigma0) if self.diagonal else np.linalg.eigvalsh(sigma0)
 
     def recursion_sigma0(self, sigma0: np.ndarray) -> np.ndarray:
-        """vech of the initial covariance as the condensed recursion takes it: the channel variances on the
-        diagonal for a scalar model, Sigma_0 itself otherwise."""
+        """vech of the initial covariance as the condensed recursion takes it: the channel variances
+        on the diagonal for a scalar model, Sigma_0 itself otherwise."""
         sigma0 = np.asarray(sigma0, float)
         return vech(np.diag(self.channel_variances(sigma0)) if self.scalar else sigma0)
 
     def key(self) -> tuple:
         """Hashable identity of the model's constants (for caching built solvers)."""
         n = self.noise
-        mats = tuple(np.asarray(getattr(n, k), float).tobytes() for k in ("W_p0", "W_o0", "V_d0", "V_f0", "V_o0",
-                                                                           "V_min", "camera_W_p0", "camera_W_o0"))
-        return (mats, n.depth_star, tuple(n.o_star), self.components, n.orientation_formula, n.observation_noise,
-                n.objective, n.cosine_guard, n.cut_band, n.joint_sigma,
+        mats = tuple(np.asarray(getattr(n, k), float).tobytes()
+                     for k in ("W_p0", "W_o0", "V_d0", "V_f0", "V_o0", "V_min", "camera_W_p0",
+                               "camera_W_o0"))
+        return (mats, n.depth_star, tuple(n.o_star), self.components, n.orientation_formula,
+                n.observation_noise, n.objective, n.cosine_guard, n.cut_band, n.joint_sigma,
                 tuple(self.camera.to_dict().items()), self.identity_maps or id(self.jacobians))
 
     def with_components(self, components: tuple[str, ...]) -> BeliefModel:
         """The same model with another set of observation components."""
-        return BeliefModel(self.noise, self.camera, components, None if self.identity_maps else self.jacobians)
+        return BeliefModel(self.noise, self.camera, components,
+                           None if self.identity_maps else self.jacobians)
 
     def evaluation_model(self) -> BeliefModel:
         """The model every plan is evaluated with: all components, the paper's (mean) noise."""
         noise = replace(self.noise, observation_noise="mean", components=COMPONENTS)
-        return BeliefModel(noise, self.camera, COMPONENTS, None if self.identity_maps else self.jacobians)
+        return BeliefModel(noise, self.camera, COMPONENTS,
+                           None if self.identity_maps else self.jacobians)
 
     # --------------------------------------------------------------- noise models
     def motion_residuals(self, x0, x1):
-        """Vectors whose squared norms are the motion coefficients of the step between the means x0 -> x1: the
-        translation and the tangent of the relative rotation (its norm is the geodesic angle)."""
+        """Vectors whose squared norms are the motion coefficients of the step between the
+        means x0 -> x1: the translation and the tangent of the relative rotation (its norm is
+        the geodesic angle)."""
         return [x1[:3] - x0[:3], quat_step(x0[3:], x1[3:])]
 
     def motion_coefficients(self, x0, x1):
@@ -298,24 +322,27 @@ class BeliefModel:
     def observation_coefficients(self, x, P=None):
         """Scalars multiplying the base matrices of the selected components (same order).
 
-        With `P` (the predicted covariance, 6x6, of the tangent error) and `noise.observation_noise ==
-        "expected"`, each term is its expectation under that error: exact for the depth term, first order for
-        the field-of-view and orientation terms (surestep_method.md, section 8), with the orientation
-        residual's Jacobian taken in the tangent (`lie.quat_tangent`).
+        With `P` (the predicted covariance, 6x6, of the tangent error) and `noise.observation_noise
+        == "expected"`, each term is its expectation under that error: exact for the depth term,
+        first order for the field-of-view and orientation terms (surestep_method.md, section 8),
+        with the orientation residual's Jacobian taken in the tangent (`lie.quat_tangent`).
         """
         expected = P is not None and self.noise.observation_noise == "expected"
         out = []
         for e, i in self.observation_residuals(x):
             c = ca.sumsqr(e)
-            if expected:  # E|e(x + d)|^2 ~ |e(x)|^2 + tr(J P J^T), exact for the (affine) depth residual
-                J = ca.jacobian(e, x[:3]) if i == 0 else ca.jacobian(e, x[3:7]) @ quat_tangent(x[3:7])
+            if expected:
+                # E|e(x + d)|^2 ~ |e(x)|^2 + tr(J P J^T), exact for the (affine) depth residual
+                J = (ca.jacobian(e, x[:3]) if i == 0
+                     else ca.jacobian(e, x[3:7]) @ quat_tangent(x[3:7]))
                 c += ca.trace(J @ P[i : i + 3, i : i + 3] @ J.T)
             out.append(c)
         return out
 
     def observation_residuals(self, x):
-        """Per selected component at the mean x, `(e, i)`: the coefficient (mean form) is `|e(x)|^2`, and `e`
-        depends on the position (i = 0) or on the orientation (i = 3, the tangent's rows) only."""
+        """Per selected component at the mean x, `(e, i)`: the coefficient (mean form) is
+        `|e(x)|^2`, and `e` depends on the position (i = 0) or on the orientation (i = 3, the
+        tangent's rows) only."""
         n = self.noise
         p, Q = x[:3], x[3:7]
         out = []
@@ -339,11 +366,14 @@ class BeliefModel:
 
     def motion_noise_expr(self, x0, x1):
         """W = ||p1 - p0||^2 W_p0 + angle(r0, r1)^2 W_o0."""
-        return sum(c * ca.DM(M) for c, M in zip(self.motion_coefficients(x0, x1), self.motion_matrices()))
+        return sum(c * ca.DM(M) for c, M in zip(self.motion_coefficients(x0, x1),
+                                                self.motion_matrices()))
 
     def observation_noise_expr(self, x, P=None):
-        """V(x) = sum of the selected depth, field-of-view and orientation terms (see coefficients)."""
-        V = ca.DM(self.noise.V_min) + (ca.SX.zeros(NX, NX) if isinstance(x, ca.SX) else ca.MX.zeros(NX, NX))
+        """V(x) = sum of the selected depth, field-of-view and orientation terms
+        (see coefficients)."""
+        V = ca.DM(self.noise.V_min) + (ca.SX.zeros(NX, NX) if isinstance(x, ca.SX)
+                                       else ca.MX.zeros(NX, NX))
         for c, M in zip(self.observation_coefficients(x, P), self.observation_matrices()):
             V += c * ca.DM(M)
         return V
@@ -351,11 +381,13 @@ class BeliefModel:
     @shared_function
     def motion_noise(self) -> ca.Function:
         x0, x1 = ca.SX.sym("x0", NM), ca.SX.sym("x1", NM)
-        return ca.Function("motion_noise", [x0, x1], [self.motion_noise_expr(x0, x1)], ["x0", "x1"], ["W"])
+        return ca.Function("motion_noise", [x0, x1], [self.motion_noise_expr(x0, x1)], ["x0", "x1"],
+                           ["W"])
 
     @shared_function
     def planning_noise(self) -> ca.Function:
-        """V used by the planner's EKF step: `(x, P_pred vech) -> V` (equals `observation_noise` in mean form)."""
+        """V used by the planner's EKF step: `(x, P_pred vech) -> V` (equals
+        `observation_noise` in mean form)."""
         x, p = ca.SX.sym("x", NM), ca.SX.sym("sigma_pred", NV)
         return ca.Function("planning_noise", [x, p], [self.observation_noise_expr(x, unvech(p))],
                            ["x", "sigma_pred"], ["V"])
@@ -367,8 +399,8 @@ class BeliefModel:
 
     # --------------------------------------------------------------- EKF
     def predict_expr(self, x0, x1, s, w=None):
-        """vech of the predicted covariance P (the prior before observing x1); `w`: vech of a further motion
-        noise of the step (the joint-space term, joint_noise.py), added to W."""
+        """vech of the predicted covariance P (the prior before observing x1); `w`: vech of a
+        further motion noise of the step (the joint-space term, joint_noise.py), added to W."""
         F, Q, _, _ = self.jacobians(x0, x1)
         W = self.motion_noise(x0, x1) if w is None else self.motion_noise(x0, x1) + unvech(w)
         return vech(F @ unvech(s) @ F.T + Q @ W @ Q.T)
@@ -380,7 +412,8 @@ class BeliefModel:
         return H @ P @ H.T + R @ self.planning_noise(x1, p) @ R.T, H
 
     def step_expr(self, x0, x1, s, w=None):
-        """vech(Sigma_t+1|t+1) from vech(Sigma_t|t) for the step x0 -> x1 (`w`: see `predict_expr`)."""
+        """vech(Sigma_t+1|t+1) from vech(Sigma_t|t) for the step x0 -> x1 (`w`:
+        see `predict_expr`)."""
         p = self.predict_expr(x0, x1, s, w)
         P = unvech(p)
         S, H = self.innovation_expr(x0, x1, p)
@@ -391,23 +424,27 @@ class BeliefModel:
     @shared_function
     def predict(self) -> ca.Function:
         x0, x1, s = ca.SX.sym("x0", NM), ca.SX.sym("x1", NM), ca.SX.sym("sigma", NV)
-        return ca.Function("predict", [x0, x1, s], [self.predict_expr(x0, x1, s)], ["x0", "x1", "sigma"], ["sigma_pred"])
+        return ca.Function("predict", [x0, x1, s], [self.predict_expr(x0, x1, s)],
+                           ["x0", "x1", "sigma"], ["sigma_pred"])
 
     @shared_function
     def step(self) -> ca.Function:
         x0, x1, s = ca.SX.sym("x0", NM), ca.SX.sym("x1", NM), ca.SX.sym("sigma", NV)
-        return ca.Function("belief_step", [x0, x1, s], [self.step_expr(x0, x1, s)], ["x0", "x1", "sigma"], ["sigma_next"])
+        return ca.Function("belief_step", [x0, x1, s], [self.step_expr(x0, x1, s)],
+                           ["x0", "x1", "sigma"], ["sigma_next"])
 
     def sigma0_vech(self) -> np.ndarray:
         return vech(np.asarray(self.noise.Sigma0, dtype=float))
 
-    def camera_change(self, x: np.ndarray, s: np.ndarray, D: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """A camera move (NumPy): `(mean, vech sigma, D) -> (mean', vech sigma')`, D (4x4) maps old to new camera
-        coordinates.
+    def camera_change(self, x: np.ndarray, s: np.ndarray,
+                      D: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """A camera move (NumPy): `(mean, vech sigma, D) -> (mean', vech sigma')`, D (4x4) maps old
+        to new camera coordinates.
 
-        The mean is re-expressed in the new camera frame (`p' = R_D p + t`, `Q' = Q_D Q`); the tangent error
-        rotates with the frame (`F = diag(R_D, R_D)`, exact for left perturbations), plus motion noise of the
-        camera's own displacement, `|t|^2 camera_W_p0 + angle(R_D)^2 camera_W_o0` (ECM cable stretch).
+        The mean is re-expressed in the new camera frame (`p' = R_D p + t`, `Q' = Q_D Q`); the
+        tangent error rotates with the frame (`F = diag(R_D, R_D)`, exact for left perturbations),
+        plus motion noise of the camera's own displacement,
+        `|t|^2 camera_W_p0 + angle(R_D)^2 camera_W_o0` (ECM cable stretch).
         """
         x, D = np.asarray(x, float).ravel(), np.asarray(D, float)
         Rd, td = D[:3, :3], D[:3, 3]
@@ -415,48 +452,57 @@ class BeliefModel:
         F = np.zeros((NX, NX))
         F[:3, :3] = F[3:, 3:] = Rd
         n = self.noise
-        W = (td @ td) * np.asarray(n.camera_W_p0, float) + float(np.linalg.norm(np_log(Rd))) ** 2 * np.asarray(n.camera_W_o0, float)
+        W = ((td @ td) * np.asarray(n.camera_W_p0, float)
+             + float(np.linalg.norm(np_log(Rd))) ** 2 * np.asarray(n.camera_W_o0, float))
         return xn, vech(F @ unvech(np.asarray(s, float).ravel()) @ F.T + W)
 
     @shared_function
     def step_pair(self) -> ca.Function:
-        """`(x0, x1, sigma, w) -> (sigma_next, sigma_pred)`: `step` and `predict` in one Function, with the step's
-        further motion noise `w` (vech; the joint-space term) as a fourth input."""
-        x0, x1, s, w = ca.SX.sym("x0", NM), ca.SX.sym("x1", NM), ca.SX.sym("sigma", NV), ca.SX.sym("w", NV)
+        """`(x0, x1, sigma, w) -> (sigma_next, sigma_pred)`: `step` and `predict` in one Function,
+        with the step's further motion noise `w` (vech; the joint-space term) as a fourth input."""
+        x0, x1, s, w = (ca.SX.sym("x0", NM), ca.SX.sym("x1", NM), ca.SX.sym("sigma", NV),
+                        ca.SX.sym("w", NV))
         return ca.Function("belief_step_pair", [x0, x1, s, w], [self.step_expr(x0, x1, s, w),
                                                                  self.predict_expr(x0, x1, s, w)])
 
     def _roll(self, T: int) -> ca.Function:
-        """`step_pair` accumulated over T steps (mapaccum: one step's code whatever T), shared like the others."""
-        return _shared(self, ("roll", T), lambda: self.step_pair.mapaccum("belief_roll", T, [2], [0]))
+        """`step_pair` accumulated over T steps (mapaccum: one step's code whatever T),
+        shared like the others."""
+        return _shared(self, ("roll", T),
+                       lambda: self.step_pair.mapaccum("belief_roll", T, [2], [0]))
 
     def propagate(self, poses: np.ndarray, changes: list | None = None,
-                  sigma0: np.ndarray | None = None, joint: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """Covariances along a trajectory of poses under maximum likelihood (`propagate_means` of their means).
+                  sigma0: np.ndarray | None = None,
+                  joint: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Covariances along a trajectory of poses under maximum likelihood
+        (`propagate_means` of their means).
 
         Args:
             poses: (T+1, 6) waypoints `(p, r)`, each in the camera frame of its own step.
             changes: optional list of T camera moves; entry t (4x4 or None) maps the camera
                 frame of step t to that of step t+1 and is applied before the step t -> t+1.
             sigma0: initial covariance (default: the model's Sigma0).
-            joint: (T, 21) vech of each step's joint-space motion noise (`Setup.joint_noises`); required
-                exactly when the model has that term, so it is never dropped silently.
+            joint: (T, 21) vech of each step's joint-space motion noise (`Setup.joint_noises`);
+                required exactly when the model has that term, so it is never dropped silently.
 
         Returns:
             (sigmas (T+1, 6, 6) posterior covariances Sigma_t|t, predicted (T, 6, 6) Sigma_t+1|t).
         """
         return self.propagate_means(np_means(poses), changes, sigma0, joint)
 
-    def propagate_means(self, poses: np.ndarray, changes: list | None = None, sigma0: np.ndarray | None = None,
+    def propagate_means(self, poses: np.ndarray, changes: list | None = None,
+                        sigma0: np.ndarray | None = None,
                         joint: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """`propagate` along (T+1, 7) means `(p, Q)`."""
         poses = np.asarray(poses, dtype=float)
         if (joint is not None) != self.joint_noise:
-            raise ValueError("propagate: the joint-space motion noise (`joint`) is given exactly when the model has it")
+            raise ValueError("propagate: the joint-space motion noise (`joint`) is given exactly "
+                             "when the model has it")
         s = self.sigma0_vech() if sigma0 is None else vech(np.asarray(sigma0, float))
         T = len(poses) - 1
         w = np.zeros((NV, T)) if joint is None else np.asarray(joint, float).T  # W + 0 is W exactly
-        if T > 0 and (changes is None or all(c is None for c in changes)):  # one call over the horizon
+        if T > 0 and (changes is None or all(c is None for c in changes)):
+            # one call over the horizon
             post, prior = (np.asarray(v) for v in self._roll(T)(poses[:-1].T, poses[1:].T, s, w))
             return np.concatenate([unvech(s)[None], unvech_many(post.T)]), unvech_many(prior.T)
         sig, pred = [unvech(s)], []

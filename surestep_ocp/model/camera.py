@@ -34,7 +34,8 @@ class Intrinsics:
     def project(self, p: np.ndarray) -> np.ndarray:
         """Pixel coordinates `(u, v)` of camera-frame points `p` (..., 3)."""
         p = np.asarray(p, dtype=float)
-        return np.stack([self.fx * p[..., 0] / p[..., 2] + self.cx, self.fy * p[..., 1] / p[..., 2] + self.cy], -1)
+        return np.stack([self.fx * p[..., 0] / p[..., 2] + self.cx,
+                         self.fy * p[..., 1] / p[..., 2] + self.cy], -1)
 
     def in_image(self, p: np.ndarray) -> bool:
         """Whether a camera-frame point projects inside the image and lies in front."""
@@ -44,4 +45,5 @@ class Intrinsics:
         return 0 <= u <= self.width and 0 <= v <= self.height
 
     def to_dict(self) -> dict:
-        return {"fx": self.fx, "fy": self.fy, "cx": self.cx, "cy": self.cy, "width": self.width, "height": self.height}
+        return {"fx": self.fx, "fy": self.fy, "cx": self.cx, "cy": self.cy, "width": self.width,
+                "height": self.height}

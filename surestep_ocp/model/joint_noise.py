@@ -1,16 +1,16 @@
 """Joint-space motion noise: cable stretch and hysteresis act on the joints, not on the tool's pose.
 
 A step from q_t to q_t+1 leaves each joint off by an independent error of standard deviation
-`sigma_j |q_t+1,j - q_t,j|` (sigma_j dimensionless: rad per rad, m per m), which the kinematics map into
-the belief's coordinates at q_t:
+`sigma_j |q_t+1,j - q_t,j|` (sigma_j dimensionless: rad per rad, m per m), which the kinematics map
+into the belief's coordinates at q_t:
 
     W_q = J(q_t) diag(sigma^2 (q_t+1 - q_t)^2) J(q_t)^T,   J = d (p, e) / d q
 
-the Jacobian in the belief's tangent (`tangent_jacobian`): the position's and the camera-frame angular
-velocity's (the left perturbation `exp(e) R` of the mean `Robot.camera_pose(q, camera)`), so the planner,
-the evaluation and the tests use one definition. The matrix is configuration-dependent and not diagonal in
-the camera frame; it is added to the paper's pose-space W in every EKF predict step
-(`BeliefModel.predict_expr`'s `w`).
+the Jacobian in the belief's tangent (`tangent_jacobian`): the position's and the camera-frame
+angular velocity's (the left perturbation `exp(e) R` of the mean `Robot.camera_pose(q, camera)`), so
+the planner, the evaluation and the tests use one definition. The matrix is configuration-dependent
+and not diagonal in the camera frame; it is added to the paper's pose-space W in every EKF predict
+step (`BeliefModel.predict_expr`'s `w`).
 """
 
 from __future__ import annotations
@@ -24,8 +24,9 @@ from .robot import CAMERA_PARAMETERS, Robot
 
 
 def tangent_jacobian(robot: Robot, q, camera):
-    """J (6 x nq SX): the mean's derivative in the tangent, `d(p, e)/dq` with `R(q + dq) = exp(J_e dq) R(q)`
-    (from the FK quaternion's derivative, `e = 4 E(Q)^T dQ`, `lie.quat_tangent`)."""
+    """J (6 x nq SX): the mean's derivative in the tangent, `d(p, e)/dq` with
+    `R(q + dq) = exp(J_e dq) R(q)` (from the FK quaternion's derivative, `e = 4 E(Q)^T dQ`,
+    `lie.quat_tangent`)."""
     m = robot.camera_pose(q, camera)
     Jm = ca.jacobian(m, q)
     return ca.vertcat(Jm[:3, :], 4 * quat_tangent(m[3:7]).T @ Jm[3:7, :])
@@ -44,17 +45,19 @@ def joint_noise_expr(robot: Robot, sigma, qa, qb, camera):
 
 
 def weight_matrix(wj):
-    """G with `<G, W> = wj . vech(W)` for symmetric W: the weights of vech, halved off the diagonal."""
+    """G with `<G, W> = wj . vech(W)` for symmetric W: the weights of vech, halved
+    off the diagonal."""
     return 0.5 * (unvech(wj) + ca.diag(ca.diag(unvech(wj))))
 
 
 def joint_noise_curvature(robot: Robot, sigma, qa, camera, wj):
-    """Curvature in (qa, qb) of the surrogate's term `wj . vech(W_q)` with J held at qa (2nq x 2nq SX).
+    """Curvature in (qa, qb) of the surrogate's term `wj . vech(W_q)` with J held
+    at qa (2nq x 2nq SX).
 
     With `G = dS/dW` (from the weights `wj` of vech: halved off the diagonal) the term is
-    `sum_k sigma_k^2 dq_k^2 J_k^T G J_k`, quadratic in each joint's step: this is its exact Hessian in qb and
-    drops only the variation of J with qa (third derivatives of the kinematics). G is positive semidefinite
-    (S is nondecreasing in W), so the block is too.
+    `sum_k sigma_k^2 dq_k^2 J_k^T G J_k`, quadratic in each joint's step: this is its exact Hessian
+    in qb and drops only the variation of J with qa (third derivatives of the kinematics). G is
+    positive semidefinite (S is nondecreasing in W), so the block is too.
     """
     nq = robot.nq
     G = weight_matrix(wj)
@@ -71,7 +74,8 @@ def joint_noise_function(robot: Robot, sigma) -> ca.Function:
     if sigma not in cache:
         qa, qb = ca.SX.sym("qa", robot.nq), ca.SX.sym("qb", robot.nq)
         cam = ca.SX.sym("camera", CAMERA_PARAMETERS)
-        cache[sigma] = ca.Function("joint_noise", [qa, qb, cam], [vech(joint_noise_expr(robot, sigma, qa, qb, cam))],
+        cache[sigma] = ca.Function("joint_noise", [qa, qb, cam],
+                                   [vech(joint_noise_expr(robot, sigma, qa, qb, cam))],
                                    ["qa", "qb", "camera"], ["w"])
     return cache[sigma]
 

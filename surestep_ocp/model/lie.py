@@ -72,7 +72,8 @@ def quat_mul(a, b):
 
 
 def quat_of(r):
-    """Unit quaternion `(w, x, y, z)` of the rotation vector `r` (CasADi), any angle (w < 0 beyond pi)."""
+    """Unit quaternion `(w, x, y, z)` of the rotation vector `r` (CasADi), any angle
+    (w < 0 beyond pi)."""
     th2 = ca.dot(r, r)
     small = th2 < SMALL
     th = ca.sqrt(ca.if_else(small, 1.0, th2))
@@ -102,26 +103,30 @@ def quat_conj(Q):
 
 
 def quat_step(Qa, Qb):
-    """Rotation vector of the relative rotation `Qa^* Qb` (from a to b in a's frame, angle in [0, pi]), CasADi:
-    the tangent residual between two orientation means; the sign of either quaternion does not matter."""
+    """Rotation vector of the relative rotation `Qa^* Qb` (from a to b in a's frame, angle in [0,
+    pi]), CasADi: the tangent residual between two orientation means; the sign of either
+    quaternion does not matter."""
     D = quat_mul(quat_conj(Qa), Qb)
     return quat_rotvec(ca.if_else(D[0] < 0, -D, D))
 
 
 def quat_cos_angle(Qa, Qb):
-    """Cosine of the geodesic angle between two rotations given as unit quaternions, `2 (Qa.Qb)^2 - 1` (CasADi)."""
+    """Cosine of the geodesic angle between two rotations given as unit quaternions,
+    `2 (Qa.Qb)^2 - 1` (CasADi)."""
     return 2 * ca.dot(Qa, Qb) ** 2 - 1
 
 
 def quat_tangent(Q):
-    """E (4x3) with `dQ = E w` for a left (camera-frame) perturbation `exp(w) Q` at w = 0 (CasADi); for a unit Q,
-    `E^T E = I / 4`, so `w = 4 E^T dQ`: the map from quaternion derivatives to tangent ones."""
+    """E (4x3) with `dQ = E w` for a left (camera-frame) perturbation `exp(w) Q` at w = 0
+    (CasADi); for a unit Q, `E^T E = I / 4`, so `w = 4 E^T dQ`: the map from quaternion
+    derivatives to tangent ones."""
     w, v = Q[0], Q[1:]
     return 0.5 * ca.vertcat(-v.T, w * ca.DM.eye(3) - skew(v))
 
 
 def pose_mean(x):
-    """The mean `(p, Q)` (7) of a pose `(p, r)` (6), CasADi: the quaternion of the rotation vector."""
+    """The mean `(p, Q)` (7) of a pose `(p, r)` (6), CasADi: the quaternion of
+    the rotation vector."""
     return ca.vertcat(x[:3], quat_of(x[3:6]))
 
 
@@ -135,15 +140,17 @@ def np_quat_of_matrix(R: np.ndarray) -> np.ndarray:
 
 
 def np_means(poses: np.ndarray) -> np.ndarray:
-    """(N, 7) means `(p, Q)` of (N, 6) poses `(p, r)`: `Q = np_quat(r)` (so a continued vector keeps its sheet)."""
+    """(N, 7) means `(p, Q)` of (N, 6) poses `(p, r)`: `Q = np_quat(r)` (so a continued vector
+    keeps its sheet)."""
     poses = np.asarray(poses, dtype=float).reshape(-1, 6)
     return np.hstack([poses[:, :3], np_quat(poses[:, 3:])])
 
 
 def np_poses(means: np.ndarray, flip_w: float = 0.9) -> np.ndarray:
-    """(N, 6) poses `(p, r)` of (N, 7) means: r the log of Q (angle in [0, 2 pi), the double cover's vector, so
-    it continues along the sheet of Q), with Q's sign flipped where w < -flip_w (near a full turn the log is
-    singular; past 2 acos(-flip_w), 5.4 rad, the other vector of the same rotation is used)."""
+    """(N, 6) poses `(p, r)` of (N, 7) means: r the log of Q (angle in [0, 2 pi), the double cover's
+    vector, so it continues along the sheet of Q), with Q's sign flipped where w < -flip_w (near a
+    full turn the log is singular; past 2 acos(-flip_w), 5.4 rad, the other vector of the same
+    rotation is used)."""
     m = np.asarray(means, dtype=float).reshape(-1, 7)
     Q = np.where((m[:, 3] < -flip_w)[:, None], -m[:, 3:], m[:, 3:])
     return np.hstack([m[:, :3], np_quat_rotvec(Q)])
@@ -163,21 +170,23 @@ def np_quat_rotvec(Q: np.ndarray) -> np.ndarray:
     Q = np.asarray(Q, dtype=float).reshape(-1, 4)
     s = np.linalg.norm(Q[:, 1:], axis=1)
     small = s < 1e-9
-    f = np.where(small, 2 / np.where(small, Q[:, 0], 1.0), 2 * np.arctan2(s, Q[:, 0]) / np.where(small, 1.0, s))
+    f = np.where(small, 2 / np.where(small, Q[:, 0], 1.0),
+                 2 * np.arctan2(s, Q[:, 0]) / np.where(small, 1.0, s))
     return f[:, None] * Q[:, 1:]
 
 
 def continued(r: np.ndarray, reference: np.ndarray) -> np.ndarray:
-    """(N, 3) rotation vectors of the rotations `exp(r_i)`, each continued to the side of `reference_i`
-    (the representative whose quaternion is nearest the reference's), e.g. a goal pose on the side of the
-    mean at its joints (`problem.setup`)."""
+    """(N, 3) rotation vectors of the rotations `exp(r_i)`, each continued to the side of
+    `reference_i` (the representative whose quaternion is nearest the reference's), e.g. a goal pose
+    on the side of the mean at its joints (`problem.setup`)."""
     Q, ref = np_quat(r), np_quat(np.broadcast_to(reference, np.shape(np.asarray(r).reshape(-1, 3))))
     return np_quat_rotvec(np.where((np.sum(Q * ref, axis=1) < 0)[:, None], -Q, Q))
 
 
 def continued_along(r: np.ndarray) -> np.ndarray:
-    """(N, 3) rotation vectors of the rotations `exp(r_i)`, continued along the sequence from `r_0` (kept):
-    each quaternion on the side of its predecessor's (steps below pi), so no vector jumps at the cut."""
+    """(N, 3) rotation vectors of the rotations `exp(r_i)`, continued along the sequence from
+    `r_0` (kept): each quaternion on the side of its predecessor's (steps below pi), so no vector
+    jumps at the cut."""
     Q = np_quat(r)
     for i in range(1, len(Q)):
         if Q[i] @ Q[i - 1] < 0:
@@ -255,11 +264,13 @@ def np_log_many(R: np.ndarray) -> np.ndarray:
     """(N, 3) axis-angle vectors of (N, 3, 3) rotations; `np_log` where the angle is near pi."""
     R = np.asarray(R, dtype=float)
     c = np.clip(0.5 * (np.trace(R, axis1=1, axis2=2) - 1), -1.0, 1.0)
-    v = 0.5 * np.stack([R[:, 2, 1] - R[:, 1, 2], R[:, 0, 2] - R[:, 2, 0], R[:, 1, 0] - R[:, 0, 1]], axis=1)
+    v = 0.5 * np.stack([R[:, 2, 1] - R[:, 1, 2], R[:, 0, 2] - R[:, 2, 0], R[:, 1, 0] - R[:, 0, 1]],
+                       axis=1)
     s = np.linalg.norm(v, axis=1)
     th = np.arctan2(s, c)
     out = np.where((s < 1e-9)[:, None], v, (th / np.where(s < 1e-9, 1.0, s))[:, None] * v)
-    for k in np.flatnonzero((s < 1e-9) & (c <= 0)):  # angle near pi: the axis from the symmetric part
+    for k in np.flatnonzero((s < 1e-9) & (c <= 0)):
+        # angle near pi: the axis from the symmetric part
         out[k] = np_log(R[k])
     return out
 

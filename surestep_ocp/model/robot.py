@@ -24,7 +24,8 @@ from scipy.optimize import least_squares
 from ..errors import FrameNotFound, UnreachablePose, UnsupportedJoint
 from .lie import np_log, np_quat_of_matrix, quat_mul, so3_exp, so3_log
 
-CAMERA_PARAMETERS = 16  # the camera parameter of `Robot.camera_pose`: vec(T_cam_base[:3, :]), then its quaternion
+# the camera parameter of `Robot.camera_pose`: vec(T_cam_base[:3, :]), then its quaternion
+CAMERA_PARAMETERS = 16
 
 
 @dataclass(frozen=True)
@@ -40,11 +41,13 @@ class _Joint:
 
 
 _IK_FUNCS: dict[tuple, ca.Function] = {}  # (urdf, mtime, frame, offset) -> IK residual Function
-_IK_MAPS: dict[tuple, dict[int, ca.Function]] = {}  # same key -> {N: the Function mapped over N targets}
+# same key -> {N: the Function mapped over N targets}
+_IK_MAPS: dict[tuple, dict[int, ca.Function]] = {}
 
 
 def _quat_of(R: np.ndarray) -> ca.DM:
-    """Quaternion `(w, x, y, z)` of a constant rotation matrix (either sign; used as a fixed factor)."""
+    """Quaternion `(w, x, y, z)` of a constant rotation matrix (either sign; used
+    as a fixed factor)."""
     return ca.DM(np_quat_of_matrix(R))
 
 
@@ -123,8 +126,10 @@ class Robot:
         self.offset = np.eye(4) if offset is None else np.asarray(offset, dtype=float)
         self.frame_id = self.frame_index(frame)
         # IK Functions are shared by every Robot of the same file, frame and offset (a new setup per
-        # problem, e.g. per evaluation instance, would otherwise rebuild them: ~7 ms each)
-        self._ik_key = (str(self.urdf.resolve()), self.urdf.stat().st_mtime_ns, frame, self.offset.tobytes())
+        # problem, e.g. per evaluation instance, would otherwise rebuild them; the cost is in
+        # docs/solve_speed.md, "Builds shared between set-ups")
+        self._ik_key = (str(self.urdf.resolve()), self.urdf.stat().st_mtime_ns, frame,
+                        self.offset.tobytes())
         self._ik_maps = _IK_MAPS.setdefault(self._ik_key, {})
 
     # ------------------------------------------------------------------ model facts
@@ -171,18 +176,20 @@ class Robot:
         return out
 
     def frame_pose(self, q: np.ndarray, frame: str | None = None) -> np.ndarray:
-        """4x4 pose of `frame` (default: the tracked object) in the URDF root frame, by Pinocchio."""
+        """4x4 pose of `frame` (default: the tracked object) in the URDF root
+        frame, by Pinocchio."""
         fid = self.frame_index(frame or self.frame)
         pin.framesForwardKinematics(self.model, self.data, self.to_pinocchio(np.asarray(q, float)))
         T = _se3(self.data.oMf[fid])
         return T if frame is not None else T @ self.offset
 
     def frame_jacobian(self, q: np.ndarray, frame: str) -> np.ndarray:
-        """6 x nq Jacobian of `frame` (Pinocchio, LOCAL_WORLD_ALIGNED): rows 0-2 map the joint rates to
-        the velocity of the frame's origin, rows 3-5 to its angular velocity, both in the root's axes;
-        one column per joint value (a continuous joint's angle rate)."""
+        """6 x nq Jacobian of `frame` (Pinocchio, LOCAL_WORLD_ALIGNED): rows 0-2 map the joint rates
+        to the velocity of the frame's origin, rows 3-5 to its angular velocity, both in the root's
+        axes; one column per joint value (a continuous joint's angle rate)."""
         fid = self.frame_index(frame)
-        return np.asarray(pin.computeFrameJacobian(self.model, self.data, self.to_pinocchio(np.asarray(q, float)),
+        return np.asarray(pin.computeFrameJacobian(self.model, self.data,
+                                                   self.to_pinocchio(np.asarray(q, float)),
                                                    fid, pin.LOCAL_WORLD_ALIGNED), dtype=float)
 
     # ------------------------------------------------------------------ symbolic FK
@@ -203,11 +210,12 @@ class Robot:
         return T if frame is not None else T @ ca.DM(self.offset)
 
     def fk_quaternion_expr(self, q: ca.SX) -> ca.SX:
-        """Unit quaternion `(w, x, y, z)` of the tracked object's orientation in the URDF root frame (CasADi).
+        """Unit quaternion `(w, x, y, z)` of the tracked object's orientation in the URDF
+        root frame (CasADi).
 
-        The product of the joints' half-angle quaternions and the constant placements' (fixed signs):
-        a smooth function of the joints whose sign is continuous along every joint path (the double
-        cover), where a quaternion taken from the rotation matrix must pick a sign.
+        The product of the joints' half-angle quaternions and the constant placements' (fixed
+        signs): a smooth function of the joints whose sign is continuous along every joint path (the
+        double cover), where a quaternion taken from the rotation matrix must pick a sign.
         """
         f = self.model.frames[self.frame_id]
         chain = []
@@ -220,8 +228,10 @@ class Robot:
             j = self._joints[jid - 1]
             Q = quat_mul(Q, _quat_of(j.placement[:3, :3]))
             if not j.prismatic:
-                Q = quat_mul(Q, ca.vertcat(ca.cos(0.5 * q[jid - 1]), ca.sin(0.5 * q[jid - 1]) * ca.DM(j.axis)))
-        return quat_mul(quat_mul(Q, _quat_of(_se3(f.placement)[:3, :3])), _quat_of(self.offset[:3, :3]))
+                Q = quat_mul(Q, ca.vertcat(ca.cos(0.5 * q[jid - 1]),
+                                           ca.sin(0.5 * q[jid - 1]) * ca.DM(j.axis)))
+        return quat_mul(quat_mul(Q, _quat_of(_se3(f.placement)[:3, :3])),
+                        _quat_of(self.offset[:3, :3]))
 
     @cached_property
     def fk_quaternion(self) -> ca.Function:
@@ -231,18 +241,19 @@ class Robot:
 
     @cached_property
     def camera_pose(self) -> ca.Function:
-        """`pose(q, camera) -> mean` (position [m], unit quaternion `(w, x, y, z)`: 7 numbers) of the tracked object
-        in the camera frame; `camera` (CAMERA_PARAMETERS) is vec of the root's 3x4 pose in the camera frame, then
-        that rotation's quaternion with the sign that makes the start's angle at most pi (`Setup.camera_parameter`).
+        """`pose(q, camera) -> mean` (position [m], unit quaternion `(w, x, y, z)`: 7 numbers) of
+        the tracked object in the camera frame; `camera` (CAMERA_PARAMETERS) is vec of the root's
+        3x4 pose in the camera frame, then that rotation's quaternion with the sign that makes the
+        start's angle at most pi (`Setup.camera_parameter`).
 
-        The quaternion is the product of the joints' half-angle quaternions (`fk_quaternion_expr`): smooth in the
-        joints, no chart (docs/orientation.md).
+        The quaternion is the product of the joints' half-angle quaternions (`fk_quaternion_expr`):
+        smooth in the joints, no chart (docs/orientation.md).
         """
         q, cam = ca.SX.sym("q", self.nq), ca.SX.sym("camera", CAMERA_PARAMETERS)
         Tcb, Tq = cam[:12].reshape((3, 4)), self.fk_expr(q)
         Q = quat_mul(cam[12:], self.fk_quaternion_expr(q))
-        return ca.Function("pose", [q, cam], [ca.vertcat(Tcb[:, :3] @ Tq[:3, 3] + Tcb[:, 3], Q)], ["q", "camera"],
-                           ["mean"])
+        return ca.Function("pose", [q, cam], [ca.vertcat(Tcb[:, :3] @ Tq[:3, 3] + Tcb[:, 3], Q)],
+                           ["q", "camera"], ["mean"])
 
     def camera_poses(self, n: int) -> ca.Function:
         """`camera_pose` mapped over n joint vectors (columns), built once per n."""
@@ -280,22 +291,26 @@ class Robot:
         return ca.Function("ik_residual", [q, Tw], [e, ca.jacobian(e, q)], ["q", "T"], ["e", "J"])
 
     def pose_error(self, q: np.ndarray, target: np.ndarray) -> tuple[float, float]:
-        """Distance [m] and angle [rad] from the tracked frame at `q` (Pinocchio) to `target` (4x4, root frame)."""
+        """Distance [m] and angle [rad] from the tracked frame at `q` (Pinocchio) to `target`
+        (4x4, root frame)."""
         Tq = self.frame_pose(q)
         return (float(np.linalg.norm(Tq[:3, 3] - target[:3, 3])),
                 float(np.linalg.norm(np_log(target[:3, :3].T @ Tq[:3, :3]))))
 
     def newton_batch(self, targets: np.ndarray, guesses: np.ndarray, iterations: int = 12):
-        """Plain Newton IK of many targets at once (one CasADi call per iteration), each from its own guess.
+        """Plain Newton IK of many targets at once (one CasADi call per iteration),
+        each from its own guess.
 
         Args:
             targets: (N, 4, 4) poses of the tracked frame in the URDF root frame.
-            guesses: (N, nq) joint vectors to start from (joints that do not move the frame are kept).
+            guesses: (N, nq) joint vectors to start from (joints that do not move
+                the frame are kept).
 
         Returns:
-            (q (N, nq), converged (N,), errors (N, 2)): converged entries are inside the joint limits
-            with a residual below 1e-13 (position [m], orientation times 0.05 m); the others are to be
-            solved otherwise. `errors`: distance [m] and angle [rad] to the target of the converged ones.
+            (q (N, nq), converged (N,), errors (N, 2)): converged entries are inside the joint
+            limits with a residual below 1e-13 (position [m], orientation times 0.05 m); the
+            others are to be solved otherwise. `errors`: distance [m] and angle [rad] to the
+            target of the converged ones.
         """
         N = len(targets)
         if N not in self._ik_maps:
@@ -304,13 +319,15 @@ class Robot:
         lo, hi = self.lower[movable], self.upper[movable]
         Q = np.array(guesses, dtype=float)
         T = np.hstack(list(targets))
-        done, alive = np.zeros(N, bool), np.all((Q[:, movable] >= lo) & (Q[:, movable] <= hi), axis=1)
+        done, alive = np.zeros(N, bool), np.all((Q[:, movable] >= lo) & (Q[:, movable] <= hi),
+                                                axis=1)
         errors = np.full((N, 2), np.inf)
         for _ in range(iterations + 1):
             E, J = (np.asarray(v) for v in f(Q.T, T))
             E, J = E.T, J.reshape(len(E), N, self.nq).transpose(1, 0, 2)[:, :, movable]
             now = alive & ~done & (np.linalg.norm(E, axis=1) < 1e-13)
-            errors[now] = np.stack([np.linalg.norm(E[now, :3], axis=1), np.linalg.norm(E[now, 3:], axis=1) / 0.05], 1)
+            errors[now] = np.stack([np.linalg.norm(E[now, :3], axis=1),
+                                    np.linalg.norm(E[now, 3:], axis=1) / 0.05], 1)
             done |= now
             active = alive & ~done
             if not active.any():
@@ -320,7 +337,8 @@ class Robot:
                 if J.shape[1] != J.shape[2]:
                     raise np.linalg.LinAlgError("not square")
                 Q[np.ix_(idx, movable)] -= np.linalg.solve(J[idx], E[idx][:, :, None])[:, :, 0]
-            except np.linalg.LinAlgError:  # a singular one, or redundant/deficient arms: least squares each
+            except np.linalg.LinAlgError:
+                # a singular one, or redundant/deficient arms: least squares each
                 for k in idx:
                     try:
                         Q[k, movable] -= np.linalg.lstsq(J[k], E[k], rcond=None)[0]
@@ -373,14 +391,15 @@ class Robot:
         rng = np.random.default_rng(seed)
         best = None
         for k in range(restarts + 1):  # q0 first, then seeded random starts
-            x0 = np.clip(np.clip(base[movable], lo_f, hi_f) if k == 0 else rng.uniform(lo_f, hi_f), lo, hi)
+            x0 = np.clip(np.clip(base[movable], lo_f, hi_f) if k == 0 else rng.uniform(lo_f, hi_f),
+                         lo, hi)
             if k == 0:  # a nearby start: plain Newton steps first
                 q_newton, ok, _ = self.newton_batch(target[None], full(x0)[None])
             if k == 0 and ok[0]:
                 x = q_newton[0, movable]
             else:
-                x = least_squares(fun, x0, jac=jac, bounds=(lo, hi), xtol=1e-15, ftol=1e-15, gtol=1e-15,
-                                  max_nfev=200).x
+                x = least_squares(fun, x0, jac=jac, bounds=(lo, hi), xtol=1e-15, ftol=1e-15,
+                                  gtol=1e-15, max_nfev=200).x
             q = full(x)
             err_p, err_r = self.pose_error(q, target)
             if best is None or err_p + 0.05 * err_r < best[1] + 0.05 * best[2]:

@@ -1,7 +1,7 @@
 """The typed record of one solver attempt, as a Solution lists them (`Solution.attempts`).
 
-Written to the solution file as a mapping under `attempts` (docs/solution_file.md); files written before the
-records were typed (the attempt's label under `hessian`, no `solver` key) are read too.
+Written to the solution file as a mapping under `attempts` (docs/solution_file.md); files written
+before the records were typed (the attempt's label under `hessian`, no `solver` key) are read too.
 """
 
 from __future__ import annotations
@@ -13,7 +13,8 @@ from dataclasses import asdict, dataclass
 class AttemptRecord:
     """One attempt of the solve strategy: which backend ran, with which Hessian, how it ended."""
 
-    label: str  # the strategy's name for it, e.g. "surrogate, monotone barrier", "newton, warm start"
+    # the strategy's name for it, e.g. "surrogate, monotone barrier", "newton, warm start"
+    label: str
     solver: str  # the backend: newton | ipopt | none (the kept initial guess)
     hessian: str | None  # exact | surrogate | gauss-newton; None for Newton and the kept guess
     status: str
@@ -32,8 +33,10 @@ class AttemptRecord:
         if "label" in d:
             return cls(**{k: d[k] for k in cls.__dataclass_fields__})
         label = str(d["hessian"])  # the untyped format: the label under "hessian"
-        solver = "none" if label.startswith("none") else "newton" if label.startswith("newton") else "ipopt"
+        solver = ("none" if label.startswith("none") else "newton" if label.startswith("newton")
+                  else "ipopt")
         first = label.split(",")[0].split(" ")[0]
         hessian = first if first in ("exact", "surrogate", "gauss-newton") else None
-        return cls(label, solver, hessian, str(d["status"]), int(d["iterations"]), float(d["solve_time_s"]),
+        return cls(label, solver, hessian, str(d["status"]), int(d["iterations"]),
+                   float(d["solve_time_s"]),
                    float(d["objective"]), bool(d["kept"]), bool(d.get("compiled", False)))

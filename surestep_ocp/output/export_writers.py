@@ -1,9 +1,10 @@
-"""Writers of an exported trajectory: CSV, JSON, the ROS 2 `trajectory_msgs/JointTrajectory` (YAML) and a ROS 2
-bag (`export_rosbag.py`); the joints named for the consumer (`joint_names.py`).
+"""Writers of an exported trajectory: CSV, JSON, the ROS 2 `trajectory_msgs/JointTrajectory` (YAML)
+and a ROS 2 bag (`export_rosbag.py`); the joints named for the consumer (`joint_names.py`).
 
 The six arm joints (every joint but `jaw` for other robots) and the jaw are separate channels.
-Files are written atomically (temporary file and rename), and never with a NaN or an Infinity in them
-(`files.check_finite` on everything each format writes: the trajectory, its limits and the metadata).
+Files are written atomically (temporary file and rename), and never with a NaN or an
+Infinity in them (`files.check_finite` on everything each format writes: the trajectory, its
+limits and the metadata).
 """
 
 from __future__ import annotations
@@ -48,15 +49,19 @@ def to_json(traj: Trajectory, meta: dict, naming: JointNaming | None = None) -> 
         "duration_s": traj.duration,
         "planned_duration_s": traj.step_s * (len(traj.waypoint_times) - 1),
         "limits": traj.limits.to_dict(),
-        "timing": traj.timing,  # "planned": the planned curve at the planned times; "toppra": retimed
+        # "planned": the planned curve at the planned times; "toppra": retimed
+        "timing": traj.timing,
         "planned_curve": traj.planned_curve,
         "limit_scales": traj.scales,
         "peak_velocity_ratio": dict(zip(traj.joint_names, traj.peak_velocity_ratio.tolist())),
-        "peak_acceleration_ratio": dict(zip(traj.joint_names, traj.peak_acceleration_ratio.tolist())),
+        "peak_acceleration_ratio": dict(zip(traj.joint_names,
+                                            traj.peak_acceleration_ratio.tolist())),
         "tool_frame": traj.tool_frame,
         "peak_tool_speed_ratio": None if traj.peak_tool_ratio is None else traj.peak_tool_ratio[0],
-        "peak_tool_rotation_ratio": None if traj.peak_tool_ratio is None else traj.peak_tool_ratio[1],
-        "waypoints": [{"index": i, "time_s": float(t), "planned_time_s": i * traj.step_s, "row": int(r)}
+        "peak_tool_rotation_ratio": (None if traj.peak_tool_ratio is None
+                                     else traj.peak_tool_ratio[1]),
+        "waypoints": [{"index": i, "time_s": float(t), "planned_time_s": i * traj.step_s,
+                       "row": int(r)}
                       for i, (t, r) in enumerate(zip(traj.waypoint_times, traj.waypoint_rows))],
         "joint_names": [names[i] for i in arm],
         "time_s": traj.times.tolist(),
@@ -66,7 +71,8 @@ def to_json(traj: Trajectory, meta: dict, naming: JointNaming | None = None) -> 
     }
     if jaw:
         j = jaw[0]
-        out["jaw"] = {"name": JAW, "positions": traj.q[:, j].tolist(), "velocities": traj.qd[:, j].tolist(),
+        out["jaw"] = {"name": JAW, "positions": traj.q[:, j].tolist(),
+                      "velocities": traj.qd[:, j].tolist(),
                       "accelerations": traj.qdd[:, j].tolist()}
     return out
 
@@ -75,8 +81,8 @@ def to_csv(traj: Trajectory, naming: JointNaming | None = None) -> str:
     arm, jaw = channels(traj)
     names = [written_names(traj, naming)[i] for i in arm]
     jn = [JAW] if jaw else []
-    header = (["time_s", "waypoint"] + names + [f"{n}_vel" for n in names] + [f"{n}_acc" for n in names]
-              + [f"{n}{s}" for n in jn for s in ("", "_vel", "_acc")])
+    header = (["time_s", "waypoint"] + names + [f"{n}_vel" for n in names]
+              + [f"{n}_acc" for n in names] + [f"{n}{s}" for n in jn for s in ("", "_vel", "_acc")])
     wp = {int(r): i for i, r in enumerate(traj.waypoint_rows)}
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
@@ -86,7 +92,8 @@ def to_csv(traj: Trajectory, naming: JointNaming | None = None) -> str:
         for M in (traj.q, traj.qd, traj.qdd):
             row += [repr(float(v)) for v in M[k, arm]]
         for j in jaw:
-            row += [repr(float(traj.q[k, j])), repr(float(traj.qd[k, j])), repr(float(traj.qdd[k, j]))]
+            row += [repr(float(traj.q[k, j])), repr(float(traj.qd[k, j])),
+                    repr(float(traj.qdd[k, j]))]
         w.writerow(row)
     return buf.getvalue()
 
@@ -100,7 +107,8 @@ def duration_msg(t: float) -> dict:
     return {"sec": sec, "nanosec": nanosec}
 
 
-def to_joint_trajectory(traj: Trajectory, idx: list[int], naming: JointNaming | None = None) -> dict:
+def to_joint_trajectory(traj: Trajectory, idx: list[int],
+                        naming: JointNaming | None = None) -> dict:
     """trajectory_msgs/JointTrajectory (ROS 2) of the joints `idx`, as a plain mapping."""
     names = written_names(traj, naming)
     return {
@@ -114,14 +122,17 @@ def to_joint_trajectory(traj: Trajectory, idx: list[int], naming: JointNaming | 
     }
 
 
-def _ros2_text(traj: Trajectory, idx: list[int], what: str, naming: JointNaming | None = None) -> str:
+def _ros2_text(traj: Trajectory, idx: list[int], what: str,
+               naming: JointNaming | None = None) -> str:
     times = ", ".join(f"{t:.6f}" for t in traj.waypoint_times)
     head = (f"# trajectory_msgs/JointTrajectory ({what}), written by surestep export\n"
-            f"# planned waypoints 0..{len(traj.waypoint_times) - 1} at time_from_start [s]: {times}\n"
+            f"# planned waypoints 0..{len(traj.waypoint_times) - 1} "
+            f"at time_from_start [s]: {times}\n"
             f"# timing: {timing_text(traj)}\n")
     if naming is not None:
         head += f"# joint names: {naming.comment()}\n"
-    return head + yaml.safe_dump(to_joint_trajectory(traj, idx, naming), sort_keys=False, default_flow_style=None)
+    return head + yaml.safe_dump(to_joint_trajectory(traj, idx, naming), sort_keys=False,
+                                 default_flow_style=None)
 
 
 def timing_text(traj: Trajectory) -> str:
@@ -132,18 +143,21 @@ def timing_text(traj: Trajectory) -> str:
 
 
 def jaw_path(output: Path) -> Path:
-    """Where the ros2 form puts the jaw's own JointTrajectory: beside the arm's, `<stem>_jaw<suffix>`."""
+    """Where the ros2 form puts the jaw's own JointTrajectory: beside the arm's,
+    `<stem>_jaw<suffix>`."""
     return output.with_name(f"{output.stem}_jaw{output.suffix}")
 
 
 def write(traj: Trajectory, fmt: str, output: Path, meta: dict, naming: JointNaming | None = None,
           **bag) -> list[Path]:
-    """Write the trajectory in `fmt` (atomically) with the joints named by `naming`; returns the files written.
-    `bag`: rosbag2's `rate_hz` and `arm` (`export_rosbag.write_bag`). Nothing is written when any number in
-    them is NaN or Infinity (`files.NonFinite`, naming the key)."""
+    """Write the trajectory in `fmt` (atomically) with the joints named by `naming`; returns the
+    files written. `bag`: rosbag2's `rate_hz` and `arm` (`export_rosbag.write_bag`). Nothing is
+    written when any number in them is NaN or Infinity (`files.NonFinite`, naming the key)."""
     check_finite({"meta": meta, "times": traj.times, "q": traj.q, "qd": traj.qd, "qdd": traj.qdd,
-                  "waypoint_times": traj.waypoint_times, "step_s": traj.step_s, "limits": traj.limits.to_dict(),
-                  "limit_scales": traj.scales, "planned_curve": traj.planned_curve, **bag}, "surestep export")
+                  "waypoint_times": traj.waypoint_times, "step_s": traj.step_s,
+                  "limits": traj.limits.to_dict(),
+                  "limit_scales": traj.scales, "planned_curve": traj.planned_curve, **bag},
+                 "surestep export")
     if fmt == "json":
         doc = to_json(traj, meta, naming)
         check_finite(doc, "surestep export")

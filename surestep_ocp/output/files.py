@@ -52,14 +52,15 @@ def _nearest_existing(folder: Path) -> Path:
     return p
 
 
-MAX_SOLUTION_BYTES = 50_000_000  # a solution file read (10,000 waypoints with their covariances: about 10 MB)
+# a solution file read (10,000 waypoints with their covariances: about 10 MB)
+MAX_SOLUTION_BYTES = 50_000_000
 MAX_URDF_BYTES = 10_000_000  # a URDF read (the dVRK's are about 20 kB; meshes are separate files)
 
 
 def input_file_problem(path: str | Path, max_bytes: int) -> str | None:
-    """Why `path` is not read as an input file, or None: it must be a regular file (a device such as /dev/zero
-    would be read until memory runs out, a pipe would block forever) of at most `max_bytes`. A missing file raises
-    OSError (the caller says what was missing)."""
+    """Why `path` is not read as an input file, or None: it must be a regular file (a device such as
+    /dev/zero would be read until memory runs out, a pipe would block forever) of at most
+    `max_bytes`. A missing file raises OSError (the caller says what was missing)."""
     st = os.stat(path)
     if not stat.S_ISREG(st.st_mode):
         return "not a regular file (a directory, device or pipe)"
@@ -69,7 +70,8 @@ def input_file_problem(path: str | Path, max_bytes: int) -> str | None:
 
 
 def _named_apart_from_inputs(path: Path, inputs: Iterable[str | Path], what: str, kind: str) -> str:
-    """`path` shown for messages, once it is a real name (not empty, `.` or `..`) and none of `inputs`."""
+    """`path` shown for messages, once it is a real name (not empty, `.` or `..`) and
+    none of `inputs`."""
     name = shown(str(path), 200)
     if str(path) == "" or path.name in ("", ".", ".."):
         raise SurestepError(f"'{name}': {what} must be a {kind} name")
@@ -80,7 +82,8 @@ def _named_apart_from_inputs(path: Path, inputs: Iterable[str | Path], what: str
     return name
 
 
-def check_output_file(path: str | Path, inputs: Iterable[str | Path] = (), what: str = "the output") -> Path:
+def check_output_file(path: str | Path, inputs: Iterable[str | Path] = (),
+                      what: str = "the output") -> Path:
     """Check, before any work, that `path` can be written whole and replaces nothing it must not.
 
     Creates the missing parent folders (so the check is the real one).
@@ -91,15 +94,16 @@ def check_output_file(path: str | Path, inputs: Iterable[str | Path] = (), what:
         try:
             mode = path.stat().st_mode
         except OSError as exc:
-            raise SurestepError(f"{name}: cannot use it as {what} ({exc.strerror or exc})") from None
+            raise SurestepError(f"{name}: cannot use it as {what} "
+                                f"({exc.strerror or exc})") from None
         if stat.S_ISDIR(mode):
             raise SurestepError(f"{name}: is a directory; {what} must be a file")
         if not stat.S_ISREG(mode):
-            raise SurestepError(f"{name}: not a regular file (a device, pipe or socket); {what} is only written "
-                                "to a new or regular file")
+            raise SurestepError(f"{name}: not a regular file (a device, pipe or socket); {what} is "
+                                "only written to a new or regular file")
         if path.is_symlink():
-            raise SurestepError(f"{name}: is a symbolic link; {what} would replace the link, not its target; "
-                                "give the target's path")
+            raise SurestepError(f"{name}: is a symbolic link; {what} would replace the link, not "
+                                "its target; give the target's path")
     parent = path.parent
     existing = _nearest_existing(parent)
     if not existing.is_dir():
@@ -113,14 +117,17 @@ def check_output_file(path: str | Path, inputs: Iterable[str | Path] = (), what:
     return path
 
 
-def check_output_dir(path: str | Path, inputs: Iterable[str | Path] = (), what: str = "the output") -> Path:
-    """Check, before any work, that `path` is (or can be created as) a writable directory; create it."""
+def check_output_dir(path: str | Path, inputs: Iterable[str | Path] = (),
+                     what: str = "the output") -> Path:
+    """Check, before any work, that `path` is (or can be created as) a writable
+    directory; create it."""
     path = Path(path)
     name = shown(str(path), 200)
     if str(path) == "":
         raise SurestepError(f"'': {what} directory must be named")
     if path.exists() and not path.is_dir():
-        raise SurestepError(f"{name}: exists and is not a directory; {what} directory must be a directory")
+        raise SurestepError(f"{name}: exists and is not a directory; {what} directory must be a "
+                            "directory")
     existing = _nearest_existing(path)
     if not existing.is_dir():
         raise SurestepError(f"{name}: {shown(str(existing), 200)} is not a directory")
@@ -130,21 +137,24 @@ def check_output_dir(path: str | Path, inputs: Iterable[str | Path] = (), what: 
     try:
         path.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
-        raise SurestepError(f"{name}: cannot create {what} directory ({exc.strerror or exc})") from None
+        raise SurestepError(f"{name}: cannot create {what} directory "
+                            f"({exc.strerror or exc})") from None
     _probe_writable(path, what)
     return path
 
 
-def check_new_dir(path: str | Path, inputs: Iterable[str | Path] = (), what: str = "the output") -> Path:
-    """Check, before any work, that `path` can become a new directory written whole (`write_dir_atomic`): missing or
-    an empty directory, never replacing files; its parent is created and must be writable."""
+def check_new_dir(path: str | Path, inputs: Iterable[str | Path] = (),
+                  what: str = "the output") -> Path:
+    """Check, before any work, that `path` can become a new directory written whole
+    (`write_dir_atomic`): missing or an empty directory, never replacing files; its parent is
+    created and must be writable."""
     path = Path(path)
     name = _named_apart_from_inputs(path, inputs, what, "directory")
     if path.is_symlink() or (path.exists() and not path.is_dir()):
         raise SurestepError(f"{name}: exists and is not a directory; {what} is a new directory")
     if path.is_dir() and any(path.iterdir()):
-        raise SurestepError(f"{name}: exists and is not empty; {what} is written to a new or empty directory "
-                            "(remove it or choose another)")
+        raise SurestepError(f"{name}: exists and is not empty; {what} is written to a new or empty "
+                            "directory (remove it or choose another)")
     existing = _nearest_existing(path.parent)
     if not existing.is_dir():
         raise SurestepError(f"{name}: {shown(str(existing), 200)} is not a directory")
@@ -159,8 +169,9 @@ def check_new_dir(path: str | Path, inputs: Iterable[str | Path] = (), what: str
 
 @contextlib.contextmanager
 def write_dir_atomic(path: Path, what: str = "the output") -> Iterator[Path]:
-    """Yield a fresh directory beside `path` to fill (named as `path`); on success it is renamed onto `path` (which
-    must be missing or empty, as `check_new_dir` checked), on any error removed: the directory whole or not at all."""
+    """Yield a fresh directory beside `path` to fill (named as `path`); on success it is renamed
+    onto `path` (which must be missing or empty, as `check_new_dir` checked), on any error removed:
+    the directory whole or not at all."""
     path = Path(path)
     tmp = Path(tempfile.mkdtemp(dir=path.parent, prefix=f".{path.name}.tmp-"))
     try:
@@ -168,24 +179,27 @@ def write_dir_atomic(path: Path, what: str = "the output") -> Iterator[Path]:
         try:
             os.rename(tmp / path.name, path)  # replaces an empty directory, never a non-empty one
         except OSError as exc:
-            raise SurestepError(f"{shown(str(path), 200)}: cannot write {what} there ({exc.strerror or exc}; "
-                                "a new or empty directory only)") from None
+            raise SurestepError(f"{shown(str(path), 200)}: cannot write {what} there "
+                                f"({exc.strerror or exc}; a new or empty directory only)") from None
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
 
 
 def check_replaceable(path: Path) -> None:
-    """Refuse to rename a file over `path` when it is a directory or not a regular file (last-moment check)."""
+    """Refuse to rename a file over `path` when it is a directory or not a regular file
+    (last-moment check)."""
     try:
         mode = os.lstat(path).st_mode
     except FileNotFoundError:
         return
     except OSError as exc:
-        raise SurestepError(f"{shown(str(path), 200)}: cannot write it ({exc.strerror or exc})") from None
+        raise SurestepError(f"{shown(str(path), 200)}: cannot write it "
+                            f"({exc.strerror or exc})") from None
     if stat.S_ISDIR(mode):
         raise SurestepError(f"{shown(str(path), 200)}: is a directory; not replaced")
     if not (stat.S_ISREG(mode) or stat.S_ISLNK(mode)):
-        raise SurestepError(f"{shown(str(path), 200)}: not a regular file (a device, pipe or socket); not replaced")
+        raise SurestepError(f"{shown(str(path), 200)}: not a regular file (a device, pipe or "
+                            "socket); not replaced")
 
 
 class NonFinite(SolverError):
@@ -193,12 +207,14 @@ class NonFinite(SolverError):
 
     def __init__(self, what: str, where: str, value: float):
         self.where = where
-        super().__init__(what, "diverged", message=f"{where} is {value} (nothing is written with a non-finite "
-                                                    "number; the inputs are likely too extreme for the model)")
+        super().__init__(what, "diverged", message=f"{where} is {value} (nothing is written with a "
+                                                    "non-finite number; the inputs are likely too "
+                                                    "extreme for the model)")
 
 
 def first_non_finite(obj: Any, path: str = "") -> tuple[str, float] | None:
-    """The key path and value of the first NaN or Infinity in a JSON-like tree (numpy arrays included)."""
+    """The key path and value of the first NaN or Infinity in a JSON-like tree (numpy
+    arrays included)."""
     stack = [(path, obj)]
     while stack:
         where, o = stack.pop()
@@ -206,7 +222,8 @@ def first_non_finite(obj: Any, path: str = "") -> tuple[str, float] | None:
             if not math.isfinite(o):
                 return where or "<value>", o
         elif isinstance(o, dict):
-            stack.extend((f"{where}.{k}" if where else str(k), v) for k, v in reversed(list(o.items())))
+            stack.extend((f"{where}.{k}" if where else str(k), v)
+                         for k, v in reversed(list(o.items())))
         elif isinstance(o, (list, tuple)):
             stack.extend((f"{where}[{i}]", v) for i, v in reversed(list(enumerate(o))))
         elif hasattr(o, "dtype") and hasattr(o, "tolist"):

@@ -3,7 +3,8 @@
 Each base method (`method_grammar.BASE_METHODS`) and each `surestep replan` name has a fixed colour
 and marker. A variant keeps its base's marker: an ablation suffix shades the colour and hollows the
 marker, `-expected` / `-predicted` shade it again and change the line style, so every accepted name
-looks unlike every other. Names outside the grammar (`ocp-replan-<step>`, hand-made files) take PALETTE in order.
+looks unlike every other. Names outside the grammar (`ocp-replan-<step>`, hand-made files)
+take PALETTE in order.
 """
 
 from __future__ import annotations
@@ -16,8 +17,9 @@ from ..method_grammar import ABLATIONS, REPLAN_METHODS, split_name
 
 @dataclass(frozen=True)
 class MethodStyle:
-    """How one method is drawn: `colour` "#rrggbb", a matplotlib `marker` and `linestyle`, line `width` and
-    marker `size` [pt] (a method that others often cover is drawn wider, so it shows around them)."""
+    """How one method is drawn: `colour` "#rrggbb", a matplotlib `marker` and `linestyle`, line
+    `width` and marker `size` [pt] (a method that others often cover is drawn wider, so it
+    shows around them)."""
 
     colour: str
     marker: str
@@ -34,16 +36,19 @@ class MethodStyle:
     def line(self, **extra) -> dict:
         """Keyword arguments for `Axes.plot` (slightly transparent, so overlapping paths show)."""
         face = self.colour if self.filled else "none"
-        return {"color": self.colour, "marker": self.marker, "linestyle": self.linestyle, "lw": self.width,
-                "ms": self.size, "markerfacecolor": face, "markeredgecolor": self.colour, "alpha": 0.85, **extra}
+        return {"color": self.colour, "marker": self.marker, "linestyle": self.linestyle,
+                "lw": self.width, "ms": self.size, "markerfacecolor": face,
+                "markeredgecolor": self.colour, "alpha": 0.85, **extra}
 
 
 BASE_STYLES: dict[str, MethodStyle] = {
     "baseline": MethodStyle("#d62728", "s"),  # red
     "gradient": MethodStyle("#ff7f0e", "^"),  # orange
     "gradient-no-pose-loss": MethodStyle("#9467bd", "v"),  # purple
-    "ocp": MethodStyle("#1f77b4", "o", width=3.2, size=8.0),  # blue, wide: ocp-from-gradient often covers it
-    "ocp-from-gradient": MethodStyle("#2ca02c", "D", "--", width=1.4, size=4.0),  # green, dashed, on top
+    # blue, wide: ocp-from-gradient often covers it
+    "ocp": MethodStyle("#1f77b4", "o", width=3.2, size=8.0),
+    # green, dashed, on top
+    "ocp-from-gradient": MethodStyle("#2ca02c", "D", "--", width=1.4, size=4.0),
 }
 REPLAN_STYLES: dict[str, MethodStyle] = dict(zip(REPLAN_METHODS, (
     MethodStyle("#8c564b", "P"),  # ocp-once, brown: planned once, executed while the camera moves
@@ -54,7 +59,8 @@ FALLBACK_MARKER = "X"
 START_COLOUR = "#000000"  # start marker (circle) in the PNGs and the 3D scene
 GOAL_COLOUR = "#d91abf"  # goal marker (star in the PNGs, sphere and triad in 3D), magenta
 
-_SHADES = dict(zip(ABLATIONS.values(), (-0.35, 0.35, 0.6)))  # darker / lighter per ablated component
+# darker / lighter per ablated component
+_SHADES = dict(zip(ABLATIONS.values(), (-0.35, 0.35, 0.6)))
 _EXPECTED_SHADE, _PREDICTED_SHADE = -0.25, 0.25
 _LINESTYLES = {(True, False): "-.", (False, True): ":", (True, True): (0, (3, 1, 1, 1, 1, 1))}
 
@@ -71,7 +77,8 @@ def _shade(colour: str, amount: float) -> str:
 
 
 def style_of(method: str, order: Sequence[str] = ()) -> MethodStyle:
-    """The style of `method`; a name outside the grammar takes PALETTE by its place among such names in `order`."""
+    """The style of `method`; a name outside the grammar takes PALETTE by its place among such
+    names in `order`."""
     if method in REPLAN_STYLES:
         return REPLAN_STYLES[method]
     try:
@@ -81,10 +88,11 @@ def style_of(method: str, order: Sequence[str] = ()) -> MethodStyle:
         return MethodStyle(PALETTE[others.index(method) % len(PALETTE)], FALLBACK_MARKER)
     s = BASE_STYLES[base]
     colour = s.colour
-    for shade, applies in ((_SHADES.get(ablated), ablated), (_EXPECTED_SHADE, expected), (_PREDICTED_SHADE, predicted)):
+    for shade, applies in ((_SHADES.get(ablated), ablated), (_EXPECTED_SHADE, expected),
+                           (_PREDICTED_SHADE, predicted)):
         colour = _shade(colour, shade) if applies else colour
-    return MethodStyle(colour, s.marker, _LINESTYLES.get((expected, predicted), s.linestyle), ablated is None,
-                       s.width, s.size)
+    return MethodStyle(colour, s.marker, _LINESTYLES.get((expected, predicted), s.linestyle),
+                       ablated is None, s.width, s.size)
 
 
 def known(method: str) -> bool:

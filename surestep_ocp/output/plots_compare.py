@@ -1,9 +1,9 @@
 """The figures of `surestep compare`: `trace.png` (the covariance along each plan) and `path.png`.
 
-Every method in its `plot_styles` look, in the given order (later on top). Methods that coincide (ocp and
-ocp-from-gradient often do) stay apart: ocp is wide with large markers, ocp-from-gradient dashed and
-thin over it, all slightly transparent. The figure builders return the matplotlib Figure, so tests can read axes
-and legends before anything is written.
+Every method in its `plot_styles` look, in the given order (later on top). Methods that coincide
+(ocp and ocp-from-gradient often do) stay apart: ocp is wide with large markers, ocp-from-gradient
+dashed and thin over it, all slightly transparent. The figure builders return the matplotlib Figure,
+so tests can read axes and legends before anything is written.
 """
 
 from __future__ import annotations
@@ -24,7 +24,8 @@ def draw_kwargs(solutions: list, k: int) -> dict:
 
 
 def trace_figure(solutions: list):
-    """Tr(Sigma_t|t) split into its position [m^2] and orientation [rad^2] blocks (log scale), one panel each."""
+    """Tr(Sigma_t|t) split into its position [m^2] and orientation [rad^2] blocks (log
+    scale), one panel each."""
     plt = pyplot()
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
     for k, s in enumerate(solutions):
@@ -41,14 +42,16 @@ def trace_figure(solutions: list):
         _step_axis(ax)
         ax.grid(True, which="both", alpha=0.3)
     axes[0].legend(fontsize=7)
-    fig.suptitle("EKF covariance after each observation; Tr(Σ_t|t) in the tables is the sum of the two panels",
+    fig.suptitle("EKF covariance after each observation; Tr(Σ_t|t) in the tables is the sum of the "
+                 "two panels",
                  fontsize=9)
     fig.tight_layout()
     return fig
 
 
 def path_figure(solutions: list):
-    """Left: the tool's image projections [px] with start, goal, image border and centre; right: depth [mm]."""
+    """Left: the tool's image projections [px] with start, goal, image border and centre;
+    right: depth [mm]."""
     plt = pyplot()
     fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(12, 4.6))
     intr = Intrinsics(**solutions[0].camera)
@@ -61,7 +64,8 @@ def path_figure(solutions: list):
         ax1.plot(uv[:, 0], uv[:, 1], **draw_kwargs(solutions, k))
         ax2.plot(range(len(P)), P[:, 2] * 1e3, **draw_kwargs(solutions, k))
     start, goal = np.asarray(solutions[0].poses[0], float), np.asarray(solutions[0].goal, float)
-    marks = {"start": {"marker": "o", "ms": 11, "mfc": "none", "mec": START_COLOUR, "mew": 1.6, "ls": "none", "zorder": 20},
+    marks = {"start": {"marker": "o", "ms": 11, "mfc": "none", "mec": START_COLOUR, "mew": 1.6,
+                       "ls": "none", "zorder": 20},
              "goal": {"marker": "*", "ms": 14, "color": GOAL_COLOUR, "ls": "none", "zorder": 20}}
     ax1.plot(*intr.project(start[:3]), label="start", **marks["start"])
     ax1.plot(*intr.project(goal[:3]), label="goal", **marks["goal"])
@@ -74,7 +78,8 @@ def path_figure(solutions: list):
     ax1.set_ylabel("image v [px] (down)")
     ax1.set_title("tool position projected into the endoscope image")
     ax1.legend(fontsize=7, loc="center left", bbox_to_anchor=(1.02, 0.5))
-    ax2.axhline(float(solutions[0].noise["depth_star"]) * 1e3, color="k", ls="--", lw=1, label="d* (ideal depth)")
+    ax2.axhline(float(solutions[0].noise["depth_star"]) * 1e3, color="k", ls="--", lw=1,
+                label="d* (ideal depth)")
     _step_axis(ax2)
     ax2.set_ylabel("depth z [mm]")
     ax2.set_title("depth along the path (camera z)")

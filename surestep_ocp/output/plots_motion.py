@@ -1,12 +1,13 @@
-"""Pictures to look at before running a robot: joints against their limits, the tool's speed over time.
+"""Pictures to look at before running a robot: joints against their limits, the
+tool's speed over time.
 
 `plot_plans` (written by `surestep compare` as `motion.png`): every method's plan at its planned
 pace (waypoint t at t * step_s), each method in its `plot_styles` look. `plot_trajectory`
 (written by `surestep export` as `<stem>_motion.png`): the exported trajectory, its waypoints
 marked. Both: one row per joint, its position against the position limits (dashed), its velocity
 and its acceleration against theirs (a plan's acceleration is the change of its step velocity at
-each waypoint, at rest before the first and after the last, as `model/limits/report.py` checks it); last row
-the tool's translation and rotation speed.
+each waypoint, at rest before the first and after the last, as `model/limits/report.py` checks it);
+last row the tool's translation and rotation speed.
 """
 
 from __future__ import annotations
@@ -52,7 +53,8 @@ def _joint_limits(urdf: str | Path, names: list[str]) -> tuple[np.ndarray, np.nd
 
 
 def _axes(plt, n: int):
-    fig, axes = plt.subplots(n + 1, 3, figsize=(14, 1.55 * (n + 1) + 0.6), sharex=True, squeeze=False)
+    fig, axes = plt.subplots(n + 1, 3, figsize=(14, 1.55 * (n + 1) + 0.6), sharex=True,
+                             squeeze=False)
     axes[-1, 2].set_axis_off()
     return fig, axes
 
@@ -64,7 +66,8 @@ def _limit_lines(ax, lo, hi):
 
 
 def plot_plans(solutions: list, urdf: str | Path, path: Path) -> Path | None:
-    """`motion.png` for `surestep compare`; uses each solution's `motion_limits` report (limits.plan_report)."""
+    """`motion.png` for `surestep compare`; uses each solution's `motion_limits` report
+    (limits.plan_report)."""
     sols = [s for s in solutions if isinstance(s.extras.get("motion_limits"), dict)
             and "velocity_ratio" in s.extras["motion_limits"]]
     if not sols:
@@ -83,20 +86,26 @@ def plot_plans(solutions: list, urdf: str | Path, path: Path) -> Path | None:
         t = dt * np.arange(len(q))
         tm = dt * (np.arange(len(q) - 1) + 0.5)
         st = styles[s.method]
-        steps = {"where": "mid", "lw": 0.5 * st.width, "color": st.colour, "linestyle": st.linestyle, "alpha": 0.85}
+        steps = {"where": "mid", "lw": 0.5 * st.width, "color": st.colour,
+                 "linestyle": st.linestyle, "alpha": 0.85}
         v = np.diff(q, axis=0) / dt
-        a = np.diff(np.vstack([np.zeros((1, v.shape[1])), v, np.zeros((1, v.shape[1]))]), axis=0) / dt  # (T+1, n)
+        # (T+1, n)
+        a = np.diff(np.vstack([np.zeros((1, v.shape[1])), v, np.zeros((1, v.shape[1]))]),
+                    axis=0) / dt
         for j in range(len(names)):
-            axes[j, 0].plot(t, q[:, j], **st.line(ms=0.5 * st.size, lw=0.5 * st.width, label=s.method))
+            axes[j, 0].plot(t, q[:, j], **st.line(ms=0.5 * st.size, lw=0.5 * st.width,
+                                                  label=s.method))
             axes[j, 1].step(tm, v[:, j], **steps)
             axes[j, 2].plot(t, a[:, j], **st.line(ms=0.4 * st.size, lw=0.5 * st.width))
         axes[-1, 0].step(tm, 1e3 * np.asarray(rep["tool_speed_per_step_m_s"]), **steps)
         axes[-1, 1].step(tm, rep["tool_rotation_per_step_rad_s"], **steps)
     lim = sols[0].extras["motion_limits"]["limits"]
-    _decorate(axes, names, lo, hi, vmax, amax, 1e3 * lim["tool_speed_m_s"], lim["tool_rotation_rad_s"])
+    _decorate(axes, names, lo, hi, vmax, amax, 1e3 * lim["tool_speed_m_s"],
+              lim["tool_rotation_rad_s"])
     axes[0, 0].legend(fontsize=6, ncol=2)
-    fig.suptitle(f"plans at their planned pace ({sols[0].extras['motion_limits']['step_s']:g} s per step): "
-                 "joints' positions, velocities and accelerations against their limits, tool speed", fontsize=9)
+    fig.suptitle(f"plans at their planned pace ({sols[0].extras['motion_limits']['step_s']:g} s "
+                 "per step): joints' positions, velocities and accelerations against their limits, "
+                 "tool speed", fontsize=9)
     fig.tight_layout()
     out = save_png(fig, path)
     plt.close(fig)
@@ -128,8 +137,10 @@ def _decorate(axes, names, lo, hi, vmax, amax, tool_mm_s, tool_rad_s):
         ax.grid(True, alpha=0.3)
 
 
-def tool_speeds(urdf: str | Path, frame: str, times: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Tool translation [m/s] and rotation [rad/s] speeds between consecutive samples (Pinocchio FK)."""
+def tool_speeds(urdf: str | Path, frame: str, times: np.ndarray,
+                q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Tool translation [m/s] and rotation [rad/s] speeds between consecutive
+    samples (Pinocchio FK)."""
     robot = Robot(urdf, frame=frame)
     T = [robot.frame_pose(qi, frame) for qi in q]
     dt = np.diff(times)
@@ -156,9 +167,11 @@ def plot_trajectory(traj, sol: dict, urdf: str | Path, path: Path) -> Path:
     axes[-1, 0].plot(tm, 1e3 * dp, lw=1, color=c)
     axes[-1, 1].plot(tm, dr, lw=1, color=c)
     lim = traj.limits
-    _decorate(axes, names, lo, hi, lim.velocity, lim.acceleration, 1e3 * lim.tool_speed, lim.tool_rotation)
-    fig.suptitle(f"{sol.get('method', 'plan')} exported: {traj.duration:.2f} s (planned "
-                 f"{traj.step_s * (len(traj.waypoint_times) - 1):.2f} s), dots: the planned waypoints", fontsize=9)
+    _decorate(axes, names, lo, hi, lim.velocity, lim.acceleration, 1e3 * lim.tool_speed,
+              lim.tool_rotation)
+    fig.suptitle(f"{sol.get('method', 'plan')} exported: {traj.duration:.2f} s "
+                 f"(planned {traj.step_s * (len(traj.waypoint_times) - 1):.2f} s), dots: the "
+                 "planned waypoints", fontsize=9)
     fig.tight_layout()
     out = save_png(fig, path)
     plt.close(fig)

@@ -43,7 +43,8 @@ class Solution:
     sigma: list[list[list[float]]]
     sigma_final: list[list[float]]
     objective: float
-    attempts: list[AttemptRecord] = field(default_factory=list)  # the solve strategy's attempts, in order
+    # the solve strategy's attempts, in order
+    attempts: list[AttemptRecord] = field(default_factory=list)
     extras: dict[str, Any] = field(default_factory=dict)  # what is specific to a method or backend
 
     # ----------------------------------------------------------- derived numbers
@@ -53,7 +54,8 @@ class Solution:
 
     @property
     def terminal_error(self) -> tuple[float, float]:
-        """Distance [m] and angle [rad] between the plan's last waypoint and the goal (first camera frame)."""
+        """Distance [m] and angle [rad] between the plan's last waypoint and the goal
+        (first camera frame)."""
         x, g = np.asarray(self.poses[-1]), np.asarray(self.goal)
         if "camera_poses" in self.extras:  # poses are in their own step's camera frame
             C = [np.asarray(c) for c in self.extras["camera_poses"]]
@@ -67,13 +69,15 @@ class Solution:
     # ----------------------------------------------------------- arrays (the public API)
     @property
     def joints(self) -> np.ndarray:
-        """(T+1, nq) joint values [rad, or m for prismatic joints] in `joint_names` order; NaN rows where a
-        pose-space waypoint has no IK solution."""
-        return np.array([[np.nan] * len(self.joint_names) if q is None else q for q in self.q], float)
+        """(T+1, nq) joint values [rad, or m for prismatic joints] in `joint_names` order; NaN rows
+        where a pose-space waypoint has no IK solution."""
+        return np.array([[np.nan] * len(self.joint_names) if q is None else q for q in self.q],
+                        float)
 
     @property
     def positions(self) -> np.ndarray:
-        """(T+1, 3) tool positions [m] in the camera frame (of each waypoint's step when the camera moves)."""
+        """(T+1, 3) tool positions [m] in the camera frame (of each waypoint's step when
+        the camera moves)."""
         return np.asarray(self.poses, float)[:, :3]
 
     @property
@@ -88,14 +92,15 @@ class Solution:
 
     @property
     def covariances(self) -> np.ndarray:
-        """(T+1, 6, 6) EKF covariances Sigma_t|t of (position [m], orientation [rad]): blocks in m^2, m rad,
-        rad^2; the evaluation's model (every observation component)."""
+        """(T+1, 6, 6) EKF covariances Sigma_t|t of (position [m], orientation [rad]): blocks in
+        m^2, m rad, rad^2; the evaluation's model (every observation component)."""
         return np.asarray(self.sigma, float)
 
     @property
     def times(self) -> np.ndarray:
         """(T+1,) time [s] of each waypoint from the start (`timing.step_s` per step)."""
-        return np.arange(self.horizon + 1) * float(self.extras.get("timing", {}).get("step_s", 0.05))
+        return np.arange(self.horizon + 1) * float(self.extras.get("timing", {}).get("step_s",
+                                                                                     0.05))
 
     def to_dict(self) -> dict:
         d = asdict(self)
@@ -104,7 +109,8 @@ class Solution:
         return d
 
     def save(self, path: str | Path) -> Path:
-        """Write the solution (atomically); NaN or Infinity anywhere in it is an error naming the key."""
+        """Write the solution (atomically); NaN or Infinity anywhere in it is an
+        error naming the key."""
         d = self.to_dict()
         check_finite(d, f"the {self.method} solution")
         return write_json_atomic(path, d)
@@ -124,15 +130,17 @@ def write_json_atomic(path: str | Path, obj: Any) -> Path:
 
 
 def write_text_atomic(path: str | Path, text: str | bytes) -> Path:
-    """Write `text` whole or not at all: a temporary file beside `path`, renamed over it. Never replaces a
-    directory, a device or another non-regular file; a file-system refusal is a one-line SurestepError."""
+    """Write `text` whole or not at all: a temporary file beside `path`, renamed over it. Never
+    replaces a directory, a device or another non-regular file; a file-system refusal is a
+    one-line SurestepError."""
     path = Path(path)
     check_replaceable(path)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     except OSError as exc:
-        raise SurestepError(f"{shown(str(path), 200)}: cannot write it ({exc.strerror or exc})") from None
+        raise SurestepError(f"{shown(str(path), 200)}: cannot write it "
+                            f"({exc.strerror or exc})") from None
     umask = os.umask(0)
     os.umask(umask)
     os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600; give the file the usual permissions
@@ -143,7 +151,8 @@ def write_text_atomic(path: str | Path, text: str | bytes) -> Path:
         os.replace(tmp, path)
     except OSError as exc:
         Path(tmp).unlink(missing_ok=True)
-        raise SurestepError(f"{shown(str(path), 200)}: cannot write it ({exc.strerror or exc})") from None
+        raise SurestepError(f"{shown(str(path), 200)}: cannot write it "
+                            f"({exc.strerror or exc})") from None
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
@@ -169,17 +178,21 @@ def _cov_json(M: np.ndarray):
 
 def noise_dict(setup: Setup) -> dict:
     n = setup.problem.noise
-    d = {k: _cov_json(getattr(n, k)) for k in ("W_p0", "W_o0", "V_d0", "V_f0", "V_o0", "V_min", "Sigma0")}
-    d.update(depth_star=n.depth_star, o_star=list(n.o_star), components=list(setup.model.components),
-             orientation_formula=n.orientation_formula, cosine_guard=n.cosine_guard, cut_band=n.cut_band)
+    d = {k: _cov_json(getattr(n, k)) for k in ("W_p0", "W_o0", "V_d0", "V_f0", "V_o0", "V_min",
+                                               "Sigma0")}
+    d.update(depth_star=n.depth_star, o_star=list(n.o_star),
+             components=list(setup.model.components),
+             orientation_formula=n.orientation_formula, cosine_guard=n.cosine_guard,
+             cut_band=n.cut_band)
     if setup.model.joint_noise:
         d["joint_motion_sigma"] = list(n.joint_sigma)
     return d
 
 
 def _principal(poses: np.ndarray) -> np.ndarray:
-    """(N, 6) poses with every rotation vector beyond pi replaced by the principal one of the same rotation (the
-    OCP's means and the setup's goal are continued vectors, docs/orientation.md); the others untouched."""
+    """(N, 6) poses with every rotation vector beyond pi replaced by the principal one of the same
+    rotation (the OCP's means and the setup's goal are continued vectors, docs/orientation.md); the
+    others untouched."""
     poses = np.array(poses, dtype=float)
     beyond = np.linalg.norm(poses[:, 3:], axis=1) > np.pi
     poses[beyond, 3:] = np_log_many(np_exp_many(poses[beyond, 3:]))
@@ -203,30 +216,35 @@ def evaluate(
 ) -> Solution:
     """The single evaluation every method goes through: the EKF with all components along `poses`.
 
-    `sigma`: the (T+1, 6, 6) covariances of that EKF along `poses` when the caller has them already (the
-    re-planning loop propagates them in one compiled call, planner.py; a fixed camera only).
+    `sigma`: the (T+1, 6, 6) covariances of that EKF along `poses` when the caller has them already
+    (the re-planning loop propagates them in one compiled call, planner.py; a fixed camera only).
     """
     poses = np.array(poses, dtype=float)
     poses = setup.in_step_frames(_principal(poses))  # planned in the first camera frame
     joint = None
-    if setup.model.joint_noise and sigma is None:  # the joint-space motion noise needs every waypoint's joints
+    if setup.model.joint_noise and sigma is None:
+        # the joint-space motion noise needs every waypoint's joints
         if any(qi is None for qi in q):
-            raise SurestepError(f"{method}: a waypoint without joints (unreachable) has no joint-space motion noise "
-                                "(noise.joint_motion_sigma)")
+            raise SurestepError(f"{method}: a waypoint without joints (unreachable) has no "
+                                "joint-space motion noise (noise.joint_motion_sigma)")
         joint = setup.joint_noises(np.asarray(q, float))
-    sig = (setup.eval_model.propagate(poses, setup.camera_changes(), joint=joint)[0] if sigma is None
+    sig = (setup.eval_model.propagate(poses, setup.camera_changes(),
+                                      joint=joint)[0] if sigma is None
            else np.asarray(sigma))
     prob = setup.problem
     noise = noise_dict(setup)
     if components is not None:
         noise["components"] = list(components)
-    robot = {"urdf": prob.robot.urdf_rel, "frame": prob.robot.frame, "base_pose": setup.robot.base_pose.tolist()}
+    robot = {"urdf": prob.robot.urdf_rel, "frame": prob.robot.frame,
+             "base_pose": setup.robot.base_pose.tolist()}
     if prob.robot.grasp is not None:
         robot["needle"] = {"radius": prob.robot.needle_radius, "grasp": prob.robot.grasp.tolist()}
     ext = dict(extras or {})
     tm = prob.timing  # the file's timing (noise's V_* are already divided by frames_per_step)
-    ext.setdefault("timing", {"step_s": tm.step_s, "tracker_hz": tm.tracker_hz, "frames_per_step": tm.frames})
-    ext.setdefault("limits", recorded_limits(setup))  # what `surestep export` honours (docs/motion_limits_and_export.md, "Export")
+    ext.setdefault("timing", {"step_s": tm.step_s, "tracker_hz": tm.tracker_hz,
+                              "frames_per_step": tm.frames})
+    # what `surestep export` honours (docs/motion_limits_and_export.md, "Export")
+    ext.setdefault("limits", recorded_limits(setup))
     arms = []
     for spec in (prob.start.relative, prob.goal.relative):
         if spec is not None:

@@ -26,8 +26,8 @@ MAX_YAML_DEPTH = 40  # nesting levels
 MAX_YAML_NODES = 100_000
 
 
-# libyaml's scanner and parser in C (faster: the fuzz tests read hundreds of files; measured in
-# commit 52c58fa); the composer stays in Python (it bounds the tree)
+# libyaml's scanner and parser in C (faster: the fuzz tests read hundreds of files; docs/cli.md,
+# "Reading problem files"); the composer stays in Python (it bounds the tree)
 try:
     from yaml._yaml import CParser as _Parser
 except ImportError:  # pragma: no cover - PyYAML without libyaml
@@ -136,16 +136,21 @@ def load_problem(path: str | Path) -> Problem:
 
 
 MINIMAL_PROBLEM = {
-    "robot": {"urdf": "robots/psm.urdf",  # the shipped dVRK PSM; its remote centre of motion in the world:
+    # the shipped dVRK PSM; its remote centre of motion in the world:
+    "robot": {"urdf": "robots/psm.urdf",
               "base_pose": {"position": [0.10, 0.0, -0.02], "minus_z_toward": [0.0, 0.0, -0.2007]}},
-    "camera": {"pose": [0.0, 0.0, -0.0507, 3.141592653589793, 0.0, 0.0],  # in the world, looking along -z
-               "intrinsics": {"fx": 769.0, "fy": 769.0, "cx": 320.0, "cy": 240.0, "width": 640, "height": 480}},
+    # in the world, looking along -z
+    "camera": {"pose": [0.0, 0.0, -0.0507, 3.141592653589793, 0.0, 0.0],
+               "intrinsics": {"fx": 769.0, "fy": 769.0, "cx": 320.0, "cy": 240.0, "width": 640,
+                              "height": 480}},
     "start": {"joints": [-0.10, 0.05, 0.23, 0.20, 0.30, -0.20, 0.0]},  # [rad; m for the insertion]
-    "goal": {"pose": [-0.040, 0.018, 0.120, 0.037, 0.219, 2.226]},  # camera frame: position [m], axis-angle [rad]
+    # camera frame: position [m], axis-angle [rad]
+    "goal": {"pose": [-0.040, 0.018, 0.120, 0.037, 0.219, 2.226]},
     "horizon": 20,
 }
-"""The smallest problem `problem_from_dict` takes (problems/README.md, "A problem built in Python"): the five
-required sections; noise, timing, limits, solver and the rest take their defaults (the paper's constants)."""
+"""The smallest problem `problem_from_dict` takes (problems/README.md, "A problem built in Python"):
+the five required sections; noise, timing, limits, solver and the rest take their defaults (the
+paper's constants)."""
 
 
 def problem_from_dict(tree: dict, path: str | Path = "<python>") -> Problem:
@@ -154,12 +159,13 @@ def problem_from_dict(tree: dict, path: str | Path = "<python>") -> Problem:
     current folder (the shipped `robots/...` from anywhere); errors name `path`, every error of the
     tree at once (`ProblemErrors` when there are several).
 
-    Required: `robot`, `camera` (what the tracker sees is the problem's point, so it has no default),
-    `start`, `goal` and `horizon`; the smallest is `MINIMAL_PROBLEM`:
+    Required: `robot`, `camera` (what the tracker sees is the problem's point, so it has no
+    default), `start`, `goal` and `horizon`; the smallest is `MINIMAL_PROBLEM`:
 
         ss.problem_from_dict({
             "robot": {"urdf": "robots/psm.urdf",
-                      "base_pose": {"position": [0.10, 0.0, -0.02], "minus_z_toward": [0.0, 0.0, -0.2007]}},
+                      "base_pose": {"position": [0.10, 0.0, -0.02],
+                                    "minus_z_toward": [0.0, 0.0, -0.2007]}},
             "camera": {"pose": [0.0, 0.0, -0.0507, 3.141592653589793, 0.0, 0.0],
                        "intrinsics": {"fx": 769.0, "fy": 769.0, "cx": 320.0, "cy": 240.0,
                                       "width": 640, "height": 480}},

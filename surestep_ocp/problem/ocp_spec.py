@@ -1,9 +1,10 @@
 """What the solvers read of a problem: `OcpSpec`, the solver-facing view of `Problem`.
 
-The solvers take a `Setup` (robot, camera, start and goal made concrete) and read the rest through `setup.ocp`:
-horizon, noise, objective weight, depth bound, motion limits, timing, solver and gradient settings, and the file
-name for messages. None of them depends on the problem file's layout; a solver's variant of a problem (a re-plan's
-horizon and Sigma_0, a method's noise model) is `Setup.with_ocp`.
+The solvers take a `Setup` (robot, camera, start and goal made concrete) and read the rest through
+`setup.ocp`: horizon, noise, objective weight, depth bound, motion limits, timing, solver and
+gradient settings, and the file name for messages. None of them depends on the problem file's
+layout; a solver's variant of a problem (a re-plan's horizon and Sigma_0, a method's noise model)
+is `Setup.with_ocp`.
 """
 
 from __future__ import annotations
@@ -33,7 +34,8 @@ class OcpSpec:
     @classmethod
     def of(cls, problem: Problem) -> OcpSpec:
         return cls(str(problem.path), problem.horizon, problem.noise, problem.objective.smoothness,
-                   problem.min_depth, problem.solver, problem.gradient, problem.limits, problem.timing)
+                   problem.min_depth, problem.solver, problem.gradient, problem.limits,
+                   problem.timing)
 
     @property
     def sigma0(self) -> np.ndarray:
@@ -41,5 +43,6 @@ class OcpSpec:
         return np.asarray(self.noise.Sigma0, float)
 
 
-# OcpSpec fields that are fields of Problem too (the others: smoothness -> objective, source -> path)
+# OcpSpec fields that are fields of Problem too (the others:
+# smoothness -> objective, source -> path)
 SAME_NAME = ("horizon", "noise", "min_depth", "solver", "gradient", "limits", "timing")

@@ -61,13 +61,15 @@ _TOP = {"name", "description", "robot", "camera", "start", "goal", "horizon", "n
 _REQUIRED_TOP = {"robot", "camera", "start", "goal", "horizon"}
 
 
-MAX_SECTION_ERRORS = 20  # errors reported per section (each found by reading it again without the last bad key)
+# errors reported per section (each found by reading it again without the last bad key)
+MAX_SECTION_ERRORS = 20
 
 
 def _key_path(key: str | None, section: str) -> list[str]:
-    """The mapping keys inside `section` of an error's key path, up to the first list index: `goal.pose.position[2]`
-    in `goal` -> [`pose`, `position`]."""
-    if not key or not (key == section or key.startswith(section + ".") or key.startswith(section + "[")):
+    """The mapping keys inside `section` of an error's key path, up to the first list index:
+    `goal.pose.position[2]` in `goal` -> [`pose`, `position`]."""
+    if not key or not (key == section or key.startswith(section + ".")
+                       or key.startswith(section + "[")):
         return []
     out = []
     for part in key[len(section):].lstrip(".").split("."):
@@ -82,9 +84,10 @@ def _key_path(key: str | None, section: str) -> list[str]:
     return out
 
 
-def _more_errors(section: str, node: Any, read, args: tuple, kwargs: dict, first: ProblemError) -> list[ProblemError]:
-    """The section's further errors: it is read again with each bad key removed, until it reads or an error repeats
-    (a key that was removed and is then missing is not another error)."""
+def _more_errors(section: str, node: Any, read, args: tuple, kwargs: dict,
+                 first: ProblemError) -> list[ProblemError]:
+    """The section's further errors: it is read again with each bad key removed, until it reads or
+    an error repeats (a key that was removed and is then missing is not another error)."""
     if not isinstance(node, Mapping):
         return []
     where = next((i for i, a in enumerate(args) if a is node), None)
@@ -122,10 +125,11 @@ def copy_tree(node: Any) -> Any:
 
 
 def parse_problem(tree: Any, path: Path) -> Problem:
-    """`tree` (a problem file's YAML) read into a Problem. Each top-level section is read even when another
-    has an error, so every error of a file is reported at once: one error is a ProblemError, several a
-    `ProblemErrors` (one line each; a section is read again without each bad key until it reads, so all its
-    errors are found; `limits`, which needs the robot's joints, is read only when the robot is right)."""
+    """`tree` (a problem file's YAML) read into a Problem. Each top-level section is read even when
+    another has an error, so every error of a file is reported at once: one error is a ProblemError,
+    several a `ProblemErrors` (one line each; a section is read again without each bad key until it
+    reads, so all its errors are found; `limits`, which needs the robot's joints, is read only when
+    the robot is right)."""
     rd = Reader(str(path))
     errors: list[ProblemError] = []
     top = _top(rd, tree, errors)
@@ -140,20 +144,25 @@ def parse_problem(tree: Any, path: Path) -> Problem:
             errors.extend(_more_errors(key, top.get(key), read, args, kwargs, exc))
             return None
 
-    robot = section("robot", _robot, rd, top.get("robot"), "robot", path, default_frame="tool", required=True)
+    robot = section("robot", _robot, rd, top.get("robot"), "robot", path, default_frame="tool",
+                    required=True)
     camera = section("camera", _camera, rd, top.get("camera"), path, required=True)
     start = section("start", _endpoint, rd, top.get("start"), "start", path, required=True)
     goal = section("goal", _endpoint, rd, top.get("goal"), "goal", path, required=True)
-    horizon = section("horizon", rd.integer, top.get("horizon"), "horizon", minimum=1, maximum=MAX_HORIZON,
-                      required=True)
+    horizon = section("horizon", rd.integer, top.get("horizon"), "horizon", minimum=1,
+                      maximum=MAX_HORIZON, required=True)
     timing = section("timing", _timing, rd, top.get("timing", {}))
-    # (a wrong timing: the noise read with one frame per step, so that its own errors are still found)
-    noise = section("noise", _noise, rd, top.get("noise", {}), frames=(timing or TimingSpec()).frames)
-    cons = section("constraints", rd.mapping, top.get("constraints", {}), "constraints", {"min_depth"})
+    # (a wrong timing: the noise read with one frame per step, so that its own
+    # errors are still found)
+    noise = section("noise", _noise, rd, top.get("noise", {}),
+                    frames=(timing or TimingSpec()).frames)
+    cons = section("constraints", rd.mapping, top.get("constraints", {}), "constraints",
+                   {"min_depth"})
     min_depth = None if cons is None else section(
-        "constraints", rd.number, cons.get("min_depth", 0.03), "constraints.min_depth", positive=True, low=1e-4,
-        high=10.0)
-    objective, covariance = section("objective", _objective, rd, top.get("objective", {})) or (None, None)
+        "constraints", rd.number, cons.get("min_depth", 0.03), "constraints.min_depth",
+        positive=True, low=1e-4, high=10.0)
+    objective, covariance = (section("objective", _objective, rd, top.get("objective", {}))
+                             or (None, None))
     solver = section("solver", _solver, rd, top.get("solver", {}))
     gradient = section("gradient", _gradient, rd, top.get("gradient", {}))
     limits = None if robot is None else section("limits", _limits, rd, top.get("limits", {}), robot)
@@ -184,15 +193,16 @@ def parse_problem(tree: Any, path: Path) -> Problem:
         limits=limits,
         source=tree,
     )
-    # the solver choices against the noise model, when the file is read (the robot's rule: build_setup)
-    resolve(problem.solver, BeliefModel(problem.noise, problem.camera.intrinsics), None, file=str(path),
-            limited=problem.limits.enforce)
+    # the solver choices against the noise model, when the file is read (the robot's
+    # rule: build_setup)
+    resolve(problem.solver, BeliefModel(problem.noise, problem.camera.intrinsics), None,
+            file=str(path), limited=problem.limits.enforce)
     return problem
 
 
 def _top(rd: Reader, tree: Any, errors: list[ProblemError]) -> dict:
-    """The top-level mapping's known keys; each unknown and each missing required key an error in `errors`
-    (not a mapping at all: raised, nothing else can be read)."""
+    """The top-level mapping's known keys; each unknown and each missing required key an error in
+    `errors` (not a mapping at all: raised, nothing else can be read)."""
     if not isinstance(tree, Mapping):
         rd.mapping(tree, "", _TOP)  # raises, naming what is expected
     errors += [rd.fail(str(k), f"unknown key; allowed keys here: {', '.join(sorted(_TOP))}")
@@ -203,8 +213,8 @@ def _top(rd: Reader, tree: Any, errors: list[ProblemError]) -> dict:
 
 def _objective(rd: Reader, node: Any) -> tuple[ObjectiveSpec, str]:
     obj = rd.mapping(node, "objective", {"smoothness", "covariance"})
-    return (ObjectiveSpec(smoothness=rd.number(obj.get("smoothness", 0.0), "objective.smoothness", nonneg=True,
-                                               high=1e6)),
+    return (ObjectiveSpec(smoothness=rd.number(obj.get("smoothness", 0.0), "objective.smoothness",
+                                               nonneg=True, high=1e6)),
             rd.string(obj.get("covariance", "posterior"), "objective.covariance", OBJECTIVES))
 
 
@@ -271,7 +281,8 @@ def _robot(rd: Reader, node: Any, key: str, path: Path, default_frame: str,
 
 def _pose(rd: Reader, node: Any, key: str) -> np.ndarray:
     """A pose: `position` plus one of `rpy`, `axis_angle`, `minus_z_toward` (a point), or a 4x4
-    `matrix`; or the list of 6 `[px, py, pz, rx, ry, rz]` (position, axis-angle) the start and goal take."""
+    `matrix`; or the list of 6 `[px, py, pz, rx, ry, rz]` (position, axis-angle) the
+    start and goal take."""
     if isinstance(node, (list, tuple)):
         p = _pose6(rd, node, key)
         T = np.eye(4)
@@ -365,11 +376,13 @@ def _endpoint(rd: Reader, node: Any, key: str, path: Path) -> EndpointSpec:
 
 
 def _pose6(rd: Reader, node: Any, key: str) -> np.ndarray:
-    """A tool pose `{position: [x, y, z], axis_angle: [rx, ry, rz]}` or the same as one list of 6 numbers."""
+    """A tool pose `{position: [x, y, z], axis_angle: [rx, ry, rz]}` or the same as one
+    list of 6 numbers."""
     if isinstance(node, (list, tuple)):
         if len(node) != 6:
-            raise rd.fail(key, f"expected 6 numbers [px, py, pz, rx, ry, rz] (position [m], axis-angle [rad]) "
-                               f"or {{position, axis_angle}}, got a list of {len(node)}")
+            raise rd.fail(key, "expected 6 numbers [px, py, pz, rx, ry, rz] (position [m], "
+                               "axis-angle [rad]) or {position, axis_angle}, got a list "
+                               f"of {len(node)}")
         return np.array([rd.number(v, f"{key}[{i}]", limit=MAX_POSITION if i < 3 else MAX_ANGLE)
                          for i, v in enumerate(node)])
     p = rd.mapping(node, key, {"position", "axis_angle"}, {"position", "axis_angle"})

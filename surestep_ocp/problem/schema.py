@@ -10,9 +10,11 @@ import numpy as np
 from ..errors import ProblemError, shown
 
 MAX_MAGNITUDE = 1e9  # any number in a problem file, unless a key states its own range
-MAX_INTEGER = 10**7  # any integer (iteration counts, image sizes), unless a key states its own maximum
+# any integer (iteration counts, image sizes), unless a key states its own maximum
+MAX_INTEGER = 10**7
 MAX_VARIANCE = 1e6  # covariance entries [m^2, rad^2, or the observation's units]
-MIN_DEFINITE_EIGENVALUE = 1e-30  # a positive definite covariance's smallest eigenvalue, and a non-zero scalar's
+# a positive definite covariance's smallest eigenvalue, and a non-zero scalar's
+MIN_DEFINITE_EIGENVALUE = 1e-30
 MAX_CONDITION = 1e12  # largest / smallest eigenvalue of a positive definite covariance
 
 
@@ -25,13 +27,16 @@ class Reader:
     def fail(self, key: str, message: str) -> ProblemError:
         return ProblemError(self.file, key, message)
 
-    def mapping(self, node: Any, key: str, allowed: set[str], required: set[str] = frozenset()) -> dict:
+    def mapping(self, node: Any, key: str, allowed: set[str],
+                required: set[str] = frozenset()) -> dict:
         """A mapping with only `allowed` keys, all `required` ones present."""
         if not isinstance(node, Mapping):
-            raise self.fail(key or "<top>", f"expected a mapping with keys {sorted(allowed)}, got {_kind(node)}")
+            raise self.fail(key or "<top>", f"expected a mapping with keys {sorted(allowed)}, "
+                                            f"got {_kind(node)}")
         unknown = sorted(set(node) - allowed, key=str)
         if unknown:
-            raise self.fail(_join(key, str(unknown[0])), f"unknown key; allowed keys here: {', '.join(sorted(allowed))}")
+            raise self.fail(_join(key, str(unknown[0])), "unknown key; allowed keys "
+                            f"here: {', '.join(sorted(allowed))}")
         missing = sorted(required - set(node))
         if missing:
             raise self.fail(_join(key, missing[0]), "missing required key")
@@ -45,13 +50,15 @@ class Reader:
         return present[0]
 
     def number(self, node: Any, key: str, positive: bool = False, nonneg: bool = False,
-               low: float | None = None, high: float | None = None, limit: float = MAX_MAGNITUDE) -> float:
-        """A finite number; `low`/`high` bound it (inclusive), `limit` its magnitude (1e9 unless said)."""
+               low: float | None = None, high: float | None = None,
+               limit: float = MAX_MAGNITUDE) -> float:
+        """A finite number; `low`/`high` bound it (inclusive), `limit` its magnitude
+        (1e9 unless said)."""
         if isinstance(node, bool) or not isinstance(node, (int, float)):
             raise self.fail(key, f"expected a number, got {_kind(node)}")
         if isinstance(node, int) and abs(node) > 10**30:
-            raise self.fail(key, f"a number of magnitude at most {limit:g} is needed, got an integer of "
-                                 f"{len(str(abs(node)))} digits")
+            raise self.fail(key, f"a number of magnitude at most {limit:g} is needed, got an "
+                                 f"integer of {len(str(abs(node)))} digits")
         value = float(node)
         if not np.isfinite(value):
             raise self.fail(key, f"expected a finite number, got {value}")
@@ -67,7 +74,8 @@ class Reader:
             raise self.fail(key, f"magnitude must be at most {limit:g}, got {value:g}")
         return value
 
-    def integer(self, node: Any, key: str, minimum: int | None = None, maximum: int | None = MAX_INTEGER) -> int:
+    def integer(self, node: Any, key: str, minimum: int | None = None,
+                maximum: int | None = MAX_INTEGER) -> int:
         if isinstance(node, bool) or not isinstance(node, int):
             raise self.fail(key, f"expected an integer, got {_kind(node)}")
         if minimum is not None and node < minimum:
@@ -80,7 +88,8 @@ class Reader:
         if not isinstance(node, str):
             raise self.fail(key, f"expected a string, got {_kind(node)}")
         if choices is not None and node not in choices:
-            raise self.fail(key, f"'{shown(node)}' is not allowed; choose one of {', '.join(choices)}")
+            raise self.fail(key, f"'{shown(node)}' is not allowed; choose one "
+                                 f"of {', '.join(choices)}")
         return node
 
     def boolean(self, node: Any, key: str) -> bool:
@@ -92,25 +101,29 @@ class Reader:
                max_length: int = 1000) -> np.ndarray:
         """A list of numbers (each of magnitude at most `limit`)."""
         if not isinstance(node, (list, tuple)):
-            raise self.fail(key, f"expected a list of {length or 'some'} numbers, got {_kind(node)}")
+            raise self.fail(key, f"expected a list of {length or 'some'} numbers, "
+                                 f"got {_kind(node)}")
         if length is not None and len(node) != length:
             raise self.fail(key, f"expected {length} numbers, got {len(node)}")
         if len(node) > max_length:
             raise self.fail(key, f"expected at most {max_length} numbers, got {len(node)}")
-        return np.array([self.number(v, f"{key}[{i}]", limit=limit) for i, v in enumerate(node)], dtype=float)
+        return np.array([self.number(v, f"{key}[{i}]", limit=limit) for i, v in enumerate(node)],
+                        dtype=float)
 
     def matrix(self, node: Any, key: str, n: int, limit: float = MAX_MAGNITUDE) -> np.ndarray:
         if not isinstance(node, (list, tuple)) or len(node) != n:
             what = f"a list of {len(node)}" if isinstance(node, (list, tuple)) else _kind(node)
             raise self.fail(key, f"expected a {n}x{n} matrix (a list of {n} rows), got {what}")
-        return np.array([self.vector(row, f"{key}[{i}]", n, limit=limit) for i, row in enumerate(node)])
+        return np.array([self.vector(row, f"{key}[{i}]", n, limit=limit)
+                         for i, row in enumerate(node)])
 
     def covariance(self, node: Any, key: str, n: int = 6, definite: bool = False) -> np.ndarray:
         """A scalar (times the identity) or an n x n symmetric positive (semi)definite matrix.
 
-        Entries are at most `MAX_VARIANCE` in magnitude; a positive definite one has every eigenvalue
-        >= `MIN_DEFINITE_EIGENVALUE` and a condition number <= `MAX_CONDITION`; a semidefinite one
-        has no eigenvalue in (0, `MIN_DEFINITE_EIGENVALUE`) relative to its largest (near-singular).
+        Entries are at most `MAX_VARIANCE` in magnitude; a positive definite one has every
+        eigenvalue >= `MIN_DEFINITE_EIGENVALUE` and a condition number <= `MAX_CONDITION`; a
+        semidefinite one has no eigenvalue in (0, `MIN_DEFINITE_EIGENVALUE`) relative to its
+        largest (near-singular).
         """
         if isinstance(node, (list, tuple)):
             M = self.matrix(node, key, n, limit=MAX_VARIANCE)
@@ -119,20 +132,23 @@ class Reader:
         else:
             s = self.number(node, key, limit=MAX_VARIANCE)
             if s != 0 and abs(s) < MIN_DEFINITE_EIGENVALUE:
-                raise self.fail(key, f"must be 0 or of magnitude >= {MIN_DEFINITE_EIGENVALUE:g}, got {s:g}")
+                raise self.fail(key, f"must be 0 or of magnitude >= {MIN_DEFINITE_EIGENVALUE:g}, "
+                                     f"got {s:g}")
             M = s * np.eye(n)
         eig = np.linalg.eigvalsh(M)
         top = float(np.abs(eig).max())
         if definite and eig.min() <= 0:
             raise self.fail(key, f"must be positive definite (smallest eigenvalue {eig.min():g})")
         if not definite and eig.min() < 0:
-            raise self.fail(key, f"must be positive semidefinite (smallest eigenvalue {eig.min():g})")
+            raise self.fail(key, "must be positive semidefinite (smallest "
+                                 f"eigenvalue {eig.min():g})")
         if definite and eig.min() < MIN_DEFINITE_EIGENVALUE:
-            raise self.fail(key, f"smallest eigenvalue {eig.min():g} is below {MIN_DEFINITE_EIGENVALUE:g}")
+            raise self.fail(key, f"smallest eigenvalue {eig.min():g} is "
+                                 f"below {MIN_DEFINITE_EIGENVALUE:g}")
         small = eig[eig > 0].min(initial=np.inf)
         if top > 0 and top / small > MAX_CONDITION:
-            raise self.fail(key, f"near-singular: condition number {top / small:.3g} above {MAX_CONDITION:g} "
-                                 f"(eigenvalues {small:g} to {top:g}); "
+            raise self.fail(key, f"near-singular: condition number {top / small:.3g} "
+                                 f"above {MAX_CONDITION:g} (eigenvalues {small:g} to {top:g}); "
                                  + ("make it better conditioned" if definite else
                                     "make the small eigenvalues exactly 0 or larger"))
         return M

@@ -169,10 +169,11 @@ class ObjectiveSpec:
 
 @dataclass(frozen=True, eq=False)
 class Problem(ArrayEquality):
-    """A validated problem file (`load_problem`, `problem_from_dict`; changed copies by the `with_*` methods).
+    """A validated problem file (`load_problem`, `problem_from_dict`; changed copies by
+    the `with_*` methods).
 
-    Problems compare equal (`==`) when every field does, arrays by value; where it was read from (`source`,
-    the YAML tree) is not compared."""
+    Problems compare equal (`==`) when every field does, arrays by value; where it was read from
+    (`source`, the YAML tree) is not compared."""
 
     name: str
     path: Path
@@ -194,27 +195,31 @@ class Problem(ArrayEquality):
     # Changed copies (the Python API). Each edits the tree the problem was read from and reads it
     # again with the file's own checks, so a bad value is a ProblemError naming the file and the key
     # (e.g. `goal.pose.position`).
-    def with_start(self, *, pose=None, joints=None, position=None, axis_angle=None, **unknown) -> Problem:
-        """Start at a tool pose (camera frame: position [m], axis-angle [rad]) or at `joints` [rad; m for
-        the insertion]. The pose in any of the file's forms: `pose=[px, py, pz, rx, ry, rz]`,
+    def with_start(self, *, pose=None, joints=None, position=None, axis_angle=None,
+                   **unknown) -> Problem:
+        """Start at a tool pose (camera frame: position [m], axis-angle [rad]) or at `joints` [rad;
+        m for the insertion]. The pose in any of the file's forms: `pose=[px, py, pz, rx, ry, rz]`,
         `pose={"position": [...], "axis_angle": [...]}`, or `position=[...], axis_angle=[...]`."""
-        return self.with_sections(start=self._endpoint_tree("start", pose, joints, position, axis_angle, unknown))
+        return self.with_sections(start=self._endpoint_tree("start", pose, joints, position,
+                                                            axis_angle, unknown))
 
-    def with_goal(self, *, pose=None, joints=None, position=None, axis_angle=None, **unknown) -> Problem:
-        """Goal at a tool pose (camera frame: position [m], axis-angle [rad]) or at `joints`. The pose in any
-        of the file's forms: `pose=[px, py, pz, rx, ry, rz]`, `pose={"position": [...], "axis_angle": [...]}`,
-        or `position=[...], axis_angle=[...]`.
+    def with_goal(self, *, pose=None, joints=None, position=None, axis_angle=None,
+                  **unknown) -> Problem:
+        """Goal at a tool pose (camera frame: position [m], axis-angle [rad]) or at `joints`. The
+        pose in any of the file's forms: `pose=[px, py, pz, rx, ry, rz]`,
+        `pose={"position": [...], "axis_angle": [...]}`, or `position=[...], axis_angle=[...]`.
 
             problem.with_goal(pose=[0.035, -0.01, 0.11, 0.6, 0.1, 1.4])
             problem.with_goal(position=[0.035, -0.01, 0.11], axis_angle=[0.6, 0.1, 1.4])
         """
-        return self.with_sections(goal=self._endpoint_tree("goal", pose, joints, position, axis_angle, unknown))
+        return self.with_sections(goal=self._endpoint_tree("goal", pose, joints, position,
+                                                           axis_angle, unknown))
 
     def with_camera_pose(self, matrix) -> Problem:
-        """The camera fixed at `matrix` (camera in world, position [m]; OpenCV axes: z forward), in place of
-        the ECM: a 4x4 matrix, or a pose in the file's forms (`[px, py, pz, rx, ry, rz]`, `{position,
-        axis_angle}`, `{position, rpy}`, ...). A goal given in the camera frame stays there (it moves with the
-        camera)."""
+        """The camera fixed at `matrix` (camera in world, position [m]; OpenCV axes: z forward), in
+        place of the ECM: a 4x4 matrix, or a pose in the file's forms (`[px, py, pz, rx, ry, rz]`,
+        `{position, axis_angle}`, `{position, rpy}`, ...). A goal given in the camera frame stays
+        there (it moves with the camera)."""
         camera = {k: v for k, v in self._tree().get("camera", {}).items()
                   if k not in ("pose", "ecm")}
         pose = plain_tree(matrix)
@@ -253,37 +258,41 @@ class Problem(ArrayEquality):
         return self.source
 
     def _endpoint_tree(self, key: str, pose, joints, position, axis_angle, unknown: dict) -> dict:
-        """A `start:` / `goal:` section: a pose (a list of 6, a mapping, or `position` and `axis_angle`) or
-        joint values (the reader checks the values and says what is wrong)."""
+        """A `start:` / `goal:` section: a pose (a list of 6, a mapping, or `position` and
+        `axis_angle`) or joint values (the reader checks the values and says what is wrong)."""
         if unknown:
-            raise TypeError(f"with_{key}() got an unexpected keyword argument '{sorted(unknown)[0]}'; "
-                            "valid keywords: pose, joints, position, axis_angle")
+            raise TypeError(f"with_{key}() got an unexpected keyword argument "
+                            f"'{sorted(unknown)[0]}'; valid keywords: pose, joints, position, "
+                            "axis_angle")
         pose, position, axis_angle = plain_tree(pose), plain_tree(position), plain_tree(axis_angle)
         if position is not None or axis_angle is not None:
             if pose is not None:
                 raise TypeError(f"with_{key}(): give pose= or position= and axis_angle=, not both")
             if position is None or axis_angle is None:
-                raise TypeError(f"with_{key}(): position= and axis_angle= go together (or pose=[px, py, pz, rx, "
-                                "ry, rz])")
+                raise TypeError(f"with_{key}(): position= and axis_angle= go together (or "
+                                "pose=[px, py, pz, rx, ry, rz])")
             pose = {"position": position, "axis_angle": axis_angle}
         given = [name for name, v in (("pose", pose), ("joints", joints)) if v is not None]
         if len(given) != 1:
-            raise TypeError(f"with_{key}(): give exactly one of pose= (or position= and axis_angle=) and joints=, "
-                            f"got {' and '.join(given) or 'none'}")
-        if isinstance(pose, list) and len(pose) == 6:  # (as the mapping: an error names goal.pose.position[2])
+            raise TypeError(f"with_{key}(): give exactly one of pose= (or position= and "
+                            f"axis_angle=) and joints=, got {' and '.join(given) or 'none'}")
+        if isinstance(pose, list) and len(pose) == 6:
+            # (as the mapping: an error names goal.pose.position[2])
             pose = {"position": pose[:3], "axis_angle": pose[3:]}
         return {"joints": joints} if joints is not None else {"pose": pose}
 
 
-MAX_TREE_DEPTH = 40  # nesting levels of a value given in Python (as the YAML reader's MAX_YAML_DEPTH)
+# nesting levels of a value given in Python (as the YAML reader's MAX_YAML_DEPTH)
+MAX_TREE_DEPTH = 40
 
 
 def plain_tree(value: Any, depth: int = 0) -> Any:
-    """NumPy arrays and scalars as the lists and numbers a YAML file gives; a value nested deeper than
-    MAX_TREE_DEPTH (or one that contains itself) is a ProblemError, not a RecursionError."""
+    """NumPy arrays and scalars as the lists and numbers a YAML file gives; a value nested deeper
+    than MAX_TREE_DEPTH (or one that contains itself) is a ProblemError, not a RecursionError."""
     if depth > MAX_TREE_DEPTH:
-        raise ProblemError(None, None, f"a value nested deeper than {MAX_TREE_DEPTH} levels (or one that contains "
-                                       "itself); give numbers, lists of numbers or mappings of them")
+        raise ProblemError(None, None, f"a value nested deeper than {MAX_TREE_DEPTH} levels (or "
+                                       "one that contains itself); give numbers, lists of numbers "
+                                       "or mappings of them")
     if isinstance(value, dict):
         return {k: plain_tree(v, depth + 1) for k, v in value.items()}
     if isinstance(value, (list, tuple)):
