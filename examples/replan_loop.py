@@ -1,10 +1,12 @@
-"""Re-plan at tracker rate within the dVRK's motion limits: a Planner against a simulated 20 Hz tracker.
+"""Re-plan at tracker rate within the dVRK's motion limits: a Planner against a simulated 20 Hz
+tracker.
 
-At each frame the robot has played the current plan's curve up to the next waypoint, the tracker reports the
-tool's mean and covariance, and the planner plans the rest of the way from the robot's moving state (joints,
-velocities, accelerations), within every limit, warm-started from the previous plan (no solver built in the loop).
+At each frame the robot has played the current plan's curve up to the next waypoint, the tracker
+reports the tool's mean and covariance, and the planner plans the rest of the way from the robot's
+moving state (joints, velocities, accelerations), within every limit, warm-started from the previous
+plan (no solver built in the loop).
 
-    .venv/bin/python examples/replan_loop.py [--problem problems/needle_regrasp.yaml] [--seed 0] [--interpreted]
+    .venv/bin/python examples/replan_loop.py [--problem FILE] [--seed 0] [--interpreted]
 """
 
 import argparse
@@ -39,5 +41,6 @@ while k + 1 < planner.horizon:
 tracker.move_to(planner.plan.poses[-1])
 error = np.linalg.norm(tracker.true_pose[:3] - planner.plan.positions[-1]) * 1e3
 print(f"re-plan median {np.median(times) * 1e3:.1f} ms, worst {max(times) * 1e3:.1f} ms; goal "
-      f"reached at step {planner.horizon} ({planner.horizon - planner.setup.ocp.horizon} later than "
-      f"planned); final position error {error:.2f} mm")
+      f"reached at step {planner.horizon} "
+      f"({planner.horizon - planner.setup.ocp.horizon} later than planned); "
+      f"final position error {error:.2f} mm")
