@@ -29,7 +29,7 @@ from ..model.limits import MotionLimits
 from ..model.robot import CAMERA_PARAMETERS, Robot
 from .buffered import Buffered
 from .codegen import compiled_or_interpreted
-from .newton import BOUND_PUSH, TAU_MIN, NewtonRun, NewtonSolver, _backtrack
+from .newton import BOUND_PUSH, TAU_MIN, NewtonRun, NewtonSolver, _backtrack, _SecantCorrection
 
 MU_INIT = 0.1  # IPOPT's mu_init (the objective is 1 at the start)
 # The last barrier parameter (IPOPT's mu_min): the barrier's optimum is above the problem's by up to (rows) x mu, and
@@ -43,6 +43,9 @@ ACCEPTABLE_CHANGE, ACCEPTABLE_ITER = 1e-9, 3
 # its plan keeps every limit and reaches the goal, not yet optimal (a re-planning loop's iteration budget)
 FEASIBLE = "Feasible_Point_Found"
 RELAXED_CAP = 3  # with `feasible_ok`, the steps that shrink a relaxation do not count, up to this x max_iter in all
+# the secant end-game (newton.py's SR1 correction of the surrogate Hessian) starts once the average
+# complementarity is this small and no row is relaxed
+SECANT_GAP = 1e-8
 MAX_SOC = 4  # second-order corrections per iteration (IPOPT's max_soc)
 RELAX_TO = 1e-2  # `relax`: a start's rows below this (of their limit) get it as slack, the relaxation then shrinks
 # relaxed rows: STUCK_ITER steps in a row shorter than STUCK_STEP end the run as (locally) infeasible
@@ -126,14 +129,20 @@ class InteriorNewton:
         npts = self.n_pts
         Qm, Dm, Lm = ca.MX.sym("Q", nq, npts), ca.MX.sym("D", nq, npts), ca.MX.sym("L", self.tool_k, npts)
         f_val = ca.Function("tool", [qa, qd], [out])
+        # the rows' gradients and exact curvature (about 29k operations a point), and the velocities
+        # (pv, vec(R)') with their Jacobian in (q, q') for the Gauss-Newton curvature (about 5k)
         f_der = ca.Function("tool_der", [qa, qd, lam], [ca.densify(ca.jacobian(out, y)),
                                                        ca.densify(ca.hessian(ca.dot(lam, out), y)[0])])
+        vel = ca.vertcat(pv, Rd)
+        f_jac = ca.Function("tool_jac", [qa, qd], [vel, ca.densify(ca.jacobian(vel, y))])
         fns = {"tool_rows": ca.Function("tool_rows", [Qm, Dm], [f_val.map(npts)(Qm, Dm)]),
-               "tool_derivs": ca.Function("tool_derivs", [Qm, Dm, Lm], f_der.map(npts)(Qm, Dm, Lm))}
+               "tool_derivs": ca.Function("tool_derivs", [Qm, Dm, Lm], f_der.map(npts)(Qm, Dm, Lm)),
+               "tool_jacs": ca.Function("tool_jacs", [Qm, Dm], f_jac.map(npts)(Qm, Dm))}
         self.codegen_note = None
         if codegen:
             fns, self.codegen_note = compiled_or_interpreted(fns, codegen_required)
         self.tool_rows, self.tool_derivs = Buffered(fns["tool_rows"]), Buffered(fns["tool_derivs"])
+        self.tool_jacs = Buffered(fns["tool_jacs"])
         # variable indices of each point's window (node-major), and the band layout (lower storage, half-bandwidth
         # WINDOW nodes)
         self.tool_var = (self.tool_nodes[:, :, None] * nq + np.arange(nq)[None, None, :]).reshape(npts, -1)
@@ -144,7 +153,18 @@ class InteriorNewton:
         self.bw = WINDOW * nq
         n = self.n
         r, cc = np.meshgrid(np.arange(WINDOW * nq), np.arange(WINDOW * nq), indexing="ij")
-        vr, vc = self.tool_var[:, r.ravel()], self.tool_var[:, cc.ravel()]  # (points, (W nq)^2)
+        # the points of one piece share its window: their blocks are summed per window, then scattered
+        windows_u, self.point_window = np.unique(self.tool_nodes, axis=0, return_inverse=True)
+        self.point_window = self.point_window.ravel()
+        slot = np.zeros(npts, int)
+        for p in range(1, npts):
+            slot[p] = slot[p - 1] + 1 if self.point_window[p] == self.point_window[p - 1] else 0
+        self.point_slot, self.n_windows, self.window_points = slot, len(windows_u), int(slot.max()) + 1
+        self.window_start = np.flatnonzero(slot == 0)
+        if np.any(np.diff(self.point_window) < 0):
+            raise ValueError("tool points are not ordered by window")
+        wvar = (windows_u[:, :, None] * nq + np.arange(nq)[None, None, :]).reshape(len(windows_u), -1)
+        vr, vc = wvar[:, r.ravel()], wvar[:, cc.ravel()]  # (windows, (W nq)^2)
         self.tool_low = vr >= vc
         self.tool_band = ((vr - vc) * n + vc)[self.tool_low]
         li = self.lin_idx
@@ -222,7 +242,8 @@ class InteriorNewton:
     # ---------------------------------------------------------------------------------------------------- solve
     def run(self, setup, init, v0=None, a0=None, tol: float = 1e-6, max_iter: int = 300, verbose: bool = False,
             warm: np.ndarray | None = None, mu0: float | None = None, relax: bool = False, reserve: float = 0.0,
-            feasible_ok: bool = False, acceptable_change: float = ACCEPTABLE_CHANGE) -> InteriorRun:
+            feasible_ok: bool = False, acceptable_change: float = ACCEPTABLE_CHANGE,
+            use_secant: bool = True) -> InteriorRun:
         """From `init`, which must be strictly within every row (else status `Infeasible_Start`: the caller starts
         elsewhere or hands over to IPOPT), with the start's velocity and acceleration `v0`, `a0` when the structure
         starts in motion; `warm`: multipliers of a previous run of the same structure (with `mu0`, the barrier
@@ -272,20 +293,34 @@ class InteriorNewton:
             w = np.clip(w, m / (1e10 * s), 1e10 * m / s)
         status = "Maximum_Iterations_Exceeded" if start_ok else "Infeasible_Start"
         it, shift, f_hist, last_step, stuck, relaxed_its = 0, 0.0, [], 1.0, 0, 0
+        secant, previous = None, None  # the end-game's secant correction of the surrogate; the last point
+        exact_rows = False  # the tool rows' exact curvature (else Gauss-Newton's)
         while start_ok:
             _, f_val, G, HB, _ = nw.step(x, P)
             f_val = float(f_val[0])
             Z, DZ, D2Z = nw.depth(x, P)
             DZ, D2Z = DZ.reshape(T + 1, nq), D2Z.reshape(T + 1, nq, nq)
             wt = w[nd_ + T - 1:]
-            gy, hy = self.tool_derivs(*self._points(x, offsets),
-                                      wt.reshape(self.n_pts, self.tool_k).T * tool_scale[:, None])
-            gy = gy.reshape(self.tool_k, 2 * nq, self.n_pts, order="F")  # d g / d(q(s), q'(s))
+            wk = wt.reshape(self.n_pts, self.tool_k).T * tool_scale[:, None]  # (k, points)
+            if exact_rows:
+                gy, hy = self.tool_derivs(*self._points(x, offsets), wk)
+                gy = gy.reshape(self.tool_k, 2 * nq, self.n_pts, order="F")  # d g / d(q(s), q'(s))
+                hy = hy.reshape(2 * nq, 2 * nq, self.n_pts, order="F").transpose(2, 0, 1)  # Hess of w . g
+            else:
+                vel, A = self.tool_jacs(*self._points(x, offsets))
+                vel = vel.reshape(12, self.n_pts, order="F")
+                A = A.reshape(12, 2 * nq, self.n_pts, order="F").transpose(2, 0, 1)  # (points, 12, 2 nq)
+                gy = np.stack([2 * np.einsum("vp,pvy->yp", vel[:3], A[:, :3]),
+                               np.einsum("vp,pvy->yp", vel[3:], A[:, 3:])])
+                Ap, Ar = A[:, :3] * np.sqrt(2 * wk[0])[:, None, None], A[:, 3:] * np.sqrt(wk[1])[:, None, None]
             gy = gy * tool_scale[:, None, None]
-            hy = hy.reshape(2 * nq, 2 * nq, self.n_pts, order="F").transpose(2, 0, 1)  # Hess of w . g
             K = self.tool_map  # (points, 2 nq, W nq): (q(s), q'(s)) from the window
             tj = np.einsum("kyp,pyw->kwp", gy, K)  # (k, W nq, points): the rows' gradients in the window
             g = np.bincount(nw.g_index, weights=G, minlength=n)  # grad f
+            if secant is not None:  # the last step's secant pair, against the surrogate at this point
+                step_x = x - previous[0]
+                secant.update(step_x, g - previous[1]
+                              - np.bincount(nw.h_rows, weights=HB * step_x[nw.h_cols], minlength=n))
             jac = _RowJacobian(self, idx, DZ, tj)
             err_d = float(np.max(np.abs((g - jac.T(w))[idx]))) if nb else 0.0
             gap = float(w @ s) / nc  # the average complementarity
@@ -316,19 +351,34 @@ class InteriorNewton:
             ab += np.bincount(self.node_band, weights=blocks[:, a_, b_].ravel(),
                               minlength=self.bw * n).reshape(self.bw, n)
             st = sig[nd_ + T - 1:].reshape(self.n_pts, self.tool_k)  # (points, k)
-            G_ = tj.transpose(2, 1, 0)  # (points, W nq, k)
-            JJ = (G_ * st[:, None, :]) @ G_.transpose(0, 2, 1)  # sum_k (w/c) grad g grad g^T
-            JJ += K.transpose(0, 2, 1) @ hy @ K  # plus w Hess g, the rows' own curvature
-            ab += np.bincount(self.tool_band, weights=JJ.reshape(self.n_pts, -1)[self.tool_low],
+            G_ = tj.transpose(2, 1, 0) * np.sqrt(st)[:, None, :]  # (points, W nq, k)
+            if exact_rows:  # per point sum_k (w/c) grad g grad g^T + w Hess g, summed per window
+                JJ = G_ @ G_.transpose(0, 2, 1) + K.transpose(0, 2, 1) @ hy @ K
+                JW = np.add.reduceat(JJ, self.window_start, axis=0)
+            else:  # Gauss-Newton: B^T B with B the scaled gradients and velocity Jacobians, per window
+                rows = np.concatenate([G_.transpose(0, 2, 1), Ap @ K, Ar @ K], axis=1)  # (points, r, W nq)
+                B = np.zeros((self.n_windows, self.window_points, rows.shape[1], self.bw))
+                B[self.point_window, self.point_slot] = rows
+                B = B.reshape(self.n_windows, -1, self.bw)
+                JW = B.transpose(0, 2, 1) @ B
+            ab += np.bincount(self.tool_band, weights=JW.reshape(self.n_windows, -1)[self.tool_low],
                               minlength=self.bw * n).reshape(self.bw, n)
             factor = self._factor(ab, idx, shift)
             if factor is None:
                 status = "Singular_Hessian"
                 break
-            solve, shift = factor
+            solve, shift, band_factor, fixed = factor
+            # the tool rows' exact curvature from the end-game on (Gauss-Newton's can stall there)
+            exact_rows = exact_rows or (not rho.any() and gap <= SECANT_GAP)
+            if secant is None and use_secant and gap <= SECANT_GAP and not rho.any():
+                secant = _SecantCorrection(n)  # the end-game: pairs from the next step on
+            previous = (x, g)
 
             def direction(mu_t):  # (dx, dc, dw) for the barrier parameter mu_t; dc the rows' linearised change
                 dx = solve(-(g - jac.T(mu_t / s + sig * rho)))
+                if secant is not None and secant.w.size:  # the surrogate's missing curvature, learnt
+                    corrected = secant.step(band_factor, fixed, dx)
+                    dx = dx if corrected is None else corrected
                 dc = jac.dot(dx) - rho  # the slacks' change: the rows' linearised change, the relaxation gone
                 return dx, dc, mu_t / s - w - sig * dc
 
@@ -390,7 +440,7 @@ class InteriorNewton:
 
     def _factor(self, ab: np.ndarray, idx: np.ndarray, shift: float):
         """The banded matrix on the free variables (held ones: identity) factorised, shifted until positive
-        definite: (solve(rhs), shift) or None."""
+        definite: (solve(rhs), shift, its banded factor, the held mask) or None."""
         n = self.n
         fixed = np.ones(n + 1, bool)
         fixed[idx] = False
@@ -407,7 +457,7 @@ class InteriorNewton:
                 def solve(rhs, factor=factor):
                     d = dpbtrs(factor, np.where(fixed, 0.0, rhs)[:, None], lower=1)[0][:, 0]
                     return d if np.all(np.isfinite(d)) else np.zeros(n)
-                return solve, shift
+                return solve, shift, factor, fixed
             shift = max(1e-8 * scale, 10 * shift)
         return None
 

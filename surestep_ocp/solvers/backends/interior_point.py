@@ -80,8 +80,8 @@ class InteriorPointBackend:
         multipliers = warm.multipliers if warm is not None else None
         run = solver.run(setup, start, warm=multipliers, **kw)
         if run.status == "Infeasible_Start" and warm is None:  # a start at a constant pace: the same line, timed
-            start = feasible_line(setup, solver)
-            run = solver.run(setup, start, **kw)
+            start = feasible_line(setup, solver)  # (the rows no time law keeps are relaxed at the start)
+            run = solver.run(setup, start, relax=True, **kw)
         sol = solver.newton.solution(setup, ctx.method, start, run)
         sol.extras["solver"] = "interior"
         enforce_limits(setup, sol)  # the played curve checked densely, as every plan within the limits
