@@ -149,6 +149,15 @@ def cmd_replan(args) -> int:
     setup = _with_solver_flags(_load(args.problem), args)
     check_output_dir(args.output_dir, _inputs(setup, args.problem), "the re-planning")
     _long_work_note(setup)
+    if not any(c is not None for c in setup.camera_changes() or ()):  # a fixed camera: the tracker loop
+        from .evaluation.tracker_loop import tracker_loop, write_tracker_loop
+
+        res = tracker_loop(setup, seed=args.seed, progress=lambda k, p: print(
+            f"step {k}: {p.status}, {p.extras['replan']['time_s'] * 1e3:.1f} ms", file=sys.stderr,
+            flush=True))
+        print(write_tracker_loop(res, Path(args.output_dir)))
+        print(f"wrote {args.output_dir}/loop.md, loop.json")
+        return 0
     res = replan_after_camera_moves(setup, Path(args.output_dir), progress=lambda k: print(f"re-planning after the camera move at "
                                                                         f"step {k}", file=sys.stderr, flush=True))
     print(res["table"])
@@ -297,9 +306,14 @@ def build_parser() -> argparse.ArgumentParser:
     _solver_flags(c)
     c.set_defaults(func=cmd_compare)
 
-    r = sub.add_parser("replan", help="plan, then re-plan after every camera move (problems with camera.moves)")
-    r.add_argument("problem", help="problem YAML with camera.moves (problems/README.md; e.g. "
-                                   "problems/type4_camera_moves.yaml)")
+    r = sub.add_parser("replan", help="plan, then re-plan after every camera move (problems with "
+                                      "camera.moves), else at every frame of a simulated 20 Hz tracker")
+    r.add_argument("problem", help="problem YAML (problems/README.md): with camera.moves (e.g. "
+                                   "problems/type4_camera_moves.yaml) a re-plan after each move; without, "
+                                   "a re-plan at every waypoint against a simulated tracker, within the "
+                                   "limits from the moving robot's state when they are enforced")
+    r.add_argument("--seed", type=int, default=0,
+                   help="the simulated tracker's noise seed (problems whose camera does not move)")
     r.add_argument("--output-dir", required=True,
                    help="folder for baseline.json, ocp-once.json (planned once), ocp-replanned.json (the motion as "
                         "re-planned), ocp-replan-<step>.json (each re-plan), replan.md and replan.json (the table)")

@@ -96,3 +96,20 @@ def test_executed_motion_is_continuous_and_ends_at_rest_at_the_goal(episode):
     R = Rotation.from_rotvec(end[3:]).inv() * Rotation.from_rotvec(goal[3:])
     assert R.magnitude() < 1e-5
     assert planner.horizon >= planner.setup.ocp.horizon  # the end moves later only when a correction needs it
+
+
+def test_cli_replan_runs_the_tracker_loop_within_the_limits(tmp_path):
+    """`surestep replan` on the default problem (a fixed camera): a re-plan per frame of a simulated
+    tracker, each within the limits; loop.md and loop.json say how each went."""
+    import json
+    import subprocess
+    import sys
+
+    res = subprocess.run([sys.executable, "-m", "surestep_ocp.cli", "replan", "problems/needle_regrasp.yaml",
+                          "--no-codegen", "--output-dir", str(tmp_path / "out")],
+                         capture_output=True, text=True, timeout=600, check=False)
+    assert res.returncode == 0, res.stderr[-2000:]
+    record = json.loads((tmp_path / "out" / "loop.json").read_text())
+    assert record["summary"]["replans"] == len(record["replans"]) >= 39
+    assert record["summary"]["failed"] == sum(r["kept_previous"] == "yes" for r in record["replans"])
+    assert "re-plans" in (tmp_path / "out" / "loop.md").read_text()

@@ -294,7 +294,7 @@ class InteriorNewton:
         status = "Maximum_Iterations_Exceeded" if start_ok else "Infeasible_Start"
         it, shift, f_hist, last_step, stuck, relaxed_its = 0, 0.0, [], 1.0, 0, 0
         secant, previous = None, None  # the end-game's secant correction of the surrogate; the last point
-        exact_rows = False  # the tool rows' exact curvature (else Gauss-Newton's)
+        end_game = False  # the tool rows' exact curvature from then on (else Gauss-Newton's)
         while start_ok:
             _, f_val, G, HB, _ = nw.step(x, P)
             f_val = float(f_val[0])
@@ -302,7 +302,7 @@ class InteriorNewton:
             DZ, D2Z = DZ.reshape(T + 1, nq), D2Z.reshape(T + 1, nq, nq)
             wt = w[nd_ + T - 1:]
             wk = wt.reshape(self.n_pts, self.tool_k).T * tool_scale[:, None]  # (k, points)
-            if exact_rows:
+            if end_game:
                 gy, hy = self.tool_derivs(*self._points(x, offsets), wk)
                 gy = gy.reshape(self.tool_k, 2 * nq, self.n_pts, order="F")  # d g / d(q(s), q'(s))
                 hy = hy.reshape(2 * nq, 2 * nq, self.n_pts, order="F").transpose(2, 0, 1)  # Hess of w . g
@@ -352,7 +352,7 @@ class InteriorNewton:
                               minlength=self.bw * n).reshape(self.bw, n)
             st = sig[nd_ + T - 1:].reshape(self.n_pts, self.tool_k)  # (points, k)
             G_ = tj.transpose(2, 1, 0) * np.sqrt(st)[:, None, :]  # (points, W nq, k)
-            if exact_rows:  # per point sum_k (w/c) grad g grad g^T + w Hess g, summed per window
+            if end_game:  # per point sum_k (w/c) grad g grad g^T + w Hess g, summed per window
                 JJ = G_ @ G_.transpose(0, 2, 1) + K.transpose(0, 2, 1) @ hy @ K
                 JW = np.add.reduceat(JJ, self.window_start, axis=0)
             else:  # Gauss-Newton: B^T B with B the scaled gradients and velocity Jacobians, per window
@@ -369,7 +369,7 @@ class InteriorNewton:
                 break
             solve, shift, band_factor, fixed = factor
             # the tool rows' exact curvature from the end-game on (Gauss-Newton's can stall there)
-            exact_rows = exact_rows or (not rho.any() and gap <= SECANT_GAP)
+            end_game = end_game or (not rho.any() and gap <= SECANT_GAP)
             if secant is None and use_secant and gap <= SECANT_GAP and not rho.any():
                 secant = _SecantCorrection(n)  # the end-game: pairs from the next step on
             previous = (x, g)
