@@ -18,7 +18,7 @@ speed, starting and ending at rest, and never faster than the plan's own pace (t
 observations per step assume it): `s` itself is a last, virtual joint with velocity limit 1, so
 each step takes at least `step_s`, longer only where a limit needs it. The tool's speed along the
 path is `|J_v(q(s)) q'(s)| s_dot` (Pinocchio's frame Jacobian), so its bound is one on `s_dot`
-per grid point (`_ToolSpeedConstraint`).
+per grid point (`ToolSpeed`, its `_ToolSpeedConstraint`).
 
 The limits are those the plan was made with (the solution's recorded `limits`: the problem's
 `limits:` section resolved against the URDF and the defaults; older files without it: the
@@ -80,7 +80,7 @@ class Trajectory:
         return float(self.times[-1])
 
 
-class _PchipPath:
+class PchipPath:
     """A toppra geometric path (toppra's AbstractGeometricPath interface, duck-typed: toppra is imported
     only when exporting): scipy's PCHIP through the waypoints, plus the path parameter as a last joint."""
 
@@ -114,7 +114,7 @@ class _PchipPath:
         return self(s, 2)
 
 
-class _ToolSpeed:
+class ToolSpeed:
     """The tool's translation and rotation speed per unit path speed along a path: `|J_v(q(s)) q'(s)|`
     and `|J_w(q(s)) q'(s)|` (Pinocchio's frame Jacobian), and the bound they put on `s_dot`."""
 
@@ -150,7 +150,7 @@ class _ToolSpeed:
         return _ToolSpeedConstraint()
 
 
-def _grid(ss: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def toppra_grid(ss: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """toppra grid points: each step split in GRID_PER_STEP, plus a point just before every interior
     waypoint (PCHIP's second derivative jumps there); and the index of each waypoint in the grid."""
     pts = [ss[0]]
@@ -162,6 +162,25 @@ def _grid(ss: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     idx = np.searchsorted(grid, ss)
     assert np.allclose(grid[idx], ss, rtol=0, atol=0)
     return grid, idx
+
+
+def toppra_run(path: PchipPath, grid: np.ndarray, limits: MotionLimits, scales: np.ndarray,
+               clock_v: float, clock_a: float, tool: ToolSpeed | None = None):
+    """One toppra run along `path` (its last joint the path parameter, within `clock_v`, `clock_a`)
+    from rest to rest, within `limits` scaled per family by `scales` (joint velocity, joint
+    acceleration, tool speed): toppra's trajectory, or None when it finds none."""
+    import toppra.algorithm as algo  # loaded on use: toppra is slow to import
+    import toppra.constraint as constraint
+
+    logging.getLogger("toppra").setLevel(logging.ERROR)  # a failed try is retried: noise
+    vmax = np.append(scales[0] * limits.velocity, clock_v)
+    amax = np.append(scales[1] * limits.acceleration, clock_a)
+    cons = [constraint.JointVelocityConstraint(np.column_stack([-vmax, vmax])),
+            constraint.JointAccelerationConstraint(np.column_stack([-amax, amax]))]
+    if tool is not None:
+        cons.append(tool.constraint(path, scales[2]))
+    inst = algo.TOPPRA(cons, path, gridpoints=grid, parametrizer="ParametrizeConstAccel")
+    return inst.compute_trajectory(0.0, 0.0)
 
 
 def _sample_times(duration: float, wp_t: np.ndarray, rate_hz: float) -> np.ndarray:
@@ -192,7 +211,7 @@ def planned_curve(q: np.ndarray, step_s: float, limits: MotionLimits, rate_hz: f
     Q, QD, QDD = evaluate_curve(q, step_s, check)
     vr = np.max(np.abs(QD) / limits.velocity, axis=0)
     ar = np.max(np.abs(QDD) / limits.acceleration, axis=0)
-    tool = None if robot is None else _ToolSpeed(robot, tool_frame or robot.frame, limits)
+    tool = None if robot is None else ToolSpeed(robot, tool_frame or robot.frame, limits)
     tool_ratio = None
     if tool is not None and max(vr.max(), ar.max()) <= 1 + REL_TOL:  # (not worth the Jacobians when over already)
         tool_ratio = tuple(float(x) for x in np.max(tool.rates(Q, QD) / tool.vmax, axis=0))
@@ -219,9 +238,6 @@ def time_parametrise(q: np.ndarray, step_s: float, limits: MotionLimits, rate_hz
     curve at the planned times when it is within every limit (`planned_curve`), else (and with "toppra") the
     time-optimal one (module docstring); with `robot` (a `surestep_ocp.model.robot.Robot` of the plan's joints) and
     `tool_frame`, within the tool's translation and rotation speed limits too."""
-    import toppra.algorithm as algo  # loaded on use: toppra is slow to import
-    import toppra.constraint as constraint
-
     q = np.asarray(q, float)
     if not (math.isfinite(rate_hz) and 0 < rate_hz <= 10_000):
         raise SurestepError(f"--rate must be in (0, 10000] Hz, got {rate_hz:g}")
@@ -237,24 +253,16 @@ def time_parametrise(q: np.ndarray, step_s: float, limits: MotionLimits, rate_hz
             raise SurestepError(f"--timing planned: the planned curve exceeds its limits at the planned pace "
                                 f"(peak / limit: {over}); use --timing auto or toppra to retime it")
         curve_info["not_played"] = f"over a limit at the planned pace ({over}): retimed by toppra"
-    logging.getLogger("toppra").setLevel(logging.ERROR)  # a failed try is retried; its warnings are noise
     ss = step_s * np.arange(len(q))
-    path = _PchipPath(ss, q)
-    grid, wp_idx = _grid(ss)
+    path = PchipPath(ss, q)
+    grid, wp_idx = toppra_grid(ss)
     clock_v = 1.0  # [path s per s]: the path parameter's own limit, the planned pace
     clock_a = CLOCK_ACCELERATION
-    tool = None if robot is None else _ToolSpeed(robot, tool_frame or robot.frame, limits)
+    tool = None if robot is None else ToolSpeed(robot, tool_frame or robot.frame, limits)
     tool_ratio = None
     scales = np.ones(3)  # of the joint velocity, joint acceleration and tool speed limits handed to toppra
     for _ in range(MAX_TRIES):
-        vmax = np.append(scales[0] * limits.velocity, clock_v)
-        amax = np.append(scales[1] * limits.acceleration, clock_a)
-        cons = [constraint.JointVelocityConstraint(np.column_stack([-vmax, vmax])),
-                constraint.JointAccelerationConstraint(np.column_stack([-amax, amax]))]
-        if tool is not None:
-            cons.append(tool.constraint(path, scales[2]))
-        inst = algo.TOPPRA(cons, path, gridpoints=grid, parametrizer="ParametrizeConstAccel")
-        traj = inst.compute_trajectory(0.0, 0.0)
+        traj = toppra_run(path, grid, limits, scales, clock_v, clock_a, tool)
         if traj is None:
             scales *= 0.9
             continue
