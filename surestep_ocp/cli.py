@@ -108,6 +108,7 @@ def cmd_solve(args) -> int:
 
 def cmd_compare(args) -> int:
     from .comparison import run_comparison, write_comparison
+    from .model.limits import worst_violations
     from .solvers.methods import COMPARE_METHODS, counted_failures
 
     from .output.files import check_finite, check_output_dir, check_output_file
@@ -131,10 +132,10 @@ def cmd_compare(args) -> int:
     failed, reported = counted_failures(sols)  # the baseline and gradient plans cannot honour enforced limits
     for s in sols:
         if s.method in reported:
-            v = s.extras.get("motion_limits", {}).get("violations", [])
-            kinds = ", ".join(sorted({x["kind"] for x in v}))
-            print(f"over the limits: {s.method} ({len(v)} violations: {kinds}; it does not plan within limits, "
-                  "reported only)", file=sys.stderr)
+            rep = s.extras.get("motion_limits", {})
+            print(f"over the limits: {s.method} ({len(rep.get('violations', []))} violations: "
+                  f"{worst_violations(rep)}; it does not plan within limits, reported only)",
+                  file=sys.stderr)
     if failed:
         print(f"failed: {', '.join(failed)}", file=sys.stderr)
         return 1

@@ -15,6 +15,7 @@ from .model.limits.enforcement import enforce
 from .model.limits.report import markdown_rows, plan_report, summary_row
 from .model.limits.values import problem_limits
 from .problem.paths import resolve_urdf
+from .output.export_timing import planned_curve
 from .output.plots_compare import write_figures
 from .output.plots_motion import plot_plans
 from .problem.setup import Setup
@@ -38,17 +39,22 @@ def run_comparison(setup: Setup, methods: tuple[str, ...] = COMPARE_METHODS, pro
 
 def attach_motion_limits(setup: Setup, sol: Solution) -> None:
     """Record the plan's motion-limit report (limits.plan_report, with the problem's `limits:` overrides) in
-    `sol.extras["motion_limits"]` (with `limits.enforce: true` also a failure over a limit, `limits.enforce`)."""
+    `sol.extras["motion_limits"]` (with `limits.enforce: true` also a failure over a limit,
+    `limits.enforce`), with the peaks of the curve the robot plays through the waypoints
+    (`played_curve`: what `surestep export` checks)."""
     if any(q is None for q in sol.q):
         sol.extras["motion_limits"] = {"skipped": "a waypoint has no IK solution (see reachability)"}
         if setup.problem.limits.enforce:
             enforce(setup, sol)
         return
+    q, step, limits = np.array(sol.q, float), setup.problem.timing.step_s, problem_limits(setup)
     if setup.problem.limits.enforce:
-        enforce(setup, sol)
-        return
-    sol.extras["motion_limits"] = plan_report(setup.robot, np.array(sol.q, float), setup.problem.timing.step_s,
-                                              problem_limits(setup), tool_frame=setup.robot.frame)
+        enforce(setup, sol, limits)
+    else:
+        sol.extras["motion_limits"] = plan_report(setup.robot, q, step, limits,
+                                                  tool_frame=setup.robot.frame)
+    played = planned_curve(q, step, limits, 1.0 / step, setup.robot, setup.robot.frame)[1]
+    sol.extras["motion_limits"]["played_curve"] = played
 
 
 def write_comparison(solutions: list[Solution], out_dir: Path, problem_path: str) -> str:

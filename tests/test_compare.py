@@ -24,6 +24,7 @@ def test_compare_counts_only_the_methods_that_honour_the_limits(tmp_path, write_
     res = compare(tmp_path, path, ["baseline", "ocp"])
     assert res.returncode == 0, res.stderr
     assert "over the limits: baseline" in res.stderr and "joint_acceleration" in res.stderr
+    assert "x the limit" in res.stderr and "the played curve's peak" in res.stderr
     assert "failed" not in res.stderr
 
 
