@@ -9,6 +9,7 @@ import numpy as np
 from .errors import SurestepError
 from .solvers.gradient import JOINT_NOISE_UNSUPPORTED
 from .method_grammar import split_name
+from .solvers.baseline import LENGTHENED, duration_note
 from .solvers.methods import COMPARE_METHODS, run_method
 from .evaluation.metrics import comparison_rows, markdown_table
 from .model.limits.enforcement import enforce
@@ -97,8 +98,22 @@ def limits_table(solutions: list[Solution]) -> str:
     skipped = [m for m, r in reps if isinstance(r, dict) and "skipped" in r]
     note = f" (not checked: {', '.join(skipped)}, unreachable waypoints)" if skipped else ""
     enforced = any(isinstance(r, dict) and r.get("enforced") for _, r in reps)
-    how = ("enforced (`limits.enforce: true`: the OCP's constraints, an OCP plan over a limit is a failure, status "
-           "Motion_Limits_Violated; the other methods' violations are reported)" if enforced else
+    how = ("enforced (`limits.enforce: true`: the OCP's constraints and the baseline's time law; "
+           "their plan over a limit is a failure, status Motion_Limits_Violated; the gradient "
+           "variants' violations are reported)" if enforced else
            "reported, not enforced (`limits.enforce: false`)")
     return (f"Motion limits at the planned pace ({step:g} s per step; {how}; `surestep export` plays a plan "
-            f"within the limits at its planned times and retimes any other){note}:\n\n{markdown_rows(rows)}")
+            f"within the limits at its planned times and retimes any other){note}:\n\n"
+            f"{markdown_rows(rows)}{_duration_notes(solutions)}")
+
+
+def _duration_notes(solutions: list[Solution]) -> str:
+    """Below the limits table: each baseline lengthened to keep within the limits (or that cannot),
+    by how much."""
+    said = [s for s in solutions
+            if s.status == LENGTHENED or (s.extras.get("time_law") or {}).get("not_within")]
+    text = "".join(f"\n\n{s.method}: {duration_note(s)}." for s in said)
+    if any(s.status == LENGTHENED for s in said):
+        text += (" Its Tr(Σ_T) is after its own steps' observations (more than the other plans'), "
+                 "and `rel.` is relative to it.")
+    return text
