@@ -181,15 +181,17 @@ def time_optimal_law(setup: Setup, limits: MotionLimits) -> tuple[float, object]
     return duration, law
 
 
-def _fewest_steps(setup: Setup, limits: MotionLimits, tried: list[_Timed], laws) -> _Timed | None:
-    """The line in the fewest steps found (more than `tried`'s) at which a law is within the limits:
-    grown by the laws' least stretch until one fits (at most MAX_STEPS), then bisected (the peaks
-    of the played curve are nearly, not exactly, monotone in the steps)."""
-    lo, best = tried[0].steps, None
+def _fewest_steps(setup: Setup, limits: MotionLimits, tried: list[_Timed], laws,
+                  floor: int = 0) -> _Timed | None:
+    """The line in the fewest steps found (more than `tried`'s and than `floor`, a count known too
+    short) at which a law is within the limits: grown by the laws' least stretch until one fits (at
+    most MAX_STEPS), then bisected (the played curve's peaks are nearly, not exactly, monotone in
+    the steps)."""
+    lo, best = max(tried[0].steps, floor), None
     while best is None:
         if any(t.played is None for t in tried):
             return None
-        steps = max(lo + 1, math.ceil(lo * min(t.stretch() for t in tried)))
+        steps = max(lo + 1, math.ceil(tried[0].steps * min(t.stretch() for t in tried)))
         if steps > MAX_STEPS:
             return None
         best, tried = _first_within(setup, limits, steps, laws)
@@ -217,8 +219,9 @@ def _within_limits(setup: Setup) -> Solution:
         if optimal is not None:
             laws.append(("time-optimal (toppra)", optimal[1]))
             best, tried = _first_within(setup, limits, T, laws)
-        if best is None:
-            best = _fewest_steps(setup, limits, tried, laws)
+        if best is None:  # fewer steps than 0.9 of toppra's duration: too short for any law
+            floor = 0 if optimal is None else math.floor(0.9 * optimal[0] / dt)
+            best = _fewest_steps(setup, limits, tried, laws, floor)
     line = best or tried[0]  # none within: the constant pace in T steps (as unenforced), over them
     record = {"law": line.law, "steps": line.steps, "duration_s": line.steps * dt,
               "problem_steps": T, "problem_duration_s": T * dt,
