@@ -37,6 +37,7 @@ The studies (benchmarks/README.md: each one's command and result files):
 - realtime.py: plans within the motion limits, the interior-point method against IPOPT (cold).
 - replan_within_limits.py: re-planning within the limits (experimental).
 - scenarios.py: `surestep compare` on every scenario file.
+- baseline_timing.py: the baseline within enforced limits: kept or lengthened, against toppra.
 - plan_steps.py, large_rollout_errors.py, worst_rollout.py: where the evaluation's large rollout errors come from.
 - evaluation_limits.py, motion_limits_evaluation.py, execution_pace.py, rollout_variants.py: evaluation runs
   (`surestep evaluate` / `surestep sweep`) and their tables.
@@ -85,7 +86,7 @@ from surestep_ocp.problem.load import load_problem  # noqa: E402
 from surestep_ocp.problem.spec import LimitsSpec, TimingSpec  # noqa: E402
 from surestep_ocp.problem.setup import build_setup  # noqa: E402
 from surestep_ocp.solvers import nlp_cache as _nlp_cache  # noqa: E402
-from surestep_ocp.solvers.baseline import solve_baseline  # noqa: E402
+from surestep_ocp.solvers.baseline import _timed, solve_baseline, time_optimal_law  # noqa: E402
 from surestep_ocp.solvers.gradient import solve_gradient  # noqa: E402
 from surestep_ocp.solvers.methods import ocp_initial_guess, run_method  # noqa: E402
 from surestep_ocp.solvers.iterate import InitialGuess  # noqa: E402
@@ -103,7 +104,7 @@ __all__ = [
     # package names the studies use as they are (classes, constants, helpers of the limits, export and evaluation)
     "ProblemError", "SurestepError", "Planner", "SimulatedTracker", "ROLLOUT_MODES", "rollout", "read_progress",
     "motion_limits", "plan_report", "problem_limits", "time_parametrise", "within_position_limits", "tool_speeds",
-    "np_exp", "write_text_atomic",
+    "np_exp", "write_text_atomic", "time_optimal_law", "played_line",
 ]
 
 # --- the test set ----------------------------------------------------------------------------------------------------
@@ -202,6 +203,12 @@ def gradient(setup, **kwargs):
 def baseline(setup):
     """The straight-line baseline."""
     return solve_baseline(setup)
+
+
+def played_line(setup, steps: int, law) -> dict | None:
+    """The straight line in `steps` steps at the time law `law` (steps -> fractions of the way): its
+    played curve's peak ratios to the problem's limits (None: a waypoint unreachable)."""
+    return _timed(setup, problem_limits(setup), steps, "", law).played
 
 
 def method(setup, name: str, cache: dict | None = None):

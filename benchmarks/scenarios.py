@@ -6,8 +6,9 @@
 `--limits`: each scenario with `limits: {enforce: true}` (the default limits) at `--step-s` seconds per
 step (default: the file's, 0.05) with one observation per waypoint (`tracker_hz = 1 / step_s`) and `--horizon`
 steps (default: the file's; the default problem's 40 is the pace its limits allow), written
-beside the results as `<dir>/<scenario>.yaml`; a plan that breaks a limit is a failure (every method
-but the OCP: they do not honour limits). Writes benchmarks/results/scenarios.md (with --limits
+beside the results as `<dir>/<scenario>.yaml`; a plan that breaks a limit is a failure (the
+gradient variants do not honour limits; the baseline takes more steps where it must, said in its
+comparison). Writes benchmarks/results/scenarios.md (with --limits
 scenarios_limits_step<S>[_T<T>].md).
 """
 

@@ -45,6 +45,8 @@ def _long_work_note(setup) -> None:
 
 
 def _summary(sol, base=None) -> str:
+    from .solvers.baseline import LENGTHENED, duration_note
+
     err_m, err_rad = sol.terminal_error
     lines = [
         f"method      {sol.method}",
@@ -53,9 +55,16 @@ def _summary(sol, base=None) -> str:
         f"solve time  {sol.solve_time_s:.3f} s",
         f"Tr(Sigma_T) {sol.trace_final:.4e}",
     ]
+    if duration_note(sol):
+        lines.append(f"duration    {duration_note(sol)}")
     if base is not None and base is not sol:
         ratio = f"{base.trace_final / sol.trace_final:.2f}" if sol.trace_final > 0 else "undefined, Tr = 0"
-        lines.append(f"baseline    {base.trace_final:.4e}  (ratio baseline / {sol.method} = {ratio})")
+        longer = ""
+        if base.status == LENGTHENED:
+            longer = (f"; the baseline lengthened to {base.extras['time_law']['duration_s']:.3f} s "
+                      "to keep within the limits")
+        lines.append(f"baseline    {base.trace_final:.4e}  "
+                     f"(ratio baseline / {sol.method} = {ratio}{longer})")
     lines.append(f"terminal    {err_m:.2e} m, {err_rad:.2e} rad from the goal")
     if sol.extras.get("codegen_note"):
         lines.append(f"note        solver.codegen auto: {sol.extras['codegen_note'].splitlines()[0]}")
@@ -108,6 +117,7 @@ def cmd_solve(args) -> int:
 
 def cmd_compare(args) -> int:
     from .comparison import run_comparison, write_comparison
+    from .model.limits import worst_violations
     from .solvers.methods import COMPARE_METHODS, counted_failures
 
     from .output.files import check_finite, check_output_dir, check_output_file
@@ -128,13 +138,13 @@ def cmd_compare(args) -> int:
     print(table)
     print(f"\nwrote {args.output_dir}/{{<method>.json, comparison.md, comparison.json, trace.png, path.png, "
           "motion.png}")
-    failed, reported = counted_failures(sols)  # the baseline and gradient plans cannot honour enforced limits
+    failed, reported = counted_failures(sols)  # the gradient plans cannot honour enforced limits
     for s in sols:
         if s.method in reported:
-            v = s.extras.get("motion_limits", {}).get("violations", [])
-            kinds = ", ".join(sorted({x["kind"] for x in v}))
-            print(f"over the limits: {s.method} ({len(v)} violations: {kinds}; it does not plan within limits, "
-                  "reported only)", file=sys.stderr)
+            rep = s.extras.get("motion_limits", {})
+            print(f"over the limits: {s.method} ({len(rep.get('violations', []))} violations: "
+                  f"{worst_violations(rep)}; it does not plan within limits, reported only)",
+                  file=sys.stderr)
     if failed:
         print(f"failed: {', '.join(failed)}", file=sys.stderr)
         return 1

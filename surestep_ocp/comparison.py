@@ -9,20 +9,21 @@ import numpy as np
 from .errors import SurestepError
 from .solvers.gradient import JOINT_NOISE_UNSUPPORTED
 from .method_grammar import split_name
+from .solvers.baseline import LENGTHENED, duration_note
 from .solvers.methods import COMPARE_METHODS, run_method
 from .evaluation.metrics import comparison_rows, markdown_table
 from .model.limits.enforcement import enforce
 from .model.limits.report import markdown_rows, plan_report, summary_row
 from .model.limits.values import problem_limits
 from .problem.paths import resolve_urdf
+from .output.export_timing import planned_curve
 from .output.plots_compare import write_figures
 from .output.plots_motion import plot_plans
 from .problem.setup import Setup
 from .output.solution import Solution, write_json_atomic, write_text_atomic
 
 
-def run_comparison(setup: Setup, methods: tuple[str, ...] = COMPARE_METHODS,
-                   progress=None) -> list[Solution]:
+def run_comparison(setup: Setup, methods: tuple[str, ...] = COMPARE_METHODS, progress=None) -> list[Solution]:
     """Solve with each method in turn (a gradient solution is reused by `ocp-from-gradient`)."""
     if setup.model.joint_noise and any("gradient" in split_name(m)[0] for m in methods):
         raise SurestepError(JOINT_NOISE_UNSUPPORTED)  # checked before any solve
@@ -38,26 +39,28 @@ def run_comparison(setup: Setup, methods: tuple[str, ...] = COMPARE_METHODS,
 
 
 def attach_motion_limits(setup: Setup, sol: Solution) -> None:
-    """Record the plan's motion-limit report (limits.plan_report, with the problem's `limits:`
-    overrides) in `sol.extras["motion_limits"]` (with `limits.enforce: true` also a failure over a
-    limit, `limits.enforce`)."""
+    """Record the plan's motion-limit report (limits.plan_report, with the problem's `limits:` overrides) in
+    `sol.extras["motion_limits"]` (with `limits.enforce: true` also a failure over a limit,
+    `limits.enforce`), with the peaks of the curve the robot plays through the waypoints
+    (`played_curve`: what `surestep export` checks)."""
     if any(q is None for q in sol.q):
-        sol.extras["motion_limits"] = {
-            "skipped": "a waypoint has no IK solution (see reachability)"}
+        sol.extras["motion_limits"] = {"skipped": "a waypoint has no IK solution (see reachability)"}
         if setup.problem.limits.enforce:
             enforce(setup, sol)
         return
+    q, step, limits = np.array(sol.q, float), setup.problem.timing.step_s, problem_limits(setup)
     if setup.problem.limits.enforce:
-        enforce(setup, sol)
-        return
-    sol.extras["motion_limits"] = plan_report(setup.robot, np.array(sol.q, float),
-                                              setup.problem.timing.step_s, problem_limits(setup),
-                                              tool_frame=setup.robot.frame)
+        enforce(setup, sol, limits)
+    else:
+        sol.extras["motion_limits"] = plan_report(setup.robot, q, step, limits,
+                                                  tool_frame=setup.robot.frame)
+    played = planned_curve(q, step, limits, 1.0 / step, setup.robot, setup.robot.frame)[1]
+    sol.extras["motion_limits"]["played_curve"] = played
 
 
 def write_comparison(solutions: list[Solution], out_dir: Path, problem_path: str) -> str:
-    """Write `<method>.json`, `comparison.md`, `comparison.json`, `trace.png`, `path.png`,
-    `motion.png`; return the tables (the comparison, then the motion limits at the planned pace)."""
+    """Write `<method>.json`, `comparison.md`, `comparison.json`, `trace.png`, `path.png`, `motion.png`; return
+    the tables (the comparison, then the motion limits at the planned pace)."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     for s in solutions:
@@ -66,9 +69,8 @@ def write_comparison(solutions: list[Solution], out_dir: Path, problem_path: str
     table = markdown_table(rows)
     write_json_atomic(out_dir / "comparison.json", {"problem": problem_path, "methods": rows})
     text = (f"# Comparison on `{problem_path}`\n\n"
-            "Every method evaluated by the same EKF (all observation components) along its own "
-            "waypoints; `rel.` is relative to the straight-line baseline with the paper's scaling "
-            "(lower is better).\n\n"
+            "Every method evaluated by the same EKF (all observation components) along its own waypoints; "
+            "`rel.` is relative to the straight-line baseline with the paper's scaling (lower is better).\n\n"
             f"{table}\n")
     limits_text = limits_table(solutions)
     if limits_text:
@@ -87,8 +89,7 @@ def _robot_urdf(solutions: list[Solution]):
 
 
 def limits_table(solutions: list[Solution]) -> str:
-    """Markdown: each method's motion limits at the planned pace (docs/motion_limits_and_export.md;
-    not enforced by the planners)."""
+    """Markdown: each method's motion limits at the planned pace (docs/motion_limits_and_export.md; not enforced by the planners)."""
     reps = [(s.method, s.extras.get("motion_limits")) for s in solutions]
     rows = [summary_row(m, r) for m, r in reps if isinstance(r, dict) and "violations" in r]
     if not rows:
@@ -97,10 +98,22 @@ def limits_table(solutions: list[Solution]) -> str:
     skipped = [m for m, r in reps if isinstance(r, dict) and "skipped" in r]
     note = f" (not checked: {', '.join(skipped)}, unreachable waypoints)" if skipped else ""
     enforced = any(isinstance(r, dict) and r.get("enforced") for _, r in reps)
-    how = ("enforced (`limits.enforce: true`: the OCP's constraints, an OCP plan over a limit is a "
-           "failure, status Motion_Limits_Violated; the other methods' violations are "
-           "reported)" if enforced else
+    how = ("enforced (`limits.enforce: true`: the OCP's constraints and the baseline's time law; "
+           "their plan over a limit is a failure, status Motion_Limits_Violated; the gradient "
+           "variants' violations are reported)" if enforced else
            "reported, not enforced (`limits.enforce: false`)")
-    return (f"Motion limits at the planned pace ({step:g} s per step; {how}; `surestep export` "
-            f"plays a plan within the limits at its planned times and retimes any other){note}:\n\n"
-            f"{markdown_rows(rows)}")
+    return (f"Motion limits at the planned pace ({step:g} s per step; {how}; `surestep export` plays a plan "
+            f"within the limits at its planned times and retimes any other){note}:\n\n"
+            f"{markdown_rows(rows)}{_duration_notes(solutions)}")
+
+
+def _duration_notes(solutions: list[Solution]) -> str:
+    """Below the limits table: each baseline lengthened to keep within the limits (or that cannot),
+    by how much."""
+    said = [s for s in solutions
+            if s.status == LENGTHENED or (s.extras.get("time_law") or {}).get("not_within")]
+    text = "".join(f"\n\n{s.method}: {duration_note(s)}." for s in said)
+    if any(s.status == LENGTHENED for s in said):
+        text += (" Its Tr(Σ_T) is after its own steps' observations (more than the other plans'), "
+                 "and `rel.` is relative to it.")
+    return text

@@ -6,6 +6,7 @@ is solved through the public API (`ss.solve`, `ss.Planner`), so the stored array
 
     .venv/bin/python tests/stored_plans.py   # regenerate tests/data/stored_plans.npz (only on purpose: it is
                                               # the reference that `tests/test_stored_plans.py` checks against)
+    .venv/bin/python tests/stored_plans.py needle_regrasp/baseline   # these keys only
 """
 
 from __future__ import annotations
@@ -82,6 +83,16 @@ def plans(kind: str, *args) -> dict[str, tuple[np.ndarray, str]]:
     return replan_plans()
 
 
+def case_keys(kind: str, *args) -> set[str]:
+    """The keys of the plans a case makes (without solving them)."""
+    if kind == "scenario":
+        return {f"{args[0]}/{m}" for m in METHODS}
+    if kind == "configs":
+        T, first, count = args
+        return {f"config/T{T}/{c}" for c in range(first, first + count)}
+    return {f"replan/{k}" for k in range(REPLANS + 1)}
+
+
 def load() -> tuple[dict[str, np.ndarray], dict[str, str]]:
     """The stored joints and statuses, by plan key."""
     with np.load(STORE) as data:
@@ -89,16 +100,19 @@ def load() -> tuple[dict[str, np.ndarray], dict[str, str]]:
         return {k: data[k] for k in statuses}, statuses
 
 
-def main() -> None:
-    """Store every case's plans; `--only CASE ...`: store only these cases again, keep the other stored ones (a
-    change that moves some plans on purpose, said in its commit)."""
-    only = sys.argv[sys.argv.index("--only") + 1:] if "--only" in sys.argv else None
-    arrays, statuses = load() if only else ({}, {})
+def main(keys: list[str]) -> None:
+    """Solve every case and store its plans; given `keys`, only the cases holding them, and only
+    those keys (the others kept as stored)."""
+    arrays, statuses = load() if keys else ({}, {})
+    unknown = set(keys) - set(statuses)
+    if unknown:
+        sys.exit(f"not stored keys: {', '.join(sorted(unknown))}")
     for case, args in cases():
-        if only is not None and case not in only:
+        if keys and not set(keys) & case_keys(*args):
             continue
         for key, (q, status) in plans(*args).items():
-            arrays[key], statuses[key] = q, status
+            if not keys or key in keys:
+                arrays[key], statuses[key] = q, status
         print(case, flush=True)
     STORE.parent.mkdir(exist_ok=True)
     tmp = STORE.with_suffix(".tmp.npz")
@@ -108,4 +122,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    main(sys.argv[1:])

@@ -122,7 +122,7 @@ def test_wheel_from_clean_clone_solves_a_copied_problem(tmp_path):
                     str(wheel)], check=True)
     where = tmp_path / "elsewhere"
     where.mkdir()
-    # the paper-pace copy: the baseline breaks the default problem's enforced limits (exit 1 there, by design)
+    # a problem file copied elsewhere: its URDF is found in the installed package
     shutil.copy(REPO / "problems" / "needle_regrasp_paper_pace.yaml", where / "copied.yaml")
     env = {"PATH": f"{venv / 'bin'}:/usr/bin:/bin", "HOME": str(tmp_path), "MPLBACKEND": "Agg"}
     located = subprocess.run([str(vpy), "-c", "import surestep_ocp; print(surestep_ocp.__file__)"], cwd=where,

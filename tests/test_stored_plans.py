@@ -3,7 +3,10 @@ on 200 evaluation configurations (T = 20 and 40) and a re-planning loop, against
 (made by `tests/stored_plans.py` before the solver boundary was redesigned). Joints equal to 1e-10 rad / m and
 the same status: a refactor of the solve strategy must not change a plan. Re-stored on purpose since: the default
 problem's `ocp` and `ocp-from-gradient` plans, when the interior-point method became `auto`'s first attempt within
-enforced limits (joints moved by 1.3e-5 rad at most, Tr(Sigma_T) 9e-9 lower than IPOPT's)."""
+enforced limits (joints moved by 1.3e-5 rad at most, Tr(Sigma_T) 9e-9 lower than IPOPT's); the
+default problem's `baseline` alone (`tests/stored_plans.py needle_regrasp/baseline`), when the
+baseline within enforced limits became the line at a minimum-jerk pace (issue 28; status
+`not optimised` for `Motion_Limits_Violated`, 41 waypoints as before)."""
 
 from __future__ import annotations
 

@@ -222,7 +222,8 @@ def rollout(
             At a move, true pose and estimate are re-expressed in the new frame, the EKF adds
             the camera's own motion noise `|t|^2 camera_W_p0 + angle^2 camera_W_o0` to Sigma
             (rotated with it), and the true pose is perturbed by a draw of that noise (n x 6
-            normals, drawn before the step's own).
+            normals, drawn before the step's own). A plan longer than `changes` (a baseline
+            lengthened to keep within the limits) runs its last steps with the camera held.
         replan: with `changes`, re-planning per rollout after each camera move (Type 4): called as
             `replan(t, mean, cov, waypoints)` right after the move at entry t, with every rollout's
             EKF mean (N, 6) and covariance (N, 6, 6) in the new camera frame and the waypoints each
@@ -260,7 +261,7 @@ def rollout(
     u_rng = rng.spawn(1)[0] if detection is not None and detection.falloff > 0 else None  # leaves rng's stream
     own = None  # (N, T+1, 6) each rollout's waypoints, once `replan` has been called
     for t in range(len(poses) - 1):
-        if changes is not None and changes[t] is not None:
+        if changes is not None and t < len(changes) and changes[t] is not None:  # then it holds
             Dc = np.asarray(changes[t], float)
             R_D, t_D = Rotation.from_matrix(Dc[:3, :3]), Dc[:3, 3]
             Wc = (t_D @ t_D) * np.asarray(model.noise.camera_W_p0, float) + \

@@ -70,7 +70,8 @@ def path_figure(solutions: list):
     ax1.plot(*intr.project(start[:3]), label="start", **marks["start"])
     ax1.plot(*intr.project(goal[:3]), label="goal", **marks["goal"])
     ax2.plot(0, start[2] * 1e3, **marks["start"])
-    ax2.plot(len(solutions[0].poses) - 1, goal[2] * 1e3, **marks["goal"])
+    for end in sorted({len(s.poses) - 1 for s in solutions}):  # each plan's end
+        ax2.plot(end, goal[2] * 1e3, **marks["goal"])
     ax1.set_xlim(-0.1 * intr.width, 1.1 * intr.width)
     ax1.set_ylim(1.1 * intr.height, -0.1 * intr.height)
     ax1.set_aspect("equal")

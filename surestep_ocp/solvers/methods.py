@@ -63,9 +63,11 @@ def ocp_initial_guess(setup: Setup, source: str = "baseline", gradient: Solution
 
 
 def honours_limits(name: str) -> bool:
-    """Whether the method plans within enforced motion limits (the OCP methods: constraints in IPOPT's NLP). The
-    baseline and the gradient variants cannot; with `limits.enforce: true` they report their violations."""
-    return parse_method(name)[0].startswith("ocp")
+    """Whether the method plans within enforced motion limits: the OCP methods (their constraints)
+    and the baseline (its time law, `baseline.py`). The gradient variants cannot; with
+    `limits.enforce: true` they report their violations."""
+    base = parse_method(name)[0]
+    return base.startswith("ocp") or base == "baseline"
 
 
 def counted_failures(sols: list[Solution]) -> tuple[list[str], list[str]]:

@@ -27,7 +27,7 @@ from .curve import (
     knot_derivatives,
 )
 from .enforcement import enforce
-from .report import markdown_rows, plan_report, rotation_angle, summary_row
+from .report import markdown_rows, plan_report, rotation_angle, summary_row, worst_violations
 from .values import (
     DEFAULT_ACCEL_PER_VELOCITY,
     DEFAULT_ACCELERATION,
@@ -65,5 +65,5 @@ __all__ = [
     "enforce", "evaluate_curve",
     "is_psm", "knot_derivatives", "markdown_rows", "motion_limits", "parse_overrides",
     "plan_report", "problem_limits", "rcm_insertion_bound", "recorded_limits", "rotation_angle",
-    "summary_row", "urdf_velocity_limits",
+    "summary_row", "urdf_velocity_limits", "worst_violations",
 ]

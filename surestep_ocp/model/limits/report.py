@@ -69,6 +69,7 @@ def plan_report(robot, q: np.ndarray, step_s: float, limits: MotionLimits,
     peak_v, peak_a = np.abs(vel).max(axis=0), np.abs(acc).max(axis=0)
     return {
         "step_s": float(step_s),
+        "duration_s": float(step_s) * (len(q) - 1),
         "limits": limits.to_dict(),
         "peak_joint_velocity": peak_v.tolist(),
         "peak_joint_acceleration": peak_a.tolist(),
@@ -101,8 +102,43 @@ def summary_row(method: str, report: dict) -> dict:
         "min RCM distance [mm]": "-" if rcm is None else
                                  f"{1e3 * rcm:.1f} / "
                                  f"{1e3 * report['limits']['rcm_min_distance_m']:.0f}",
+        "duration [s]": f"{report['duration_s']:.2f}" if "duration_s" in report else "-",
         "violations": str(len(report["violations"])),
+        "played curve: peak / limit": played_peak(report),
     }
+
+
+def played_peak(report: dict) -> str:
+    """The largest peak ratio of the played curve (`played_curve`, recorded by `surestep compare`)
+    and its kind: "3.42 (joint_acceleration)"; "-" when not recorded."""
+    peaks = {k: v for k, v in (report.get("played_curve") or {}).get("peak_ratios", {}).items()
+             if v is not None}
+    if not peaks:
+        return "-"
+    kind = max(peaks, key=peaks.get)
+    return f"{peaks[kind]:.2f} ({kind})"
+
+
+def worst_violations(report: dict) -> str:
+    """Per kind of violation in `report`, how far the worst goes past its limit: "joint_acceleration
+    3.1x the limit (yaw, step 0)"; the RCM distance as a fraction of its minimum."""
+    if "skipped" in report:
+        return f"not checked: {report['skipped']}"
+    out = []
+    violations = report.get("violations", [])
+    for kind in sorted({v["kind"] for v in violations}):
+        vs = [v for v in violations if v["kind"] == kind]
+        if kind == "rcm_distance":
+            v = min(vs, key=lambda v: v["value"] / v["limit"])
+            out.append(f"{kind} {v['value'] / v['limit']:.2f} of the minimum (step {v['step']})")
+            continue
+        v = max(vs, key=lambda v: abs(v["value"]) / v["limit"])
+        where = f"{v['joint']}, " if "joint" in v else ""
+        ratio = abs(v["value"]) / v["limit"]
+        out.append(f"{kind} {ratio:.2f}x the limit ({where}step {v['step']})")
+    if played_peak(report) != "-":
+        out.append(f"the played curve's peak {played_peak(report).replace(' (', 'x the limit (')}")
+    return "; ".join(out)
 
 
 def markdown_rows(rows: list[dict]) -> str:

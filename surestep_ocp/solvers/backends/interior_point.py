@@ -6,42 +6,10 @@ from __future__ import annotations
 import numpy as np
 
 from ...model.limits import enforce as enforce_limits
-from ..baseline import straight_line
+from ..baseline import TIME_LAWS, timed_line
 from ..iterate import InitialGuess, Iterate
 from ..nlp_cache import interior_solver
 from .base import Context, Outcome
-
-
-def minimum_jerk(T: int) -> np.ndarray:
-    """(T+1,) fractions of the way at the waypoints of a rest-to-rest minimum-jerk time law, 10 s^3 - 15 s^4 + 6 s^5:
-    zero velocity and acceleration at both ends, so the straight line keeps within the acceleration limits where a
-    constant pace breaks them in its first and last step."""
-    s = np.linspace(0.0, 1.0, T + 1)
-    return 10 * s**3 - 15 * s**4 + 6 * s**5
-
-
-def trapezoid(T: int, ramp: float) -> np.ndarray:
-    """(T+1,) fractions of the way at the waypoints of a rest-to-rest trapezoidal speed profile that accelerates and
-    decelerates over `ramp` of the time each: a peak speed 1 / (1 - ramp) of the mean, where the minimum-jerk law's
-    is 1.875 of it (for moves near the tool's speed limits)."""
-    s = np.linspace(0.0, 1.0, T + 1)
-    v = 1.0 / (1.0 - ramp)  # the cruise speed (the fraction of the way per unit time)
-    a = v / ramp
-    return np.where(s < ramp, 0.5 * a * s**2,
-                    np.where(s > 1 - ramp, 1 - 0.5 * a * (1 - s) ** 2, 0.5 * a * ramp**2 + v * (s - ramp)))
-
-
-TIME_LAWS = (("minimum-jerk", minimum_jerk), *((f"trapezoidal ({r:g} ramps)", lambda T, r=r: trapezoid(T, r))
-                                                for r in (0.3, 0.2, 0.12)))
-
-
-def timed_line(setup, law=minimum_jerk, name: str = "minimum-jerk") -> InitialGuess:
-    """The straight line from start to goal (the baseline's) at the pace of a time law, by IK from the joint line."""
-    T = setup.ocp.horizon
-    poses = straight_line(setup.x_start, setup.x_goal, T, law(T))
-    q = setup.joints_along(poses, setup.q_start, guesses=setup.joint_line(T))[0]
-    q[0], q[-1] = setup.q_start, setup.q_goal
-    return InitialGuess(q, f"straight line at a {name} pace")
 
 
 def feasible_line(setup, solver) -> InitialGuess:
