@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import subprocess
 import sys
 import time
@@ -133,3 +134,103 @@ def test_the_cache_command_runs_as_a_program(cache_env):
     res = subprocess.run([sys.executable, "-m", "surestep_ocp.cli", "cache", "--info"], capture_output=True,
                          text=True, cwd=REPO, env=env, timeout=120, check=False)
     assert res.returncode == 0 and "not created yet" in res.stdout and "$SURESTEP_CACHE" in res.stdout, res.stderr
+
+
+# ------------------------------------------------------------------ a checksum rewritten with the library
+# (issue 30): the checksum beside a library proves only that the two were written together. Each case runs
+# in its own process: a library cut short kills its loader with SIGBUS, and a library once loaded stays
+# loaded in that process under its path.
+_TAMPER_SCRIPT = """
+import json, sys
+import casadi as ca
+from surestep_ocp.solvers import codegen
+
+def probe(n, k):  # one function name, as a horizon's functions share theirs: n inputs, constant k
+    x = ca.SX.sym("x", n)
+    return ca.Function("tamper_probe", [x], [ca.sin(x) * x * k])
+
+mode = sys.argv[1]
+if mode == "build":
+    libs = {}
+    for case, (n, k) in {"own": (3, 2.0), "horizon": (4, 2.0), "constant": (3, 2.5)}.items():
+        before = set(codegen.cache_dir().glob("tamper_probe_*.so"))
+        codegen.compiled(probe(n, k))
+        (libs[case],) = map(str, set(codegen.cache_dir().glob("tamper_probe_*.so")) - before)
+    print(json.dumps(libs))
+else:
+    fn = probe(3, 2.0)
+    if mode == "deferred":
+        f, fresh = codegen.Deferred({"f": fn}, required=True).result()[0]["f"], None
+    else:
+        f, fresh = codegen.compiled(fn)
+    print(json.dumps({"fresh": fresh, "value": list(map(float, f([1, 2, 3]).nonzeros()))}))
+"""
+
+
+def _tamper_run(cache: Path, *args: str) -> tuple[subprocess.CompletedProcess, list[str]]:
+    env = {**os.environ, "SURESTEP_CACHE": str(cache)}
+    res = subprocess.run([sys.executable, "-c", _TAMPER_SCRIPT, *args], capture_output=True, text=True,
+                         env=env, cwd=REPO, timeout=300, check=False)
+    return res, [ln for ln in res.stderr.splitlines() if "was not loaded" in ln]
+
+
+def _replace_with_checksum(lib: Path, data: bytes) -> None:
+    """`lib`'s bytes replaced and its checksum file rewritten to match them (hashlib, not the cache's code)."""
+    import hashlib
+
+    lib.write_bytes(data)
+    lib.with_name(lib.name + ".sha256").write_text(hashlib.sha256(data).hexdigest() + "\n")
+
+
+@pytest.fixture(scope="module")
+def tamper_libs(tmp_path_factory) -> tuple[Path, dict[str, bytes]]:
+    """A cache holding the probe's library, and the bytes of the three probes' libraries."""
+    cache = tmp_path_factory.mktemp("tamper")
+    res, _ = _tamper_run(cache, "build")
+    assert res.returncode == 0, res.stderr[-2000:]
+    libs = {case: Path(p) for case, p in json.loads(res.stdout).items()}
+    assert len(set(libs.values())) == 3  # three structures or constants: three names
+    return libs["own"], {case: p.read_bytes() for case, p in libs.items()}
+
+
+@needs_cc
+@pytest.mark.parametrize("tamper, words", [
+    ("half", "cut short"), ("most", "cut short"), ("header", "cut short"),
+    ("horizon", "input 0 is 4x1"), ("constant", "other values")])
+@pytest.mark.parametrize("mode", ["compiled", "deferred"])
+def test_a_library_with_a_rewritten_checksum_is_checked_and_rebuilt(tamper_libs, tmp_path, tamper, words, mode):
+    """Cut short (the load died of SIGBUS), or another horizon's or other constants' library under the name
+    (an internal error, or other values used as the function's): each said once, rebuilt, the right values."""
+    import math
+
+    own, data = tamper_libs
+    cache = tmp_path / "cache"
+    shutil.copytree(own.parent, cache)
+    lib = cache / own.name
+    good = data["own"]
+    bad = {"half": good[: len(good) // 2], "most": good[: len(good) * 9 // 10], "header": good[:64],
+           "horizon": data["horizon"], "constant": data["constant"]}[tamper]
+    _replace_with_checksum(lib, bad)
+    res, notes = _tamper_run(cache, mode)
+    assert res.returncode == 0, (res.returncode, res.stderr[-2000:])  # -7: SIGBUS
+    out = json.loads(res.stdout)
+    assert out["value"] == pytest.approx([2.0 * math.sin(v) * v for v in (1, 2, 3)], rel=1e-12)
+    assert len(notes) == 1 and lib.name in notes[0] and words in notes[0], res.stderr
+    assert lib.read_bytes() == good  # rebuilt: the same bytes as the first build
+    res, notes = _tamper_run(cache, mode)  # and then loaded as it is, without a note
+    assert res.returncode == 0 and notes == [] and "compiling" not in res.stderr, res.stderr
+
+
+def test_the_elf_check_reads_the_headers(tmp_path):
+    """`elf_problem` on a real library (whole), and on it cut at every 1/16 of its length."""
+    lib = Path(ca.__file__).parent / "libcasadi.so"
+    if not lib.is_file():
+        lib = next(Path(ca.__file__).parent.glob("*.so*"))
+    data = lib.read_bytes()
+    whole = tmp_path / "whole.so"
+    whole.write_bytes(data)
+    assert codegen.elf_problem(whole) is None
+    for k in range(16):
+        cut = tmp_path / f"cut{k}.so"
+        cut.write_bytes(data[: len(data) * k // 16])
+        assert codegen.elf_problem(cut) is not None, k

@@ -270,3 +270,19 @@ def test_a_grid_has_a_stated_bound(tmp_path):
     ok = _sweep(tmp_path / "ok.yaml", "e.yaml", runs=[],
                 grid={"detection.falloff": [0.0, 0.1, 0.2], "seedless": list(range(333))})
     assert len(load_sweep(ok)["runs"]) == 999
+
+
+# ------------------------------------------------ 5. --scheduler: a bad address, one line at once
+@pytest.mark.parametrize("address, words", [("::::", ["'::::'", "tcp://host:8786"]),
+                                            ("foo://x", ["unknown scheme 'foo'"]),
+                                            ("tcp://127.0.0.1", ["missing port"]),
+                                            ("tcp://h:70000", ["1..65535"]),
+                                            ("inproc://zz", ["inproc://"])])
+def test_a_scheduler_address_that_does_not_parse_is_one_line(tmp_path, address, words):
+    """Refused before a dask `Client` is made (a half-made one printed a traceback 20 s later)."""
+    pytest.importorskip("distributed")
+    out = tmp_path / "out"
+    res = _cli("evaluate", EVAL, *TINY, "--output-dir", out, "--scheduler", address)
+    _user_error(res, "--scheduler", *words)
+    assert "Exception ignored" not in res.stderr
+    assert not (out / "run.json").exists()

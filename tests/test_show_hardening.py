@@ -5,6 +5,7 @@ the URDFs read: regular files of bounded size, never a device or a pipe); each r
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
 import os
@@ -212,3 +213,45 @@ def test_show_cli_refuses_an_empty_html_name(tmp_path):
     run = subprocess.run([sys.executable, "-m", "surestep_ocp.cli", "show", str(tmp_path), "--html", ""],
                          capture_output=True, text=True, timeout=60)
     assert run.returncode == 2 and "--html: an empty file name" in run.stderr and "Traceback" not in run.stderr
+
+
+def test_the_live_server_ends_with_a_killed_show(baseline, tmp_path):
+    """Reproducer: SIGKILL of `surestep show` (live server) left its meshcat server running."""
+    import select
+    import signal
+    import time
+
+    psutil = pytest.importorskip("psutil")
+    (tmp_path / "plan.json").write_text(json.dumps(baseline))
+    show = subprocess.Popen([sys.executable, "-u", "-m", "surestep_ocp.cli", "show", str(tmp_path)],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+    children = []
+    try:
+        seen, deadline = b"", time.monotonic() + 180
+        while b"Serving" not in seen and time.monotonic() < deadline and show.poll() is None:
+            if select.select([show.stdout], [], [], 1.0)[0]:
+                seen += os.read(show.stdout.fileno(), 4096)
+        assert b"Serving" in seen, seen
+        children = psutil.Process(show.pid).children(recursive=True)
+        assert children, "show started no server process"
+        show.send_signal(signal.SIGKILL)
+        show.wait(timeout=60)
+
+        def alive(p) -> bool:
+            try:
+                return p.status() != psutil.STATUS_ZOMBIE
+            except psutil.NoSuchProcess:
+                return False
+
+        deadline = time.monotonic() + 60  # generous: the server goes within a second
+        while any(map(alive, children)) and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert not any(map(alive, children)), [p.cmdline() for p in children if alive(p)]
+    finally:
+        if show.poll() is None:
+            children = psutil.Process(show.pid).children(recursive=True)
+        for p in [show, *children]:  # this test's own processes only
+            with contextlib.suppress(ProcessLookupError, psutil.NoSuchProcess):
+                p.kill()
+        show.wait(timeout=60)
+        show.stdout.close()

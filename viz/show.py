@@ -22,6 +22,7 @@ from surestep_ocp.errors import SurestepError, shown
 from surestep_ocp.output.files import check_output_file
 from surestep_ocp.quiet import quiet_fd
 
+from . import server
 from .scene import build_scene, write_static_html
 from .screenshot import screenshot_html
 from .solutions import Solution, load_solutions
@@ -243,11 +244,11 @@ def serve(
 ):
     """Start (or connect to) a Meshcat server on loopback and draw the scene into it.
 
-    Returns `(vis, info)`; the server subprocess lives as long as this process
-    (meshcat registers its cleanup with `atexit`). `zmq_url` connects to an already
-    running `meshcat-server` instead of starting one.
+    Returns `(vis, info)`; the server subprocess ends with this process, however it ends
+    (see `server`). `zmq_url` connects to an already running `meshcat-server` instead of
+    starting one.
     """
-    vis = meshcat.Visualizer(zmq_url=zmq_url)
+    vis = meshcat.Visualizer(zmq_url=zmq_url) if zmq_url is not None else server.visualizer()
     info = build_scene(solutions, repo_root=repo_root, vis=vis, animate=animate,
                        endoscope=endoscope_view)
     if open_browser:
@@ -336,7 +337,7 @@ def _screenshot(sols: Sequence[Solution], png: Path, html: Path | str | None,
 
 
 def _stop_on_sigterm() -> None:
-    """Turn SIGTERM into KeyboardInterrupt so meshcat's atexit cleanup stops its server."""
+    """Turn SIGTERM into KeyboardInterrupt so the atexit cleanup stops the server at once."""
     if threading.current_thread() is not threading.main_thread():
         return
 

@@ -450,11 +450,42 @@ def _dask_client(scheduler):
         raise SurestepError(f"--scheduler needs dask.distributed (pip install 'surestep_ocp[dask]'): {exc}") from None
     if not isinstance(scheduler, str):
         return scheduler, False
+    _check_scheduler_address(scheduler)
     try:
         return Client(scheduler, timeout=DASK_CONNECT_TIMEOUT, set_as_default=False), True
     except (OSError, TimeoutError, ValueError) as exc:
         raise SurestepError(f"--scheduler {scheduler}: cannot connect to a Dask scheduler "
                             f"({type(exc).__name__}: {exc})") from None
+
+
+def _check_scheduler_address(scheduler: str) -> None:
+    """Refuse an address dask.distributed cannot parse before a `Client` is made of it.
+
+    A `Client` whose address fails to parse is left half-started: its `__del__` then waits 20 s
+    and prints a traceback. The checks are distributed's own parsers (scheme, then host:port).
+    """
+    from distributed.comm import registry
+    from distributed.comm.addressing import parse_address
+
+    allowed = "an address like tcp://host:8786 (or tls://, ws://, wss://, inproc://)"
+    scheme, loc = parse_address(scheduler)
+    try:
+        backend = registry.get_backend(scheme)
+    except ValueError:
+        raise SurestepError(f"--scheduler {scheduler!r}: unknown scheme {scheme!r}; "
+                            f"expected {allowed}") from None
+    try:
+        try:
+            host, port = backend.get_address_host_port(loc)
+        except NotImplementedError:  # not an IP transport (inproc): its own form and checks
+            backend.get_address_host(loc)
+            return
+    except (ValueError, TypeError) as exc:
+        raise SurestepError(f"--scheduler {scheduler!r}: not a {scheme}:// address ({exc}); "
+                            f"expected {allowed}") from None
+    if not host or not 0 < port < 65536:
+        raise SurestepError(f"--scheduler {scheduler!r}: needs a host and a port in 1..65535; "
+                            f"expected {allowed}")
 
 
 def _run_dask(todo, args, rest, client, finish) -> None:

@@ -8,7 +8,10 @@ A library's name carries a hash of its C source, the compiler flags and the CasA
 the problem's structure (robot, horizon, noise constants) compiles anew and an unchanged one is loaded in
 milliseconds. Libraries are written to a temporary name and renamed, so concurrent processes never load a
 half-written file, and each is loaded only after its SHA-256 matches the checksum stored beside it
-(`<lib>.so.sha256`); a corrupt or truncated one is rebuilt.
+(`<lib>.so.sha256`) and its ELF headers say it is whole; once loaded, it must be the function
+it replaces (name, input and output sparsity, the same values at one point). A checksum can be
+rewritten with the file, so the checks after it do not trust it: a library failing one is
+rebuilt, said on stderr.
 
 First use compiles: each batch of functions compiled says so on stderr (what, how much C, an estimate
 from the seconds per megabyte of C measured by this cache's previous compiles, kept in `timing.json`), the
@@ -106,7 +109,7 @@ class Deferred:
         self.fns, self.required, self.future, self.error = fns, required, None, None
         self._tmp = tempfile.TemporaryDirectory()
         try:
-            cc, folder = compiler(), cache_dir()
+            self.cc, self.folder = cc, folder = compiler(), cache_dir()
             self.jobs = [_job(fn, Path(self._tmp.name), folder) for fn in fns.values()]
         except SurestepError as exc:
             self.jobs, self.error = None, exc
@@ -121,14 +124,7 @@ class Deferred:
                 raise self.error
             if self.future is not None:
                 self.future.result()
-            out = {}
-            for name, j in zip(self.fns, self.jobs):
-                try:
-                    out[name] = ca.external(j.fn.name(), str(j.lib))
-                except RuntimeError as exc:
-                    raise SurestepError(f"solver.codegen: cannot load the compiled {j.lib} "
-                                        f"({str(exc).strip().splitlines()[-1]})") from None
-            return out, None
+            return dict(zip(self.fns, _load_all(self.jobs, self.cc, self.folder))), None
         except SurestepError as exc:
             if self.required:
                 raise
@@ -157,7 +153,104 @@ def verified(lib: Path) -> str | None:
         actual = _digest(lib)
     except OSError as exc:
         return f"it cannot be read ({exc.strerror or exc})"
-    return None if actual == stored else "its content does not match its checksum (corrupt or truncated)"
+    if actual != stored:
+        return "its content does not match its checksum (corrupt or truncated)"
+    return elf_problem(lib)
+
+
+# the ELF header after e_ident, a program header (with the index of p_offset and p_filesz) and
+# a section header, for 32- and 64-bit files; the byte order is prefixed as the file says
+_ELF_HEADER = {1: "HHIIIIIHHHHHH", 2: "HHIQQQIHHHHHH"}
+_PHDR = {1: ("IIIIIIII", 1, 4), 2: ("IIQQQQQQ", 2, 5)}
+_SHDR = {1: "IIIIIIIIII", 2: "IIQQQQIIQQ"}
+
+
+def elf_problem(lib: Path) -> str | None:
+    """None if `lib` is a whole ELF file, else why not: its header, its program and section
+    header tables, every loaded segment and every section with bytes in the file end within it.
+
+    dlopen maps a library's segments as its headers say; a file cut short is mapped past its
+    end and the first access there kills the process (SIGBUS), so this is checked before
+    loading. Off Linux a file that is not ELF is not checked (another object format).
+    """
+    import struct
+
+    try:
+        data = lib.read_bytes()
+    except OSError as exc:
+        return f"it cannot be read ({exc.strerror or exc})"
+    size = len(data)
+    if data[:4] != b"\x7fELF":
+        return "it is not an ELF shared library" if sys.platform.startswith("linux") else None
+    if size < 16 or data[4] not in _ELF_HEADER or data[5] not in (1, 2):
+        return "its ELF header is not a 32- or 64-bit one of either byte order"
+    cls, order = data[4], "<" if data[5] == 1 else ">"
+    fmt = order + _ELF_HEADER[cls]
+    if size < 16 + struct.calcsize(fmt):
+        return f"it is cut short ({size} bytes: less than its ELF header)"
+    head = struct.unpack_from(fmt, data, 16)
+    phoff, shoff, phentsize, phnum, shentsize, shnum = head[4], head[5], *head[8:12]
+    for what, off, entsize, num in (("program", phoff, phentsize, phnum),
+                                    ("section", shoff, shentsize, shnum)):
+        if num and off + entsize * num > size:
+            return f"it is cut short ({size} bytes; its {what} header table ends at " \
+                   f"{off + entsize * num})"
+    pfmt, i_off, i_size = _PHDR[cls]
+    sfmt = order + _SHDR[cls]
+    pfmt = order + pfmt
+    if (phnum and phentsize < struct.calcsize(pfmt)) or (
+            shnum and shentsize < struct.calcsize(sfmt)):
+        return "its ELF header gives too small a program or section header size"
+    for k in range(phnum):
+        ph = struct.unpack_from(pfmt, data, phoff + k * phentsize)
+        if ph[0] == 1 and ph[i_off] + ph[i_size] > size:  # PT_LOAD
+            end = ph[i_off] + ph[i_size]
+            return f"it is cut short ({size} bytes; a loaded segment ends at {end})"
+    for k in range(shnum):
+        sh = struct.unpack_from(sfmt, data, shoff + k * shentsize)
+        if sh[1] != 8 and sh[4] + sh[5] > size:  # (SHT_NOBITS, 8, has no bytes in the file)
+            return f"it is cut short ({size} bytes; a section ends at {sh[4] + sh[5]})"
+    return None
+
+
+def _differs(loaded: ca.Function, fn: ca.Function) -> str | None:
+    """None if the loaded `loaded` is `fn` as far as one call can tell, else how it differs: its
+    name, its inputs' and outputs' sparsity, and its values at a fixed point (to 1e-6 of each
+    output's largest: loose enough for another compiler's rounding; NaN where `fn` gives NaN).
+    A library of another horizon or of other constants fails it."""
+    import numpy as np
+
+    if loaded.name() != fn.name():
+        return f"it holds the function '{loaded.name()}', not '{fn.name()}'"
+    for kind, f_n, f_sp, n, sp in (
+            ("input", loaded.n_in(), loaded.sparsity_in, fn.n_in(), fn.sparsity_in),
+            ("output", loaded.n_out(), loaded.sparsity_out, fn.n_out(), fn.sparsity_out)):
+        if f_n != n:
+            return f"its function has {f_n} {kind}s, not {n}"
+        for i in range(n):
+            if f_sp(i) != sp(i):
+                a, b = f_sp(i), sp(i)
+                return (f"its {kind} {i} is {a.size1()}x{a.size2()} ({a.nnz()} nonzeros), not "
+                        f"{b.size1()}x{b.size2()} ({b.nnz()})")
+    golden = (5 ** 0.5 - 1) / 2  # a point with no two entries alike, no zeros, no symmetry
+    args = [ca.DM(fn.sparsity_in(i), list(0.1 + 0.8 * ((np.arange(fn.nnz_in(i)) + 1 + 7 * i)
+                                                         * golden % 1)))
+            for i in range(fn.n_in())]
+    try:
+        want = fn.call(args)
+    except RuntimeError:
+        return None  # no value to compare with (the structure matched)
+    try:
+        got = loaded.call(args)
+    except RuntimeError as exc:
+        return f"it fails where the function does not ({str(exc).strip().splitlines()[-1][:200]})"
+    for i, (a, b) in enumerate(zip(got, want)):
+        a, b = np.array(a.nonzeros(), dtype=float), np.array(b.nonzeros(), dtype=float)
+        scale = float(np.max(np.abs(b[np.isfinite(b)]), initial=1.0))
+        if not np.allclose(a, b, rtol=0.0, atol=1e-6 * scale, equal_nan=True):
+            return (f"its output {i} has other values than the function's (by up to "
+                    f"{np.nanmax(np.abs(a - b)):.3g})")
+    return None
 
 
 def _note(text: str) -> None:
@@ -193,14 +286,45 @@ def compiled_all(fns: list[ca.Function]) -> list[tuple[ca.Function, bool]]:
         todo = list({j.lib: j for j in jobs if j.fresh}.values())  # (a function given twice: compiled once)
         if todo:
             _compile(cc, todo, folder)
-    out = []
+        loaded = _load_all(jobs, cc, folder)  # (a failing cached library: rebuilt from tmp)
+    return [(f, j.fresh) for f, j in zip(loaded, jobs)]
+
+
+def _load_all(jobs: list[_Job], cc: str, folder: Path) -> list[ca.Function]:
+    """The jobs' libraries loaded, each checked against its function (`_differs`); the cached ones
+    that fail are rebuilt (said on stderr) and loaded again, a fresh one that fails is an error."""
+    loaded: list[ca.Function | None] = []
+    bad: dict[Path, _Job] = {}
     for j in jobs:
-        try:
-            out.append((ca.external(j.fn.name(), str(j.lib)), j.fresh))
-        except RuntimeError as exc:
-            raise SurestepError(f"solver.codegen: cannot load the compiled {j.lib} "
-                                f"({str(exc).strip().splitlines()[-1]})") from None
-    return out
+        f, problem = (None, None) if j.lib in bad else _checked_load(j)
+        if problem is not None:
+            if j.fresh:
+                raise SurestepError(f"solver.codegen: the compiled {j.lib} {problem}")
+            _note(f"the cached {j.lib.name} was not loaded: {problem}; rebuilding it")
+            bad[j.lib] = j
+        loaded.append(f)
+    if bad:  # (no Function of a bad library is left, so it is unloaded before its file is replaced)
+        loaded = [None if j.lib in bad else f for f, j in zip(loaded, jobs)]
+        for j in jobs:
+            j.fresh = j.fresh or j.lib in bad
+        _compile(cc, list(bad.values()), folder)
+        for k, j in enumerate(jobs):
+            if loaded[k] is None:
+                f, problem = _checked_load(j)
+                if problem is not None:
+                    raise SurestepError(f"solver.codegen: the compiled {j.lib} {problem}")
+                loaded[k] = f
+    return loaded
+
+
+def _checked_load(job: _Job) -> tuple[ca.Function | None, str | None]:
+    """`job`'s library loaded and checked: (the Function, None), or (None, what is wrong)."""
+    try:
+        f = ca.external(job.fn.name(), str(job.lib))
+    except RuntimeError as exc:
+        return None, f"cannot be loaded ({str(exc).strip().splitlines()[-1][:300]})"
+    problem = _differs(f, job.fn)
+    return (f, None) if problem is None else (None, problem)
 
 
 def _job(fn: ca.Function, tmp: Path, folder: Path) -> _Job:
