@@ -59,6 +59,7 @@ class InteriorRun(NewtonRun):
     """Where an interior-point run ended, with its constraint multipliers (a warm start for the next run)."""
 
     multipliers: np.ndarray | None = None
+    relaxed_iterations: int = 0  # iterations with relaxed rows (a start outside them, `relax`)
 
     @property
     def success(self) -> bool:
@@ -333,7 +334,7 @@ class InteriorNewton:
             if gap <= MU_FINAL and (err_d <= tol or stalled) and not rho.any():
                 status = "Solve_Succeeded" if err_d <= tol else "Solved_To_Acceptable_Level"
                 break
-            if it - relaxed_its == max_iter or it == RELAXED_CAP * max_iter:
+            if it - (relaxed_its if feasible_ok else 0) == max_iter or it == RELAXED_CAP * max_iter:
                 if feasible_ok and not rho.any() and np.all(c > 0):
                     status = FEASIBLE
                 break
@@ -434,9 +435,10 @@ class InteriorNewton:
             w = w + min(1.0, az) * dw
             w = np.clip(w, m / (1e10 * s), 1e10 * m / s)  # IPOPT's safeguard keeps w s within a band around mu
             it += 1
-            relaxed_its += bool(feasible_ok and rho.any())
+            relaxed_its += bool(rho.any())
         run = nw._end(setup, x, P, trace_ref, status, it, 0, t0)
-        return InteriorRun(**{k: getattr(run, k) for k in NewtonRun.__dataclass_fields__}, multipliers=w)
+        return InteriorRun(**{k: getattr(run, k) for k in NewtonRun.__dataclass_fields__}, multipliers=w,
+                           relaxed_iterations=relaxed_its)
 
     def _factor(self, ab: np.ndarray, idx: np.ndarray, shift: float):
         """The banded matrix on the free variables (held ones: identity) factorised, shifted until positive

@@ -186,6 +186,7 @@ class Planner:
         # within the limits less RESERVE (room for the next corrections), else within the limits themselves, else
         # (the correction too large for the time left) EXTEND steps later; from the previous plan with the rows it
         # breaks relaxed (the goal's shift, the active rows it sits on)
+        tried = []  # (reserve, steps added, status, iterations, relaxed iterations) of each attempt
         for reserve, extra in ATTEMPTS:
             sub = replace(registered.with_ocp(horizon=n + extra, sigma0=cov), q_start=q0, q_goal=q_goal)
             sub.x_start, sub.x_goal = sub.pose_of(q0), sub.pose_of(q_goal)
@@ -195,6 +196,8 @@ class Planner:
             run = solver.run(sub, warm, v0=v0, a0=a0, tol=spec.tol, mu0=REPLAN_MU, relax=True, reserve=reserve,
                              max_iter=min(self.replan_iterations, spec.max_iter), feasible_ok=True,
                              acceptable_change=REPLAN_ACCEPTABLE)
+            tried.append({"reserve": reserve, "steps_added": extra, "status": run.status,
+                          "iterations": run.iterations, "relaxed_iterations": run.relaxed_iterations})
             if run.success:
                 break
         sol = solver.newton.solution(sub, "ocp-replan", warm, run)
@@ -204,7 +207,7 @@ class Planner:
             sol.success, sol.status = False, "Goal_Unreachable"
         built_s = self.build_time_s - builds_before
         sol.extras["replan"] = {"step": step, "time_s": time.perf_counter() - t0 - built_s, "solver": "interior",
-                                "build_time_s": built_s, "kept_previous": not sol.success}
+                                "build_time_s": built_s, "kept_previous": not sol.success, "attempts": tried}
         if sol.success:
             self.plan, self.step, self._q, self._start = sol, step, np.array(sol.q, float), (v0, a0)
             self.horizon += extra
