@@ -169,10 +169,12 @@ class Setup:
         return self.poses_of(q)[0]
 
     def joints_for(self, x: np.ndarray, q0: np.ndarray, what: str = "pose",
-                   raise_on_fail: bool = True):
-        """IK of a camera-frame pose: (q, residual [m], residual [rad])."""
+                   raise_on_fail: bool = True, restarts: int = 20):
+        """IK of a camera-frame pose from q0, then from `restarts` random starts: (q, residual [m],
+        residual [rad])."""
         target = np.linalg.inv(self.T_cam_base) @ pose_to_matrix(x)
-        return self.robot.inverse_kinematics(target, q0, what=what, raise_on_fail=raise_on_fail)
+        return self.robot.inverse_kinematics(target, q0, what=what, raise_on_fail=raise_on_fail,
+                                             restarts=restarts)
 
     def joint_line(self, T: int) -> np.ndarray:
         """Joint vectors evenly spaced from the start's to the goal's (T + 1 of them)."""

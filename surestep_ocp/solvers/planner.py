@@ -177,7 +177,14 @@ class Planner:
         world_tool = base.camera_pose @ pose_to_matrix(base.pose_of(q0))
         registered = base.seen_from(world_tool @ np.linalg.inv(pose_to_matrix(mean)))
         n = self.horizon - step
-        q_goal, res_m, res_rad = registered.joints_for(base.x_goal, base.q_goal, raise_on_fail=False)
+        # the goal's joints as the registered camera sees it: from the previous plan's (a small move), then
+        # from the file's goal joints; no random restarts within a frame
+        q_goal, res_m, res_rad = registered.joints_for(base.x_goal, self._q[-1], raise_on_fail=False,
+                                                       restarts=0)
+        if res_m > 1e-6 or res_rad > 1e-5:
+            q_goal, res_m, res_rad = registered.joints_for(base.x_goal, base.q_goal, raise_on_fail=False,
+                                                           restarts=0)
+        reachable = res_m <= 1e-6 and res_rad <= 1e-5
         tail = np.array(self._q[step - self.step:], float)
         s = np.linspace(0.0, 1.0, n + 1)  # the goal's shift, eased in and out (no velocity or acceleration added at
         tail += (10 * s**3 - 15 * s**4 + 6 * s**5)[:, None] * (q_goal - tail[-1])[None]  # either end)
@@ -187,15 +194,16 @@ class Planner:
         # (the correction too large for the time left) EXTEND steps later; from the previous plan with the rows it
         # breaks relaxed (the goal's shift, the active rows it sits on)
         tried = []  # (reserve, steps added, status, iterations, relaxed iterations) of each attempt
-        for reserve, extra in ATTEMPTS:
+        attempts = [a for a in ATTEMPTS if not a[1] or n < EXTEND_BELOW] if reachable else ATTEMPTS[:1]
+        for reserve, extra in attempts:
             sub = replace(registered.with_ocp(horizon=n + extra, sigma0=cov), q_start=q0, q_goal=q_goal)
             sub.x_start, sub.x_goal = sub.pose_of(q0), sub.pose_of(q_goal)
             warm = InitialGuess(np.vstack([tail, np.repeat(tail[-1:], extra, axis=0)]), "previous plan"
                                 + (f", {extra} steps at the goal added" if extra else ""))
             solver = self._interior(sub)
             run = solver.run(sub, warm, v0=v0, a0=a0, tol=spec.tol, mu0=REPLAN_MU, relax=True, reserve=reserve,
-                             max_iter=min(self.replan_iterations, spec.max_iter), feasible_ok=True,
-                             acceptable_change=REPLAN_ACCEPTABLE)
+                             max_iter=min(self.replan_iterations, spec.max_iter) if reachable else 0,
+                             feasible_ok=True, acceptable_change=REPLAN_ACCEPTABLE)
             tried.append({"reserve": reserve, "steps_added": extra, "status": run.status,
                           "iterations": run.iterations, "relaxed_iterations": run.relaxed_iterations})
             if run.success:
@@ -203,8 +211,9 @@ class Planner:
         sol = solver.newton.solution(sub, "ocp-replan", warm, run)
         sol.extras.update(solver="interior", start_state={"velocity": v0.tolist(), "acceleration": a0.tolist()},
                           warm_start_q=warm.q, reserve=reserve, extended_steps=extra)
-        if res_m > 1e-6 or res_rad > 1e-5:
+        if not reachable:  # no plan tried (the goal's IK residual is in the log)
             sol.success, sol.status = False, "Goal_Unreachable"
+            sol.extras["goal_ik_residual"] = {"m": float(res_m), "rad": float(res_rad)}
         built_s = self.build_time_s - builds_before
         sol.extras["replan"] = {"step": step, "time_s": time.perf_counter() - t0 - built_s, "solver": "interior",
                                 "build_time_s": built_s, "kept_previous": not sol.success, "attempts": tried}
@@ -271,7 +280,9 @@ class Planner:
 
 RESERVE = 0.02  # re-plans keep this fraction of the velocity, acceleration and tool-speed limits for corrections
 EXTEND = 2  # steps a re-plan may add when the correction does not fit in the time left
-ATTEMPTS = ((RESERVE, 0), (0.0, 0), (RESERVE, EXTEND))  # a re-plan's (reserve, steps added), in order
+EXTEND_BELOW = 10  # ... when fewer steps than this are left (earlier, the time left is not what is short)
+# a re-plan's (reserve, steps added), in order
+ATTEMPTS = ((RESERVE, 0), (0.0, 0), (RESERVE, EXTEND), (0.0, 2 * EXTEND))
 
 
 RIGID_TOL = 1e-6  # a camera pose's rotation is orthonormal to this
