@@ -41,13 +41,13 @@ import casadi as ca
 
 from ..errors import SurestepError
 
-FLAGS = ("-O1", "-fPIC", "-shared")  # measured on the T = 20 Hessian: -O1 5x faster than the VM, -O0 2x
+# -O1: faster code than CasADi's virtual machine and -O0 (docs/solve_speed.md, "The compile")
+FLAGS = ("-O1", "-fPIC", "-shared")
 # the cache's size bound [MB] unless $SURESTEP_CACHE_MAX_MB says otherwise (0: unbounded)
 DEFAULT_MAX_MB = 1024
 # wall-clock seconds per megabyte of generated C at -O1 (the batch's compilers in parallel) before
-# this cache has measured its own: measured on the default problem's Newton functions (0.8 to 1.3 MB
-# of C in 5 functions per horizon, 2 at a time) on 2 cores shared with other work, 2.6 to 6.4 s per
-# MB (9.1 s under a heavier load)
+# this cache has measured its own: a figure within the range measured on the default problem's
+# Newton functions (docs/solve_speed.md, "The compile")
 PRIOR_S_PER_MB = 5.0
 TIMING_FILE = "timing.json"
 

@@ -150,8 +150,9 @@ class InteriorNewton:
         Qm, Dm, Lm = (ca.MX.sym("Q", nq, npts), ca.MX.sym("D", nq, npts),
                       ca.MX.sym("L", self.tool_k, npts))
         f_val = ca.Function("tool", [qa, qd], [out])
-        # the rows' gradients and exact curvature (about 29k operations a point), and the velocities
-        # (pv, vec(R)') with their Jacobian in (q, q') for the Gauss-Newton curvature (about 5k)
+        # the rows' gradients and exact curvature, and the velocities (pv, vec(R)') with their
+        # Jacobian in (q, q') for the Gauss-Newton curvature, the cheaper one (their operation
+        # counts: docs/realtime.md, "The method")
         f_der = ca.Function("tool_der", [qa, qd, lam],
                             [ca.densify(ca.jacobian(out, y)),
                              ca.densify(ca.hessian(ca.dot(lam, out), y)[0])])
