@@ -29,14 +29,12 @@ WARM_OPTIONS = {
 
 
 # IPOPT options for the lifted NLP started at the condensed solution (a KKT point up to tol, with
-# its multipliers): a small monotone barrier. Measured on the default problem at T = 20: 15 and 1
-# iterations (paper constants, correlated V_d0) against 65-73 with the adaptive update, which raised
-# mu to 1e-3 and walked away. With the structured Hessian the dual infeasibility then falls linearly
-# (about 0.9 per iteration on evaluation configuration 9) while the objective stays put: an
-# acceptable-level stop like ENFORCED_OPTIONS' (objective change at most 1e-9 over 3 iterations,
+# its multipliers): a small monotone barrier (the adaptive update raised mu and walked away). With
+# the structured Hessian the dual infeasibility then falls linearly while the objective stays put:
+# an acceptable-level stop like ENFORCED_OPTIONS' (objective change at most 1e-9 over 3 iterations,
 # constraints 1e-6, complementarity 1e-6: at 1e-9 it never triggered) ends that tail as
-# Solved_To_Acceptable_Level (configuration 9: 3 iterations, the same trace to 10 digits;
-# docs/general_models.md).
+# Solved_To_Acceptable_Level with the same trace (the iterations measured: docs/general_models.md,
+# the lifted form and its polish from the condensed solution).
 LIFTED_FROM_CONDENSED = {
     "ipopt.mu_init": 1e-9,
     "ipopt.mu_strategy": "monotone",
