@@ -129,7 +129,8 @@ def _show_in_subprocess(tmp_path, sol: dict | None, target: Path | None = None,
 
 
 def test_a_device_as_urdf_is_an_error(baseline, tmp_path):
-    """Reproducer: `robot.urdf: /dev/zero` took 37 s and 15.5 GB, then exited 0."""
+    """Reproducer: `robot.urdf: /dev/zero` was read at length (its time and memory: CHANGELOG),
+    then exited 0."""
     code, err, out = _show_in_subprocess(
         tmp_path, edited(baseline, lambda d: d["robot"].update(urdf="/dev/zero")), timeout=60)
     assert_user_error(code, err, out, "plan.json", "robot.urdf", "not a regular file")
