@@ -294,7 +294,8 @@ def test_a_grid_has_a_stated_bound(tmp_path):
                                             ("tcp://h:70000", ["1..65535"]),
                                             ("inproc://zz", ["inproc://"])])
 def test_a_scheduler_address_that_does_not_parse_is_one_line(tmp_path, address, words):
-    """Refused before a dask `Client` is made (a half-made one printed a traceback 20 s later)."""
+    """Refused before a dask `Client` is made (a half-made one printed a traceback later on:
+    CHANGELOG)."""
     pytest.importorskip("distributed")
     out = tmp_path / "out"
     res = _cli("evaluate", EVAL, *TINY, "--output-dir", out, "--scheduler", address)
