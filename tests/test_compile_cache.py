@@ -1,5 +1,5 @@
-"""The compile cache (issue 29 item 4): where it is (XDG), its compile notes with an estimate, its size bound
-(least recently used first), and `surestep cache --info/--clear/--prune`."""
+"""The compile cache (issue 29 item 4): where it is (XDG), its compile notes with an estimate, its
+size bound (least recently used first), and `surestep cache --info/--clear/--prune`."""
 
 from __future__ import annotations
 
@@ -33,7 +33,8 @@ def test_the_folder_follows_xdg_and_the_override(cache_env, monkeypatch):
     assert codegen.cache_dir() == cache_env / "home" / ".cache" / "surestep_ocp"
     monkeypatch.setenv("XDG_CACHE_HOME", str(cache_env / "xdg"))
     assert codegen.cache_dir() == cache_env / "xdg" / "surestep_ocp"
-    monkeypatch.setenv("XDG_CACHE_HOME", "relative/path")  # the XDG specification: relative paths are ignored
+    # the XDG specification: relative paths are ignored
+    monkeypatch.setenv("XDG_CACHE_HOME", "relative/path")
     assert codegen.cache_dir() == cache_env / "home" / ".cache" / "surestep_ocp"
     monkeypatch.setenv("SURESTEP_CACHE", str(cache_env / "mine"))
     assert codegen.cache_dir() == cache_env / "mine"
@@ -64,16 +65,20 @@ def _fake_library(folder: Path, name: str, size: int, age_s: float) -> Path:
 
 def test_prune_removes_the_least_recently_used_first(tmp_path):
     folder = tmp_path / "c"
-    libs = {n: _fake_library(folder, n, 1000, age) for n, age in (("old", 300), ("mid", 200), ("new", 100))}
-    os.utime(libs["old"].with_name(libs["old"].name + ".sha256"))  # "old" loaded just now: the most recent use
+    libs = {n: _fake_library(folder, n, 1000, age)
+            for n, age in (("old", 300), ("mid", 200), ("new", 100))}
+    # "old" loaded just now: the most recent use
+    os.utime(libs["old"].with_name(libs["old"].name + ".sha256"))
     (folder / "unrelated.txt").write_text("not the cache's")
     removed = codegen.prune(2 * 1065 + 10, folder)  # room for two libraries with their checksums
     assert [e.lib.name for e in removed] == [libs["mid"].name]
-    assert not libs["mid"].exists() and not libs["mid"].with_name(libs["mid"].name + ".sha256").exists()
+    assert (not libs["mid"].exists()
+            and not libs["mid"].with_name(libs["mid"].name + ".sha256").exists())
     assert libs["old"].exists() and libs["new"].exists()
     assert codegen.prune(None, folder) == []
     assert codegen.clear(folder) > 2000
-    assert [p.name for p in folder.iterdir()] == ["unrelated.txt"]  # only the cache's own files are removed
+    # only the cache's own files are removed
+    assert [p.name for p in folder.iterdir()] == ["unrelated.txt"]
 
 
 @needs_cc
@@ -85,9 +90,11 @@ def test_a_compile_is_announced_with_an_estimate_and_timed(cache_env, monkeypatc
     assert [fresh for _, fresh in done] == [True] * 3
     for i, (f, _) in enumerate(done):
         assert float(f([1, 2, 3])[1]) == pytest.approx((i + 1) * __import__("math").sin(2))
-    err = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("note: solver.codegen:")]
+    err = [ln for ln in capsys.readouterr().err.splitlines()
+           if ln.startswith("note: solver.codegen:")]
     assert len(err) == 2, err
-    assert "compiling 3 functions" in err[0] and "cache_probe_0, cache_probe_1, cache_probe_2; inputs 3x1" in err[0]
+    assert ("compiling 3 functions" in err[0]
+            and "cache_probe_0, cache_probe_1, cache_probe_2; inputs 3x1" in err[0])
     assert "about" in err[0]
     assert "a first guess" in err[0] and str(cache_env / "c") in err[0]
     assert err[1].startswith("note: solver.codegen: compiling took")
@@ -104,7 +111,8 @@ def test_a_compile_keeps_the_cache_within_its_bound(cache_env, monkeypatch):
     folder = cache_env / "c"
     monkeypatch.setenv("SURESTEP_CACHE", str(folder))
     stale = _fake_library(folder, "stale", 50_000, 3600)
-    monkeypatch.setenv("SURESTEP_CACHE_MAX_MB", "0.04")  # 40 kB: the fake library must go, the new one stays
+    # 40 kB: the fake library must go, the new one stays
+    monkeypatch.setenv("SURESTEP_CACHE_MAX_MB", "0.04")
     x = ca.SX.sym("x", 2)
     f, fresh = codegen.compiled(ca.Function("cache_bound_probe", [x], [x * 2]))
     assert fresh and not stale.exists() and [e.lib.name for e in codegen.entries(folder)] == [
@@ -118,7 +126,8 @@ def test_the_cache_command(cache_env, monkeypatch, capsys):
         _fake_library(folder, n, 400_000, age)
     assert main(["cache"]) == 0
     out = capsys.readouterr().out
-    assert str(folder) in out and "$XDG_CACHE_HOME/surestep_ocp" in out and "libraries   3 (1.2 MB" in out
+    assert (str(folder) in out and "$XDG_CACHE_HOME/surestep_ocp" in out
+            and "libraries   3 (1.2 MB" in out)
     assert "surestep cache --clear" in out
     assert main(["cache", "--prune", "--max-mb", "0.9"]) == 0
     assert "pruned      1 libraries" in capsys.readouterr().out
@@ -131,15 +140,17 @@ def test_the_cache_command(cache_env, monkeypatch, capsys):
 
 def test_the_cache_command_runs_as_a_program(cache_env):
     env = {**os.environ, "SURESTEP_CACHE": str(cache_env / "empty")}
-    res = subprocess.run([sys.executable, "-m", "surestep_ocp.cli", "cache", "--info"], capture_output=True,
-                         text=True, cwd=REPO, env=env, timeout=120, check=False)
-    assert res.returncode == 0 and "not created yet" in res.stdout and "$SURESTEP_CACHE" in res.stdout, res.stderr
+    res = subprocess.run([sys.executable, "-m", "surestep_ocp.cli", "cache", "--info"],
+                         capture_output=True, text=True, cwd=REPO, env=env, timeout=120,
+                         check=False)
+    assert (res.returncode == 0 and "not created yet" in res.stdout
+            and "$SURESTEP_CACHE" in res.stdout), res.stderr
 
 
-# ------------------------------------------------------------------ a checksum rewritten with the library
-# (issue 30): the checksum beside a library proves only that the two were written together. Each case runs
-# in its own process: a library cut short kills its loader with SIGBUS, and a library once loaded stays
-# loaded in that process under its path.
+# ------------------------------------------------------------ a checksum rewritten with the library
+# (issue 30): the checksum beside a library proves only that the two were written together. Each
+# case runs in its own process: a library cut short kills its loader with SIGBUS, and a library once
+# loaded stays loaded in that process under its path.
 _TAMPER_SCRIPT = """
 import json, sys
 import casadi as ca
@@ -169,13 +180,14 @@ else:
 
 def _tamper_run(cache: Path, *args: str) -> tuple[subprocess.CompletedProcess, list[str]]:
     env = {**os.environ, "SURESTEP_CACHE": str(cache)}
-    res = subprocess.run([sys.executable, "-c", _TAMPER_SCRIPT, *args], capture_output=True, text=True,
-                         env=env, cwd=REPO, timeout=300, check=False)
+    res = subprocess.run([sys.executable, "-c", _TAMPER_SCRIPT, *args], capture_output=True,
+                         text=True, env=env, cwd=REPO, timeout=300, check=False)
     return res, [ln for ln in res.stderr.splitlines() if "was not loaded" in ln]
 
 
 def _replace_with_checksum(lib: Path, data: bytes) -> None:
-    """`lib`'s bytes replaced and its checksum file rewritten to match them (hashlib, not the cache's code)."""
+    """`lib`'s bytes replaced and its checksum file rewritten to match them (hashlib, not the
+    cache's code)."""
     import hashlib
 
     lib.write_bytes(data)
@@ -198,9 +210,11 @@ def tamper_libs(tmp_path_factory) -> tuple[Path, dict[str, bytes]]:
     ("half", "cut short"), ("most", "cut short"), ("header", "cut short"),
     ("horizon", "input 0 is 4x1"), ("constant", "other values")])
 @pytest.mark.parametrize("mode", ["compiled", "deferred"])
-def test_a_library_with_a_rewritten_checksum_is_checked_and_rebuilt(tamper_libs, tmp_path, tamper, words, mode):
-    """Cut short (the load died of SIGBUS), or another horizon's or other constants' library under the name
-    (an internal error, or other values used as the function's): each said once, rebuilt, the right values."""
+def test_a_library_with_a_rewritten_checksum_is_checked_and_rebuilt(tamper_libs, tmp_path, tamper,
+                                                                   words, mode):
+    """Cut short (the load died of SIGBUS), or another horizon's or other constants' library under
+    the name (an internal error, or other values used as the function's): each said once, rebuilt,
+    the right values."""
     import math
 
     own, data = tamper_libs

@@ -1,7 +1,9 @@
-"""Issue 30 for `surestep evaluate` and `surestep sweep`: every entry point keeps the file reader's promises.
+"""Issue 30 for `surestep evaluate` and `surestep sweep`: every entry point keeps the file reader's
+promises.
 
-Inputs are never overwritten (nor written through a symbolic link), one writer per output folder, a resumed run
-uses only whole, finite records of the same settings, and a bad sweep file is a one-line user error (exit 2).
+Inputs are never overwritten (nor written through a symbolic link), one writer per output folder, a
+resumed run uses only whole, finite records of the same settings, and a bad sweep file is a one-line
+user error (exit 2).
 """
 
 from __future__ import annotations
@@ -24,7 +26,8 @@ from surestep_ocp.evaluation import evaluation
 
 REPO = Path(__file__).resolve().parents[1]
 EVAL = REPO / "problems" / "evaluations" / "evaluation.yaml"
-TINY = ["--configs", "2", "--rollouts", "2", "--methods", "baseline", "--rollout-mode", "model", "--quiet"]
+TINY = ["--configs", "2", "--rollouts", "2", "--methods", "baseline", "--rollout-mode", "model",
+        "--quiet"]
 
 
 def _run(argv: list[str]) -> int:
@@ -35,8 +38,8 @@ def _run(argv: list[str]) -> int:
 
 
 def _cli(*argv: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "surestep_ocp.cli", *map(str, argv)], capture_output=True,
-                          text=True, timeout=300, cwd=REPO)
+    return subprocess.run([sys.executable, "-m", "surestep_ocp.cli", *map(str, argv)],
+                          capture_output=True, text=True, timeout=300, cwd=REPO)
 
 
 def _user_error(res: subprocess.CompletedProcess, *words: str) -> str:
@@ -66,7 +69,7 @@ def _sweep(path: Path, evaluation_file: str, **keys) -> Path:
     return path
 
 
-# ------------------------------------------------------------------ 1. sweep outputs never replace its inputs
+# -------------------------------------------------------- 1. sweep outputs never replace its inputs
 def test_sweep_refuses_to_overwrite_its_own_evaluation_file(tmp_path):
     d = tmp_path / "D"
     ev = _evaluation_copy(d / "runA" / "evaluation.yaml")
@@ -89,7 +92,8 @@ def test_sweep_refuses_to_write_through_a_symbolic_link(tmp_path):
 
 
 def test_sweep_writes_its_run_files_atomically(tmp_path):
-    """A run file is replaced by a rename (a new file), never rewritten in place: a hard link to it keeps its text."""
+    """A run file is replaced by a rename (a new file), never rewritten in place: a hard link to it
+    keeps its text."""
     from surestep_ocp.evaluation.sweep import load_sweep, write_run_files
 
     _evaluation_copy(tmp_path / "in" / "e.yaml")
@@ -106,22 +110,25 @@ def test_sweep_writes_its_run_files_atomically(tmp_path):
     for name in ("evaluation.yaml", "base.yaml"):
         assert (other / name).read_text() == "old\n"
         assert (out / name).read_text() != "old\n"
-    assert sorted(p.name for p in out.iterdir()) == ["base.yaml", "evaluation.yaml"]  # no temporary file left
+    # no temporary file left
+    assert sorted(p.name for p in out.iterdir()) == ["base.yaml", "evaluation.yaml"]
 
 
-# ------------------------------------------------------------------ 2. one writer per folder; settings in records
+# ---------------------------------------------------- 2. one writer per folder; settings in records
 def test_a_second_writer_into_the_same_folder_is_refused(tmp_path):
     from surestep_ocp.evaluation.run_lock import hold
 
     out = tmp_path / "run"
     out.mkdir()
     with hold(out):
-        err = _user_error(_cli("evaluate", EVAL, *TINY, "--output-dir", out), "another surestep process")
+        err = _user_error(_cli("evaluate", EVAL, *TINY, "--output-dir", out),
+                          "another surestep process")
         assert str(out) in err
         with pytest.raises(SurestepError, match="another surestep process"):
             _run(["evaluate", str(EVAL), *TINY, "--output-dir", str(out)])
     assert not (out / "progress.jsonl").exists()
-    assert _run(["evaluate", str(EVAL), *TINY, "--output-dir", str(out)]) == 0  # released: the run goes ahead
+    # released: the run goes ahead
+    assert _run(["evaluate", str(EVAL), *TINY, "--output-dir", str(out)]) == 0
     assert sorted(p.name for p in out.iterdir()) == sorted(
         ["run.json", "progress.jsonl", "table.md", "raw.csv", "solves.csv", "boxplot.png"])
 
@@ -141,7 +148,8 @@ def _copy(finished: Path, tmp_path: Path) -> Path:
 
 
 @pytest.mark.parametrize("flag,value", [("--seed", "1"), ("--rollouts", "3")])
-def test_resume_without_run_json_checks_the_settings_in_the_records(finished, tmp_path, flag, value):
+def test_resume_without_run_json_checks_the_settings_in_the_records(finished, tmp_path, flag,
+                                                                   value):
     out = _copy(finished, tmp_path)
     (out / "run.json").unlink()
     before = (out / "progress.jsonl").read_text()
@@ -151,7 +159,8 @@ def test_resume_without_run_json_checks_the_settings_in_the_records(finished, tm
         argv += [flag, value]
     else:
         argv[i + 1] = value
-    _user_error(_cli("evaluate", EVAL, *argv, "--output-dir", out, "--resume"), "other settings", flag[2:])
+    _user_error(_cli("evaluate", EVAL, *argv, "--output-dir", out, "--resume"), "other settings",
+                flag[2:])
     assert (out / "progress.jsonl").read_text() == before
     assert not (out / "run.json").exists()
 
@@ -162,7 +171,7 @@ def test_records_carry_their_settings(finished):
         assert rec["seed"] == 0 and rec["rollouts"] == 2
 
 
-# ------------------------------------------------------------------ 3. --resume re-runs any record not whole
+# --------------------------------------------------------- 3. --resume re-runs any record not whole
 def _nan_metric(rec):
     rec["metrics"]["model"]["baseline"]["pos_err_mean"] = math.nan
 
@@ -203,8 +212,8 @@ def _no_settings_no_run_json(rec):
     del rec["seed"]
 
 
-BREAKS = [_nan_metric, _nan_success, _string_metric, _null_metric, _no_solve, _no_metric, _no_mode, _no_method,
-          _short_errors, _no_settings_no_run_json]
+BREAKS = [_nan_metric, _nan_success, _string_metric, _null_metric, _no_solve, _no_metric, _no_mode,
+          _no_method, _short_errors, _no_settings_no_run_json]
 
 
 @pytest.mark.parametrize("brk", BREAKS, ids=[b.__name__.lstrip("_") for b in BREAKS])
@@ -226,7 +235,8 @@ def test_resume_runs_a_broken_record_again(finished, tmp_path, monkeypatch, caps
 
     monkeypatch.setattr(evaluation, "evaluate_configuration", counting)
     capsys.readouterr()
-    assert _run(["evaluate", str(EVAL), *TINY, "--seed", "0", "--output-dir", str(out), "--resume"]) == 0
+    assert _run(["evaluate", str(EVAL), *TINY, "--seed", "0", "--output-dir", str(out),
+                 "--resume"]) == 0
     assert calls == [1]
     err = capsys.readouterr().err
     assert "line 2" in err and "run again" in err
@@ -234,14 +244,16 @@ def test_resume_runs_a_broken_record_again(finished, tmp_path, monkeypatch, caps
         rows = list(csv.DictReader(fh))
     assert rows and all(r["missing"] == "" and math.isfinite(float(r["value"])) for r in rows)
     assert (out / "raw.csv").read_text() == (finished / "raw.csv").read_text()
-    assert [json.loads(x)["config"] for x in (out / "progress.jsonl").read_text().splitlines()] == [0, 1]
+    assert [json.loads(x)["config"]
+            for x in (out / "progress.jsonl").read_text().splitlines()] == [0, 1]
 
 
-# ------------------------------------------------------------------ 4. bad sweep files: one line, exit 2
+# ------------------------------------------------------------- 4. bad sweep files: one line, exit 2
 def test_sweep_of_a_problem_file_is_a_user_error(tmp_path):
     problem = REPO / "problems" / "needle_regrasp.yaml"
     sweep = _sweep(tmp_path / "s.yaml", str(problem))
-    _user_error(_cli("sweep", sweep, "--output-dir", tmp_path / "out", "--quiet"), "not an evaluation file")
+    _user_error(_cli("sweep", sweep, "--output-dir", tmp_path / "out", "--quiet"),
+                "not an evaluation file")
 
 
 @pytest.mark.parametrize("name", ["a\x00b", "tab\there", "x" * 300, "back\\slash"])
@@ -253,7 +265,8 @@ def test_a_run_name_that_is_no_folder_name_is_a_user_error(tmp_path, name):
     with pytest.raises(SurestepError, match=r"runs\[0\]\.name"):
         load_sweep(sweep)
     if "\x00" in name:
-        _user_error(_cli("sweep", sweep, "--output-dir", tmp_path / "out", "--quiet"), "runs[0].name")
+        _user_error(_cli("sweep", sweep, "--output-dir", tmp_path / "out", "--quiet"),
+                    "runs[0].name")
 
 
 def test_a_grid_has_a_stated_bound(tmp_path):
@@ -265,8 +278,10 @@ def test_a_grid_has_a_stated_bound(tmp_path):
     sweep = _sweep(tmp_path / "s.yaml", "e.yaml", grid=grid)
     with pytest.raises(SurestepError, match="at most 1000"):
         load_sweep(sweep)
-    big = _sweep(tmp_path / "big.yaml", "e.yaml", grid={f"k{i}": list(range(10)) for i in range(10)})
-    _user_error(_cli("sweep", big, "--output-dir", tmp_path / "out", "--quiet"), "grid", "at most 1000")
+    big = _sweep(tmp_path / "big.yaml", "e.yaml",
+                 grid={f"k{i}": list(range(10)) for i in range(10)})
+    _user_error(_cli("sweep", big, "--output-dir", tmp_path / "out", "--quiet"), "grid",
+                "at most 1000")
     ok = _sweep(tmp_path / "ok.yaml", "e.yaml", runs=[],
                 grid={"detection.falloff": [0.0, 0.1, 0.2], "seedless": list(range(333))})
     assert len(load_sweep(ok)["runs"]) == 999
@@ -279,7 +294,8 @@ def test_a_grid_has_a_stated_bound(tmp_path):
                                             ("tcp://h:70000", ["1..65535"]),
                                             ("inproc://zz", ["inproc://"])])
 def test_a_scheduler_address_that_does_not_parse_is_one_line(tmp_path, address, words):
-    """Refused before a dask `Client` is made (a half-made one printed a traceback 20 s later)."""
+    """Refused before a dask `Client` is made (a half-made one printed a traceback later on:
+    CHANGELOG)."""
     pytest.importorskip("distributed")
     out = tmp_path / "out"
     res = _cli("evaluate", EVAL, *TINY, "--output-dir", out, "--scheduler", address)

@@ -1,6 +1,7 @@
-"""`surestep show` keeps the file reader's promises (issue 30): no NaN or Infinity reaches the scene, every
-number it reads is finite and within the problem reader's ranges, and the work is bounded (the solution file,
-the URDFs read: regular files of bounded size, never a device or a pipe); each refusal is one line, exit 2."""
+"""`surestep show` keeps the file reader's promises (issue 30): no NaN or Infinity reaches the
+scene, every number it reads is finite and within the problem reader's ranges, and the work is
+bounded (the solution file, the URDFs read: regular files of bounded size, never a device or a
+pipe); each refusal is one line, exit 2."""
 
 from __future__ import annotations
 
@@ -28,7 +29,8 @@ ECM = str(REPO / "robots" / "ecm.urdf")
 
 @pytest.fixture(scope="module")
 def baseline(tmp_path_factory) -> dict:
-    """The default problem's straight-line plan (no optimisation), its URDFs named by absolute paths."""
+    """The default problem's straight-line plan (no optimisation), its URDFs named by absolute
+    paths."""
     from surestep_ocp.problem.load import load_problem
     from surestep_ocp.problem.setup import build_setup
     from surestep_ocp.solvers.methods import run_method
@@ -69,9 +71,11 @@ def test_the_baseline_is_shown(baseline, tmp_path, capsys):
 EDITS = {
     "ecm_q_nan": (lambda d: d["ecm"].update(q=[math.nan, 0.0, 0.05, 0.0]), "ecm.q"),
     "ecm_q_dict_inf": (lambda d: d["ecm"].update(q={"yaw": math.inf}), "ecm.q"),
-    "other_arm_nan": (lambda d: d.update(other_arms=[{"urdf": PSM, "frame": "tool", "q": [math.nan] * 7}]),
+    "other_arm_nan": (lambda d: d.update(other_arms=[{"urdf": PSM, "frame": "tool",
+                                                      "q": [math.nan] * 7}]),
                       "other_arms[0].q"),
-    "other_arm_base_zero": (lambda d: d.update(other_arms=[{"urdf": PSM, "base_pose": [[0.0] * 4] * 4}]),
+    "other_arm_base_zero": (lambda d: d.update(other_arms=[{"urdf": PSM,
+                                                            "base_pose": [[0.0] * 4] * 4}]),
                             "other_arms[0].base_pose"),
     "camera_pose_zero": (lambda d: d.update(camera_pose=[[0.0] * 4] * 4), "camera_pose"),
     "camera_pose_far": (lambda d: d["camera_pose"][0].__setitem__(3, 1e300), "camera_pose"),
@@ -82,9 +86,11 @@ EDITS = {
     "fx_huge": (lambda d: d["camera"].update(fx=1e300), "camera"),
     "width_huge": (lambda d: d["camera"].update(width=1e300), "camera"),
     "sigma_huge": (lambda d: d["sigma"][1][0].__setitem__(0, 1e300), "sigma[1]"),
-    "camera_poses_zero": (lambda d: d.update(camera_poses=[[[0.0] * 4] * 4] * len(d["poses"])), "camera_poses[0]"),
+    "camera_poses_zero": (lambda d: d.update(camera_poses=[[[0.0] * 4] * 4] * len(d["poses"])),
+                          "camera_poses[0]"),
     "q_huge": (lambda d: d["q"][1].__setitem__(0, 1e300), "q[1]"),
-    "robot_base_far": (lambda d: d["robot"]["base_pose"][2].__setitem__(3, 1e300), "robot.base_pose"),
+    "robot_base_far": (lambda d: d["robot"]["base_pose"][2].__setitem__(3, 1e300),
+                       "robot.base_pose"),
     "needle_radius_nan": (lambda d: d["robot"].update(needle={"radius": math.nan}), "robot.needle"),
     "depth_star_inf": (lambda d: d["noise"].update(depth_star=math.inf), "noise.depth_star"),
     "too_many_waypoints": (lambda d: d.update(poses=[d["poses"][0]] * 10_001), "poses"),
@@ -93,8 +99,8 @@ EDITS = {
 
 @pytest.mark.parametrize("case", list(EDITS))
 def test_out_of_range_numbers_are_one_line_errors(baseline, tmp_path, capsys, case):
-    """Reproducer: NaN reached the scene for an ecm.q of NaN, other_arms with NaN joints, an all-zero camera_pose,
-    a 1e300 translation or fx = 1e-300 (exit 0)."""
+    """Reproducer: NaN reached the scene for an ecm.q of NaN, other_arms with NaN joints, an
+    all-zero camera_pose, a 1e300 translation or fx = 1e-300 (exit 0)."""
     edit, key = EDITS[case]
     code, err, out = run_show(tmp_path, capsys, edited(baseline, edit))
     assert_user_error(code, err, out, "plan.json", key)
@@ -104,25 +110,29 @@ def test_a_solution_dict_given_directly_is_checked(baseline, tmp_path):
     from viz.show import show
 
     with pytest.raises(SurestepError, match="camera_pose"):
-        show([edited(baseline, lambda d: d.update(camera_pose=[[0.0] * 4] * 4))], html=tmp_path / "s.html")
+        show([edited(baseline, lambda d: d.update(camera_pose=[[0.0] * 4] * 4))],
+             html=tmp_path / "s.html")
     assert not (tmp_path / "s.html").exists()
 
 
-def _show_in_subprocess(tmp_path, sol: dict | None, target: Path | None = None, timeout: float = 120):
+def _show_in_subprocess(tmp_path, sol: dict | None, target: Path | None = None,
+                        timeout: float = 120):
     """`surestep show` in a child process (a regression must not hang or exhaust this one)."""
     if target is None:
         target = tmp_path / "plan.json"
         target.write_text(json.dumps(sol))
     out = tmp_path / "scene.html"
-    proc = subprocess.run([sys.executable, "-m", "surestep_ocp.cli", "show", str(target), "--html", str(out)],
+    proc = subprocess.run([sys.executable, "-m", "surestep_ocp.cli", "show", str(target),
+                           "--html", str(out)],
                           capture_output=True, text=True, timeout=timeout, cwd=tmp_path)
     return proc.returncode, proc.stderr.strip().splitlines(), out
 
 
 def test_a_device_as_urdf_is_an_error(baseline, tmp_path):
-    """Reproducer: `robot.urdf: /dev/zero` took 37 s and 15.5 GB, then exited 0."""
-    code, err, out = _show_in_subprocess(tmp_path, edited(baseline, lambda d: d["robot"].update(urdf="/dev/zero")),
-                                         timeout=60)
+    """Reproducer: `robot.urdf: /dev/zero` was read at length (its time and memory: CHANGELOG),
+    then exited 0."""
+    code, err, out = _show_in_subprocess(
+        tmp_path, edited(baseline, lambda d: d["robot"].update(urdf="/dev/zero")), timeout=60)
     assert_user_error(code, err, out, "plan.json", "robot.urdf", "not a regular file")
 
 
@@ -140,14 +150,16 @@ def test_a_pipe_as_urdf_is_an_error(baseline, tmp_path, arm):
             d[arm]["urdf"] = str(fifo)
 
     code, err, out = _show_in_subprocess(tmp_path, edited(baseline, edit), timeout=60)
-    assert_user_error(code, err, out, "plan.json", f"{arm}[0].urdf" if arm == "other_arms" else f"{arm}.urdf")
+    assert_user_error(code, err, out, "plan.json",
+                      f"{arm}[0].urdf" if arm == "other_arms" else f"{arm}.urdf")
 
 
 def test_a_too_large_urdf_is_an_error(baseline, tmp_path, capsys):
     big = tmp_path / "big.urdf"
     with big.open("wb") as f:
         f.truncate(20_000_000)
-    code, err, out = run_show(tmp_path, capsys, edited(baseline, lambda d: d["ecm"].update(urdf=str(big))))
+    code, err, out = run_show(tmp_path, capsys,
+                              edited(baseline, lambda d: d["ecm"].update(urdf=str(big))))
     assert_user_error(code, err, out, "plan.json", "ecm.urdf", "bytes")
 
 
@@ -164,7 +176,8 @@ def test_a_huge_solution_file_is_an_error(tmp_path, capsys):
     assert_user_error(code, err, out, "plan.json", "bytes")
 
 
-@pytest.mark.parametrize("text", ["[" * 100_000, '{"poses": [[' + "9" * 5000 + ", 0, 0, 0, 0, 0]]}"])
+@pytest.mark.parametrize("text", ["[" * 100_000,
+                                  '{"poses": [[' + "9" * 5000 + ", 0, 0, 0, 0, 0]]}"])
 def test_deep_nesting_and_long_integers_are_errors(tmp_path, capsys, text):
     code, err, out = run_show(tmp_path, capsys, text=text)
     assert_user_error(code, err, out, "plan.json")
@@ -172,13 +185,14 @@ def test_deep_nesting_and_long_integers_are_errors(tmp_path, capsys, text):
 
 @pytest.mark.parametrize("flag", ["html", "screenshot"])
 def test_an_empty_output_name_is_an_error_not_the_live_server(baseline, tmp_path, flag):
-    """Reproducer: `show --html ""` started the live server and blocked (here: viz.show_main's path)."""
+    """Reproducer: `show --html ""` started the live server and blocked (here: viz.show_main's
+    path)."""
     from viz.show import show_main
 
     src = tmp_path / "plan.json"
     src.write_text(json.dumps(baseline))
-    args = argparse.Namespace(target=src, open_browser=False, html=None, screenshot=None, endoscope_view=False,
-                              animate=None)
+    args = argparse.Namespace(target=src, open_browser=False, html=None, screenshot=None,
+                              endoscope_view=False, animate=None)
     setattr(args, flag, "")
     with pytest.raises(SurestepError, match=f"--{flag}"):
         show_main(args)
@@ -206,13 +220,16 @@ def test_the_page_writer_refuses_non_finite_numbers(tmp_path):
 
 
 def test_show_cli_refuses_an_empty_html_name(tmp_path):
-    """`surestep show DIR --html ""` is a one-line error (it used to start the live server and block)."""
+    """`surestep show DIR --html ""` is a one-line error (it used to start the live server and
+    block)."""
     import subprocess
     import sys
 
-    run = subprocess.run([sys.executable, "-m", "surestep_ocp.cli", "show", str(tmp_path), "--html", ""],
+    run = subprocess.run([sys.executable, "-m", "surestep_ocp.cli", "show", str(tmp_path),
+                          "--html", ""],
                          capture_output=True, text=True, timeout=60)
-    assert run.returncode == 2 and "--html: an empty file name" in run.stderr and "Traceback" not in run.stderr
+    assert (run.returncode == 2 and "--html: an empty file name" in run.stderr
+            and "Traceback" not in run.stderr)
 
 
 def test_the_live_server_ends_with_a_killed_show(baseline, tmp_path):

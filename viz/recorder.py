@@ -123,8 +123,8 @@ class RecordingWindow:
         return out
 
     def get_scene(self, title: str = "SURESTEP trajectories", overlay: str = "") -> str:
-        """Standalone HTML page (viewer JavaScript inlined) showing the recorded scene, with `overlay`
-        (HTML, e.g. a legend) over the viewer."""
+        """Standalone HTML page (viewer JavaScript inlined) showing the recorded scene, with
+        `overlay` (HTML, e.g. a legend) over the viewer."""
         lines = ",\n".join('"' + base64.b64encode(c).decode("ascii") + '"' for c in self.commands())
         viewer_js = _VIEWER_JS.read_text(encoding="utf-8")
         # A literal "</script>" inside the bundle would end the script element early.

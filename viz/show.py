@@ -42,10 +42,11 @@ def as_solutions(target: Target) -> list[Solution]:
         except FileNotFoundError as exc:
             raise SurestepError(f"{name}: {shown(exc.strerror or str(exc), 200)}") from None
         except UnicodeDecodeError as exc:
-            raise SurestepError(f"{name}: not a solution file (not UTF-8 text: invalid byte at offset "
-                                f"{exc.start})") from None
+            raise SurestepError(f"{name}: not a solution file (not UTF-8 text: invalid byte at "
+                                f"offset {exc.start})") from None
         except json.JSONDecodeError as exc:
-            what = "empty" if not exc.doc.strip() else f"not valid JSON at line {exc.lineno}, column {exc.colno}: {exc.msg}"
+            what = ("empty" if not exc.doc.strip()
+                    else f"not valid JSON at line {exc.lineno}, column {exc.colno}: {exc.msg}")
             raise SurestepError(f"{name}: not a solution file ({what})") from None
         except (ValueError, RecursionError) as exc:
             raise SurestepError(f"{name}: not a solution file ({shown(str(exc), 200)})") from None
@@ -59,8 +60,8 @@ def as_solutions(target: Target) -> list[Solution]:
     return list(target)
 
 
-# The problem reader's ranges (surestep_ocp/problem/parse.py, problems/README.md "Limits"), kept here so that the
-# viz package does not import the problem reader (and CasADi with it).
+# The problem reader's ranges (surestep_ocp/problem/parse.py, problems/README.md "Limits"), kept
+# here so that the viz package does not import the problem reader (and CasADi with it).
 MAX_POSITION = 100.0  # [m] any position (poses, points, translations)
 MAX_ANGLE = 1000.0  # [rad] any angle, axis-angle or joint value [rad or m]
 MAX_FOCAL = 1e6  # [px]
@@ -71,10 +72,11 @@ RIGID_TOL = 1e-6  # a rotation block's distance from orthonormal
 
 
 def _numbers(value, shape: tuple[int, ...], limit: float = math.inf) -> bool:
-    """Whether `value` is a nested list of finite numbers of exactly this shape, each within +-`limit`."""
+    """Whether `value` is a nested list of finite numbers of exactly this shape, each within
+    +-`limit`."""
     if not shape:
-        return (isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
-                and abs(value) <= limit)
+        return (isinstance(value, (int, float)) and not isinstance(value, bool)
+                and math.isfinite(value) and abs(value) <= limit)
     return (isinstance(value, list) and len(value) == shape[0]
             and all(_numbers(v, shape[1:], limit) for v in value))
 
@@ -86,7 +88,8 @@ def _pose6(value) -> bool:
 
 
 def _rigid(value) -> bool:
-    """A 4x4 rigid transform: orthonormal rotation (det +1), last row 0 0 0 1, translation within MAX_POSITION."""
+    """A 4x4 rigid transform: orthonormal rotation (det +1), last row 0 0 0 1, translation within
+    MAX_POSITION."""
     if not _numbers(value, (4, 4), 1e12):
         return False
     T = [[float(x) for x in row] for row in value]
@@ -96,20 +99,21 @@ def _rigid(value) -> bool:
             dot = sum(R[k][i] * R[k][j] for k in range(3))
             if abs(dot - (1.0 if i == j else 0.0)) > RIGID_TOL:
                 return False
-    det = (R[0][0] * (R[1][1] * R[2][2] - R[1][2] * R[2][1]) - R[0][1] * (R[1][0] * R[2][2] - R[1][2] * R[2][0])
+    det = (R[0][0] * (R[1][1] * R[2][2] - R[1][2] * R[2][1])
+           - R[0][1] * (R[1][0] * R[2][2] - R[1][2] * R[2][0])
            + R[0][2] * (R[1][0] * R[2][1] - R[1][1] * R[2][0]))
     return (det > 0 and all(abs(a - b) <= RIGID_TOL for a, b in zip(T[3], (0, 0, 0, 1)))
             and all(abs(T[i][3]) <= MAX_POSITION for i in range(3)))
 
 
-RIGID_TEXT = ("must be a rigid 4x4 transform (orthonormal rotation, last row 0 0 0 1, translation within "
-              f"{MAX_POSITION:g} m)")
+RIGID_TEXT = ("must be a rigid 4x4 transform (orthonormal rotation, last row 0 0 0 1, "
+              f"translation within {MAX_POSITION:g} m)")
 
 
 def check_solution(sol: Solution) -> None:
-    """Raise a one-line SurestepError unless `sol` has what the scene reads, of the right shapes, every number
-    finite and within the problem reader's ranges (positions within 100 m, focal lengths in [1, 1e6] px, rigid
-    poses)."""
+    """Raise a one-line SurestepError unless `sol` has what the scene reads, of the right shapes,
+    every number finite and within the problem reader's ranges (positions within 100 m, focal
+    lengths in [1, 1e6] px, rigid poses)."""
     src = shown(str(sol.get("_source", "a solution")), 200)
 
     def bad(key: str, what: str):
@@ -122,7 +126,8 @@ def check_solution(sol: Solution) -> None:
         raise bad("poses", f"lists {len(poses)} waypoints; at most {MAX_WAYPOINTS} are shown")
     for t, p in enumerate(poses):
         if p is not None and not _pose6(p):
-            raise bad(f"poses[{t}]", f"must be 6 finite numbers (a position within {MAX_POSITION:g} m, an "
+            raise bad(f"poses[{t}]", "must be 6 finite numbers "
+                                     f"(a position within {MAX_POSITION:g} m, an "
                                      f"axis-angle within {MAX_ANGLE:g} rad) or null")
     if "camera_pose" not in sol:
         raise bad("camera_pose", "is missing")
@@ -131,49 +136,58 @@ def check_solution(sol: Solution) -> None:
     if "goal" not in sol:
         raise bad("goal", "is missing")
     if not _pose6(sol["goal"]):
-        raise bad("goal", f"must be 6 finite numbers (a position within {MAX_POSITION:g} m, an axis-angle "
-                          f"within {MAX_ANGLE:g} rad)")
+        raise bad("goal", f"must be 6 finite numbers (a position within {MAX_POSITION:g} m, "
+                          f"an axis-angle within {MAX_ANGLE:g} rad)")
     cam = sol.get("camera")
-    if not isinstance(cam, dict) or not all(_numbers(cam.get(k), ()) for k in ("fx", "fy", "cx", "cy", "width",
-                                                                                  "height")):
+    if not isinstance(cam, dict) or not all(_numbers(cam.get(k), ())
+                                            for k in ("fx", "fy", "cx", "cy", "width", "height")):
         raise bad("camera", "must hold the finite numbers fx, fy, cx, cy, width, height")
-    if not (1 <= cam["fx"] <= MAX_FOCAL and 1 <= cam["fy"] <= MAX_FOCAL and 1 <= cam["width"] <= MAX_IMAGE
-            and 1 <= cam["height"] <= MAX_IMAGE and abs(cam["cx"]) <= MAX_FOCAL and abs(cam["cy"]) <= MAX_FOCAL):
-        raise bad("camera", f"needs fx, fy in [1, {MAX_FOCAL:g}] px, cx, cy within {MAX_FOCAL:g} and width, height "
-                            f"in [1, {MAX_IMAGE}]")
+    if not (1 <= cam["fx"] <= MAX_FOCAL and 1 <= cam["fy"] <= MAX_FOCAL
+            and 1 <= cam["width"] <= MAX_IMAGE and 1 <= cam["height"] <= MAX_IMAGE
+            and abs(cam["cx"]) <= MAX_FOCAL and abs(cam["cy"]) <= MAX_FOCAL):
+        raise bad("camera", f"needs fx, fy in [1, {MAX_FOCAL:g}] px, cx, cy within {MAX_FOCAL:g} "
+                            f"and width, height in [1, {MAX_IMAGE}]")
     if not isinstance(sol.get("method", ""), str):
         raise bad("method", "must be a string")
-    for key, shape, limit, ok in (("sigma", (6, 6), MAX_VARIANCE, None), ("camera_poses", (4, 4), None, _rigid)):
+    for key, shape, limit, ok in (("sigma", (6, 6), MAX_VARIANCE, None),
+                                  ("camera_poses", (4, 4), None, _rigid)):
         seq = sol.get(key)
         if seq is None:
             continue
         if not isinstance(seq, list) or len(seq) > MAX_WAYPOINTS:
-            raise bad(key, f"must be a list of at most {MAX_WAYPOINTS} {'x'.join(map(str, shape))} matrices")
+            raise bad(key, f"must be a list of at most {MAX_WAYPOINTS} "
+                           f"{'x'.join(map(str, shape))} matrices")
         for t, v in enumerate(seq):
             if v is not None and not (ok(v) if ok else _numbers(v, shape, limit)):
-                raise bad(f"{key}[{t}]", RIGID_TEXT if ok else f"must be {'x'.join(map(str, shape))} finite "
-                                                              f"numbers within {limit:g} (or null)")
+                raise bad(f"{key}[{t}]",
+                          RIGID_TEXT if ok else f"must be {'x'.join(map(str, shape))} finite "
+                                                f"numbers within {limit:g} (or null)")
     if sol.get("camera_poses") is not None and len(sol["camera_poses"]) not in (0, len(poses)):
         raise bad("camera_poses", f"must hold one pose per waypoint ({len(poses)})")
     q = sol.get("q")
     if q is not None and (not isinstance(q, list) or len(q) > MAX_WAYPOINTS):
         raise bad("q", f"must be a list of at most {MAX_WAYPOINTS} joint vectors (or null)")
     for t, v in enumerate(q or []):
-        if v is not None and not (isinstance(v, list) and all(_numbers(x, (), MAX_ANGLE) for x in v)):
-            raise bad(f"q[{t}]", f"must be a list of finite joint values within {MAX_ANGLE:g} (or null)")
+        if v is not None and not (isinstance(v, list)
+                                  and all(_numbers(x, (), MAX_ANGLE) for x in v)):
+            raise bad(f"q[{t}]",
+                      f"must be a list of finite joint values within {MAX_ANGLE:g} (or null)")
     names = sol.get("joint_names")
-    if names is not None and (not isinstance(names, list) or not all(isinstance(n, str) for n in names)):
+    if names is not None and (not isinstance(names, list)
+                              or not all(isinstance(n, str) for n in names)):
         raise bad("joint_names", "must be a list of strings")
     noise = sol.get("noise")
     if noise is not None and (not isinstance(noise, dict) or (
             "depth_star" in noise and not (_numbers(noise["depth_star"], (), MAX_POSITION)
                                            and noise["depth_star"] > 0))):
-        raise bad("noise.depth_star", f"must be a positive number of metres, at most {MAX_POSITION:g}")
+        raise bad("noise.depth_star",
+                  f"must be a positive number of metres, at most {MAX_POSITION:g}")
     for key in ("robot", "ecm"):
         if sol.get(key) is not None:
             _check_arm(sol[key], key, bad)
     arms = sol.get("other_arms")
-    if arms is not None and (not isinstance(arms, list) or not all(isinstance(a, dict) for a in arms)):
+    if arms is not None and (not isinstance(arms, list)
+                             or not all(isinstance(a, dict) for a in arms)):
         raise bad("other_arms", "must be a list of mappings")
     if arms is not None and len(arms) > 16:
         raise bad("other_arms", f"lists {len(arms)} arms; at most 16 are drawn")
@@ -182,7 +196,8 @@ def check_solution(sol: Solution) -> None:
 
 
 def _check_arm(arm, key: str, bad) -> None:
-    """An arm entry (`robot`, `ecm`, `other_arms[k]`): urdf, frame, base_pose, q (and joint_names), needle."""
+    """An arm entry (`robot`, `ecm`, `other_arms[k]`): urdf, frame, base_pose, q (and joint_names),
+    needle."""
     if not isinstance(arm, dict) or not isinstance(arm.get("urdf", ""), str) or not isinstance(
             arm.get("frame", ""), str):
         raise bad(key, "must be a mapping with the strings urdf and frame")
@@ -192,15 +207,18 @@ def _check_arm(arm, key: str, bad) -> None:
     values = list(q.values()) if isinstance(q, dict) else q
     if q is not None and (not isinstance(values, list) or len(values) > 64
                           or not all(_numbers(v, (), MAX_ANGLE) for v in values)):
-        raise bad(f"{key}.q", f"must be a list (or a joint: value mapping) of finite joint values within "
-                              f"{MAX_ANGLE:g}")
+        raise bad(f"{key}.q", "must be a list (or a joint: value mapping) of finite joint values "
+                              f"within {MAX_ANGLE:g}")
     names = arm.get("joint_names")
-    if names is not None and (not isinstance(names, list) or not all(isinstance(n, str) for n in names)):
+    if names is not None and (not isinstance(names, list)
+                              or not all(isinstance(n, str) for n in names)):
         raise bad(f"{key}.joint_names", "must be a list of strings")
     needle = arm.get("needle")
     if needle:
-        if not isinstance(needle, dict) or not (_numbers(needle.get("radius"), (), 1.0) and needle["radius"] > 0):
-            raise bad(f"{key}.needle", "must be a mapping with a radius in (0, 1] m (and optionally a grasp pose)")
+        if not isinstance(needle, dict) or not (_numbers(needle.get("radius"), (), 1.0)
+                                                and needle["radius"] > 0):
+            raise bad(f"{key}.needle", "must be a mapping with a radius in (0, 1] m "
+                                       "(and optionally a grasp pose)")
         if "grasp" in needle and not _rigid(needle["grasp"]):
             raise bad(f"{key}.needle.grasp", RIGID_TEXT)
 
@@ -210,21 +228,25 @@ def _checked_outputs(sols: Sequence[Solution], *outputs) -> None:
     inputs = [s.get("_source") for s in sols if isinstance(s, dict)]
     for out in outputs:
         if out is not None:
-            check_output_file(out, inputs, "the page" if str(out).endswith((".html", ".htm")) else "the output")
+            check_output_file(out, inputs, "the page" if str(out).endswith((".html", ".htm"))
+                              else "the output")
 
 
 def _scene_errors(sols: Sequence[Solution]):
-    """A solution file that passes `check_solution` but still breaks the scene: one line, not a traceback."""
+    """A solution file that passes `check_solution` but still breaks the scene: one line, not a
+    traceback."""
     @contextlib.contextmanager
     def guard():
         try:
-            # C libraries (urdfdom) print parse errors on stderr: silenced; Python warnings (a robot that
-            # cannot be drawn) are collected and said on one line each afterwards
+            # C libraries (urdfdom) print parse errors on stderr: silenced; Python warnings (a robot
+            # that cannot be drawn) are collected and said on one line each afterwards
             with warnings.catch_warnings(record=True) as caught, quiet_fd(2):
                 warnings.simplefilter("always")
                 yield
-        except (KeyError, TypeError, ValueError, IndexError, AttributeError, ZeroDivisionError) as exc:
-            srcs = ", ".join(shown(str(s.get("_source", "?")), 100) for s in sols[:3] if isinstance(s, dict))
+        except (KeyError, TypeError, ValueError, IndexError, AttributeError,
+                ZeroDivisionError) as exc:
+            srcs = ", ".join(shown(str(s.get("_source", "?")), 100) for s in sols[:3]
+                             if isinstance(s, dict))
             raise SurestepError(f"{srcs or 'the solutions'}: not a usable solution file "
                                 f"({type(exc).__name__}: {shown(str(exc), 200)})") from None
         finally:
@@ -373,8 +395,8 @@ def show_main(args: argparse.Namespace, solutions: Sequence[Solution] | None = N
     png = getattr(args, "screenshot", None)
     for flag, value in (("--html", html), ("--screenshot", png)):
         if value is not None and str(value) in ("", "."):
-            raise SurestepError(f"{flag} '{shown(str(value))}': must name a file to write (leave {flag} out to "
-                                "serve the scene live)")
+            raise SurestepError(f"{flag} '{shown(str(value))}': must name a file to write "
+                                f"(leave {flag} out to serve the scene live)")
     return show(
         args.target,
         open_browser=bool(getattr(args, "open_browser", getattr(args, "open", False))),

@@ -4,21 +4,22 @@ Where: `$SURESTEP_CACHE` when set, else `$XDG_CACHE_HOME/surestep_ocp` (`~/.cach
 `XDG_CACHE_HOME` is unset or not an absolute path, as the XDG base directory specification says).
 `surestep cache --info` shows it, `surestep cache --clear` empties it (README, "The compile cache").
 
-A library's name carries a hash of its C source, the compiler flags and the CasADi version, so a change in
-the problem's structure (robot, horizon, noise constants) compiles anew and an unchanged one is loaded in
-milliseconds. Libraries are written to a temporary name and renamed, so concurrent processes never load a
-half-written file, and each is loaded only after its SHA-256 matches the checksum stored beside it
-(`<lib>.so.sha256`) and its ELF headers say it is whole; once loaded, it must be the function
-it replaces (name, input and output sparsity, the same values at one point). A checksum can be
-rewritten with the file, so the checks after it do not trust it: a library failing one is
-rebuilt, said on stderr.
+A library's name carries a hash of its C source, the compiler flags and the CasADi version, so a
+change in the problem's structure (robot, horizon, noise constants) compiles anew and an unchanged
+one is loaded in milliseconds. Libraries are written to a temporary name and renamed, so concurrent
+processes never load a half-written file, and each is loaded only after its SHA-256 matches the
+checksum stored beside it (`<lib>.so.sha256`) and its ELF headers say it is whole; once loaded, it
+must be the function it replaces (name, input and output sparsity, the same values at one point). A
+checksum can be rewritten with the file, so the checks after it do not trust it: a library failing
+one is rebuilt, said on stderr.
 
-First use compiles: each batch of functions compiled says so on stderr (what, how much C, an estimate
-from the seconds per megabyte of C measured by this cache's previous compiles, kept in `timing.json`), the
-functions of a batch are compiled in parallel (one compiler per core), and the line after says how long it
-took. The cache is bounded: after a compile, when it holds more than `$SURESTEP_CACHE_MAX_MB` (default
-`DEFAULT_MAX_MB`) the least recently used libraries are removed until it holds at most that (a library's
-last use is the modification time of its checksum file, touched at each load).
+First use compiles: each batch of functions compiled says so on stderr (what, how much C, an
+estimate from the seconds per megabyte of C measured by this cache's previous compiles, kept in
+`timing.json`), the functions of a batch are compiled in parallel (one compiler per core), and the
+line after says how long it took. The cache is bounded: after a compile, when it holds more than
+`$SURESTEP_CACHE_MAX_MB` (default `DEFAULT_MAX_MB`) the least recently used libraries are removed
+until it holds at most that (a library's last use is the modification time of its checksum file,
+touched at each load).
 """
 
 from __future__ import annotations
@@ -40,18 +41,20 @@ import casadi as ca
 
 from ..errors import SurestepError
 
-FLAGS = ("-O1", "-fPIC", "-shared")  # measured on the T = 20 Hessian: -O1 5x faster than the VM, -O0 2x
-DEFAULT_MAX_MB = 1024  # the cache's size bound [MB] unless $SURESTEP_CACHE_MAX_MB says otherwise (0: unbounded)
-# wall-clock seconds per megabyte of generated C at -O1 (the batch's compilers in parallel) before this cache
-# has measured its own: measured on the default problem's Newton functions (0.8 to 1.3 MB of C in 5 functions
-# per horizon, 2 at a time) on 2 cores shared with other work, 2.6 to 6.4 s per MB (9.1 s under a heavier load)
+# -O1: faster code than CasADi's virtual machine and -O0 (docs/solve_speed.md, "The compile")
+FLAGS = ("-O1", "-fPIC", "-shared")
+# the cache's size bound [MB] unless $SURESTEP_CACHE_MAX_MB says otherwise (0: unbounded)
+DEFAULT_MAX_MB = 1024
+# wall-clock seconds per megabyte of generated C at -O1 (the batch's compilers in parallel) before
+# this cache has measured its own: a figure within the range measured on the default problem's
+# Newton functions (docs/solve_speed.md, "The compile")
 PRIOR_S_PER_MB = 5.0
 TIMING_FILE = "timing.json"
 
 
 def cache_dir() -> Path:
-    """The compile cache's folder (module docstring): `$SURESTEP_CACHE`, else `$XDG_CACHE_HOME/surestep_ocp`,
-    else `~/.cache/surestep_ocp`."""
+    """The compile cache's folder (module docstring): `$SURESTEP_CACHE`, else
+    `$XDG_CACHE_HOME/surestep_ocp`, else `~/.cache/surestep_ocp`."""
     override = os.environ.get("SURESTEP_CACHE")
     if override:
         return Path(override)
@@ -61,12 +64,14 @@ def cache_dir() -> Path:
 
 
 def max_bytes() -> int | None:
-    """The cache's size bound in bytes (`$SURESTEP_CACHE_MAX_MB`, default `DEFAULT_MAX_MB`; 0: None, unbounded)."""
+    """The cache's size bound in bytes (`$SURESTEP_CACHE_MAX_MB`, default `DEFAULT_MAX_MB`; 0: None,
+    unbounded)."""
     text = os.environ.get("SURESTEP_CACHE_MAX_MB", "").strip()
     try:
         mb = float(text) if text else DEFAULT_MAX_MB
     except ValueError:
-        raise SurestepError(f"SURESTEP_CACHE_MAX_MB must be a number of megabytes, got '{text[:40]}'") from None
+        raise SurestepError("SURESTEP_CACHE_MAX_MB must be a number of megabytes, "
+                            f"got '{text[:40]}'") from None
     if not mb >= 0:
         raise SurestepError(f"SURESTEP_CACHE_MAX_MB must be >= 0 (0: unbounded), got {text[:40]}")
     return None if mb == 0 else int(mb * 1e6)
@@ -75,7 +80,8 @@ def max_bytes() -> int | None:
 def compiler() -> str:
     cc = shutil.which(os.environ.get("CC", "gcc"))
     if cc is None:
-        raise SurestepError("solver.codegen: no C compiler found (install gcc or set CC), or set codegen: false")
+        raise SurestepError("solver.codegen: no C compiler found (install gcc or set CC), "
+                            "or set codegen: false")
     return cc
 
 
@@ -84,9 +90,10 @@ def available() -> bool:
     return shutil.which(os.environ.get("CC", "gcc")) is not None
 
 
-def compiled_or_interpreted(fns: dict[str, ca.Function], required: bool) -> tuple[dict[str, ca.Function], str | None]:
-    """`fns` compiled; if compiling fails and it is not `required` (`solver.codegen: auto`), the interpreted
-    ones and a note saying why (`solver.codegen: true` keeps the error)."""
+def compiled_or_interpreted(fns: dict[str, ca.Function],
+                            required: bool) -> tuple[dict[str, ca.Function], str | None]:
+    """`fns` compiled; if compiling fails and it is not `required` (`solver.codegen: auto`), the
+    interpreted ones and a note saying why (`solver.codegen: true` keeps the error)."""
     try:
         done = compiled_all(list(fns.values()))
         return {k: f for k, (f, _) in zip(fns, done)}, None
@@ -100,10 +107,10 @@ _BACKGROUND = ThreadPoolExecutor(max_workers=1, thread_name_prefix="surestep-com
 
 
 class Deferred:
-    """Functions compiled in the background: their C is generated now, in the calling thread, and only the C
-    compiler runs in a worker thread (no CasADi call off the calling thread); `result()` waits for it and loads
-    them, as `compiled_or_interpreted` returns them (the interpreted ones and a note if compiling failed and it is
-    not `required`)."""
+    """Functions compiled in the background: their C is generated now, in the calling thread, and
+    only the C compiler runs in a worker thread (no CasADi call off the calling thread); `result()`
+    waits for it and loads them, as `compiled_or_interpreted` returns them (the interpreted ones and
+    a note if compiling failed and it is not `required`)."""
 
     def __init__(self, fns: dict[str, ca.Function], required: bool):
         self.fns, self.required, self.future, self.error = fns, required, None, None
@@ -116,7 +123,8 @@ class Deferred:
             return
         todo = list({j.lib: j for j in self.jobs if j.fresh}.values())
         if todo:
-            self.future = _BACKGROUND.submit(_compile, cc, todo, folder, _what([j.fn for j in todo]))
+            self.future = _BACKGROUND.submit(_compile, cc, todo, folder,
+                                             _what([j.fn for j in todo]))
 
     def result(self) -> tuple[dict[str, ca.Function], str | None]:
         try:
@@ -267,23 +275,26 @@ class _Job:
 
 
 def compiled(fn: ca.Function) -> tuple[ca.Function, bool]:
-    """`fn` compiled to C (same name, inputs and outputs); and whether it was compiled now (not cached).
+    """`fn` compiled to C (same name, inputs and outputs); and whether it was compiled now (not
+    cached).
 
-    A cached library is loaded only when its SHA-256 matches the checksum file written beside it when
-    it was built (`<lib>.so.sha256`); otherwise it is rebuilt, with a note on stderr (a truncated shared
-    library loaded as such kills the process with SIGBUS).
+    A cached library is loaded only when its SHA-256 matches the checksum file written beside it
+    when it was built (`<lib>.so.sha256`); otherwise it is rebuilt, with a note on stderr (a
+    truncated shared library loaded as such kills the process with SIGBUS).
     """
     return compiled_all([fn])[0]
 
 
 def compiled_all(fns: list[ca.Function]) -> list[tuple[ca.Function, bool]]:
-    """Each of `fns` compiled (as `compiled`): the cached ones loaded, the others compiled in parallel (one
-    compiler per core), announced on stderr with an estimate, then timed; the cache pruned after a compile."""
+    """Each of `fns` compiled (as `compiled`): the cached ones loaded, the others compiled in
+    parallel (one compiler per core), announced on stderr with an estimate, then timed; the cache
+    pruned after a compile."""
     cc = compiler()
     folder = cache_dir()
     with tempfile.TemporaryDirectory() as tmp:
         jobs = [_job(fn, Path(tmp), folder) for fn in fns]
-        todo = list({j.lib: j for j in jobs if j.fresh}.values())  # (a function given twice: compiled once)
+        # (a function given twice: compiled once)
+        todo = list({j.lib: j for j in jobs if j.fresh}.values())
         if todo:
             _compile(cc, todo, folder)
         loaded = _load_all(jobs, cc, folder)  # (a failing cached library: rebuilt from tmp)
@@ -328,15 +339,17 @@ def _checked_load(job: _Job) -> tuple[ca.Function | None, str | None]:
 
 
 def _job(fn: ca.Function, tmp: Path, folder: Path) -> _Job:
-    """`fn`'s C source generated in its own folder under `tmp`, its library's name, and whether it is to be
-    compiled (absent, or failing its checksum: said on stderr); a cached one's last use recorded."""
+    """`fn`'s C source generated in its own folder under `tmp`, its library's name, and whether it
+    is to be compiled (absent, or failing its checksum: said on stderr); a cached one's last use
+    recorded."""
     name = fn.name()
     where = Path(tempfile.mkdtemp(dir=tmp))
     gen = ca.CodeGenerator(f"{name}.c")
     gen.add(fn)
     gen.generate(str(where) + os.sep)
     source = where / f"{name}.c"
-    key = hashlib.sha256(source.read_bytes() + " ".join(FLAGS).encode() + ca.__version__.encode()).hexdigest()
+    key = hashlib.sha256(source.read_bytes() + " ".join(FLAGS).encode()
+                         + ca.__version__.encode()).hexdigest()
     job = _Job(fn, source, folder / f"{name}_{key[:20]}.so")
     job.fresh = not job.lib.exists()
     if not job.fresh:
@@ -362,7 +375,8 @@ def _inputs(fn: ca.Function) -> str:
 
 
 def _what(fns: list[ca.Function]) -> str:
-    """The functions' names with their input sizes (said once when they all take the same, as a horizon's do)."""
+    """The functions' names with their input sizes (said once when they all take the same, as a
+    horizon's do)."""
     sizes = {_inputs(f) for f in fns}
     if len(sizes) == 1:
         return f"{', '.join(f.name() for f in fns)}; inputs {sizes.pop()}"
@@ -370,23 +384,25 @@ def _what(fns: list[ca.Function]) -> str:
 
 
 def _compile(cc: str, todo: list[_Job], folder: Path, what: str | None = None) -> None:
-    """Compile `todo` (in parallel), announced with an estimate and timed on stderr; the measured rate kept for
-    the next estimate; the cache pruned to its bound."""
+    """Compile `todo` (in parallel), announced with an estimate and timed on stderr; the measured
+    rate kept for the next estimate; the cache pruned to its bound."""
     sizes = [j.source.stat().st_size for j in todo]
     workers = max(1, min(len(todo), os.cpu_count() or 1))
     rate, basis = _rate(folder)
     estimate = sum(sizes) / 1e6 * rate
     what = _what([j.fn for j in todo]) if what is None else what
     _note(f"compiling {len(todo)} function{'s' if len(todo) > 1 else ''} to C ({what}; "
-          f"{sum(sizes) / 1e6:.2f} MB of C, {workers} at a time): about {_duration(estimate)} ({basis}); once per "
-          f"problem structure and horizon, cached in {folder}")
+          f"{sum(sizes) / 1e6:.2f} MB of C, {workers} at a time): "
+          f"about {_duration(estimate)} ({basis}); "
+          f"once per problem structure and horizon, cached in {folder}")
     t0 = time.perf_counter()
     with ThreadPoolExecutor(max_workers=workers) as pool:
         for _ in pool.map(lambda j: _timed_build(cc, j), todo):
             pass
     took = time.perf_counter() - t0
     measured = took / (sum(sizes) / 1e6)
-    _note(f"compiling took {_duration(took)} (estimated {_duration(estimate)}; {measured:.1f} s per MB of C)")
+    _note(f"compiling took {_duration(took)} "
+          f"(estimated {_duration(estimate)}; {measured:.1f} s per MB of C)")
     _record_rate(folder, measured, sum(sizes))
     prune(max_bytes())
 
@@ -414,8 +430,8 @@ def _rate(folder: Path) -> tuple[float, str]:
 
 
 def _record_rate(folder: Path, rate: float, size: int) -> None:
-    """Keep the measured rate (the mean with the previous one, weighted by megabytes compiled, the old
-    weight capped so that the machine's present speed dominates)."""
+    """Keep the measured rate (the mean with the previous one, weighted by megabytes compiled, the
+    old weight capped so that the machine's present speed dominates)."""
     path = folder / TIMING_FILE
     try:
         old = json.loads(path.read_text())
@@ -424,7 +440,8 @@ def _record_rate(folder: Path, rate: float, size: int) -> None:
         w_old, r_old = 0.0, 0.0
     w = size / 1e6
     record = {"s_per_mb": (w_old * r_old + w * rate) / (w_old + w), "mb": w_old + w,
-              "note": "wall-clock seconds per megabyte of generated C compiled (the compile estimate)"}
+              "note": "wall-clock seconds per megabyte of generated C compiled "
+                      "(the compile estimate)"}
     part = path.with_name(f"{path.name}.{os.getpid()}.part")
     try:
         part.write_text(json.dumps(record) + "\n")
@@ -433,11 +450,12 @@ def _record_rate(folder: Path, rate: float, size: int) -> None:
         part.unlink(missing_ok=True)
 
 
-# ------------------------------------------------------------------ the cache as a whole (surestep cache)
+# ------------------------------------------------------------ the cache as a whole (surestep cache)
 
 @dataclass(frozen=True)
 class Entry:
-    """A compiled library in the cache, its checksum file, their bytes and its last use [s since the epoch]."""
+    """A compiled library in the cache, its checksum file, their bytes and its last use [s since the
+    epoch]."""
 
     lib: Path
     size: int
@@ -468,7 +486,8 @@ def entries(folder: Path | None = None) -> list[Entry]:
 
 
 def total_bytes(folder: Path | None = None) -> int:
-    """Bytes of every file in the cache (libraries, checksums, partial writes, the timing record)."""
+    """Bytes of every file in the cache (libraries, checksums, partial writes, the timing
+    record)."""
     folder = cache_dir() if folder is None else folder
     total = 0
     try:
@@ -492,8 +511,8 @@ def _remove(entry: Entry) -> bool:
 
 
 def prune(limit: int | None, folder: Path | None = None) -> list[Entry]:
-    """Remove the least recently used libraries until the cache's libraries take at most `limit` bytes (None:
-    nothing removed). Returns what was removed."""
+    """Remove the least recently used libraries until the cache's libraries take at most `limit`
+    bytes (None: nothing removed). Returns what was removed."""
     if limit is None:
         return []
     all_entries = entries(folder)
@@ -509,8 +528,9 @@ def prune(limit: int | None, folder: Path | None = None) -> list[Entry]:
 
 
 def clear(folder: Path | None = None) -> int:
-    """Remove every library, checksum, partial write and the timing record from the cache; the bytes freed.
-    Only the cache's own files are removed (a folder given as SURESTEP_CACHE may hold others)."""
+    """Remove every library, checksum, partial write and the timing record from the cache; the bytes
+    freed. Only the cache's own files are removed (a folder given as SURESTEP_CACHE may hold
+    others)."""
     folder = cache_dir() if folder is None else folder
     freed = 0
     try:
@@ -529,16 +549,18 @@ def clear(folder: Path | None = None) -> int:
 
 
 def _build(cc: str, source: Path, lib: Path) -> None:
-    """Compile `source` into `lib` with its checksum beside it (both written to temporary names, then renamed;
-    compiled in the source's folder by relative name, so the library's bytes do not depend on the temp path)."""
-    tag = f"{os.getpid()}.{threading.get_ident()}"  # one writer per name: processes and their compile threads
+    """Compile `source` into `lib` with its checksum beside it (both written to temporary names,
+    then renamed; compiled in the source's folder by relative name, so the library's bytes do not
+    depend on the temp path)."""
+    # one writer per name: processes and their compile threads
+    tag = f"{os.getpid()}.{threading.get_ident()}"
     part = lib.with_name(f"{lib.name}.{tag}.part")
     check = _checksum_file(lib)
     check_part = check.with_name(f"{check.name}.{tag}.part")
     try:
         lib.parent.mkdir(parents=True, exist_ok=True)
-        run = subprocess.run([cc, *FLAGS, source.name, "-o", str(part.resolve())], capture_output=True, text=True,
-                             check=False, cwd=source.parent)
+        run = subprocess.run([cc, *FLAGS, source.name, "-o", str(part.resolve())],
+                             capture_output=True, text=True, check=False, cwd=source.parent)
         if run.returncode != 0:
             part.unlink(missing_ok=True)
             raise SurestepError(f"solver.codegen: {cc} failed on the generated code: "
@@ -549,5 +571,7 @@ def _build(cc: str, source: Path, lib: Path) -> None:
     except OSError as exc:
         part.unlink(missing_ok=True)
         check_part.unlink(missing_ok=True)
-        raise SurestepError(f"solver.codegen: cannot write the compiled code to {lib.parent} ({exc.strerror or exc}); "
-                            "set SURESTEP_CACHE to a writable directory, or codegen: false") from None
+        raise SurestepError("solver.codegen: cannot write the compiled code to "
+                            f"{lib.parent} ({exc.strerror or exc}); "
+                            "set SURESTEP_CACHE to a writable directory, "
+                            "or codegen: false") from None

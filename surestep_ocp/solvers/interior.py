@@ -1,18 +1,21 @@
-"""A primal-dual interior-point Newton method for the OCP within the motion limits, built for its stage structure.
+"""A primal-dual interior-point Newton method for the OCP within the motion limits, built for its
+stage structure.
 
-The problem is `newton.py`'s joint-space one (the condensed scalar recursion with the surrogate Hessian, q_0 and
-q_T fixed, the interior joints free) plus the rows the IPOPT transcription carries with `limits.enforce: true`,
-all local in time: the joint bounds (the RCM distance as the insertion's lower bound), the means' minimum depth,
-the played curve's velocity and acceleration control points (linear in a window of four waypoints of one joint,
-`model/limits/curve.py`) and the tool's speeds at points of each step (nonlinear in a window of four waypoints).
+The problem is `newton.py`'s joint-space one (the condensed scalar recursion with the surrogate
+Hessian, q_0 and q_T fixed, the interior joints free) plus the rows the IPOPT transcription carries
+with `limits.enforce: true`, all local in time: the joint bounds (the RCM distance as the
+insertion's lower bound), the means' minimum depth, the played curve's velocity and acceleration
+control points (linear in a window of four waypoints of one joint, `model/limits/curve.py`) and the
+tool's speeds at points of each step (nonlinear in a window of four waypoints).
 
-Each iteration solves the primal-dual Newton system reduced to the joints, `(H + sum_i (z_i / c_i) grad c_i grad
-c_i^T + sum_i z_i Hess(-c_i)) dx = -grad f + sum_i (mu / c_i) grad c_i`, whose matrix is banded (half-bandwidth
-four waypoints): a banded Cholesky, linear in T. Barrier parameter: Mehrotra's probe, re-centred after a short
-step; steps: fraction to the boundary for the rows (with second-order corrections for the curved ones) and the
-multipliers, Armijo on the barrier function. It needs a start strictly within every row (the backend tries the
-straight line at several time laws, `backends/interior_point.py`). A re-plan may start in motion: the curve's
-first knot then has the executed curve's velocity and acceleration (`curve.knot_derivatives(moving=True)`).
+Each iteration solves the primal-dual Newton system reduced to the joints, `(H + sum_i (z_i / c_i)
+grad c_i grad c_i^T + sum_i z_i Hess(-c_i)) dx = -grad f + sum_i (mu / c_i) grad c_i`, whose matrix
+is banded (half-bandwidth four waypoints): a banded Cholesky, linear in T. Barrier parameter:
+Mehrotra's probe, re-centred after a short step; steps: fraction to the boundary for the rows (with
+second-order corrections for the curved ones) and the multipliers, Armijo on the barrier function.
+It needs a start strictly within every row (the backend tries the straight line at several time
+laws, `backends/interior_point.py`). A re-plan may start in motion: the curve's first knot then has
+the executed curve's velocity and acceleration (`curve.knot_derivatives(moving=True)`).
 """
 
 from __future__ import annotations
@@ -32,31 +35,38 @@ from .codegen import compiled_or_interpreted
 from .newton import BOUND_PUSH, TAU_MIN, NewtonRun, NewtonSolver, _backtrack, _SecantCorrection
 
 MU_INIT = 0.1  # IPOPT's mu_init (the objective is 1 at the start)
-# The last barrier parameter (IPOPT's mu_min): the barrier's optimum is above the problem's by up to (rows) x mu, and
-# the problem has thousands of rows (docs/realtime.md)
+# The last barrier parameter (IPOPT's mu_min): the barrier's optimum is above the problem's by up to
+# (rows) x mu, and the problem has thousands of rows (docs/realtime.md)
 MU_FINAL = 1e-11
-# Converged at the acceptable level when the objective changed by at most this (relative) over ACCEPTABLE_ITER
-# iterations with the complementarity at MU_FINAL: the surrogate Hessian converges linearly near the optimum
-# (IPOPT's acceptable_obj_change_tol on the enforced NLP, nlp_cache.ENFORCED_OPTIONS)
+# Converged at the acceptable level when the objective changed by at most this (relative) over
+# ACCEPTABLE_ITER iterations with the complementarity at MU_FINAL: the surrogate Hessian converges
+# linearly near the optimum (IPOPT's acceptable_obj_change_tol on the enforced NLP,
+# nlp_cache.ENFORCED_OPTIONS)
 ACCEPTABLE_CHANGE, ACCEPTABLE_ITER = 1e-9, 3
-# `feasible_ok`: a run that reaches max_iter with every row kept (not relaxed) ends with this status, a success:
-# its plan keeps every limit and reaches the goal, not yet optimal (a re-planning loop's iteration budget)
+# `feasible_ok`: a run that reaches max_iter with every row kept (not relaxed) ends with this
+# status, a success: its plan keeps every limit and reaches the goal, not yet optimal (a re-planning
+# loop's iteration budget)
 FEASIBLE = "Feasible_Point_Found"
-RELAXED_CAP = 3  # with `feasible_ok`, the steps that shrink a relaxation do not count, up to this x max_iter in all
+# with `feasible_ok`, the steps that shrink a relaxation do not count, up to this x max_iter in all
+RELAXED_CAP = 3
 # the secant end-game (newton.py's SR1 correction of the surrogate Hessian) starts once the average
 # complementarity is this small and no row is relaxed
 SECANT_GAP = 1e-8
 MAX_SOC = 4  # second-order corrections per iteration (IPOPT's max_soc)
-RELAX_TO = 1e-2  # `relax`: a start's rows below this (of their limit) get it as slack, the relaxation then shrinks
-# relaxed rows: STUCK_ITER steps in a row shorter than STUCK_STEP end the run as (locally) infeasible
+# `relax`: a start's rows below this (of their limit) get it as slack, the relaxation then shrinks
+RELAX_TO = 1e-2
+# relaxed rows: STUCK_ITER steps in a row shorter than STUCK_STEP end the run as (locally)
+# infeasible
 STUCK_STEP, STUCK_ITER = 1e-3, 3
-SHORT_STEP = 0.2  # a step cut below this fraction: the next barrier parameter re-centres (no Mehrotra decrease)
+# a step cut below this fraction: the next barrier parameter re-centres (no Mehrotra decrease)
+SHORT_STEP = 0.2
 WINDOW = 4  # waypoints each curve piece depends on (t-1 .. t+2)
 
 
 @dataclass
 class InteriorRun(NewtonRun):
-    """Where an interior-point run ended, with its constraint multipliers (a warm start for the next run)."""
+    """Where an interior-point run ended, with its constraint multipliers (a warm start for the next
+    run)."""
 
     multipliers: np.ndarray | None = None
     relaxed_iterations: int = 0  # iterations with relaxed rows (a start outside them, `relax`)
@@ -67,26 +77,31 @@ class InteriorRun(NewtonRun):
 
 
 class InteriorNewton:
-    """The limit rows of one structure (robot, horizon, step time, limits, start at rest or in motion) around a
-    projected Newton solver of the same structure, built once; `run` solves from a strictly feasible start."""
+    """The limit rows of one structure (robot, horizon, step time, limits, start at rest or in
+    motion) around a projected Newton solver of the same structure, built once; `run` solves from a
+    strictly feasible start."""
 
-    def __init__(self, newton: NewtonSolver, robot: Robot, step_s: float, limits: MotionLimits, moving: bool,
-                 codegen: bool, codegen_required: bool = False):
+    def __init__(self, newton: NewtonSolver, robot: Robot, step_s: float, limits: MotionLimits,
+                 moving: bool, codegen: bool, codegen_required: bool = False):
         t0 = time.perf_counter()
-        self.newton, self.robot, self.dt, self.limits, self.moving = newton, robot, step_s, limits, moving
+        self.newton, self.robot, self.dt, self.limits, self.moving = (newton, robot, step_s, limits,
+                                                                       moving)
         T, nq = newton.T, robot.nq
         self.T, self.nq, self.n = T, nq, newton.n
         mov = robot.supporting_joints()
         self.mov = mov
-        # linear rows on the extended vector of one joint (waypoints, then v_0, a_0 when moving), as transcription.py
+        # linear rows on the extended vector of one joint (waypoints, then v_0, a_0 when moving), as
+        # transcription.py
         dt, lim = step_s, limits
         Rv, Ra = lm.curve_control_rows(T, dt, moving=moving)
         v_scale = lim.velocity
         slack = lim.velocity - lim.acceleration * dt / 2
-        if np.all(slack[mov] > 0):  # knot velocities within v_max - a_max dt / 2 (sufficient given the a rows)
+        if np.all(slack[mov] > 0):
+            # knot velocities within v_max - a_max dt / 2 (sufficient given the a rows)
             Rv = lm.knot_derivatives(T, dt, moving)[0][1:T]
             v_scale = slack
-        rows, joints, ext = [], [], []  # per row: coefficients on x (node-major), the joint, the (v0, a0) part
+        # per row: coefficients on x (node-major), the joint, the (v0, a0) part
+        rows, joints, ext = [], [], []
         for R, scale in ((Rv, v_scale), (Ra, lim.acceleration)):
             for row in R:
                 for j in mov:
@@ -99,7 +114,8 @@ class InteriorNewton:
         W[np.abs(W) < 1e-12 * big] = 0.0
         E = np.array(ext)
         E[np.abs(E) < 1e-12 * big] = 0.0
-        keep = np.any(W != 0, axis=1)  # rows that are 0 by construction (velocities at rest) or constant
+        # rows that are 0 by construction (velocities at rest) or constant
+        keep = np.any(W != 0, axis=1)
         self.lin_w, self.lin_ext, self.lin_joint = W[keep], E[keep], np.array(joints)[keep]
         # per row: its (<= WINDOW) nonzero waypoints as variable indices and their coefficients
         nz = [np.flatnonzero(w) for w in self.lin_w]
@@ -110,16 +126,19 @@ class InteriorNewton:
             self.lin_idx[i, :len(z)] = z * nq + self.lin_joint[i]
             self.lin_coef[i, :len(z)] = self.lin_w[i, z]
         self.n_lin = len(nz)
-        # the tool's speeds at TOOL_POINTS of each piece, each a function of its window of waypoints (plus the start
-        # derivatives' part when moving)
+        # the tool's speeds at TOOL_POINTS of each piece, each a function of its window of waypoints
+        # (plus the start derivatives' part when moving)
         qa, qd = ca.SX.sym("qa", nq), ca.SX.sym("qd", nq)
         Ta = robot.fk_expr(qa, robot.frame)
         pv, Rd = ca.jtimes(Ta[:3, 3], qa, qd), ca.jtimes(ca.vec(Ta[:3, :3]), qa, qd)
         k = 1 - lm.TOOL_MARGIN
         # the tool's squared speeds at a point of the curve, (q(s), q'(s)), over their limits
-        out = ca.vertcat(ca.sumsqr(pv), 0.5 * ca.sumsqr(Rd))  # over tool_scale's squared limits in `constraints`
-        # (numbers, not in the compiled code: structures that differ in their limits share their libraries)
-        self.tool_scale = np.array([1 / (k * lim.tool_speed) ** 2, 1 / (k * lim.tool_rotation) ** 2])
+        # over tool_scale's squared limits in `constraints`
+        out = ca.vertcat(ca.sumsqr(pv), 0.5 * ca.sumsqr(Rd))
+        # (numbers, not in the compiled code: structures that differ in their limits share their
+        # libraries)
+        self.tool_scale = np.array([1 / (k * lim.tool_speed) ** 2,
+                                    1 / (k * lim.tool_rotation) ** 2])
         self.tool_k = out.shape[0]
         lam, y = ca.SX.sym("lam", self.tool_k), ca.vertcat(qa, qd)
         windows, weights, consts = lm.tool_point_windows(T, dt, moving)
@@ -128,12 +147,15 @@ class InteriorNewton:
         self.tool_weights = weights.T  # (2 WINDOW, points)
         self.tool_consts = consts  # (points, 4): position (v0, a0) weights, then velocity's
         npts = self.n_pts
-        Qm, Dm, Lm = ca.MX.sym("Q", nq, npts), ca.MX.sym("D", nq, npts), ca.MX.sym("L", self.tool_k, npts)
+        Qm, Dm, Lm = (ca.MX.sym("Q", nq, npts), ca.MX.sym("D", nq, npts),
+                      ca.MX.sym("L", self.tool_k, npts))
         f_val = ca.Function("tool", [qa, qd], [out])
-        # the rows' gradients and exact curvature (about 29k operations a point), and the velocities
-        # (pv, vec(R)') with their Jacobian in (q, q') for the Gauss-Newton curvature (about 5k)
-        f_der = ca.Function("tool_der", [qa, qd, lam], [ca.densify(ca.jacobian(out, y)),
-                                                       ca.densify(ca.hessian(ca.dot(lam, out), y)[0])])
+        # the rows' gradients and exact curvature, and the velocities (pv, vec(R)') with their
+        # Jacobian in (q, q') for the Gauss-Newton curvature, the cheaper one (their operation
+        # counts: docs/realtime.md, "The method")
+        f_der = ca.Function("tool_der", [qa, qd, lam],
+                            [ca.densify(ca.jacobian(out, y)),
+                             ca.densify(ca.hessian(ca.dot(lam, out), y)[0])])
         vel = ca.vertcat(pv, Rd)
         f_jac = ca.Function("tool_jac", [qa, qd], [vel, ca.densify(ca.jacobian(vel, y))])
         fns = {"tool_rows": ca.Function("tool_rows", [Qm, Dm], [f_val.map(npts)(Qm, Dm)]),
@@ -144,36 +166,43 @@ class InteriorNewton:
             fns, self.codegen_note = compiled_or_interpreted(fns, codegen_required)
         self.tool_rows, self.tool_derivs = Buffered(fns["tool_rows"]), Buffered(fns["tool_derivs"])
         self.tool_jacs = Buffered(fns["tool_jacs"])
-        # variable indices of each point's window (node-major), and the band layout (lower storage, half-bandwidth
-        # WINDOW nodes)
-        self.tool_var = (self.tool_nodes[:, :, None] * nq + np.arange(nq)[None, None, :]).reshape(npts, -1)
+        # variable indices of each point's window (node-major), and the band layout (lower storage,
+        # half-bandwidth WINDOW nodes)
+        self.tool_var = (self.tool_nodes[:, :, None] * nq
+                         + np.arange(nq)[None, None, :]).reshape(npts, -1)
         eye = np.eye(nq)
-        self.tool_map = np.array([np.vstack([np.hstack([cw[m] * eye for m in range(WINDOW)]),
-                                             np.hstack([cw[WINDOW + m] * eye for m in range(WINDOW)])])
-                                  for cw in self.tool_weights.T])  # (points, 2 nq, W nq)
+        self.tool_map = np.array(  # (points, 2 nq, W nq)
+            [np.vstack([np.hstack([cw[m] * eye for m in range(WINDOW)]),
+                        np.hstack([cw[WINDOW + m] * eye for m in range(WINDOW)])])
+             for cw in self.tool_weights.T])
         self.bw = WINDOW * nq
         n = self.n
         r, cc = np.meshgrid(np.arange(WINDOW * nq), np.arange(WINDOW * nq), indexing="ij")
-        # the points of one piece share its window: their blocks are summed per window, then scattered
+        # the points of one piece share its window: their blocks are summed per window, then
+        # scattered
         windows_u, self.point_window = np.unique(self.tool_nodes, axis=0, return_inverse=True)
         self.point_window = self.point_window.ravel()
         slot = np.zeros(npts, int)
         for p in range(1, npts):
             slot[p] = slot[p - 1] + 1 if self.point_window[p] == self.point_window[p - 1] else 0
-        self.point_slot, self.n_windows, self.window_points = slot, len(windows_u), int(slot.max()) + 1
+        self.point_slot, self.n_windows, self.window_points = (slot, len(windows_u),
+                                                               int(slot.max()) + 1)
         self.window_start = np.flatnonzero(slot == 0)
         if np.any(np.diff(self.point_window) < 0):
             raise ValueError("tool points are not ordered by window")
-        wvar = (windows_u[:, :, None] * nq + np.arange(nq)[None, None, :]).reshape(len(windows_u), -1)
+        wvar = (windows_u[:, :, None] * nq
+                + np.arange(nq)[None, None, :]).reshape(len(windows_u), -1)
         vr, vc = wvar[:, r.ravel()], wvar[:, cc.ravel()]  # (windows, (W nq)^2)
         self.tool_low = vr >= vc
         self.tool_band = ((vr - vc) * n + vc)[self.tool_low]
         li = self.lin_idx
         lr, lc = li[:, :, None].repeat(width, 2), li[:, None, :].repeat(width, 1)
-        self.lin_low = (lr >= lc) & (self.lin_coef[:, :, None] != 0) & (self.lin_coef[:, None, :] != 0)
+        self.lin_low = ((lr >= lc) & (self.lin_coef[:, :, None] != 0)
+                        & (self.lin_coef[:, None, :] != 0))
         self.lin_band = ((lr - lc) * n + lc)[self.lin_low]
         self.lin_pair = (self.lin_coef[:, :, None] * self.lin_coef[:, None, :])[self.lin_low]
-        self.lin_pair_row = np.broadcast_to(np.arange(self.n_lin)[:, None, None], lr.shape)[self.lin_low]
+        self.lin_pair_row = np.broadcast_to(np.arange(self.n_lin)[:, None, None],
+                                            lr.shape)[self.lin_low]
         hr, hc = newton.h_rows, newton.h_cols
         self.h_low = hr >= hc
         self.h_band = ((hr - hc) * n + hc)[self.h_low]
@@ -183,19 +212,22 @@ class InteriorNewton:
         self.rcm = lm.rcm_insertion_bound(robot, lim.rcm_min_distance)
         self.build_time_s = time.perf_counter() - t0
 
-    # ------------------------------------------------------------------------------------------ constraint values
+    # ---------------------------------------------------------------------------- constraint values
     def _lin_const(self, v0: np.ndarray | None, a0: np.ndarray | None) -> np.ndarray:
-        """The linear rows' constant part from the start's velocity and acceleration (zero at rest)."""
+        """The linear rows' constant part from the start's velocity and acceleration (zero at
+        rest)."""
         if not self.moving:
             return np.zeros(self.n_lin)
         return self.lin_ext[:, 0] * v0[self.lin_joint] + self.lin_ext[:, 1] * a0[self.lin_joint]
 
     def _tool_offsets(self, v0, a0) -> np.ndarray:
-        """(2 nq, points): each tool point's position and velocity offsets from the start's derivatives."""
+        """(2 nq, points): each tool point's position and velocity offsets from the start's
+        derivatives."""
         if not self.moving:
             return np.zeros((2 * self.nq, self.n_pts))
         C = self.tool_consts
-        return np.vstack([np.outer(v0, C[:, 0]) + np.outer(a0, C[:, 1]), np.outer(v0, C[:, 2]) + np.outer(a0, C[:, 3])])
+        return np.vstack([np.outer(v0, C[:, 0]) + np.outer(a0, C[:, 1]),
+                          np.outer(v0, C[:, 2]) + np.outer(a0, C[:, 3])])
 
     def _points(self, x: np.ndarray, offsets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(nq, points) each tool point's joints q(s) and joint velocities q'(s) on the curve."""
@@ -205,8 +237,8 @@ class InteriorNewton:
                 np.einsum("pmj,mp->jp", X, cw[WINDOW:]) + offsets[self.nq:])
 
     def bounds(self, q_start: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(lower, upper, free mask) of the node-major joints: the interior moving joints free within the joint
-        limits (the insertion above the RCM bound), the others held."""
+        """(lower, upper, free mask) of the node-major joints: the interior moving joints free
+        within the joint limits (the insertion above the RCM bound), the others held."""
         T, nq, robot = self.T, self.nq, self.robot
         lo, hi = np.tile(robot.lower, T + 1), np.tile(robot.upper, T + 1)
         if self.rcm is not None:
@@ -218,14 +250,16 @@ class InteriorNewton:
 
     def constraints(self, x, P, lin_c, offsets, min_depth, idx, lo, hi, keep: float = 1.0
                     ) -> tuple[float, np.ndarray]:
-        """(objective, row values c >= 0) in the rows' order: the direct ones (joint bounds lower and upper, linear
-        rows lower and upper: exact under linearisation), then the nonlinear ones (depths of the interior nodes,
-        tool rows), which the method gives slacks."""
+        """(objective, row values c >= 0) in the rows' order: the direct ones (joint bounds lower
+        and upper, linear rows lower and upper: exact under linearisation), then the nonlinear ones
+        (depths of the interior nodes, tool rows), which the method gives slacks."""
         f_y, z_y = self.newton.fz(x, P)
         lin = self.lin_coef_dot(x) + lin_c
-        raw = self.tool_rows(*self._points(x, offsets))[0].reshape(self.tool_k, self.n_pts, order="F")
+        raw = self.tool_rows(*self._points(x, offsets))[0].reshape(self.tool_k, self.n_pts,
+                                                                    order="F")
         tool = (self.tool_scale[:, None] / keep**2 * raw).ravel(order="F")
-        return float(f_y[0]), np.concatenate([x[idx] - lo[idx], hi[idx] - x[idx], keep + lin, keep - lin,
+        return float(f_y[0]), np.concatenate([x[idx] - lo[idx], hi[idx] - x[idx],
+                                              keep + lin, keep - lin,
                                               z_y[1:self.T] - min_depth, 1.0 - tool])
 
     def start_margin(self, setup, init, v0=None, a0=None) -> float:
@@ -234,26 +268,29 @@ class InteriorNewton:
         P = np.concatenate([setup.camera_parameter(), [1.0], sigma0])
         lo, hi, free = self.bounds(setup.q_start)
         c = self.constraints(np.asarray(init.q, float).ravel(), P, self._lin_const(v0, a0),
-                             self._tool_offsets(v0, a0), setup.ocp.min_depth, np.flatnonzero(free), lo, hi)[1]
+                             self._tool_offsets(v0, a0), setup.ocp.min_depth,
+                             np.flatnonzero(free), lo, hi)[1]
         return float(c.min())
 
     def lin_coef_dot(self, x: np.ndarray) -> np.ndarray:
         return np.einsum("ij,ij->i", self.lin_coef, x[self.lin_idx])
 
-    # ---------------------------------------------------------------------------------------------------- solve
-    def run(self, setup, init, v0=None, a0=None, tol: float = 1e-6, max_iter: int = 300, verbose: bool = False,
-            warm: np.ndarray | None = None, mu0: float | None = None, relax: bool = False, reserve: float = 0.0,
+    # ---------------------------------------------------------------------------------------- solve
+    def run(self, setup, init, v0=None, a0=None, tol: float = 1e-6, max_iter: int = 300,
+            verbose: bool = False, warm: np.ndarray | None = None, mu0: float | None = None,
+            relax: bool = False, reserve: float = 0.0,
             feasible_ok: bool = False, acceptable_change: float = ACCEPTABLE_CHANGE,
             use_secant: bool = True) -> InteriorRun:
-        """From `init`, which must be strictly within every row (else status `Infeasible_Start`: the caller starts
-        elsewhere or hands over to IPOPT), with the start's velocity and acceleration `v0`, `a0` when the structure
-        starts in motion; `warm`: multipliers of a previous run of the same structure (with `mu0`, the barrier
-        parameter to start from).
+        """From `init`, which must be strictly within every row (else status `Infeasible_Start`: the
+        caller starts elsewhere or hands over to IPOPT), with the start's velocity and acceleration
+        `v0`, `a0` when the structure starts in motion; `warm`: multipliers of a previous run of the
+        same structure (with `mu0`, the barrier parameter to start from).
 
-        Steps keep every row within the fraction to the boundary: exactly for the bounds and linear rows (linear in
-        the step), and for the curved ones (depths, tool speeds) by up to MAX_SOC second-order corrections before
-        the step is shortened (IPOPT's), re-solving with what the linearisation missed. The barrier parameter follows
-        Mehrotra's probe (the affine step's complementarity, cubed), and re-centres after a step cut short."""
+        Steps keep every row within the fraction to the boundary: exactly for the bounds and linear
+        rows (linear in the step), and for the curved ones (depths, tool speeds) by up to MAX_SOC
+        second-order corrections before the step is shortened (IPOPT's), re-solving with what the
+        linearisation missed. The barrier parameter follows Mehrotra's probe (the affine step's
+        complementarity, cubed), and re-centres after a step cut short."""
         t0 = time.perf_counter()
         nw, T, nq, n = self.newton, self.T, self.nq, self.n
         sigma0 = setup.model.recursion_sigma0(setup.ocp.sigma0)
@@ -264,7 +301,8 @@ class InteriorNewton:
         min_depth = setup.ocp.min_depth
         lin_c = self._lin_const(v0, a0)
         offsets = self._tool_offsets(v0, a0)
-        keep = 1.0 - reserve  # the fraction of the velocity, acceleration and tool-speed limits the plan may use
+        # the fraction of the velocity, acceleration and tool-speed limits the plan may use
+        keep = 1.0 - reserve
         tool_scale = self.tool_scale / keep**2
         P[CAMERA_PARAMETERS] = trace_ref = float(nw.step(x, P)[0][0])
         m = MU_INIT if mu0 is None else mu0
@@ -282,19 +320,22 @@ class InteriorNewton:
                 x = inside
         else:
             x = inside
-        # rows outside (or within RELAX_TO of) their boundary at the start are relaxed by rho, which every step of
-        # length a shrinks by (1 - a): the Newton step aims at rho = 0 (an infeasible-start interior point)
+        # rows outside (or within RELAX_TO of) their boundary at the start are relaxed by rho, which
+        # every step of length a shrinks by (1 - a): the Newton step aims at rho = 0 (an
+        # infeasible-start interior point)
         rho = np.maximum(RELAX_TO - c, 0.0) if relax and not np.all(c > 0) else np.zeros(len(c))
         start_ok = bool(np.all(np.isfinite(c)) and np.all(c + rho > 0)
                         and np.allclose(x[:nq], setup.q_start, atol=1e-12))
         nc = len(c)
         s = c + rho  # the rows' slacks
-        w = (np.asarray(warm, float).copy() if warm is not None and len(warm) == nc else m / s)  # the multipliers
+        # the multipliers
+        w = (np.asarray(warm, float).copy() if warm is not None and len(warm) == nc else m / s)
         if warm is not None and len(warm) == nc:
             w = np.clip(w, m / (1e10 * s), 1e10 * m / s)
         status = "Maximum_Iterations_Exceeded" if start_ok else "Infeasible_Start"
         it, shift, f_hist, last_step, stuck, relaxed_its = 0, 0.0, [], 1.0, 0, 0
-        secant, previous = None, None  # the end-game's secant correction of the surrogate; the last point
+        # the end-game's secant correction of the surrogate; the last point
+        secant, previous = None, None
         end_game = False  # the tool rows' exact curvature from then on (else Gauss-Newton's)
         while start_ok:
             _, f_val, G, HB, _ = nw.step(x, P)
@@ -306,19 +347,24 @@ class InteriorNewton:
             if end_game:
                 gy, hy = self.tool_derivs(*self._points(x, offsets), wk)
                 gy = gy.reshape(self.tool_k, 2 * nq, self.n_pts, order="F")  # d g / d(q(s), q'(s))
-                hy = hy.reshape(2 * nq, 2 * nq, self.n_pts, order="F").transpose(2, 0, 1)  # Hess of w . g
+                # Hess of w . g
+                hy = hy.reshape(2 * nq, 2 * nq, self.n_pts, order="F").transpose(2, 0, 1)
             else:
                 vel, A = self.tool_jacs(*self._points(x, offsets))
                 vel = vel.reshape(12, self.n_pts, order="F")
-                A = A.reshape(12, 2 * nq, self.n_pts, order="F").transpose(2, 0, 1)  # (points, 12, 2 nq)
+                # (points, 12, 2 nq)
+                A = A.reshape(12, 2 * nq, self.n_pts, order="F").transpose(2, 0, 1)
                 gy = np.stack([2 * np.einsum("vp,pvy->yp", vel[:3], A[:, :3]),
                                np.einsum("vp,pvy->yp", vel[3:], A[:, 3:])])
-                Ap, Ar = A[:, :3] * np.sqrt(2 * wk[0])[:, None, None], A[:, 3:] * np.sqrt(wk[1])[:, None, None]
+                Ap, Ar = (A[:, :3] * np.sqrt(2 * wk[0])[:, None, None],
+                          A[:, 3:] * np.sqrt(wk[1])[:, None, None])
             gy = gy * tool_scale[:, None, None]
             K = self.tool_map  # (points, 2 nq, W nq): (q(s), q'(s)) from the window
-            tj = np.einsum("kyp,pyw->kwp", gy, K)  # (k, W nq, points): the rows' gradients in the window
+            # (k, W nq, points): the rows' gradients in the window
+            tj = np.einsum("kyp,pyw->kwp", gy, K)
             g = np.bincount(nw.g_index, weights=G, minlength=n)  # grad f
-            if secant is not None:  # the last step's secant pair, against the surrogate at this point
+            if secant is not None:
+                # the last step's secant pair, against the surrogate at this point
                 step_x = x - previous[0]
                 secant.update(step_x, g - previous[1]
                               - np.bincount(nw.h_rows, weights=HB * step_x[nw.h_cols], minlength=n))
@@ -329,8 +375,9 @@ class InteriorNewton:
             stalled = (len(f_hist) > ACCEPTABLE_ITER and abs(f_hist[-1 - ACCEPTABLE_ITER] - f_val)
                        <= acceptable_change * max(abs(f_val), 1e-12))
             if verbose:
-                print(f"interior {it:4d}  f {f_val:.10e}  mu {m:.1e}  dual {err_d:.2e}  gap {gap:.2e}  "
-                      f"relaxed {rho.max(initial=0):.1e}  step {last_step:.2e}", flush=True)
+                print(f"interior {it:4d}  f {f_val:.10e}  mu {m:.1e}  dual {err_d:.2e}  "
+                      f"gap {gap:.2e}  relaxed {rho.max(initial=0):.1e}  step {last_step:.2e}",
+                      flush=True)
             if gap <= MU_FINAL and (err_d <= tol or stalled) and not rho.any():
                 status = "Solve_Succeeded" if err_d <= tol else "Solved_To_Acceptable_Level"
                 break
@@ -338,9 +385,11 @@ class InteriorNewton:
                 if feasible_ok and not rho.any() and np.all(c > 0):
                     status = FEASIBLE
                 break
-            # the reduced matrix in band storage: the surrogate, then sum (w / c) grad c grad c^T + w Hess(-c)
+            # the reduced matrix in band storage: the surrogate, then sum (w / c) grad c grad c^T +
+            # w Hess(-c)
             sig = w / s
-            ab = np.bincount(self.h_band, weights=HB[self.h_low], minlength=self.bw * n).reshape(self.bw, n)
+            ab = np.bincount(self.h_band, weights=HB[self.h_low],
+                             minlength=self.bw * n).reshape(self.bw, n)
             ab[0, idx] += sig[:nb] + sig[nb:2 * nb]
             wl = sig[2 * nb:2 * nb + nl] + sig[2 * nb + nl:nd_]
             ab += np.bincount(self.lin_band, weights=wl[self.lin_pair_row] * self.lin_pair,
@@ -356,8 +405,10 @@ class InteriorNewton:
             if end_game:  # per point sum_k (w/c) grad g grad g^T + w Hess g, summed per window
                 JJ = G_ @ G_.transpose(0, 2, 1) + K.transpose(0, 2, 1) @ hy @ K
                 JW = np.add.reduceat(JJ, self.window_start, axis=0)
-            else:  # Gauss-Newton: B^T B with B the scaled gradients and velocity Jacobians, per window
-                rows = np.concatenate([G_.transpose(0, 2, 1), Ap @ K, Ar @ K], axis=1)  # (points, r, W nq)
+            else:
+                # Gauss-Newton: B^T B with B the scaled gradients and velocity Jacobians, per
+                # window; rows: (points, r, W nq)
+                rows = np.concatenate([G_.transpose(0, 2, 1), Ap @ K, Ar @ K], axis=1)
                 B = np.zeros((self.n_windows, self.window_points, rows.shape[1], self.bw))
                 B[self.point_window, self.point_slot] = rows
                 B = B.reshape(self.n_windows, -1, self.bw)
@@ -375,12 +426,15 @@ class InteriorNewton:
                 secant = _SecantCorrection(n)  # the end-game: pairs from the next step on
             previous = (x, g)
 
-            def direction(mu_t):  # (dx, dc, dw) for the barrier parameter mu_t; dc the rows' linearised change
+            def direction(mu_t):
+                # (dx, dc, dw) for the barrier parameter mu_t; dc the rows' linearised change
                 dx = solve(-(g - jac.T(mu_t / s + sig * rho)))
-                if secant is not None and secant.w.size:  # the surrogate's missing curvature, learnt
+                if secant is not None and secant.w.size:
+                    # the surrogate's missing curvature, learnt
                     corrected = secant.step(band_factor, fixed, dx)
                     dx = dx if corrected is None else corrected
-                dc = jac.dot(dx) - rho  # the slacks' change: the rows' linearised change, the relaxation gone
+                # the slacks' change: the rows' linearised change, the relaxation gone
+                dc = jac.dot(dx) - rho
                 return dx, dc, mu_t / s - w - sig * dc
 
             # Mehrotra's probe: the affine step (mu = 0) says how far the complementarity can fall
@@ -389,9 +443,12 @@ class InteriorNewton:
                 ap = float(np.min(np.where(dca < 0, -s / dca, np.inf), initial=1.0))
                 ad = float(np.min(np.where(dwa < 0, -w / dwa, np.inf), initial=1.0))
             gap_aff = float((s + ap * dca) @ (w + ad * dwa)) / nc
-            if last_step >= SHORT_STEP:  # sigma = (gap_aff / gap)^3; the barrier parameter is never raised here
+            if last_step >= SHORT_STEP:
+                # sigma = (gap_aff / gap)^3; the barrier parameter is never raised here
                 m = max(MU_FINAL / 10, min(m, gap * min(1.0, (gap_aff / max(gap, 1e-300)) ** 3)))
-            else:  # the last step was cut short (the iterate off the central path): re-centre at the current gap
+            else:
+                # the last step was cut short (the iterate off the central path): re-centre at the
+                # current gap
                 m = max(MU_FINAL / 10, gap)
             dx, dc, dw = direction(m)
             tau = max(TAU_MIN, 1.0 - m)
@@ -401,12 +458,16 @@ class InteriorNewton:
             value = f_val - m * float(np.sum(np.log(s)))
             slope = min(float((g - jac.T(m / s)) @ dx), 0.0)
 
-            def accept(a, x=x, dx=dx, dc=dc, m=m, value=value, slope=slope, c=c, s=s, rho=rho, tau=tau, sig=sig):
-                """(point, rows, step) at step a if within the boundary fraction and Armijo's decrease (while rows
-                are relaxed: the boundary fraction alone, the relaxation shrinking with a), else None."""
+            def accept(a, x=x, dx=dx, dc=dc, m=m, value=value, slope=slope, c=c, s=s, rho=rho,
+                       tau=tau, sig=sig):
+                """(point, rows, step) at step a if within the boundary fraction and Armijo's
+                decrease (while rows are relaxed: the boundary fraction alone, the relaxation
+                shrinking with a), else None."""
                 d = a * dx
-                for k in range(MAX_SOC + 1):  # the step, then its second-order corrections (at the first length)
-                    f_t, c_t = self.constraints(x + d, P, lin_c, offsets, min_depth, idx, lo, hi, keep)
+                # the step, then its second-order corrections (at the first length)
+                for k in range(MAX_SOC + 1):
+                    f_t, c_t = self.constraints(x + d, P, lin_c, offsets, min_depth, idx, lo, hi,
+                                                keep)
                     s_t = c_t + (1.0 - a) * rho
                     if np.all(s_t >= (1 - tau) * s):
                         if rho.any():
@@ -426,23 +487,25 @@ class InteriorNewton:
                 break
             last_step = float(np.max(np.abs(found[0] - x)) / max(float(np.max(np.abs(dx))), 1e-300))
             stuck = stuck + 1 if rho.any() and found[2] < STUCK_STEP else 0
-            if stuck == STUCK_ITER:  # the relaxation no longer shrinks: no point within every row near here
+            if stuck == STUCK_ITER:
+                # the relaxation no longer shrinks: no point within every row near here
                 status = "Infeasible_Problem_Detected"
                 break
             x, c = found[0], found[1]
             rho = (1.0 - found[2]) * rho if found[2] < 1.0 else np.zeros(nc)
             s = c + rho
             w = w + min(1.0, az) * dw
-            w = np.clip(w, m / (1e10 * s), 1e10 * m / s)  # IPOPT's safeguard keeps w s within a band around mu
+            # IPOPT's safeguard keeps w s within a band around mu
+            w = np.clip(w, m / (1e10 * s), 1e10 * m / s)
             it += 1
             relaxed_its += bool(rho.any())
         run = nw._end(setup, x, P, trace_ref, status, it, 0, t0)
-        return InteriorRun(**{k: getattr(run, k) for k in NewtonRun.__dataclass_fields__}, multipliers=w,
-                           relaxed_iterations=relaxed_its)
+        return InteriorRun(**{k: getattr(run, k) for k in NewtonRun.__dataclass_fields__},
+                           multipliers=w, relaxed_iterations=relaxed_its)
 
     def _factor(self, ab: np.ndarray, idx: np.ndarray, shift: float):
-        """The banded matrix on the free variables (held ones: identity) factorised, shifted until positive
-        definite: (solve(rhs), shift, its banded factor, the held mask) or None."""
+        """The banded matrix on the free variables (held ones: identity) factorised, shifted until
+        positive definite: (solve(rhs), shift, its banded factor, the held mask) or None."""
         n = self.n
         fixed = np.ones(n + 1, bool)
         fixed[idx] = False
@@ -465,8 +528,9 @@ class InteriorNewton:
 
 
 class _RowJacobian:
-    """The rows' Jacobian at one iterate, in the order of `InteriorNewton.constraints`: products with it and with
-    its transpose (bounds +-e_i, linear rows +-a_i, depths grad z, tool rows -grad g)."""
+    """The rows' Jacobian at one iterate, in the order of `InteriorNewton.constraints`: products
+    with it and with its transpose (bounds +-e_i, linear rows +-a_i, depths grad z, tool rows -grad
+    g)."""
 
     def __init__(self, ip: InteriorNewton, idx: np.ndarray, DZ: np.ndarray, tj: np.ndarray):
         self.ip, self.idx, self.DZ, self.tj = ip, idx, DZ, tj
@@ -478,7 +542,8 @@ class _RowJacobian:
         out = np.zeros(n)
         out[self.idx] += v[:nb] - v[nb:2 * nb]
         lin = v[2 * nb:2 * nb + nl] - v[2 * nb + nl:2 * nb + 2 * nl]
-        out += np.bincount(ip.lin_idx.ravel(), weights=(ip.lin_coef * lin[:, None]).ravel(), minlength=n)
+        out += np.bincount(ip.lin_idx.ravel(), weights=(ip.lin_coef * lin[:, None]).ravel(),
+                           minlength=n)
         o = 2 * nb + 2 * nl
         vd = np.zeros(ip.T + 1)
         vd[1:ip.T] = v[o:o + nd]

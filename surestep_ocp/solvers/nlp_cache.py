@@ -1,8 +1,9 @@
-"""The built NLPs and Newton solvers, cached per structure, and the IPOPT options they are built with.
+"""The built NLPs and Newton solvers, cached per structure, and the IPOPT options they are built
+with.
 
-A built NLP (and its compiled derivatives) is kept per structure: robot, belief model, horizon, form,
-smoothness, options, Hessian, codegen and the enforced motion limits (with the step time); a new start, goal,
-camera pose or Sigma_0 reuses it.
+A built NLP (and its compiled derivatives) is kept per structure: robot, belief model, horizon,
+form, smoothness, options, Hessian, codegen and the enforced motion limits (with the step time); a
+new start, goal, camera pose or Sigma_0 reuses it.
 """
 
 from __future__ import annotations
@@ -29,14 +30,12 @@ WARM_OPTIONS = {
 
 
 # IPOPT options for the lifted NLP started at the condensed solution (a KKT point up to tol, with
-# its multipliers): a small monotone barrier. Measured on the default problem at T = 20: 15 and 1
-# iterations (paper constants, correlated V_d0) against 65-73 with the adaptive update, which raised
-# mu to 1e-3 and walked away. With the structured Hessian the dual infeasibility then falls linearly
-# (about 0.9 per iteration on evaluation configuration 9) while the objective stays put: an
-# acceptable-level stop like ENFORCED_OPTIONS' (objective change at most 1e-9 over 3 iterations,
+# its multipliers): a small monotone barrier (the adaptive update raised mu and walked away). With
+# the structured Hessian the dual infeasibility then falls linearly while the objective stays put:
+# an acceptable-level stop like ENFORCED_OPTIONS' (objective change at most 1e-9 over 3 iterations,
 # constraints 1e-6, complementarity 1e-6: at 1e-9 it never triggered) ends that tail as
-# Solved_To_Acceptable_Level (configuration 9: 3 iterations, the same trace to 10 digits;
-# docs/general_models.md).
+# Solved_To_Acceptable_Level with the same trace (the iterations measured: docs/general_models.md,
+# the lifted form and its polish from the condensed solution).
 LIFTED_FROM_CONDENSED = {
     "ipopt.mu_init": 1e-9,
     "ipopt.mu_strategy": "monotone",
@@ -91,27 +90,34 @@ def solver_options(setup: Setup, extra: dict | None = None) -> dict:
 
 def transcription(setup: Setup, form: str | None = None, extra_options: dict | None = None,
                   horizon: int | None = None, hessian: str = "exact") -> Transcription:
-    """The (cached) transcription for this setup's structure (form: default from the problem file)."""
+    """The (cached) transcription for this setup's structure (form: default from the problem
+    file)."""
     model = setup.model
     form = resolve_form(model, form or setup.ocp.solver.covariance)
     T = setup.ocp.horizon if horizon is None else horizon
     opts = solver_options(setup, extra_options)
     codegen = resolve_codegen(setup, hessian)
     limits = enforced_limits(setup)
-    key = (str(setup.robot.urdf), setup.robot.frame, setup.robot.offset.tobytes(), model.key(), model.scalar, T, form,
-           setup.ocp.smoothness, tuple(sorted((k, repr(v)) for k, v in opts.items())), hessian, codegen,
+    key = (str(setup.robot.urdf), setup.robot.frame, setup.robot.offset.tobytes(), model.key(),
+           model.scalar, T, form, setup.ocp.smoothness,
+           tuple(sorted((k, repr(v)) for k, v in opts.items())), hessian, codegen,
            setup.ocp.solver.codegen is True, limits_key(limits))
-    if key not in _CACHE and form == "full" and hessian == "surrogate":  # the lifted form's structured Hessian
-        _CACHE[key] = LiftedTranscription(setup.robot, model, T, setup.ocp.smoothness, opts, codegen,
+    if key not in _CACHE and form == "full" and hessian == "surrogate":
+        # the lifted form's structured Hessian
+        _CACHE[key] = LiftedTranscription(setup.robot, model, T, setup.ocp.smoothness, opts,
+                                          codegen,
                                           codegen_required=setup.ocp.solver.codegen is True)
     elif key not in _CACHE:
-        _CACHE[key] = Transcription(setup.robot, model, T, form, setup.ocp.smoothness, opts, hessian,
-                                    codegen, codegen_required=setup.ocp.solver.codegen is True, limits=limits)
+        _CACHE[key] = Transcription(setup.robot, model, T, form, setup.ocp.smoothness, opts,
+                                    hessian, codegen,
+                                    codegen_required=setup.ocp.solver.codegen is True,
+                                    limits=limits)
     return _CACHE[key]
 
 
 def enforced_limits(setup: Setup):
-    """(step_s, MotionLimits) when the problem enforces its motion limits (`limits.enforce: true`), else None."""
+    """(step_s, MotionLimits) when the problem enforces its motion limits (`limits.enforce: true`),
+    else None."""
     if not setup.ocp.limits.enforce:
         return None
     return setup.ocp.timing.step_s, problem_limits(setup)
@@ -121,12 +127,13 @@ def limits_key(limits) -> tuple | None:
     if limits is None:
         return None
     dt, lim = limits
-    return (dt, tuple(lim.joint_names), lim.velocity.tobytes(), lim.acceleration.tobytes(), lim.tool_speed,
-            lim.tool_rotation, lim.rcm_min_distance, limits_module.CURVE_ROWS)
+    return (dt, tuple(lim.joint_names), lim.velocity.tobytes(), lim.acceleration.tobytes(),
+            lim.tool_speed, lim.tool_rotation, lim.rcm_min_distance, limits_module.CURVE_ROWS)
 
 
 def resolve_codegen(setup: Setup, hessian: str) -> bool:
-    """Whether the transcription with this Hessian is compiled: `solver.codegen` true, or auto with a C compiler."""
+    """Whether the transcription with this Hessian is compiled: `solver.codegen` true, or auto with
+    a C compiler."""
     choice = setup.ocp.solver.codegen
     if hessian == "exact":
         return False
@@ -137,15 +144,17 @@ _NEWTON: dict[tuple, NewtonSolver] = {}
 
 
 def newton_solver(setup: Setup, background: bool = False) -> NewtonSolver:
-    """The (cached) projected Newton solver of this setup's structure (`solver.name: newton`); `background`: a
-    new one's C compiled in a background thread, loaded on first use (`NewtonSolver.ready`)."""
+    """The (cached) projected Newton solver of this setup's structure (`solver.name: newton`);
+    `background`: a new one's C compiled in a background thread, loaded on first use
+    (`NewtonSolver.ready`)."""
     model, prob = setup.model, setup.ocp
     codegen = resolve_codegen(setup, "surrogate")
-    key = (str(setup.robot.urdf), setup.robot.frame, setup.robot.offset.tobytes(), model.key(), model.scalar,
-           prob.horizon, prob.smoothness, codegen, prob.solver.codegen is True)
+    key = (str(setup.robot.urdf), setup.robot.frame, setup.robot.offset.tobytes(), model.key(),
+           model.scalar, prob.horizon, prob.smoothness, codegen, prob.solver.codegen is True)
     if key not in _NEWTON:
         _NEWTON[key] = NewtonSolver(setup.robot, model, prob.horizon, prob.smoothness, codegen,
-                                    codegen_required=prob.solver.codegen is True, background=background)
+                                    codegen_required=prob.solver.codegen is True,
+                                    background=background)
     return _NEWTON[key]
 
 
@@ -153,13 +162,14 @@ _INTERIOR: dict[tuple, InteriorNewton] = {}
 
 
 def interior_solver(setup: Setup, moving: bool = False) -> InteriorNewton:
-    """The (cached) interior-point Newton solver of this setup's structure with its enforced limits; `moving`: the
-    plan starts in motion (a re-plan from the executed curve's state)."""
+    """The (cached) interior-point Newton solver of this setup's structure with its enforced limits;
+    `moving`: the plan starts in motion (a re-plan from the executed curve's state)."""
     prob = setup.ocp
     dt, lim = enforced_limits(setup)
     codegen = resolve_codegen(setup, "surrogate")
-    key = (str(setup.robot.urdf), setup.robot.frame, setup.robot.offset.tobytes(), setup.model.key(),
-           setup.model.scalar, prob.horizon, prob.smoothness, codegen, limits_key((dt, lim)), moving)
+    key = (str(setup.robot.urdf), setup.robot.frame, setup.robot.offset.tobytes(),
+           setup.model.key(), setup.model.scalar, prob.horizon, prob.smoothness, codegen,
+           limits_key((dt, lim)), moving)
     if key not in _INTERIOR:
         _INTERIOR[key] = InteriorNewton(newton_solver(setup), setup.robot, dt, lim, moving, codegen,
                                         codegen_required=prob.solver.codegen is True)

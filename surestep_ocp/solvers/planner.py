@@ -1,18 +1,21 @@
-"""A re-planning handle for a tracker loop: the OCP's solvers built once, each plan warm-started from the last.
+"""A re-planning handle for a tracker loop: the OCP's solvers built once, each plan warm-started
+from the last.
 
-At every tracker frame the tool's estimate (mean pose and 6x6 covariance, camera frame) and the camera pose
-come in, and the rest of the motion to the same goal is planned again over the steps left: the horizon
-shrinks by one step per waypoint reached, so the goal is reached at the planned time.
+At every tracker frame the tool's estimate (mean pose and 6x6 covariance, camera frame) and the
+camera pose come in, and the rest of the motion to the same goal is planned again over the steps
+left: the horizon shrinks by one step per waypoint reached, so the goal is reached at the planned
+time.
 
-The horizon shrinks without building an NLP per re-plan: one projected Newton solver per number of steps
-left, built once (all of them when the Planner is made, by default) and kept. A single NLP of fixed T with the
-executed steps pinned or padded was not used: a padded step still observes the tool, which changes Tr(Sigma_T),
-so its plan would not be the one a cold solve of the remaining problem finds. A plan is evaluated by one
-compiled call (the EKF over the steps left) instead of a CasADi call per step.
+The horizon shrinks without building an NLP per re-plan: one projected Newton solver per number of
+steps left, built once (all of them when the Planner is made, by default) and kept. A single NLP of
+fixed T with the executed steps pinned or padded was not used: a padded step still observes the
+tool, which changes Tr(Sigma_T), so its plan would not be the one a cold solve of the remaining
+problem finds. A plan is evaluated by one compiled call (the EKF over the steps left) instead of a
+CasADi call per step.
 
-Where the projected Newton solver does not apply (IPOPT's models, enforced motion limits, 6x6 recursions) or
-does not converge, a re-plan runs `solve_ocp_warm`'s whole strategy from the previous plan instead (its NLPs
-are cached per horizon too, but built inside the solve).
+Where the projected Newton solver does not apply (IPOPT's models, enforced motion limits, 6x6
+recursions) or does not converge, a re-plan runs `solve_ocp_warm`'s whole strategy from the previous
+plan instead (its NLPs are cached per horizon too, but built inside the solve).
 """
 
 from __future__ import annotations
@@ -42,8 +45,9 @@ from ..output.solution import Solution, evaluate
 
 _UNVECH = unvech(np.arange(NV, dtype=float)).astype(int)  # (6, 6) positions of each entry in vech
 REPLAN_MU = 1e-4  # a re-plan starts near the optimum: the barrier parameter of its first step
-# within the limits: a re-plan's iteration budget (its last iterate, within every limit, is the plan: the next frame
-# improves it) and the objective change (relative, over 3 iterations) at which it stops early
+# within the limits: a re-plan's iteration budget (its last iterate, within every limit, is the
+# plan: the next frame improves it) and the objective change (relative, over 3 iterations) at which
+# it stops early
 REPLAN_ITERATIONS, REPLAN_ACCEPTABLE = 12, 1e-7
 
 
@@ -51,38 +55,45 @@ class Planner:
     """Plans a problem once, then re-plans from each new tracker estimate over the steps left.
 
     Args:
-        problem: a Problem (or a built Setup); its camera moves, if any, are ignored (give the camera pose to
-            `replan`).
-        prebuild: build the solvers of every remaining horizon now: the first one compiled now, the others' C
-            compiled in a background thread while the loop runs, each loaded when first needed (else each built
-            when first needed); their build times, waits included, are in `builds`, never in a plan's time (the
-            IPOPT path builds its NLPs inside the solve).
+        problem: a Problem (or a built Setup); its camera moves, if any, are ignored (give the
+            camera pose to `replan`).
+        prebuild: build the solvers of every remaining horizon now: the first one compiled now, the
+            others' C compiled in a background thread while the loop runs, each loaded when first
+            needed (else each built when first needed); their build times, waits included, are in
+            `builds`, never in a plan's time (the IPOPT path builds its NLPs inside the solve).
     """
 
-    def __init__(self, problem: Problem | Setup, prebuild: bool = True, replan_iterations: int = REPLAN_ITERATIONS):
+    def __init__(self, problem: Problem | Setup, prebuild: bool = True,
+                 replan_iterations: int = REPLAN_ITERATIONS):
         setup = problem if isinstance(problem, Setup) else build_setup(problem)
         prob = setup.problem
-        self.setup = replace(setup, problem=replace(prob, camera=replace(prob.camera, moves=())), camera_schedule=[])
+        self.setup = replace(setup, problem=replace(prob, camera=replace(prob.camera, moves=())),
+                             camera_schedule=[])
         self.horizon = prob.horizon
         self.replan_iterations = int(replan_iterations)
-        self.builds: dict[int, float] = {}  # steps left -> seconds spent building its solver and evaluator
+        # steps left -> seconds spent building its solver and evaluator
+        self.builds: dict[int, float] = {}
         self._solvers: dict[int, tuple] = {}
         resolved = resolved_solver(self.setup)
-        self.fast = resolved.newton_first and not setup.ocp.limits.enforce and self.setup.model.scalar
-        # within enforced limits, where the interior-point method applies (`solver.name` auto or interior): it
-        # re-plans from the executed curve's state (docs/realtime.md); else a re-plan runs the whole strategy
+        self.fast = (resolved.newton_first and not setup.ocp.limits.enforce
+                     and self.setup.model.scalar)
+        # within enforced limits, where the interior-point method applies (`solver.name` auto or
+        # interior): it re-plans from the executed curve's state (docs/realtime.md); else a re-plan
+        # runs the whole strategy
         self.limited = bool(setup.ocp.limits.enforce and resolved.newton_fits
                             and resolved.name in (SolverName.AUTO, SolverName.INTERIOR))
         for n in (range(self.horizon, 0, -1) if prebuild else [self.horizon]) if self.fast else ():
             self._solver(n, background=n != self.horizon)  # timed apart from the solves
-        for n in range(self.horizon, 0, -1) if self.limited and prebuild else ():  # every re-plan's structure
+        # every re-plan's structure
+        for n in range(self.horizon, 0, -1) if self.limited and prebuild else ():
             self._interior(self.setup.with_ocp(horizon=n))
         self.plan, _ = solve_ocp_warm(self.setup, ocp_initial_guess(self.setup))
         if self.limited and self.plan.success:
             self.plan = self._within_reserve(self.plan)
         self.step = 0  # the waypoint the current plan starts at
         self._q = np.array(self.plan.q, float)
-        self._start = None  # the current plan's curve starts at rest, or in motion: (velocity, acceleration)
+        # the current plan's curve starts at rest, or in motion: (velocity, acceleration)
+        self._start = None
         self._camera = (self.setup.camera_pose.tobytes(), self.setup)
 
     @property
@@ -94,55 +105,64 @@ class Planner:
         """The plan from the tracker's estimate to the goal over the steps left.
 
         Args:
-            mean: (6,) the tool's estimated pose `[px, py, pz, rx, ry, rz]` (position [m], axis-angle [rad]) in
-                the camera frame.
+            mean: (6,) the tool's estimated pose `[px, py, pz, rx, ry, rz]` (position [m],
+                axis-angle [rad]) in the camera frame.
             covariance: (6, 6) its covariance [m^2, m rad, rad^2], the plan's Sigma_0.
-            camera_pose: (4, 4) camera in world [m] (default: as in the last call). The goal stays where it is
-                in the world (its joints are kept).
-            step: the waypoint index the tool is at now (default: one more than the last plan's start); the plan
-                has `horizon - step` steps.
+            camera_pose: (4, 4) camera in world [m] (default: as in the last call). The goal stays
+                where it is in the world (its joints are kept).
+            step: the waypoint index the tool is at now (default: one more than the last plan's
+                start); the plan has `horizon - step` steps.
 
         Returns:
-            A Solution starting at waypoint `step` (its `horizon` is the steps left); `extras["replan"]` has the
-            time of the whole call without builds (`time_s`) and the solver that made it. A successful one
-            becomes `plan` (and `step`); after a failure (check `success`) the previous plan stays current.
+            A Solution starting at waypoint `step` (its `horizon` is the steps left);
+            `extras["replan"]` has the time of the whole call without builds (`time_s`) and the
+            solver that made it. A successful one becomes `plan` (and `step`); after a failure
+            (check `success`) the previous plan stays current.
         """
         t0, builds_before = time.perf_counter(), self.build_time_s
         step = self.step + 1 if step is None else _step(step)
         if not self.step <= step < self.horizon:
-            raise SurestepError(f"replan: step {step} is not in [{self.step}, {self.horizon - 1}] (the current plan "
-                                f"starts at waypoint {self.step}; the goal is waypoint {self.horizon})")
+            raise SurestepError(f"replan: step {step} is not in [{self.step}, {self.horizon - 1}] "
+                                f"(the current plan starts at waypoint {self.step}; "
+                                f"the goal is waypoint {self.horizon})")
         mean, cov = _estimate(mean, covariance, self.setup.ocp.min_depth)
         camera = self._camera
         base, moved = self._seen_from(camera_pose)
         try:
             return self._replan(mean, cov, base, moved, step, t0, builds_before)
         except BaseException:
-            self._camera = camera  # a rejected call changes nothing: the camera of the last plan stays
+            # a rejected call changes nothing: the camera of the last plan stays
+            self._camera = camera
             raise
 
-    def _replan(self, mean, cov, base: Setup, moved: bool, step: int, t0: float, builds_before: float) -> Solution:
+    def _replan(self, mean, cov, base: Setup, moved: bool, step: int, t0: float,
+                builds_before: float) -> Solution:
         """`replan` with checked inputs (its docstring)."""
         if self.limited:
             return self._replan_within_limits(mean, cov, base, step, t0, builds_before)
         seed = self._q[step - self.step]
         q, ok, res_m, res_rad = base.joints_along(mean[None], seed, guesses=seed[None])
         if not ok[0]:
-            raise SurestepError(f"replan: the tracker's mean {np.round(mean, 4).tolist()} is not reachable (IK "
-                                f"residual {res_m[0] * 1e3:.3f} mm, {res_rad[0]:.4f} rad)")
+            raise SurestepError(f"replan: the tracker's mean {np.round(mean, 4).tolist()} "
+                                f"is not reachable (IK residual {res_m[0] * 1e3:.3f} mm, "
+                                f"{res_rad[0]:.4f} rad)")
         n = self.horizon - step
         sub = replace(base.with_ocp(horizon=n, sigma0=cov), q_start=q[0])
-        sub.x_start, sub.x_goal = sub.pose_of(q[0]), sub.pose_of(sub.q_goal)  # the goal's as seen from this start
+        # the goal's as seen from this start
+        sub.x_start, sub.x_goal = sub.pose_of(q[0]), sub.pose_of(sub.q_goal)
         warm = InitialGuess(np.vstack([q[:1], self._q[step - self.step + 1:]]), "previous plan")
         built = self._solver(n) if self.fast and sub.model.scalar else None
         sol = None
-        if built is not None:  # the re-plan's Newton attempts (strategy.replan_strategy), evaluated in one call
+        if built is not None:
+            # the re-plan's Newton attempts (strategy.replan_strategy), evaluated in one call
             def evaluate_run(setup, method, start, run):
                 sig = np.asarray(built[1](run.poses.T, vech(cov))).T[:, _UNVECH]
-                return evaluate(setup, method, run.poses, list(run.q), success=run.success, status=run.status,
-                                solve_time_s=run.solve_time_s, iterations=run.iterations, objective=run.objective,
+                return evaluate(setup, method, run.poses, list(run.q), success=run.success,
+                                status=run.status, solve_time_s=run.solve_time_s,
+                                iterations=run.iterations, objective=run.objective,
                                 sigma=sig, extras={"solver": "newton", "init": start.source,
-                                                   "initial_trace": run.initial_trace, "compiled": built[0].codegen})
+                                                   "initial_trace": run.initial_trace,
+                                                   "compiled": built[0].codegen})
 
             ctx = Context(sub, resolved_solver(sub), "ocp-replan", {}, evaluate_newton=evaluate_run)
             tried = run_strategy(replan_strategy(moved), ctx, warm, None)
@@ -150,7 +170,8 @@ class Planner:
                 sol = tried[-1].outcome.solution
                 sol.attempts = records(tried, len(tried) - 1)
                 sol.extras["warm_start_q"] = warm.q
-        if sol is None:  # IPOPT's models, or Newton did not converge: the whole strategy from the previous plan
+        if sol is None:
+            # IPOPT's models, or Newton did not converge: the whole strategy from the previous plan
             sol = solve_ocp_warm(sub, warm, method="ocp-replan")[0]
             sol.extras["warm_start_q"] = warm.q
         built_s = sum(self.builds.values()) - builds_before
@@ -161,70 +182,82 @@ class Planner:
         return sol
 
     def executed_state(self, step: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(joints, velocities, accelerations) of the curve being executed (the current plan's, played at its
-        pace) at waypoint `step`."""
+        """(joints, velocities, accelerations) of the curve being executed (the current plan's,
+        played at its pace) at waypoint `step`."""
         dt = self.setup.ocp.timing.step_s
-        p, v, a = evaluate_curve(self._q, dt, np.array([(step - self.step) * dt]), start=self._start)
+        p, v, a = evaluate_curve(self._q, dt, np.array([(step - self.step) * dt]),
+                                 start=self._start)
         return p[0], v[0], a[0]
 
-    def _replan_within_limits(self, mean, cov, base: Setup, step: int, t0: float, builds_before: float) -> Solution:
-        """A re-plan within the enforced limits: from the executed curve's state at `step` (joints, velocity,
-        acceleration: the commanded motion stays twice continuously differentiable), with the camera registered to
-        the tracker (the kinematics at those joints see the tool at the tracker's mean), to the goal where the
-        camera sees it; the interior-point method from the previous plan's rest. A failure keeps the previous plan
-        (said in `extras["replan"]`)."""
+    def _replan_within_limits(self, mean, cov, base: Setup, step: int, t0: float,
+                              builds_before: float) -> Solution:
+        """A re-plan within the enforced limits: from the executed curve's state at `step` (joints,
+        velocity, acceleration: the commanded motion stays twice continuously differentiable), with
+        the camera registered to the tracker (the kinematics at those joints see the tool at the
+        tracker's mean), to the goal where the camera sees it; the interior-point method from the
+        previous plan's rest. A failure keeps the previous plan (said in `extras["replan"]`)."""
         q0, v0, a0 = self.executed_state(step)
         world_tool = base.camera_pose @ pose_to_matrix(base.pose_of(q0))
         registered = base.seen_from(world_tool @ np.linalg.inv(pose_to_matrix(mean)))
         n = self.horizon - step
-        # the goal's joints as the registered camera sees it: from the previous plan's (a small move), then
-        # from the file's goal joints; no random restarts within a frame
-        q_goal, res_m, res_rad = registered.joints_for(base.x_goal, self._q[-1], raise_on_fail=False,
-                                                       restarts=0)
+        # the goal's joints as the registered camera sees it: from the previous plan's (a small
+        # move), then from the file's goal joints; no random restarts within a frame
+        q_goal, res_m, res_rad = registered.joints_for(base.x_goal, self._q[-1],
+                                                       raise_on_fail=False, restarts=0)
         if res_m > 1e-6 or res_rad > 1e-5:
-            q_goal, res_m, res_rad = registered.joints_for(base.x_goal, base.q_goal, raise_on_fail=False,
-                                                           restarts=0)
+            q_goal, res_m, res_rad = registered.joints_for(base.x_goal, base.q_goal,
+                                                           raise_on_fail=False, restarts=0)
         reachable = res_m <= 1e-6 and res_rad <= 1e-5
         tail = np.array(self._q[step - self.step:], float)
-        s = np.linspace(0.0, 1.0, n + 1)  # the goal's shift, eased in and out (no velocity or acceleration added at
-        tail += (10 * s**3 - 15 * s**4 + 6 * s**5)[:, None] * (q_goal - tail[-1])[None]  # either end)
+        # the goal's shift, eased in and out (no velocity or acceleration added at either end)
+        s = np.linspace(0.0, 1.0, n + 1)
+        tail += (10 * s**3 - 15 * s**4 + 6 * s**5)[:, None] * (q_goal - tail[-1])[None]
         tail[0] = q0
         spec = self.setup.ocp.solver
-        # within the limits less RESERVE (room for the next corrections), else within the limits themselves, else
-        # (the correction too large for the time left) EXTEND steps later; from the previous plan with the rows it
-        # breaks relaxed (the goal's shift, the active rows it sits on)
+        # within the limits less RESERVE (room for the next corrections), else within the limits
+        # themselves, else (the correction too large for the time left) EXTEND steps later; from the
+        # previous plan with the rows it breaks relaxed (the goal's shift, the active rows it sits
+        # on)
         tried = []  # (reserve, steps added, status, iterations, relaxed iterations) of each attempt
-        attempts = [a for a in ATTEMPTS if not a[1] or n < EXTEND_BELOW] if reachable else ATTEMPTS[:1]
+        attempts = ([a for a in ATTEMPTS if not a[1] or n < EXTEND_BELOW] if reachable
+                    else ATTEMPTS[:1])
         for reserve, extra in attempts:
-            sub = replace(registered.with_ocp(horizon=n + extra, sigma0=cov), q_start=q0, q_goal=q_goal)
+            sub = replace(registered.with_ocp(horizon=n + extra, sigma0=cov), q_start=q0,
+                          q_goal=q_goal)
             sub.x_start, sub.x_goal = sub.pose_of(q0), sub.pose_of(q_goal)
-            warm = InitialGuess(np.vstack([tail, np.repeat(tail[-1:], extra, axis=0)]), "previous plan"
+            warm = InitialGuess(np.vstack([tail, np.repeat(tail[-1:], extra, axis=0)]),
+                                "previous plan"
                                 + (f", {extra} steps at the goal added" if extra else ""))
             solver = self._interior(sub)
-            run = solver.run(sub, warm, v0=v0, a0=a0, tol=spec.tol, mu0=REPLAN_MU, relax=True, reserve=reserve,
-                             max_iter=min(self.replan_iterations, spec.max_iter) if reachable else 0,
+            run = solver.run(sub, warm, v0=v0, a0=a0, tol=spec.tol, mu0=REPLAN_MU, relax=True,
+                             reserve=reserve,
+                             max_iter=(min(self.replan_iterations, spec.max_iter) if reachable
+                                       else 0),
                              feasible_ok=True, acceptable_change=REPLAN_ACCEPTABLE)
             tried.append({"reserve": reserve, "steps_added": extra, "status": run.status,
-                          "iterations": run.iterations, "relaxed_iterations": run.relaxed_iterations})
+                          "iterations": run.iterations,
+                          "relaxed_iterations": run.relaxed_iterations})
             if run.success:
                 break
         sol = solver.newton.solution(sub, "ocp-replan", warm, run)
-        sol.extras.update(solver="interior", start_state={"velocity": v0.tolist(), "acceleration": a0.tolist()},
+        sol.extras.update(solver="interior",
+                          start_state={"velocity": v0.tolist(), "acceleration": a0.tolist()},
                           warm_start_q=warm.q, reserve=reserve, extended_steps=extra)
         if not reachable:  # no plan tried (the goal's IK residual is in the log)
             sol.success, sol.status = False, "Goal_Unreachable"
             sol.extras["goal_ik_residual"] = {"m": float(res_m), "rad": float(res_rad)}
         built_s = self.build_time_s - builds_before
-        sol.extras["replan"] = {"step": step, "time_s": time.perf_counter() - t0 - built_s, "solver": "interior",
-                                "build_time_s": built_s, "kept_previous": not sol.success, "attempts": tried}
+        sol.extras["replan"] = {"step": step, "time_s": time.perf_counter() - t0 - built_s,
+                                "solver": "interior", "build_time_s": built_s,
+                                "kept_previous": not sol.success, "attempts": tried}
         if sol.success:
             self.plan, self.step, self._q, self._start = sol, step, np.array(sol.q, float), (v0, a0)
             self.horizon += extra
         return sol
 
     def _interior(self, sub: Setup):
-        """The interior-point solver of a re-plan over `sub`'s horizon from a moving start, built on first use
-        (its build time in `builds`, keyed by minus the horizon)."""
+        """The interior-point solver of a re-plan over `sub`'s horizon from a moving start, built on
+        first use (its build time in `builds`, keyed by minus the horizon)."""
         t0, n = time.perf_counter(), sub.ocp.horizon
         solver = interior_solver(sub, moving=True)
         if -n not in self.builds:
@@ -232,12 +265,14 @@ class Planner:
         return solver
 
     def _within_reserve(self, plan: Solution) -> Solution:
-        """The first plan again within the limits less RESERVE (from the plan within the limits, the rows it breaks
-        relaxed), so that the re-plans have room for corrections; the plan itself if that fails."""
+        """The first plan again within the limits less RESERVE (from the plan within the limits, the
+        rows it breaks relaxed), so that the re-plans have room for corrections; the plan itself if
+        that fails."""
         setup, spec = self.setup, self.setup.ocp.solver
         solver = interior_solver(setup)
         start = InitialGuess(np.array(plan.q, float), "the plan within the limits")
-        run = solver.run(setup, start, tol=spec.tol, max_iter=min(spec.surrogate_max_iter, spec.max_iter),
+        run = solver.run(setup, start, tol=spec.tol,
+                         max_iter=min(spec.surrogate_max_iter, spec.max_iter),
                          mu0=REPLAN_MU, relax=True, reserve=RESERVE)
         if not run.success:
             return plan
@@ -248,39 +283,46 @@ class Planner:
         return sol if sol.success else plan
 
     def _solver(self, n: int, background: bool = False) -> tuple:
-        """(projected Newton solver, compiled EKF over n steps) for n steps left, built on first use; `background`:
-        its C compiled in a background thread (loaded, and waited for if need be, when it is first used: the wait
-        counts as build time, not as a plan's)."""
+        """(projected Newton solver, compiled EKF over n steps) for n steps left, built on first
+        use; `background`: its C compiled in a background thread (loaded, and waited for if need be,
+        when it is first used: the wait counts as build time, not as a plan's)."""
         if n not in self._solvers:
             t0 = time.perf_counter()
             sub = self.setup.with_ocp(horizon=n)
-            self._solvers[n] = (newton_solver(sub, background=background), _propagation(self.setup.eval_model, n))
+            self._solvers[n] = (newton_solver(sub, background=background),
+                                _propagation(self.setup.eval_model, n))
             self.builds[n] = time.perf_counter() - t0
         if not background:
             self.builds[n] += self._solvers[n][0].ready()
         return self._solvers[n]
 
     def _seen_from(self, camera_pose) -> tuple[Setup, bool]:
-        """The setup seen from `camera_pose` (None: the last one), and whether the camera moved since the last plan."""
+        """The setup seen from `camera_pose` (None: the last one), and whether the camera moved
+        since the last plan."""
         moved = False
         if camera_pose is not None:
             C = _real(camera_pose, "camera_pose")
             if C.shape != (4, 4) or not np.all(np.isfinite(C)):
-                raise SurestepError(f"replan: camera_pose must be a finite 4x4 matrix, got shape {C.shape}")
+                raise SurestepError("replan: camera_pose must be a finite 4x4 matrix, "
+                                    f"got shape {C.shape}")
             R = C[:3, :3]
             if (np.abs(R.T @ R - np.eye(3)).max() > RIGID_TOL or np.linalg.det(R) <= 0
-                    or np.abs(C[3] - [0, 0, 0, 1]).max() > RIGID_TOL or np.abs(C[:3, 3]).max() > MAX_POSITION):
-                raise SurestepError("replan: camera_pose must be a rigid transform: a rotation (orthonormal, "
-                                    f"determinant +1, to {RIGID_TOL:g}), a translation within {MAX_POSITION:g} m, "
+                    or np.abs(C[3] - [0, 0, 0, 1]).max() > RIGID_TOL
+                    or np.abs(C[:3, 3]).max() > MAX_POSITION):
+                raise SurestepError("replan: camera_pose must be a rigid transform: a rotation "
+                                    f"(orthonormal, determinant +1, to {RIGID_TOL:g}), "
+                                    f"a translation within {MAX_POSITION:g} m, "
                                     "and a last row 0 0 0 1")
             if C.tobytes() != self._camera[0]:
                 self._camera, moved = (C.tobytes(), self.setup.seen_from(C)), True
         return self._camera[1], moved
 
 
-RESERVE = 0.02  # re-plans keep this fraction of the velocity, acceleration and tool-speed limits for corrections
+# re-plans keep this fraction of the velocity, acceleration and tool-speed limits for corrections
+RESERVE = 0.02
 EXTEND = 2  # steps a re-plan may add when the correction does not fit in the time left
-EXTEND_BELOW = 10  # ... when fewer steps than this are left (earlier, the time left is not what is short)
+# ... when fewer steps than this are left (earlier, the time left is not what is short)
+EXTEND_BELOW = 10
 # a re-plan's (reserve, steps added), in order
 ATTEMPTS = ((RESERVE, 0), (0.0, 0), (RESERVE, EXTEND), (0.0, 2 * EXTEND))
 
@@ -302,8 +344,10 @@ def _real(value, name: str) -> np.ndarray:
 
 
 def _step(step) -> int:
-    """The waypoint index given to `replan`: a whole number (a bool, a fraction, infinity or a list is an error)."""
-    if isinstance(step, (bool, np.bool_)) or not isinstance(step, (int, np.integer, float, np.floating)):
+    """The waypoint index given to `replan`: a whole number (a bool, a fraction, infinity or a list
+    is an error)."""
+    if isinstance(step, (bool, np.bool_)) or not isinstance(step, (int, np.integer, float,
+                                                                   np.floating)):
         raise SurestepError(f"replan: step must be a whole number, got {type(step).__name__}")
     if not np.isfinite(step) or step != int(step):
         raise SurestepError(f"replan: step must be a whole number, got {step}")
@@ -311,19 +355,24 @@ def _step(step) -> int:
 
 
 def _estimate(mean, covariance, min_depth: float) -> tuple[np.ndarray, np.ndarray]:
-    """The tracker's mean (6,) and covariance (6, 6), checked as the problem files' are: finite, real, the mean in
-    front of the camera (at least the minimum depth), the covariance symmetric (to 1e-9 relative: it is not
-    silently symmetrised), positive definite and no entry beyond MAX_COVARIANCE."""
+    """The tracker's mean (6,) and covariance (6, 6), checked as the problem files' are: finite,
+    real, the mean in front of the camera (at least the minimum depth), the covariance symmetric (to
+    1e-9 relative: it is not silently symmetrised), positive definite and no entry beyond
+    MAX_COVARIANCE."""
     mean, cov = _real(mean, "mean"), _real(covariance, "covariance")
     if mean.shape != (NX,) or not np.all(np.isfinite(mean)):
-        raise SurestepError(f"replan: mean must be 6 finite numbers [px, py, pz, rx, ry, rz], got shape {mean.shape}")
+        raise SurestepError("replan: mean must be 6 finite numbers [px, py, pz, rx, ry, rz], "
+                            f"got shape {mean.shape}")
     if np.abs(mean[:3]).max() > MAX_POSITION:
-        raise SurestepError(f"replan: mean's position must be within {MAX_POSITION:g} m, got {mean[:3].tolist()}")
+        raise SurestepError(f"replan: mean's position must be within {MAX_POSITION:g} m, "
+                            f"got {mean[:3].tolist()}")
     if mean[2] < min_depth:
-        raise SurestepError(f"replan: mean's depth {mean[2]:.4g} m is below the minimum depth {min_depth:g} m "
-                            "(constraints.min_depth): the tool would be behind or at the camera")
+        raise SurestepError(f"replan: mean's depth {mean[2]:.4g} m is below the minimum depth "
+                            f"{min_depth:g} m (constraints.min_depth): the tool would be behind or "
+                            "at the camera")
     if cov.shape != (NX, NX) or not np.all(np.isfinite(cov)):
-        raise SurestepError(f"replan: covariance must be a finite 6x6 matrix, got shape {cov.shape}")
+        raise SurestepError("replan: covariance must be a finite 6x6 matrix, "
+                            f"got shape {cov.shape}")
     if np.abs(cov).max() > MAX_COVARIANCE:
         raise SurestepError(f"replan: covariance entries must be at most {MAX_COVARIANCE:g}, got "
                             f"{np.abs(cov).max():.3g}")
@@ -336,7 +385,8 @@ def _estimate(mean, covariance, min_depth: float) -> tuple[np.ndarray, np.ndarra
 
 
 def _propagation(model: BeliefModel, n: int) -> ca.Function:
-    """`(poses (6, n+1), vech(Sigma_0)) -> vech(Sigma_t|t) (21, n+1)`: the model's EKF step unrolled (one call)."""
+    """`(poses (6, n+1), vech(Sigma_0)) -> vech(Sigma_t|t) (21, n+1)`: the model's EKF step unrolled
+    (one call)."""
     X, s0 = ca.SX.sym("X", NX, n + 1), ca.SX.sym("sigma0", NV)
     out = [s0]
     for t in range(n):

@@ -1,5 +1,6 @@
-"""The interior-point Newton method (`interior.py`) on the OCP within the enforced motion limits: the joint-space
-problem of the projected Newton solver plus the limit rows, solved with a banded system per iteration."""
+"""The interior-point Newton method (`interior.py`) on the OCP within the enforced motion limits:
+the joint-space problem of the projected Newton solver plus the limit rows, solved with a banded
+system per iteration."""
 
 from __future__ import annotations
 
@@ -13,8 +14,9 @@ from .base import Context, Outcome
 
 
 def feasible_line(setup, solver) -> InitialGuess:
-    """The straight line at the first of TIME_LAWS whose curve keeps within every row (the interior-point method
-    then keeps them); else at the one closest to them (the rows outside get slacks)."""
+    """The straight line at the first of TIME_LAWS whose curve keeps within every row (the
+    interior-point method then keeps them); else at the one closest to them (the rows outside get
+    slacks)."""
     best, margin = None, -np.inf
     for name, law in TIME_LAWS:
         guess = timed_line(setup, law, name)
@@ -27,30 +29,36 @@ def feasible_line(setup, solver) -> InitialGuess:
 
 
 class InteriorPointBackend:
-    """The OCP with enforced limits where projected Newton's reformulation is exact (`newton_fits`); a start within
-    every row (the caller's, else the straight line at a minimum-jerk pace)."""
+    """The OCP with enforced limits where projected Newton's reformulation is exact (`newton_fits`);
+    a start within every row (the caller's, else the straight line at a minimum-jerk pace)."""
 
     name = "interior"
 
     def applies(self, ctx: Context) -> str | None:
         if not ctx.setup.ocp.limits.enforce:
-            return "the interior-point method is for problems with enforced motion limits (limits.enforce: true)"
+            return ("the interior-point method is for problems with enforced motion limits "
+                    "(limits.enforce: true)")
         if not ctx.resolved.newton_fits:
-            return ("it needs the condensed scalar recursion with the mean observation noise and six joints moving "
-                    "the tracked frame")
+            return ("it needs the condensed scalar recursion with the mean observation noise and "
+                    "six joints moving the tracked frame")
         return None
 
     def solve(self, ctx: Context, start: InitialGuess, warm: Iterate | None, hessian: str | None,
               options: dict) -> Outcome:
         setup, spec = ctx.setup, ctx.setup.ocp.solver
         solver = interior_solver(setup)
-        kw = dict(tol=spec.tol, max_iter=min(spec.surrogate_max_iter, spec.max_iter), verbose=spec.print_level > 0)
+        kw = dict(tol=spec.tol, max_iter=min(spec.surrogate_max_iter, spec.max_iter),
+                  verbose=spec.print_level > 0)
         multipliers = warm.multipliers if warm is not None else None
         run = solver.run(setup, start, warm=multipliers, **kw)
-        if run.status == "Infeasible_Start" and warm is None:  # a start at a constant pace: the same line, timed
-            start = feasible_line(setup, solver)  # (the rows no time law keeps are relaxed at the start)
+        if run.status == "Infeasible_Start" and warm is None:
+            # a start at a constant pace: the same line, timed (the rows no time law keeps are
+            # relaxed at the start)
+            start = feasible_line(setup, solver)
             run = solver.run(setup, start, relax=True, **kw)
         sol = solver.newton.solution(setup, ctx.method, start, run)
         sol.extras["solver"] = "interior"
-        enforce_limits(setup, sol)  # the played curve checked densely, as every plan within the limits
-        return Outcome(sol, Iterate(sol.joints, multipliers=run.multipliers) if sol.success else None)
+        # the played curve checked densely, as every plan within the limits
+        enforce_limits(setup, sol)
+        return Outcome(sol, (Iterate(sol.joints, multipliers=run.multipliers) if sol.success
+                             else None))
