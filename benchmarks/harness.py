@@ -34,8 +34,10 @@ The studies (benchmarks/README.md: each one's command and result files):
 - enforced_speed.py: the enforced OCP solve of one revision against an older one (worker processes).
 - export_limits.py: the OCP's plans against the motion limits, planned and exported.
 - replan_rate.py: the re-planning rate of `Planner` against a simulated 20 Hz tracker.
-- realtime.py: plans within the motion limits, the interior-point method against IPOPT (cold).
-- replan_within_limits.py: re-planning within the limits (experimental).
+- realtime.py: plans within the motion limits, the interior-point method against IPOPT (cold), and
+  the 20 Hz re-planning loop within the limits.
+- replan_within_limits.py: one re-planning episode within the limits, per re-plan.
+- replan_budget.py: the re-plan's iteration budget within the limits.
 - scenarios.py: `surestep compare` on every scenario file.
 - baseline_timing.py: the baseline within enforced limits: kept or lengthened, against toppra.
 - plan_steps.py, large_rollout_errors.py, worst_rollout.py: where the evaluation's large rollout errors come from.

@@ -47,8 +47,8 @@ ACCEPTABLE_CHANGE, ACCEPTABLE_ITER = 1e-9, 3
 # status, a success: its plan keeps every limit and reaches the goal, not yet optimal (a re-planning
 # loop's iteration budget)
 FEASIBLE = "Feasible_Point_Found"
-# with `feasible_ok`, the steps that shrink a relaxation do not count, up to this x max_iter in all
-RELAXED_CAP = 3
+# with `feasible_ok`, the steps that shrink a relaxation do not count against max_iter, up to this many
+RELAXED_MAX = 30
 # the secant end-game (newton.py's SR1 correction of the surrogate Hessian) starts once the average
 # complementarity is this small and no row is relaxed
 SECANT_GAP = 1e-8
@@ -381,7 +381,8 @@ class InteriorNewton:
             if gap <= MU_FINAL and (err_d <= tol or stalled) and not rho.any():
                 status = "Solve_Succeeded" if err_d <= tol else "Solved_To_Acceptable_Level"
                 break
-            if it - (relaxed_its if feasible_ok else 0) == max_iter or it == RELAXED_CAP * max_iter:
+            if (it - (relaxed_its if feasible_ok else 0) == max_iter
+                    or (feasible_ok and relaxed_its == RELAXED_MAX)):
                 if feasible_ok and not rho.any() and np.all(c > 0):
                     status = FEASIBLE
                 break

@@ -48,7 +48,7 @@ REPLAN_MU = 1e-4  # a re-plan starts near the optimum: the barrier parameter of 
 # within the limits: a re-plan's iteration budget (its last iterate, within every limit, is the
 # plan: the next frame improves it) and the objective change (relative, over 3 iterations) at which
 # it stops early
-REPLAN_ITERATIONS, REPLAN_ACCEPTABLE = 12, 1e-7
+REPLAN_ITERATIONS, REPLAN_ACCEPTABLE = 6, 1e-7
 
 
 class Planner:

@@ -1,0 +1,65 @@
+"""The re-plan's iteration budget within the limits: episodes of the default problem against a
+simulated tracker per budget (`Planner(replan_iterations=...)`), re-plan times against what the
+plans are for (the tracker's final covariance and position error).
+
+    OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/replan_budget.py [--episodes 8] \\
+        [--budgets 12 6 4]
+
+Writes benchmarks/results/replan_budget.md; the last line is `replan_budget: <budget>=<median ms>
+...`.
+"""
+
+from __future__ import annotations
+
+import harness as h  # first: one BLAS thread
+
+import numpy as np  # noqa: E402
+
+
+def episode(problem, budget: int, seed: int) -> tuple[list[float], int, float, float, int]:
+    """(re-plan times [ms], failures, the tracker's final Tr(Sigma), its final position error [mm],
+    steps the goal moved later) of one episode."""
+    planner = h.Planner(problem, replan_iterations=budget)
+    tracker = h.SimulatedTracker(planner.setup.eval_model, planner.plan.poses[0], rng=seed)
+    ms, fails, k = [], 0, 0
+    while k + 1 < planner.horizon:
+        k += 1
+        mean, cov = tracker.move_to(planner.plan.poses[k - planner.step])
+        plan = planner.replan(mean, cov, step=k)
+        ms.append(plan.extras["replan"]["time_s"] * 1e3)
+        fails += not plan.success
+    tracker.move_to(planner.plan.poses[-1])
+    error = float(np.linalg.norm(tracker.true_pose[:3] - planner.setup.x_goal[:3]) * 1e3)
+    return ms, fails, float(np.trace(tracker.covariance)), error, planner.horizon - planner.setup.ocp.horizon
+
+
+def main() -> None:
+    ap = h.parser(__doc__)
+    ap.add_argument("--episodes", type=int, default=8)
+    ap.add_argument("--budgets", type=int, nargs="+", default=[12, 6, 4])
+    args = ap.parse_args()
+    problem = h.load_problem(h.DEFAULT_PROBLEM)
+    rows, medians = [], {}
+    for budget in args.budgets:
+        runs = [episode(problem, budget, seed) for seed in range(args.episodes)]
+        ms = [t for r in runs for t in r[0]]
+        s = h.stats(ms)
+        medians[str(budget)] = f"{s.median:.1f}"
+        rows.append((budget, f"{s.median:.1f} / {s.p90:.1f} / {s.worst:.1f}",
+                     f"{sum(r[1] for r in runs)} of {len(ms)}", f"{np.mean([r[2] for r in runs]):.3e}",
+                     f"{np.mean([r[3] for r in runs]):.2f} mm", max(r[4] for r in runs)))
+        print(*rows[-1], flush=True)
+    lines = ["# The re-plan's iteration budget within the limits", "",
+             f"`OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/replan_budget.py --episodes "
+             f"{args.episodes} --budgets {' '.join(map(str, args.budgets))}`: the default problem, seeds "
+             f"0-{args.episodes - 1} per budget (docs/realtime.md).", "",
+             *h.table(["budget", "re-plan median / p90 / worst [ms]", "kept the previous plan",
+                       "tracker's final Tr(Sigma), mean", "final position error, mean",
+                       "most steps later"], rows), ""]
+    text = "\n".join(lines + [h.last_line("replan_budget", h.key_values(**medians))]) + "\n"
+    h.write_result("replan_budget.md", text)
+    print(text)
+
+
+if __name__ == "__main__":
+    main()
