@@ -53,9 +53,9 @@ _QUINTIC = _quintic_basis()
 def knot_derivatives(T: int, dt: float, moving: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """(T+1, m) maps of one joint's waypoints to its knot velocities and accelerations (see above).
 
-    `moving`: the curve starts in motion (a re-plan from the executed curve's state): the first knot's
-    velocity and acceleration are given, as two more entries after the waypoints (m = T + 3: the
-    waypoints, then v_0, then a_0); else m = T + 1 and the curve starts at rest."""
+    `moving`: the curve starts in motion (a re-plan from the executed curve's state): the first
+    knot's velocity and acceleration are given, as two more entries after the waypoints (m = T + 3:
+    the waypoints, then v_0, then a_0); else m = T + 1 and the curve starts at rest."""
     m = T + 3 if moving else T + 1
     Dv, Da = np.zeros((T + 1, m)), np.zeros((T + 1, m))
     for i in range(1, T):
@@ -71,8 +71,8 @@ def knot_derivatives(T: int, dt: float, moving: bool = False) -> tuple[np.ndarra
 
 def curve_coefficients(T: int, dt: float, moving: bool = False) -> np.ndarray:
     """(T, 6, m): for piece t, the power coefficients in s = (time - t dt) / dt of the curve, as a
-    linear map of one joint's waypoints, then (`moving`) its start velocity and acceleration (the same
-    for every joint; `knot_derivatives`)."""
+    linear map of one joint's waypoints, then (`moving`) its start velocity and acceleration (the
+    same for every joint; `knot_derivatives`)."""
     Dv, Da = knot_derivatives(T, dt, moving)
     E = np.eye(T + 1, Dv.shape[1])
     out = np.zeros((T, 6, Dv.shape[1]))
@@ -148,11 +148,12 @@ def curve_point_weights(T: int, dt: float, t: int, s: float,
 
 def tool_point_windows(T: int, dt: float, moving: bool = False
                        ) -> tuple[list[list[int]], np.ndarray, np.ndarray]:
-    """The points where the OCP bounds the tool's speeds (TOOL_POINTS of every piece but the first piece's
-    start, which is at rest or the executed curve's own state): per point the four waypoints its piece depends
-    on (t-1 .. t+2, clipped at the ends), its weights (8: the curve's position from the four, then its
-    velocity; a repeated end node weighted in its first slot only), and, `moving`, the weights of the start's
-    velocity and acceleration (4: in the position, then in the velocity; zeros at rest)."""
+    """The points where the OCP bounds the tool's speeds (TOOL_POINTS of every piece but the first
+    piece's start, which is at rest or the executed curve's own state): per point the four waypoints
+    its piece depends on (t-1 .. t+2, clipped at the ends), its weights (8: the curve's position
+    from the four, then its velocity; a repeated end node weighted in its first slot only), and,
+    `moving`, the weights of the start's velocity and acceleration (4: in the position, then in the
+    velocity; zeros at rest)."""
     windows, weights, consts = [], [], []
     for t in range(T):
         nodes = [min(max(m, 0), T) for m in (t - 1, t, t + 1, t + 2)]
