@@ -114,8 +114,7 @@ def load_evaluation(path: str | Path) -> EvaluationSpec:
     if "limits" in top:
         base = replace(base, limits=_limits(rd, top["limits"], base.robot))
     det = rd.mapping(top.get("detection", {}), "detection",
-                     {"enabled", "margin", "min_depth", "max_depth",
-                                                              "falloff"})
+                     {"enabled", "margin", "min_depth", "max_depth", "falloff"})
     detection = None
     if rd.boolean(det.get("enabled", True), "detection.enabled"):
         d0 = Detection()

@@ -157,28 +157,28 @@ def markdown(records, methods, modes, header, spec) -> str:
                      "observation) per plan step however large (`execution.pace: planned`, the "
                      "paper's protocol).")
     lines = [f"# Evaluation on `{spec.path}`", "",
-             f"{n} random configurations (seed {header['seed']}, base problem "
-             f"`{spec.base_path.name}`, horizon T = {spec.horizon}), {header['rollouts']} noisy "
-             "closed-loop rollouts per plan and rollout mode; every plan evaluated with all "
-             f"observation components; {det_text}; {grad_text}.", "",
-             "**How the relative numbers are made.** For configuration c, method m and metric k, "
-             "let y = the method's absolute value and b = the baseline's on the same "
-             "configuration (same rollout noise draws). The per-configuration ratio is the "
-             "paper's scaling (`metrics.relative`): y / b when both are positive, 1 - (y - b) / b "
-             "when both are negative (entropies), undefined (excluded) for mixed signs. `mean` "
-             "cells are the mean of these ratios over configurations (the paper's statistic; "
-             "lower is better, baseline = 1); `med` and `p90` are their median and 90th "
-             "percentile. pos/ori = final position error ||p_T^true - p^G|| and geodesic "
-             "orientation error angle(R_T^true, R^G), mean and sample std over the rollouts of "
-             "one configuration; Tr noisy and H noisy = Tr(Sigma_T) and Gaussian entropy of the "
-             "rollouts' EKF, mean over rollouts; Tr ML and H ML = the plan's own "
-             "maximum-likelihood Sigma_T. `grasp` = share of all rollouts whose final true pose "
-             f"is within {gp * 1e3:g} mm and {ga:g} rad of the goal (the simulated Table II; "
-             "absolute, not relative).", "",
-             "**Failed solves** are counted in the `failed` column and are not dropped: a plan "
-             "whose solver reported failure is still rolled out and averaged in; only a method "
-             "that produced no plan at all (`no plan`) is left out of that configuration's "
-             "averages (`n` = configurations averaged).", "",
+             (f"{n} random configurations (seed {header['seed']}, base problem "
+              f"`{spec.base_path.name}`, horizon T = {spec.horizon}), {header['rollouts']} noisy "
+              "closed-loop rollouts per plan and rollout mode; every plan evaluated with all "
+              f"observation components; {det_text}; {grad_text}."), "",
+             ("**How the relative numbers are made.** For configuration c, method m and metric k, "
+              "let y = the method's absolute value and b = the baseline's on the same "
+              "configuration (same rollout noise draws). The per-configuration ratio is the "
+              "paper's scaling (`metrics.relative`): y / b when both are positive, 1 - (y - b) / "
+              "b when both are negative (entropies), undefined (excluded) for mixed signs. `mean` "
+              "cells are the mean of these ratios over configurations (the paper's statistic; "
+              "lower is better, baseline = 1); `med` and `p90` are their median and 90th "
+              "percentile. pos/ori = final position error ||p_T^true - p^G|| and geodesic "
+              "orientation error angle(R_T^true, R^G), mean and sample std over the rollouts of "
+              "one configuration; Tr noisy and H noisy = Tr(Sigma_T) and Gaussian entropy of the "
+              "rollouts' EKF, mean over rollouts; Tr ML and H ML = the plan's own "
+              "maximum-likelihood Sigma_T. `grasp` = share of all rollouts whose final true pose "
+              f"is within {gp * 1e3:g} mm and {ga:g} rad of the goal (the simulated Table II; "
+              "absolute, not relative)."), "",
+             ("**Failed solves** are counted in the `failed` column and are not dropped: a plan "
+              "whose solver reported failure is still rolled out and averaged in; only a method "
+              "that produced no plan at all (`no plan`) is left out of that configuration's "
+              "averages (`n` = configurations averaged)."), "",
              pace_text, "",
              "`kept start`: the OCP's solvers ended above the straight line they started from, "
              "which is then the plan; the attempts' statuses "
@@ -208,8 +208,8 @@ def markdown(records, methods, modes, header, spec) -> str:
                          f"{st[m]['failed']} | {st[m]['no_plan']} | {st[m]['kept']} | "
                          f"{_fmt(st[m]['time'], '{:.2f}')} | {_fmt(st[m]['iters'], '{:.0f}')} |")
         lines += ["",
-                  "Beside the paper's Table I (cells: our mean / paper; the paper gives means "
-                  f"only), mode `{mode}`:", "",
+                  ("Beside the paper's Table I (cells: our mean / paper; the paper gives means "
+                   f"only), mode `{mode}`:"), "",
                   "| ours | paper | " + " | ".join(plain) + " |", "|---" * (len(plain) + 2) + "|"]
         for m, (label, vals) in PAPER.items():
             if m in methods:
@@ -217,9 +217,9 @@ def markdown(records, methods, modes, header, spec) -> str:
                          for k, p in zip(METRICS, vals)]
                 lines.append(f"| {m} | {label} | " + " | ".join(cells) + " |")
         lines += ["",
-                  f"Absolute values, mode `{mode}`: means over configurations (pos in mm, ori in "
-                  "mrad), then the pooled final errors of every rollout (median, 90th percentile, "
-                  "maximum) and the share of steps with an observation:", "",
+                  (f"Absolute values, mode `{mode}`: means over configurations (pos in mm, ori in "
+                   "mrad), then the pooled final errors of every rollout (median, 90th "
+                   "percentile, maximum) and the share of steps with an observation:"), "",
                   "| method | " + " | ".join(plain)
                   + " | pos med [mm] | pos p90 [mm] | pos max [mm] | "
                   "ori med [mrad] | ori p90 [mrad] | ori max [mrad] | observed |",
@@ -254,10 +254,10 @@ def table2(records, methods, modes, gp: float, ga: float) -> list[str]:
     """The simulated Table II: grasp success share per method and rollout mode, beside the paper's
     real-robot rates."""
     lines = ["## Simulated Table II: grasp success", "",
-             f"Share of rollouts whose final true pose is within {gp * 1e3:g} mm and {ga:g} rad of "
-             "the goal (over all configurations and rollouts). The paper's Table II is 60 real "
-             "needle regrasps on the dVRK over four trajectory types: SURESTEP 82 %, the "
-             "straight-line baseline 18 %.", "",
+             (f"Share of rollouts whose final true pose is within {gp * 1e3:g} mm and {ga:g} rad "
+              "of the goal (over all configurations and rollouts). The paper's Table II is 60 "
+              "real needle regrasps on the dVRK over four trajectory types: SURESTEP 82 %, the "
+              "straight-line baseline 18 %."), "",
              "| method | " + " | ".join(f"grasp `{m}`" for m in modes) + " | paper (real robot) |",
              "|---" * (len(modes) + 2) + "|"]
     for m in methods:
@@ -338,8 +338,9 @@ def boxplot(records, methods, modes, path: Path, rollouts: int | None = None,
         ax.grid(True, axis="y", which="both", alpha=0.3)
     axes[0][0].set_ylabel("final position error ||p_T - p^G|| [mm]")
     per = f"{rollouts} rollouts" if rollouts else "rollouts"
-    fig.suptitle(f"final position errors, {len(records)} configurations x {per}, pooled\nbox: "
-                 "quartiles (line: median), whiskers: 5th-95th percentile, dots: the 10 % beyond"
+    fig.suptitle(f"final position errors, {len(records)} configurations x {per}, pooled\n"
+                 "box: quartiles (line: median), whiskers: 5th-95th percentile, dots: the "
+                 "10 % beyond"
                  + ("; dashed: grasp tolerance" if grasp_mm else ""), fontsize=10)
     fig.tight_layout()
     b = io.BytesIO()

@@ -205,8 +205,9 @@ def rollout(
             `Setup.eval_model`); only identity motion/observation maps are supported.
         poses: (T+1, 6) planned waypoints, camera frame; `poses[0]` is the start.
         goal: (6,) goal pose for the errors (default: the last waypoint), in the last step's camera
-            frame. n: number of rollouts. rng: a NumPy Generator or a seed. Per step the draws are,
-            in this order,
+            frame.
+        n: number of rollouts.
+        rng: a NumPy Generator or a seed. Per step the draws are, in this order,
             `n x 6` normals for w and `n x 6` for v (after `n x 6` for the initial
             error if `sample_initial`), so plans of the same horizon given the same seed
             see the same normal draws (common random numbers across methods).

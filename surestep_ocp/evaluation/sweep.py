@@ -280,8 +280,8 @@ def _run_sweep(sweep_path, out_dir, jobs, scheduler, resume, progress, only) -> 
 
 def summary(out: Path, runs: list[dict]) -> str:
     """One line per run, method and mode from each run's progress.jsonl."""
-    lines = ["| run | mode | method | pos mean | pos med | Tr ML mean | Tr ML med | grasp "
-             "| configs |",
+    lines = [("| run | mode | method | pos mean | pos med | Tr ML mean | Tr ML med | grasp "
+              "| configs |"),
              "|---|---|---|---|---|---|---|---|---|"]
     for run in runs:
         d = out / run["name"]

@@ -186,9 +186,9 @@ def success_table(problems_dir: Path, rollouts: int = 500, seed: int = 0,
                 "max_ms": float(times.max() * 1e3), "build_s": hook.planner.build_time_s,
                 "failures": hook.failures[:5]}
     all_methods = list(dict.fromkeys(m for t in res.values() for m in t))
-    lines = [f"Grasp success (final true pose within {grasp[0] * 1e3:g} mm and {grasp[1]:g} rad of "
-             f"the goal), {rollouts} rollouts per plan and mode, cells `model` / `true` (median "
-             "final position error in mm in brackets, `true` mode):", "",
+    lines = [(f"Grasp success (final true pose within {grasp[0] * 1e3:g} mm and {grasp[1]:g} rad "
+              f"of the goal), {rollouts} rollouts per plan and mode, cells `model` / `true` "
+              "(median final position error in mm in brackets, `true` mode):"), "",
              "| type | " + " | ".join(all_methods) + " |", "|---" * (len(all_methods) + 1) + "|"]
     for label, row in res.items():
         cells = []
@@ -204,25 +204,25 @@ def success_table(problems_dir: Path, rollouts: int = 500, seed: int = 0,
                  + " | ".join(f"{mean[m][0]:.0%} / {mean[m][1]:.0%}" if m in mean else ""
                               for m in all_methods) + " |")
     lines += ["",
-              "Paper (Table II, real dVRK, 60 regrasps over the four types): SURESTEP 82 %, "
-              "baseline 18 %."]
+              ("Paper (Table II, real dVRK, 60 regrasps over the four types): SURESTEP "
+               "82 %, baseline 18 %.")]
     for mode in MODES:
         worst = max((row[m][f"{mode}_max_mm"], label, m) for label, row in res.items() for m in row)
         lines += ["",
-                  f"Worst final position error of any rollout, mode `{mode}`: {worst[0]:.1f} mm "
-                  f"({worst[1]}, {worst[2]})."]
+                  (f"Worst final position error of any rollout, mode `{mode}`: {worst[0]:.1f} mm "
+                   f"({worst[1]}, {worst[2]}).")]
     for label, row in res.items():
         rp = row.get("ocp-replanned", {}).get("replans")
         if rp:
             lines += ["",
-                      f"{label}, `ocp-replanned`: every rollout re-plans after each camera move "
-                      f"from its own EKF mean and covariance ({row['ocp-replanned']['rollouts']} "
-                      "rollouts per mode); `ocp-replanned-ml`: one trajectory re-planned from the "
-                      f"maximum-likelihood belief, run by every rollout. {rp['count']} re-plans, "
-                      f"{rp['failed']} failed (previous plan kept); per re-plan "
-                      f"{rp['median_ms']:.1f} ms median, {rp['p95_ms']:.1f} ms p95, "
-                      f"{rp['max_ms']:.1f} ms worst (builds apart: {rp['build_s']:.1f} s); "
-                      f"{rp['wall_s']:.0f} s for both modes' rollouts."]
+                      (f"{label}, `ocp-replanned`: every rollout re-plans after each camera move "
+                       f"from its own EKF mean and covariance ({row['ocp-replanned']['rollouts']} "
+                       "rollouts per mode); `ocp-replanned-ml`: one trajectory re-planned from "
+                       f"the maximum-likelihood belief, run by every rollout. {rp['count']} "
+                       f"re-plans, {rp['failed']} failed (previous plan kept); per re-plan "
+                       f"{rp['median_ms']:.1f} ms median, {rp['p95_ms']:.1f} ms p95, "
+                       f"{rp['max_ms']:.1f} ms worst (builds apart: {rp['build_s']:.1f} s); "
+                       f"{rp['wall_s']:.0f} s for both modes' rollouts.")]
             lines += [f"  failed: step {t}, rollout {i}: {why}" for t, i, why in rp["failures"]]
     return "\n".join(lines), res
 

@@ -21,9 +21,10 @@ class SimulatedTracker:
 
     Args:
         model: the belief model of the noise and of the EKF (use `Setup.eval_model`: every
-            component). start: (6,) the true and estimated start pose `[p, axis-angle]`. sigma0:
-            (6, 6) the estimate's initial covariance (default: the model's Sigma0). rng: a NumPy
-            Generator or a seed.
+            component).
+        start: (6,) the true and estimated start pose `[p, axis-angle]`.
+        sigma0: (6, 6) the estimate's initial covariance (default: the model's Sigma0).
+        rng: a NumPy Generator or a seed.
     """
 
     def __init__(self, model: BeliefModel, start, sigma0=None, rng=0):
