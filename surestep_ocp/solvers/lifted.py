@@ -194,9 +194,9 @@ class LiftedTranscription:
         (the adjoint recursion, solved backwards as one sparse triangular system), and
         `lam_x = -(grad f + J^T lam_g)`, the bound multipliers that make it stationary in every
         variable (exact at a KKT point of the condensed form, whose joints are the same)."""
-        # the Jacobian's nonzeros through CasADi's buffer interface: a DM's conversion to
+        # the Jacobian's nonzeros through CasADi's buffer interface: a DM's conversion to scipy
+        # cost about half of this function (docs/general_models.md, "The secant end-game")
         if self._jac_nz is None:
-            # scipy cost 6 ms at T = 20, about half of this function
             self._jac_nz = Buffered(self.jac_g)
             self._adjoint = self._adjoint_pattern()
         nz = self._jac_nz(x, p)[1]

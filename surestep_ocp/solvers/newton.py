@@ -4,9 +4,8 @@
 With the condensed form of a scalar model the belief means are functions of the joints,
 `mu_t = pose(q_t)`; `q_0` is fixed, and the terminal equality `mu_T = x^G` with exactly six
 joints moving the tracked frame fixes `q_T` to the goal's IK solution, locally
-(`solver_config.resolve`, `newton_fits`; IPOPT's solutions keep it: measured
-`|q_T - q_goal| <= 7e-16` on 19 evaluation instances). What is left is a box-constrained problem in
-the interior joints `q_1 .. q_T-1`:
+(`solver_config.resolve`, `newton_fits`; IPOPT's solutions keep it: docs/hessian_and_newton.md,
+"The solvers"). What is left is a box-constrained problem in the interior joints `q_1 .. q_T-1`:
 
     min f(q) = S(c(pose(q))) / S_ref + smoothness * sum |q_t+1 - q_t|^2,   q_lo <= q <= q_hi
 
@@ -28,8 +27,8 @@ end, and a violation is a failure, after which `solve_ocp_warm` runs `run_barrie
 IPOPT's barrier problem (the bounds and the depth bound as log-barriers, IPOPT's monotone update of
 the barrier parameter), which follows the central path of the IPOPT fallback it replaces in joint
 space. Every evaluation is one call of a stage-wise Function (compiled with `solver.codegen`)
-through CasADi's buffer interface (no conversions), so an iteration costs about 0.3 ms at T = 20
-where IPOPT's own work is 0.43 ms (docs/solve_speed.md).
+through CasADi's buffer interface (no conversions), so an iteration costs less than IPOPT's own
+work per iteration (docs/solve_speed.md).
 """
 
 from __future__ import annotations
@@ -65,10 +64,8 @@ EXACT_MAX_N = 200
 STALL_WINDOW, STALL_DECREASE = 10, 1e-10
 # In its end phase (projected gradient below this) Newton stops as soon as an iterate is below the
 # depth bound, which its formulation does not carry, and a solver that has it takes over
-# (`run_barrier`, then IPOPT): most such runs converged below it anyway after tens more iterations
-# (evaluation configuration 73 at T = 40: below it from iteration 22 to the end at 66); where one
-# came back above it (5 of 100 at T = 40), IPOPT's plan was lower (docs/solve_speed.md, "Worst
-# case")
+# (`run_barrier`, then IPOPT): most such runs converged below it anyway, and where one came back
+# above it IPOPT's plan was lower (docs/solve_speed.md, "Worst case")
 DEPTH_CHECK_BELOW = 1e-3
 # rank-one terms the secant end-game keeps (its tail is a few iterations: rarely reached)
 SECANT_MEMORY = 20

@@ -428,9 +428,8 @@ class Transcription:
         `z = (q(s), q'(s)) = M w` with `M = [c_q^T kron I; c_v^T kron I]`, so the derivatives are
         the rate's in z (2 nq variables) mapped by M:
         `J = J_z M`, `H = M^T H_z M`, the same matrices as differentiating the composed rows over w
-        (4 nq variables) in fewer instructions (the Hessian 26 000 against 61 520 per point for the
-        PSM; 318 points at T = 40 are most of the Hessian's time). The finite-difference rows
-        ("steps") are differentiated directly."""
+        (4 nq variables) in fewer instructions (docs/motion_limits_and_export.md, "The enforced
+        solve's speed"). The finite-difference rows ("steps") are differentiated directly."""
         w_in, c_in = self.tool_point.sx_in()
         lam_k = ca.SX.sym("lam_k", self.tool_k)
         if self.tool_rate is None:
