@@ -2,14 +2,15 @@
 limits.
 
 A plan is one waypoint per step of `timing.step_s`. At the planned pace (`planned`, the paper's
-protocol) a rollout executes one plan step per rollout step, however large. A dVRK cannot take a
-68 mm or 2.8 rad step in 0.05 s: its controller would run it more slowly, and the tracker would
-keep observing meanwhile. At `limits` pace each plan step is split into the fewest equal rollout
-steps of `step_s` each (one observation each, as every rollout step) for which the tool moves no
-faster than `MotionLimits.tool_speed` and turns no faster than `tool_rotation`: the position
-linearly, the orientation along the geodesic (`baseline.straight_line` on each step), so the path
-is the plan's between its waypoints. A step within both limits is left as it is; a plan within them
-is rolled out exactly as at the planned pace.
+protocol) a rollout executes one plan step per rollout step, however large. A dVRK cannot take the
+plans' largest steps in 0.05 s (docs/evaluation.md, "Running the plans at the robot's pace"): its
+controller would run them more slowly, and the tracker would keep observing meanwhile. At `limits`
+pace each plan step is split into the fewest equal rollout steps of `step_s` each (one observation
+each, as every rollout step) for which the tool moves no faster than `MotionLimits.tool_speed` and
+turns no faster than `tool_rotation`: the position linearly, the orientation along the geodesic
+(`baseline.straight_line` on each step), so the path is the plan's between its waypoints. A step
+within both limits is left as it is; a plan within them is rolled out exactly as at the planned
+pace.
 """
 
 from __future__ import annotations
