@@ -99,7 +99,7 @@ def read_csv(path):
 
 
 def safe_load(path):
-    # libyaml: 50x
+    # libyaml's C loader where PyYAML has it (faster: docs/cli.md, "Reading problem files")
     return yaml.load(Path(path).read_text(), Loader=getattr(yaml, "CSafeLoader", yaml.SafeLoader))
 
 

@@ -240,8 +240,8 @@ def test_newton_plans_non_diagonal_models_and_ipopt_agrees(name):
 def test_second_start_never_ends_above_the_diagonal_models_plan():
     """A 6x6-recursion model also starts Newton from the plan of its diagonal approximation (the
     fast scalar path): the returned plan's trace, by the NumPy EKF, is at most that plan's evaluated
-    in the same model. Evaluation configurations 9 and 38 with the correlated depth noise (from the
-    straight line alone Newton ended 1.11x and 1.26x above the paper plan there, measured)."""
+    in the same model. Evaluation configurations 9 and 38 with the correlated depth noise, where
+    Newton from the straight line alone ended above the paper plan (docs/general_models.md)."""
     from surestep_ocp.evaluation.configs import ConfigurationSampler, load_evaluation
     from surestep_ocp.solvers.ocp import diagonal_model_setup
 
