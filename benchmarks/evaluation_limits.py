@@ -1,14 +1,15 @@
 """The Monte-Carlo evaluation with the motion limits enforced, beside the same run without them.
 
-    OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/evaluation_limits.py [--configs 100] [--rollouts 50]
-        [--step-s 0.1] [--methods baseline,gradient,ocp] [--jobs 1] [--reuse]
+    OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/evaluation_limits.py [--configs 100]
+        [--rollouts 50] [--step-s 0.1] [--methods baseline,gradient,ocp] [--jobs 1] [--reuse]
 
-problems/evaluations/evaluation.yaml with its base problem given `limits: {enforce: true}` (the default
-limits) and `timing: {step_s: S, tracker_hz: 1 / S}` (one observation per waypoint: the paper's belief
-model, so only the limits differ), written to out/evaluation_limits/, evaluated with `surestep evaluate`
-in both rollout modes; then the unconstrained evaluation of the same configurations and methods. The
-methods other than the OCP do not honour limits: their plans are rolled out and counted as failed.
-Writes benchmarks/results/evaluation_100x50_limits.md (the OCP's rows side by side, then both tables).
+problems/evaluations/evaluation.yaml with its base problem given `limits: {enforce: true}` (the
+default limits) and `timing: {step_s: S, tracker_hz: 1 / S}` (one observation per waypoint: the
+paper's belief model, so only the limits differ), written to out/evaluation_limits/, evaluated with
+`surestep evaluate` in both rollout modes; then the unconstrained evaluation of the same
+configurations and methods. The methods other than the OCP do not honour limits: their plans are
+rolled out and counted as failed. Writes benchmarks/results/evaluation_100x50_limits.md (the OCP's
+rows side by side, then both tables).
 """
 
 from __future__ import annotations
@@ -27,16 +28,19 @@ OUT = ROOT / "out" / "evaluation_limits"
 
 
 def files(step_s: float) -> Path:
-    """The enforced base problem and the evaluation file that uses it; returns the evaluation file."""
+    """The enforced base problem and the evaluation file that uses it; returns the evaluation
+    file."""
     base = yaml.safe_load(h.PAPER_PACE_PROBLEM.read_text())
     base["limits"] = {"enforce": True}
     base["timing"] = {"step_s": step_s, "tracker_hz": 1.0 / step_s}
     h.write_result(OUT / "needle_regrasp_limits.yaml", yaml.safe_dump(base, sort_keys=False))
     text = EVAL.read_text()
     if "base: ../needle_regrasp_paper_pace.yaml" not in text:
-        raise SystemExit(f"{EVAL}: its base is no longer ../needle_regrasp.yaml; update this script")
+        raise SystemExit(f"{EVAL}: its base is no longer ../needle_regrasp.yaml; update "
+                         "this script")
     return h.write_result(OUT / "evaluation_limits.yaml",
-                             text.replace("base: ../needle_regrasp_paper_pace.yaml", "base: needle_regrasp_limits.yaml"))
+                             text.replace("base: ../needle_regrasp_paper_pace.yaml",
+                                          "base: needle_regrasp_limits.yaml"))
 
 
 def ocp_rows(table: str) -> dict[str, str]:
@@ -63,22 +67,28 @@ def main() -> None:
     for name, spec in runs.items():
         t0 = time.perf_counter()
         if not args.reuse:
-            subprocess.run([sys.executable, "-m", "surestep_ocp.cli", "evaluate", str(spec), "--configs",
-                            str(args.configs), "--rollouts", str(args.rollouts), "--methods", args.methods,
+            subprocess.run([sys.executable, "-m", "surestep_ocp.cli", "evaluate", str(spec),
+                            "--configs", str(args.configs), "--rollouts", str(args.rollouts),
+                            "--methods", args.methods,
                             "--rollout-mode", "both", "--jobs", str(args.jobs), "--quiet",
                             "--output-dir", str(OUT / name)], check=True)
         took[name] = time.perf_counter() - t0
     tables = {name: (OUT / name / "table.md").read_text() for name in runs}
     head = next(line for line in tables["enforced"].splitlines() if line.startswith("| method |"))
-    lines = [f"# Evaluation with the motion limits enforced ({args.configs} x {args.rollouts}, both rollout modes)",
-             "", f"`OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/evaluation_limits.py --configs {args.configs} "
-             f"--rollouts {args.rollouts} --step-s {args.step_s:g} --methods {args.methods}`"
-             + ("" if args.reuse else f" ({took['enforced']:.0f} s enforced, {took['unconstrained']:.0f} s "
-                                      "unconstrained; a machine shared with other jobs, 2 cores)"), "",
-             f"Enforced: the base problem with `limits: {{enforce: true}}` and step_s {args.step_s:g} s, one "
-             "observation per waypoint (the paper's belief model, as the unconstrained run), so the two runs "
-             "differ by the limits only. Methods other than the OCP do not honour the limits: their plans are "
-             "rolled out as they are and counted in `failed`. Relative to the baseline of the same run:", "",
+    lines = [(f"# Evaluation with the motion limits enforced ({args.configs} x {args.rollouts}, "
+              "both rollout modes)"),
+             "",
+             "`OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/evaluation_limits.py --configs "
+             f"{args.configs} --rollouts {args.rollouts} --step-s {args.step_s:g} "
+             f"--methods {args.methods}`"
+             + ("" if args.reuse
+                else f" ({took['enforced']:.0f} s enforced, {took['unconstrained']:.0f} s "
+                     "unconstrained; a machine shared with other jobs, 2 cores)"), "",
+             (f"Enforced: the base problem with `limits: {{enforce: true}}` and step_s "
+              f"{args.step_s:g} s, one observation per waypoint (the paper's belief model, as the "
+              "unconstrained run), so the two runs differ by the limits only. Methods other than "
+              "the OCP do not honour the limits: their plans are rolled out as they are and "
+              "counted in `failed`. Relative to the baseline of the same run:"), "",
              head, "|" + "---|" * (head.count("|") - 1)]  # the evaluation's own header
     for mode in ("model", "true"):
         for name in runs:

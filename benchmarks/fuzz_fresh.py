@@ -1,19 +1,21 @@
-"""A fresh fuzz, independent of tests/test_fuzz_problem.py (another generator, other mutations): `surestep validate`
-in-process on N mutated shipped problems, then `surestep solve` on a sample of the accepted ones (tracebacks,
-timeouts over 120 s, NaN in outputs, multi-line errors). Usage: python benchmarks/fuzz_fresh.py SEED N SOLVES
-(issue 17: seed 4242, 1500, 25)."""
+"""A fresh fuzz, independent of tests/test_fuzz_problem.py (another generator, other mutations):
+`surestep validate` in-process on N mutated shipped problems, then `surestep solve` on a sample of
+the accepted ones (tracebacks, timeouts over 120 s, NaN in outputs, multi-line errors). Usage:
+python benchmarks/fuzz_fresh.py SEED N SOLVES (issue 17: seed 4242, 1500, 25)."""
 import harness as h  # first: one BLAS thread
 import copy, random, subprocess, sys, time, glob, yaml, os
 REPO = h.ROOT
 import tempfile
 WORK = tempfile.mkdtemp(prefix="surestep-fuzz-")
-load_problem, build_setup, ProblemError, SurestepError = h.load_problem, h.setup, h.ProblemError, h.SurestepError
+load_problem, build_setup, ProblemError, SurestepError = (
+    h.load_problem, h.setup, h.ProblemError, h.SurestepError)
 rng = random.Random(int(sys.argv[1]) if len(sys.argv) > 1 else 4242)
 files = sorted(glob.glob(str(REPO / "problems" / "*.yaml")))
 trees = {f: yaml.safe_load(open(f)) for f in files}
 def leaves(node, pre=()):
     out = []
-    it = node.items() if isinstance(node, dict) else enumerate(node) if isinstance(node, list) else []
+    it = (node.items() if isinstance(node, dict) else enumerate(node) if isinstance(node, list)
+          else [])
     for k, v in it:
         out.append((*pre, k)); out += leaves(v, (*pre, k))
     return out
@@ -37,7 +39,8 @@ for i in range(N):
         except Exception: pass
     elif op == "neg" and isinstance(v, (int, float)) and not isinstance(v, bool):
         parent[p[-1]] = -v
-    elif op == "str": parent[p[-1]] = rng.choice(["\t", "nan", "Infinity", "0x10", "1_000", "~", "yes", "é" * 3])
+    elif op == "str": parent[p[-1]] = rng.choice(["\t", "nan", "Infinity", "0x10", "1_000", "~",
+                                                  "yes", "é" * 3])
     elif op == "dup" and isinstance(v, list): parent[p[-1]] = v + v
     elif op == "big": parent[p[-1]] = rng.choice([2**1000, 1e300, -2**64, 10**18])
     elif op == "tiny": parent[p[-1]] = rng.choice([1e-320, -0.0, 1e-200, 2.2e-308])
@@ -61,8 +64,8 @@ res = {"ok": 0, "solver_fail": 0, "user_error": 0, "other": 0, "timeout": 0, "na
 for path in accepted[: int(sys.argv[3]) if len(sys.argv) > 3 else 25]:
     out = path.replace(".yaml", ".json")
     try:
-        pr = subprocess.run([sys.executable, "-m", "surestep_ocp.cli", "solve", path, "--output", out], capture_output=True,
-                            text=True, timeout=120)
+        pr = subprocess.run([sys.executable, "-m", "surestep_ocp.cli", "solve", path, "--output",
+                             out], capture_output=True, text=True, timeout=120)
     except subprocess.TimeoutExpired:
         res["timeout"] += 1; print("TIMEOUT", path, flush=True); continue
     if "Traceback" in pr.stderr or pr.returncode not in (0, 1, 2):
@@ -70,7 +73,8 @@ for path in accepted[: int(sys.argv[3]) if len(sys.argv) > 3 else 25]:
     elif pr.returncode == 0: res["ok"] += 1
     elif pr.returncode == 1: res["solver_fail"] += 1; print("FAIL1", path, pr.stderr.strip()[-200:])
     else: res["user_error"] += 1; print("ERR2", path, pr.stderr.strip()[-200:])
-    if len(pr.stderr.strip().splitlines()) > 1 and pr.returncode != 0: print("MULTILINE", path, pr.stderr[-300:])
+    if len(pr.stderr.strip().splitlines()) > 1 and pr.returncode != 0: print("MULTILINE", path,
+                                                                              pr.stderr[-300:])
     if os.path.exists(out):
         txt = open(out).read()
         if "NaN" in txt or "Infinity" in txt: res["nan"] += 1; print("NAN", out)

@@ -1,30 +1,31 @@
 """The OCP on belief models beyond the paper's constants, against the paper's model in the same run.
 
-    .venv/bin/python benchmarks/general_models.py [--configs 100] [--seed 0] [--horizons 20 40 80 160]
-                                                  [--scaling-configs 10]
+    .venv/bin/python benchmarks/general_models.py [--configs 100] [--seed 0]
+        [--horizons 20 40 80 160] [--scaling-configs 10]
 
-Per configuration of problems/evaluations/evaluation.yaml (T = 20), each model solved with the problem's
-settings (solver.name auto) from the straight line's IK:
+Per configuration of problems/evaluations/evaluation.yaml (T = 20), each model solved with the
+problem's settings (solver.name auto) from the straight line's IK:
 
 - `paper` (reference): the paper's constants, condensed form (the default);
 - `paper, lifted`: the same, `solver.covariance: full` (vech(Sigma_t) multiple shooting, IPOPT);
 - `full V_d0`: a full 6x6 SPD depth base covariance (random, fixed seed, correlations up to 0.6);
-- `correlated V_d0`: the stereo-like depth noise (V_d0[0, 2] = 2e-2 on diag(1e-2, 1e-2, 1e-1, 5e-3 ...));
+- `correlated V_d0`: the stereo-like depth noise (V_d0[0, 2] = 2e-2 on diag(1e-2, 1e-2, 1e-1, 5e-3
+  ...));
 - `... + floor`: with the observation noise floor V_min = diag(1e-6, 1e-6, 4e-6, 1e-5, 1e-5, 1e-5);
 - `joint-space`: the paper's constants plus the joint-space motion noise `J diag(sigma^2 dq^2) J^T`
-  (`noise.joint_motion_sigma`, sigma = 0.05 per joint, 0.02 for the insertion), with and without the floor.
+  (`noise.joint_motion_sigma`, sigma = 0.05 per joint, 0.02 for the insertion), with and without the
+  floor.
 
 `--models NAME ...` runs a subset (`paper` is always run: the reference).
 
-Per row: converged share, median / 95th percentile / worst solve time (set-up included, builds not), the
-ratio of medians against `paper`, and `worse`: the share of configurations whose optimum is worse (Tr above
-1e-6 relative) than the paper plan, and than the diagonal approximation's plan (every base covariance replaced
-by its diagonal: the fast scalar path), each evaluated in that model; the last line's `worse_optima` is the
-latter. Then the solve time of `correlated V_d0` against
-T (the first `--scaling-configs` configurations). BLAS is pinned to one thread. Writes
-benchmarks/results/general_models.md; the last line is
-`general: success=<share> median_ms=<ms> p95_ms=<ms> ratio_vs_condensed=<x> worse_optima=<share>` over the
-non-paper models.
+Per row: converged share, median / 95th percentile / worst solve time (set-up included, builds not),
+the ratio of medians against `paper`, and `worse`: the share of configurations whose optimum is
+worse (Tr above 1e-6 relative) than the paper plan, and than the diagonal approximation's plan
+(every base covariance replaced by its diagonal: the fast scalar path), each evaluated in that
+model; the last line's `worse_optima` is the latter. Then the solve time of `correlated V_d0`
+against T (the first `--scaling-configs` configurations). BLAS is pinned to one thread. Writes
+benchmarks/results/general_models.md; the last line is `general: success=<share> median_ms=<ms>
+p95_ms=<ms> ratio_vs_condensed=<x> worse_optima=<share>` over the non-paper models.
 """
 
 from __future__ import annotations
@@ -35,7 +36,8 @@ from dataclasses import replace  # noqa: E402
 
 import numpy as np  # noqa: E402
 FLOOR = np.diag([1e-6, 1e-6, 4e-6, 1e-5, 1e-5, 1e-5])
-JOINT_SIGMA = (0.05, 0.05, 0.02, 0.05, 0.05, 0.05, 0.0)  # yaw, pitch, insertion, roll, wrist pitch, wrist yaw, jaw
+# yaw, pitch, insertion, roll, wrist pitch, wrist yaw, jaw
+JOINT_SIGMA = (0.05, 0.05, 0.02, 0.05, 0.05, 0.05, 0.0)
 
 
 def full_depth() -> np.ndarray:
@@ -66,7 +68,8 @@ MODELS = {
 
 
 def variant(problem, noise: dict, form: str, horizon: int | None = None):
-    p = replace(problem, noise=replace(problem.noise, **noise), solver=replace(problem.solver, covariance=form))
+    p = replace(problem, noise=replace(problem.noise, **noise),
+                solver=replace(problem.solver, covariance=form))
     return replace(p, horizon=horizon) if horizon else p
 
 
@@ -79,7 +82,8 @@ def main() -> None:
     args = ap.parse_args()
     models = {k: v for k, v in MODELS.items() if k == "paper" or k in args.models}
     sampler = h.sampler()
-    res = {name: {"ok": [], "t": [], "tr": [], "worse": [], "worse_diag": [], "kept": [], "form": set()}
+    res = {name: {"ok": [], "t": [], "tr": [], "worse": [], "worse_diag": [], "kept": [],
+                  "form": set()}
            for name in models}
     for c, base in h.configurations(sampler, args.configs, args.seed):
         paper_poses = paper_q = None
@@ -92,14 +96,19 @@ def main() -> None:
             r["t"].append(sol.solve_time_s)
             r["tr"].append(sol.trace_final)
             r["kept"].append(sol.status == "Initial_Guess_Kept")
-            r["form"].add(f"{sol.extras['covariance_form']} / {sol.extras['hessian']}".split(" + ")[0])
+            r["form"].add(f"{sol.extras['covariance_form']} / "
+                          f"{sol.extras['hessian']}".split(" + ")[0])
             if name == "paper":
                 paper_poses, paper_q = np.array(sol.poses), np.array(sol.q)
-            ref = float(np.trace(setup.eval_model.propagate(paper_poses, joint=setup.joint_noises(paper_q))[0][-1]))
+            ref = float(np.trace(setup.eval_model.propagate(paper_poses,
+                                                            joint=setup.joint_noises(paper_q))[0][-1]))
             r["worse"].append(sol.trace_final > ref * (1 + 1e-6))
-            if setup.model.scalar and form == "auto":  # its own diagonal approximation: the same solve
+            # its own diagonal approximation: the same solve
+            if setup.model.scalar and form == "auto":
                 r["worse_diag"].append(False)
-            else:  # the diagonal approximation's condensed plan (the fast scalar path) evaluated in this model
+            else:
+                # the diagonal approximation's condensed plan (the fast scalar path) evaluated in
+                # this model
                 dplan = h.ocp(h.diagonal_model(h.setup(variant(base, noise, "auto"))))
                 dref = float(np.trace(setup.eval_model.propagate(
                     np.array(dplan.poses), joint=setup.joint_noises(np.array(dplan.q)))[0][-1]))
@@ -113,8 +122,9 @@ def main() -> None:
     rows = []
     for name, r in res.items():
         t = h.stats(np.array(r["t"]) * 1e3)
-        rows.append(f"| {name} | {sum(r['ok'])}/{n} | {sum(r['kept'])} | {t.median:.1f} | {t.p95:.1f} | "
-                    f"{t.worst:.1f} | {t.median / (t_paper * 1e3):.2f} | {sum(r['worse'])}/{n} | {sum(r['worse_diag'])}/{n} | "
+        rows.append(f"| {name} | {sum(r['ok'])}/{n} | {sum(r['kept'])} | {t.median:.1f} | "
+                    f"{t.p95:.1f} | {t.worst:.1f} | {t.median / (t_paper * 1e3):.2f} | "
+                    f"{sum(r['worse'])}/{n} | {sum(r['worse_diag'])}/{n} | "
                     f"{'; '.join(sorted(r['form']))} |")
     scaling = []
     for T in args.horizons:
@@ -133,21 +143,25 @@ def main() -> None:
     worse_gen = np.mean(np.concatenate([res[k]["worse_diag"] for k in general]))
     last = h.last_line("general", h.key_values(
         success=f"{ok_gen:.2f}", median_ms=f"{t_gen.median:.1f}", p95_ms=f"{t_gen.p95:.1f}",
-        ratio_vs_condensed=f"{t_gen.median / (t_paper * 1e3):.2f}", worse_optima=f"{worse_gen:.2f}"))
+        ratio_vs_condensed=f"{t_gen.median / (t_paper * 1e3):.2f}",
+        worse_optima=f"{worse_gen:.2f}"))
     text = "\n".join([
         "# The OCP on general belief models", "",
-        f"`.venv/bin/python benchmarks/general_models.py --configs {n} --seed {args.seed} --horizons "
-        f"{' '.join(map(str, args.horizons))} --scaling-configs {args.scaling_configs}"
-        + ("" if len(models) == len(MODELS) else f" --models {' '.join(repr(k) for k in models if k != 'paper')}")
+        f"`.venv/bin/python benchmarks/general_models.py --configs {n} --seed {args.seed} "
+        f"--horizons {' '.join(map(str, args.horizons))} --scaling-configs {args.scaling_configs}"
+        + ("" if len(models) == len(MODELS)
+           else f" --models {' '.join(repr(k) for k in models if k != 'paper')}")
         + f" --scaling-model '{args.scaling_model}'"
         + "` (OPENBLAS_NUM_THREADS=1)", "",
-        f"{n} configurations of problems/evaluations/evaluation.yaml at T = 20; times include the set-up of each "
-        "solve, not the builds (compiled once per structure and cached).", "",
-        *h.table(["model", "converged", "kept start", "median [ms]", "p95 [ms]", "worst [ms]", "median / paper",
-                  "worse than the paper plan", "worse than the diagonal model's plan", "form / first solver"], rows), "",
+        (f"{n} configurations of problems/evaluations/evaluation.yaml at T = 20; times include the "
+         "set-up of each solve, not the builds (compiled once per structure and cached)."), "",
+        *h.table(["model", "converged", "kept start", "median [ms]", "p95 [ms]", "worst [ms]",
+                  "median / paper", "worse than the paper plan",
+                  "worse than the diagonal model's plan", "form / first solver"], rows), "",
         f"Solve time against T (`{args.scaling_model}`, default solver):", "",
         *h.table(["T", "median [ms]", "worst [ms]", "converged"],
-                 [(T, f"{m * 1e3:.1f}", f"{w * 1e3:.1f}", f"{ok}/{args.scaling_configs}") for T, m, w, ok in scaling]), "",
+                 [(T, f"{m * 1e3:.1f}", f"{w * 1e3:.1f}", f"{ok}/{args.scaling_configs}")
+                  for T, m, w, ok in scaling]), "",
         last]) + "\n"
     h.write_result(args.output, text)
     print(text)

@@ -1,29 +1,32 @@
-"""The benchmarks' harness: the test set, the solve calls, the statistics, the report and the command line that the
-studies in benchmarks/ share (after qpbenchmark: one harness, short studies on top of it).
+"""The benchmarks' harness: the test set, the solve calls, the statistics, the report and the
+command line that the studies in benchmarks/ share (after qpbenchmark: one harness, short studies on
+top of it).
 
 Import it first, before NumPy (`import harness as h` at the top of a study; a study run as
-`python benchmarks/<study>.py` finds it beside itself): it pins BLAS and OpenMP to one thread. It is also the
-one module of benchmarks/ that imports `surestep_ocp`: when the package's internals move, fix the imports below
-and the wrappers under them, not the studies. (The one exception is benchmarks/enforced_speed.py's worker, which
-imports the revision it measures, whatever its layout.)
+`python benchmarks/<study>.py` finds it beside itself): it pins BLAS and OpenMP to one thread. It is
+also the one module of benchmarks/ that imports `surestep_ocp`: when the package's internals move,
+fix the imports below and the wrappers under them, not the studies. (The one exception is
+benchmarks/enforced_speed.py's worker, which imports the revision it measures, whatever its layout.)
 
-- The test set: the evaluation's configurations (`sampler`, `configurations`: problems/evaluations/*.yaml at a
-  given horizon), the default problems (`DEFAULT_PROBLEM`, `PAPER_PACE_PROBLEM`, `load_problem`), the scenario
-  files (`SCENARIOS`, `scenario_file`).
-- The methods: `initial_guess`, `ocp`, `ocp_warm`, `gradient`, `baseline`, `method` (the CLI's methods by name),
-  `newton` (the projected Newton solver), `diagonal_model`; `repeat` for repeated runs. Times are the solution's
-  own `solve_time_s` (builds excluded), as the studies report them.
-- The statistics: `stats` (median, p90, p95, worst, worst / median), `ratio_of_medians` (e.g. against the gradient
-  variant measured in the same run), `median_ratio`, `geomean`.
-- The report: `row`, `table` (markdown), `write_result` (benchmarks/results/*.md, atomically), `key_values` and
-  `last_line` (the one machine-readable line a study prints last: `name: key=value ...`).
+- The test set: the evaluation's configurations (`sampler`, `configurations`:
+  problems/evaluations/*.yaml at a given horizon), the default problems (`DEFAULT_PROBLEM`,
+  `PAPER_PACE_PROBLEM`, `load_problem`), the scenario files (`SCENARIOS`, `scenario_file`).
+- The methods: `initial_guess`, `ocp`, `ocp_warm`, `gradient`, `baseline`, `method` (the CLI's
+  methods by name), `newton` (the projected Newton solver), `diagonal_model`; `repeat` for repeated
+  runs. Times are the solution's own `solve_time_s` (builds excluded), as the studies report them.
+- The statistics: `stats` (median, p90, p95, worst, worst / median), `ratio_of_medians` (e.g.
+  against the gradient variant measured in the same run), `median_ratio`, `geomean`.
+- The report: `row`, `table` (markdown), `write_result` (benchmarks/results/*.md, atomically),
+  `key_values` and `last_line` (the one machine-readable line a study prints last:
+  `name: key=value ...`).
 - The command line: `parser` (--configs, --seed, --horizons, --output, each where the study has it).
 
 The studies (benchmarks/README.md: each one's command and result files):
 
 - worst_case.py: the OCP's slowest configurations beside its median, against the gradient variant.
 - solve_speed.py: the OCP's solve speed against the gradient variant; the warm re-solve; `--limits`.
-- general_models.py: the OCP on belief models beyond the paper's constants, against the paper's model.
+- general_models.py: the OCP on belief models beyond the paper's constants, against the paper's
+  model.
 - newton_vs_ipopt.py: the projected Newton solver against IPOPT.
 - diagonal_start.py: the default strategy against Newton from the diagonal model's plan.
 - secant_endgame.py: Newton's secant end-game against the plain surrogate.
@@ -40,9 +43,10 @@ The studies (benchmarks/README.md: each one's command and result files):
 - replan_budget.py: the re-plan's iteration budget within the limits.
 - scenarios.py: `surestep compare` on every scenario file.
 - baseline_timing.py: the baseline within enforced limits: kept or lengthened, against toppra.
-- plan_steps.py, large_rollout_errors.py, worst_rollout.py: where the evaluation's large rollout errors come from.
-- evaluation_limits.py, motion_limits_evaluation.py, execution_pace.py, rollout_variants.py: evaluation runs
-  (`surestep evaluate` / `surestep sweep`) and their tables.
+- plan_steps.py, large_rollout_errors.py, worst_rollout.py: where the evaluation's large rollout
+  errors come from.
+- evaluation_limits.py, motion_limits_evaluation.py, execution_pace.py, rollout_variants.py:
+  evaluation runs (`surestep evaluate` / `surestep sweep`) and their tables.
 - fuzz_fresh.py: a fresh fuzz of `surestep validate` and `surestep solve`.
 """
 
@@ -51,8 +55,8 @@ from __future__ import annotations
 import os
 import sys
 
-# One BLAS / OpenMP thread, before NumPy is imported (the studies import this module first). Forced, not
-# defaulted: every result file says it was measured so.
+# One BLAS / OpenMP thread, before NumPy is imported (the studies import this module first). Forced,
+# not defaulted: every result file says it was measured so.
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ[_var] = "1"
 if "numpy" in sys.modules:  # imported before the harness: its BLAS read the variables already
@@ -61,8 +65,8 @@ if "numpy" in sys.modules:  # imported before the harness: its BLAS read the var
 
         threadpool_limits(1)
     except ImportError:
-        print("harness: NumPy was imported before benchmarks/harness.py; its BLAS may use more than one thread "
-              "(import the harness first)", file=sys.stderr)
+        print("harness: NumPy was imported before benchmarks/harness.py; its BLAS may use more "
+              "than one thread (import the harness first)", file=sys.stderr)
 
 import argparse  # noqa: E402
 import math  # noqa: E402
@@ -72,7 +76,7 @@ from typing import Any, Callable, Iterable, Iterator, Sequence  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-# --- every import of the package's internals (the one place to fix when they move) ---------------------------------
+# --- every import of the package's internals (the one place to fix when they move) ----------------
 from surestep_ocp.errors import ProblemError, SurestepError  # noqa: E402
 from surestep_ocp.evaluation.configs import ConfigurationSampler, load_evaluation  # noqa: E402
 from surestep_ocp.evaluation.evaluation import read_progress  # noqa: E402
@@ -97,27 +101,32 @@ from surestep_ocp.solvers.ocp import _objective_at, diagonal_model_setup, solve_
 from surestep_ocp.solvers.planner import Planner  # noqa: E402
 
 __all__ = [
-    "ROOT", "RESULTS", "PROBLEMS", "EVALUATION", "DEFAULT_PROBLEM", "PAPER_PACE_PROBLEM", "SCENARIOS",
-    "scenario_file", "evaluation", "sampler", "config_problem", "configurations", "config_setup", "load_problem", "setup",
-    "limits_spec", "timing_spec", "with_solver", "initial_guess", "guess", "ocp", "ocp_warm", "gradient", "baseline",
-    "method", "newton", "diagonal_model", "objective_at", "transcriptions", "clear_solver_cache", "set_curve_rows",
-    "repeat", "timed", "Stats", "stats", "median", "percentile", "ratio_of_medians", "median_ratio", "geomean", "row",
-    "table", "write_result", "key_values", "last_line", "parser",
-    # package names the studies use as they are (classes, constants, helpers of the limits, export and evaluation)
-    "ProblemError", "SurestepError", "Planner", "SimulatedTracker", "ROLLOUT_MODES", "rollout", "read_progress",
-    "motion_limits", "plan_report", "problem_limits", "time_parametrise", "within_position_limits", "tool_speeds",
+    "ROOT", "RESULTS", "PROBLEMS", "EVALUATION", "DEFAULT_PROBLEM", "PAPER_PACE_PROBLEM",
+    "SCENARIOS", "scenario_file", "evaluation", "sampler", "config_problem", "configurations",
+    "config_setup", "load_problem", "setup",
+    "limits_spec", "timing_spec", "with_solver", "initial_guess", "guess", "ocp", "ocp_warm",
+    "gradient", "baseline", "method", "newton", "diagonal_model", "objective_at", "transcriptions",
+    "clear_solver_cache", "set_curve_rows",
+    "repeat", "timed", "Stats", "stats", "median", "percentile", "ratio_of_medians", "median_ratio",
+    "geomean", "row", "table", "write_result", "key_values", "last_line", "parser",
+    # package names the studies use as they are (classes, constants, helpers of the limits, export
+    # and evaluation)
+    "ProblemError", "SurestepError", "Planner", "SimulatedTracker", "ROLLOUT_MODES", "rollout",
+    "read_progress", "motion_limits", "plan_report", "problem_limits", "time_parametrise",
+    "within_position_limits", "tool_speeds",
     "np_exp", "write_text_atomic", "time_optimal_law", "played_line",
 ]
 
-# --- the test set ----------------------------------------------------------------------------------------------------
+# --- the test set ---------------------------------------------------------------------------------
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results"
 PROBLEMS = ROOT / "problems"
 EVALUATION = PROBLEMS / "evaluations" / "evaluation.yaml"
 DEFAULT_PROBLEM = PROBLEMS / "needle_regrasp.yaml"
 PAPER_PACE_PROBLEM = PROBLEMS / "needle_regrasp_paper_pace.yaml"
-SCENARIOS = ["needle_regrasp", "needle_regrasp_paper_pace", "type1_easy", "type1_medium", "type1_hard",
-             "type2_needle_arm_moves", "type3_camera_moves_once", "type4_camera_moves", "ur5_fixed_camera"]
+SCENARIOS = ["needle_regrasp", "needle_regrasp_paper_pace", "type1_easy", "type1_medium",
+             "type1_hard", "type2_needle_arm_moves", "type3_camera_moves_once",
+             "type4_camera_moves", "ur5_fixed_camera"]
 
 
 def scenario_file(name: str) -> Path:
@@ -150,7 +159,8 @@ def configurations(smp: ConfigurationSampler, n: int, seed: int = 0,
 
 
 def config_setup(smp: ConfigurationSampler, seed: int, index: int):
-    """Configuration `index` of `seed` as a setup, as `surestep evaluate` builds it (the sampler's robots)."""
+    """Configuration `index` of `seed` as a setup, as `surestep evaluate` builds it (the sampler's
+    robots)."""
     return smp.setup_of(smp.sample(seed, index))
 
 
@@ -176,7 +186,7 @@ def with_solver(obj, **changes):
     return replace(obj, problem=with_solver(obj.problem, **changes))
 
 
-# --- the methods -----------------------------------------------------------------------------------------------------
+# --- the methods ----------------------------------------------------------------------------------
 def initial_guess(setup):
     """The OCP's initial guess (the straight line's IK)."""
     return ocp_initial_guess(setup)
@@ -229,7 +239,8 @@ def diagonal_model(setup):
 
 
 def objective_at(setup, sol, other) -> float:
-    """The objective of `other`'s plan in `setup`'s model, as `sol` was measured (the second start's gate)."""
+    """The objective of `other`'s plan in `setup`'s model, as `sol` was measured (the second start's
+    gate)."""
     return _objective_at(setup, sol, other)
 
 
@@ -244,7 +255,8 @@ def clear_solver_cache() -> None:
 
 
 def set_curve_rows(mode: str) -> None:
-    """The OCP's limit rows: "curve" (the played curve's, the default) or "steps" (finite differences)."""
+    """The OCP's limit rows: "curve" (the played curve's, the default) or "steps" (finite
+    differences)."""
     _limits.CURVE_ROWS = mode
 
 
@@ -262,7 +274,7 @@ def timed(fn: Callable[[], Any]) -> tuple[Any, float]:
     return out, time.perf_counter() - t0
 
 
-# --- the statistics --------------------------------------------------------------------------------------------------
+# --- the statistics -------------------------------------------------------------------------------
 def median(xs: Iterable[float]) -> float:
     xs = list(xs)
     return float(np.median(xs)) if xs else float("nan")
@@ -293,12 +305,13 @@ def stats(xs: Iterable[float]) -> Stats:
     if not a.size:
         nan = float("nan")
         return Stats(0, nan, nan, nan, nan, nan)
-    return Stats(int(a.size), float(np.median(a)), float(np.percentile(a, 90)), float(np.percentile(a, 95)),
-                 float(a.max()), float(a.min()))
+    return Stats(int(a.size), float(np.median(a)), float(np.percentile(a, 90)),
+                 float(np.percentile(a, 95)), float(a.max()), float(a.min()))
 
 
 def ratio_of_medians(xs: Iterable[float], ref: Iterable[float]) -> float:
-    """median(xs) / median(ref): e.g. the OCP's times against the gradient variant's in the same run."""
+    """median(xs) / median(ref): e.g. the OCP's times against the gradient variant's in the same
+    run."""
     return median(xs) / median(ref)
 
 
@@ -312,22 +325,24 @@ def geomean(xs: Iterable[float]) -> float:
     return math.exp(sum(math.log(x) for x in xs) / len(xs)) if xs else float("nan")
 
 
-# --- the report ------------------------------------------------------------------------------------------------------
+# --- the report -----------------------------------------------------------------------------------
 def row(*cells: Any) -> str:
     """A markdown table row: `| a | b |`."""
     return "| " + " | ".join(str(c) for c in cells) + " |"
 
 
 def table(header: Sequence[str], rows: Iterable[Any] = ()) -> list[str]:
-    """A markdown table's lines: the header, `|---|...`, then `rows` (lines, or sequences of cells)."""
+    """A markdown table's lines: the header, `|---|...`, then `rows` (lines, or sequences of
+    cells)."""
     return [row(*header), "|" + "---|" * len(header),
             *(r if isinstance(r, str) else row(*r) for r in rows)]
 
 
 def write_result(name: str | Path, text: str) -> Path:
-    """`text` to benchmarks/results/<name> (a bare file name), or to the path `name` (a Path, or a str with a
-    folder), whole or not at all."""
-    return write_text_atomic(RESULTS / name if isinstance(name, str) and "/" not in name else Path(name), text)
+    """`text` to benchmarks/results/<name> (a bare file name), or to the path `name` (a Path, or a
+    str with a folder), whole or not at all."""
+    return write_text_atomic(RESULTS / name if isinstance(name, str) and "/" not in name
+                             else Path(name), text)
 
 
 def key_values(**values: Any) -> str:
@@ -336,15 +351,18 @@ def key_values(**values: Any) -> str:
 
 
 def last_line(name: str, *groups: str) -> str:
-    """The machine-readable last line: `name: key=value ... | key=value ...` (one group per horizon, say)."""
+    """The machine-readable last line: `name: key=value ... | key=value ...` (one group per horizon,
+    say)."""
     return f"{name}: " + " | ".join(groups)
 
 
-# --- the command line ------------------------------------------------------------------------------------------------
-def parser(doc: str | None, *, configs: int | None = None, configs_flag: str = "--configs", seed: int | None = None,
-           horizons: list[int] | None = None, horizons_nargs: str = "+", output: str | Path | None = None,
+# --- the command line -----------------------------------------------------------------------------
+def parser(doc: str | None, *, configs: int | None = None, configs_flag: str = "--configs",
+           seed: int | None = None, horizons: list[int] | None = None, horizons_nargs: str = "+",
+           output: str | Path | None = None,
            output_flag: str = "--output") -> argparse.ArgumentParser:
-    """The common options, each added when its default is given; the description is the docstring's first line."""
+    """The common options, each added when its default is given; the description is the docstring's
+    first line."""
     ap = argparse.ArgumentParser(description=doc.splitlines()[0] if doc else None)
     if configs is not None:
         ap.add_argument(configs_flag, type=int, default=configs)

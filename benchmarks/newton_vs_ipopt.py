@@ -1,10 +1,12 @@
-"""The projected Newton solver (`solver.name: newton`) against IPOPT (the default) on the evaluation's configurations.
+"""The projected Newton solver (`solver.name: newton`) against IPOPT (the default) on the
+evaluation's configurations.
 
     .venv/bin/python benchmarks/newton_vs_ipopt.py [--configs 100] [--seed 0]
 
-Per configuration of problems/evaluations/evaluation.yaml (T = 20): both solvers from the same initial guess; prints how
-often they reach the same plan (Tr(Sigma_T) within 1e-6 relative), a lower or a higher one, how often
-Newton needed the IPOPT fallback, and the median times. Writes benchmarks/results/newton_vs_ipopt.md.
+Per configuration of problems/evaluations/evaluation.yaml (T = 20): both solvers from the same
+initial guess; prints how often they reach the same plan (Tr(Sigma_T) within 1e-6 relative), a lower
+or a higher one, how often Newton needed the IPOPT fallback, and the median times. Writes
+benchmarks/results/newton_vs_ipopt.md.
 """
 
 from __future__ import annotations
@@ -30,17 +32,21 @@ def main() -> None:
         failed += not newton.success
         t_ipopt.append(ipopt.solve_time_s)
         t_newton.append(newton.solve_time_s)
-        rows.append(f"| {c} | {ipopt.trace_final:.6e} | {newton.trace_final:.6e} | {ratio:.6f} | {ipopt.solve_time_s:.4f} "
-                    f"| {newton.solve_time_s:.4f} | {newton.extras['hessian']} | {newton.status} |")
+        rows.append(f"| {c} | {ipopt.trace_final:.6e} | {newton.trace_final:.6e} | {ratio:.6f} | "
+                    f"{ipopt.solve_time_s:.4f} | {newton.solve_time_s:.4f} | "
+                    f"{newton.extras['hessian']} | {newton.status} |")
         print(rows[-1], flush=True)
     n = args.configs
-    summary = (f"{n} configurations (seed {args.seed}, T = 20): same plan (Tr within 1e-6) {same}, Newton lower {lower}, "
-               f"Newton higher {higher}; Newton fell back to IPOPT on {fallback}, failed {failed}. Median solve time: "
-               f"IPOPT {h.median(t_ipopt) * 1e3:.1f} ms, Newton {h.median(t_newton) * 1e3:.1f} ms.")
-    text = "\n".join(["# Newton against IPOPT", "", f"`.venv/bin/python benchmarks/newton_vs_ipopt.py --configs {n} "
+    summary = (f"{n} configurations (seed {args.seed}, T = 20): same plan (Tr within 1e-6) {same}, "
+               f"Newton lower {lower}, Newton higher {higher}; Newton fell back to IPOPT on "
+               f"{fallback}, failed {failed}. Median solve time: IPOPT "
+               f"{h.median(t_ipopt) * 1e3:.1f} ms, Newton {h.median(t_newton) * 1e3:.1f} ms.")
+    text = "\n".join(["# Newton against IPOPT", "",
+                      f"`.venv/bin/python benchmarks/newton_vs_ipopt.py --configs {n} "
                       f"--seed {args.seed}`", "", summary, "",
-                      *h.table(["config", "IPOPT Tr", "Newton Tr", "Newton / IPOPT", "IPOPT time [s]",
-                                "Newton time [s]", "Newton attempts", "Newton status"], rows)]) + "\n"
+                      *h.table(["config", "IPOPT Tr", "Newton Tr", "Newton / IPOPT",
+                                "IPOPT time [s]", "Newton time [s]", "Newton attempts",
+                                "Newton status"], rows)]) + "\n"
     h.write_result("newton_vs_ipopt.md", text)
     print(summary)
 

@@ -1,12 +1,13 @@
 """Run `surestep compare` on every scenario file and print one table of Tr(Sigma_T) per method.
 
-    .venv/bin/python benchmarks/scenarios.py [--output-dir out/scenarios] [--reuse] [--limits [--step-s S] [--horizon T]]
+    .venv/bin/python benchmarks/scenarios.py [--output-dir out/scenarios] [--reuse]
+        [--limits [--step-s S] [--horizon T]]
 
 `--reuse` only reads existing `<dir>/<scenario>/comparison.json` files.
-`--limits`: each scenario with `limits: {enforce: true}` (the default limits) at `--step-s` seconds per
-step (default: the file's, 0.05) with one observation per waypoint (`tracker_hz = 1 / step_s`) and `--horizon`
-steps (default: the file's; the default problem's 40 is the pace its limits allow), written
-beside the results as `<dir>/<scenario>.yaml`; a plan that breaks a limit is a failure (the
+`--limits`: each scenario with `limits: {enforce: true}` (the default limits) at `--step-s` seconds
+per step (default: the file's, 0.05) with one observation per waypoint (`tracker_hz = 1 / step_s`)
+and `--horizon` steps (default: the file's; the default problem's 40 is the pace its limits allow),
+written beside the results as `<dir>/<scenario>.yaml`; a plan that breaks a limit is a failure (the
 gradient variants do not honour limits; the baseline takes more steps where it must, said in its
 comparison). Writes benchmarks/results/scenarios.md (with --limits
 scenarios_limits_step<S>[_T<T>].md).
@@ -31,13 +32,17 @@ def main() -> None:
     ap = h.parser(__doc__)
     ap.add_argument("--output-dir", default=str(ROOT / "out" / "scenarios"))
     ap.add_argument("--reuse", action="store_true")
-    ap.add_argument("--limits", action="store_true", help="enforce the motion limits (module docstring)")
-    ap.add_argument("--step-s", type=float, help="seconds per step with --limits (default: the file's)")
+    ap.add_argument("--limits", action="store_true",
+                    help="enforce the motion limits (module docstring)")
+    ap.add_argument("--step-s", type=float,
+                    help="seconds per step with --limits (default: the file's)")
     ap.add_argument("--horizon", type=int, help="steps with --limits (default: the file's)")
     args = ap.parse_args()
-    suffix = "" if not args.limits else f"_limits_step{args.step_s or 0.05:g}" + (f"_T{args.horizon}" if args.horizon else "")
+    suffix = ("" if not args.limits else f"_limits_step{args.step_s or 0.05:g}"
+              + (f"_T{args.horizon}" if args.horizon else ""))
     out = Path(args.output_dir + suffix)
-    lines = h.table(["scenario", *(f"{m} Tr(Σ_T)" for m in METHODS), "OCP / baseline", "OCP time [s]"])
+    lines = h.table(["scenario", *(f"{m} Tr(Σ_T)" for m in METHODS), "OCP / baseline",
+                     "OCP time [s]"])
     for name in SCENARIOS:
         d = out / name
         problem = h.scenario_file(name)
@@ -47,16 +52,20 @@ def main() -> None:
             subprocess.run([sys.executable, "-m", "surestep_ocp.cli", "compare", str(problem),
                             "--output-dir", str(d)], check=False)
         rows = {r["method"]: r for r in json.loads((d / "comparison.json").read_text())["methods"]}
-        cells = [f"{rows[m]['trace_final']:.2e}" + ("" if rows[m]["success"] else " (failed)") for m in METHODS]
+        cells = [f"{rows[m]['trace_final']:.2e}" + ("" if rows[m]["success"] else " (failed)")
+                 for m in METHODS]
         ocp = rows["ocp"]
         lines.append(f"| {name} | " + " | ".join(cells) +
-                     f" | {ocp['trace_final'] / rows['baseline']['trace_final']:.3f} | {ocp['solve_time_s']:.2f} |")
+                     f" | {ocp['trace_final'] / rows['baseline']['trace_final']:.3f} | "
+                     f"{ocp['solve_time_s']:.2f} |")
     if args.limits:
-        lines = [f"Limits enforced (`limits: {{enforce: true}}`, default limits) at step_s {args.step_s or 0.05:g} s"
-                 + (f" and T = {args.horizon}" if args.horizon else "") + ", "
-                 "one observation per waypoint; `(failed)`: the plan breaks a limit or the solver found none "
-                 "within them. Machine shared with other jobs (2 cores).", "",
-                 f"`.venv/bin/python benchmarks/scenarios.py --limits{f' --step-s {args.step_s:g}' if args.step_s else ''}"
+        lines = [f"Limits enforced (`limits: {{enforce: true}}`, default limits) at step_s "
+                 f"{args.step_s or 0.05:g} s"
+                 + (f" and T = {args.horizon}" if args.horizon else "")
+                 + (", one observation per waypoint; `(failed)`: the plan breaks a limit or the "
+                    "solver found none within them. Machine shared with other jobs (2 cores)."), "",
+                 "`.venv/bin/python benchmarks/scenarios.py --limits"
+                 f"{f' --step-s {args.step_s:g}' if args.step_s else ''}"
                  f"{f' --horizon {args.horizon}' if args.horizon else ''}`",
                  "", *lines]
     text = "\n".join(lines) + "\n"
@@ -64,9 +73,10 @@ def main() -> None:
     print(text)
 
 
-def with_limits(problem: Path, dest: Path, step_s: float | None, horizon: int | None = None) -> Path:
-    """`problem` with `limits: {enforce: true}` (and the pace `step_s`, one observation per waypoint; `horizon`
-    steps) at `dest`."""
+def with_limits(problem: Path, dest: Path, step_s: float | None,
+                horizon: int | None = None) -> Path:
+    """`problem` with `limits: {enforce: true}` (and the pace `step_s`, one observation per
+    waypoint; `horizon` steps) at `dest`."""
     tree = yaml.safe_load(problem.read_text())
     if horizon is not None:
         tree["horizon"] = horizon

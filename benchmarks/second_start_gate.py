@@ -1,10 +1,12 @@
-"""The second start's gate at long horizons: the OCP on a correlated-V_d0 model against the full solve of its
-diagonal model, evaluated in the model (never above it), with the solve times.
+"""The second start's gate at long horizons: the OCP on a correlated-V_d0 model against the full
+solve of its diagonal model, evaluated in the model (never above it), with the solve times.
 
-    .venv/bin/python benchmarks/second_start_gate.py T CONFIGS      (docs/general_models.md: 80 10 and 40 20)
+    .venv/bin/python benchmarks/second_start_gate.py T CONFIGS
+        (docs/general_models.md: 80 10 and 40 20)
 
-Per evaluation configuration (seed 0): status, time, final objective / the diagonal model's plan's objective, the
-gate's status and whether the second start ran (`ahead`); last line: how many above, median and worst time.
+Per evaluation configuration (seed 0): status, time, final objective / the diagonal model's plan's
+objective, the gate's status and whether the second start ran (`ahead`); last line: how many above,
+median and worst time.
 """
 
 from __future__ import annotations
@@ -28,10 +30,12 @@ def main() -> None:
         ref = h.objective_at(setup, sol, h.ocp(h.diagonal_model(setup)))
         above += sol.objective > ref * (1 + 1e-6)
         gate = sol.extras["second_start"]
-        print(c, sol.status, f"{sol.solve_time_s * 1e3:.0f} ms", f"objective / diagonal plan's {sol.objective / ref:.4f}",
-              gate.get("status"), gate.get("ahead"), flush=True)
+        print(c, sol.status, f"{sol.solve_time_s * 1e3:.0f} ms",
+              f"objective / diagonal plan's {sol.objective / ref:.4f}", gate.get("status"),
+              gate.get("ahead"), flush=True)
     t = h.stats(times)
-    print(f"above the diagonal plan: {above}/{n}; median {t.median * 1e3:.0f} ms, worst {t.worst * 1e3:.0f} ms")
+    print(f"above the diagonal plan: {above}/{n}; median {t.median * 1e3:.0f} ms, worst "
+          f"{t.worst * 1e3:.0f} ms")
 
 
 if __name__ == "__main__":

@@ -26,11 +26,13 @@ def _inputs(setup, problem_path: str) -> list:
     files = [problem_path, prob.robot.urdf]
     if prob.camera.ecm is not None:
         files.append(prob.camera.ecm.urdf)
-    files += [spec.arm.urdf for spec in (prob.start.relative, prob.goal.relative) if spec is not None]
+    files += [spec.arm.urdf for spec in (prob.start.relative, prob.goal.relative)
+              if spec is not None]
     return files
 
 
-# Above this horizon a solve is announced on stderr with what it may cost (problems/README.md, "Limits").
+# Above this horizon a solve is announced on stderr with what it may cost (problems/README.md,
+# "Limits").
 LONG_HORIZON = 60
 
 
@@ -39,9 +41,10 @@ def _long_work_note(setup) -> None:
     if T > LONG_HORIZON:
         from .problem.parse import MAX_HORIZON
 
-        print(f"note: horizon T = {T} (at most {MAX_HORIZON}): the first OCP solve at a new horizon compiles its "
-              f"derivatives, up to about {20 + 0.55 * T:.0f} s (measured: 46 s at T = 50, 130 s at T = 200; "
-              "cached afterwards, problems/README.md 'Limits'); Ctrl-C stops", file=sys.stderr, flush=True)
+        print(f"note: horizon T = {T} (at most {MAX_HORIZON}): the first OCP solve at a new "
+              f"horizon compiles its derivatives, up to about {20 + 0.55 * T:.0f} s (measured: "
+              "46 s at T = 50, 130 s at T = 200; cached afterwards, problems/README.md "
+              "'Limits'); Ctrl-C stops", file=sys.stderr, flush=True)
 
 
 def _summary(sol, base=None) -> str:
@@ -58,7 +61,8 @@ def _summary(sol, base=None) -> str:
     if duration_note(sol):
         lines.append(f"duration    {duration_note(sol)}")
     if base is not None and base is not sol:
-        ratio = f"{base.trace_final / sol.trace_final:.2f}" if sol.trace_final > 0 else "undefined, Tr = 0"
+        ratio = (f"{base.trace_final / sol.trace_final:.2f}" if sol.trace_final > 0
+                 else "undefined, Tr = 0")
         longer = ""
         if base.status == LENGTHENED:
             longer = (f"; the baseline lengthened to {base.extras['time_law']['duration_s']:.3f} s "
@@ -67,13 +71,14 @@ def _summary(sol, base=None) -> str:
                      f"(ratio baseline / {sol.method} = {ratio}{longer})")
     lines.append(f"terminal    {err_m:.2e} m, {err_rad:.2e} rad from the goal")
     if sol.extras.get("codegen_note"):
-        lines.append(f"note        solver.codegen auto: {sol.extras['codegen_note'].splitlines()[0]}")
+        lines.append("note        solver.codegen auto: "
+                     f"{sol.extras['codegen_note'].splitlines()[0]}")
     if sol.status == "Initial_Guess_Kept":
-        lines.append("warning     every point the solvers converged to was worse than the initial guess, which is "
-                     "returned (a poor local optimum; see docs/orientation.md)")
+        lines.append("warning     every point the solvers converged to was worse than the initial "
+                     "guess, which is returned (a poor local optimum; see docs/orientation.md)")
     if sol.extras.get("worse_than_initial_guess"):
-        lines.append("warning     the optimum found is worse than the initial guess (a poor local optimum; "
-                     "see docs/orientation.md)")
+        lines.append("warning     the optimum found is worse than the initial guess (a poor local "
+                     "optimum; see docs/orientation.md)")
     unreachable = sum(q is None for q in sol.q)
     if unreachable:
         lines.append(f"reachable   {len(sol.q) - unreachable}/{len(sol.q)} waypoints (IK)")
@@ -81,7 +86,8 @@ def _summary(sol, base=None) -> str:
 
 
 def _with_solver_flags(setup, args):
-    """The setup with the command line's solver settings (--solver, --hessian, --codegen) over the file's."""
+    """The setup with the command line's solver settings (--solver, --hessian, --codegen) over the
+    file's."""
     from dataclasses import replace
 
     spec = setup.problem.solver
@@ -127,17 +133,18 @@ def cmd_compare(args) -> int:
     setup = _with_solver_flags(_load(args.problem), args)
     inputs = _inputs(setup, args.problem)
     out = check_output_dir(args.output_dir, inputs, "the comparison")
-    for name in [f"{m}.json" for m in methods] + ["comparison.json", "comparison.md", "trace.png", "path.png",
-                                                   "motion.png"]:
+    for name in [f"{m}.json" for m in methods] + ["comparison.json", "comparison.md", "trace.png",
+                                                  "path.png", "motion.png"]:
         check_output_file(out / name, inputs, "the comparison")
     _long_work_note(setup)
-    sols = run_comparison(setup, methods, progress=lambda m: print(f"solving: {m}", file=sys.stderr, flush=True))
+    sols = run_comparison(setup, methods,
+                          progress=lambda m: print(f"solving: {m}", file=sys.stderr, flush=True))
     for s in sols:
         check_finite(s.to_dict(), f"the {s.method} solution")
     table = write_comparison(sols, Path(args.output_dir), args.problem)
     print(table)
-    print(f"\nwrote {args.output_dir}/{{<method>.json, comparison.md, comparison.json, trace.png, path.png, "
-          "motion.png}")
+    print(f"\nwrote {args.output_dir}/{{<method>.json, comparison.md, comparison.json, trace.png, "
+          f"path.png, motion.png}}")
     failed, reported = counted_failures(sols)  # the gradient plans cannot honour enforced limits
     for s in sols:
         if s.method in reported:
@@ -159,7 +166,8 @@ def cmd_replan(args) -> int:
     setup = _with_solver_flags(_load(args.problem), args)
     check_output_dir(args.output_dir, _inputs(setup, args.problem), "the re-planning")
     _long_work_note(setup)
-    if not any(c is not None for c in setup.camera_changes() or ()):  # a fixed camera: the tracker loop
+    # a fixed camera: the tracker loop
+    if not any(c is not None for c in setup.camera_changes() or ()):
         from .evaluation.tracker_loop import tracker_loop, write_tracker_loop
 
         res = tracker_loop(setup, seed=args.seed, progress=lambda k, p: print(
@@ -168,14 +176,16 @@ def cmd_replan(args) -> int:
         print(write_tracker_loop(res, Path(args.output_dir)))
         print(f"wrote {args.output_dir}/loop.md, loop.json")
         return 0
-    res = replan_after_camera_moves(setup, Path(args.output_dir), progress=lambda k: print(f"re-planning after the camera move at "
-                                                                        f"step {k}", file=sys.stderr, flush=True))
+    res = replan_after_camera_moves(setup, Path(args.output_dir), progress=lambda k: print(
+        f"re-planning after the camera move at step {k}", file=sys.stderr, flush=True))
     print(res["table"])
     built = ", ".join(f"T={n}" for n in sorted(res["builds"]))
-    print(f"\nbuild time  {res['build_time_s']:.2f} s ({len(res['builds'])} solvers: {built or 'none timed apart'})")
-    print(f"solve time  {res['solve_time_s']:.3f} s (the first plan and {len(res['plans'])} re-plans, without builds)")
-    print(f"\nwrote {args.output_dir}/{{baseline, ocp-once, ocp-replanned, ocp-replan-<step>}}.json, replan.md, "
-          "replan.json")
+    print(f"\nbuild time  {res['build_time_s']:.2f} s ({len(res['builds'])} solvers: "
+          f"{built or 'none timed apart'})")
+    print(f"solve time  {res['solve_time_s']:.3f} s (the first plan and {len(res['plans'])} "
+          "re-plans, without builds)")
+    print(f"\nwrote {args.output_dir}/{{baseline, ocp-once, ocp-replanned, "
+          f"ocp-replan-<step>}}.json, replan.md, replan.json")
     return 0
 
 
@@ -220,21 +230,22 @@ OCP_FLAGS = ("solver", "hessian", "codegen")  # act on the OCP only (method_gram
 
 
 def _solver_flags(parser: argparse.ArgumentParser) -> None:
-    """--solver, --hessian, --codegen: the OCP's settings over the problem file's `solver:` section."""
+    """--solver, --hessian, --codegen: the OCP's settings over the problem file's `solver:`
+    section."""
     from .problem.spec import SolverSpec
 
     d = SolverSpec()
     parser.add_argument("--solver", choices=("auto", "ipopt", "newton", "interior"),
-                        help=f"OCP solver (default: the problem file's solver.name, else {d.name}: projected Newton "
-                             "in the joints where it applies, IPOPT as its fallback; docs/solve_speed.md); "
-                             "OCP methods only")
+                        help=f"OCP solver (default: the problem file's solver.name, else {d.name}: "
+                             "projected Newton in the joints where it applies, IPOPT as its "
+                             "fallback; docs/solve_speed.md); OCP methods only")
     parser.add_argument("--hessian", choices=("auto", "exact", "surrogate", "gauss-newton"),
-                        help=f"OCP Hessian (default: the problem file's solver.hessian, else {d.hessian}); "
-                             "OCP methods only")
+                        help="OCP Hessian (default: the problem file's solver.hessian, else "
+                             f"{d.hessian}); OCP methods only")
     parser.add_argument("--codegen", action=argparse.BooleanOptionalAction, default=None,
-                        help="compile the OCP's stage-wise derivatives to C, or not (default: the problem file's "
-                             f"solver.codegen, else {d.codegen}: when a C compiler is found; cached, see docs/hessian_and_newton.md); "
-                             "OCP methods only")
+                        help="compile the OCP's stage-wise derivatives to C, or not (default: the "
+                             f"problem file's solver.codegen, else {d.codegen}: when a C compiler "
+                             "is found; cached, see docs/hessian_and_newton.md); OCP methods only")
 
 
 def _method_name(name: str) -> str:
@@ -249,14 +260,16 @@ def _method_name(name: str) -> str:
 
 
 def _with_init(method: str, init: str | None) -> str:
-    """The method `--init` asks for: `--init gradient` turns ocp (or a variant) into ocp-from-gradient."""
+    """The method `--init` asks for: `--init gradient` turns ocp (or a variant) into
+    ocp-from-gradient."""
     from .method_grammar import split_name
 
     if init is None:
         return method
     if split_name(method)[0] != "ocp":
-        raise SurestepError(f"--init applies to --method ocp and its variants only, not to '{method}' "
-                            "(ocp-from-gradient already starts from the gradient solution)")
+        raise SurestepError("--init applies to --method ocp and its variants only, not to "
+                            f"'{method}' (ocp-from-gradient already starts from the "
+                            "gradient solution)")
     return "ocp-from-gradient" + method[len("ocp"):] if init == "gradient" else method
 
 
@@ -266,8 +279,9 @@ def _check_ocp_flags(methods, args, flag: str) -> None:
 
     given = [f"--{n}" for n in OCP_FLAGS if getattr(args, n, None) is not None]
     if given and not any(split_name(m)[0] in OCP_METHODS for m in methods):
-        raise SurestepError(f"{', '.join(given)} applies to the OCP methods only ({', '.join(OCP_METHODS)} and "
-                            f"their variants); {flag} {' '.join(methods)} has none")
+        raise SurestepError(f"{', '.join(given)} applies to the OCP methods only "
+                            f"({', '.join(OCP_METHODS)} and their variants); {flag} "
+                            f"{' '.join(methods)} has none")
 
 
 def _version() -> str:
@@ -294,7 +308,8 @@ class _OneLineParser(argparse.ArgumentParser):
 def build_parser() -> argparse.ArgumentParser:
     from .method_grammar import BASE_METHODS, grammar
 
-    p = _OneLineParser(prog="surestep", description="Uncertainty-aware trajectory optimisation (SURESTEP).")
+    p = _OneLineParser(prog="surestep",
+                       description="Uncertainty-aware trajectory optimisation (SURESTEP).")
     p.add_argument("--version", action="version", version=f"surestep {_version()}")
     sub = p.add_subparsers(dest="command", required=True)
 
@@ -302,31 +317,37 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("problem", help="problem YAML (problems/README.md)")
     s.add_argument("--method", default="ocp", type=_method_name, help=f"{grammar()} (default ocp)")
     s.add_argument("--init", choices=("baseline", "gradient"),
-                   help="initial guess of --method ocp (or a variant): the straight line (the default) or the "
-                        "gradient solution (= --method ocp-from-gradient); an error with any other method")
+                   help="initial guess of --method ocp (or a variant): the straight line (the "
+                        "default) or the gradient solution (= --method ocp-from-gradient); an "
+                        "error with any other method")
     _solver_flags(s)
-    s.add_argument("--output", "-o", help="solution JSON to write (default: none, the summary only)")
+    s.add_argument("--output", "-o",
+                   help="solution JSON to write (default: none, the summary only)")
     s.set_defaults(func=cmd_solve)
 
     c = sub.add_parser("compare", help="run every method on one problem and compare them")
     c.add_argument("problem", help="problem YAML (problems/README.md)")
-    c.add_argument("--output-dir", required=True, help="folder for <method>.json, the tables and the plots")
+    c.add_argument("--output-dir", required=True,
+                   help="folder for <method>.json, the tables and the plots")
     c.add_argument("--methods", nargs="+", type=_method_name, metavar="METHOD",
                    help=f"methods to run (default: {' '.join(BASE_METHODS)}); each {grammar()}")
     _solver_flags(c)
     c.set_defaults(func=cmd_compare)
 
     r = sub.add_parser("replan", help="plan, then re-plan after every camera move (problems with "
-                                      "camera.moves), else at every frame of a simulated 20 Hz tracker")
+                                      "camera.moves), else at every frame of a simulated "
+                                      "20 Hz tracker")
     r.add_argument("problem", help="problem YAML (problems/README.md): with camera.moves (e.g. "
-                                   "problems/type4_camera_moves.yaml) a re-plan after each move; without, "
-                                   "a re-plan at every waypoint against a simulated tracker, within the "
-                                   "limits from the moving robot's state when they are enforced")
+                                   "problems/type4_camera_moves.yaml) a re-plan after each move; "
+                                   "without, a re-plan at every waypoint against a simulated "
+                                   "tracker, within the limits from the moving robot's state when "
+                                   "they are enforced")
     r.add_argument("--seed", type=int, default=0,
                    help="the simulated tracker's noise seed (problems whose camera does not move)")
     r.add_argument("--output-dir", required=True,
-                   help="folder for baseline.json, ocp-once.json (planned once), ocp-replanned.json (the motion as "
-                        "re-planned), ocp-replan-<step>.json (each re-plan), replan.md and replan.json (the table)")
+                   help="folder for baseline.json, ocp-once.json (planned once), "
+                        "ocp-replanned.json (the motion as re-planned), ocp-replan-<step>.json "
+                        "(each re-plan), replan.md and replan.json (the table)")
     _solver_flags(r)
     r.set_defaults(func=cmd_replan)
 
@@ -334,12 +355,15 @@ def build_parser() -> argparse.ArgumentParser:
     v.add_argument("problems", nargs="+", metavar="PROBLEM", help="problem YAML files to check")
     v.set_defaults(func=cmd_validate)
 
-    w = sub.add_parser("show", help="Meshcat view of a problem, a solution or a comparison directory")
-    w.add_argument("target", help="a solution JSON, a folder of them (surestep compare's output) or a problem "
-                                   "YAML (its baseline is solved and shown)")
+    w = sub.add_parser("show",
+                       help="Meshcat view of a problem, a solution or a comparison directory")
+    w.add_argument("target",
+                   help="a solution JSON, a folder of them (surestep compare's output) or a "
+                        "problem YAML (its baseline is solved and shown)")
     w.add_argument("--open", action="store_true", help="open a browser")
-    w.add_argument("--html", help="write a self-contained static HTML file (with a legend) instead of serving "
-                                  "(default: serve live Meshcat on loopback until Ctrl-C)")
+    w.add_argument("--html",
+                   help="write a self-contained static HTML file (with a legend) instead of "
+                        "serving (default: serve live Meshcat on loopback until Ctrl-C)")
     w.add_argument("--screenshot", metavar="PNG",
                    help="render the static HTML with headless Chromium and write it as a PNG")
     w.add_argument("--endoscope-view", action="store_true", help="look through the endoscope")
@@ -360,8 +384,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Run a command; user errors are one line and exit 2, solver failures exit 1, Ctrl-C exits 130, a
-    closed output pipe (`| head -1`) ends quietly (141, as killed by SIGPIPE)."""
+    """Run a command; user errors are one line and exit 2, solver failures exit 1, Ctrl-C exits 130,
+    a closed output pipe (`| head -1`) ends quietly (141, as killed by SIGPIPE)."""
     import os
 
     from .errors import one_line
@@ -388,7 +412,8 @@ def main(argv: list[str] | None = None) -> int:
             pass
         return 141
     except MemoryError:
-        _say("surestep: out of memory (a smaller horizon, fewer configurations or rollouts need less)")
+        _say("surestep: out of memory (a smaller horizon, fewer configurations or rollouts "
+             "need less)")
         return 2
     except OSError as exc:  # the file system refused a read or write the checks could not foresee
         where = f"{exc.filename}: " if getattr(exc, "filename", None) else ""
@@ -400,8 +425,8 @@ def main(argv: list[str] | None = None) -> int:
         import traceback
 
         last = traceback.extract_tb(exc.__traceback__)[-1]
-        _say(f"surestep: internal error: {type(exc).__name__}: {one_line(exc, 300)} "
-             f"(at {Path(last.filename).name}:{last.lineno}; SURESTEP_TRACEBACK=1 shows the traceback)")
+        _say(f"surestep: internal error: {type(exc).__name__}: {one_line(exc, 300)} (at "
+             f"{Path(last.filename).name}:{last.lineno}; SURESTEP_TRACEBACK=1 shows the traceback)")
         return 1
 
 

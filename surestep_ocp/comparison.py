@@ -23,7 +23,8 @@ from .problem.setup import Setup
 from .output.solution import Solution, write_json_atomic, write_text_atomic
 
 
-def run_comparison(setup: Setup, methods: tuple[str, ...] = COMPARE_METHODS, progress=None) -> list[Solution]:
+def run_comparison(setup: Setup, methods: tuple[str, ...] = COMPARE_METHODS,
+                   progress=None) -> list[Solution]:
     """Solve with each method in turn (a gradient solution is reused by `ocp-from-gradient`)."""
     if setup.model.joint_noise and any("gradient" in split_name(m)[0] for m in methods):
         raise SurestepError(JOINT_NOISE_UNSUPPORTED)  # checked before any solve
@@ -39,12 +40,13 @@ def run_comparison(setup: Setup, methods: tuple[str, ...] = COMPARE_METHODS, pro
 
 
 def attach_motion_limits(setup: Setup, sol: Solution) -> None:
-    """Record the plan's motion-limit report (limits.plan_report, with the problem's `limits:` overrides) in
-    `sol.extras["motion_limits"]` (with `limits.enforce: true` also a failure over a limit,
-    `limits.enforce`), with the peaks of the curve the robot plays through the waypoints
+    """Record the plan's motion-limit report (limits.plan_report, with the problem's `limits:`
+    overrides) in `sol.extras["motion_limits"]` (with `limits.enforce: true` also a failure over a
+    limit, `limits.enforce`), with the peaks of the curve the robot plays through the waypoints
     (`played_curve`: what `surestep export` checks)."""
     if any(q is None for q in sol.q):
-        sol.extras["motion_limits"] = {"skipped": "a waypoint has no IK solution (see reachability)"}
+        sol.extras["motion_limits"] = {"skipped": "a waypoint has no IK solution "
+                                                  "(see reachability)"}
         if setup.problem.limits.enforce:
             enforce(setup, sol)
         return
@@ -59,8 +61,8 @@ def attach_motion_limits(setup: Setup, sol: Solution) -> None:
 
 
 def write_comparison(solutions: list[Solution], out_dir: Path, problem_path: str) -> str:
-    """Write `<method>.json`, `comparison.md`, `comparison.json`, `trace.png`, `path.png`, `motion.png`; return
-    the tables (the comparison, then the motion limits at the planned pace)."""
+    """Write `<method>.json`, `comparison.md`, `comparison.json`, `trace.png`, `path.png`,
+    `motion.png`; return the tables (the comparison, then the motion limits at the planned pace)."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     for s in solutions:
@@ -69,9 +71,9 @@ def write_comparison(solutions: list[Solution], out_dir: Path, problem_path: str
     table = markdown_table(rows)
     write_json_atomic(out_dir / "comparison.json", {"problem": problem_path, "methods": rows})
     text = (f"# Comparison on `{problem_path}`\n\n"
-            "Every method evaluated by the same EKF (all observation components) along its own waypoints; "
-            "`rel.` is relative to the straight-line baseline with the paper's scaling (lower is better).\n\n"
-            f"{table}\n")
+            "Every method evaluated by the same EKF (all observation components) along its own "
+            "waypoints; `rel.` is relative to the straight-line baseline with the paper's scaling "
+            f"(lower is better).\n\n{table}\n")
     limits_text = limits_table(solutions)
     if limits_text:
         text += f"\n{limits_text}\n"
@@ -89,7 +91,8 @@ def _robot_urdf(solutions: list[Solution]):
 
 
 def limits_table(solutions: list[Solution]) -> str:
-    """Markdown: each method's motion limits at the planned pace (docs/motion_limits_and_export.md; not enforced by the planners)."""
+    """Markdown: each method's motion limits at the planned pace (docs/motion_limits_and_export.md;
+    not enforced by the planners)."""
     reps = [(s.method, s.extras.get("motion_limits")) for s in solutions]
     rows = [summary_row(m, r) for m, r in reps if isinstance(r, dict) and "violations" in r]
     if not rows:
@@ -102,8 +105,8 @@ def limits_table(solutions: list[Solution]) -> str:
            "their plan over a limit is a failure, status Motion_Limits_Violated; the gradient "
            "variants' violations are reported)" if enforced else
            "reported, not enforced (`limits.enforce: false`)")
-    return (f"Motion limits at the planned pace ({step:g} s per step; {how}; `surestep export` plays a plan "
-            f"within the limits at its planned times and retimes any other){note}:\n\n"
+    return (f"Motion limits at the planned pace ({step:g} s per step; {how}; `surestep export` "
+            f"plays a plan within the limits at its planned times and retimes any other){note}:\n\n"
             f"{markdown_rows(rows)}{_duration_notes(solutions)}")
 
 

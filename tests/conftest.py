@@ -1,7 +1,9 @@
-"""Shared fixtures: the default problem at the paper's pace and its set-up (loaded once), a writer of modified problems.
+"""Shared fixtures: the default problem at the paper's pace and its set-up (loaded once), a writer
+of modified problems.
 
-The solver tests use `needle_regrasp_paper_pace.yaml`: the default problem with 20 steps and the motion limits
-reported, not enforced (the default, `needle_regrasp.yaml`, enforces them over 40 steps: an IPOPT solve of seconds).
+The solver tests use `needle_regrasp_paper_pace.yaml`: the default problem with 20 steps and the
+motion limits reported, not enforced (the default, `needle_regrasp.yaml`, enforces them over 40
+steps: an IPOPT solve of seconds).
 """
 
 from __future__ import annotations

@@ -39,7 +39,8 @@ def image_offset(p, camera) -> tuple[float, float]:
 
 
 def observation_noise(
-    x, noise, camera, components=ALL_COMPONENTS, formula="cosine", guard: float = 0.0, band: float = 0.0
+    x, noise, camera, components=ALL_COMPONENTS, formula="cosine", guard: float = 0.0,
+    band: float = 0.0
 ) -> np.ndarray:
     """V(x) = depth + field-of-view + orientation terms (those in `components`).
 
@@ -51,7 +52,8 @@ def observation_noise(
     x = np.asarray(x, float)
     p, r = x[:3], x[3:]
     o = np.asarray(noise.o_star, float)
-    V = np.array(getattr(noise, "V_min", np.zeros((6, 6))), float)  # the noise floor (0 in the paper)
+    # the noise floor (0 in the paper)
+    V = np.array(getattr(noise, "V_min", np.zeros((6, 6))), float)
     if "depth" in components:
         V += (p[2] - noise.depth_star) ** 2 * np.asarray(noise.V_d0)
     if "fov" in components:
@@ -80,8 +82,8 @@ def ekf_step(sigma, W, V, F=I6, Q=I6, H=I6, R=I6):
 
 
 def propagate(
-    poses, noise, camera, components=ALL_COMPONENTS, formula=None, jacobians=None, guard=0.0, band=None,
-    extra_W=None,
+    poses, noise, camera, components=ALL_COMPONENTS, formula=None, jacobians=None, guard=0.0,
+    band=None, extra_W=None,
 ):
     """Posterior covariances (T+1, 6, 6) and predicted ones (T, 6, 6) along `poses` (T+1, 6).
 
@@ -112,15 +114,17 @@ def rel_err(a, b) -> float:
 
 
 def camera_frame_pose(robot, T_cam_base, q) -> np.ndarray:
-    """[p, rotation vector] of the tracked frame in the camera frame, from Pinocchio's FK (`robot.frame_pose`)
-    and scipy's principal rotation vector."""
+    """[p, rotation vector] of the tracked frame in the camera frame, from Pinocchio's FK
+    (`robot.frame_pose`) and scipy's principal rotation vector."""
     M = T_cam_base @ robot.frame_pose(q)
     return np.concatenate([M[:3, 3], Rotation.from_matrix(M[:3, :3]).as_rotvec()])
 
 
 def joint_motion_noise(robot, T_cam_base, q0, q1, sigma, h=1e-6) -> np.ndarray:
-    """`J diag(sigma^2 (q1 - q0)^2) J^T` with J the central-difference Jacobian at q0 in the belief's tangent:
-    the position's, and the rotation's as a left (camera-frame) perturbation, `log(R(q0 +- h e_j) R(q0)^T)`."""
+    """`J diag(sigma^2 (q1 - q0)^2) J^T` with J the central-difference Jacobian at q0 in the
+    belief's tangent:
+    the position's, and the rotation's as a left (camera-frame) perturbation,
+    `log(R(q0 +- h e_j) R(q0)^T)`."""
     q0, q1 = np.asarray(q0, float), np.asarray(q1, float)
     M0 = T_cam_base @ robot.frame_pose(q0)
     R0 = Rotation.from_matrix(M0[:3, :3])

@@ -1,11 +1,13 @@
 """The stored plans that pin the solvers' behaviour across refactors (issue 26's invariant).
 
-Cases: every compare method on the default problem and the scenario files, the OCP on the first 100 evaluation
-configurations at T = 20 and 40 (what `benchmarks/worst_case.py` solves), and a short re-planning loop. Each case
-is solved through the public API (`ss.solve`, `ss.Planner`), so the stored arrays do not depend on internal names.
+Cases: every compare method on the default problem and the scenario files, the OCP on the first 100
+evaluation configurations at T = 20 and 40 (what `benchmarks/worst_case.py` solves), and a short
+re-planning loop. Each case is solved through the public API (`ss.solve`, `ss.Planner`), so the
+stored arrays do not depend on internal names.
 
-    .venv/bin/python tests/stored_plans.py   # regenerate tests/data/stored_plans.npz (only on purpose: it is
-                                              # the reference that `tests/test_stored_plans.py` checks against)
+    .venv/bin/python tests/stored_plans.py   # regenerate tests/data/stored_plans.npz (only on
+                                              # purpose: it is the reference that
+                                              # `tests/test_stored_plans.py` checks against)
     .venv/bin/python tests/stored_plans.py needle_regrasp/baseline   # these keys only
 """
 
@@ -23,8 +25,9 @@ import numpy as np  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 STORE = ROOT / "tests" / "data" / "stored_plans.npz"
-SCENARIOS = ("needle_regrasp", "needle_regrasp_paper_pace", "type1_easy", "type1_medium", "type1_hard",
-             "type2_needle_arm_moves", "type3_camera_moves_once", "type4_camera_moves", "ur5_fixed_camera")
+SCENARIOS = ("needle_regrasp", "needle_regrasp_paper_pace", "type1_easy", "type1_medium",
+             "type1_hard", "type2_needle_arm_moves", "type3_camera_moves_once",
+             "type4_camera_moves", "ur5_fixed_camera")
 METHODS = ("baseline", "gradient", "gradient-no-pose-loss", "ocp", "ocp-from-gradient")
 CONFIGS, HORIZONS, SEED = 100, (20, 40), 0
 GROUP = 10  # configurations per test case (the cases spread over pytest-xdist's workers)
@@ -45,7 +48,8 @@ def config_plans(T: int, first: int, count: int) -> dict[str, tuple[np.ndarray, 
     import surestep_ocp as ss
     from surestep_ocp.evaluation.configs import ConfigurationSampler, load_evaluation
 
-    sampler = ConfigurationSampler(load_evaluation(ROOT / "problems" / "evaluations" / "evaluation.yaml"))
+    sampler = ConfigurationSampler(load_evaluation(ROOT / "problems" / "evaluations"
+                                                   / "evaluation.yaml"))
     out = {}
     for c in range(first, first + count):
         sol = ss.solve(sampler.problem(sampler.sample(SEED, c)).with_horizon(T), "ocp")
@@ -54,7 +58,8 @@ def config_plans(T: int, first: int, count: int) -> dict[str, tuple[np.ndarray, 
 
 
 def replan_plans() -> dict[str, tuple[np.ndarray, str]]:
-    """A planner on the paper-pace problem at T = 10 and its re-plans from a seeded simulated tracker."""
+    """A planner on the paper-pace problem at T = 10 and its re-plans from a seeded simulated
+    tracker."""
     import surestep_ocp as ss
 
     problem = ss.load_problem(ROOT / "problems" / "needle_regrasp_paper_pace.yaml").with_horizon(10)
@@ -71,7 +76,8 @@ def replan_plans() -> dict[str, tuple[np.ndarray, str]]:
 def cases() -> list[tuple[str, tuple]]:
     """(case id, arguments of `plans`): the units the test checks one at a time."""
     out = [(f"scenario-{n}", ("scenario", n)) for n in SCENARIOS]
-    out += [(f"configs-T{T}-{g}", ("configs", T, g, GROUP)) for T in HORIZONS for g in range(0, CONFIGS, GROUP)]
+    out += [(f"configs-T{T}-{g}", ("configs", T, g, GROUP)) for T in HORIZONS
+            for g in range(0, CONFIGS, GROUP)]
     return out + [("replan", ("replan",))]
 
 

@@ -1,4 +1,5 @@
-"""The Python API: problems changed with errors that name the key, solve by method name, arrays with units."""
+"""The Python API: problems changed with errors that name the key, solve by method name, arrays with
+units."""
 
 from __future__ import annotations
 

@@ -1,6 +1,7 @@
-"""The Python API without surprises (issue 29 item 5): the README's goal is a new one and the plan ends there,
-one pose form everywhere, keyword errors that name the valid keywords, the minimal `problem_from_dict`,
-`Problem ==`, every error of a file at once, `ss.export` of a Solution object."""
+"""The Python API without surprises (issue 29 item 5): the README's goal is a new one and the plan
+ends there, one pose form everywhere, keyword errors that name the valid keywords, the minimal
+`problem_from_dict`, `Problem ==`, every error of a file at once, `ss.export` of a Solution
+object."""
 
 from __future__ import annotations
 
@@ -36,8 +37,9 @@ def _rotation(r) -> np.ndarray:
 
 
 def _tool_in_camera(problem, sol) -> np.ndarray:
-    """The last waypoint's tool pose in the camera frame by Pinocchio's forward kinematics of the URDF, from the
-    solution's joints and camera pose and the file's base pose (not the package's kinematics)."""
+    """The last waypoint's tool pose in the camera frame by Pinocchio's forward kinematics of the
+    URDF, from the solution's joints and camera pose and the file's base pose (not the package's
+    kinematics)."""
     import pinocchio as pin
 
     model = pin.buildModelFromUrdf(str(problem.robot.urdf))
@@ -51,7 +53,8 @@ def test_the_readme_example_changes_the_goal_and_the_plan_ends_there(problem):
     text = (REPO / "README.md").read_text()
     block = text[text.index("```python", text.index("### Python API")):]
     goal = json.loads(re.search(r"with_goal\(pose=(\[[^\]]*\])\)", block).group(1))
-    assert not np.allclose(goal, problem.goal.pose, atol=1e-3), "the README's goal must differ from the file's"
+    assert not np.allclose(goal, problem.goal.pose, atol=1e-3), ("the README's goal must "
+                                                                 "differ from the file's")
     changed = problem.with_goal(pose=goal).with_noise(Sigma0=2e-2).with_horizon(20)
     assert changed != problem and changed.noise != problem.noise
     np.testing.assert_array_equal(changed.goal.pose, goal)
@@ -69,7 +72,8 @@ GOAL = [0.035, -0.010, 0.110, 0.6, 0.1, 1.4]
 
 def test_one_pose_form_everywhere(problem, tmp_path):
     mapping = {"position": GOAL[:3], "axis_angle": GOAL[3:]}
-    forms = [problem.with_goal(pose=GOAL), problem.with_goal(pose=np.array(GOAL)), problem.with_goal(pose=mapping),
+    forms = [problem.with_goal(pose=GOAL), problem.with_goal(pose=np.array(GOAL)),
+             problem.with_goal(pose=mapping),
              problem.with_goal(position=GOAL[:3], axis_angle=GOAL[3:]),
              ss.problem_from_dict({**TREE, "goal": {"pose": GOAL}}, FILE),
              ss.problem_from_dict({**TREE, "goal": {"pose": mapping}}, FILE)]
@@ -84,7 +88,8 @@ def test_one_pose_form_everywhere(problem, tmp_path):
         np.testing.assert_array_equal(p.goal.pose, GOAL)
     assert all(p.goal == forms[0].goal for p in forms)
     # a world pose too: the list of 6 is position and axis-angle
-    T = ss.problem_from_dict({**TREE, "robot": {**TREE["robot"], "base_pose": [0.1, 0.0, -0.02, 0.3, -0.2, 0.1]}},
+    T = ss.problem_from_dict({**TREE, "robot": {**TREE["robot"],
+                                                "base_pose": [0.1, 0.0, -0.02, 0.3, -0.2, 0.1]}},
                              FILE).robot.base_pose
     np.testing.assert_allclose(T[:3, 3], [0.1, 0.0, -0.02])
     np.testing.assert_allclose(T[:3, :3], _rotation([0.3, -0.2, 0.1]), atol=1e-12)
@@ -97,9 +102,11 @@ def test_one_pose_form_everywhere(problem, tmp_path):
 
 
 @pytest.mark.parametrize("call, says", [
-    (lambda p: p.with_goal(positon=[0.04, 0.0, 0.11]), "unexpected keyword argument 'positon'; valid keywords: "
+    (lambda p: p.with_goal(positon=[0.04, 0.0, 0.11]),
+     "unexpected keyword argument 'positon'; valid keywords: "
                                                        "pose, joints, position, axis_angle"),
-    (lambda p: p.with_start(orientation=[0, 0, 1]), "valid keywords: pose, joints, position, axis_angle"),
+    (lambda p: p.with_start(orientation=[0, 0, 1]),
+     "valid keywords: pose, joints, position, axis_angle"),
     (lambda p: p.with_goal(position=[0.04, 0.0, 0.11]), "go together"),
     (lambda p: p.with_goal(pose=GOAL, joints=[0.0] * 7), "exactly one of"),
     (lambda p: p.with_goal(), "got none"),
@@ -112,7 +119,8 @@ def test_keyword_errors_name_the_valid_keywords(problem, call, says):
 def test_keyword_errors_of_the_sections_name_the_allowed_keys(problem):
     with pytest.raises(ss.ProblemError, match="noise.V_dd: unknown key; allowed keys here: .*V_d0"):
         problem.with_noise(V_dd=1.0)
-    with pytest.raises(ss.ProblemError, match="solver.speed: unknown key; allowed keys here: .*max_iter"):
+    with pytest.raises(ss.ProblemError,
+                       match="solver.speed: unknown key; allowed keys here: .*max_iter"):
         problem.with_solver(speed=3)
 
 
@@ -151,7 +159,8 @@ def test_problems_compare_by_value(problem):
     assert problem.with_goal(pose=GOAL) != problem
     assert problem.with_goal(pose=list(problem.goal.pose)) == problem  # the same goal given again
     assert problem.with_horizon(20) == problem and problem.with_horizon(19) != problem
-    assert problem != "a problem" and problem.camera == again.camera and problem.robot == again.robot
+    assert (problem != "a problem" and problem.camera == again.camera
+            and problem.robot == again.robot)
 
 
 def test_every_error_of_a_file_at_once(tmp_path, capsys):

@@ -1,7 +1,8 @@
-"""The OCP solver backends (surestep_ocp.solvers.backends): every registered one keeps the `Backend` protocol; on
-one small problem Newton and IPOPT (another algorithm, with the exact Hessian) reach the same plan, and both plans'
-covariances are a plain NumPy EKF's (tests/numpy_ekf.py) along the plan's poses; `applies` says why Newton does not
-apply; and the solution file's attempt records read from the format before they were typed.
+"""The OCP solver backends (surestep_ocp.solvers.backends): every registered one keeps the `Backend`
+protocol; on one small problem Newton and IPOPT (another algorithm, with the exact Hessian) reach
+the same plan, and both plans' covariances are a plain NumPy EKF's (tests/numpy_ekf.py) along the
+plan's poses; `applies` says why Newton does not apply; and the solution file's attempt records read
+from the format before they were typed.
 """
 
 from __future__ import annotations
@@ -28,14 +29,16 @@ from surestep_ocp.solvers.ocp import resolved_solver
 @pytest.fixture(scope="module")
 def small(default_problem):
     """The default problem at 6 steps, interpreted derivatives (no compile in the test)."""
-    prob = replace(default_problem, horizon=6, solver=replace(default_problem.solver, codegen=False))
+    prob = replace(default_problem, horizon=6,
+                   solver=replace(default_problem.solver, codegen=False))
     setup = build_setup(prob)
     return setup, Context(setup, resolved_solver(setup), "ocp", {})
 
 
 @pytest.fixture(scope="module")
 def plans(small):
-    """One attempt of each backend from the same straight line: Newton, and IPOPT with the exact Hessian."""
+    """One attempt of each backend from the same straight line: Newton, and IPOPT with the exact
+    Hessian."""
     setup, ctx = small
     init = ocp_initial_guess(setup)
     return {"newton": BACKENDS["newton"].solve(ctx, init, None, None, {}),
@@ -60,12 +63,13 @@ def test_newton_and_ipopt_reach_the_same_plan(plans):
     np.testing.assert_allclose(np.asarray(newton.q), np.asarray(ipopt.q), atol=1e-5)
 
 
-@pytest.mark.parametrize("key", ["newton", "ipopt"])  # the interior-point method: tests/test_interior.py
+# the interior-point method: tests/test_interior.py
+@pytest.mark.parametrize("key", ["newton", "ipopt"])
 def test_each_plans_covariances_are_the_numpy_ekfs(small, plans, key):
     setup, _ = small
     sol = plans[key].solution
-    sig, _ = ref.propagate(np.asarray(sol.poses), setup.problem.noise, setup.problem.camera.intrinsics,
-                           guard=COSINE_GUARD)
+    sig, _ = ref.propagate(np.asarray(sol.poses), setup.problem.noise,
+                           setup.problem.camera.intrinsics, guard=COSINE_GUARD)
     assert np.abs(sol.covariances - sig).max() <= 1e-9 * np.abs(sig).max()
     assert sol.trace_final == pytest.approx(np.trace(sig[-1]), rel=1e-9)
 
@@ -91,33 +95,37 @@ def test_applies_says_why_newton_does_not_apply(small):
 
 
 def test_a_solution_file_before_typed_attempt_records_loads(small, tmp_path):
-    """A solution file whose attempts are dicts with the label under "hessian" (no "label", no "solver"): read
-    into AttemptRecords with the backend and Hessian taken from the label."""
+    """A solution file whose attempts are dicts with the label under "hessian" (no "label", no
+    "solver"): read into AttemptRecords with the backend and Hessian taken from the label."""
     setup, _ = small
     path = run_method(setup, "baseline").save(tmp_path / "new.json")
     tree = json.loads(path.read_text())
     tree["attempts"] = [
-        {"hessian": "newton", "status": "Depth_Bound_Violated", "iterations": 12, "solve_time_s": 0.01,
-         "objective": 0.5, "kept": False},
-        {"hessian": "surrogate, monotone barrier", "status": "Maximum_Iterations_Exceeded", "iterations": 300,
-         "solve_time_s": 0.2, "objective": 0.4, "kept": False, "compiled": True},
-        {"hessian": "exact, warm start", "status": "Solve_Succeeded", "iterations": 7, "solve_time_s": 0.05,
-         "objective": 0.3, "kept": True},
-        {"hessian": "none (initial guess kept)", "status": "Initial_Guess_Kept", "iterations": 0, "solve_time_s": 0.0,
-         "objective": 0.6, "kept": False},
+        {"hessian": "newton", "status": "Depth_Bound_Violated", "iterations": 12,
+         "solve_time_s": 0.01, "objective": 0.5, "kept": False},
+        {"hessian": "surrogate, monotone barrier", "status": "Maximum_Iterations_Exceeded",
+         "iterations": 300, "solve_time_s": 0.2, "objective": 0.4, "kept": False, "compiled": True},
+        {"hessian": "exact, warm start", "status": "Solve_Succeeded", "iterations": 7,
+         "solve_time_s": 0.05, "objective": 0.3, "kept": True},
+        {"hessian": "none (initial guess kept)", "status": "Initial_Guess_Kept", "iterations": 0,
+         "solve_time_s": 0.0, "objective": 0.6, "kept": False},
     ]
     old = tmp_path / "old.json"
     old.write_text(json.dumps(tree))
     sol = Solution.load(old)
     assert sol.attempts == [
-        AttemptRecord("newton", "newton", None, "Depth_Bound_Violated", 12, 0.01, 0.5, False, False),
-        AttemptRecord("surrogate, monotone barrier", "ipopt", "surrogate", "Maximum_Iterations_Exceeded", 300, 0.2,
-                      0.4, False, True),
-        AttemptRecord("exact, warm start", "ipopt", "exact", "Solve_Succeeded", 7, 0.05, 0.3, True, False),
-        AttemptRecord("none (initial guess kept)", "none", None, "Initial_Guess_Kept", 0, 0.0, 0.6, False, False),
+        AttemptRecord("newton", "newton", None, "Depth_Bound_Violated", 12, 0.01, 0.5, False,
+                      False),
+        AttemptRecord("surrogate, monotone barrier", "ipopt", "surrogate",
+                      "Maximum_Iterations_Exceeded", 300, 0.2, 0.4, False, True),
+        AttemptRecord("exact, warm start", "ipopt", "exact", "Solve_Succeeded", 7, 0.05, 0.3, True,
+                      False),
+        AttemptRecord("none (initial guess kept)", "none", None, "Initial_Guess_Kept", 0, 0.0, 0.6,
+                      False, False),
     ]
     assert "attempts" not in sol.extras
     # written again, it is the typed format, and reads back the same
     again = Solution.load(sol.save(tmp_path / "again.json"))
     assert again.attempts == sol.attempts
-    assert all("label" in a and "solver" in a for a in json.loads((tmp_path / "again.json").read_text())["attempts"])
+    assert all("label" in a and "solver" in a
+               for a in json.loads((tmp_path / "again.json").read_text())["attempts"])

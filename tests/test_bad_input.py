@@ -1,4 +1,5 @@
-"""Bad input never crashes, hangs or destroys a file (issue 17): the command-level cases, one test each.
+"""Bad input never crashes, hangs or destroys a file (issue 17): the command-level cases, one test
+each.
 
 Commands run in this process through `cli.main` (exit code, stdout and stderr captured); a
 one-line error is exit 2 and a single `surestep: ...` line on stderr. Where a case must be
@@ -89,7 +90,8 @@ def test_solve_output_over_the_robots_urdf_is_refused(tmp_path, capsys, no_work)
 
 
 def test_solve_output_onto_a_fifo_is_refused(tmp_path, capsys, no_work):
-    """A special file (a FIFO here; /dev/full or /dev/null as root) is never replaced by a regular file."""
+    """A special file (a FIFO here; /dev/full or /dev/null as root) is never replaced by a regular
+    file."""
     fifo = tmp_path / "pipe.json"
     os.mkfifo(fifo)
     code, _, err = run(capsys, "solve", DEFAULT, "--method", "baseline", "--output", fifo)
@@ -105,7 +107,8 @@ def test_solve_output_that_is_a_directory_is_refused_before_the_solve(tmp_path, 
 def test_solve_output_under_a_regular_file_is_refused_before_the_solve(tmp_path, capsys, no_work):
     blocker = tmp_path / "file.txt"
     blocker.write_text("x")
-    code, _, err = run(capsys, "solve", DEFAULT, "--method", "baseline", "--output", blocker / "sol.json")
+    code, _, err = run(capsys, "solve", DEFAULT, "--method", "baseline", "--output",
+                       blocker / "sol.json")
     one_line_error(code, err, "not a directory")
     assert blocker.read_text() == "x"
 
@@ -121,7 +124,8 @@ def test_compare_output_dir_that_is_a_file_is_refused_before_the_work(tmp_path, 
 def test_replan_output_dir_under_a_file_is_refused_before_the_work(tmp_path, capsys, no_work):
     f = tmp_path / "file"
     f.write_text("x")
-    code, _, err = run(capsys, "replan", REPO / "problems" / "type4_camera_moves.yaml", "--output-dir", f / "sub")
+    code, _, err = run(capsys, "replan", REPO / "problems" / "type4_camera_moves.yaml",
+                       "--output-dir", f / "sub")
     one_line_error(code, err, "not a directory")
 
 
@@ -148,15 +152,18 @@ def test_a_non_finite_solution_is_not_written(tmp_path, default_setup):
     (lambda t: t.update(horizon=10**9), "horizon", f"<= {MAX_HORIZON}"),
     (lambda t: t["camera"]["intrinsics"].update(fx=10**400), "camera.intrinsics.fx", "digits"),
     (lambda t: t["camera"]["intrinsics"].update(fx=5e-324), "camera.intrinsics.fx", "range"),
-    (lambda t: t["goal"]["pose"].update(position=[1e308, 0, 0.1]), "goal.pose.position[0]", "at most"),
+    (lambda t: t["goal"]["pose"].update(position=[1e308, 0, 0.1]), "goal.pose.position[0]",
+     "at most"),
     (lambda t: t["noise"].update(components=[]), "noise.components", "at least one"),
     (lambda t: t["noise"].update(observation_scale=1e-308), "noise.observation_scale", "range"),
     (lambda t: t["noise"].update(Sigma0=1e300), "noise.Sigma0", "at most"),
-    (lambda t: t["objective"].update(smoothness=1e200) if "objective" in t else t.update(objective={"smoothness": 1e200}),
-     "objective.smoothness", "range"),
+    (lambda t: t["objective"].update(smoothness=1e200) if "objective" in t
+     else t.update(objective={"smoothness": 1e200}), "objective.smoothness", "range"),
     (lambda t: t["robot"].update(frame="universe"), "robot.frame", "not moved by any joint"),
-    (lambda t: t["robot"].update(urdf="problems/needle_regrasp_paper_pace.yaml"), "robot.urdf", "URDF"),
-    (lambda t: t["solver"].update(options={"no_such_option": 1}), "solver.options", "no_such_option"),
+    (lambda t: t["robot"].update(urdf="problems/needle_regrasp_paper_pace.yaml"), "robot.urdf",
+     "URDF"),
+    (lambda t: t["solver"].update(options={"no_such_option": 1}), "solver.options",
+     "no_such_option"),
     (lambda t: t["robot"].update(frame="a\nb" * 500), "robot.frame", "not in the model"),
 ])
 def test_bad_values_are_one_line_named_errors(tmp_path, capfd, edit, key, words):
@@ -187,7 +194,8 @@ def test_unknown_ipopt_option_is_refused_for_every_solver(tmp_path, capsys, no_w
     ("horizon: 1:20\n", "the string '1:20'"),  # YAML 1.1 would read 80
     ("a: " + "[" * 100 + "]" * 100 + "\n", "nested deeper"),
     ("\n".join(["a0: &a0 [1, 2, 3, 4, 5, 6, 7, 8, 9, 10]"]
-               + [f"a{i}: &a{i} [{', '.join(f'*a{i - 1}' for _ in range(10))}]" for i in range(1, 9)]), "aliases"),
+               + [f"a{i}: &a{i} [{', '.join(f'*a{i - 1}' for _ in range(10))}]"
+                  for i in range(1, 9)]), "aliases"),
     ("? [1, 2]\n: 3\n", "a key must be a name"),
 ])
 def test_yaml_structure_errors(tmp_path, text, words):
@@ -235,7 +243,8 @@ def _solution(tmp_path, default_setup) -> Path:
     (lambda d, good: bytes(range(128, 256)), "not UTF-8"),
     (lambda d, good: b"[1, 2]", "holds no solution"),
     (lambda d, good: b'{"a": 1}', "no 'poses'"),
-    (lambda d, good: json.dumps({k: v for k, v in d.items() if k != "camera_pose"}).encode(), "'camera_pose' is missing"),
+    (lambda d, good: json.dumps({k: v for k, v in d.items() if k != "camera_pose"}).encode(),
+     "'camera_pose' is missing"),
     (lambda d, good: json.dumps(dict(d, poses=[[1, 2]])).encode(), "'poses[0]'"),
     (lambda d, good: json.dumps(dict(d, camera="x")).encode(), "'camera'"),
 ])
@@ -269,8 +278,8 @@ def eval_file() -> Path:
 def test_evaluate_output_dir_that_is_a_file(tmp_path, capsys):
     f = tmp_path / "out"
     f.write_text("keep")
-    code, _, err = run(capsys, "evaluate", eval_file(), "--configs", "1", "--rollouts", "2", "--output-dir", f,
-                       "--quiet")
+    code, _, err = run(capsys, "evaluate", eval_file(), "--configs", "1", "--rollouts", "2",
+                       "--output-dir", f, "--quiet")
     one_line_error(code, err, "not a directory")
     assert f.read_text() == "keep"
 
@@ -284,8 +293,8 @@ def test_evaluate_resume_with_a_wrong_progress_record(tmp_path, capsys, record, 
     out = tmp_path / "run"
     out.mkdir()
     (out / "progress.jsonl").write_text(record + "\n")
-    code, _, err = run(capsys, "evaluate", eval_file(), "--configs", "1", "--rollouts", "2", "--output-dir", out,
-                       "--resume", "--quiet", "--methods", "baseline")
+    code, _, err = run(capsys, "evaluate", eval_file(), "--configs", "1", "--rollouts", "2",
+                       "--output-dir", out, "--resume", "--quiet", "--methods", "baseline")
     one_line_error(code, err, "progress.jsonl", words)
 
 
@@ -293,8 +302,8 @@ def test_evaluate_resume_with_a_wrong_run_record(tmp_path, capsys):
     out = tmp_path / "run"
     out.mkdir()
     (out / "run.json").write_text("[1, 2]")
-    code, _, err = run(capsys, "evaluate", eval_file(), "--configs", "1", "--rollouts", "2", "--output-dir", out,
-                       "--resume", "--quiet", "--methods", "baseline")
+    code, _, err = run(capsys, "evaluate", eval_file(), "--configs", "1", "--rollouts", "2",
+                       "--output-dir", out, "--resume", "--quiet", "--methods", "baseline")
     one_line_error(code, err, "run.json", "not a run record")
 
 
@@ -304,12 +313,12 @@ def test_evaluate_resume_with_a_wrong_run_record(tmp_path, capsys):
     (["--jobs", "100000"], "--jobs"),
 ])
 def test_evaluate_flags_out_of_range(tmp_path, capsys, flags, words):
-    code, _, err = run(capsys, "evaluate", eval_file(), "--rollouts", "2", "--output-dir", tmp_path / "o", "--quiet",
-                       *flags)
+    code, _, err = run(capsys, "evaluate", eval_file(), "--rollouts", "2", "--output-dir",
+                       tmp_path / "o", "--quiet", *flags)
     one_line_error(code, err, words)
 
 
-# ------------------------------------------------------------------ interrupts, pipes, internal errors
+# --------------------------------------------------------------- interrupts, pipes, internal errors
 def test_ctrl_c_is_one_line_and_130(monkeypatch, capsys):
     def interrupted(args):
         raise KeyboardInterrupt
@@ -345,14 +354,16 @@ def _parser_with(command: str, func):
 def test_closed_pipe_in_a_real_pipeline():
     """`surestep validate ... | head -c 1`: the reader goes away; no traceback on stderr."""
     many = [str(DEFAULT)] * 400
-    proc = subprocess.run(f"{sys.executable} -m surestep_ocp.cli validate {' '.join(many)} | head -c 1",
+    proc = subprocess.run(f"{sys.executable} -m surestep_ocp.cli validate {' '.join(many)} | "
+                          "head -c 1",
                           shell=True, capture_output=True, text=True, cwd=REPO, timeout=300)
     assert "Traceback" not in proc.stderr and "BrokenPipe" not in proc.stderr, proc.stderr[-500:]
 
 
 # ------------------------------------------------------------------ the codegen cache
 def test_a_corrupt_cached_library_is_rebuilt_with_a_note(tmp_path):
-    """Truncated, garbage and empty cached libraries: verified before loading, rebuilt, the note said.
+    """Truncated, garbage and empty cached libraries: verified before loading, rebuilt, the note
+    said.
 
     In a subprocess: loading a truncated shared library can kill the process (SIGBUS).
     """
@@ -371,13 +382,14 @@ print(fresh, float(g([1, 2, 3])[1]))
     env = {**os.environ, "SURESTEP_CACHE": str(tmp_path)}
 
     def solve_once():
-        proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300, env=env,
-                              cwd=REPO)
+        proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                              timeout=300, env=env, cwd=REPO)
         assert proc.returncode == 0, proc.stderr[-2000:]  # -7 would be SIGBUS
         fresh, value = proc.stdout.split()
         assert float(value) == pytest.approx(2 * math.sin(2), rel=1e-6)
         return fresh == "True", [ln for ln in proc.stderr.splitlines()
-                                 if ln.startswith("note: solver.codegen:") and "compiling" not in ln]
+                                 if ln.startswith("note: solver.codegen:")
+                                 and "compiling" not in ln]
 
     assert solve_once() == (True, [])
     lib = next(tmp_path.glob("fuzz_cache_probe_*.so"))

@@ -1,4 +1,5 @@
-"""The CasADi belief model (surestep_ocp.model.belief) against a plain NumPy EKF (tests/numpy_ekf.py).
+"""The CasADi belief model (surestep_ocp.model.belief) against a plain NumPy EKF
+(tests/numpy_ekf.py).
 
 The NumPy EKF is written from surestep_method.md sections 3-4 only; it shares no
 code with the package (rotations from scipy, textbook EKF step).
@@ -39,7 +40,8 @@ CAMERA = Intrinsics(
     fx=768.98551924, fy=768.98551924, cx=292.8861567, cy=291.61479526, width=640, height=480
 )
 O_STAR = (0.40, 0.40, 1.53)
-GUARD = COSINE_GUARD  # [rad^2] the package's guard of |r| in the cosine formula (section 4: "guard it")
+# [rad^2] the package's guard of |r| in the cosine formula (section 4: "guard it")
+GUARD = COSINE_GUARD
 REL = 1e-12
 # Random non-identity H, F (condition numbers ~10) amplify either EKF's rounding (solve vs inv).
 REL_JAC = 1e-11
@@ -107,7 +109,8 @@ def test_noise_models_match_numpy(formula):
         assert ref.rel_err(W, ref.motion_noise(x0, x1, noise)) < REL
         V = np.asarray(model.observation_noise(mean(x1)))
         assert (
-            ref.rel_err(V, ref.observation_noise(x1, noise, CAMERA, COMPONENTS, formula, GUARD, noise.cut_band))
+            ref.rel_err(V, ref.observation_noise(x1, noise, CAMERA, COMPONENTS, formula, GUARD,
+                                                 noise.cut_band))
             < REL
         )
 
@@ -146,7 +149,8 @@ def test_fov_noise_is_zero_at_image_centre_and_depth_at_d_star():
     cosine = BeliefModel(NoiseParams(o_star=O_STAR), CAMERA)
     r2 = float(np.dot(O_STAR, O_STAR))
     expected = (1 - 1 / np.sqrt(1 + COSINE_GUARD / r2)) ** 2 * cosine.noise.V_o0
-    np.testing.assert_allclose(np.asarray(cosine.observation_noise(mean(x))), expected, rtol=1e-6, atol=1e-30)
+    np.testing.assert_allclose(np.asarray(cosine.observation_noise(mean(x))), expected, rtol=1e-6,
+                               atol=1e-30)
 
 
 def test_cosine_formula_guarded_at_zero_rotation():
@@ -164,10 +168,12 @@ def test_cosine_formula_guarded_at_zero_rotation():
 
 
 def test_tiny_rotation_along_o_star_does_not_zero_the_orientation_noise():
-    """Near r = 0 the direction of r is free; the guard keeps a 1e-4 rad turn about o* from looking ideal."""
+    """Near r = 0 the direction of r is free; the guard keeps a 1e-4 rad turn about o* from looking
+    ideal."""
     model = BeliefModel(NoiseParams(o_star=O_STAR), CAMERA, components=("orientation",))
     axis = np.asarray(O_STAR) / np.linalg.norm(O_STAR)
-    V_tiny = float(np.asarray(model.observation_noise(mean(np.r_[0.0, 0.0, 0.15, 1e-4 * axis])))[0, 0])
+    V_tiny = float(np.asarray(
+        model.observation_noise(mean(np.r_[0.0, 0.0, 0.15, 1e-4 * axis])))[0, 0])
     assert V_tiny > 0.99 * model.noise.V_o0[0, 0]
 
 
@@ -258,11 +264,14 @@ def test_propagate_with_pose_dependent_jacobians_from_casadi():
     rng = np.random.default_rng(600)
     A, B = 0.3 * rng.normal(size=(6, 6)), rng.normal(size=(6, 7))
     m0, m1 = ca.SX.sym("m0", 7), ca.SX.sym("m1", 7)  # the step's means (position, unit quaternion)
-    F = ca.SX.eye(6) + 0.1 * ca.diag(ca.cos(ca.DM(B) @ m0)) @ ca.DM(A)  # maps that vary with the means
+    # maps that vary with the means
+    F = ca.SX.eye(6) + 0.1 * ca.diag(ca.cos(ca.DM(B) @ m0)) @ ca.DM(A)
     H = ca.diag(1 + 0.1 * ca.tanh(ca.DM(B) @ m1) ** 2)
-    jac = ca.Function("jacobians", [m0, m1], [F, ca.SX.eye(6), H, ca.SX.eye(6)], ["x0", "x1"], ["F", "Q", "H", "R"])
+    jac = ca.Function("jacobians", [m0, m1], [F, ca.SX.eye(6), H, ca.SX.eye(6)], ["x0", "x1"],
+                      ["F", "Q", "H", "R"])
 
-    def means(x):  # scipy's quaternion of the pose's rotation, reordered (w, x, y, z), w >= 0 (principal poses)
+    # scipy's quaternion of the pose's rotation, reordered (w, x, y, z), w >= 0 (principal poses)
+    def means(x):
         qx, qy, qz, qw = Rotation.from_rotvec(x[3:]).as_quat(canonical=True)
         return np.r_[x[:3], qw, qx, qy, qz]
 
@@ -356,13 +365,15 @@ def test_step_function_equals_propagate():
 # Belief-aware observation noise (`observation_noise: expected`, method note section 8).
 
 
-EXPECTED_CAMERA = Intrinsics(fx=768.98551924, fy=768.98551924, cx=292.8861567, cy=291.61479526, width=640, height=480)
+EXPECTED_CAMERA = Intrinsics(fx=768.98551924, fy=768.98551924, cx=292.8861567, cy=291.61479526,
+                             width=640, height=480)
 X = np.array([0.03, -0.02, 0.12, 0.5, 0.3, 1.4])  # a tool pose off the ideal one [m, rad]
 MX_ = np_means(X)[0]  # its mean (position, quaternion), what the model's Functions take
 
 
 def model(form: str, components=("depth", "fov", "orientation")) -> BeliefModel:
-    return BeliefModel(replace(NoiseParams(o_star=(0.4, 0.4, 1.53)), observation_noise=form), EXPECTED_CAMERA, components)
+    return BeliefModel(replace(NoiseParams(o_star=(0.4, 0.4, 1.53)), observation_noise=form),
+                       EXPECTED_CAMERA, components)
 
 
 def test_zero_covariance_gives_the_papers_form():
@@ -377,11 +388,13 @@ def test_mean_form_ignores_the_belief():
     rng = np.random.default_rng(1)
     P = random_spd(rng, 1e-4)
     m = model("mean")
-    assert np.array_equal(np.asarray(m.planning_noise(MX_, vech(P))), np.asarray(m.observation_noise(MX_)))
+    assert np.array_equal(np.asarray(m.planning_noise(MX_, vech(P))),
+                          np.asarray(m.observation_noise(MX_)))
 
 
 def test_expected_depth_term_equals_monte_carlo():
-    """E[(z - d*)^2] under N(mu, P) equals the Monte-Carlo average (closed form; 200k samples, 1 %)."""
+    """E[(z - d*)^2] under N(mu, P) equals the Monte-Carlo average (closed form; 200k samples,
+    1 %)."""
     rng = np.random.default_rng(0)
     P = random_spd(rng, 4e-4)
     m = model("expected", components=("depth",))
@@ -406,10 +419,11 @@ def test_expected_fov_term_matches_monte_carlo_for_small_spread():
 
 @pytest.mark.parametrize("formula", ["cosine", "geodesic"])
 def test_expected_orientation_term_is_taken_in_the_tangent(formula):
-    """The orientation term's spread `tr(J P_rr J^T)` uses the Jacobian in the covariance's coordinates, the
-    tangent of left perturbations `exp(e) R` (as the rollouts draw them): checked against central differences
-    of the independent NumPy residual (tests/numpy_ekf.py) along scipy rotations, at a large angle (2.7 rad)
-    where the axis-angle chart's Jacobian differs from the tangent's."""
+    """The orientation term's spread `tr(J P_rr J^T)` uses the Jacobian in the covariance's
+    coordinates, the tangent of left perturbations `exp(e) R` (as the rollouts draw them): checked
+    against central differences of the independent NumPy residual (tests/numpy_ekf.py) along scipy
+    rotations, at a large angle (2.7 rad) where the axis-angle chart's Jacobian differs from the
+    tangent's."""
     import numpy_ekf as ref
     from scipy.spatial.transform import Rotation
 
@@ -418,28 +432,33 @@ def test_expected_orientation_term_is_taken_in_the_tangent(formula):
     x = np.r_[X[:3], 2.7 * np.array([0.6, -0.48, 0.64])]
     m = BeliefModel(replace(NoiseParams(o_star=(0.4, 0.4, 1.53), orientation_formula=formula),
                             observation_noise="expected"), EXPECTED_CAMERA, ("orientation",))
-    spread = float(np.asarray(m.planning_noise(np_means(x)[0], vech(P)) - m.observation_noise(np_means(x)[0]))[0, 0])
+    spread = float(np.asarray(m.planning_noise(np_means(x)[0], vech(P))
+                              - m.observation_noise(np_means(x)[0]))[0, 0])
     noise = replace(m.noise, V_o0=np.eye(6))
 
     def e(R):  # the residual 1 - cos (>= 0) of the NumPy formula
-        V = ref.observation_noise(np.r_[x[:3], R.as_rotvec()], noise, EXPECTED_CAMERA, ("orientation",), formula,
-                                  guard=noise.cosine_guard**2, band=noise.cut_band)
+        V = ref.observation_noise(np.r_[x[:3], R.as_rotvec()], noise, EXPECTED_CAMERA,
+                                  ("orientation",), formula, guard=noise.cosine_guard**2,
+                                  band=noise.cut_band)
         return float(np.sqrt(V[0, 0]))
 
     R, h = Rotation.from_rotvec(x[3:]), 1e-6
-    J = np.array([(e(Rotation.from_rotvec(h * u) * R) - e(Rotation.from_rotvec(-h * u) * R)) / (2 * h)
+    J = np.array([(e(Rotation.from_rotvec(h * u) * R) - e(Rotation.from_rotvec(-h * u) * R))
+                  / (2 * h)
                   for u in np.eye(3)])
     expected = float(J @ P[3:, 3:] @ J) * m.noise.V_o0[0, 0]
     assert spread == pytest.approx(expected, rel=1e-6)
 
 
 def test_expected_step_gradient_matches_finite_differences():
-    """The planner's EKF step with expected noise has correct derivatives (central differences, 1e-6)."""
+    """The planner's EKF step with expected noise has correct derivatives (central differences,
+    1e-6)."""
     m = model("expected")
     x0 = ca.SX.sym("x0", 6)
     x1 = ca.SX.sym("x1", 6)
     s = ca.SX.sym("s", 21)
-    out = ca.sum1(m.step_expr(pose_mean(x0), pose_mean(x1), s)[[0, 6, 11, 15, 18, 20]])  # trace of the posterior
+    # trace of the posterior
+    out = ca.sum1(m.step_expr(pose_mean(x0), pose_mean(x1), s)[[0, 6, 11, 15, 18, 20]])
     f = ca.Function("f", [x0, x1, s], [out])
     g = ca.Function("g", [x0, x1, s], [ca.gradient(out, x1)])
     rng = np.random.default_rng(3)
@@ -447,14 +466,17 @@ def test_expected_step_gradient_matches_finite_differences():
     S0 = vech(random_spd(rng, 1e-4))
     grad = np.asarray(g(a, X, S0)).ravel()
     h = 1e-6
-    fd = np.array([(float(f(a, X + h * e, S0)) - float(f(a, X - h * e, S0))) / (2 * h) for e in np.eye(6)])
+    fd = np.array([(float(f(a, X + h * e, S0)) - float(f(a, X - h * e, S0))) / (2 * h)
+                   for e in np.eye(6)])
     np.testing.assert_allclose(grad, fd, rtol=1e-5, atol=1e-12 * np.abs(fd).max())
 
 
 def test_expected_noise_never_vanishes_while_uncertain():
-    """At the ideal pose the paper's V is zero; the expected V is not, while the belief is uncertain."""
-    ideal = np.array([-(EXPECTED_CAMERA.cx - 320) / EXPECTED_CAMERA.fx * 0.15, -(EXPECTED_CAMERA.cy - 240) / EXPECTED_CAMERA.fy * 0.15, 0.15,
-                      0.4, 0.4, 1.53])
+    """At the ideal pose the paper's V is zero; the expected V is not, while the belief is
+    uncertain."""
+    ideal = np.array([-(EXPECTED_CAMERA.cx - 320) / EXPECTED_CAMERA.fx * 0.15,
+                      -(EXPECTED_CAMERA.cy - 240) / EXPECTED_CAMERA.fy * 0.15, 0.15, 0.4, 0.4,
+                      1.53])
     P = 1e-4 * np.eye(6)
     ideal = np_means(ideal)[0]
     v_mean = np.trace(np.asarray(model("mean").observation_noise(ideal)))
@@ -469,7 +491,8 @@ def predicted_setup():
     from surestep_ocp.problem.load import load_problem
     from surestep_ocp.problem.setup import build_setup
 
-    p = load_problem(Path(__file__).resolve().parents[1] / "problems" / "needle_regrasp_paper_pace.yaml")
+    p = load_problem(Path(__file__).resolve().parents[1] / "problems"
+                     / "needle_regrasp_paper_pace.yaml")
     return build_setup(replace(p, horizon=6, noise=replace(p.noise, objective="predicted")))
 
 
@@ -490,7 +513,8 @@ def test_unknown_objective_is_a_problem_error(tmp_path):
     from surestep_ocp.errors import ProblemError
     from surestep_ocp.problem.load import load_problem
 
-    text = (Path(__file__).resolve().parents[1] / "problems" / "needle_regrasp_paper_pace.yaml").read_text()
+    text = (Path(__file__).resolve().parents[1] / "problems"
+            / "needle_regrasp_paper_pace.yaml").read_text()
     path = tmp_path / "bad.yaml"
     path.write_text(text.replace("  smoothness: 0.0", "  smoothness: 0.0\n  covariance: prior"))
     with pytest.raises(ProblemError, match="objective.covariance"):

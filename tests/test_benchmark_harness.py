@@ -1,4 +1,5 @@
-"""benchmarks/harness.py's statistics and report helpers against hand-computed values (no solves, no timing)."""
+"""benchmarks/harness.py's statistics and report helpers against hand-computed values (no solves, no
+timing)."""
 
 import sys
 from pathlib import Path

@@ -1,4 +1,5 @@
-"""The command line: exit codes, one-line errors, solution and comparison files, and `--help` telling the truth."""
+"""The command line: exit codes, one-line errors, solution and comparison files, and `--help`
+telling the truth."""
 
 from __future__ import annotations
 
@@ -22,8 +23,8 @@ DEFAULT = REPO / "problems" / "needle_regrasp_paper_pace.yaml"
 
 
 def run(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "surestep_ocp.cli", *args], capture_output=True, text=True,
-                          cwd=REPO, timeout=600)
+    return subprocess.run([sys.executable, "-m", "surestep_ocp.cli", *args], capture_output=True,
+                          text=True, cwd=REPO, timeout=600)
 
 
 def small_problem(tmp_path: Path, horizon: int = 6, **changes) -> Path:
@@ -75,7 +76,8 @@ def test_solve_writes_solution(tmp_path):
 
 
 def test_compare_writes_files_and_ocp_wins(tmp_path):
-    """`surestep compare` writes every method's JSON, the tables and plots; the OCP beats the paper's variant."""
+    """`surestep compare` writes every method's JSON, the tables and plots; the OCP beats the
+    paper's variant."""
     out = tmp_path / "cmp"
     res = run("compare", str(small_problem(tmp_path)), "--output-dir", str(out))
     assert res.returncode == 0, res.stderr
@@ -96,8 +98,8 @@ def test_compare_writes_files_and_ocp_wins(tmp_path):
 
 
 def test_solver_flags_hessian_newton_and_fatrop(tmp_path):
-    """--hessian picks the OCP Hessian (reported in the solution); --solver newton gives the same optimum;
-    --solver fatrop is a clean error, exit 2."""
+    """--hessian picks the OCP Hessian (reported in the solution); --solver newton gives the same
+    optimum; --solver fatrop is a clean error, exit 2."""
     path = small_problem(tmp_path, horizon=4)
     traces = {}
     for hessian in ("exact", "surrogate", "gauss-newton"):
@@ -115,27 +117,34 @@ def test_solver_flags_hessian_newton_and_fatrop(tmp_path):
     res = run("solve", str(path), "--solver", "newton", "-o", str(out))
     assert res.returncode == 0, res.stderr
     sol = json.loads(out.read_text())
-    assert sol["solver"] == "newton" and sol["trace"][-1] == pytest.approx(traces["exact"], rel=1e-6)
-    assert run("validate", str(small_problem(tmp_path, horizon=4, solver={"name": "newton"}))).returncode == 0
+    assert (sol["solver"] == "newton" and sol["trace"][-1]
+            == pytest.approx(traces["exact"], rel=1e-6))
+    assert run("validate",
+               str(small_problem(tmp_path, horizon=4, solver={"name": "newton"}))).returncode == 0
     bad = small_problem(tmp_path, horizon=4, solver={"hessian": "newton"})
     res = run("validate", str(bad))
     assert res.returncode == 2 and "solver.hessian" in res.stderr and "gauss-newton" in res.stderr
-    bad = small_problem(tmp_path, horizon=4, solver={"name": "fatrop"})  # not silently replaced by IPOPT
+    # not silently replaced by IPOPT
+    bad = small_problem(tmp_path, horizon=4, solver={"name": "fatrop"})
     res = run("validate", str(bad))
     assert res.returncode == 2 and "solver.name" in res.stderr and "ipopt" in res.stderr
 
 
-@pytest.mark.skipif(not __import__("surestep_ocp.solvers.codegen").solvers.codegen.available(), reason="no C compiler on this machine")
+@pytest.mark.skipif(not __import__("surestep_ocp.solvers.codegen").solvers.codegen.available(),
+                    reason="no C compiler on this machine")
 def test_codegen_compiles_once_and_gives_the_same_plan(tmp_path):
-    """--codegen: the compiled derivatives give the VM's plan; the second run loads the cached libraries."""
+    """--codegen: the compiled derivatives give the VM's plan; the second run loads the cached
+    libraries."""
     path = small_problem(tmp_path, horizon=3)
     env_cache = tmp_path / "cache"
     sols, libs = {}, {}
     for name, flags in (("vm", ["--no-codegen"]), ("cg", ["--codegen"]), ("cg2", ["--codegen"])):
         out = tmp_path / f"{name}.json"
-        res = subprocess.run([sys.executable, "-m", "surestep_ocp.cli", "solve", str(path), "--hessian",
-                              "surrogate", "-o", str(out), *flags], capture_output=True, text=True, cwd=REPO,
-                             timeout=600, env={**__import__("os").environ, "SURESTEP_CACHE": str(env_cache)},
+        res = subprocess.run([sys.executable, "-m", "surestep_ocp.cli", "solve", str(path),
+                              "--hessian", "surrogate", "-o", str(out),
+                              *flags], capture_output=True, text=True, cwd=REPO,
+                             timeout=600,
+                             env={**__import__("os").environ, "SURESTEP_CACHE": str(env_cache)},
                              check=False)
         assert res.returncode == 0, res.stderr
         sols[name] = json.loads(out.read_text())
@@ -148,8 +157,8 @@ def test_codegen_compiles_once_and_gives_the_same_plan(tmp_path):
         assert sols[name]["iterations"] == sols["vm"]["iterations"]
 
 
-# `surestep <cmd> --help` tells the truth: defaults as they behave, every method name, inapplicable options
-# are errors (exit 2, one line), a closed pipe is a quiet exit, `--version` works.
+# `surestep <cmd> --help` tells the truth: defaults as they behave, every method name, inapplicable
+# options are errors (exit 2, one line), a closed pipe is a quiet exit, `--version` works.
 
 
 def subparsers() -> dict[str, argparse.ArgumentParser]:
@@ -163,7 +172,8 @@ def help_text(parser: argparse.ArgumentParser, monkeypatch) -> str:
 
 
 def test_every_stated_default_is_argparses(monkeypatch):
-    """An option with a default (not None, not a False switch) states it in its help, as argparse has it."""
+    """An option with a default (not None, not a False switch) states it in its help, as argparse
+    has it."""
     checked = []
     for name, parser in subparsers().items():
         for a in parser._actions:
@@ -171,13 +181,15 @@ def test_every_stated_default_is_argparses(monkeypatch):
                 continue
             d = a.default
             shown = {str(d), f"{d:g}"} if isinstance(d, float) else {str(d)}
-            assert any(re.search(rf"default:? {re.escape(s)}\b", a.help) for s in shown), (name, a.dest, a.help)
+            assert any(re.search(rf"default:? {re.escape(s)}\b", a.help) for s in shown), (
+                name, a.dest, a.help)
             checked.append(f"{name} {a.dest}")
     assert {"solve method", "evaluate configs", "export rate"} <= set(checked)
 
 
 def test_solver_flag_defaults_are_the_solver_specs(monkeypatch, write_problem):
-    """--solver/--hessian/--codegen state SolverSpec's defaults; every offered --solver is one a problem accepts."""
+    """--solver/--hessian/--codegen state SolverSpec's defaults; every offered --solver is one a
+    problem accepts."""
     from surestep_ocp.problem.load import load_problem
     from surestep_ocp.problem.spec import SolverSpec
 
@@ -188,7 +200,8 @@ def test_solver_flag_defaults_are_the_solver_specs(monkeypatch, write_problem):
     solver = next(a for a in subparsers()["solve"]._actions if a.dest == "solver")
     assert "fatrop" not in solver.choices
     for choice in solver.choices:  # interior: for problems with enforced limits only
-        tree = {"solver": {"name": choice}, **({"limits": {"enforce": True}} if choice == "interior" else {})}
+        tree = {"solver": {"name": choice},
+                **({"limits": {"enforce": True}} if choice == "interior" else {})}
         assert load_problem(write_problem(lambda t, u=tree: t.update(u))).solver.name == choice
 
 
@@ -197,7 +210,8 @@ def test_help_lists_every_method_name_from_the_registry(monkeypatch):
         text = help_text(subparsers()[cmd], monkeypatch)
         for part in (*BASE_METHODS, *ABLATIONS, EXPECTED, PREDICTED):
             assert part in text, (cmd, part)
-    assert "(default: " + " ".join(BASE_METHODS) + ")" in help_text(subparsers()["compare"], monkeypatch)
+    assert "(default: " + " ".join(BASE_METHODS) + ")" in help_text(subparsers()["compare"],
+                                                                    monkeypatch)
     from surestep_ocp.solvers.methods import COMPARE_METHODS
 
     assert COMPARE_METHODS == BASE_METHODS
@@ -220,7 +234,8 @@ def one_line_exit_2(capsys, *argv: str) -> str:
     (["solve", str(DEFAULT), "--method", "ocp-from-gradient", "--init", "baseline"], "--init"),
     (["solve", str(DEFAULT), "--method", "gradient", "--solver", "ipopt"], "--solver"),
     (["solve", str(DEFAULT), "--method", "baseline", "--no-codegen"], "--codegen"),
-    (["compare", str(DEFAULT), "--output-dir", "unused", "--methods", "baseline", "gradient", "--hessian", "exact"],
+    (["compare", str(DEFAULT), "--output-dir", "unused", "--methods", "baseline", "gradient",
+      "--hessian", "exact"],
      "--hessian"),
     (["solve", str(DEFAULT), "--solver", "fatrop"], "fatrop"),
     (["solve", str(DEFAULT), "--method", "ocp-no-colour"], "allowed"),
@@ -239,12 +254,15 @@ def test_init_gradient_keeps_the_variant():
 
 
 def test_closed_pipe_is_a_quiet_exit():
-    """`surestep solve ... | head -1`: the reader is gone before anything is written (no race): exit 141, silent."""
+    """`surestep solve ... | head -1`: the reader is gone before anything is written (no race): exit
+    141, silent."""
     r, w = os.pipe()
     os.close(r)
     try:
-        res = subprocess.run([sys.executable, "-m", "surestep_ocp.cli", "solve", str(DEFAULT), "--method", "baseline"],
-                             stdout=w, stderr=subprocess.PIPE, text=True, cwd=REPO, timeout=300, check=False)
+        res = subprocess.run([sys.executable, "-m", "surestep_ocp.cli", "solve", str(DEFAULT),
+                              "--method", "baseline"],
+                             stdout=w, stderr=subprocess.PIPE, text=True, cwd=REPO, timeout=300,
+                             check=False)
     finally:
         os.close(w)
     assert res.returncode == 141 and res.stderr == ""

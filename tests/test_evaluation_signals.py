@@ -1,9 +1,10 @@
-"""`surestep evaluate --jobs 2` killed from outside: no pool worker outlives the run, the files are whole or absent.
+"""`surestep evaluate --jobs 2` killed from outside: no pool worker outlives the run, the files are
+whole or absent.
 
-The run is started in its own session (so the test can clean up whatever is left), with far more configurations
-than it can finish before the signal; the signal is sent once its first configuration is in progress.jsonl (the
-pool's workers exist and work), waited for with a generous timeout. What is checked does not depend on when
-the signal lands: the process tree (psutil) and the files.
+The run is started in its own session (so the test can clean up whatever is left), with far more
+configurations than it can finish before the signal; the signal is sent once its first configuration
+is in progress.jsonl (the pool's workers exist and work), waited for with a generous timeout. What
+is checked does not depend on when the signal lands: the process tree (psutil) and the files.
 """
 
 from __future__ import annotations
@@ -28,17 +29,20 @@ OUTPUTS = {"run.json", "progress.jsonl", "table.md", "raw.csv", "solves.csv", "b
 
 
 def _start(out: Path) -> subprocess.Popen:
-    cmd = [sys.executable, "-m", "surestep_ocp.cli", "evaluate", str(PROBLEMS_DIR / "evaluations" / "evaluation.yaml"),
-           "--configs", "5000", "--rollouts", "2", "--rollout-mode", "model", "--methods", "baseline",
+    cmd = [sys.executable, "-m", "surestep_ocp.cli", "evaluate",
+           str(PROBLEMS_DIR / "evaluations" / "evaluation.yaml"), "--configs", "5000", "--rollouts",
+           "2", "--rollout-mode", "model", "--methods", "baseline",
            "--jobs", "2", "--quiet", "--output-dir", str(out)]
     env = {**os.environ, "OPENBLAS_NUM_THREADS": "1"}
-    # files, not pipes: a worker that outlives the run keeps a pipe open and a read would wait for it
+    # files, not pipes: a worker that outlives the run keeps a pipe open and a read would wait for
+    # it
     with open(out.parent / "stdout.txt", "w") as so, open(out.parent / "stderr.txt", "w") as se:
         return subprocess.Popen(cmd, stdout=so, stderr=se, env=env, start_new_session=True)
 
 
 def _wait_started(proc: subprocess.Popen, out: Path) -> list:
-    """Block until a configuration is recorded; the run's descendants then (the pool's workers among them)."""
+    """Block until a configuration is recorded; the run's descendants then (the pool's workers among
+    them)."""
     prog = out / "progress.jsonl"
     deadline = time.monotonic() + START_TIMEOUT_S
     while not (prog.is_file() and prog.read_bytes().count(b"\n") >= 1):
@@ -60,7 +64,8 @@ def _survivors(procs: list) -> list:
 def _check_files(out: Path, whole_lines: bool = True) -> None:
     """Every file is one of the run's outputs (no temporary file left), and each is whole."""
     names = {p.name for p in out.iterdir()}
-    assert names <= OUTPUTS, f"unexpected files (temporary files of a torn write?): {sorted(names - OUTPUTS)}"
+    assert names <= OUTPUTS, ("unexpected files (temporary files of a torn write?): "
+                              f"{sorted(names - OUTPUTS)}")
     header = json.loads((out / "run.json").read_text())
     assert header["methods"] == ["baseline"]
     from surestep_ocp.evaluation.evaluation import read_progress
@@ -115,7 +120,8 @@ def test_sigterm_stops_the_pool_workers_and_exits_143_with_one_line(tmp_path):
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="PR_SET_PDEATHSIG is Linux's")
 def test_sigkill_of_the_parent_takes_the_workers_with_it(tmp_path):
-    """The parent cannot clean up after SIGKILL; its workers end by themselves (parent-death signal)."""
+    """The parent cannot clean up after SIGKILL; its workers end by themselves (parent-death
+    signal)."""
     out = tmp_path / "run"
     proc = _start(out)
     workers = []

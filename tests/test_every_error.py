@@ -1,5 +1,6 @@
-"""A problem file with several wrong keys, in one section or in several, is reported whole: one line per wrong key
-(each section read again without its bad keys), nothing for a key only missing because it was taken out, exit 2."""
+"""A problem file with several wrong keys, in one section or in several, is reported whole: one line
+per wrong key (each section read again without its bad keys), nothing for a key only missing because
+it was taken out, exit 2."""
 
 from __future__ import annotations
 
@@ -32,13 +33,14 @@ def test_every_wrong_key_once(tmp_path):
     with pytest.raises(ss.ProblemErrors) as info:
         ss.load_problem(path)
     keys = sorted(e.key for e in info.value.errors)
-    assert keys == sorted(["solver.tol", "solver.max_iter", "solver.print_level", "goal.pose.position[1]"])
+    assert keys == sorted(["solver.tol", "solver.max_iter", "solver.print_level",
+                           "goal.pose.position[1]"])
 
 
 def test_validate_prints_one_line_each(tmp_path):
     path = _write(tmp_path, _bad)
-    run = subprocess.run([sys.executable, "-m", "surestep_ocp.cli", "validate", str(path)], capture_output=True,
-                         text=True, cwd=ROOT)
+    run = subprocess.run([sys.executable, "-m", "surestep_ocp.cli", "validate", str(path)],
+                         capture_output=True, text=True, cwd=ROOT)
     assert run.returncode == 2
     lines = [line for line in (run.stdout + run.stderr).splitlines() if line.strip()]
     assert len(lines) == 4 and all("bad.yaml" in line for line in lines), lines

@@ -28,19 +28,21 @@ def test_example_runs(tmp_path, script, extra, wrote):
     if wrote:
         assert (tmp_path / wrote).stat().st_size > 0
         if script == "dvrk_servo_jp.py":  # without the dVRK's client: what would be sent, at 100 Hz
-            assert "dry run: " in run.stdout and "servo_jp([" in run.stdout and "at 100 Hz" in run.stdout
+            assert ("dry run: " in run.stdout and "servo_jp([" in run.stdout
+                    and "at 100 Hz" in run.stdout)
     else:
         assert "re-plan median" in run.stdout
 
 
 def test_readme_python_api_script_runs(tmp_path):
-    """The README's "Python API" script, copied as a user would (at T = 6), runs from another folder."""
+    """The README's "Python API" script, copied as a user would (at T = 6), runs from another
+    folder."""
     text = (ROOT / "README.md").read_text()
     start = text.index("```python\n", text.index("### Python API")) + len("```python\n")
     script = text[start:text.index("```", start)].replace("with_horizon(20)", "with_horizon(6)")
     assert "with_horizon(6)" in script
     (tmp_path / "api.py").write_text(script)
-    run = subprocess.run([sys.executable, "api.py"], check=False, cwd=tmp_path, capture_output=True, text=True,
-                         timeout=900)
+    run = subprocess.run([sys.executable, "api.py"], check=False, cwd=tmp_path, capture_output=True,
+                         text=True, timeout=900)
     assert run.returncode == 0, run.stderr[-2000:]
     assert "Solve_Succeeded" in run.stdout

@@ -1,6 +1,7 @@
-"""`surestep export` keeps the file reader's promises (issue 30): every malformed or extreme solution file or
-option is a one-line error naming the file or the flag, exit code 2, and nothing is written; no NaN or Infinity
-reaches an output; the work is bounded (waypoints, samples, the URDF read)."""
+"""`surestep export` keeps the file reader's promises (issue 30): every malformed or extreme
+solution file or option is a one-line error naming the file or the flag, exit code 2, and nothing is
+written; no NaN or Infinity reaches an output; the work is bounded (waypoints, samples, the URDF
+read)."""
 
 from __future__ import annotations
 
@@ -21,7 +22,8 @@ REPO = Path(__file__).resolve().parents[1]
 
 @pytest.fixture(scope="module")
 def baseline(tmp_path_factory) -> dict:
-    """The default problem's straight-line plan (fast: no optimisation), as its solution file's dict."""
+    """The default problem's straight-line plan (fast: no optimisation), as its solution file's
+    dict."""
     from surestep_ocp.problem.load import load_problem
     from surestep_ocp.problem.setup import build_setup
     from surestep_ocp.solvers.methods import run_method
@@ -37,7 +39,8 @@ def baseline(tmp_path_factory) -> dict:
 
 
 def run_export(tmp_path, capsys, text: str | None, *extra, sol=None, fmt="json"):
-    """Export `text` (a solution file's text) or the dict `sol`; the exit code and stderr's lines."""
+    """Export `text` (a solution file's text) or the dict `sol`; the exit code and stderr's
+    lines."""
     src = tmp_path / "plan.json"
     src.write_text(text if text is not None else json.dumps(sol))
     out = tmp_path / f"out.{fmt}"
@@ -63,14 +66,16 @@ def test_the_baseline_exports(baseline, tmp_path, capsys):
 
 @pytest.mark.parametrize("value", [math.inf, math.nan, -math.inf])
 def test_a_non_finite_recorded_limit_is_an_error(baseline, tmp_path, capsys, value):
-    """Reproducer: `limits.velocity[0]` of Infinity exported with exit 0 and a bare `Infinity` in the JSON."""
+    """Reproducer: `limits.velocity[0]` of Infinity exported with exit 0 and a bare `Infinity` in
+    the JSON."""
     sol = edited(baseline, lambda d: d["limits"]["velocity"].__setitem__(0, value))
     code, err, out = run_export(tmp_path, capsys, json.dumps(sol))
     assert_user_error(code, err, out, "plan.json", "limits.velocity")
 
 
-@pytest.mark.parametrize(("key", "value"), [("tool_speed_m_s", math.inf), ("tool_rotation_rad_s", math.nan),
-                                            ("rcm_min_distance_m", math.inf)])
+@pytest.mark.parametrize(("key", "value"),
+                         [("tool_speed_m_s", math.inf), ("tool_rotation_rad_s", math.nan),
+                          ("rcm_min_distance_m", math.inf)])
 def test_a_non_finite_recorded_tool_limit_is_an_error(baseline, tmp_path, capsys, key, value):
     sol = edited(baseline, lambda d: d["limits"].__setitem__(key, value))
     code, err, out = run_export(tmp_path, capsys, json.dumps(sol))
@@ -151,8 +156,10 @@ def test_a_too_large_urdf_is_an_error(baseline, tmp_path, capsys):
 
 
 def test_too_many_samples_is_an_error(baseline, tmp_path, capsys):
-    """A slow limit and a fast rate would write more than a million samples: refused before the work."""
-    code, err, out = run_export(tmp_path, capsys, None, "--rate", "10000", "--step-s", "100", sol=baseline)
+    """A slow limit and a fast rate would write more than a million samples: refused before the
+    work."""
+    code, err, out = run_export(tmp_path, capsys, None, "--rate", "10000", "--step-s", "100",
+                                sol=baseline)
     assert_user_error(code, err, out, "samples")
 
 
@@ -185,5 +192,7 @@ def test_a_solution_object_is_checked_too(baseline, tmp_path):
     from surestep_ocp.output.export_load import load_solution
 
     with pytest.raises(SurestepError, match="limits.velocity"):
-        load_solution(_saved(edited(baseline, lambda d: d["limits"]["velocity"].__setitem__(0, 1e-300)), tmp_path))
+        load_solution(_saved(edited(baseline,
+                                    lambda d: d["limits"]["velocity"].__setitem__(0, 1e-300)),
+                             tmp_path))
     assert np.isfinite(np.array(load_solution(_saved(baseline, tmp_path))["q"])).all()

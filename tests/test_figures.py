@@ -1,4 +1,5 @@
-"""Figures: one look per method everywhere (PNGs and the 3D scene), axes with units, legends that explain.
+"""Figures: one look per method everywhere (PNGs and the 3D scene), axes with units, legends that
+explain.
 
 The PNG checks read the matplotlib Figures before they are written; the scene checks read the static
 Meshcat page built from test_viz's fixture solutions.
@@ -19,7 +20,8 @@ UNIT = re.compile(r"\[[^\]]+\]")
 
 
 def test_every_method_name_has_its_own_style():
-    """Every name the method grammar accepts, and replan's, has a fixed style no other name shares."""
+    """Every name the method grammar accepts, and replan's, has a fixed style no other name
+    shares."""
     names = [*all_names(), *REPLAN_METHODS]
     assert all(known(m) for m in names)
     looks = {m: (s.colour, s.marker, s.linestyle, s.filled) for m, s in styles_of(names).items()}
@@ -52,12 +54,14 @@ def test_scene_colours_are_the_png_colours():
 
 @pytest.fixture(scope="module")
 def solutions(default_setup):
-    """The default problem's baseline under five method names, ocp and ocp-from-gradient coinciding."""
+    """The default problem's baseline under five method names, ocp and ocp-from-gradient
+    coinciding."""
     from surestep_ocp.solvers.methods import run_method
 
     base = run_method(default_setup, "baseline")
     out = []
-    for k, m in enumerate(("baseline", "gradient", "gradient-no-pose-loss", "ocp", "ocp-from-gradient")):
+    for k, m in enumerate(("baseline", "gradient", "gradient-no-pose-loss", "ocp",
+                           "ocp-from-gradient")):
         s = copy.deepcopy(base)
         s.method = m
         bend = 0.004 * min(k, 3) * np.sin(np.linspace(0, np.pi, len(s.poses)))
@@ -90,7 +94,8 @@ def test_trace_figure_splits_position_and_orientation(solutions):
 
 
 def test_path_figure_axes_units_markers_and_legend(solutions):
-    """Labelled axes with units; start, goal, image centre and border explained; coinciding methods look apart."""
+    """Labelled axes with units; start, goal, image centre and border explained; coinciding methods
+    look apart."""
     from surestep_ocp.output.plots_compare import path_figure
 
     fig = path_figure(solutions)
@@ -98,7 +103,8 @@ def test_path_figure_axes_units_markers_and_legend(solutions):
     for ax in (img, depth):
         assert UNIT.search(ax.get_ylabel()), ax.get_ylabel()
         assert UNIT.search(ax.get_xlabel()) or ax.get_xlabel() == "step t"
-    assert "[px]" in img.get_xlabel() and "[px]" in img.get_ylabel() and "[mm]" in depth.get_ylabel()
+    assert ("[px]" in img.get_xlabel() and "[px]" in img.get_ylabel()
+            and "[mm]" in depth.get_ylabel())
     legend = {t.get_text() for t in img.get_legend().get_texts()}
     assert {s.method for s in solutions} | {"start", "goal", "image centre"} <= legend
     assert any(t.startswith("image border") for t in legend)
@@ -107,7 +113,8 @@ def test_path_figure_axes_units_markers_and_legend(solutions):
     assert hybrid.get_linestyle() != ocp.get_linestyle() and hybrid.get_marker() != ocp.get_marker()
     for s in solutions:
         (ln,) = _lines(img, s.method)
-        assert ln.get_color() == style_of(s.method).colour and ln.get_marker() == style_of(s.method).marker
+        assert (ln.get_color() == style_of(s.method).colour
+                and ln.get_marker() == style_of(s.method).marker)
 
 
 @pytest.fixture()
@@ -118,12 +125,14 @@ def scene_solutions(tmp_path):
 
     urdf = tmp_path / "arm.urdf"
     urdf.write_text(ARM_URDF)
-    return [make_solution(urdf, "baseline", 0.0, 1), make_solution(urdf, "gradient-no-pose-loss", 0.08, 3),
+    return [make_solution(urdf, "baseline", 0.0, 1),
+            make_solution(urdf, "gradient-no-pose-loss", 0.08, 3),
             make_solution(urdf, "ocp", 0.15, 2)]
 
 
 def test_static_page_has_a_legend_entry_per_method(tmp_path, scene_solutions):
-    """The page's legend names every drawn method in its colour, the start and the goal; one start marker."""
+    """The page's legend names every drawn method in its colour, the start and the goal; one start
+    marker."""
     from surestep_ocp.viz import write_static_html
 
     info = write_static_html(scene_solutions, tmp_path / "scene.html")
@@ -138,7 +147,8 @@ def test_static_page_has_a_legend_entry_per_method(tmp_path, scene_solutions):
 
 
 def test_paths_the_arm_does_not_follow_show_few_faint_ellipsoids(scene_solutions):
-    """The baseline's (large) ellipsoids do not hide the other paths: few start visible, at lower opacity."""
+    """The baseline's (large) ellipsoids do not hide the other paths: few start visible, at lower
+    opacity."""
     from surestep_ocp.viz import style
     from surestep_ocp.viz.paths import ellipsoid_opacity
     from surestep_ocp.viz.recorder import recording_visualizer
@@ -149,12 +159,14 @@ def test_paths_the_arm_does_not_follow_show_few_faint_ellipsoids(scene_solutions
     assert info.animated == "ocp" and info.paths["ocp"].hidden == []
 
     def opacity(node):
-        return [c for c in window.decoded[node] if c["type"] == "set_object"][-1]["object"]["materials"][0]["opacity"]
+        return [c for c in window.decoded[node]
+                if c["type"] == "set_object"][-1]["object"]["materials"][0]["opacity"]
 
     for m, scale in (("ocp", 1.0), ("baseline", style.OTHER_ELLIPSOID_OPACITY),
                      ("gradient-no-pose-loss", style.OTHER_ELLIPSOID_OPACITY)):
         p = info.paths[m]
-        assert len(p.ellipsoid_nodes) == len(p.nodes)  # every one drawn, to be switched on in the controls
+        # every one drawn, to be switched on in the controls
+        assert len(p.ellipsoid_nodes) == len(p.nodes)
         for node, r in zip(p.ellipsoid_nodes, p.radii):
             assert opacity(node) == pytest.approx(scale * ellipsoid_opacity(r.max()))
         if m != "ocp":

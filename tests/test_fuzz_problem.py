@@ -51,7 +51,8 @@ LONG_MESSAGE = 1000  # errors.MESSAGE_LIMIT
 
 @pytest.fixture(autouse=True)
 def _quick_ik(monkeypatch):
-    """Two IK restarts instead of 20: an unreachable pose takes the same path to its error, 10x sooner."""
+    """Two IK restarts instead of 20: an unreachable pose takes the same path to its error, 10x
+    sooner."""
     original = Robot.inverse_kinematics
 
     def quick(self, *args, **kwargs):
@@ -65,7 +66,8 @@ def _quick_ik(monkeypatch):
 def paths(node, prefix=()):
     """Every key path of a YAML tree (dict keys and list indices), the root excluded."""
     out = []
-    items = node.items() if isinstance(node, dict) else enumerate(node) if isinstance(node, list) else []
+    items = (node.items() if isinstance(node, dict) else enumerate(node) if isinstance(node, list)
+             else [])
     for k, v in items:
         out.append((*prefix, k))
         out.extend(paths(v, (*prefix, k)))
@@ -85,10 +87,11 @@ def dotted(path) -> str:
     return text
 
 
-EXTREME = [10**400, -(10**400), 2**63, 1e308, -1e308, 5e-324, -5e-324, 1e-308, 0, -1, 0.0, 1e9, 1e200,
-           math.nan, math.inf, -math.inf]
-WEIRD = [None, True, False, "", "text", "a\nb\nc", "x" * 5000, "1:20", "1e-3", "world", "base", "universe",
-         "README.md", "/dev/null", "../../etc/passwd", "\u2028 line sep", [], {}, [1, 2], [[1, 2], [3]],
+EXTREME = [10**400, -(10**400), 2**63, 1e308, -1e308, 5e-324, -5e-324, 1e-308, 0, -1, 0.0, 1e9,
+           1e200, math.nan, math.inf, -math.inf]
+WEIRD = [None, True, False, "", "text", "a\nb\nc", "x" * 5000, "1:20", "1e-3", "world", "base",
+         "universe", "README.md", "/dev/null", "../../etc/passwd", "\u2028 line sep", [], {},
+         [1, 2], [[1, 2], [3]],
          {"a": 1}, {"position": [0, 0, 0]}, [None], ["depth", "depth"], ["colour"]]
 
 
@@ -100,8 +103,9 @@ def bad_value():
         st.text(max_size=30),
         st.lists(st.floats(allow_nan=True, allow_infinity=True), max_size=8),
         st.recursive(st.none() | st.integers() | st.text(max_size=5),
-                     lambda kids: st.lists(kids, max_size=3) | st.dictionaries(st.text(max_size=5), kids,
-                                                                                max_size=3), max_leaves=10),
+                     lambda kids: (st.lists(kids, max_size=3)
+                                   | st.dictionaries(st.text(max_size=5), kids, max_size=3)),
+                     max_leaves=10),
     )
 
 
@@ -133,7 +137,8 @@ def mutated_tree(draw):
     done = []
     for _ in range(draw(st.integers(1, 3))):
         every = paths(tree)
-        op = draw(st.sampled_from(["delete", "add", "replace", "extreme", "scale", "covariance", "noise_scalar"]))
+        op = draw(st.sampled_from(["delete", "add", "replace", "extreme", "scale", "covariance",
+                                   "noise_scalar"]))
         if op == "delete":
             path = draw(st.sampled_from(every))
             parent = get(tree, path[:-1])
@@ -144,7 +149,8 @@ def mutated_tree(draw):
         elif op == "add":
             dicts = [()] + [p for p in every if isinstance(get(tree, p), dict)]
             path = draw(st.sampled_from(dicts))
-            key = draw(st.sampled_from(["colour", "W_p", "extra", "frame\nname", "k" * 300, 1, None, True]))
+            key = draw(st.sampled_from(["colour", "W_p", "extra", "frame\nname", "k" * 300, 1, None,
+                                        True]))
             get(tree, path)[key] = draw(bad_value())
             path = (*path, key)
         elif op == "replace":
@@ -152,7 +158,8 @@ def mutated_tree(draw):
             get(tree, path[:-1])[path[-1]] = draw(bad_value())
         elif op == "extreme":  # a number, or a whole list of them, made extreme or non-finite
             numeric = [p for p in every if _is_number(get(tree, p))
-                       or isinstance(get(tree, p), list) and get(tree, p) and all(map(_is_number, get(tree, p)))]
+                       or isinstance(get(tree, p), list) and get(tree, p)
+                       and all(map(_is_number, get(tree, p)))]
             if not numeric:
                 continue
             path = draw(st.sampled_from(numeric))
@@ -168,12 +175,13 @@ def mutated_tree(draw):
             value = get(tree, path)
             get(tree, path[:-1])[path[-1]] = value * factor if abs(value) < 1e300 else value
         elif op == "noise_scalar":  # the scalar model parameters, present in the file or not
-            path = ("noise", draw(st.sampled_from(["cosine_guard", "cut_band", "depth_star", "observation_scale",
-                                                   "joint_motion_sigma"])))
+            path = ("noise", draw(st.sampled_from(["cosine_guard", "cut_band", "depth_star",
+                                                   "observation_scale", "joint_motion_sigma"])))
             tree.setdefault("noise", {})
             if not isinstance(tree["noise"], dict):
                 continue
-            scalar = st.one_of(bad_value(), st.sampled_from(EXTREME), st.sampled_from([-0.1, 0.0, 0.2, 1.0, 1.5, 3.2]))
+            scalar = st.one_of(bad_value(), st.sampled_from(EXTREME),
+                               st.sampled_from([-0.1, 0.0, 0.2, 1.0, 1.5, 3.2]))
             if path[1] == "joint_motion_sigma":  # a number, or a list of any length (7 for the PSM)
                 scalar = st.one_of(scalar, st.lists(scalar, max_size=9))
             tree["noise"][path[1]] = draw(scalar)
@@ -207,10 +215,12 @@ def garbage_text():
         return text[:at] + draw(st.binary(min_size=n, max_size=n)) + text[at + n:]
 
     alias_bomb = "\n".join(["a0: &a0 [1, 2, 3, 4, 5, 6, 7, 8, 9, 10]"]
-                           + [f"a{i}: &a{i} [{', '.join(f'*a{i - 1}' for _ in range(10))}]" for i in range(1, 9)])
+                           + [f"a{i}: &a{i} [{', '.join(f'*a{i - 1}' for _ in range(10))}]"
+                              for i in range(1, 9)])
     fixed = [b"", b"\x00" * 10, "\ufeff".encode(), b"\xff\xfe\x00h\x00o", "[" * 100000, "{" * 5000,
-             "- " * 3000 + "x", "a: " + "[" * 60 + "]" * 60, alias_bomb, "horizon: 1:20", "!!python/object:os.system {}",
-             "a: !!binary AAAA", "? [1, 2]\n: 3", "{[1]: 2}", "%YAML 1.1\n---\nhorizon: 20\n--- \nx: 1",
+             "- " * 3000 + "x", "a: " + "[" * 60 + "]" * 60, alias_bomb, "horizon: 1:20",
+             "!!python/object:os.system {}", "a: !!binary AAAA", "? [1, 2]\n: 3", "{[1]: 2}",
+             "%YAML 1.1\n---\nhorizon: 20\n--- \nx: 1",
              "a: &x 1\nb: *y", "key: value\nkey: other"]
     return st.one_of(
         spliced(),
@@ -273,7 +283,8 @@ EVAL_TREES = {p.name: yaml.safe_load(p.read_text()) for p in EVALUATION_FILES}
 def mutated_evaluation(draw):
     name = draw(st.sampled_from(sorted(EVAL_TREES)))
     tree = copy.deepcopy(EVAL_TREES[name])
-    tree["base"] = str(REPO / "problems" / "needle_regrasp_paper_pace.yaml")  # the copy lives elsewhere
+    # the copy lives elsewhere
+    tree["base"] = str(REPO / "problems" / "needle_regrasp_paper_pace.yaml")
     every = [p for p in paths(tree) if p != ("base",)]
     path = draw(st.sampled_from(every))
     op = draw(st.sampled_from(["delete", "replace", "replace"]))

@@ -1,4 +1,5 @@
-"""The paper's gradient-descent variant (surestep_ocp.solvers.gradient) on a short horizon of the default problem."""
+"""The paper's gradient-descent variant (surestep_ocp.solvers.gradient) on a short horizon of the
+default problem."""
 
 import dataclasses
 from pathlib import Path
@@ -37,7 +38,8 @@ def without_pose(setup):
 
 
 def test_lowers_trace_below_baseline(baseline, with_pose, without_pose):
-    """The variant exists to shrink the final covariance: both losses must beat the straight line."""
+    """The variant exists to shrink the final covariance: both losses must beat the straight
+    line."""
     for sol in (with_pose, without_pose):
         assert sol.success, sol.status
         assert sol.status == f"completed {sol.iterations} iterations"
@@ -56,8 +58,10 @@ def test_pose_loss_shrinks_final_step(with_pose, without_pose):
 
 @pytest.mark.parametrize("pose_loss", [True, False])
 def test_gradient_matches_finite_differences(setup, pose_loss):
-    """A wrong CasADi gradient would make L-BFGS wander silently; check it against central differences."""
-    _, loss_grad = build_loss(setup, setup.model, pose_loss, setup.problem.gradient.pose_loss_weight)
+    """A wrong CasADi gradient would make L-BFGS wander silently; check it against central
+    differences."""
+    _, loss_grad = build_loss(setup, setup.model, pose_loss,
+                              setup.problem.gradient.pose_loss_weight)
     rng = np.random.default_rng(0)
     d = np.diff(straight_line(setup.x_start, setup.x_goal, HORIZON), axis=0)
     d += rng.normal(scale=[5e-3] * 3 + [5e-2] * 3, size=d.shape)
@@ -90,7 +94,8 @@ def test_clipping_and_evaluation(setup, with_pose, without_pose):
 
 
 def test_ablation_without_orientation(setup):
-    """Ablations switch components off in optimisation only; the reduced model must build and run."""
+    """Ablations switch components off in optimisation only; the reduced model must build and
+    run."""
     comps = ("depth", "fov")
     sol = solve_gradient(setup, components=comps)
     assert sol.success, sol.status
@@ -110,8 +115,8 @@ def _with_gradient(setup, **kw):
 
 
 def test_gradient_keys_and_presets(tmp_path):
-    """`gradient.preset: paper` sets torch's L-BFGS, 50 steps, strong Wolfe, trace x 1e3; keys beside it win;
-    a bad value names the file and the key."""
+    """`gradient.preset: paper` sets torch's L-BFGS, 50 steps, strong Wolfe, trace x 1e3; keys
+    beside it win; a bad value names the file and the key."""
     from surestep_ocp.errors import ProblemError
 
     tree = yaml.safe_load(PROBLEM.read_text())
@@ -123,8 +128,10 @@ def test_gradient_keys_and_presets(tmp_path):
     g = load_problem(path).gradient
     assert (g.optimizer, g.steps, g.max_iter, g.line_search, g.trace_scale, g.tolerance_change) == \
         ("torch", 7, 20, "strong_wolfe", 1e3, 1e-9)
-    for bad, key in (({"preset": "fast"}, "gradient.preset"), ({"line_search": "armijo"}, "gradient.line_search"),
-                     ({"trace_scale": 0}, "gradient.trace_scale"), ({"optimiser": "torch"}, "optimiser")):
+    for bad, key in (({"preset": "fast"}, "gradient.preset"),
+                     ({"line_search": "armijo"}, "gradient.line_search"),
+                     ({"trace_scale": 0}, "gradient.trace_scale"),
+                     ({"optimiser": "torch"}, "optimiser")):
         tree["gradient"] = bad
         path.write_text(yaml.safe_dump(tree))
         with pytest.raises(ProblemError) as exc:
@@ -133,8 +140,9 @@ def test_gradient_keys_and_presets(tmp_path):
 
 
 def test_torch_semantics_optimiser(setup):
-    """optimizer torch: `steps` step() calls, the loss never rises from one to the next (strong Wolfe), the
-    reported loss is trace_scale Tr(Sigma_T) + w pose loss of the returned plan (recomputed independently)."""
+    """optimizer torch: `steps` step() calls, the loss never rises from one to the next
+    (strong Wolfe), the reported loss is trace_scale Tr(Sigma_T) + w pose loss of the returned plan
+    (recomputed independently)."""
     s = _with_gradient(setup, optimizer="torch", steps=6, trace_scale=1e3)
     sol = solve_gradient(s)
     assert sol.success, sol.status
@@ -142,19 +150,22 @@ def test_torch_semantics_optimiser(setup):
     assert sol.iterations == sol.extras["inner_iterations"] >= 6
     assert sum(sol.extras["step_stops"].values()) == 6
     end = sol.extras["loss_end"]
-    assert end["loss"] == pytest.approx(1e3 * end["trace"] + end["step_m"] + end["step_rad"], rel=1e-12)
+    assert end["loss"] == pytest.approx(1e3 * end["trace"] + end["step_m"] + end["step_rad"],
+                                        rel=1e-12)
     assert end["trace"] == pytest.approx(sol.trace_final, rel=1e-9)
     assert end["loss"] < sol.extras["loss_start"]["loss"]
 
 
 def test_paper_preset_moves_where_the_literal_reading_stalls(setup, baseline):
-    """With the pose loss as written (trace ~1e-5, pose loss ~1e-2) torch's absolute tolerance_change stops
-    L-BFGS once the clip step is gone; weighting the trace by 1e3 (the paper preset) lowers the trace."""
+    """With the pose loss as written (trace ~1e-5, pose loss ~1e-2) torch's absolute
+    tolerance_change stops L-BFGS once the clip step is gone; weighting the trace by 1e3 (the paper
+    preset) lowers the trace."""
     from surestep_ocp.problem.spec import GRADIENT_PRESETS
 
     literal = solve_gradient(_with_gradient(setup, **GRADIENT_PRESETS["literal"]))
     paper = solve_gradient(_with_gradient(setup, **GRADIENT_PRESETS["paper"]))
-    assert literal.extras["step_stops"].get("tolerance_change (slope)", 0) > 25  # stalled: 1 iteration per step
+    # stalled: 1 iteration per step
+    assert literal.extras["step_stops"].get("tolerance_change (slope)", 0) > 25
     assert paper.trace_final < 0.5 * literal.trace_final
     assert paper.trace_final < 0.5 * baseline.trace_final
     assert paper.extras["final_step_m"] < 1e-4  # the pose loss still closes the clip step

@@ -1,4 +1,5 @@
-"""surestep_ocp.solvers.lbfgs (torch.optim.LBFGS's algorithm in NumPy) against L-BFGS's known behaviour and scipy."""
+"""surestep_ocp.solvers.lbfgs (torch.optim.LBFGS's algorithm in NumPy) against L-BFGS's known
+behaviour and scipy."""
 
 from __future__ import annotations
 
@@ -19,7 +20,8 @@ def quadratic(n: int = 6, seed: int = 0):
 
 def rosenbrock(x):
     f = 100.0 * (x[1] - x[0] ** 2) ** 2 + (1.0 - x[0]) ** 2
-    g = np.array([-400.0 * x[0] * (x[1] - x[0] ** 2) - 2.0 * (1.0 - x[0]), 200.0 * (x[1] - x[0] ** 2)])
+    g = np.array([-400.0 * x[0] * (x[1] - x[0] ** 2) - 2.0 * (1.0 - x[0]),
+                  200.0 * (x[1] - x[0] ** 2)])
     return f, g
 
 
@@ -37,7 +39,8 @@ class Recorder:
 
 
 def test_cubic_minimiser_is_exact_on_a_cubic_and_a_quadratic():
-    """Through two points with slopes, the interpolant of a cubic (or quadratic) is the function itself."""
+    """Through two points with slopes, the interpolant of a cubic (or quadratic) is the function
+    itself."""
     c = lambda x: (x**3 - 3 * x**2 + 1, 3 * x**2 - 6 * x)  # local minimum at x = 2
     (f1, g1), (f2, g2) = c(0.5), c(3.0)
     assert cubic_minimiser(0.5, f1, g1, 3.0, f2, g2) == pytest.approx(2.0, abs=1e-12)
@@ -47,7 +50,8 @@ def test_cubic_minimiser_is_exact_on_a_cubic_and_a_quadratic():
 
 
 def test_line_search_meets_the_strong_wolfe_conditions():
-    """The accepted step has sufficient decrease and |g(t).d| <= c2 |g(0).d| (Rosenbrock, steepest descent)."""
+    """The accepted step has sufficient decrease and |g(t).d| <= c2 |g(0).d| (Rosenbrock, steepest
+    descent)."""
     x0 = np.array([-1.2, 1.0])
     f0, g0 = rosenbrock(x0)
     d = -g0
@@ -60,7 +64,8 @@ def test_line_search_meets_the_strong_wolfe_conditions():
 
 
 def test_quadratic_in_n_iterations_with_exact_line_searches():
-    """L-BFGS with memory >= n and exact line searches minimises an n-dimensional quadratic in n iterations."""
+    """L-BFGS with memory >= n and exact line searches minimises an n-dimensional quadratic in n
+    iterations."""
     A, b, fq = quadratic(6)
     x_star = np.linalg.solve(A, b)
     opt = LBFGS(np.zeros(6), max_iter=6, max_eval=10_000, tolerance_grad=0.0, tolerance_change=0.0,
@@ -69,17 +74,20 @@ def test_quadratic_in_n_iterations_with_exact_line_searches():
     assert opt.steps[-1].iterations == 6
     np.testing.assert_allclose(opt.x, x_star, atol=1e-9)
     # after 5 iterations it is not there yet (the property is tight, not loose)
-    opt5 = LBFGS(np.zeros(6), max_iter=5, max_eval=10_000, tolerance_grad=0.0, tolerance_change=0.0, wolfe_c2=1e-10)
+    opt5 = LBFGS(np.zeros(6), max_iter=5, max_eval=10_000, tolerance_grad=0.0, tolerance_change=0.0,
+                 wolfe_c2=1e-10)
     opt5.step(fq)
     assert np.max(np.abs(opt5.x - x_star)) > 1e-6
 
 
 def test_monotone_decrease_with_the_line_search_and_not_without():
-    """With the strong Wolfe search every accepted iterate lowers the loss (Armijo). Torch's default, the
-    fixed step lr = 1 without a line search, has no such guarantee: on Rosenbrock it goes uphill."""
+    """With the strong Wolfe search every accepted iterate lowers the loss (Armijo). Torch's
+    default, the fixed step lr = 1 without a line search, has no such guarantee: on Rosenbrock it
+    goes uphill."""
     losses = {}
     for ls in ("strong_wolfe", "none"):
-        opt = LBFGS(np.array([-1.2, 1.0]), max_iter=1, line_search=ls, tolerance_grad=0.0, tolerance_change=0.0)
+        opt = LBFGS(np.array([-1.2, 1.0]), max_iter=1, line_search=ls, tolerance_grad=0.0,
+                    tolerance_change=0.0)
         losses[ls] = [rosenbrock(opt.x)[0]]
         for _ in range(40):
             opt.step(rosenbrock)
@@ -96,16 +104,20 @@ def test_first_step_length_is_torchs():
     g0 = fq(x0)[1]
     opt = LBFGS(x0, lr=0.5, max_iter=1, line_search="none")
     opt.step(fq)
-    np.testing.assert_allclose(opt.x, x0 - min(1.0, 1.0 / np.sum(np.abs(g0))) * 0.5 * g0, rtol=1e-14)
-    assert opt.steps[-1].evaluations == 1  # torch does not re-evaluate after the last inner iteration
+    np.testing.assert_allclose(opt.x, x0 - min(1.0, 1.0 / np.sum(np.abs(g0))) * 0.5 * g0,
+                               rtol=1e-14)
+    # torch does not re-evaluate after the last inner iteration
+    assert opt.steps[-1].evaluations == 1
 
 
 def test_state_persists_across_steps():
-    """Two step() calls of 5 inner iterations are one call of 10 (memory, direction and step carried over),
-    at the cost of one extra evaluation at the start of the second call."""
-    one = LBFGS(np.array([-1.2, 1.0]), max_iter=10, max_eval=1000, tolerance_grad=0.0, tolerance_change=0.0)
+    """Two step() calls of 5 inner iterations are one call of 10 (memory, direction and step carried
+    over), at the cost of one extra evaluation at the start of the second call."""
+    one = LBFGS(np.array([-1.2, 1.0]), max_iter=10, max_eval=1000, tolerance_grad=0.0,
+                tolerance_change=0.0)
     one.step(rosenbrock)
-    two = LBFGS(np.array([-1.2, 1.0]), max_iter=5, max_eval=1000, tolerance_grad=0.0, tolerance_change=0.0)
+    two = LBFGS(np.array([-1.2, 1.0]), max_iter=5, max_eval=1000, tolerance_grad=0.0,
+                tolerance_change=0.0)
     two.step(rosenbrock)
     two.step(rosenbrock)
     np.testing.assert_allclose(two.x, one.x, rtol=1e-13, atol=1e-13)
@@ -114,7 +126,8 @@ def test_state_persists_across_steps():
 
 
 def test_budgets_and_tolerances_stop_a_step():
-    """max_eval (default max_iter * 5 // 4) ends a step; tolerance_change (absolute) ends later steps at once."""
+    """max_eval (default max_iter * 5 // 4) ends a step; tolerance_change (absolute) ends later
+    steps at once."""
     opt = LBFGS(np.array([-1.2, 1.0]))
     assert opt.max_eval == 25
     for _ in range(50):
@@ -140,8 +153,8 @@ def test_against_scipy(problem):
         x0, x_star = np.zeros(8), np.linalg.solve(A, b)
     ref = scipy.optimize.minimize(fun, x0, jac=True, method="L-BFGS-B",
                                   options={"gtol": 1e-10, "ftol": 0.0, "maxiter": 500})
-    x, opt = minimize(fun, x0, steps=1, max_iter=500, max_eval=5000, tolerance_grad=1e-10, tolerance_change=0.0,
-                      history_size=10)
+    x, opt = minimize(fun, x0, steps=1, max_iter=500, max_eval=5000, tolerance_grad=1e-10,
+                      tolerance_change=0.0, history_size=10)
     np.testing.assert_allclose(ref.x, x_star, atol=1e-6)
     np.testing.assert_allclose(x, x_star, atol=1e-6)
     assert opt.n_iter <= 2 * ref.nit + 5 and ref.nit <= 2 * opt.n_iter + 5

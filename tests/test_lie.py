@@ -1,5 +1,6 @@
-"""The rotation helpers (surestep_ocp.model.lie: so3_exp / so3_log, the squared angle, slerp) against scipy's
-Rotation and textbook NumPy formulas (split from the kinematics tests, test_robot.py).
+"""The rotation helpers (surestep_ocp.model.lie: so3_exp / so3_log, the squared angle, slerp)
+against scipy's Rotation and textbook NumPy formulas (split from the kinematics tests,
+test_robot.py).
 """
 
 from __future__ import annotations
@@ -9,7 +10,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from surestep_ocp.model.lie import (angle_sq, np_angle, np_exp, np_exp_many, np_log, np_log_many, slerp, slerp_many, so3_exp,
+from surestep_ocp.model.lie import (angle_sq, np_angle, np_exp, np_exp_many, np_log, np_log_many,
+                                    slerp, slerp_many, so3_exp,
                               so3_log)
 
 
@@ -175,18 +177,20 @@ def test_angle_sq_just_below_pi(lie_functions):
 
 
 def test_vectorised_exp_log_slerp_equal_the_scalar_ones():
-    """np_exp_many / np_log_many / slerp_many equal the per-vector versions, including zero and near-pi angles.
+    """np_exp_many / np_log_many / slerp_many equal the per-vector versions, including zero and
+    near-pi angles.
 
-    The slerps agree to the accuracy of the log they share, not to a fixed 1e-9: it takes the axis from the
-    antisymmetric part of R, `sin(th) n`, so a rounding difference dR moves the vector by about
-    `th / sin(th) * dR`, large near pi (below sin(th) = 1e-9 both use the symmetric part). The two paths round
-    R differently by an ulp (np_exp scales k before `k @ k`, np_exp_many after), so a row's tolerance is
-    `16 eps th / max(sin(th), 1e-9)` (a few ulp in R and in the log itself).
+    The slerps agree to the accuracy of the log they share, not to a fixed 1e-9: it takes the axis
+    from the antisymmetric part of R, `sin(th) n`, so a rounding difference dR moves the vector by
+    about `th / sin(th) * dR`, large near pi (below sin(th) = 1e-9 both use the symmetric part). The
+    two paths round R differently by an ulp (np_exp scales k before `k @ k`, np_exp_many after), so
+    a row's tolerance is `16 eps th / max(sin(th), 1e-9)` (a few ulp in R and in the log itself).
     """
     rng = np.random.default_rng(5)
     axes = rng.normal(size=(40, 3))
     axes /= np.linalg.norm(axes, axis=1)[:, None]
-    angles = np.concatenate([rng.uniform(0, np.pi, 34), [0.0, 1e-10, np.pi - 1e-7, np.pi, np.pi, 2e-9]])
+    angles = np.concatenate([rng.uniform(0, np.pi, 34),
+                             [0.0, 1e-10, np.pi - 1e-7, np.pi, np.pi, 2e-9]])
     r = axes * angles[:, None]
     R = np_exp_many(r)
     np.testing.assert_allclose(R, np.array([np_exp(v) for v in r]), rtol=0, atol=1e-14)
@@ -198,4 +202,5 @@ def test_vectorised_exp_log_slerp_equal_the_scalar_ones():
         cond = np.where(th < 1e-9, 1.0, th / np.maximum(np.sin(th), 1e-9))  # th / sin(th) -> 1 at 0
         tol = 16 * np.finfo(float).eps * cond
         err = np.abs(many - scalar).max(axis=1)
-        assert np.all(err <= tol), f"rows {np.flatnonzero(err > tol)}: error {err.max():.1e}, tolerance {tol}"
+        assert np.all(err <= tol), (f"rows {np.flatnonzero(err > tol)}: error "
+                                    f"{err.max():.1e}, tolerance {tol}")

@@ -1,11 +1,12 @@
-"""The lifted form (surestep_ocp.solvers.lifted: vech(Sigma) multiple shooting, `solver.covariance: full`) on
-belief models beyond the paper's constants: full 6x6 base covariances, a noise floor.
+"""The lifted form (surestep_ocp.solvers.lifted: vech(Sigma) multiple shooting,
+`solver.covariance: full`) on belief models beyond the paper's constants: full 6x6 base covariances,
+a noise floor.
 
-The structured solvers (surrogate Hessian, Newton) rest on Tr(Sigma_T) = S(c) being a function of the
-scalar noise coefficients with constant base matrices (checked in test_surrogate.py against a plain NumPy EKF);
-these tests check the lifted form's optima against the condensed form's (Newton on these models against IPOPT:
-test_newton.py) and its own covariance variables against the NumPy EKF. The models (`MODELS`) are shared with
-test_surrogate.py and test_newton.py.
+The structured solvers (surrogate Hessian, Newton) rest on Tr(Sigma_T) = S(c) being a function of
+the scalar noise coefficients with constant base matrices (checked in test_surrogate.py against a
+plain NumPy EKF); these tests check the lifted form's optima against the condensed form's (Newton on
+these models against IPOPT: test_newton.py) and its own covariance variables against the NumPy
+EKF. The models (`MODELS`) are shared with test_surrogate.py and test_newton.py.
 """
 
 from __future__ import annotations
@@ -50,16 +51,18 @@ def problem(horizon: int, solver: str = "auto", form: str = "auto", **noise):
 MODELS = {
     "correlated V_d0": dict(V_d0=correlated_depth()),
     "full V_d0, W_p0": dict(V_d0=random_spd(1, 1e-1), W_p0=random_spd(2, 1e-3)),
-    "noise floor": dict(V_d0=correlated_depth(), V_min=np.diag([1e-6, 1e-6, 4e-6, 1e-5, 1e-5, 1e-5])),
+    "noise floor": dict(V_d0=correlated_depth(),
+                        V_min=np.diag([1e-6, 1e-6, 4e-6, 1e-5, 1e-5, 1e-5])),
 }
 
 
 @pytest.mark.parametrize("name", ["paper", "correlated V_d0"])
 def test_lifted_form_converges_back_to_the_condensed_optimum(name):
-    """The lifted NLP (vech(Sigma_t) per node, the Kalman step as shooting constraint, IPOPT) started from the
-    condensed optimum with the interior joints moved by up to 3 mrad converges back to the same optimum, and its
-    own covariance variables agree with the NumPy EKF along its poses. (Its basin is that small: from 10 mrad, or
-    from the straight line, IPOPT does not converge; docs/general_models.md.)"""
+    """The lifted NLP (vech(Sigma_t) per node, the Kalman step as shooting constraint, IPOPT)
+    started from the condensed optimum with the interior joints moved by up to 3 mrad converges back
+    to the same optimum, and its own covariance variables agree with the NumPy EKF along its poses.
+    (Its basin is that small: from 10 mrad, or from the straight line, IPOPT does not converge;
+    docs/general_models.md.)"""
     setup = build_setup(problem(8, **MODELS.get(name, {})))
     cond = solve_ocp(setup, ocp_initial_guess(setup))
     q = np.array(cond.q)
@@ -68,18 +71,20 @@ def test_lifted_form_converges_back_to_the_condensed_optimum(name):
     sol, _ = lifted.solve(setup, InitialGuess(q, "perturbed condensed optimum"))
     assert sol.success, sol.status
     assert sol.trace_final == pytest.approx(cond.trace_final, rel=1e-6)
-    sig, _ = propagate(np.array(sol.poses), setup.problem.noise, setup.problem.camera.intrinsics, guard=COSINE_GUARD)
+    sig, _ = propagate(np.array(sol.poses), setup.problem.noise, setup.problem.camera.intrinsics,
+                       guard=COSINE_GUARD)
     assert sol.extras["ocp_trace_final"] == pytest.approx(np.trace(sig[-1]), rel=1e-6)
     assert sol.extras["constraint_violation"] < 1e-8
 
 
 def test_full_form_solves_the_lifted_nlp_and_reports_its_condensed_start():
-    """`solver.covariance: full` returns the lifted NLP's solution (IPOPT, structured Hessian), started from the
-    condensed solve, which is reported (and counted in the time)."""
+    """`solver.covariance: full` returns the lifted NLP's solution (IPOPT, structured Hessian),
+    started from the condensed solve, which is reported (and counted in the time)."""
     setup = build_setup(problem(8, form="full", **MODELS["correlated V_d0"]))
     sol = solve_ocp(setup, ocp_initial_guess(setup))
     assert sol.success, sol.status
     assert sol.extras["covariance_form"].startswith("full (lifted")
     assert sol.extras["condensed_start"]["status"] == "Solve_Succeeded"
     cond = build_setup(problem(8, **MODELS["correlated V_d0"]))
-    assert sol.trace_final == pytest.approx(solve_ocp(cond, ocp_initial_guess(cond)).trace_final, rel=1e-6)
+    assert sol.trace_final == pytest.approx(solve_ocp(cond, ocp_initial_guess(cond)).trace_final,
+                                            rel=1e-6)

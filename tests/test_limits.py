@@ -1,7 +1,8 @@
-"""Hard motion limits (`limits.enforce: true`, issue 14 item 2): the OCP's plans meet them, checked here by an
-independent computation (finite differences of the returned joints over `timing.step_s`, against the URDF's
-velocity attributes read by this file, the dVRK's accelerations as written in the reference, the tool's
-speed from the FK of the frame, the shaft end's distance from the RCM); a plan that breaks one is no success.
+"""Hard motion limits (`limits.enforce: true`, issue 14 item 2): the OCP's plans meet them, checked
+here by an independent computation (finite differences of the returned joints over `timing.step_s`,
+against the URDF's velocity attributes read by this file, the dVRK's accelerations as written in the
+reference, the tool's speed from the FK of the frame, the shaft end's distance from the RCM); a plan
+that breaks one is no success.
 """
 
 from __future__ import annotations
@@ -29,10 +30,10 @@ from surestep_ocp.problem.setup import build_setup
 
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT = ROOT / "problems" / "needle_regrasp_paper_pace.yaml"
-# The dVRK's move_jp accelerations (sawIntuitiveResearchKit mtsIntuitiveResearchKitPSM.cpp): 90 deg/s^2 for yaw
-# and pitch, 0.2 m/s^2 for the insertion, 720 deg/s^2 for the instrument's joints.
-ACCEL = {"yaw": math.pi / 2, "pitch": math.pi / 2, "insertion": 0.2, "roll": 4 * math.pi, "wrist_pitch": 4 * math.pi,
-         "wrist_yaw": 4 * math.pi, "jaw": 4 * math.pi}
+# The dVRK's move_jp accelerations (sawIntuitiveResearchKit mtsIntuitiveResearchKitPSM.cpp): 90
+# deg/s^2 for yaw and pitch, 0.2 m/s^2 for the insertion, 720 deg/s^2 for the instrument's joints.
+ACCEL = {"yaw": math.pi / 2, "pitch": math.pi / 2, "insertion": 0.2, "roll": 4 * math.pi,
+         "wrist_pitch": 4 * math.pi, "wrist_yaw": 4 * math.pi, "jaw": 4 * math.pi}
 TOL = 1e-6  # relative: IPOPT meets its bounds to about 1e-8
 
 
@@ -42,7 +43,8 @@ def urdf_velocities(path: Path) -> dict[str, float]:
             if j.get("type") in ("revolute", "prismatic") and j.find("limit") is not None}
 
 
-def check_plan(setup, sol, velocity=None, accel=None, tool_speed=0.1, tool_rotation=math.pi / 2, rcm=0.045):
+def check_plan(setup, sol, velocity=None, accel=None, tool_speed=0.1, tool_rotation=math.pi / 2,
+               rcm=0.045):
     """Assert every limit independently; return the peak ratios."""
     dt = setup.problem.timing.step_s
     names = sol.joint_names
@@ -50,7 +52,8 @@ def check_plan(setup, sol, velocity=None, accel=None, tool_speed=0.1, tool_rotat
     a_lim = {**ACCEL, **(accel or {})}
     q = np.array(sol.q, float)
     vel = np.diff(q, axis=0) / dt
-    acc = np.diff(np.vstack([np.zeros(len(names)), vel, np.zeros(len(names))]), axis=0) / dt  # rest to rest
+    # rest to rest
+    acc = np.diff(np.vstack([np.zeros(len(names)), vel, np.zeros(len(names))]), axis=0) / dt
     vr = np.abs(vel) / np.array([v_lim[n] for n in names])
     ar = np.abs(acc) / np.array([a_lim[n] for n in names])
     assert vr.max() <= 1 + TOL, (names[int(np.argmax(vr.max(axis=0)))], vr.max())
@@ -61,19 +64,23 @@ def check_plan(setup, sol, velocity=None, accel=None, tool_speed=0.1, tool_rotat
                     for a, b in zip(T_tool, T_tool[1:])]) / dt
     assert speed.max() <= tool_speed * (1 + TOL)
     assert rot.max() <= tool_rotation * (1 + TOL)
-    shaft_end = np.array([np.linalg.norm(setup.robot.frame_pose(qi, "roll_link")[:3, 3]) for qi in q])
+    shaft_end = np.array([np.linalg.norm(setup.robot.frame_pose(qi, "roll_link")[:3, 3])
+                          for qi in q])
     assert shaft_end.min() >= rcm * (1 - TOL)
     return vr.max(), ar.max(), speed.max() / tool_speed
 
 
-# The curve `surestep export` plays at the planned times (model/limits/curve.py), written out here: per step
-# the quintic Hermite polynomial with the waypoints' finite-difference velocities and accelerations at both ends.
+# The curve `surestep export` plays at the planned times (model/limits/curve.py), written out here:
+# per step the quintic Hermite polynomial with the waypoints' finite-difference velocities and
+# accelerations at both ends.
 HERMITE = np.array([[1, 0, 0, -10, 15, -6], [0, 1, 0, -6, 8, -3], [0, 0, 0.5, -1.5, 1.5, -0.5],
-                    [0, 0, 0, 10, -15, 6], [0, 0, 0, -4, 7, -3], [0, 0, 0, 0.5, -1, 0.5]])  # p0, v0, a0, p1, v1, a1
+                    # p0, v0, a0, p1, v1, a1
+                    [0, 0, 0, 10, -15, 6], [0, 0, 0, -4, 7, -3], [0, 0, 0, 0.5, -1, 0.5]])
 
 
 def played_curve(q, dt, per_step=200):
-    """Times, positions, velocities and accelerations of the played curve, `per_step` samples per step."""
+    """Times, positions, velocities and accelerations of the played curve, `per_step` samples per
+    step."""
     T = len(q) - 1
     v = np.zeros_like(q)
     v[1:-1] = (q[2:] - q[:-2]) / (2 * dt)
@@ -83,7 +90,8 @@ def played_curve(q, dt, per_step=200):
     s = np.linspace(0, 1, per_step, endpoint=False)
     out = [[], [], [], []]
     for t in range(T):
-        data = np.stack([q[t], dt * v[t], dt**2 * a[t], q[t + 1], dt * v[t + 1], dt**2 * a[t + 1]])  # (6, n)
+        # (6, n)
+        data = np.stack([q[t], dt * v[t], dt**2 * a[t], q[t + 1], dt * v[t + 1], dt**2 * a[t + 1]])
         coef = HERMITE.T @ data  # power coefficients in s, (6, n)
         for order in range(3):
             c = np.polynomial.polynomial.polyder(coef, order) / dt**order if order else coef
@@ -93,35 +101,39 @@ def played_curve(q, dt, per_step=200):
 
 
 def check_curve(setup, sol, velocity=None, accel=None, tool_speed=0.1, tool_rotation=math.pi / 2):
-    """The played curve within the joint limits at every sample, and the tool's speed (chords of the FK over
-    the samples); returns the peak ratios."""
+    """The played curve within the joint limits at every sample, and the tool's speed (chords of the
+    FK over the samples); returns the peak ratios."""
     dt = setup.problem.timing.step_s
     names = sol.joint_names
     v_lim = np.array([{**urdf_velocities(setup.robot.urdf), **(velocity or {})}[n] for n in names])
     a_lim = np.array([{**ACCEL, **(accel or {})}[n] for n in names])
     t, q, v, a = played_curve(np.array(sol.q, float), dt)
-    np.testing.assert_allclose(q[::200], np.array(sol.q)[:-1], atol=1e-12)  # through the waypoints at their times
+    # through the waypoints at their times
+    np.testing.assert_allclose(q[::200], np.array(sol.q)[:-1], atol=1e-12)
     vr, ar = (np.abs(v) / v_lim).max(), (np.abs(a) / a_lim).max()
     assert vr <= 1 + TOL and ar <= 1 + TOL, (vr, ar)
     T_tool = [setup.robot.frame_pose(qi, setup.robot.frame) for qi in q]
     h = np.diff(t)
-    speed = np.array([np.linalg.norm(b[:3, 3] - a_[:3, 3]) for a_, b in zip(T_tool, T_tool[1:])]) / h
+    speed = np.array([np.linalg.norm(b[:3, 3] - a_[:3, 3])
+                      for a_, b in zip(T_tool, T_tool[1:])]) / h
     rot = np.array([np.arccos(np.clip((np.trace(a_[:3, :3].T @ b[:3, :3]) - 1) / 2, -1, 1))
                     for a_, b in zip(T_tool, T_tool[1:])]) / h
-    assert speed.max() <= tool_speed * (1 + TOL) and rot.max() <= tool_rotation * (1 + TOL), (speed.max(), rot.max())
+    assert (speed.max() <= tool_speed * (1 + TOL)
+            and rot.max() <= tool_rotation * (1 + TOL)), (speed.max(), rot.max())
     return vr, ar, speed.max() / tool_speed, rot.max() / tool_rotation
 
 
 def check_solution(setup, sol):
     """The trace by the exact EKF along the plan's poses; the terminal equality."""
-    sig, _ = ref.propagate(np.asarray(sol.poses), setup.problem.noise, setup.problem.camera.intrinsics,
-                           guard=COSINE_GUARD)
+    sig, _ = ref.propagate(np.asarray(sol.poses), setup.problem.noise,
+                           setup.problem.camera.intrinsics, guard=COSINE_GUARD)
     assert ref.rel_err(np.trace(sig[-1]), sol.trace_final) <= 1e-6
     assert np.abs(np.asarray(sol.poses[-1]) - setup.x_goal).max() <= 1e-6
 
 
 def newton_attempt(setup) -> dict:
-    """The same problem under `solver.name: newton`: its first attempt (Newton's unconstrained plan, then checked)."""
+    """The same problem under `solver.name: newton`: its first attempt (Newton's unconstrained plan,
+    then checked)."""
     prob = replace(setup.problem, solver=replace(setup.problem.solver, name="newton"))
     first = solve_ocp(build_setup(prob), ocp_initial_guess(setup)).attempts[0]
     assert first.label == "newton" and first.solver == "newton"
@@ -134,7 +146,8 @@ def enforced(problem, **kw):
 
 @pytest.fixture(scope="module")
 def default_enforced():
-    """The default problem at 0.1 s per step (its 0.05 s x 20 steps is infeasible with the played curve's rows)."""
+    """The default problem at 0.1 s per step (its 0.05 s x 20 steps is infeasible with the played
+    curve's rows)."""
     prob = load_problem(DEFAULT)
     setup = build_setup(enforced(replace(prob, timing=replace(prob.timing, step_s=0.1))))
     return setup, run_method(setup, "ocp")
@@ -146,11 +159,13 @@ def test_default_problem_plan_meets_every_limit(default_enforced):
     ratios = check_plan(setup, sol)
     check_solution(setup, sol)
     curve = check_curve(setup, sol)  # and the curve the export plays at the planned pace
-    assert max(curve) > 0.9  # the limits are active (the unconstrained plan moves 31 mm in its first step)
-    assert max(ratios) <= max(curve) + 1e-9  # the finite differences are averages of the curve's values
+    # the limits are active (the unconstrained plan moves 31 mm in its first step)
+    assert max(curve) > 0.9
+    # the finite differences are averages of the curve's values
+    assert max(ratios) <= max(curve) + 1e-9
     assert sol.extras["motion_limits"]["ok"] and sol.extras["motion_limits"]["enforced"]
-    # the interior-point method, which carries them, solves it (projected Newton's unconstrained plan would break
-    # them: not run under auto)
+    # the interior-point method, which carries them, solves it (projected Newton's unconstrained
+    # plan would break them: not run under auto)
     assert sol.extras["solver"] == "interior" and "newton" not in [a.solver for a in sol.attempts]
     first = newton_attempt(setup)
     assert first.status == "Motion_Limits_Violated" and first.objective < sol.objective
@@ -158,7 +173,8 @@ def test_default_problem_plan_meets_every_limit(default_enforced):
 
 @pytest.mark.parametrize("config", [3, 5])
 def test_evaluation_configurations_meet_every_limit(config):
-    sampler = ConfigurationSampler(load_evaluation(ROOT / "problems" / "evaluations" / "evaluation.yaml"))
+    sampler = ConfigurationSampler(load_evaluation(ROOT / "problems" / "evaluations"
+                                                   / "evaluation.yaml"))
     setup = build_setup(enforced(sampler.problem(sampler.sample(0, config))))
     sol = run_method(setup, "ocp")
     assert sol.success, sol.status
@@ -171,25 +187,30 @@ def test_overrides_from_the_problem_file_are_honoured(write_problem):
     """Per-joint overrides and a slower tool from the YAML section; a longer step to leave room."""
     path = write_problem(lambda t: t.update(limits={"enforce": True, "joint_velocity": {"yaw": 0.3},
                                                      "joint_acceleration": {"wrist_pitch": 3.0},
-                                                     "tool_speed": 0.05, "tool_rotation_speed": 1.0},
+                                                     "tool_speed": 0.05,
+                                                    "tool_rotation_speed": 1.0},
                                             timing={"step_s": 0.1, "tracker_hz": 20}), "overrides")
     prob = load_problem(path)
     assert prob.limits.joint_velocity == (("yaw", 0.3),) and prob.limits.tool_speed == 0.05
     setup = build_setup(prob)
     sol = run_method(setup, "ocp")
     assert sol.success, sol.status
-    check_plan(setup, sol, velocity={"yaw": 0.3}, accel={"wrist_pitch": 3.0}, tool_speed=0.05, tool_rotation=1.0)
-    check_curve(setup, sol, velocity={"yaw": 0.3}, accel={"wrist_pitch": 3.0}, tool_speed=0.05, tool_rotation=1.0)
+    check_plan(setup, sol, velocity={"yaw": 0.3}, accel={"wrist_pitch": 3.0}, tool_speed=0.05,
+               tool_rotation=1.0)
+    check_curve(setup, sol, velocity={"yaw": 0.3}, accel={"wrist_pitch": 3.0}, tool_speed=0.05,
+                tool_rotation=1.0)
     check_solution(setup, sol)
 
 
 def test_rcm_distance_is_a_bound_on_the_insertion():
-    """The derived bound: the shaft's end is `q_insertion - 0.0156` m past the RCM (reference 1c), so 45 mm is
-    q_insertion >= 0.0606 m; the enforced NLP's lower bound on every moving node's insertion."""
+    """The derived bound: the shaft's end is `q_insertion - 0.0156` m past the RCM (reference 1c),
+    so 45 mm is q_insertion >= 0.0606 m; the enforced NLP's lower bound on every moving node's
+    insertion."""
     setup = build_setup(enforced(load_problem(DEFAULT), rcm_distance=0.07))
     tr = transcription(setup, "condensed", hessian="surrogate")
     j, bound = tr.rcm_bound
-    assert setup.robot.joint_names[j] == "insertion" and bound == pytest.approx(0.07 + 0.0156, abs=1e-9)
+    assert (setup.robot.joint_names[j] == "insertion"
+            and bound == pytest.approx(0.07 + 0.0156, abs=1e-9))
     lbx, _ = tr.bounds(setup, np.ones(setup.problem.horizon + 1))
     lo = tr.layout.split(lbx)
     assert all(lo[f"q{t}"][j] == pytest.approx(0.0856) for t in range(1, setup.problem.horizon + 1))
@@ -197,14 +218,16 @@ def test_rcm_distance_is_a_bound_on_the_insertion():
     for _ in range(5):  # the distance does not depend on the other joints
         q = rng.uniform(setup.robot.lower, setup.robot.upper)
         q[j] = 0.0856
-        assert np.linalg.norm(setup.robot.frame_pose(q, "roll_link")[:3, 3]) == pytest.approx(0.07, abs=1e-9)
+        assert (np.linalg.norm(setup.robot.frame_pose(q, "roll_link")[:3, 3])
+                == pytest.approx(0.07, abs=1e-9))
 
 
 @pytest.mark.parametrize("rows", ["curve", "steps"])
 def test_limit_rows_staged_derivatives_equal_casadis_own(monkeypatch, rows):
-    """The limit rows' stage-wise Jacobian and curvature (the tool rows are nonlinear) equal CasADi's AD of
-    the whole NLP, at a perturbed point with random multipliers (T = 6), for the played curve's rows (the tool
-    at 4 points of each step but the first's start, 2 rows each) and the finite differences'."""
+    """The limit rows' stage-wise Jacobian and curvature (the tool rows are nonlinear) equal
+    CasADi's AD of the whole NLP, at a perturbed point with random multipliers (T = 6), for the
+    played curve's rows (the tool at 4 points of each step but the first's start, 2 rows each) and
+    the finite differences'."""
     from surestep_ocp.model import limits
     from surestep_ocp.solvers import nlp_cache
 
@@ -212,7 +235,8 @@ def test_limit_rows_staged_derivatives_equal_casadis_own(monkeypatch, rows):
     monkeypatch.setattr(nlp_cache, "_CACHE", {})
     setup = build_setup(enforced(replace(load_problem(DEFAULT), horizon=6)))
     staged, exact = transcription(setup, hessian="surrogate"), transcription(setup, hessian="exact")
-    assert staged.ng == exact.ng > staged.ng_eq and staged.n_tool == 2 * (4 * 6 - 1 if rows == "curve" else 6)
+    assert (staged.ng == exact.ng > staged.ng_eq
+            and staged.n_tool == 2 * (4 * 6 - 1 if rows == "curve" else 6))
     x0, scale, _ = staged._condensed_start(setup, ocp_initial_guess(setup))
     rng = np.random.default_rng(5)
     x = x0 + 1e-2 * rng.normal(size=len(x0))
@@ -250,7 +274,8 @@ def test_cli_exits_1_with_the_status(write_problem):
 
 
 @pytest.mark.parametrize("section, key", [({"enforce": "yes"}, "limits.enforce"),
-                                          ({"joint_velocity": {"elbow": 1.0}}, "limits.joint_velocity.elbow"),
+                                          ({"joint_velocity": {"elbow": 1.0}},
+                                           "limits.joint_velocity.elbow"),
                                           ({"tool_speed": -1}, "limits.tool_speed"),
                                           ({"rcm": 0.04}, "limits.rcm")])
 def test_bad_limits_sections_are_named_errors(write_problem, section, key):

@@ -1,8 +1,8 @@
 """The projected Newton solver (`solver.name: newton`): its gradient against finite differences, its
-optima against IPOPT's (also on the non-diagonal models of test_lifted.py, against a NumPy EKF), its barrier run
-where the depth bound is violated, its errors, and its secant end-game (`newton._SecantCorrection`: the Woodbury
-step against a dense solve, the positive-definiteness test against eigenvalues, a 6x6-recursion solve that uses
-it against IPOPT with the exact Hessian)."""
+optima against IPOPT's (also on the non-diagonal models of test_lifted.py, against a NumPy EKF), its
+barrier run where the depth bound is violated, its errors, and its secant end-game
+(`newton._SecantCorrection`: the Woodbury step against a dense solve, the positive-definiteness test
+against eigenvalues, a 6x6-recursion solve that uses it against IPOPT with the exact Hessian)."""
 
 from __future__ import annotations
 
@@ -30,7 +30,8 @@ DEFAULT = Path(__file__).resolve().parents[1] / "problems" / "needle_regrasp_pap
 
 
 def with_solver(setup, **kw):
-    return replace(setup, problem=replace(setup.problem, solver=replace(setup.problem.solver, **kw)))
+    return replace(setup, problem=replace(setup.problem,
+                                          solver=replace(setup.problem.solver, **kw)))
 
 
 @pytest.fixture(scope="module")
@@ -39,8 +40,11 @@ def short():
 
 
 def test_newton_gradient_matches_finite_differences(short):
-    """The assembled joint-space gradient (stage blocks scattered) is the objective's, by central differences."""
-    setup = replace(short, problem=replace(short.problem, objective=replace(short.problem.objective, smoothness=0.2)))
+    """The assembled joint-space gradient (stage blocks scattered) is the objective's, by central
+    differences."""
+    setup = replace(short, problem=replace(short.problem,
+                                           objective=replace(short.problem.objective,
+                                                             smoothness=0.2)))
     ns = newton_solver(setup)
     q = np.asarray(ocp_initial_guess(setup).q, float)
     rng = np.random.default_rng(1)
@@ -59,13 +63,16 @@ def test_newton_gradient_matches_finite_differences(short):
 
 @pytest.mark.parametrize("horizon", [6, 20])
 def test_newton_reaches_ipopts_optimum(horizon):
-    """Same plan as IPOPT (trace to 1e-6), terminal pose exact, start and goal joints kept, bounds met."""
+    """Same plan as IPOPT (trace to 1e-6), terminal pose exact, start and goal joints kept, bounds
+    met."""
     setup = build_setup(replace(load_problem(DEFAULT), horizon=horizon))
     init = ocp_initial_guess(setup)
-    ipopt = solve_ocp(with_solver(setup, name="ipopt"), init)  # another solver (auto would run Newton)
+    # another solver (auto would run Newton)
+    ipopt = solve_ocp(with_solver(setup, name="ipopt"), init)
     assert ipopt.extras["solver"] == "ipopt" and "newton" not in ipopt.extras["hessian"]
     newton = solve_ocp(with_solver(setup, name="newton"), init)
-    assert newton.success and newton.status == "Solve_Succeeded" and newton.extras["solver"] == "newton"
+    assert (newton.success and newton.status == "Solve_Succeeded"
+            and newton.extras["solver"] == "newton")
     assert [a.label for a in newton.attempts] == ["newton"]
     assert newton.trace_final == pytest.approx(ipopt.trace_final, rel=1e-6)
     assert newton.extras["ocp_trace_final"] == pytest.approx(newton.trace_final, rel=1e-9)
@@ -78,17 +85,20 @@ def test_newton_reaches_ipopts_optimum(horizon):
 
 
 def test_newton_keeps_the_depth_bound_with_its_barrier_run_when_violated():
-    """Evaluation configuration 39 at T = 20: Newton's optimum goes below the minimum depth (a bound its box
-    form does not have); Newton on IPOPT's barrier problem then solves it from the start, with the bound, and that
-    is the plan: IPOPT's own optimum with the monotone barrier (trace to 1e-6), the bound met by Pinocchio's FK."""
+    """Evaluation configuration 39 at T = 20: Newton's optimum goes below the minimum depth (a bound
+    its box form does not have); Newton on IPOPT's barrier problem then solves it from the start,
+    with the bound, and that is the plan: IPOPT's own optimum with the monotone barrier
+    (trace to 1e-6), the bound met by Pinocchio's FK."""
     from surestep_ocp.evaluation.configs import ConfigurationSampler, load_evaluation
 
-    sampler = ConfigurationSampler(load_evaluation(DEFAULT.parent / "evaluations" / "evaluation.yaml"))
+    sampler = ConfigurationSampler(load_evaluation(DEFAULT.parent / "evaluations"
+                                                   / "evaluation.yaml"))
     setup = with_solver(build_setup(sampler.problem(sampler.sample(0, 39))), name="newton")
     init = ocp_initial_guess(setup)
     sol = solve_ocp(setup, init)
     attempts = [(a.label, a.status, a.kept) for a in sol.attempts]
-    assert attempts == [("newton", "Depth_Bound_Violated", False), ("newton, depth barrier", "Solve_Succeeded", True)]
+    assert attempts == [("newton", "Depth_Bound_Violated", False),
+                        ("newton, depth barrier", "Solve_Succeeded", True)]
     assert sol.success and sol.extras["solver"] == "newton"
     ipopt = solve_ocp(with_solver(setup, name="ipopt", options={"mu_strategy": "monotone"}), init)
     assert ipopt.success and ipopt.extras["solver"] == "ipopt"
@@ -98,14 +108,15 @@ def test_newton_keeps_the_depth_bound_with_its_barrier_run_when_violated():
 
 
 def test_barrier_depth_derivatives_match_the_fk(short):
-    """The barrier's per-node depth, its gradient and Hessian in the node's joints (`newton_depth`) against
-    Pinocchio's FK and its central differences."""
+    """The barrier's per-node depth, its gradient and Hessian in the node's joints (`newton_depth`)
+    against Pinocchio's FK and its central differences."""
     ns = newton_solver(short)
     q = np.asarray(ocp_initial_guess(short).q, float)
     rng = np.random.default_rng(2)
     q = q + 0.02 * rng.normal(size=q.shape)
     camera = short.camera_parameter()
-    P = np.zeros(ns.depth.args[1].size)  # camera parameters first (the rest does not enter the depth)
+    # camera parameters first (the rest does not enter the depth)
+    P = np.zeros(ns.depth.args[1].size)
     P[:camera.size] = camera
     z, dz, d2z = (v.copy() for v in ns.depth(q.ravel(), P))
     nq, t, h = short.robot.nq, 3, 1e-5
@@ -137,8 +148,8 @@ def test_newton_needs_the_surrogate_model(short):
 
 
 def test_newton_only_where_the_goal_fixes_the_last_joints(short):
-    """Seven (redundant) or five moving joints: the terminal pose does not fix q_T, so auto keeps IPOPT and an
-    explicit `newton` is an error."""
+    """Seven (redundant) or five moving joints: the terminal pose does not fix q_T, so auto keeps
+    IPOPT and an explicit `newton` is an error."""
     from types import SimpleNamespace
 
     from surestep_ocp.problem.solver_config import resolve
@@ -156,8 +167,8 @@ def test_newton_only_where_the_goal_fixes_the_last_joints(short):
 
 
 def test_newton_warm_resolve_after_a_camera_move(short):
-    """A Newton solution returns its joints as the warm start; after a small camera move the warm Newton solve
-    reaches the cold optimum, in fewer iterations."""
+    """A Newton solution returns its joints as the warm start; after a small camera move the warm
+    Newton solve reaches the cold optimum, in fewer iterations."""
     from surestep_ocp.solvers.ocp import solve_ocp_warm
 
     setup = with_solver(short, name="auto")
@@ -177,9 +188,10 @@ def test_newton_warm_resolve_after_a_camera_move(short):
 
 
 def test_kept_start_names_the_solvers_that_ran_and_smoothness_counts():
-    """With `objective.smoothness: 50` IPOPT's converged plan on the default problem is far below the start in the
-    objective it minimises (trace plus smoothness): it is returned, not replaced by the straight line (the old
-    check compared that objective with the bare trace). A kept start names the solvers that ran."""
+    """With `objective.smoothness: 50` IPOPT's converged plan on the default problem is far below
+    the start in the objective it minimises (trace plus smoothness): it is returned, not replaced by
+    the straight line (the old check compared that objective with the bare trace). A kept start
+    names the solvers that ran."""
     prob = load_problem(DEFAULT)
     setup = build_setup(replace(prob, objective=replace(prob.objective, smoothness=50.0),
                                 solver=replace(prob.solver, name="ipopt")))
@@ -190,8 +202,9 @@ def test_kept_start_names_the_solvers_that_ran_and_smoothness_counts():
 
 
 def test_newton_stops_when_it_stalls(short):
-    """From its own optimum with tol 0 (unreachable) Newton cannot decrease the objective: it stops as 'Stalled'
-    after its window of iterations instead of running to max_iter, and hands over (not a success)."""
+    """From its own optimum with tol 0 (unreachable) Newton cannot decrease the objective: it stops
+    as 'Stalled' after its window of iterations instead of running to max_iter, and hands over (not
+    a success)."""
     from surestep_ocp.solvers.newton import STALL_WINDOW
     from surestep_ocp.solvers.nlp_cache import newton_solver
     from surestep_ocp.solvers.iterate import InitialGuess
@@ -207,8 +220,9 @@ def test_newton_stops_when_it_stalls(short):
 
 @pytest.mark.parametrize("name", list(MODELS))
 def test_newton_plans_non_diagonal_models_and_ipopt_agrees(name):
-    """The default (auto: the condensed form, Newton) solves the non-diagonal models; its trace is the NumPy
-    EKF's along its poses; IPOPT on the condensed form (another solver) reaches the same optimum."""
+    """The default (auto: the condensed form, Newton) solves the non-diagonal models; its trace is
+    the NumPy EKF's along its poses; IPOPT on the condensed form (another solver) reaches the same
+    optimum."""
     newton = build_setup(problem(8, **MODELS[name]))
     assert resolve_form(newton.model, "auto") == "condensed"
     init = ocp_initial_guess(newton)
@@ -224,14 +238,15 @@ def test_newton_plans_non_diagonal_models_and_ipopt_agrees(name):
 
 
 def test_second_start_never_ends_above_the_diagonal_models_plan():
-    """A 6x6-recursion model also starts Newton from the plan of its diagonal approximation (the fast scalar
-    path): the returned plan's trace, by the NumPy EKF, is at most that plan's evaluated in the same model.
-    Evaluation configurations 9 and 38 with the correlated depth noise (from the straight line alone Newton
-    ended 1.11x and 1.26x above the paper plan there, measured)."""
+    """A 6x6-recursion model also starts Newton from the plan of its diagonal approximation (the
+    fast scalar path): the returned plan's trace, by the NumPy EKF, is at most that plan's evaluated
+    in the same model. Evaluation configurations 9 and 38 with the correlated depth noise, where
+    Newton from the straight line alone ended above the paper plan (docs/general_models.md)."""
     from surestep_ocp.evaluation.configs import ConfigurationSampler, load_evaluation
     from surestep_ocp.solvers.ocp import diagonal_model_setup
 
-    sampler = ConfigurationSampler(load_evaluation(DEFAULT.parent / "evaluations" / "evaluation.yaml"))
+    sampler = ConfigurationSampler(load_evaluation(DEFAULT.parent / "evaluations"
+                                                   / "evaluation.yaml"))
     for c in (9, 38):
         base = sampler.problem(sampler.sample(0, c))
         corr = build_setup(replace(base, noise=replace(base.noise, V_d0=correlated_depth())))
@@ -247,14 +262,16 @@ def test_second_start_never_ends_above_the_diagonal_models_plan():
         assert sol.trace_final == pytest.approx(own, rel=1e-9)
 
 
-# Newton's secant end-game (`newton._SecantCorrection`): its Woodbury step against a dense solve, its positive-
-# definiteness test against eigenvalues, and a 6x6-recursion solve that uses it against IPOPT with the exact Hessian.
+# Newton's secant end-game (`newton._SecantCorrection`): its Woodbury step against a dense solve,
+# its positive-definiteness test against eigenvalues, and a 6x6-recursion solve that uses it
+# against IPOPT with the exact Hessian.
 
 
 def banded_spd(n: int, band: int, rng) -> np.ndarray:
     """A random SPD matrix of half-bandwidth band - 1."""
     B = rng.standard_normal((n, n)) * (np.abs(np.subtract.outer(np.arange(n), np.arange(n))) < band)
-    return np.tril(B) @ np.tril(B).T + n * np.eye(n) * 0.1  # banded lower factor: the same half-bandwidth
+    # banded lower factor: the same half-bandwidth
+    return np.tril(B) @ np.tril(B).T + n * np.eye(n) * 0.1
 
 
 @pytest.mark.parametrize("seed", range(6))
@@ -265,14 +282,16 @@ def test_woodbury_step_equals_a_dense_solve_and_refuses_an_indefinite_correction
     fixed = np.zeros(n, bool)
     fixed[rng.choice(n, 5, replace=False)] = True
     sec = _SecantCorrection(n)
-    for _ in range(4):  # SR1 terms from random secant pairs (y - H s of a "true" Hessian H + N, N indefinite)
+    # SR1 terms from random secant pairs (y - H s of a "true" Hessian H + N, N indefinite)
+    for _ in range(4):
         s = rng.standard_normal(n)
         N = rng.standard_normal((n, 3))
         sec.update(s, (N @ (rng.choice([-1.0, 1.0], 3) * (N.T @ s))) * 0.3)
     assert sec.w.size == 4
     A = sec.U @ np.diag(sec.w) @ sec.U.T
     g = rng.standard_normal(n)
-    # the reduced system: free rows and columns of H + A, identity for the held variables (their step is 0)
+    # the reduced system: free rows and columns of H + A, identity for the held variables (their
+    # step is 0)
     M = np.where(np.outer(~fixed, ~fixed), H + A, 0.0) + np.diag(fixed.astype(float))
     rhs = np.where(fixed, 0.0, -g)
     Hred = np.where(np.outer(~fixed, ~fixed), H, 0.0) + np.diag(fixed.astype(float))
@@ -308,8 +327,9 @@ def test_sr1_update_meets_the_secant_condition():
 
 
 def test_a_correlated_model_solve_uses_the_end_game_and_matches_ipopt_exact(default_problem):
-    """The 6x6 recursion (a correlated depth noise): Newton's plan, with secant steps at its end, against IPOPT with
-    the exact Hessian of the unrolled EKF from Newton's plan (a different solver and Hessian)."""
+    """The 6x6 recursion (a correlated depth noise): Newton's plan, with secant steps at its end,
+    against IPOPT with the exact Hessian of the unrolled EKF from Newton's plan (a different solver
+    and Hessian)."""
     V = np.diag([1e-2, 1e-2, 1e-1, 5e-3, 5e-3, 5e-3])
     V[0, 2] = V[2, 0] = 2e-2
     prob = replace(default_problem, horizon=10, noise=replace(default_problem.noise, V_d0=V))

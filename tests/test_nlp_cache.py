@@ -1,7 +1,7 @@
-"""The NLP cache (surestep_ocp.solvers.nlp_cache): the enforced NLP's acceptable-level stop (`ENFORCED_OPTIONS`)
-against independent checks: a tighter IPOPT solve of the same NLP without the acceptable level, the plan's
-finite-difference limit report and the export's own dense check of the played curve; and its key on the limit
-rows' kind."""
+"""The NLP cache (surestep_ocp.solvers.nlp_cache): the enforced NLP's acceptable-level stop
+(`ENFORCED_OPTIONS`) against independent checks: a tighter IPOPT solve of the same NLP without the
+acceptable level, the plan's finite-difference limit report and the export's own dense check of the
+played curve; and its key on the limit rows' kind."""
 
 from dataclasses import replace
 from pathlib import Path
@@ -22,16 +22,20 @@ ROOT = Path(__file__).resolve().parents[1]
 
 @pytest.fixture(scope="module")
 def enforced_default():
-    """The default problem at 40 steps of 0.05 s with the limits enforced (set here, whatever the file holds)."""
+    """The default problem at 40 steps of 0.05 s with the limits enforced (set here, whatever the
+    file holds)."""
     prob = load_problem(ROOT / "problems" / "needle_regrasp.yaml")
-    prob = replace(prob, horizon=40, limits=replace(prob.limits, enforce=True),  # IPOPT's (auto: interior first)
-                   timing=replace(prob.timing, step_s=0.05), solver=replace(prob.solver, name="ipopt"))
+    # IPOPT's (auto: interior first)
+    prob = replace(prob, horizon=40, limits=replace(prob.limits, enforce=True),
+                   timing=replace(prob.timing, step_s=0.05),
+                   solver=replace(prob.solver, name="ipopt"))
     setup = build_setup(prob)
     return setup, run_method(setup, "ocp")
 
 
 def test_acceptable_stop_is_reported_as_such(enforced_default):
-    """The default problem's surrogate IPOPT ends in its linear tail: stopped there, and the status says so."""
+    """The default problem's surrogate IPOPT ends in its linear tail: stopped there, and the status
+    says so."""
     _, sol = enforced_default
     assert sol.success
     kept = [a for a in sol.attempts if a.kept]
@@ -51,21 +55,22 @@ def test_acceptable_plan_equals_a_tight_solve(enforced_default):
 
 
 def test_acceptable_plan_meets_every_limit(enforced_default):
-    """The finite-difference report and the export's dense check of the played curve: within every limit, exported
-    at its planned duration."""
+    """The finite-difference report and the export's dense check of the played curve: within every
+    limit, exported at its planned duration."""
     setup, sol = enforced_default
     report = lm.plan_report(setup.robot, np.array(sol.q, float), setup.problem.timing.step_s,
                             lm.problem_limits(setup), tool_frame=setup.robot.frame)
     assert report["ok"], report["violations"][:3]
     q, _ = within_position_limits(np.array(sol.q, float), setup.robot)
-    traj = time_parametrise(q, setup.problem.timing.step_s, lm.problem_limits(setup), robot=setup.robot,
-                            tool_frame=setup.robot.frame)
+    traj = time_parametrise(q, setup.problem.timing.step_s, lm.problem_limits(setup),
+                            robot=setup.robot, tool_frame=setup.robot.frame)
     assert traj.timing == "planned"
     assert traj.duration == pytest.approx(setup.problem.horizon * setup.problem.timing.step_s)
 
 
 def test_transcription_cache_keys_on_the_row_kind(monkeypatch):
-    """Switching `limits.CURVE_ROWS` gives another cached NLP, not the one built with the other rows."""
+    """Switching `limits.CURVE_ROWS` gives another cached NLP, not the one built with the other
+    rows."""
     from surestep_ocp.model import limits as lm
     from surestep_ocp.solvers import nlp_cache
 

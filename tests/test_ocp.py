@@ -25,7 +25,8 @@ from surestep_ocp.problem.setup import build_setup
 from surestep_ocp.output.solution import Solution
 
 T = 8
-GUARD = COSINE_GUARD  # [rad^2] the package's guard of |r| in the cosine formula (section 4: "guard it")
+# [rad^2] the package's guard of |r| in the cosine formula (section 4: "guard it")
+GUARD = COSINE_GUARD
 
 
 @pytest.fixture(scope="module")

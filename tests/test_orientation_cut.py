@@ -58,13 +58,14 @@ def _angles(n, rng, low=3.0, high=np.pi):
 
 
 def test_means_are_continued_along_the_joints_through_pi(sampler):
-    """The straight line of configuration 0 crosses pi: its principal vectors jump by about 2 pi, the means of
-    `Setup.poses_of` (the FK quaternion's log) do not, and exp(r) is Pinocchio's rotation at every waypoint."""
+    """The straight line of configuration 0 crosses pi: its principal vectors jump by about 2 pi,
+    the means of `Setup.poses_of` (the FK quaternion's log) do not, and exp(r) is Pinocchio's
+    rotation at every waypoint."""
     setup = _setup(sampler, 0)
     q = np.asarray(ocp_initial_guess(setup).q, float)
     means = setup.poses_of(q)
-    principal = np.array([Rotation.from_matrix((setup.T_cam_base @ setup.robot.frame_pose(qi))[:3, :3]).as_rotvec()
-                          for qi in q])
+    principal = np.array([Rotation.from_matrix(
+        (setup.T_cam_base @ setup.robot.frame_pose(qi))[:3, :3]).as_rotvec() for qi in q])
     assert np.max(np.linalg.norm(np.diff(principal, axis=0), axis=1)) > 5.0  # the jump at the cut
     assert np.max(np.linalg.norm(np.diff(means[:, 3:], axis=0), axis=1)) < 0.2
     assert np.max(np.linalg.norm(means[:, 3:], axis=1)) > np.pi
@@ -76,9 +77,10 @@ def test_means_are_continued_along_the_joints_through_pi(sampler):
 
 
 def test_nlp_means_are_pinocchios_rotations_and_continuous_through_pi(sampler):
-    """The NLP's means `(p, Q)` (`Setup.means_of`, `Robot.camera_pose`): unit quaternions of Pinocchio's rotation
-    (up to the double cover's sign) along configuration 0's straight line, which crosses pi, with no jump (each
-    step's quaternion change is its half-angle step), and over random joints in the whole box."""
+    """The NLP's means `(p, Q)` (`Setup.means_of`, `Robot.camera_pose`): unit quaternions of
+    Pinocchio's rotation (up to the double cover's sign) along configuration 0's straight line,
+    which crosses pi, with no jump (each step's quaternion change is its half-angle step), and over
+    random joints in the whole box."""
     setup = _setup(sampler, 0)
     q = np.asarray(ocp_initial_guess(setup).q, float)
     rng = np.random.default_rng(6)
@@ -99,8 +101,9 @@ def test_nlp_means_are_pinocchios_rotations_and_continuous_through_pi(sampler):
 
 
 def test_means_are_finite_and_pinocchios_over_the_whole_joint_box(sampler):
-    """Random joints in the limits (the roll joint turns 9 rad): every mean is finite, its rotation Pinocchio's, its
-    angle at most 2 acos(-0.9) (past it the other vector of the rotation: no log at a full turn)."""
+    """Random joints in the limits (the roll joint turns 9 rad): every mean is finite, its rotation
+    Pinocchio's, its angle at most 2 acos(-0.9) (past it the other vector of the rotation: no log at
+    a full turn)."""
     setup = _setup(sampler, 0)
     rng = np.random.default_rng(5)
     lo, hi = setup.robot.lower, setup.robot.upper
@@ -115,9 +118,10 @@ def test_means_are_finite_and_pinocchios_over_the_whole_joint_box(sampler):
 
 
 def test_the_cosine_term_is_a_function_of_the_rotation():
-    """Angles in [3.0, pi]: both vectors of one rotation give one V, that of the NumPy EKF (principal vector,
-    the fade over the last `cut_band` rad); V is continuous across pi, and its derivative matches central
-    differences on both sides (smooth in the vector, so in the joints)."""
+    """Angles in [3.0, pi]: both vectors of one rotation give one V, that of the NumPy EKF
+    (principal vector, the fade over the last `cut_band` rad); V is continuous across pi, and its
+    derivative matches central differences on both sides (smooth in the vector, so in the
+    joints)."""
     rng = np.random.default_rng(3)
     noise = NoiseParams(o_star=(0.3, -0.2, 0.9))
     model = BeliefModel(noise, ref_camera())
@@ -125,21 +129,27 @@ def test_the_cosine_term_is_a_function_of_the_rotation():
         x = np.r_[0.01, -0.02, 0.12, r]
         V = np.asarray(model.observation_noise(np_means(x)[0]))
         V_other = np.asarray(model.observation_noise(np_means(np.r_[x[:3], _other_side(r)])[0]))
-        V_ref = ref.observation_noise(x, noise, model.camera, guard=noise.cosine_guard**2, band=noise.cut_band)
+        V_ref = ref.observation_noise(x, noise, model.camera, guard=noise.cosine_guard**2,
+                                      band=noise.cut_band)
         assert ref.rel_err(V, V_ref) < 1e-12 and ref.rel_err(V_other, V_ref) < 1e-12
     axis = np.array([0.6, 0.3, 0.74]) / np.linalg.norm([0.6, 0.3, 0.74])
-    v = lambda th: float(np.asarray(model.observation_noise(np_means(np.r_[0.01, -0.02, 0.12, th * axis])[0]))[5, 5])
-    assert abs(v(np.pi - 1e-7) - v(np.pi + 1e-7)) < 1e-7  # its slope times 2e-7; the paper's jump is ~1e-2
+    v = lambda th: float(np.asarray(
+        model.observation_noise(np_means(np.r_[0.01, -0.02, 0.12, th * axis])[0]))[5, 5])
+    # its slope times 2e-7; the paper's jump is ~1e-2
+    assert abs(v(np.pi - 1e-7) - v(np.pi + 1e-7)) < 1e-7
     xs = ca.SX.sym("x", 6)
-    V_of = ca.Function("V", [xs], [model.observation_noise(pose_mean(xs))[5, 5]])  # along the rotation vector
+    # along the rotation vector
+    V_of = ca.Function("V", [xs], [model.observation_noise(pose_mean(xs))[5, 5]])
     grad = ca.Function("g", [xs], [ca.gradient(V_of(xs), xs)])
     for th in (np.pi - 0.15, np.pi - 1e-3, np.pi + 1e-3, np.pi + 0.15):
         x, h = np.r_[0.01, -0.02, 0.12, th * axis], 1e-6
         fd = [(float(V_of(x + h * e)) - float(V_of(x - h * e))) / (2 * h) for e in np.eye(6)]
         np.testing.assert_allclose(np.asarray(grad(x)).ravel(), fd, rtol=1e-5, atol=1e-9)
     # cut_band 0 and cosine_guard 0: the paper's own formula, with its jump at pi
-    paper = BeliefModel(replace(noise, cosine_guard=0.0, cut_band=0.0), ref_camera(), components=("orientation",))
-    vp = lambda th: float(np.asarray(paper.observation_noise(np_means(np.r_[0.01, -0.02, 0.12, th * axis])[0]))[5, 5])
+    paper = BeliefModel(replace(noise, cosine_guard=0.0, cut_band=0.0), ref_camera(),
+                        components=("orientation",))
+    vp = lambda th: float(np.asarray(
+        paper.observation_noise(np_means(np.r_[0.01, -0.02, 0.12, th * axis])[0]))[5, 5])
     cos = float(axis @ np.asarray(noise.o_star)) / np.linalg.norm(noise.o_star)
     assert vp(np.pi - 1e-3) == pytest.approx((1 - cos) ** 2 * noise.V_o0[5, 5], rel=1e-12)
     assert vp(np.pi + 1e-3) == pytest.approx((1 + cos) ** 2 * noise.V_o0[5, 5], rel=1e-12)
@@ -150,13 +160,14 @@ def ref_camera():
 
 
 def test_belief_propagation_near_pi_matches_numpy():
-    """A path whose angles run through [3.0, pi] and beyond (continued vectors): the package's EKF equals the
-    NumPy EKF on the principal vectors."""
+    """A path whose angles run through [3.0, pi] and beyond (continued vectors): the package's EKF
+    equals the NumPy EKF on the principal vectors."""
     noise = NoiseParams()
     model = BeliefModel(noise, ref_camera())
     axis = np.array([0.2, -0.5, 0.84]) / np.linalg.norm([0.2, -0.5, 0.84])
     th = np.linspace(2.9, 3.4, 11)
-    poses = np.column_stack([np.linspace(0.0, 0.02, 11), np.zeros(11), np.linspace(0.1, 0.15, 11), th[:, None] * axis])
+    poses = np.column_stack([np.linspace(0.0, 0.02, 11), np.zeros(11), np.linspace(0.1, 0.15, 11),
+                             th[:, None] * axis])
     principal = poses.copy()
     principal[:, 3:] = Rotation.from_rotvec(poses[:, 3:]).as_rotvec()
     sig, pred = model.propagate(poses)
@@ -166,12 +177,14 @@ def test_belief_propagation_near_pi_matches_numpy():
 
 @pytest.mark.parametrize("c", CROSSING)
 def test_ocp_converges_where_the_straight_line_crosses_pi(sampler, c):
-    """Start and goal on opposite sides of the cut (the shortest rotation between them passes through pi):
-    the OCP converges (the start is not kept), below the straight line, and its trace is the NumPy EKF's on
-    its (principal) poses, whose rotations are Pinocchio's at its joints."""
+    """Start and goal on opposite sides of the cut (the shortest rotation between them passes
+    through pi):
+    the OCP converges (the start is not kept), below the straight line, and its trace is the NumPy
+    EKF's on its (principal) poses, whose rotations are Pinocchio's at its joints."""
     setup = _setup(sampler, c)
     base = solve_baseline(setup)
-    assert np.max(np.linalg.norm(setup.poses_of(np.asarray(ocp_initial_guess(setup).q))[:, 3:], axis=1)) > np.pi
+    assert np.max(np.linalg.norm(setup.poses_of(np.asarray(ocp_initial_guess(setup).q))[:, 3:],
+                                 axis=1)) > np.pi
     sol = solve_ocp(setup, ocp_initial_guess(setup))
     assert sol.status == "Solve_Succeeded", sol.attempts
     assert sol.trace_final < base.trace_final
@@ -182,7 +195,8 @@ def test_ocp_converges_where_the_straight_line_crosses_pi(sampler, c):
     for qi, x in zip(sol.q, poses):
         R = (setup.T_cam_base @ setup.robot.frame_pose(qi))[:3, :3]
         np.testing.assert_allclose(Rotation.from_rotvec(x[3:]).as_matrix(), R, atol=1e-9)
-    assert sol.extras["ocp_trace_final"] == pytest.approx(sol.trace_final, rel=1e-6)  # planner = evaluation
+    # planner = evaluation
+    assert sol.extras["ocp_trace_final"] == pytest.approx(sol.trace_final, rel=1e-6)
     goal = np.asarray(sol.to_dict()["goal"])  # the file's goal: principal, the setup's rotation
     assert np.linalg.norm(goal[3:]) <= np.pi
     np.testing.assert_allclose(Rotation.from_rotvec(goal[3:]).as_matrix(),
@@ -190,7 +204,8 @@ def test_ocp_converges_where_the_straight_line_crosses_pi(sampler, c):
 
 
 def test_gradient_variant_near_pi(sampler):
-    """The gradient variant on configuration 0: its reported trace is the NumPy EKF's on its poses."""
+    """The gradient variant on configuration 0: its reported trace is the NumPy EKF's on its
+    poses."""
     setup = _setup(sampler, 0)
     sol = run_method(setup, "gradient")
     assert np.isfinite(sol.trace_final)
@@ -198,14 +213,15 @@ def test_gradient_variant_near_pi(sampler):
 
 
 def test_rollouts_near_pi_see_the_plans_noise(sampler):
-    """Configuration 0's straight line runs through pi; with every noise scaled by 1e-10 the rollouts' EKF stays
-    on the waypoints, so its final covariance is the plan's (a sign flip of the cosine at the cut would change
-    the orientation noise by (1 + cos)^2 / (1 - cos)^2)."""
+    """Configuration 0's straight line runs through pi; with every noise scaled by 1e-10 the
+    rollouts' EKF stays on the waypoints, so its final covariance is the plan's (a sign flip of the
+    cosine at the cut would change the orientation noise by (1 + cos)^2 / (1 - cos)^2)."""
     setup = _setup(sampler, 0)
     base = solve_baseline(setup)
     n = setup.eval_model.noise
-    tiny = replace(n, **{k: 1e-10 * np.asarray(getattr(n, k)) for k in ("W_p0", "W_o0", "V_d0", "V_f0", "V_o0",
-                                                                         "Sigma0")})
+    tiny = replace(n, **{k: 1e-10 * np.asarray(getattr(n, k))
+                         for k in ("W_p0", "W_o0", "V_d0", "V_f0", "V_o0",
+                                    "Sigma0")})
     model = BeliefModel(tiny, setup.eval_model.camera)
     poses = np.asarray(base.poses)
     assert np.max(np.linalg.norm(poses[:, 3:], axis=1)) > 3.0
@@ -215,10 +231,12 @@ def test_rollouts_near_pi_see_the_plans_noise(sampler):
 
 
 def test_solutions_record_the_cosine_parameters(tmp_path, sampler):
-    """`cosine_guard` and `cut_band` are read from the problem file, checked, and recorded in the solution."""
+    """`cosine_guard` and `cut_band` are read from the problem file, checked, and recorded in the
+    solution."""
     text = DEFAULT.read_text()
     good = tmp_path / "p.yaml"
-    good.write_text(text.replace("\nnoise:", "\nnoise:\n  cosine_guard: 0.0\n  cut_band: 0.1\n ", 1))
+    good.write_text(text.replace("\nnoise:", "\nnoise:\n  cosine_guard: 0.0\n  cut_band: 0.1\n ",
+                                 1))
     prob = load_problem(good)
     assert (prob.noise.cosine_guard, prob.noise.cut_band) == (0.0, 0.1)
     setup = build_setup(replace(prob, horizon=4))

@@ -1,4 +1,5 @@
-"""Plans run at the tool's speed limits (surestep_ocp.evaluation.pacing), checked with Pinocchio's exp3 / log3."""
+"""Plans run at the tool's speed limits (surestep_ocp.evaluation.pacing), checked with Pinocchio's
+exp3 / log3."""
 
 from __future__ import annotations
 
@@ -37,8 +38,9 @@ def _plan(rng, T=6):
 
 
 def test_paced_plan_is_the_plan_run_no_faster_than_the_limits():
-    """Every rollout step within both limits; the plan's waypoints kept, in order; each plan step split into the
-    fewest equal steps (one fewer would break a limit) along the segment and the geodesic."""
+    """Every rollout step within both limits; the plan's waypoints kept, in order; each plan step
+    split into the fewest equal steps (one fewer would break a limit) along the segment and the
+    geodesic."""
     rng = np.random.default_rng(3)
     for _ in range(5):
         P = _plan(rng)
@@ -47,13 +49,17 @@ def test_paced_plan_is_the_plan_run_no_faster_than_the_limits():
         for t in range(len(P) - 1):
             move, turn = np.linalg.norm(P[t + 1, :3] - P[t, :3]), _turn(P[t, 3:], P[t + 1, 3:])
             k = max(1, int(np.ceil(max(move / (V * DT), turn / (W * DT)))))
-            assert max(move / k, (turn / k) * V / W) <= V * DT * (1 + 1e-9)  # k steps are within the limits
+            # k steps are within the limits
+            assert max(move / k, (turn / k) * V / W) <= V * DT * (1 + 1e-9)
             if k > 1:
-                assert max(move / (k - 1) / (V * DT), turn / (k - 1) / (W * DT)) > 1  # k - 1 are not
+                # k - 1 are not
+                assert max(move / (k - 1) / (V * DT), turn / (k - 1) / (W * DT)) > 1
             seg = Q[at[-1]:at[-1] + k + 1]
-            np.testing.assert_allclose(np.diff(seg[:, :3], axis=0), np.tile((P[t + 1, :3] - P[t, :3]) / k, (k, 1)),
+            np.testing.assert_allclose(np.diff(seg[:, :3], axis=0),
+                                       np.tile((P[t + 1, :3] - P[t, :3]) / k, (k, 1)),
                                        atol=1e-12)  # equal steps on the segment
-            for a, b in zip(seg[:-1], seg[1:]):  # equal turns about the step's own axis: the geodesic
+            # equal turns about the step's own axis: the geodesic
+            for a, b in zip(seg[:-1], seg[1:]):
                 assert _turn(a[3:], b[3:]) == pytest.approx(turn / k, abs=1e-9)
             at.append(at[-1] + k)
         assert at[-1] == len(Q) - 1
@@ -70,8 +76,9 @@ def test_a_plan_within_the_limits_is_left_as_it_is():
 
 
 def test_execution_pace_is_read_strictly_and_runs_the_rollouts_on_the_paced_plan(tmp_path):
-    """`execution.pace` is `planned` by default; a bad value names the key; at `limits` a configuration's rollouts
-    follow the paced plan (rollout_steps recorded, >= the horizon), at `planned` the plan itself."""
+    """`execution.pace` is `planned` by default; a bad value names the key; at `limits` a
+    configuration's rollouts follow the paced plan (rollout_steps recorded, >= the horizon), at
+    `planned` the plan itself."""
     assert load_evaluation(EVAL).pace == "planned"
     tree = yaml.safe_load(EVAL.read_text())
     tree["base"] = str((EVAL.parent / tree["base"]).resolve())
@@ -80,8 +87,8 @@ def test_execution_pace_is_read_strictly_and_runs_the_rollouts_on_the_paced_plan
         path.write_text(yaml.safe_dump({**tree, "execution": bad}))
         with pytest.raises(ProblemError) as exc:
             load_evaluation(path)
-        assert "e.yaml" in str(exc.value) and key in str(exc.value) and ("planned" in str(exc.value) or
-                                                                          key == "speed")
+        assert "e.yaml" in str(exc.value) and key in str(exc.value) and (
+            "planned" in str(exc.value) or key == "speed")
     path.write_text(yaml.safe_dump({**tree, "execution": {"pace": "limits"}}))
     assert load_evaluation(path).pace == "limits"
     evaluation._SAMPLERS.clear()

@@ -1,6 +1,7 @@
-"""The re-planning handle: a warm re-plan equals an independent cold solve of the same state (through the
-public API: a problem changed by with_* and read again, solved from the straight line), its covariances are a
-plain NumPy EKF's, and the shrinking horizon builds nothing once the solvers exist. Not timed."""
+"""The re-planning handle: a warm re-plan equals an independent cold solve of the same state
+(through the public API: a problem changed by with_* and read again, solved from the straight line),
+its covariances are a plain NumPy EKF's, and the shrinking horizon builds nothing once the solvers
+exist. Not timed."""
 
 from __future__ import annotations
 
@@ -34,7 +35,8 @@ def loop(problem):
     plan1 = planner.replan(mean1, cov1)
     mean2, cov2 = tracker.move_to(planner.plan.poses[1])
     moved = planner.setup.camera_pose.copy()
-    moved[:3, 3] += [0.003, -0.002, 0.001]  # the endoscope moves 3.7 mm; the tracker reports in its frame
+    # the endoscope moves 3.7 mm; the tracker reports in its frame
+    moved[:3, 3] += [0.003, -0.002, 0.001]
     mean2 = mean2 + [0.001, 0.0, -0.001, 0.0, 0.0, 0.0]
     plan2 = planner.replan(mean2, cov2, camera_pose=moved)
     return planner, builds, [(plan1, mean1, cov1, None), (plan2, mean2, cov2, moved)]
@@ -50,8 +52,9 @@ def _cold_problem(problem, planner, mean, cov, camera, steps):
 
 @pytest.mark.parametrize("k", [0, 1])
 def test_replan_equals_a_cold_solve(problem, loop, k):
-    """IPOPT started cold from the plan the re-plan was warm-started from (the previous plan's rest) ends at the
-    same point; and the re-plan is never worse than the cold solve from the straight line (a non-convex problem:
+    """IPOPT started cold from the plan the re-plan was warm-started from (the previous plan's rest)
+    ends at the same point; and the re-plan is never worse than the cold solve from the straight
+    line (a non-convex problem:
     that one may stop at another local optimum, as it does here: 1.8 times the trace)."""
     planner, _, plans = loop
     plan, mean, cov, camera = plans[k]
@@ -76,22 +79,23 @@ def test_replan_equals_a_cold_solve(problem, loop, k):
 def test_replan_covariances_are_the_numpy_ekf(problem, loop, k):
     plan, _, cov, _ = loop[2][k]
     noise = dataclasses.replace(problem.noise, Sigma0=cov)
-    sig, _ = ref.propagate(np.asarray(plan.poses), noise, problem.camera.intrinsics, ref.ALL_COMPONENTS,
-                           guard=COSINE_GUARD)
+    sig, _ = ref.propagate(np.asarray(plan.poses), noise, problem.camera.intrinsics,
+                           ref.ALL_COMPONENTS, guard=COSINE_GUARD)
     assert ref.rel_err(plan.covariances, sig) < 1e-9
     np.testing.assert_allclose(plan.covariances[0], cov, rtol=1e-12)
 
 
 def test_shrinking_horizon_builds_nothing_new(loop):
-    """One solver per horizon left, made before the first plan (the first compiled then, the others compiled in the
-    background); a re-plan makes none, and what its horizon's solver cost at first use (waiting for its compile,
-    loading it) is its build time, kept out of its own time."""
+    """One solver per horizon left, made before the first plan (the first compiled then, the others
+    compiled in the background); a re-plan makes none, and what its horizon's solver cost at first
+    use (waiting for its compile, loading it) is its build time, kept out of its own time."""
     planner, builds, plans = loop
     assert sorted(builds) == list(range(1, T + 1))
     assert sorted(planner.builds) == sorted(builds)
     for p, *_ in plans:
         n = p.horizon
-        assert p.extras["replan"]["build_time_s"] == pytest.approx(planner.builds[n] - builds[n], abs=1e-9)
+        assert p.extras["replan"]["build_time_s"] == pytest.approx(planner.builds[n] - builds[n],
+                                                                   abs=1e-9)
         assert p.extras["replan"]["build_time_s"] >= 0
 
 

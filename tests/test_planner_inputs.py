@@ -1,6 +1,7 @@
-"""`Planner.replan` checks its inputs as the problem-file reader checks a file (issue 30's reproducers): each bad
-input is a SurestepError naming the argument, never a plan, and a rejected call changes nothing (the next valid
-call plans exactly as a planner that never saw the bad one). `ss.solve` names a bad method argument."""
+"""`Planner.replan` checks its inputs as the problem-file reader checks a file (issue 30's
+reproducers): each bad input is a SurestepError naming the argument, never a plan, and a rejected
+call changes nothing (the next valid call plans exactly as a planner that never saw the bad one).
+`ss.solve` names a bad method argument."""
 
 from __future__ import annotations
 
@@ -39,9 +40,11 @@ def _reflection():
 
 
 BAD = {
-    "huge covariance": (lambda m, c: (m, 1e12 * np.eye(6)), {}, "covariance entries must be at most"),
+    "huge covariance": (lambda m, c: (m, 1e12 * np.eye(6)), {},
+                        "covariance entries must be at most"),
     "zero covariance": (lambda m, c: (m, np.zeros((6, 6))), {}, "positive definite"),
-    "non-symmetric covariance": (lambda m, c: (m, c + np.triu(np.full((6, 6), 1e-3), 1)), {}, "symmetric"),
+    "non-symmetric covariance": (lambda m, c: (m, c + np.triu(np.full((6, 6), 1e-3), 1)), {},
+                                 "symmetric"),
     "complex mean": (lambda m, c: (m + 1j, c), {}, "real numbers"),
     "mean at depth 0": (lambda m, c: (np.r_[m[:2], 0.0, m[3:]], c), {}, "below the minimum depth"),
     "NaN mean": (lambda m, c: (np.r_[np.nan, m[1:]], c), {}, "finite"),
@@ -67,7 +70,8 @@ def test_bad_input_is_a_named_error_and_changes_nothing(problem, state, case):
 
 
 def test_a_valid_call_after_rejected_ones_plans_as_a_fresh_planner(problem, state):
-    """After every rejected call above (a camera among them), the valid re-plan equals a fresh planner's."""
+    """After every rejected call above (a camera among them), the valid re-plan equals a fresh
+    planner's."""
     planner, mean, cov = state
     for make, kwargs, _ in BAD.values():
         with pytest.raises(ss.SurestepError):

@@ -56,7 +56,8 @@ BAD_FILES = [
         "noise.orientation_formula",
         "cosine, geodesic",
     ),
-    ("codegen", lambda t: t["solver"].update(codegen="yes"), "solver.codegen", "true, false or auto"),
+    ("codegen", lambda t: t["solver"].update(codegen="yes"), "solver.codegen",
+     "true, false or auto"),
 ]
 
 

@@ -30,8 +30,9 @@ def random_move(rng) -> np.ndarray:
 
 @pytest.mark.parametrize("seed", range(5))
 def test_camera_move_changes_the_belief_by_the_camera_transform(seed):
-    """Without camera noise the mean moves by exactly D and the covariance of the tangent error rotates with the
-    frame: checked by central differences of the map on perturbed poses (left perturbations `exp(e) R`)."""
+    """Without camera noise the mean moves by exactly D and the covariance of the tangent error
+    rotates with the frame: checked by central differences of the map on perturbed poses (left
+    perturbations `exp(e) R`)."""
     rng = np.random.default_rng(seed)
     noise = NoiseParams(camera_W_p0=np.zeros((6, 6)), camera_W_o0=np.zeros((6, 6)))
     model = BeliefModel(noise, CAMERA)
@@ -52,28 +53,35 @@ def test_camera_move_changes_the_belief_by_the_camera_transform(seed):
     R0 = moved(np.zeros(6))[1]
     h = 1e-6
     J = np.column_stack([np.r_[(moved(h * e)[0] - moved(-h * e)[0]) / (2 * h),
-                               ((moved(h * e)[1] * R0.inv()).as_rotvec() - (moved(-h * e)[1] * R0.inv()).as_rotvec())
+                               ((moved(h * e)[1] * R0.inv()).as_rotvec()
+                                - (moved(-h * e)[1] * R0.inv()).as_rotvec())
                                / (2 * h)] for e in np.eye(6)])
     np.testing.assert_allclose(Sn, J @ S @ J.T, rtol=1e-6, atol=1e-12)
 
 
 def test_camera_move_adds_its_motion_noise():
-    """A camera move adds |t|^2 camera_W_p0 + angle^2 camera_W_o0 on top of the transformed covariance."""
+    """A camera move adds |t|^2 camera_W_p0 + angle^2 camera_W_o0 on top of the transformed
+    covariance."""
     rng = np.random.default_rng(7)
     D = random_move(rng)
-    quiet = BeliefModel(NoiseParams(camera_W_p0=np.zeros((6, 6)), camera_W_o0=np.zeros((6, 6))), CAMERA)
-    noisy = BeliefModel(NoiseParams(camera_W_p0=2e-3 * np.eye(6), camera_W_o0=3e-3 * np.eye(6)), CAMERA)
+    quiet = BeliefModel(NoiseParams(camera_W_p0=np.zeros((6, 6)), camera_W_o0=np.zeros((6, 6))),
+                        CAMERA)
+    noisy = BeliefModel(NoiseParams(camera_W_p0=2e-3 * np.eye(6), camera_W_o0=3e-3 * np.eye(6)),
+                        CAMERA)
     x, s = np.array([0.0, 0.0, 0.15, 0.3, 0.3, 1.0]), vech(1e-4 * np.eye(6))
     m = np_means(x)[0]
     diff = unvech(noisy.camera_change(m, s, D)[1]) - unvech(quiet.camera_change(m, s, D)[1])
     angle = np.linalg.norm(matrix_to_pose(D)[3:])
-    np.testing.assert_allclose(diff, (np.sum(D[:3, 3] ** 2) * 2e-3 + angle**2 * 3e-3) * np.eye(6), atol=1e-15)
+    np.testing.assert_allclose(diff, (np.sum(D[:3, 3] ** 2) * 2e-3 + angle**2 * 3e-3) * np.eye(6),
+                               atol=1e-15)
 
 
 def test_replan_runs_and_beats_the_plan_made_once(tmp_path):
-    """`replan` on a short Type 4 problem: every re-plan succeeds; the executed trajectory meets the goal."""
+    """`replan` on a short Type 4 problem: every re-plan succeeds; the executed trajectory meets the
+    goal."""
     problem = load_problem(PROBLEMS / "type4_camera_moves.yaml")
-    moves = tuple(CameraMove(step, m.ecm_joints) for step, m in zip((3, 6), problem.camera.moves[1::2]))
+    moves = tuple(CameraMove(step, m.ecm_joints)
+                  for step, m in zip((3, 6), problem.camera.moves[1::2]))
     problem = replace(problem, horizon=8, camera=replace(problem.camera, moves=moves))
     setup = build_setup(problem)
     res = replan_after_camera_moves(setup, tmp_path)
@@ -83,5 +91,6 @@ def test_replan_runs_and_beats_the_plan_made_once(tmp_path):
     err_m, err_rad = executed.terminal_error
     assert err_m < 1e-6 and err_rad < 1e-6
     assert executed.trace_final <= once.trace_final * (1 + 1e-9)
-    for name in ("replan.md", "replan.json", "ocp-replanned.json", "ocp-once.json", "baseline.json"):
+    for name in ("replan.md", "replan.json", "ocp-replanned.json", "ocp-once.json",
+                 "baseline.json"):
         assert (tmp_path / name).is_file()

@@ -80,7 +80,8 @@ def trans_z(d):
 
 
 def dh_frames(table, q):
-    """All modified-DH frames 1..n in frame 0: T_i = Rot_x(alpha) Trans_x(A) Rot_z(theta) Trans_z(D)."""
+    """All modified-DH frames 1..n in frame 0: T_i = Rot_x(alpha) Trans_x(A) Rot_z(theta)
+    Trans_z(D)."""
     T = np.eye(4)
     frames = []
     for (kind, alpha, A, D, offset), qi in zip(table, q):
@@ -184,7 +185,8 @@ def test_visual_geometry_loads():
 
 
 def test_psm_link_frames_equal_dh_frames(psm):
-    """Each PSM link frame must be its DH frame, so per-link geometry sits where the DH table says."""
+    """Each PSM link frame must be its DH frame, so per-link geometry sits where the DH table
+    says."""
     model, data = psm
     for q in samples(model, 1):
         fk = pin_fk(model, data, q, PSM_LINKS)
@@ -193,7 +195,8 @@ def test_psm_link_frames_equal_dh_frames(psm):
 
 
 def test_psm_tool_and_jaw_tip_equal_dh(psm):
-    """tool (dVRK measured_cp) and jaw_tip drive the costs, so they must match DH * tooltip offset."""
+    """tool (dVRK measured_cp) and jaw_tip drive the costs, so they must match DH * tooltip
+    offset."""
     model, data = psm
     for q in samples(model, 2):
         fk = pin_fk(model, data, q, ["tool", "jaw_tip"])
@@ -203,7 +206,8 @@ def test_psm_tool_and_jaw_tip_equal_dh(psm):
 
 
 def test_ecm_link_frames_equal_dh_frames(ecm):
-    """Each ECM link frame must be its DH frame, so the scope geometry sits where the DH table says."""
+    """Each ECM link frame must be its DH frame, so the scope geometry sits where the DH table
+    says."""
     model, data = ecm
     for q in samples(model, 3):
         fk = pin_fk(model, data, q, ECM_LINKS)
@@ -265,7 +269,8 @@ def test_ecm_sanity_poses(ecm, q3, z):
 
 
 def test_jaw_does_not_move_tool_frames(psm):
-    """The jaw opening is a leaf branch: opening the gripper must not move the tracked tool frames."""
+    """The jaw opening is a leaf branch: opening the gripper must not move the tracked tool
+    frames."""
     model, data = psm
     lo, hi = model.lowerPositionLimit[6], model.upperPositionLimit[6]
     for q in samples(model, 6)[:10]:

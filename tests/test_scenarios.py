@@ -1,4 +1,5 @@
-"""The paper's scenarios: a needle as the tracked object, a goal relative to another arm, any robot."""
+"""The paper's scenarios: a needle as the tracked object, a goal relative to another arm, any
+robot."""
 
 from __future__ import annotations
 
@@ -18,7 +19,8 @@ PROBLEMS = Path(__file__).resolve().parents[1] / "problems"
 
 
 def test_needle_pose_is_jaw_pose_composed_with_grasp():
-    """The tracked needle's pose equals Pinocchio's jaw-frame pose times the grasp transform, symbolically too."""
+    """The tracked needle's pose equals Pinocchio's jaw-frame pose times the grasp transform,
+    symbolically too."""
     setup = build_setup(load_problem(PROBLEMS / "type2_needle_arm_moves.yaml"))
     robot, grasp = setup.robot, setup.problem.robot.grasp
     rng = np.random.default_rng(4)
@@ -38,13 +40,15 @@ def test_needle_pose_is_jaw_pose_composed_with_grasp():
 
 
 def test_relative_goal_resolves_to_the_absolute_pose():
-    """A goal given on the other arm's needle is that needle's pose composed with the relative pose."""
+    """A goal given on the other arm's needle is that needle's pose composed with the relative
+    pose."""
     problem = load_problem(PROBLEMS / "type1_medium.yaml")
     setup = build_setup(problem)
     rel = problem.goal.relative
     other = setup.other_arms[0]
     pin.framesForwardKinematics(other.model, other.data, other.to_pinocchio(rel.arm.joints))
-    T_needle = rel.arm.base_pose @ other.data.oMf[other.model.getFrameId("tool")].homogeneous @ rel.arm.grasp
+    T_needle = (rel.arm.base_pose @ other.data.oMf[other.model.getFrameId("tool")].homogeneous
+                @ rel.arm.grasp)
     expected = np.linalg.inv(setup.camera_pose) @ T_needle @ pose_to_matrix(rel.pose)
     np.testing.assert_allclose(pose_to_matrix(setup.x_goal), expected, atol=1e-9)
     # the regrasping arm reaches it: its goal joints give that pose
@@ -53,7 +57,8 @@ def test_relative_goal_resolves_to_the_absolute_pose():
 
 def test_dim_light_scales_the_observation_noise():
     """type1_hard is type1_medium with every observation constant four times larger."""
-    hard, medium = load_problem(PROBLEMS / "type1_hard.yaml"), load_problem(PROBLEMS / "type1_medium.yaml")
+    hard, medium = (load_problem(PROBLEMS / "type1_hard.yaml"),
+                    load_problem(PROBLEMS / "type1_medium.yaml"))
     for k in ("V_d0", "V_f0", "V_o0"):
         np.testing.assert_allclose(getattr(hard.noise, k), 4 * getattr(medium.noise, k))
     np.testing.assert_allclose(hard.noise.W_p0, medium.noise.W_p0)
@@ -67,7 +72,8 @@ def ur5_solutions():
 
 
 def test_example_robot_data_arm_solves(ur5_solutions):
-    """Nothing is PSM-specific: a UR5 from example-robot-data plans, meets the goal and beats the line."""
+    """Nothing is PSM-specific: a UR5 from example-robot-data plans, meets the goal and beats the
+    line."""
     setup, base, ocp = ur5_solutions
     assert ocp.success, ocp.status
     err_m, err_rad = ocp.terminal_error

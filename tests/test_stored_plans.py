@@ -1,8 +1,9 @@
-"""Every stored plan is made again equal: the default problem's and the scenario files' compare methods, the OCP
-on 200 evaluation configurations (T = 20 and 40) and a re-planning loop, against `tests/data/stored_plans.npz`
-(made by `tests/stored_plans.py` before the solver boundary was redesigned). Joints equal to 1e-10 rad / m and
-the same status: a refactor of the solve strategy must not change a plan. Re-stored on purpose since: the default
-problem's `ocp` and `ocp-from-gradient` plans, when the interior-point method became `auto`'s first attempt within
+"""Every stored plan is made again equal: the default problem's and the scenario files' compare
+methods, the OCP on 200 evaluation configurations (T = 20 and 40) and a re-planning loop, against
+`tests/data/stored_plans.npz` (made by `tests/stored_plans.py` before the solver boundary was
+redesigned). Joints equal to 1e-10 rad / m and the same status: a refactor of the solve strategy
+must not change a plan. Re-stored on purpose since: the default problem's `ocp` and
+`ocp-from-gradient` plans, when the interior-point method became `auto`'s first attempt within
 enforced limits (joints moved by 1.3e-5 rad at most, Tr(Sigma_T) 9e-9 lower than IPOPT's); the
 default problem's `baseline` alone (`tests/stored_plans.py needle_regrasp/baseline`), when the
 baseline within enforced limits became the line at a minimum-jerk pace (issue 28; status
@@ -17,7 +18,8 @@ import stored_plans
 STORED_Q, STORED_STATUS = stored_plans.load()
 
 
-@pytest.mark.parametrize("args", [a for _, a in stored_plans.cases()], ids=[c for c, _ in stored_plans.cases()])
+@pytest.mark.parametrize("args", [a for _, a in stored_plans.cases()],
+                         ids=[c for c, _ in stored_plans.cases()])
 def test_plans_equal_the_stored_ones(args):
     made = stored_plans.plans(*args)
     assert made, "a case with no plans"

@@ -1,7 +1,8 @@
-"""The structured solvers' scalar-coefficient form (surestep_ocp.solvers.surrogate): Tr(Sigma_T) = S(c) of the
-noise coefficients with constant base matrices, the 6x6 matrix recursion and its weights dS/dc, against a plain
-NumPy EKF (tests/numpy_ekf.py) and central differences of it. The models beyond the paper's constants (full 6x6
-base covariances, a noise floor) are test_lifted.py's `MODELS`.
+"""The structured solvers' scalar-coefficient form (surestep_ocp.solvers.surrogate): Tr(Sigma_T) =
+S(c) of the noise coefficients with constant base matrices, the 6x6 matrix recursion and its weights
+dS/dc, against a plain NumPy EKF (tests/numpy_ekf.py) and central differences of it. The models
+beyond the paper's constants (full 6x6 base covariances, a noise floor) are test_lifted.py's
+`MODELS`.
 """
 
 from __future__ import annotations
@@ -18,8 +19,8 @@ from surestep_ocp.solvers.surrogate import recursion_weights
 
 @pytest.mark.parametrize("name", list(MODELS))
 def test_matrix_recursion_weights_match_a_numpy_ekf_and_finite_differences(name):
-    """S(c) of the structured solvers (6x6 recursion) equals the NumPy EKF's trace for the same noise
-    matrices, and its weights dS/dc equal central differences of that NumPy trace."""
+    """S(c) of the structured solvers (6x6 recursion) equals the NumPy EKF's trace for the same
+    noise matrices, and its weights dS/dc equal central differences of that NumPy trace."""
     setup = build_setup(problem(4, **MODELS[name]))
     m, n, T = setup.model, setup.problem.noise, 4
     assert m.structured and not m.scalar
@@ -36,7 +37,8 @@ def test_matrix_recursion_weights_match_a_numpy_ekf_and_finite_differences(name)
         return np.trace(sig)
 
     fn = recursion_weights(m, T, ca.SX.sym("s", 21), ca.SX.sym("r"))
-    S, dm, do, _ = (np.asarray(v) for v in fn(cm, co, np.zeros((0, T)), m.recursion_sigma0(n.Sigma0), 1.0))
+    S, dm, do, _ = (np.asarray(v) for v in fn(cm, co, np.zeros((0, T)),
+                                              m.recursion_sigma0(n.Sigma0), 1.0))
     assert S.item() == pytest.approx(numpy_trace(cm, co), rel=1e-12)
     for c, d in ((cm, dm), (co, do)):
         for idx in np.ndindex(c.shape):

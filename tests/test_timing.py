@@ -25,7 +25,8 @@ from surestep_ocp.problem.setup import build_setup
 
 
 def sequential_ekf(poses, noise, camera, k, H=None, R=None):
-    """Posterior covariances along `poses`: per step one prediction, then k sequential EKF updates."""
+    """Posterior covariances along `poses`: per step one prediction, then k sequential EKF
+    updates."""
     I6 = np.eye(6)
     H = I6 if H is None else H
     R = I6 if R is None else R
@@ -33,7 +34,8 @@ def sequential_ekf(poses, noise, camera, k, H=None, R=None):
     out = [sig]
     for t in range(len(poses) - 1):
         P = sig + ref.motion_noise(poses[t], poses[t + 1], noise)
-        V = ref.observation_noise(poses[t + 1], noise, camera, guard=COSINE_GUARD, band=noise.cut_band)
+        V = ref.observation_noise(poses[t + 1], noise, camera, guard=COSINE_GUARD,
+                                  band=noise.cut_band)
         for _ in range(k):  # the k frames of the step, each observed with the file's own V
             S = H @ P @ H.T + R @ V @ R.T
             K = P @ H.T @ np.linalg.inv(S)
@@ -51,8 +53,10 @@ def test_defaults_are_the_papers_one_observation_per_waypoint(default_problem):
 
 
 @pytest.mark.parametrize(("step_s", "hz", "k"), [(0.1, 20, 2), (0.25, 20, 5), (0.05, 60, 3)])
-def test_k_frames_per_step_equal_k_sequential_numpy_updates(write_problem, default_problem, step_s, hz, k):
-    path = write_problem(lambda t: t.update(timing={"step_s": step_s, "tracker_hz": hz}), name=f"k{k}")
+def test_k_frames_per_step_equal_k_sequential_numpy_updates(write_problem, default_problem, step_s,
+                                                            hz, k):
+    path = write_problem(lambda t: t.update(timing={"step_s": step_s, "tracker_hz": hz}),
+                         name=f"k{k}")
     prob = load_problem(path)
     assert prob.timing.frames == k
     setup = build_setup(prob)
@@ -67,16 +71,19 @@ def test_k_frames_per_step_equal_k_sequential_numpy_updates(write_problem, defau
 
 
 def test_solution_trace_with_frames_matches_the_numpy_ekf(write_problem, default_problem):
-    """What a method reports (Solution.trace, evaluated with all components) is the k-update EKF's trace."""
+    """What a method reports (Solution.trace, evaluated with all components) is the k-update EKF's
+    trace."""
     path = write_problem(lambda t: t.update(timing={"step_s": 0.2, "tracker_hz": 20}), name="k4")
     setup = build_setup(load_problem(path))
     sol = run_method(setup, "baseline")
-    expected = sequential_ekf(np.asarray(sol.poses), default_problem.noise, setup.problem.camera.intrinsics, 4)
+    expected = sequential_ekf(np.asarray(sol.poses), default_problem.noise,
+                              setup.problem.camera.intrinsics, 4)
     np.testing.assert_allclose(sol.trace, np.trace(expected, axis1=1, axis2=2), rtol=1e-9, atol=0)
 
 
 def test_k_updates_equal_one_with_v_over_k_for_any_fixed_h_and_r():
-    """The derivation's claim beyond identity maps: k updates with the same H, R, V are one with V / k."""
+    """The derivation's claim beyond identity maps: k updates with the same H, R, V are one with V /
+    k."""
     rng = np.random.default_rng(3)
     for _ in range(20):
         A = rng.normal(size=(6, 6))
@@ -106,6 +113,7 @@ def test_bad_timing_is_one_line_naming_the_key(write_problem, timing, needle):
     with pytest.raises(ProblemError) as exc:
         load_problem(path)
     assert needle in str(exc.value) and "timing" in str(exc.value) and "\n" not in str(exc.value)
-    out = subprocess.run([sys.executable, "-m", "surestep_ocp.cli", "validate", str(path)], capture_output=True,
-                         text=True, cwd=Path(__file__).resolve().parents[1])
-    assert out.returncode == 2 and needle in out.stderr and len(out.stderr.strip().splitlines()) == 1
+    out = subprocess.run([sys.executable, "-m", "surestep_ocp.cli", "validate", str(path)],
+                         capture_output=True, text=True, cwd=Path(__file__).resolve().parents[1])
+    assert (out.returncode == 2 and needle in out.stderr
+            and len(out.stderr.strip().splitlines()) == 1)

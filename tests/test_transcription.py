@@ -1,6 +1,7 @@
 """The OCP's surrogate and Gauss-Newton Hessians: checked against finite differences of a plain
 NumPy recursion, structured as claimed, and the solves they drive reach the exact Hessian's optima;
-and the covariance forms (condensed, full, diagonal) are transcriptions of one problem: they agree."""
+and the covariance forms (condensed, full, diagonal) are transcriptions of one problem: they
+agree."""
 
 from __future__ import annotations
 
@@ -33,7 +34,8 @@ def with_solver(problem, **kw):
 
 @pytest.fixture(scope="module")
 def short():
-    return build_setup(with_solver(replace(load_problem(DEFAULT), horizon=6), name="ipopt"))  # IPOPT's Hessians
+    # IPOPT's Hessians
+    return build_setup(with_solver(replace(load_problem(DEFAULT), horizon=6), name="ipopt"))
 
 
 # ------------------------------------------------------------------ independent structured Hessians
@@ -43,15 +45,16 @@ def rotation(m) -> Rotation:
 
 
 def residuals(setup, x0, x1) -> list[np.ndarray]:
-    """Motion (step, relative rotation) then observation (depth, image offset, 1 - cos) residuals, NumPy, of two
-    means `(p, Q)` (the NLP's variables); the cosine of scipy's principal rotation vector."""
+    """Motion (step, relative rotation) then observation (depth, image offset, 1 - cos) residuals,
+    NumPy, of two means `(p, Q)` (the NLP's variables); the cosine of scipy's principal rotation
+    vector."""
     n, cam = setup.problem.noise, setup.problem.camera.intrinsics
     rel = (rotation(x0).inv() * rotation(x1)).as_rotvec()
     o = np.asarray(n.o_star, float)
     r = rotation(x1).as_rotvec()
     cos = float(r @ o) / (np.sqrt(r @ r + COSINE_GUARD) * np.linalg.norm(o))
-    return [x1[:3] - x0[:3], rel, np.array([x1[2] - n.depth_star]), np.array(image_offset(x1[:3], cam)),
-            np.array([1 - cos])]
+    return [x1[:3] - x0[:3], rel, np.array([x1[2] - n.depth_star]),
+            np.array(image_offset(x1[:3], cam)), np.array([1 - cos])]
 
 
 def trace_of_coefficients(setup, c: np.ndarray, T: int) -> float:
@@ -68,8 +71,8 @@ def trace_of_coefficients(setup, c: np.ndarray, T: int) -> float:
 
 
 def numpy_structured_hessian(setup, mus: np.ndarray, trace_ref: float, kind: str) -> np.ndarray:
-    """Over the means (7(T+1) square), by central differences: `gauss-newton` sum_k dS/dc_k 2 J_k^T J_k,
-    `surrogate` sum_k dS/dc_k Hess c_k."""
+    """Over the means (7(T+1) square), by central differences: `gauss-newton` sum_k dS/dc_k 2 J_k^T
+    J_k, `surrogate` sum_k dS/dc_k Hess c_k."""
     T = len(mus) - 1
     c = np.array([[float(e @ e) for e in residuals(setup, mus[t], mus[t + 1])] for t in range(T)])
     w = np.zeros_like(c)
@@ -78,7 +81,8 @@ def numpy_structured_hessian(setup, mus: np.ndarray, trace_ref: float, kind: str
         cp, cm = c.copy(), c.copy()
         cp[idx] += h
         cm[idx] -= h
-        w[idx] = (trace_of_coefficients(setup, cp, T) - trace_of_coefficients(setup, cm, T)) / (2 * h) / trace_ref
+        w[idx] = ((trace_of_coefficients(setup, cp, T) - trace_of_coefficients(setup, cm, T))
+                  / (2 * h) / trace_ref)
     H = np.zeros((7 * (T + 1), 7 * (T + 1)))
     for t in range(T):
         ab = np.concatenate([mus[t], mus[t + 1]])
@@ -94,12 +98,14 @@ def numpy_structured_hessian(setup, mus: np.ndarray, trace_ref: float, kind: str
             block = sum(2 * w[t, k] * J[k].T @ J[k] for k in range(len(base)))
         else:
             def weighted(y, t=t):
-                return sum(w[t, k] * float(e @ e) for k, e in enumerate(residuals(setup, *np.split(y, 2))))
+                return sum(w[t, k] * float(e @ e)
+                           for k, e in enumerate(residuals(setup, *np.split(y, 2))))
             block, h = np.zeros((14, 14)), 1e-4
             for i in range(14):
                 for j in range(14):
                     di, dj = np.eye(14)[i] * h, np.eye(14)[j] * h
-                    block[i, j] = (weighted(ab + di + dj) - weighted(ab + di - dj) - weighted(ab - di + dj)
+                    block[i, j] = (weighted(ab + di + dj) - weighted(ab + di - dj)
+                                   - weighted(ab - di + dj)
                                    + weighted(ab - di - dj)) / (4 * h * h)
         H[7 * t:7 * t + 14, 7 * t:7 * t + 14] += block
     return H
@@ -107,14 +113,16 @@ def numpy_structured_hessian(setup, mus: np.ndarray, trace_ref: float, kind: str
 
 @pytest.mark.parametrize("kind", ["gauss-newton", "surrogate"])
 def test_structured_hessians_match_numpy_finite_differences(short, kind):
-    """The CasADi surrogate and Gauss-Newton Hessians (objective part) equal independent NumPy constructions."""
+    """The CasADi surrogate and Gauss-Newton Hessians (objective part) equal independent NumPy
+    constructions."""
     setup = short
     tr = transcription(setup, hessian=kind)
     init = ocp_initial_guess(setup)
     x0, scale = tr.guess(setup, np.asarray(init.q))
     mus = np.array([x0[f"mu{t}"] for t in range(tr.T + 1)])
     trace_ref = trace_of_coefficients(  # the solver's own reference: the initial guess's trace
-        setup, np.array([[float(e @ e) for e in residuals(setup, mus[t], mus[t + 1])] for t in range(tr.T)]), tr.T)
+        setup, np.array([[float(e @ e) for e in residuals(setup, mus[t], mus[t + 1])]
+                         for t in range(tr.T)]), tr.T)
     x = tr.layout.join(x0)
     p = np.concatenate([setup.camera_parameter(), scale, [trace_ref],
                         np.asarray(setup.model.sigma0_vech())])
@@ -122,11 +130,13 @@ def test_structured_hessians_match_numpy_finite_differences(short, kind):
     H = np.triu(H) + np.triu(H, 1).T
     offsets = np.cumsum([0] + [size for _, size, _ in tr.layout.blocks])
     names = [name for name, _, _ in tr.layout.blocks]
-    mu_idx = np.concatenate([np.arange(offsets[names.index(f"mu{t}")], offsets[names.index(f"mu{t}")] + 7)
+    mu_idx = np.concatenate([np.arange(offsets[names.index(f"mu{t}")],
+                                       offsets[names.index(f"mu{t}")] + 7)
                              for t in range(tr.T + 1)])
     expected = numpy_structured_hessian(setup, mus, trace_ref, kind)
     got = H[np.ix_(mu_idx, mu_idx)]
-    assert np.max(np.abs(got - expected)) <= (1e-5 if kind == "gauss-newton" else 1e-4) * np.max(np.abs(expected))
+    assert (np.max(np.abs(got - expected))
+            <= (1e-5 if kind == "gauss-newton" else 1e-4) * np.max(np.abs(expected)))
     # no other entries: with zero multipliers and no smoothness only the means carry curvature
     rest = H.copy()
     rest[np.ix_(mu_idx, mu_idx)] = 0
@@ -143,8 +153,9 @@ def test_structured_hessians_match_numpy_finite_differences(short, kind):
 
 @pytest.mark.parametrize("kind", ["gauss-newton", "surrogate"])
 def test_staged_derivatives_equal_casadis_own(short, kind):
-    """The stage-wise gradient, constraint Jacobian and kinematic/smoothness curvature (scattered stage
-    blocks) equal what CasADi's AD derives from the whole NLP, at a perturbed point with random multipliers."""
+    """The stage-wise gradient, constraint Jacobian and kinematic/smoothness curvature (scattered
+    stage blocks) equal what CasADi's AD derives from the whole NLP, at a perturbed point with
+    random multipliers."""
     setup = replace(short, problem=replace(short.problem, objective=replace(short.problem.objective,
                                                                             smoothness=0.3)))
     staged, exact = transcription(setup, hessian=kind), transcription(setup, hessian="exact")
@@ -154,7 +165,8 @@ def test_staged_derivatives_equal_casadis_own(short, kind):
     p = np.concatenate([setup.camera_parameter(), scale, [2e-5],
                         np.asarray(setup.model.sigma0_vech())])
     lam_g = rng.normal(size=staged.ng)
-    fns = {name: exact.solver.get_function(name) for name in ("nlp_grad_f", "nlp_jac_g", "nlp_hess_l")}
+    fns = {name: exact.solver.get_function(name)
+           for name in ("nlp_grad_f", "nlp_jac_g", "nlp_hess_l")}
     f_e, g_e = (np.asarray(v) for v in fns["nlp_grad_f"](x, p))
     f_s, g_s = (np.asarray(v) for v in staged.solver.get_function("nlp_grad_f")(x, p))
     assert abs(f_s - f_e).max() <= 1e-12 * abs(f_e).max()
@@ -169,7 +181,8 @@ def test_staged_derivatives_equal_casadis_own(short, kind):
     assert np.abs(H_s - np.triu(H_e)).max() <= 1e-10 * np.abs(H_e).max()
     # the smoothness term's curvature (joints only; the trace does not depend on them)
     q_idx = np.concatenate([np.arange(o, o + size) for (name, size, _), o in
-                            zip(staged.layout.blocks, np.cumsum([0] + [b[1] for b in staged.layout.blocks]))
+                            zip(staged.layout.blocks,
+                                np.cumsum([0] + [b[1] for b in staged.layout.blocks]))
                             if name.startswith("q")])
     H_s = np.asarray(staged.hess_lag(x, p, 1.0, np.zeros(staged.ng)).full())[np.ix_(q_idx, q_idx)]
     H_e = np.asarray(fns["nlp_hess_l"](x, p, 1.0, np.zeros(staged.ng)).full())[np.ix_(q_idx, q_idx)]
@@ -177,7 +190,8 @@ def test_staged_derivatives_equal_casadis_own(short, kind):
 
 
 def test_structured_hessians_reach_the_exact_hessians_optimum():
-    """Surrogate or Gauss-Newton alone, the default (surrogate, then exact if needed), the exact Hessian:
+    """Surrogate or Gauss-Newton alone, the default (surrogate, then exact if needed), the exact
+    Hessian:
     one optimum on the default problem."""
     prob = load_problem(DEFAULT)
     sols = {}
@@ -187,7 +201,8 @@ def test_structured_hessians_reach_the_exact_hessians_optimum():
         assert sols[h].success, (h, sols[h].status)
         assert sols[h].extras["constraint_violation"] <= 1e-6
         assert np.max(np.abs(np.array(sols[h].poses[-1]) - setup.x_goal)) <= 1e-6
-    # the planner's objective at its initial point (the straight line) is the baseline's exact-EKF trace
+    # the planner's objective at its initial point (the straight line) is the baseline's exact-EKF
+    # trace
     from surestep_ocp.solvers.baseline import solve_baseline
 
     base = solve_baseline(build_setup(prob)).trace_final
@@ -205,7 +220,8 @@ def test_structured_hessians_reach_the_exact_hessians_optimum():
 
 
 def test_warm_resolve_after_a_camera_move_reaches_the_cold_optimum(short):
-    """A warm start (previous primal-dual point) after a small camera move converges to the same KKT point."""
+    """A warm start (previous primal-dual point) after a small camera move converges to the same KKT
+    point."""
     setup = short
     init = ocp_initial_guess(setup)
     _, warm = solve_ocp_warm(setup, init)
@@ -220,9 +236,11 @@ def test_warm_resolve_after_a_camera_move_reaches_the_cold_optimum(short):
 
 
 def test_structured_hessians_need_the_mean_noise_form():
-    """The structured Hessians are not defined for the expected-noise recursion: a clear error, not a fallback."""
+    """The structured Hessians are not defined for the expected-noise recursion: a clear error, not
+    a fallback."""
     prob = load_problem(DEFAULT)
-    prob = with_solver(replace(prob, noise=replace(prob.noise, observation_noise="expected")), hessian="gauss-newton")
+    prob = with_solver(replace(prob, noise=replace(prob.noise, observation_noise="expected")),
+                       hessian="gauss-newton")
     with pytest.raises(SurestepError, match="solver.hessian"):  # checked when the problem is set up
         build_setup(prob)
     # auto picks the exact Hessian there
@@ -233,27 +251,32 @@ def test_structured_hessians_need_the_mean_noise_form():
 
 
 def test_an_optimum_worse_than_the_start_keeps_the_start():
-    """Evaluation configuration 36 with the paper's cosine exactly (`cut_band: 0`: a jump where its straight line
-    passes through a rotation of pi): the surrogate converges above its own feasible start, so the start (the
-    straight line's IK, feasible) is the plan returned, and said so."""
+    """Evaluation configuration 36 with the paper's cosine exactly (`cut_band: 0`: a jump where its
+    straight line passes through a rotation of pi): the surrogate converges above its own feasible
+    start, so the start (the straight line's IK, feasible) is the plan returned, and said so."""
     from surestep_ocp.evaluation.configs import ConfigurationSampler, load_evaluation
 
-    sampler = ConfigurationSampler(load_evaluation(DEFAULT.parent / "evaluations" / "evaluation.yaml"))
+    sampler = ConfigurationSampler(load_evaluation(DEFAULT.parent / "evaluations"
+                                                   / "evaluation.yaml"))
     prob = sampler.problem(sampler.sample(0, 36))
     prob = replace(prob, noise=replace(prob.noise, cut_band=0.0))
     setup = build_setup(with_solver(prob, name="ipopt"))
     sol = solve_ocp(setup, ocp_initial_guess(setup))
     attempts = sol.attempts
     assert attempts[0].label == "surrogate"
-    converged = [a.objective for a in attempts if a.status in ("Solve_Succeeded", "Solved_To_Acceptable_Level")]
+    converged = [a.objective for a in attempts
+                 if a.status in ("Solve_Succeeded", "Solved_To_Acceptable_Level")]
     assert converged and min(converged) > sol.extras["initial_trace"]
     assert attempts[-1].label.startswith("none: the feasible initial guess") and attempts[-1].kept
     assert sum(a.kept for a in attempts) == 1
-    assert sol.status == "Initial_Guess_Kept" and sol.success and not sol.extras["worse_than_initial_guess"]
+    assert (sol.status == "Initial_Guess_Kept" and sol.success
+            and not sol.extras["worse_than_initial_guess"])
     assert sol.objective == sol.extras["initial_trace"]
     baseline = solve_baseline(setup)
-    assert sol.trace_final == pytest.approx(baseline.trace_final, rel=1e-6)  # the straight line, by its IK
-    assert sol.objective == pytest.approx(sol.trace_final, rel=1e-6)  # the planner's trace is the EKF's
+    # the straight line, by its IK
+    assert sol.trace_final == pytest.approx(baseline.trace_final, rel=1e-6)
+    # the planner's trace is the EKF's
+    assert sol.objective == pytest.approx(sol.trace_final, rel=1e-6)
     assert sol.iterations == sum(a.iterations for a in attempts)
     assert max(sol.terminal_error) <= 1e-9  # the kept point meets the terminal pose (Pinocchio FK)
 
@@ -269,11 +292,12 @@ def test_codegen_auto_follows_the_compiler(short, monkeypatch):
     monkeypatch.setenv("CC", "no-such-compiler-here")
     assert resolve_codegen(auto, "surrogate") is False
     with pytest.raises(SurestepError, match="compiler"):
-        transcription(replace(short, problem=with_solver(short.problem, codegen=True)), hessian="surrogate",
-                      horizon=2)
+        transcription(replace(short, problem=with_solver(short.problem, codegen=True)),
+                      hessian="surrogate", horizon=2)
     with pytest.raises(SurestepError, match="exact"):
         solve_ocp(forced, ocp_initial_guess(forced))
-    monkeypatch.setenv("CC", "sh")  # any program on PATH counts as found; compiling is not attempted here
+    # any program on PATH counts as found; compiling is not attempted here
+    monkeypatch.setenv("CC", "sh")
     assert resolve_codegen(auto, "surrogate") is True
 
 
@@ -290,14 +314,16 @@ def test_start_solution_only_for_a_feasible_start(short):
 
 
 def test_codegen_auto_falls_back_when_the_compile_fails(short, monkeypatch, tmp_path):
-    """A compiler that fails (here `false`): with codegen auto the solve runs interpreted and says why;
-    with codegen true it is an error."""
+    """A compiler that fails (here `false`): with codegen auto the solve runs interpreted and says
+    why; with codegen true it is an error."""
     monkeypatch.setenv("CC", "false")
     monkeypatch.setenv("SURESTEP_CACHE", str(tmp_path))
-    odd = replace(short.problem, objective=replace(short.problem.objective, smoothness=0.0123))  # a new structure
+    # a new structure
+    odd = replace(short.problem, objective=replace(short.problem.objective, smoothness=0.0123))
     auto = replace(short, problem=with_solver(odd, codegen="auto", hessian="surrogate"))
     sol = solve_ocp(auto, ocp_initial_guess(auto))
-    assert sol.success and sol.extras["compiled"] is False and "failed" in sol.extras["codegen_note"]
+    assert (sol.success and sol.extras["compiled"] is False
+            and "failed" in sol.extras["codegen_note"])
     forced = replace(short, problem=with_solver(odd, codegen=True, hessian="surrogate"))
     with pytest.raises(SurestepError, match="failed on the generated code"):
         solve_ocp(forced, ocp_initial_guess(forced))
@@ -328,9 +354,11 @@ def test_auto_picks_condensed_for_the_papers_isotropic_constants(small):
 
 
 def test_full_and_condensed_forms_agree(small):
-    """Multiple shooting of vech(Sigma) with free gains keeps the condensed recursion's optimum (same problem).
+    """Multiple shooting of vech(Sigma) with free gains keeps the condensed recursion's optimum
+    (same problem).
 
-    (From the straight line the two forms may reach different local optima: the problem is nonconvex.)
+    (From the straight line the two forms may reach different local optima: the problem is
+    nonconvex.)
     """
     _, sols = small
     full, cond = sols["full"], sols["condensed"]
@@ -343,7 +371,8 @@ def test_full_and_condensed_forms_agree(small):
 
 
 def test_diagonal_form_solves_and_matches_the_exact_ekf():
-    """The multiple-shooting diagonal form (six scalars and gains per node) builds, solves, and is exact.
+    """The multiple-shooting diagonal form (six scalars and gains per node) builds, solves, and is
+    exact.
 
     From the straight line at T = 3 it reaches the condensed form's optimum. (The lifted forms are
     fragile where the covariance collapses: started from the condensed optimum at T = 5 it failed
@@ -359,8 +388,9 @@ def test_diagonal_form_solves_and_matches_the_exact_ekf():
 
 
 def test_isotropic_noise_with_a_full_sigma0_runs_scalar_recursions_on_its_eigenvalues():
-    """The paper's constants are multiples of I: from a non-diagonal Sigma_0 (after a camera move) the EKF is six
-    scalar recursions on Sigma_0's eigenvalues. The condensed OCP uses them; its trace equals a NumPy EKF's."""
+    """The paper's constants are multiples of I: from a non-diagonal Sigma_0 (after a camera move)
+    the EKF is six scalar recursions on Sigma_0's eigenvalues. The condensed OCP uses them; its
+    trace equals a NumPy EKF's."""
     from numpy_ekf import propagate
     from scipy.spatial.transform import Rotation
 
@@ -374,13 +404,18 @@ def test_isotropic_noise_with_a_full_sigma0_runs_scalar_recursions_on_its_eigenv
     assert resolve_form(setup.model, "auto") == "condensed"
     sol = solve_ocp(setup, ocp_initial_guess(setup))
     assert sol.success, sol.status
-    sig, _ = propagate(np.array(sol.poses), setup.problem.noise, setup.problem.camera.intrinsics, guard=COSINE_GUARD)
+    sig, _ = propagate(np.array(sol.poses), setup.problem.noise, setup.problem.camera.intrinsics,
+                       guard=COSINE_GUARD)
     assert sol.extras["ocp_trace_final"] == pytest.approx(np.trace(sig[-1]), rel=1e-9)
     assert sol.trace_final == pytest.approx(np.trace(sig[-1]), rel=1e-9)
-    # a non-isotropic, non-diagonal model is not scalar, but structured (constant maps, mean noise): auto keeps
-    # the condensed form, with the 6x6 matrix recursion (tests/test_lifted.py, tests/test_surrogate.py)
-    aniso = build_setup(replace(prob, horizon=6, noise=replace(prob.noise, Sigma0=sigma0,
-                                                               W_p0=np.diag([1e-3, 2e-3, 1e-3, 1e-3, 1e-3, 1e-3]))))
-    assert not aniso.model.scalar and aniso.model.structured and resolve_form(aniso.model, "auto") == "condensed"
-    expected = build_setup(replace(prob, horizon=6, noise=replace(aniso.problem.noise, observation_noise="expected")))
+    # a non-isotropic, non-diagonal model is not scalar, but structured (constant maps, mean noise):
+    # auto keeps the condensed form, with the 6x6 matrix recursion (tests/test_lifted.py,
+    # tests/test_surrogate.py)
+    aniso = build_setup(replace(prob, horizon=6, noise=replace(
+        prob.noise, Sigma0=sigma0, W_p0=np.diag([1e-3, 2e-3, 1e-3, 1e-3, 1e-3, 1e-3]))))
+    assert (not aniso.model.scalar and aniso.model.structured
+            and resolve_form(aniso.model, "auto") == "condensed")
+    expected = build_setup(replace(prob, horizon=6,
+                                   noise=replace(aniso.problem.noise,
+                                                 observation_noise="expected")))
     assert not expected.model.structured and resolve_form(expected.model, "auto") == "full"

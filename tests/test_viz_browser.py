@@ -22,7 +22,8 @@ from test_viz import ARM_URDF, make_solution  # noqa: E402  (tests/ is on sys.pa
 
 from surestep_ocp.errors import SurestepError  # noqa: E402
 from surestep_ocp.viz import write_static_html  # noqa: E402
-from surestep_ocp.viz.screenshot import ScreenshotError, find_chromium, screenshot_html  # noqa: E402
+from surestep_ocp.viz.screenshot import (  # noqa: E402
+    ScreenshotError, find_chromium, screenshot_html)
 from surestep_ocp.viz.style import METHOD_COLORS  # noqa: E402
 
 CHROMIUM = find_chromium()

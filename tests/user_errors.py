@@ -1,5 +1,5 @@
-"""A command's user error as the tests expect it: exit code 2, one line without a traceback naming what is wrong,
-and no output file written (shared by the export and show hardening tests)."""
+"""A command's user error as the tests expect it: exit code 2, one line without a traceback naming
+what is wrong, and no output file written (shared by the export and show hardening tests)."""
 
 
 def assert_user_error(code, err, out, *needles):

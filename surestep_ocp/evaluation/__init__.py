@@ -1,1 +1,2 @@
-"""Evaluation: rollouts, the simulated tracker, metrics, the Monte-Carlo evaluation, Table II, sweeps."""
+"""Evaluation: rollouts, the simulated tracker, metrics, the Monte-Carlo evaluation, Table II,
+sweeps."""

@@ -1,15 +1,14 @@
 """Random initial configurations for the evaluation (`problems/evaluations/evaluation.yaml`).
 
 An evaluation file names a base problem (robot, camera intrinsics, noise, solver
-settings; its `horizon`, `gradient` and `limits` sections can be replaced) and uniform boxes of ECM joints (the camera pose), PSM start joints and
-PSM goal joints. Configuration `i` of seed `s` is drawn by rejection sampling
-from its own generator `numpy.random.default_rng([s, i])`, so it does not depend
-on how many configurations are run, in which order, or in which process; every
-method sees the same configurations. A draw is kept when start and goal are in
-front of the camera, at a depth inside `accept.depth`, project inside the image
-with `accept.image_margin` to spare, and are at least `accept.min_distance`
-apart. Start and goal are joint samples inside the limits, so reachable by
-construction.
+settings; its `horizon`, `gradient` and `limits` sections can be replaced) and uniform boxes of ECM
+joints (the camera pose), PSM start joints and PSM goal joints. Configuration `i` of seed `s` is
+drawn by rejection sampling from its own generator `numpy.random.default_rng([s, i])`, so it does
+not depend on how many configurations are run, in which order, or in which process; every method
+sees the same configurations. A draw is kept when start and goal are in front of the camera, at a
+depth inside `accept.depth`, project inside the image with `accept.image_margin` to spare, and are
+at least `accept.min_distance` apart. Start and goal are joint samples inside the limits, so
+reachable by construction.
 """
 
 from __future__ import annotations
@@ -32,13 +31,14 @@ from .rollout import Detection
 from ..problem.schema import Reader
 from ..problem.setup import Setup, build_setup, load_robot
 
-_TOP = {"description", "base", "horizon", "ecm_joints", "start_joints", "goal_joints", "accept", "max_tries",
-        "gradient", "detection", "grasp", "limits", "execution"}
+_TOP = {"description", "base", "horizon", "ecm_joints", "start_joints", "goal_joints", "accept",
+        "max_tries", "gradient", "detection", "grasp", "limits", "execution"}
 
-# Grasp tolerances of the simulated Table II (docs/evaluation.md, "Table II"): the final true pose counts as a successful
-# regrasp within these of the goal. 5 mm: half the Large Needle Driver's 10.2 mm jaw (wrist-yaw pivot to tip),
-# so the needle's wire still lands between the jaws, and under half the 11.5 mm needle radius; 0.2 rad: the
-# jaw tip then moves 10.2 mm x 0.2 = 2 mm, inside that budget.
+# Grasp tolerances of the simulated Table II (docs/evaluation.md, "Table II"): the final true pose
+# counts as a successful regrasp within these of the goal. 5 mm: half the Large Needle Driver's
+# 10.2 mm jaw (wrist-yaw pivot to tip), so the needle's wire still lands between the jaws, and under
+# half the 11.5 mm needle radius; 0.2 rad: the jaw tip then moves 10.2 mm x 0.2 = 2 mm, inside that
+# budget.
 GRASP_POSITION_M = 0.005
 GRASP_ANGLE_RAD = 0.2
 
@@ -68,10 +68,12 @@ class EvaluationSpec:
     min_distance: float  # [m] between start and goal positions
     max_tries: int
     description: str = ""
-    detection: Detection | None = Detection()  # None: every rollout step observes (detection.enabled: false)
+    # None: every rollout step observes (detection.enabled: false)
+    detection: Detection | None = Detection()
     grasp_position: float = GRASP_POSITION_M  # [m] success tolerance of the final true position
     grasp_angle: float = GRASP_ANGLE_RAD  # [rad] ... and of the final true orientation
-    pace: str = "planned"  # how the rollouts run a plan (pacing.py): planned | limits (the tool's speed limits)
+    # how the rollouts run a plan (pacing.py): planned | limits (the tool's speed limits)
+    pace: str = "planned"
 
 
 @dataclass(frozen=True)
@@ -87,7 +89,8 @@ class Configuration:
     def to_dict(self) -> dict:
         return {"ecm_joints": None if self.ecm_joints is None else self.ecm_joints.tolist(),
                 "q_start": self.q_start.tolist(), "q_goal": self.q_goal.tolist(),
-                "x_start": self.x_start.tolist(), "x_goal": self.x_goal.tolist(), "tries": self.tries}
+                "x_start": self.x_start.tolist(), "x_goal": self.x_goal.tolist(),
+                "tries": self.tries}
 
 
 def load_evaluation(path: str | Path) -> EvaluationSpec:
@@ -102,26 +105,32 @@ def load_evaluation(path: str | Path) -> EvaluationSpec:
     top = rd.mapping(tree, "", _TOP, {"base", "start_joints", "goal_joints"})
     base_path, _ = resolve_path(rd, top["base"], "base", path)
     base = load_problem(base_path)
-    horizon = rd.integer(top.get("horizon", base.horizon), "horizon", minimum=1, maximum=MAX_HORIZON)
+    horizon = rd.integer(top.get("horizon", base.horizon), "horizon", minimum=1,
+                         maximum=MAX_HORIZON)
     base = replace(base, horizon=horizon)
     if "gradient" in top:  # replaces the base problem's gradient section (e.g. {preset: paper})
         base = replace(base, gradient=_gradient(rd, top["gradient"]))
-    if "limits" in top:  # replaces the base problem's limits section (a problem file's `limits:`, checked as there)
+    # replaces the base problem's limits section (a problem file's `limits:`, checked as there)
+    if "limits" in top:
         base = replace(base, limits=_limits(rd, top["limits"], base.robot))
-    det = rd.mapping(top.get("detection", {}), "detection", {"enabled", "margin", "min_depth", "max_depth",
-                                                              "falloff"})
+    det = rd.mapping(top.get("detection", {}), "detection",
+                     {"enabled", "margin", "min_depth", "max_depth", "falloff"})
     detection = None
     if rd.boolean(det.get("enabled", True), "detection.enabled"):
         d0 = Detection()
         detection = Detection(
             margin=rd.number(det.get("margin", d0.margin), "detection.margin", nonneg=True),
-            min_depth=rd.number(det.get("min_depth", d0.min_depth), "detection.min_depth", nonneg=True),
-            max_depth=rd.number(det.get("max_depth", d0.max_depth), "detection.max_depth", positive=True),
+            min_depth=rd.number(det.get("min_depth", d0.min_depth), "detection.min_depth",
+                                nonneg=True),
+            max_depth=rd.number(det.get("max_depth", d0.max_depth), "detection.max_depth",
+                                positive=True),
             falloff=rd.number(det.get("falloff", d0.falloff), "detection.falloff", nonneg=True))
         if detection.max_depth <= detection.min_depth:
-            raise rd.fail("detection.max_depth", f"must exceed detection.min_depth ({detection.min_depth:g} m)")
+            raise rd.fail("detection.max_depth",
+                          f"must exceed detection.min_depth ({detection.min_depth:g} m)")
         if detection.margin + detection.falloff >= 0.5:
-            raise rd.fail("detection.falloff", f"margin + falloff must be < 0.5 (fractions of the image size), "
+            raise rd.fail("detection.falloff",
+                          f"margin + falloff must be < 0.5 (fractions of the image size), "
                                                f"got {detection.margin:g} + {detection.falloff:g}")
     grasp = rd.mapping(top.get("grasp", {}), "grasp", {"position", "angle"})
     execution = rd.mapping(top.get("execution", {}), "execution", {"pace"})
@@ -130,20 +139,24 @@ def load_evaluation(path: str | Path) -> EvaluationSpec:
     ecm_box = None
     if "ecm_joints" in top:
         if base.camera.ecm is None:
-            raise rd.fail("ecm_joints", f"the base problem {base_path.name} gives the camera as a fixed pose; "
+            raise rd.fail("ecm_joints",
+                          f"the base problem {base_path.name} gives the camera as a fixed pose; "
                                         "random camera poses need a base problem with camera.ecm")
         ecm = load_robot(str(base_path), "camera.ecm", base.camera.ecm)
         ecm_box = _box(rd, top["ecm_joints"], "ecm_joints", ecm)
     acc = rd.mapping(top.get("accept", {}), "accept", {"depth", "image_margin", "min_distance"})
     depth = rd.vector(acc.get("depth", [base.min_depth, 0.25]), "accept.depth", 2)
     if not 0 < depth[0] < depth[1]:
-        raise rd.fail("accept.depth", f"expected [low, high] with 0 < low < high, got {depth.tolist()}")
+        raise rd.fail("accept.depth",
+                      f"expected [low, high] with 0 < low < high, got {depth.tolist()}")
     if depth[0] < base.min_depth:
-        raise rd.fail("accept.depth", f"low end {depth[0]:g} m is below the base problem's constraints.min_depth "
+        raise rd.fail("accept.depth",
+                      f"low end {depth[0]:g} m is below the base problem's constraints.min_depth "
                                       f"= {base.min_depth:g} m")
     margin = rd.number(acc.get("image_margin", 0.05), "accept.image_margin", nonneg=True)
     if margin >= 0.5:
-        raise rd.fail("accept.image_margin", f"must be < 0.5 (a fraction of the image size), got {margin:g}")
+        raise rd.fail("accept.image_margin",
+                      f"must be < 0.5 (a fraction of the image size), got {margin:g}")
     return EvaluationSpec(
         path=path, base_path=base_path, base=base, horizon=horizon, ecm_joints=ecm_box,
         start_joints=_box(rd, top["start_joints"], "start_joints", robot),
@@ -153,7 +166,8 @@ def load_evaluation(path: str | Path) -> EvaluationSpec:
         max_tries=rd.integer(top.get("max_tries", 10000), "max_tries", minimum=1, maximum=100_000),
         description=rd.string(top.get("description", ""), "description"),
         detection=detection,
-        grasp_position=rd.number(grasp.get("position", GRASP_POSITION_M), "grasp.position", positive=True),
+        grasp_position=rd.number(grasp.get("position", GRASP_POSITION_M), "grasp.position",
+                                 positive=True),
         grasp_angle=rd.number(grasp.get("angle", GRASP_ANGLE_RAD), "grasp.angle", positive=True),
         pace=pace,
     )
@@ -197,7 +211,8 @@ class ConfigurationSampler:
             return False
         intr, m = self.intrinsics, self.spec.image_margin
         u, v = intr.project(x[:3])
-        return m * intr.width <= u <= (1 - m) * intr.width and m * intr.height <= v <= (1 - m) * intr.height
+        return (m * intr.width <= u <= (1 - m) * intr.width
+                and m * intr.height <= v <= (1 - m) * intr.height)
 
     def sample(self, seed: int, index: int) -> Configuration:
         """Configuration `index` of `seed` (rejection sampling from its own generator)."""
@@ -211,13 +226,15 @@ class ConfigurationSampler:
             if (self.visible(xs) and self.visible(xg)
                     and np.linalg.norm(xs[:3] - xg[:3]) >= spec.min_distance):
                 return Configuration(index, qe, qs, qg, xs, xg, k)
-        raise SurestepError(f"{spec.path}: no configuration accepted in max_tries = {spec.max_tries} draws "
-                            f"(seed {seed}, configuration {index}); widen the joint boxes or the accept ranges")
+        raise SurestepError(f"{spec.path}: no configuration accepted in max_tries = "
+                            f"{spec.max_tries} draws (seed {seed}, configuration {index}); widen "
+                            "the joint boxes or the accept ranges")
 
     def problem(self, cfg: Configuration) -> Problem:
         """The base problem with this configuration's camera, start and goal."""
         base = self.spec.base
-        camera = base.camera if cfg.ecm_joints is None else replace(base.camera, ecm_joints=cfg.ecm_joints)
+        camera = (base.camera if cfg.ecm_joints is None
+                  else replace(base.camera, ecm_joints=cfg.ecm_joints))
         return replace(base, name=f"{base.name}#config{cfg.index}", camera=camera,
                        start=EndpointSpec(joints=cfg.q_start, key="start.joints"),
                        goal=EndpointSpec(joints=cfg.q_goal, key="goal.joints"))

@@ -19,9 +19,10 @@ Rollouts observe only when the true pose is detectable (the evaluation file's
 pose is within the file's `grasp` tolerances of the goal (the simulated Table II).
 
 One writer per output folder: the run holds an exclusive lock on `DIR` (`run_lock.py`); a second
-`evaluate` into it is refused. Every record carries its `seed` and `rollouts`, so `--resume` checks the
-settings even when `run.json` is gone; a record that is not whole (a method, mode, metric or rollout
-missing, a value not a finite number) is dropped and its configuration run again (said on stderr).
+`evaluate` into it is refused. Every record carries its `seed` and `rollouts`, so `--resume` checks
+the settings even when `run.json` is gone; a record that is not whole (a method, mode, metric or
+rollout missing, a value not a finite number) is dropped and its configuration run again (said on
+stderr).
 
 Where the configurations run: in this process (`--jobs 1`), a process pool
 (`--jobs N`), or an existing Dask cluster (`--scheduler ADDRESS`, dask.distributed):
@@ -62,8 +63,9 @@ MAX_CONFIGS = 100_000
 MAX_ROLLOUTS = 100_000
 MAX_JOBS = 256
 
-DEFAULT_METHODS = ("baseline", "gradient", "gradient-no-pose-loss", "gradient-no-depth", "gradient-no-fov",
-                   "gradient-no-orientation", "ocp", "ocp-no-depth", "ocp-no-fov", "ocp-no-orientation")
+DEFAULT_METHODS = ("baseline", "gradient", "gradient-no-pose-loss", "gradient-no-depth",
+                   "gradient-no-fov", "gradient-no-orientation", "ocp", "ocp-no-depth",
+                   "ocp-no-fov", "ocp-no-orientation")
 
 # ------------------------------------------------------------------ one configuration (worker side)
 _SAMPLERS: dict = {}
@@ -77,8 +79,9 @@ def _sampler(eval_path: str):
 
 
 def executed_poses(setup, poses, pace: str) -> np.ndarray:
-    """The waypoints the rollouts follow: the plan's (`planned`) or the plan's run at the tool's limits
-    (`limits`: the problem's `limits:` tool speeds, one rollout step of `timing.step_s` each; pacing.py)."""
+    """The waypoints the rollouts follow: the plan's (`planned`) or the plan's run at the tool's
+    limits (`limits`: the problem's `limits:` tool speeds, one rollout step of `timing.step_s` each;
+    pacing.py)."""
     poses = np.asarray(poses, float)
     if pace == "planned":
         return poses
@@ -86,8 +89,8 @@ def executed_poses(setup, poses, pace: str) -> np.ndarray:
     return paced(poses, setup.problem.timing.step_s, lim.tool_speed, lim.tool_rotation)
 
 
-def evaluate_configuration(eval_path: str, seed: int, index: int, methods: tuple[str, ...], rollouts: int,
-                           modes: tuple[str, ...]) -> dict:
+def evaluate_configuration(eval_path: str, seed: int, index: int, methods: tuple[str, ...],
+                           rollouts: int, modes: tuple[str, ...]) -> dict:
     """Plan with every method on configuration `index` and roll each plan out; a JSON-able record.
 
     Picklable arguments only (each process builds its own set-up and solvers). A method
@@ -109,15 +112,17 @@ def evaluate_configuration(eval_path: str, seed: int, index: int, methods: tuple
         try:
             sol = run_method(setup, name, cache)
         except Exception as exc:  # noqa: BLE001 - recorded in solves.csv and counted in the table
-            rec["solves"][name] = {"success": False, "status": f"error: {type(exc).__name__}: {exc}",
-                                   "solve_time_s": time.perf_counter() - t0, "iterations": 0, "evaluated": False}
+            rec["solves"][name] = {"success": False,
+                                   "status": f"error: {type(exc).__name__}: {exc}",
+                                   "solve_time_s": time.perf_counter() - t0, "iterations": 0,
+                                   "evaluated": False}
             continue
         cache[name] = sol
         solve = {"success": sol.success, "status": sol.status, "solve_time_s": sol.solve_time_s,
                  "iterations": sol.iterations, "evaluated": True}
         if sol.status == "Initial_Guess_Kept":  # why: what every solver attempt ended with
-            solve["kept_start"] = "; ".join(f"{a.label}: {a.status}" for a in sol.attempts) or sol.extras.get(
-                "solver", "")
+            solve["kept_start"] = ("; ".join(f"{a.label}: {a.status}" for a in sol.attempts)
+                                   or sol.extras.get("solver", ""))
         try:
             poses = executed_poses(setup, sol.poses, spec.pace)
             solve["rollout_steps"] = len(poses) - 1
@@ -130,7 +135,8 @@ def evaluate_configuration(eval_path: str, seed: int, index: int, methods: tuple
                 rec["ori_errors"][mode][name] = ro.ori_err.tolist()
                 ok = (ro.pos_err <= spec.grasp_position) & (ro.ori_err <= spec.grasp_angle)
                 rec["success"][mode][name] = float(np.mean(ok))
-                rec["detected"][mode][name] = float(np.mean(ro.detected)) if ro.detected is not None else 1.0
+                rec["detected"][mode][name] = (float(np.mean(ro.detected))
+                                               if ro.detected is not None else 1.0)
         except (ValueError, np.linalg.LinAlgError) as exc:  # e.g. NaN waypoints of a failed solve
             solve.update(evaluated=False, status=f"{sol.status}; rollout error: {exc}")
             for mode in modes:
@@ -143,7 +149,8 @@ def evaluate_configuration(eval_path: str, seed: int, index: int, methods: tuple
 
 def _worker_init() -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent handles Ctrl-C and stops the workers
-    if sys.platform.startswith("linux"):  # a parent killed outright (SIGKILL) takes its workers with it
+    # a parent killed outright (SIGKILL) takes its workers with it
+    if sys.platform.startswith("linux"):
         try:
             ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGTERM))  # 1: PR_SET_PDEATHSIG
         except (OSError, AttributeError):
@@ -154,19 +161,22 @@ def _worker_init() -> None:
 
 
 class Terminated(KeyboardInterrupt):
-    """SIGTERM during `run_evaluation`: raised in the main thread (once), so the pool's workers are stopped and
-    every output file is left whole or absent, as after Ctrl-C; `surestep evaluate` then exits 143."""
+    """SIGTERM during `run_evaluation`: raised in the main thread (once), so the pool's workers are
+    stopped and every output file is left whole or absent, as after Ctrl-C; `surestep evaluate` then
+    exits 143."""
 
 
 @contextlib.contextmanager
 def _sigterm_raises():
-    """While inside: SIGTERM raises `Terminated` (in the main thread only; elsewhere nothing changes)."""
+    """While inside: SIGTERM raises `Terminated` (in the main thread only; elsewhere nothing
+    changes)."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
 
     def handler(signum, frame):
-        signal.signal(signal.SIGTERM, signal.SIG_IGN)  # one raise: a second SIGTERM does not break the clean-up
+        # one raise: a second SIGTERM does not break the clean-up
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
         raise Terminated()
 
     old = signal.signal(signal.SIGTERM, handler)
@@ -188,17 +198,20 @@ def _record_problem(rec) -> str | None:
     """None if `rec` has the structure `evaluate_configuration` writes, else what is wrong."""
     if not isinstance(rec, dict):
         return f"a JSON {type(rec).__name__}, not an object"
-    if isinstance(rec.get("config"), bool) or not isinstance(rec.get("config"), int) or rec["config"] < 0:
+    if (isinstance(rec.get("config"), bool) or not isinstance(rec.get("config"), int)
+        or rec["config"] < 0):
         return "no 'config' index (an integer >= 0)"
     solves = rec.get("solves")
-    if not isinstance(solves, dict) or not all(isinstance(v, dict) and isinstance(v.get("success"), bool)
-                                               for v in solves.values()):
+    if not isinstance(solves, dict) or not all(
+            isinstance(v, dict) and isinstance(v.get("success"), bool) for v in solves.values()):
         return "'solves' is not a mapping of method -> {success, ...}"
-    for key in ("seed", "rollouts"):  # written by every record since the settings' check (older records: absent)
+    # written by every record since the settings' check (older records: absent)
+    for key in ("seed", "rollouts"):
         if key in rec and (isinstance(rec[key], bool) or not isinstance(rec[key], int)):
             return f"'{key}' is not an integer"
     for key in ("metrics", "pos_errors"):
-        if not isinstance(rec.get(key), dict) or not all(isinstance(v, dict) for v in rec[key].values()):
+        if (not isinstance(rec.get(key), dict)
+            or not all(isinstance(v, dict) for v in rec[key].values())):
             return f"'{key}' is not a mapping of mode -> method -> values"
     return None
 
@@ -208,8 +221,9 @@ def _real(v) -> bool:
 
 
 def _record_gap(rec: dict, methods, modes, rollouts: int, configs: int) -> str | None:
-    """None if the record is a whole, finite record of this run (every method, mode, metric, rollout), else
-    what is wrong with it: such a record is run again, never copied into the results."""
+    """None if the record is a whole, finite record of this run (every method, mode, metric,
+    rollout), else what is wrong with it: such a record is run again, never copied into the
+    results."""
     if rec["config"] >= configs:
         return None  # beyond this run's --configs: kept in the file, not used
     if not isinstance(rec.get("x_goal"), list):
@@ -222,7 +236,8 @@ def _record_gap(rec: dict, methods, modes, rollouts: int, configs: int) -> str |
             return f"solves.{m}: no 'status' text or 'evaluated' flag"
         if not _real(s.get("solve_time_s")) or s["solve_time_s"] < 0:
             return f"solves.{m}.solve_time_s is not a finite number >= 0"
-        if isinstance(s.get("iterations"), bool) or not isinstance(s.get("iterations"), int) or s["iterations"] < 0:
+        if (isinstance(s.get("iterations"), bool) or not isinstance(s.get("iterations"), int)
+            or s["iterations"] < 0):
             return f"solves.{m}.iterations is not an integer >= 0"
         if not s["evaluated"]:
             continue
@@ -232,14 +247,17 @@ def _record_gap(rec: dict, methods, modes, rollouts: int, configs: int) -> str |
                 return f"no metrics of '{m}' in mode '{mode}'"
             for k in METRICS:
                 if not _real(met.get(k)):
-                    return f"metrics.{mode}.{m}.{k} is {'missing' if k not in met else repr(met[k])}, not a finite number"
+                    return (f"metrics.{mode}.{m}.{k} is "
+                            f"{'missing' if k not in met else repr(met[k])}, not a finite number")
             for key in ("pos_errors", "ori_errors"):
-                e = (rec.get(key) or {}).get(mode, {}).get(m) if isinstance(rec.get(key), dict) else None
+                e = ((rec.get(key) or {}).get(mode, {}).get(m) if isinstance(rec.get(key), dict)
+                     else None)
                 if not isinstance(e, list) or len(e) != rollouts or not all(_real(x) for x in e):
                     return f"{key}.{mode}.{m} is not {rollouts} finite numbers"
             for key in ("success", "detected"):
                 node = rec.get(key)
-                v = node.get(mode, {}).get(m) if isinstance(node, dict) and isinstance(node.get(mode), dict) else None
+                v = (node.get(mode, {}).get(m)
+                     if isinstance(node, dict) and isinstance(node.get(mode), dict) else None)
                 if not _real(v) or not 0.0 <= v <= 1.0:
                     return f"{key}.{mode}.{m} is {v!r}, not a share in [0, 1]"
     return None
@@ -248,9 +266,9 @@ def _record_gap(rec: dict, methods, modes, rollouts: int, configs: int) -> str |
 def read_progress(path: Path, check=None) -> dict[int, dict]:
     """Finished configurations of `progress.jsonl`; a torn last line (interrupted write) is dropped.
 
-    `check(rec)` (a resume): None, or why a record of the right shape cannot be used (a missing method, mode,
-    metric or rollout, a non-finite or non-numeric value): it is then dropped from the file, said on stderr, and
-    its configuration run again; never copied into the results.
+    `check(rec)` (a resume): None, or why a record of the right shape cannot be used (a missing
+    method, mode, metric or rollout, a non-finite or non-numeric value): it is then dropped from the
+    file, said on stderr, and its configuration run again; never copied into the results.
 
     Raises:
         SurestepError: a line that is JSON but not a record of an evaluation (named by its number).
@@ -261,7 +279,8 @@ def read_progress(path: Path, check=None) -> dict[int, dict]:
     try:
         lines = path.read_text(encoding="utf-8").splitlines()
     except (OSError, UnicodeDecodeError) as exc:
-        raise SurestepError(f"{path}: cannot read the progress record ({exc}); use another --output-dir") from None
+        raise SurestepError(f"{path}: cannot read the progress record ({exc}); use another "
+                            "--output-dir") from None
     good = []
     for n, line in enumerate(lines, 1):
         try:
@@ -269,13 +288,15 @@ def read_progress(path: Path, check=None) -> dict[int, dict]:
         except (ValueError, RecursionError):
             continue  # a torn (interrupted) write
         problem = _record_problem(rec)
-        if problem is not None:  # not the shape of a record at all: another file, not a torn or partial record
-            raise SurestepError(f"{path}: line {n} is not a record of this evaluation ({problem}); remove the "
-                                "line, or run without --resume into another --output-dir")
+        # not the shape of a record at all: another file, not a torn or partial record
+        if problem is not None:
+            raise SurestepError(f"{path}: line {n} is not a record of this evaluation ({problem}); "
+                                "remove the line, or run without --resume into another "
+                                "--output-dir")
         gap = check(rec) if check is not None else None
         if gap is not None:
-            print(f"surestep: {path}: line {n} (configuration {rec['config']}) is not a whole record of this run "
-                  f"({gap}); it is dropped and run again", file=sys.stderr)
+            print(f"surestep: {path}: line {n} (configuration {rec['config']}) is not a whole "
+                  f"record of this run ({gap}); it is dropped and run again", file=sys.stderr)
             continue
         done[rec["config"]] = rec
         good.append(line)
@@ -297,9 +318,11 @@ def append_line(path: Path, obj: dict) -> None:
         os.close(fd)
 
 
-def run_evaluation(eval_path: str | Path, out_dir: str | Path, configs: int = 100, rollouts: int = 50, seed: int = 0,
-                   methods: tuple[str, ...] = DEFAULT_METHODS, modes: tuple[str, ...] = MODES, jobs: int = 1,
-                   resume: bool = False, progress: bool = True, scheduler: str | None = None) -> str:
+def run_evaluation(eval_path: str | Path, out_dir: str | Path, configs: int = 100,
+                   rollouts: int = 50, seed: int = 0, methods: tuple[str, ...] = DEFAULT_METHODS,
+                   modes: tuple[str, ...] = MODES, jobs: int = 1,
+                   resume: bool = False, progress: bool = True,
+                   scheduler: str | None = None) -> str:
     """Run (or continue) an evaluation and write its files; returns the table (Markdown).
 
     `scheduler`: address of a running Dask scheduler (e.g. tcp://host:8786), or a
@@ -307,61 +330,71 @@ def run_evaluation(eval_path: str | Path, out_dir: str | Path, configs: int = 10
     on its workers (`jobs` is ignored), which must be able to import surestep_ocp and read
     the evaluation file at the same path.
 
-    SIGTERM (in the main thread) stops the workers and raises `Terminated`, the files left whole or absent.
+    SIGTERM (in the main thread) stops the workers and raises `Terminated`, the files left whole or
+    absent.
 
     Raises:
         SurestepError: bad arguments, a bad evaluation file, or a directory holding another run.
     """
     with _sigterm_raises():
         try:
-            return _run_evaluation(eval_path, out_dir, configs, rollouts, seed, methods, modes, jobs, resume,
-                                   progress, scheduler)
+            return _run_evaluation(eval_path, out_dir, configs, rollouts, seed, methods, modes,
+                                   jobs, resume, progress, scheduler)
         except Terminated as exc:
             if not exc.args:  # outside the configurations' loop (set-up, or the tables at the end)
-                raise Terminated(f"the files in {out_dir} are whole or absent; continue with the same command "
-                                 "plus --resume") from None
+                raise Terminated(f"the files in {out_dir} are whole or absent; continue with the "
+                                 "same command plus --resume") from None
             raise
 
 
-def _run_evaluation(eval_path, out_dir, configs, rollouts, seed, methods, modes, jobs, resume, progress,
-                    scheduler) -> str:
+def _run_evaluation(eval_path, out_dir, configs, rollouts, seed, methods, modes, jobs, resume,
+                    progress, scheduler) -> str:
     if configs < 1 or rollouts < 2 or jobs < 1:
-        raise SurestepError(f"need --configs >= 1, --rollouts >= 2, --jobs >= 1 (got {configs}, {rollouts}, {jobs})")
-    for flag, value, most in (("--configs", configs, MAX_CONFIGS), ("--rollouts", rollouts, MAX_ROLLOUTS),
-                              ("--jobs", jobs, MAX_JOBS)):
+        raise SurestepError(f"need --configs >= 1, --rollouts >= 2, --jobs >= 1 (got {configs}, "
+                            f"{rollouts}, {jobs})")
+    for flag, value, most in (("--configs", configs, MAX_CONFIGS),
+                              ("--rollouts", rollouts, MAX_ROLLOUTS), ("--jobs", jobs, MAX_JOBS)):
         if value > most:
             raise SurestepError(f"{flag} {value}: at most {most}")
     if not 0 <= seed < 2**63:
         raise SurestepError(f"--seed {seed}: expected an integer in [0, 2^63)")
     for m in methods:
         parse_method(m)
-    methods = tuple(dict.fromkeys(("baseline", *methods)))  # the baseline is the reference of the table
+    # the baseline is the reference of the table
+    methods = tuple(dict.fromkeys(("baseline", *methods)))
     eval_path = str(eval_path)
     spec = load_evaluation(eval_path)
     inputs = (spec.path, spec.base_path)
     out = check_output_dir(out_dir, inputs, "the evaluation")
     with hold(out, "an evaluation"):  # one writer per folder, for the whole run
-        for name in ("run.json", "progress.jsonl", "table.md", "raw.csv", "solves.csv", "boxplot.png"):
+        for name in ("run.json", "progress.jsonl", "table.md", "raw.csv", "solves.csv",
+                     "boxplot.png"):
             check_output_file(out / name, inputs, "the evaluation")
         prog = out / "progress.jsonl"
-        header = {"evaluation": str(Path(eval_path).resolve()), "fingerprint": _fingerprint(spec), "seed": seed,
-                  "rollouts": rollouts, "methods": list(methods), "modes": list(modes), "horizon": spec.horizon}
+        header = {"evaluation": str(Path(eval_path).resolve()), "fingerprint": _fingerprint(spec),
+                  "seed": seed, "rollouts": rollouts, "methods": list(methods),
+                  "modes": list(modes), "horizon": spec.horizon}
         if resume and (out / "run.json").is_file():
             try:
                 old = json.loads((out / "run.json").read_text(encoding="utf-8"))
             except (OSError, ValueError, RecursionError) as exc:
-                raise SurestepError(f"{out / 'run.json'}: not a run record ({exc}); use another --output-dir") from None
+                raise SurestepError(f"{out / 'run.json'}: not a run record ({exc}); use another "
+                                    "--output-dir") from None
             if not isinstance(old, dict):
-                raise SurestepError(f"{out / 'run.json'}: not a run record (a JSON {type(old).__name__}, not an object); "
-                                    "use another --output-dir")
+                raise SurestepError(f"{out / 'run.json'}: not a run record (a JSON "
+                                    f"{type(old).__name__}, not an object); use another "
+                                    "--output-dir")
             diff = [k for k in header if k != "evaluation" and old.get(k) != header[k]]
             if diff:
-                raise SurestepError(f"{out}: --resume of a run with other settings ({', '.join(diff)}: "
-                                    f"{', '.join(f'{old.get(k)} vs {header[k]}' for k in diff)}); use another --output-dir")
+                raise SurestepError(f"{out}: --resume of a run with other settings "
+                                    f"({', '.join(diff)}: "
+                                    f"{', '.join(f'{old.get(k)} vs {header[k]}' for k in diff)}); "
+                                    "use another --output-dir")
         elif not resume and prog.is_file() and prog.stat().st_size > 0:
-            raise SurestepError(f"{out} already holds a run (progress.jsonl); pass --resume to continue it "
-                                "or choose another --output-dir")
-        checked = resume and (out / "run.json").is_file()  # the settings were compared with run.json above
+            raise SurestepError(f"{out} already holds a run (progress.jsonl); pass --resume to "
+                                "continue it or choose another --output-dir")
+        # the settings were compared with run.json above
+        checked = resume and (out / "run.json").is_file()
 
         def check(rec: dict) -> str | None:
             for key, want in (("seed", seed), ("rollouts", rollouts)):
@@ -369,12 +402,14 @@ def _run_evaluation(eval_path, out_dir, configs, rollouts, seed, methods, modes,
                     if not checked:
                         return f"no '{key}' recorded and no run.json to compare with"
                 elif rec[key] != want:
-                    raise SurestepError(f"{out}: --resume of a run with other settings ({key}: {rec[key]} vs {want}, "
-                                        f"configuration {rec['config']} of progress.jsonl); use another --output-dir")
+                    raise SurestepError(f"{out}: --resume of a run with other settings ({key}: "
+                                        f"{rec[key]} vs {want}, configuration {rec['config']} of "
+                                        "progress.jsonl); use another --output-dir")
             return _record_gap(rec, methods, modes, rollouts, configs)
 
         done = read_progress(prog, check) if resume else {}
-        client, own_client = _dask_client(scheduler) if scheduler is not None else (None, False)  # fail before writing
+        # fail before writing
+        client, own_client = _dask_client(scheduler) if scheduler is not None else (None, False)
         write_json_atomic(out / "run.json", header)
         if not resume:
             write_text_atomic(prog, "")
@@ -384,9 +419,10 @@ def _run_evaluation(eval_path, out_dir, configs, rollouts, seed, methods, modes,
 
         from tqdm import tqdm  # loaded on use: only a run draws the bar
 
-        bar = tqdm(total=configs, initial=configs - len(todo), desc="configurations", unit="config", file=sys.stderr,
-                   disable=not progress, dynamic_ncols=True, mininterval=0.5)
-        failed = sum(not s["success"] for i in range(configs) if i in done for s in done[i]["solves"].values())
+        bar = tqdm(total=configs, initial=configs - len(todo), desc="configurations", unit="config",
+                   file=sys.stderr, disable=not progress, dynamic_ncols=True, mininterval=0.5)
+        failed = sum(not s["success"] for i in range(configs) if i in done
+                     for s in done[i]["solves"].values())
 
         def finish(rec: dict) -> None:
             nonlocal failed
@@ -406,8 +442,8 @@ def _run_evaluation(eval_path, out_dir, configs, rollouts, seed, methods, modes,
                 _run_pool(todo, args, rest, jobs, finish)
         except Terminated:
             bar.close()
-            raise Terminated(f"{len(done)} of {configs} configurations kept in {prog}; continue with the same "
-                             "command plus --resume") from None
+            raise Terminated(f"{len(done)} of {configs} configurations kept in {prog}; continue "
+                             "with the same command plus --resume") from None
         except KeyboardInterrupt:
             bar.close()
             print(f"\ninterrupted: {len(done)} of {configs} configurations kept in {prog}; "
@@ -422,7 +458,8 @@ def _run_evaluation(eval_path, out_dir, configs, rollouts, seed, methods, modes,
 
 
 def _run_pool(todo, args, rest, jobs, finish) -> None:
-    ex = ProcessPoolExecutor(max_workers=min(jobs, len(todo)), mp_context=multiprocessing.get_context("spawn"),
+    ex = ProcessPoolExecutor(max_workers=min(jobs, len(todo)),
+                             mp_context=multiprocessing.get_context("spawn"),
                              initializer=_worker_init)
     futures = []
     try:
@@ -443,11 +480,13 @@ DASK_CONNECT_TIMEOUT = "10s"
 
 
 def _dask_client(scheduler):
-    """(client, whether we opened it) for a scheduler address, or a `distributed.Client` passed in."""
+    """(client, whether we opened it) for a scheduler address, or a `distributed.Client` passed
+    in."""
     try:
         from distributed import Client  # optional: the `dask` extra
     except ImportError as exc:
-        raise SurestepError(f"--scheduler needs dask.distributed (pip install 'surestep_ocp[dask]'): {exc}") from None
+        raise SurestepError("--scheduler needs dask.distributed (pip install "
+                            f"'surestep_ocp[dask]'): {exc}") from None
     if not isinstance(scheduler, str):
         return scheduler, False
     _check_scheduler_address(scheduler)
@@ -489,15 +528,17 @@ def _check_scheduler_address(scheduler: str) -> None:
 
 
 def _run_dask(todo, args, rest, client, finish) -> None:
-    """The configurations as Dask futures on the client's cluster; records handed to `finish` as they complete."""
+    """The configurations as Dask futures on the client's cluster; records handed to `finish` as
+    they complete."""
     from distributed import as_completed  # optional (the `dask` extra), loaded on use
 
     futures = []
     tag = uuid.uuid4().hex[:8]
     try:
         # pure=False: every configuration is its own task; retries=1 rescues a worker lost mid-task
-        futures = [client.submit(evaluate_configuration, *args, i, *rest, key=f"surestep-config-{i}-{tag}",
-                                 pure=False, retries=1) for i in todo]
+        futures = [client.submit(evaluate_configuration, *args, i, *rest,
+                                 key=f"surestep-config-{i}-{tag}", pure=False,
+                                 retries=1) for i in todo]
         with client.as_current():
             for fut in as_completed(futures):
                 finish(fut.result())
@@ -514,8 +555,8 @@ def cmd_evaluate(args) -> int:
     modes = MODES if args.rollout_mode == "both" else (args.rollout_mode,)
     out = args.output_dir or str(Path("out") / f"evaluate-{Path(args.evaluation).stem}")
     try:
-        table = run_evaluation(args.evaluation, out, args.configs, args.rollouts, args.seed, methods, modes,
-                               args.jobs, args.resume, progress=not args.quiet,
+        table = run_evaluation(args.evaluation, out, args.configs, args.rollouts, args.seed,
+                               methods, modes, args.jobs, args.resume, progress=not args.quiet,
                                scheduler=getattr(args, "scheduler", None))
     except Terminated as exc:
         return say_terminated(exc)
@@ -536,23 +577,30 @@ def say_terminated(exc: Terminated) -> int:
 def register(subparsers):
     """Add the `evaluate` subcommand to an argparse subparsers object; returns its parser."""
     e = subparsers.add_parser(
-        "evaluate", help="noisy closed-loop rollouts of every method over random configurations (Table I)",
-        description="Plan with each method on random configurations of EVAL.yaml, run noisy closed-loop rollouts "
-                    "of each plan and write table.md, raw.csv, solves.csv and boxplot.png.")
-    e.add_argument("evaluation", metavar="EVAL.yaml", help="evaluation file (e.g. problems/evaluations/evaluation.yaml)")
-    e.add_argument("--configs", type=int, default=100, help="number of random configurations (default 100)")
-    e.add_argument("--rollouts", type=int, default=50, help="noisy rollouts per plan and mode (default 50)")
-    e.add_argument("--seed", type=int, default=0, help="seed of the configurations and rollouts (default 0)")
+        "evaluate",
+        help="noisy closed-loop rollouts of every method over random configurations (Table I)",
+        description="Plan with each method on random configurations of EVAL.yaml, run noisy "
+                    "closed-loop rollouts of each plan and write table.md, raw.csv, solves.csv and "
+                    "boxplot.png.")
+    e.add_argument("evaluation", metavar="EVAL.yaml",
+                   help="evaluation file (e.g. problems/evaluations/evaluation.yaml)")
+    e.add_argument("--configs", type=int, default=100,
+                   help="number of random configurations (default 100)")
+    e.add_argument("--rollouts", type=int, default=50,
+                   help="noisy rollouts per plan and mode (default 50)")
+    e.add_argument("--seed", type=int, default=0,
+                   help="seed of the configurations and rollouts (default 0)")
     e.add_argument("--output-dir", help="output directory (default out/evaluate-<EVAL stem>)")
     e.add_argument("--methods", nargs="+", help="methods, space- or comma-separated (default: "
                    + ", ".join(DEFAULT_METHODS) + "); the baseline is always included")
     e.add_argument("--jobs", type=int, default=1, help="worker processes (default 1)")
     e.add_argument("--scheduler", metavar="ADDRESS",
-                   help="run the configurations on an existing Dask cluster (e.g. tcp://host:8786; needs "
-                        "dask.distributed, the 'dask' extra); --jobs is then ignored")
+                   help="run the configurations on an existing Dask cluster (e.g. tcp://host:8786; "
+                        "needs dask.distributed, the 'dask' extra); --jobs is then ignored")
     e.add_argument("--rollout-mode", choices=("model", "true", "both"), default="both",
                    help="where the observation noise is evaluated (default both)")
-    e.add_argument("--resume", action="store_true", help="continue the run in --output-dir (skip finished configs)")
+    e.add_argument("--resume", action="store_true",
+                   help="continue the run in --output-dir (skip finished configs)")
     e.add_argument("--quiet", action="store_true", help="no progress bar")
     e.set_defaults(func=cmd_evaluate)
     return e

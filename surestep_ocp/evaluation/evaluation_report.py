@@ -1,4 +1,5 @@
-"""Outputs of `surestep evaluate`: table.md, raw.csv, solves.csv and boxplot.png from per-configuration records.
+"""Outputs of `surestep evaluate`: table.md, raw.csv, solves.csv and boxplot.png from
+per-configuration records.
 
 A record is one line of `progress.jsonl` (see `evaluation.evaluate_configuration`):
 `metrics[mode][method][metric]` absolute values, `solves[method]` the solver's
@@ -27,38 +28,48 @@ from ..output.plot_styles import styles_of
 from ..output.solution import write_text_atomic
 
 LABELS = {"pos_err_mean": "pos mean", "pos_err_std": "pos std", "ori_err_mean": "ori mean",
-          "ori_err_std": "ori std", "trace_noisy": "Tr noisy", "trace_ml": "Tr ML", "entropy_noisy": "H noisy",
-          "entropy_ml": "H ML"}
+          "ori_err_std": "ori std", "trace_noisy": "Tr noisy", "trace_ml": "Tr ML",
+          "entropy_noisy": "H noisy", "entropy_ml": "H ML"}
 # The paper's Table I (relative to the baseline), rows matched to our methods.
 PAPER = {
-    "gradient": ("SURESTEP (all)", (0.4272, 0.5425, 0.1747, 0.4633, 0.1597, 0.1819, 0.3677, 0.5078)),
-    "gradient-no-pose-loss": ("no pose loss", (0.412, 0.5205, 0.16, 0.3622, 0.1494, 0.1401, 0.3265, 0.4311)),
-    "gradient-no-depth": ("no depth noise", (0.5019, 0.553, 0.2419, 0.4994, 0.2188, 0.3183, 0.5046, 0.6658)),
-    "gradient-no-fov": ("no FOV noise", (0.4743, 0.5771, 0.2136, 0.5098, 0.2033, 0.246, 0.4636, 0.6016)),
+    "gradient": ("SURESTEP (all)",
+                 (0.4272, 0.5425, 0.1747, 0.4633, 0.1597, 0.1819, 0.3677, 0.5078)),
+    "gradient-no-pose-loss": ("no pose loss",
+                              (0.412, 0.5205, 0.16, 0.3622, 0.1494, 0.1401, 0.3265, 0.4311)),
+    "gradient-no-depth": ("no depth noise",
+                          (0.5019, 0.553, 0.2419, 0.4994, 0.2188, 0.3183, 0.5046, 0.6658)),
+    "gradient-no-fov": ("no FOV noise",
+                        (0.4743, 0.5771, 0.2136, 0.5098, 0.2033, 0.246, 0.4636, 0.6016)),
     "gradient-no-orientation": ("no orientation noise",
                                 (0.9862, 0.978, 0.8929, 0.9425, 0.9375, 0.9441, 0.9723, 0.9773)),
 }
-MODE_TEXT = {"model": "v_t ~ N(0, V(mu_t|t-1)), the noise the tracker's model expects at its estimate",
+MODE_TEXT = {"model": "v_t ~ N(0, V(mu_t|t-1)), the noise the tracker's model expects at "
+                      "its estimate",
              "true": "v_t ~ N(0, V(x_true)), the noise the detector has at the true pose"}
 
 
 def _values(records, mode, method, metric) -> np.ndarray:
-    return np.array([r["metrics"].get(mode, {}).get(method, {}).get(metric, math.nan) for r in records], float)
+    return np.array([r["metrics"].get(mode, {}).get(method, {}).get(metric, math.nan)
+                     for r in records], float)
 
 
-# The paper's Table II (real robot, 60 needle regrasps over the four trajectory types): success rates.
+# The paper's Table II (real robot, 60 needle regrasps over the four trajectory types): success
+# rates.
 PAPER_SUCCESS = {"gradient": 0.82, "baseline": 0.18}
-ROBUST = ("pos_err_mean", "ori_err_mean", "trace_ml")  # metrics with median / p90 columns in the main table
+# metrics with median / p90 columns in the main table
+ROBUST = ("pos_err_mean", "ori_err_mean", "trace_ml")
 
 
 def _ratios(records, mode, method, metric) -> np.ndarray:
     y, b = _values(records, mode, method, metric), _values(records, mode, "baseline", metric)
-    r = np.array([relative(yi, bi) if np.isfinite(yi) and np.isfinite(bi) else math.nan for yi, bi in zip(y, b)])
+    r = np.array([relative(yi, bi) if np.isfinite(yi) and np.isfinite(bi) else math.nan
+                  for yi, bi in zip(y, b)])
     return r[np.isfinite(r)]
 
 
 def relative_stats(records, methods, modes) -> dict:
-    """st[mode][method][metric] = {mean, median, p90, n} of the per-configuration ratios to the baseline."""
+    """st[mode][method][metric] = {mean, median, p90, n} of the per-configuration ratios to the
+    baseline."""
     out: dict = {}
     for mode in modes:
         out[mode] = {}
@@ -68,25 +79,32 @@ def relative_stats(records, methods, modes) -> dict:
                 r = _ratios(records, mode, m, k)
                 out[mode][m][k] = {"mean": float(np.mean(r)) if len(r) else math.nan,
                                    "median": float(np.median(r)) if len(r) else math.nan,
-                                   "p90": float(np.percentile(r, 90)) if len(r) else math.nan, "n": len(r)}
+                                   "p90": float(np.percentile(r, 90)) if len(r) else math.nan,
+                                   "n": len(r)}
     return out
 
 
 def pooled(records, key: str, mode: str, method: str) -> np.ndarray:
-    """Every rollout's value of `key` (pos_errors / ori_errors) for a method and mode, all configurations."""
-    return np.array([e for r in records for e in r.get(key, {}).get(mode, {}).get(method, [])], float)
+    """Every rollout's value of `key` (pos_errors / ori_errors) for a method and mode, all
+    configurations."""
+    return np.array([e for r in records for e in r.get(key, {}).get(mode, {}).get(method, [])],
+                    float)
 
 
 def success_share(records, mode: str, method: str) -> tuple[float, int]:
-    """(share of rollouts within the grasp tolerances, configurations counted); equal rollouts per configuration."""
-    v = [r["success"][mode][method] for r in records if method in r.get("success", {}).get(mode, {})]
+    """(share of rollouts within the grasp tolerances, configurations counted); equal rollouts per
+    configuration."""
+    v = [r["success"][mode][method] for r in records
+         if method in r.get("success", {}).get(mode, {})]
     return (float(np.mean(v)) if v else math.nan), len(v)
 
 
 def relative_means(records, methods, modes) -> dict:
-    """rel[mode][method][metric] = (mean over configurations of relative(y_c, b_c), configurations used)."""
+    """rel[mode][method][metric] = (mean over configurations of relative(y_c, b_c), configurations
+    used)."""
     st = relative_stats(records, methods, modes)
-    return {mode: {m: {k: (v["mean"], v["n"]) for k, v in st[mode][m].items()} for m in methods} for mode in modes}
+    return {mode: {m: {k: (v["mean"], v["n"]) for k, v in st[mode][m].items()} for m in methods}
+            for mode in modes}
 
 
 def _fmt(v: float, f: str = "{:.3f}") -> str:
@@ -97,7 +115,8 @@ def _solve_stats(records, methods) -> dict:
     st = {}
     for m in methods:
         s = [r["solves"][m] for r in records if m in r["solves"]]
-        st[m] = {"failed": sum(not x["success"] for x in s), "no_plan": sum(not x["evaluated"] for x in s),
+        st[m] = {"failed": sum(not x["success"] for x in s),
+                 "no_plan": sum(not x["evaluated"] for x in s),
                  "kept": sum("kept_start" in x for x in s),
                  "time": float(np.mean([x["solve_time_s"] for x in s])) if s else math.nan,
                  "iters": float(np.median([x["iterations"] for x in s])) if s else math.nan}
@@ -109,15 +128,17 @@ def markdown(records, methods, modes, header, spec) -> str:
     n = len(records)
     det = getattr(spec, "detection", None)
     det_text = ("every step observes (detection disabled)" if det is None else
-                f"a step observes only when the true pose is detectable: depth in ({det.min_depth:g}, "
-                f"{det.max_depth:g}) m and inside the image less a {det.margin:g} margin"
+                "a step observes only when the true pose is detectable: depth in "
+                f"({det.min_depth:g}, {det.max_depth:g}) m and inside the image less a "
+                f"{det.margin:g} margin"
                 + (f", probability ramping over {det.falloff:g}" if det.falloff else "")
                 + ", and the measurement too (gating); otherwise the EKF only predicts")
     gp, ga = getattr(spec, "grasp_position", math.nan), getattr(spec, "grasp_angle", math.nan)
     grad = spec.base.gradient
     grad_text = (f"gradient variant: {grad.optimizer} L-BFGS"
                  + (f", {grad.steps} step() calls of up to {grad.max_iter} iterations, line search "
-                    f"{grad.line_search}" if grad.optimizer == "torch" else f", {grad.iterations} iterations")
+                    f"{grad.line_search}" if grad.optimizer == "torch"
+                    else f", {grad.iterations} iterations")
                  + f", trace_scale {grad.trace_scale:g}, pose_loss_weight {grad.pose_loss_weight:g}"
                  + (f" (preset {grad.preset})" if grad.preset else ""))
     kept = [f"configuration {r['config']} ({m}: {r['solves'][m]['kept_start']})" for r in records
@@ -126,35 +147,43 @@ def markdown(records, methods, modes, header, spec) -> str:
     if pace == "limits":
         steps = {m: [r["solves"][m]["rollout_steps"] for r in records
                      if "rollout_steps" in r["solves"].get(m, {})] for m in methods}
-        pace_text = ("**Execution**: each plan run no faster than the tool's speed limits (`execution.pace: limits`, "
-                     "`pacing.py`: a step over them split into equal rollout steps, one observation each); rollout "
-                     "steps per plan, median / max: " + "; ".join(
+        pace_text = ("**Execution**: each plan run no faster than the tool's speed limits "
+                     "(`execution.pace: limits`, `pacing.py`: a step over them split into equal "
+                     "rollout steps, one observation each); rollout steps per plan, "
+                     "median / max: " + "; ".join(
                          f"{m} {np.median(v):.0f} / {max(v)}" for m, v in steps.items() if v) + ".")
     else:
-        pace_text = ("**Execution**: every plan at its planned pace, one rollout step (one observation) per plan "
-                     "step however large (`execution.pace: planned`, the paper's protocol).")
+        pace_text = ("**Execution**: every plan at its planned pace, one rollout step (one "
+                     "observation) per plan step however large (`execution.pace: planned`, the "
+                     "paper's protocol).")
     lines = [f"# Evaluation on `{spec.path}`", "",
-             f"{n} random configurations (seed {header['seed']}, base problem `{spec.base_path.name}`, horizon "
-             f"T = {spec.horizon}), {header['rollouts']} noisy closed-loop rollouts per plan and rollout mode; "
-             f"every plan evaluated with all observation components; {det_text}; {grad_text}.", "",
-             "**How the relative numbers are made.** For configuration c, method m and metric k, let y = the "
-             "method's absolute value and b = the baseline's on the same configuration (same rollout noise "
-             "draws). The per-configuration ratio is the paper's scaling (`metrics.relative`): y / b when both "
-             "are positive, 1 - (y - b) / b when both are negative (entropies), undefined (excluded) for mixed "
-             "signs. `mean` cells are the mean of these ratios over configurations (the paper's statistic; lower "
-             "is better, baseline = 1); `med` and `p90` are their median and 90th percentile. "
-             "pos/ori = final position error ||p_T^true - p^G|| and geodesic orientation error "
-             "angle(R_T^true, R^G), mean and sample std over the rollouts of one configuration; Tr noisy and "
-             "H noisy = Tr(Sigma_T) and Gaussian entropy of the rollouts' EKF, mean over rollouts; Tr ML and "
-             "H ML = the plan's own maximum-likelihood Sigma_T. `grasp` = share of all rollouts whose final true "
-             f"pose is within {gp * 1e3:g} mm and {ga:g} rad of the goal (the simulated Table II; absolute, "
-             "not relative).", "",
-             "**Failed solves** are counted in the `failed` column and are not dropped: a plan whose solver "
-             "reported failure is still rolled out and averaged in; only a method that produced no plan at all "
-             "(`no plan`) is left out of that configuration's averages (`n` = configurations averaged).", "",
+             (f"{n} random configurations (seed {header['seed']}, base problem "
+              f"`{spec.base_path.name}`, horizon T = {spec.horizon}), {header['rollouts']} noisy "
+              "closed-loop rollouts per plan and rollout mode; every plan evaluated with all "
+              f"observation components; {det_text}; {grad_text}."), "",
+             ("**How the relative numbers are made.** For configuration c, method m and metric k, "
+              "let y = the method's absolute value and b = the baseline's on the same "
+              "configuration (same rollout noise draws). The per-configuration ratio is the "
+              "paper's scaling (`metrics.relative`): y / b when both are positive, 1 - (y - b) / "
+              "b when both are negative (entropies), undefined (excluded) for mixed signs. `mean` "
+              "cells are the mean of these ratios over configurations (the paper's statistic; "
+              "lower is better, baseline = 1); `med` and `p90` are their median and 90th "
+              "percentile. pos/ori = final position error ||p_T^true - p^G|| and geodesic "
+              "orientation error angle(R_T^true, R^G), mean and sample std over the rollouts of "
+              "one configuration; Tr noisy and H noisy = Tr(Sigma_T) and Gaussian entropy of the "
+              "rollouts' EKF, mean over rollouts; Tr ML and H ML = the plan's own "
+              "maximum-likelihood Sigma_T. `grasp` = share of all rollouts whose final true pose "
+              f"is within {gp * 1e3:g} mm and {ga:g} rad of the goal (the simulated Table II; "
+              "absolute, not relative)."), "",
+             ("**Failed solves** are counted in the `failed` column and are not dropped: a plan "
+              "whose solver reported failure is still rolled out and averaged in; only a method "
+              "that produced no plan at all (`no plan`) is left out of that configuration's "
+              "averages (`n` = configurations averaged)."), "",
              pace_text, "",
-             "`kept start`: the OCP's solvers ended above the straight line they started from, which is then the "
-             "plan; the attempts' statuses say why: " + ("; ".join(kept) if kept else "none") + ".", ""]
+             "`kept start`: the OCP's solvers ended above the straight line they started from, "
+             "which is then the plan; the attempts' statuses "
+             "say why: " + ("; ".join(kept) if kept else "none") + ".",
+             ""]
     cols = []
     for k in METRICS:
         cols.append("Tr ML mean" if k == "trace_ml" else LABELS[k])
@@ -164,7 +193,8 @@ def markdown(records, methods, modes, header, spec) -> str:
     plain = [LABELS[k] for k in METRICS]
     for mode in modes:
         lines += [f"## Rollout mode `{mode}`: {MODE_TEXT[mode]}", "",
-                  "| method | " + " | ".join(cols) + " | grasp | n | failed | no plan | kept start | solve time [s] | "
+                  "| method | " + " | ".join(cols)
+                  + " | grasp | n | failed | no plan | kept start | solve time [s] | "
                   "iters (median) |", "|---" * (len(cols) + 8) + "|"]
         for m in methods:
             cells = []
@@ -177,17 +207,21 @@ def markdown(records, methods, modes, header, spec) -> str:
             lines.append(f"| {m} | " + " | ".join(cells) + f" | {_fmt(succ, '{:.0%}')} | {used} | "
                          f"{st[m]['failed']} | {st[m]['no_plan']} | {st[m]['kept']} | "
                          f"{_fmt(st[m]['time'], '{:.2f}')} | {_fmt(st[m]['iters'], '{:.0f}')} |")
-        lines += ["", f"Beside the paper's Table I (cells: our mean / paper; the paper gives means only), "
-                      f"mode `{mode}`:", "",
+        lines += ["",
+                  ("Beside the paper's Table I (cells: our mean / paper; the paper gives means "
+                   f"only), mode `{mode}`:"), "",
                   "| ours | paper | " + " | ".join(plain) + " |", "|---" * (len(plain) + 2) + "|"]
         for m, (label, vals) in PAPER.items():
             if m in methods:
-                cells = [f"{_fmt(rel[mode][m][k]['mean'])} / {p:.3f}" for k, p in zip(METRICS, vals)]
+                cells = [f"{_fmt(rel[mode][m][k]['mean'])} / {p:.3f}"
+                         for k, p in zip(METRICS, vals)]
                 lines.append(f"| {m} | {label} | " + " | ".join(cells) + " |")
-        lines += ["", f"Absolute values, mode `{mode}`: means over configurations (pos in mm, ori in mrad), then "
-                      "the pooled final errors of every rollout (median, 90th percentile, maximum) and the share "
-                      "of steps with an observation:", "",
-                  "| method | " + " | ".join(plain) + " | pos med [mm] | pos p90 [mm] | pos max [mm] | "
+        lines += ["",
+                  (f"Absolute values, mode `{mode}`: means over configurations (pos in mm, ori in "
+                   "mrad), then the pooled final errors of every rollout (median, 90th "
+                   "percentile, maximum) and the share of steps with an observation:"), "",
+                  "| method | " + " | ".join(plain)
+                  + " | pos med [mm] | pos p90 [mm] | pos max [mm] | "
                   "ori med [mrad] | ori p90 [mrad] | ori max [mrad] | observed |",
                   "|---" * (len(plain) + 8) + "|"]
         for m in methods:
@@ -207,7 +241,8 @@ def markdown(records, methods, modes, header, spec) -> str:
                 cells += [_fmt(float(np.median(e)) if len(e) else math.nan, "{:.2f}"),
                           _fmt(float(np.percentile(e, 90)) if len(e) else math.nan, "{:.2f}"),
                           _fmt(float(np.max(e)) if len(e) else math.nan, "{:.1f}")]
-            obs = [r["detected"][mode][m] for r in records if m in r.get("detected", {}).get(mode, {})]
+            obs = [r["detected"][mode][m] for r in records
+                   if m in r.get("detected", {}).get(mode, {})]
             cells.append(_fmt(float(np.mean(obs)) if obs else math.nan, "{:.1%}"))
             lines.append(f"| {m} | " + " | ".join(cells) + " |")
         lines.append("")
@@ -216,11 +251,13 @@ def markdown(records, methods, modes, header, spec) -> str:
 
 
 def table2(records, methods, modes, gp: float, ga: float) -> list[str]:
-    """The simulated Table II: grasp success share per method and rollout mode, beside the paper's real-robot rates."""
+    """The simulated Table II: grasp success share per method and rollout mode, beside the paper's
+    real-robot rates."""
     lines = ["## Simulated Table II: grasp success", "",
-             f"Share of rollouts whose final true pose is within {gp * 1e3:g} mm and {ga:g} rad of the goal "
-             "(over all configurations and rollouts). The paper's Table II is 60 real needle regrasps on the "
-             "dVRK over four trajectory types: SURESTEP 82 %, the straight-line baseline 18 %.", "",
+             (f"Share of rollouts whose final true pose is within {gp * 1e3:g} mm and {ga:g} rad "
+              "of the goal (over all configurations and rollouts). The paper's Table II is 60 "
+              "real needle regrasps on the dVRK over four trajectory types: SURESTEP 82 %, the "
+              "straight-line baseline 18 %."), "",
              "| method | " + " | ".join(f"grasp `{m}`" for m in modes) + " | paper (real robot) |",
              "|---" * (len(modes) + 2) + "|"]
     for m in methods:
@@ -237,7 +274,8 @@ def write_outputs(records, out: Path, methods, modes, header, spec) -> str:
     write_text_atomic(out / "table.md", table + "\n")
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
-    # a method without a plan (or whose rollouts failed) has empty values and its status in `missing`, not a NaN
+    # a method without a plan (or whose rollouts failed) has empty values and its status in
+    # `missing`, not a NaN
     w.writerow(["config", "mode", "method", "metric", "value", "missing"])
     for r in records:
         for mode in modes:
@@ -245,7 +283,8 @@ def write_outputs(records, out: Path, methods, modes, header, spec) -> str:
                 vals = r["metrics"].get(mode, {}).get(m, {})
                 why = "" if vals else r["solves"].get(m, {}).get("status", "not run")
                 for k in METRICS:
-                    w.writerow([r["config"], mode, m, k, repr(float(vals[k])) if k in vals else "", why])
+                    w.writerow([r["config"], mode, m, k, repr(float(vals[k])) if k in vals else "",
+                                why])
                 for k, key in (("grasp_success", "success"), ("observed", "detected")):
                     v = r.get(key, {}).get(mode, {}).get(m)
                     w.writerow([r["config"], mode, m, k, "" if v is None else repr(float(v)), why])
@@ -256,14 +295,17 @@ def write_outputs(records, out: Path, methods, modes, header, spec) -> str:
     for r in records:
         for m in methods:
             s = r["solves"][m]
-            w.writerow([r["config"], m, s["success"], s["status"], f"{s['solve_time_s']:.4f}", s["iterations"]])
+            w.writerow([r["config"], m, s["success"], s["status"], f"{s['solve_time_s']:.4f}",
+                        s["iterations"]])
     write_text_atomic(out / "solves.csv", buf.getvalue())
     gp = getattr(spec, "grasp_position", None)
-    boxplot(records, methods, modes, out / "boxplot.png", header.get("rollouts"), gp * 1e3 if gp else None)
+    boxplot(records, methods, modes, out / "boxplot.png", header.get("rollouts"),
+            gp * 1e3 if gp else None)
     return table
 
 
-def boxplot(records, methods, modes, path: Path, rollouts: int | None = None, grasp_mm: float | None = None) -> None:
+def boxplot(records, methods, modes, path: Path, rollouts: int | None = None,
+            grasp_mm: float | None = None) -> None:
     """Final position errors [mm] of every rollout of every configuration, per method and mode.
 
     Tick labels count the method's failed solves (their plans are in the boxes too).
@@ -273,17 +315,19 @@ def boxplot(records, methods, modes, path: Path, rollouts: int | None = None, gr
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, len(modes), figsize=(1.0 + 0.75 * len(methods) * len(modes), 4.6), squeeze=False,
-                             sharey=True)
+    fig, axes = plt.subplots(1, len(modes), figsize=(1.0 + 0.75 * len(methods) * len(modes), 4.6),
+                             squeeze=False, sharey=True)
     for ax, mode in zip(axes[0], modes):
-        data = [np.array([e for r in records for e in r["pos_errors"].get(mode, {}).get(m, [])]) * 1e3
+        data = [np.array([e for r in records for e in r["pos_errors"].get(mode, {}).get(m, [])])
+                * 1e3
                 for m in methods]
-        boxes = ax.boxplot([d if len(d) else [math.nan] for d in data], whis=(5, 95), showfliers=True,
-                           patch_artist=True, medianprops={"color": "k"},
+        boxes = ax.boxplot([d if len(d) else [math.nan] for d in data], whis=(5, 95),
+                           showfliers=True, patch_artist=True, medianprops={"color": "k"},
                            flierprops={"markersize": 1.5, "alpha": 0.4})
-        for box, st in zip(boxes["boxes"], styles_of(methods).values()):  # colour, line style, hollow: as in the plots
-            box.set(facecolor=st.colour, alpha=0.6, edgecolor="k", linewidth=1.1, linestyle=st.linestyle,
-                    hatch=None if st.filled else "//")
+        # colour, line style, hollow: as in the plots
+        for box, st in zip(boxes["boxes"], styles_of(methods).values()):
+            box.set(facecolor=st.colour, alpha=0.6, edgecolor="k", linewidth=1.1,
+                    linestyle=st.linestyle, hatch=None if st.filled else "//")
         st = _solve_stats(records, methods)
         labels = [m + (f" ({st[m]['failed']} failed)" if st[m]["failed"] else "") for m in methods]
         ax.set_xticks(range(1, len(methods) + 1), labels, rotation=45, ha="right", fontsize=8)
@@ -295,7 +339,8 @@ def boxplot(records, methods, modes, path: Path, rollouts: int | None = None, gr
     axes[0][0].set_ylabel("final position error ||p_T - p^G|| [mm]")
     per = f"{rollouts} rollouts" if rollouts else "rollouts"
     fig.suptitle(f"final position errors, {len(records)} configurations x {per}, pooled\n"
-                 "box: quartiles (line: median), whiskers: 5th-95th percentile, dots: the 10 % beyond"
+                 "box: quartiles (line: median), whiskers: 5th-95th percentile, dots: the "
+                 "10 % beyond"
                  + ("; dashed: grasp tolerance" if grasp_mm else ""), fontsize=10)
     fig.tight_layout()
     b = io.BytesIO()

@@ -26,7 +26,8 @@ def relative(y: float, b: float) -> float:
 
 
 def solution_metrics(sol: Solution) -> dict:
-    """Figures of one plan: final covariance, terminal error, clipping step, worst depth and image offset."""
+    """Figures of one plan: final covariance, terminal error, clipping step, worst depth and image
+    offset."""
     poses = np.asarray(sol.poses)
     intr = Intrinsics(**sol.camera)
     d_star = float(sol.noise["depth_star"])
@@ -46,7 +47,8 @@ def solution_metrics(sol: Solution) -> dict:
         "final_step_m": float(np.linalg.norm(poses[-1, :3] - poses[-2, :3])),
         "final_step_rad": np_angle(poses[-2, 3:], poses[-1, 3:]),
         "worst_depth_error_m": float(np.max(np.abs(inner[:, 2] - d_star))),
-        "worst_image_offset": float(np.max(offsets)),  # normalised image plane [-], interior waypoints
+        # normalised image plane [-], interior waypoints
+        "worst_image_offset": float(np.max(offsets)),
         "unreachable_waypoints": int(reach.get("unreachable", unreachable)),
         "solve_time_s": sol.solve_time_s,
         "iterations": sol.iterations,

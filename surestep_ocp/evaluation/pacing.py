@@ -1,14 +1,16 @@
-"""How the simulated robot runs a plan: at its planned pace, or no faster than the tool's speed limits.
+"""How the simulated robot runs a plan: at its planned pace, or no faster than the tool's speed
+limits.
 
 A plan is one waypoint per step of `timing.step_s`. At the planned pace (`planned`, the paper's
-protocol) a rollout executes one plan step per rollout step, however large. A dVRK cannot take a
-68 mm or 2.8 rad step in 0.05 s: its controller would run it more slowly, and the tracker would
-keep observing meanwhile. At `limits` pace each plan step is split into the fewest equal rollout
-steps of `step_s` each (one observation each, as every rollout step) for which the tool moves no
-faster than `MotionLimits.tool_speed` and turns no faster than `tool_rotation`: the position
-linearly, the orientation along the geodesic (`baseline.straight_line` on each step), so the path
-is the plan's between its waypoints. A step within both limits is left as it is; a plan within them is rolled out exactly as
-at the planned pace.
+protocol) a rollout executes one plan step per rollout step, however large. A dVRK cannot take the
+plans' largest steps in 0.05 s (docs/evaluation.md, "Running the plans at the robot's pace"): its
+controller would run them more slowly, and the tracker would keep observing meanwhile. At `limits`
+pace each plan step is split into the fewest equal rollout steps of `step_s` each (one observation
+each, as every rollout step) for which the tool moves no faster than `MotionLimits.tool_speed` and
+turns no faster than `tool_rotation`: the position linearly, the orientation along the geodesic
+(`baseline.straight_line` on each step), so the path is the plan's between its waypoints. A step
+within both limits is left as it is; a plan within them is rolled out exactly as at the planned
+pace.
 """
 
 from __future__ import annotations
@@ -23,7 +25,8 @@ from ..solvers.baseline import straight_line
 PACES = ("planned", "limits")
 
 
-def substeps(poses: np.ndarray, step_s: float, tool_speed: float, tool_rotation: float) -> np.ndarray:
+def substeps(poses: np.ndarray, step_s: float, tool_speed: float,
+             tool_rotation: float) -> np.ndarray:
     """(T,) the number of rollout steps each plan step takes at the tool's limits (>= 1)."""
     P = np.asarray(poses, float)
     R = Rotation.from_rotvec(P[:, 3:])
@@ -35,7 +38,8 @@ def substeps(poses: np.ndarray, step_s: float, tool_speed: float, tool_rotation:
 
 
 def paced(poses: np.ndarray, step_s: float, tool_speed: float, tool_rotation: float) -> np.ndarray:
-    """(T' + 1, 6) waypoints of the plan run no faster than the tool's limits (`poses` when T' = T)."""
+    """(T' + 1, 6) waypoints of the plan run no faster than the tool's limits (`poses` when
+    T' = T)."""
     P = np.asarray(poses, float)
     if not (step_s > 0 and tool_speed > 0 and tool_rotation > 0) or not all(map(math.isfinite, (
             step_s, tool_speed, tool_rotation))):
@@ -45,8 +49,10 @@ def paced(poses: np.ndarray, step_s: float, tool_speed: float, tool_rotation: fl
     if np.all(k == 1):
         return P
     out = [P[:1]]
-    for t, kt in enumerate(k):  # the baseline's interpolation, on each step: position linear, shortest rotation
+    # the baseline's interpolation, on each step: position linear, shortest rotation
+    for t, kt in enumerate(k):
         seg = straight_line(P[t], P[t + 1], int(kt))[1:]
-        seg[-1] = P[t + 1]  # the waypoint itself (the continued rotation vector may be its other-side twin)
+        # the waypoint itself (the continued rotation vector may be its other-side twin)
+        seg[-1] = P[t + 1]
         out.append(seg)
     return np.vstack(out)

@@ -76,7 +76,8 @@ class Detection:
         u = (camera.fx * p[:, 0] / zs + camera.cx) / camera.width
         v = (camera.fy * p[:, 1] / zs + camera.cy) / camera.height
         # distance to the detectable region's border, in image fractions (negative outside)
-        inside = np.minimum.reduce([u - self.margin, 1 - self.margin - u, v - self.margin, 1 - self.margin - v])
+        inside = np.minimum.reduce([u - self.margin, 1 - self.margin - u, v - self.margin,
+                                    1 - self.margin - v])
         if self.falloff > 0:
             prob = np.clip(inside / self.falloff, 0.0, 1.0)
         else:
@@ -111,12 +112,14 @@ class Rollouts:
 
     @property
     def entropy(self) -> np.ndarray:
-        """(N,) Gaussian entropy [nats] of each rollout's Sigma_T (-inf if not positive definite)."""
+        """(N,) Gaussian entropy [nats] of each rollout's Sigma_T (-inf if not positive
+        definite)."""
         sign, logdet = np.linalg.slogdet(self.sigma_final)
         return np.where(sign > 0, _ENTROPY_CONST + 0.5 * logdet, -np.inf)
 
     def summary(self) -> dict[str, float]:
-        """Mean and sample standard deviation (ddof=1) of the final errors; mean Tr(Sigma_T) and entropy."""
+        """Mean and sample standard deviation (ddof=1) of the final errors; mean Tr(Sigma_T) and
+        entropy."""
         ddof = 1 if self.n > 1 else 0
         return {
             "pos_err_mean": float(np.mean(self.pos_err)),
@@ -129,8 +132,8 @@ class Rollouts:
 
 
 class BatchedNoise:
-    """The model's noise Functions mapped over N poses at once (CasADi `Function.map`), taking poses `(p, r)`
-    (converted to the model's means, `lie.np_means`)."""
+    """The model's noise Functions mapped over N poses at once (CasADi `Function.map`), taking poses
+    `(p, r)` (converted to the model's means, `lie.np_means`)."""
 
     def __init__(self, model: BeliefModel, n: int):
         self.n = n
@@ -201,7 +204,8 @@ def rollout(
         model: the belief model of the EKF and of the noise (use all components:
             `Setup.eval_model`); only identity motion/observation maps are supported.
         poses: (T+1, 6) planned waypoints, camera frame; `poses[0]` is the start.
-        goal: (6,) goal pose for the errors (default: the last waypoint), in the last step's camera frame.
+        goal: (6,) goal pose for the errors (default: the last waypoint), in the last step's camera
+            frame.
         n: number of rollouts.
         rng: a NumPy Generator or a seed. Per step the draws are, in this order,
             `n x 6` normals for w and `n x 6` for v (after `n x 6` for the initial
@@ -234,10 +238,13 @@ def rollout(
     if mode not in MODES:
         raise ValueError(f"unknown rollout mode '{mode}'; allowed: {', '.join(MODES)}")
     if not has_identity_maps(model):
-        raise ValueError("rollouts support belief models with identity motion and observation maps only")
-    if model.joint_noise:  # the rollouts sample pose-space noise from the waypoints alone: the term would be lost
-        raise SurestepError("noise.joint_motion_sigma: the rollouts (surestep evaluate) sample pose-space motion "
-                            "noise from the waypoints only; evaluate without the joint-space term")
+        raise ValueError("rollouts support belief models with identity motion and observation "
+                         "maps only")
+    # the rollouts sample pose-space noise from the waypoints alone: the term would be lost
+    if model.joint_noise:
+        raise SurestepError("noise.joint_motion_sigma: the rollouts (surestep evaluate) sample "
+                            "pose-space motion noise from the waypoints only; evaluate without the "
+                            "joint-space term")
     poses = np.asarray(poses, dtype=float)
     if poses.ndim != 2 or poses.shape[1] != NX or len(poses) < 2:
         raise ValueError(f"poses must have shape (T+1, {NX}) with T >= 1, got {poses.shape}")
@@ -255,10 +262,12 @@ def rollout(
     else:
         true_p, true_R = mu_p.copy(), mu_R
     sigma = np.tile(sigma0, (n, 1, 1))
-    paths_true, paths_est = ([_pose(true_p, true_R)], [_pose(mu_p, mu_R)]) if keep_paths else (None, None)
+    paths_true, paths_est = (([_pose(true_p, true_R)], [_pose(mu_p, mu_R)]) if keep_paths
+                             else (None, None))
 
     detected = np.ones((n, len(poses) - 1), dtype=bool)
-    u_rng = rng.spawn(1)[0] if detection is not None and detection.falloff > 0 else None  # leaves rng's stream
+    # leaves rng's stream
+    u_rng = rng.spawn(1)[0] if detection is not None and detection.falloff > 0 else None
     own = None  # (N, T+1, 6) each rollout's waypoints, once `replan` has been called
     for t in range(len(poses) - 1):
         if changes is not None and t < len(changes) and changes[t] is not None:  # then it holds
@@ -274,11 +283,12 @@ def rollout(
             F[:3, :3] = F[3:, 3:] = Dc[:3, :3]  # left-perturbation errors rotate with the frame
             sigma = F @ sigma @ F.T + Wc
             if replan is not None:
-                current = np.array(np.broadcast_to(poses, (n, *poses.shape)) if own is None else own)
+                current = np.array(np.broadcast_to(poses, (n, *poses.shape)) if own is None
+                                   else own)
                 own = np.asarray(replan(t, _pose(mu_p, mu_R), sigma.copy(), current), dtype=float)
                 if own.shape != current.shape or not np.all(np.isfinite(own[:, t + 1:])):
-                    raise ValueError(f"replan at step {t} returned waypoints of shape {own.shape} (expected "
-                                     f"{current.shape}, finite)")
+                    raise ValueError(f"replan at step {t} returned waypoints of shape {own.shape} "
+                                     f"(expected {current.shape}, finite)")
         target = np.tile(poses[t + 1], (n, 1)) if own is None else own[:, t + 1].copy()
         z_w, z_v = rng.standard_normal((n, NX)), rng.standard_normal((n, NX))
         u_det = None if u_rng is None else u_rng.random(n)
@@ -306,7 +316,8 @@ def rollout(
             V_real = noise.observation(np.where(seen[:, None], _pose(true_p, true_R), pred))
         v = sample_gaussian(V_real, z_v)
         z_p, z_R = true_p + v[:, :3], Rotation.from_rotvec(v[:, 3:]) * true_R
-        if detection is not None:  # gating: a reported position outside the detectable region is no detection
+        # gating: a reported position outside the detectable region is no detection
+        if detection is not None:
             seen = seen & (detection.probability(model.camera, z_p) > 0)
             detected[:, t] = seen
         y = np.hstack([z_p - pred_p, (z_R * pred_R.inv()).as_rotvec()])

@@ -11,12 +11,14 @@ runs, each a name plus overrides:
     methods: [baseline, gradient, gradient-no-pose-loss]
     runs:
       - name: paper
-        gradient: {preset: paper}             # any evaluation-file key: gradient, detection, grasp, accept, ...
+        gradient: {preset: paper}             # any evaluation-file key: gradient, detection,
+                                              # grasp, accept, ...
         methods: [baseline, gradient]         # per-run methods / configs / rollouts / rollout_mode
       - name: noisy-camera
         noise: {V_f0: 4.0e-2}                 # merged into the base problem's noise section
-    grid:                                     # optional: the cartesian product of these lists, added as runs
-      detection.falloff: [0.0, 0.1]           #   named key=value,...; a dotted key reaches into a section
+    grid:                                     # optional: the cartesian product of these lists,
+      detection.falloff: [0.0, 0.1]           #   added as runs named key=value,...; a dotted key
+                                              #   reaches into a section
 
 Each run gets its own folder `OUT/<name>/` holding the derived `evaluation.yaml` (and
 `base.yaml` when `noise` is overridden) and the usual outputs of `surestep evaluate`
@@ -26,10 +28,11 @@ grasp success share, per method and mode).
 
 A sweep has at most 1,000 runs (its `runs` plus the grid's product, checked before the grid is
 expanded); a run's name is a folder name (no '/', '\\', control characters, leading '.'; at most
-200 characters); `evaluation:` must name an evaluation file (one with a `base:`). Every file the sweep
-writes is checked before any run starts: none may be one of its inputs (the sweep file, the evaluation
-file, its base problem) or a symbolic link; each is written whole (a temporary file renamed over it).
-The output folder is locked for the sweep (`run_lock.py`), each run's folder for its run.
+200 characters); `evaluation:` must name an evaluation file (one with a `base:`). Every file the
+sweep writes is checked before any run starts: none may be one of its inputs (the sweep file, the
+evaluation file, its base problem) or a symbolic link; each is written whole (a temporary file
+renamed over it). The output folder is locked for the sweep (`run_lock.py`), each run's folder for
+its run.
 """
 
 from __future__ import annotations
@@ -54,10 +57,12 @@ from .evaluation import Terminated, _sigterm_raises, read_progress, run_evaluati
 from .evaluation_report import relative_stats, success_share
 from .run_lock import hold
 
-_TOP = {"evaluation", "configs", "rollouts", "seed", "rollout_mode", "methods", "runs", "grid", "description"}
+_TOP = {"evaluation", "configs", "rollouts", "seed", "rollout_mode", "methods", "runs", "grid",
+        "description"}
 _RUN_SETTINGS = {"name", "methods", "configs", "rollouts", "rollout_mode", "noise"}
 _MODES = {"model": ("model",), "true": ("true",), "both": ("model", "true")}
-MAX_RUNS = 1000  # runs of one sweep (its `runs` plus the grid's product), checked before the grid is expanded
+# runs of one sweep (its `runs` plus the grid's product), checked before the grid is expanded
+MAX_RUNS = 1000
 MAX_NAME = 200  # characters of a run's name (a folder name)
 
 
@@ -95,8 +100,9 @@ def load_sweep(path: str | Path) -> dict:
             raise rd.fail("evaluation", f"file '{ev_text}' not found (relative to {path.parent})")
     ev_tree = read_yaml(ev)
     if not isinstance(ev_tree, dict) or not isinstance(ev_tree.get("base"), str):
-        raise rd.fail("evaluation", f"'{ev_text}' is not an evaluation file (it has no 'base:' naming its problem "
-                                    "file; a problem file is named by an evaluation file's 'base')")
+        raise rd.fail("evaluation",
+                      f"'{ev_text}' is not an evaluation file (it has no 'base:' naming its "
+                      "problem file; a problem file is named by an evaluation file's 'base')")
     shared = {
         "configs": rd.integer(top.get("configs", 100), "configs", minimum=1),
         "rollouts": rd.integer(top.get("rollouts", 50), "rollouts", minimum=2),
@@ -121,8 +127,10 @@ def load_sweep(path: str | Path) -> dict:
                 raise rd.fail(f"grid.{k}", "expected a non-empty list of values")
         points = math.prod(len(grid[k]) for k in keys)
         if points + len(raw_runs) > MAX_RUNS:
-            raise rd.fail("grid", f"{points} grid points{f' and {len(raw_runs)} runs' if raw_runs else ''}: at most "
-                                  f"{MAX_RUNS} runs in one sweep")
+            raise rd.fail("grid",
+                          f"{points} grid "
+                          f"points{f' and {len(raw_runs)} runs' if raw_runs else ''}: at most "
+                          f"{MAX_RUNS} runs in one sweep")
         for combo in itertools.product(*(grid[k] for k in keys)):
             run: dict = {"name": ",".join(f"{k}={v}" for k, v in zip(keys, combo))}
             for k, v in zip(keys, combo):
@@ -137,12 +145,14 @@ def load_sweep(path: str | Path) -> dict:
             raise rd.fail(key, "each run is a mapping with a name")
         name = rd.string(r["name"], f"{key}.name")
         if any(ord(c) < 32 or ord(c) == 127 for c in name) or "\\" in name or len(name) > MAX_NAME:
-            raise rd.fail(f"{key}.name", f"{shown(repr(name), 80)}: a run's name is a folder name: printable, "
-                                         f"without control characters or '\\', at most {MAX_NAME} characters")
+            raise rd.fail(f"{key}.name",
+                          f"{shown(repr(name), 80)}: a run's name is a folder name: printable, "
+                          f"without control characters or '\\', at most {MAX_NAME} characters")
         if not name or "/" in name or name in names or name.startswith("."):
             raise rd.fail(f"{key}.name", f"'{name}': names must be unique, non-empty, without '/'")
         names.add(name)
-        run = {**shared, "name": name, "overrides": {k: v for k, v in r.items() if k not in _RUN_SETTINGS}}
+        run = {**shared, "name": name, "overrides": {k: v for k, v in r.items()
+                                                     if k not in _RUN_SETTINGS}}
         for k in ("configs", "rollouts"):
             if k in r:
                 run[k] = rd.integer(r[k], f"{key}.{k}", minimum=1 if k == "configs" else 2)
@@ -151,7 +161,8 @@ def load_sweep(path: str | Path) -> dict:
         if "methods" in r:
             run["methods"] = _methods(rd, r["methods"], f"{key}.methods")
         if "noise" in r and not isinstance(r["noise"], dict):
-            raise rd.fail(f"{key}.noise", "expected a mapping (keys of the base problem's noise section)")
+            raise rd.fail(f"{key}.noise",
+                          "expected a mapping (keys of the base problem's noise section)")
         run["noise"] = r.get("noise")
         runs.append(run)
     return {"path": path, "evaluation": ev, "runs": runs}
@@ -166,7 +177,8 @@ def _methods(rd: Reader, node: Any, key: str) -> tuple[str, ...]:
 
 
 def write_run_files(sweep: dict, run: dict, out: Path) -> Path:
-    """The run's evaluation file (and derived base problem) in `out`; returns the evaluation file's path."""
+    """The run's evaluation file (and derived base problem) in `out`; returns the evaluation file's
+    path."""
     ev_path = Path(sweep["evaluation"]).resolve()
     tree = read_yaml(ev_path)
     base = (ev_path.parent / tree["base"]).resolve()
@@ -181,7 +193,8 @@ def write_run_files(sweep: dict, run: dict, out: Path) -> Path:
     if run["noise"]:
         btree = read_yaml(base)
         if not isinstance(btree.get("noise", {}), dict):
-            raise SurestepError(f"{base}: its 'noise' is not a section; the run '{run['name']}' cannot override it")
+            raise SurestepError(f"{base}: its 'noise' is not a section; the run '{run['name']}' "
+                                "cannot override it")
         btree["noise"] = _merge(btree.get("noise", {}), run["noise"])
         _absolutise(btree, base.parent)
         write_text_atomic(out / "base.yaml", yaml.safe_dump(btree, sort_keys=False))
@@ -207,7 +220,8 @@ def sweep_inputs(sweep: dict) -> list[Path]:
 
 
 def _absolutise(tree: Any, folder: Path) -> None:
-    """Make the `urdf` paths of a copied problem tree absolute where they resolve from its old folder."""
+    """Make the `urdf` paths of a copied problem tree absolute where they resolve from its old
+    folder."""
     if isinstance(tree, dict):
         for k, v in tree.items():
             if k == "urdf" and isinstance(v, str) and not Path(v).is_absolute():
@@ -222,16 +236,16 @@ def _absolutise(tree: Any, folder: Path) -> None:
             _absolutise(v, folder)
 
 
-def run_sweep(sweep_path: str | Path, out_dir: str | Path, jobs: int = 1, scheduler=None, resume: bool = False,
-              progress: bool = True, only: tuple[str, ...] = ()) -> str:
+def run_sweep(sweep_path: str | Path, out_dir: str | Path, jobs: int = 1, scheduler=None,
+              resume: bool = False, progress: bool = True, only: tuple[str, ...] = ()) -> str:
     """Run every run of a sweep (or those named in `only`); returns the summary table (Markdown)."""
     with _sigterm_raises():  # between runs too: SIGTERM raises Terminated, files whole or absent
         try:
             return _run_sweep(sweep_path, out_dir, jobs, scheduler, resume, progress, only)
         except Terminated as exc:
             if not exc.args:
-                raise Terminated(f"the files in {out_dir} are whole or absent; continue with the same command "
-                                 "plus --resume") from None
+                raise Terminated(f"the files in {out_dir} are whole or absent; continue with the "
+                                 "same command plus --resume") from None
             raise
 
 
@@ -245,7 +259,8 @@ def _run_sweep(sweep_path, out_dir, jobs, scheduler, resume, progress, only) -> 
     inputs = sweep_inputs(sweep)
     out = check_output_dir(out, inputs, "the sweep")
     with hold(out, "a sweep"):
-        # every file the sweep writes, checked before any run starts: none is an input or a symbolic link
+        # every file the sweep writes, checked before any run starts: none is an input or a symbolic
+        # link
         check_output_file(out / "sweep.md", inputs, "the sweep's summary")
         for run in runs:
             d = out / run["name"]
@@ -265,7 +280,8 @@ def _run_sweep(sweep_path, out_dir, jobs, scheduler, resume, progress, only) -> 
 
 def summary(out: Path, runs: list[dict]) -> str:
     """One line per run, method and mode from each run's progress.jsonl."""
-    lines = ["| run | mode | method | pos mean | pos med | Tr ML mean | Tr ML med | grasp | configs |",
+    lines = [("| run | mode | method | pos mean | pos med | Tr ML mean | Tr ML med | grasp "
+              "| configs |"),
              "|---|---|---|---|---|---|---|---|---|"]
     for run in runs:
         d = out / run["name"]
@@ -289,8 +305,8 @@ def summary(out: Path, runs: list[dict]) -> str:
 
 def cmd_sweep(args) -> int:
     try:
-        table = run_sweep(args.sweep, args.output_dir, args.jobs, args.scheduler, args.resume, not args.quiet,
-                          tuple(args.only or ()))
+        table = run_sweep(args.sweep, args.output_dir, args.jobs, args.scheduler, args.resume,
+                          not args.quiet, tuple(args.only or ()))
     except Terminated as exc:
         return say_terminated(exc)
     print(table)
@@ -300,15 +316,20 @@ def cmd_sweep(args) -> int:
 
 def register(subparsers):
     """Add the `sweep` subcommand."""
-    s = subparsers.add_parser("sweep", help="expand a sweep file into several evaluations and run them",
-                              description="Run every run of SWEEP.yaml as a `surestep evaluate` in OUT/<run>/ and "
-                                          "write OUT/sweep.md.")
-    s.add_argument("sweep", metavar="SWEEP.yaml", help="a sweep file: an evaluation file and its runs' overrides "
+    s = subparsers.add_parser("sweep",
+                              help="expand a sweep file into several evaluations and run them",
+                              description="Run every run of SWEEP.yaml as a `surestep evaluate` in "
+                                          "OUT/<run>/ and write OUT/sweep.md.")
+    s.add_argument("sweep", metavar="SWEEP.yaml",
+                   help="a sweep file: an evaluation file and its runs' overrides "
                    "(e.g. problems/evaluations/table1_readings.yaml)")
-    s.add_argument("--output-dir", required=True, help="folder for each run's evaluation (<run>/) and sweep.md")
+    s.add_argument("--output-dir", required=True,
+                   help="folder for each run's evaluation (<run>/) and sweep.md")
     s.add_argument("--jobs", type=int, default=1, help="worker processes per run (default 1)")
-    s.add_argument("--scheduler", metavar="ADDRESS", help="run on an existing Dask cluster (see evaluate)")
-    s.add_argument("--resume", action="store_true", help="continue runs already started in OUTPUT_DIR")
+    s.add_argument("--scheduler", metavar="ADDRESS",
+                   help="run on an existing Dask cluster (see evaluate)")
+    s.add_argument("--resume", action="store_true",
+                   help="continue runs already started in OUTPUT_DIR")
     s.add_argument("--only", nargs="+", metavar="RUN", help="run only these runs (by name)")
     s.add_argument("--quiet", action="store_true", help="no progress bars")
     s.set_defaults(func=cmd_sweep)

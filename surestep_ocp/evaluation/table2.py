@@ -1,6 +1,8 @@
-"""The simulated Table II per scenario type: grasp success of each method on the paper's trajectory types.
+"""The simulated Table II per scenario type: grasp success of each method on the paper's
+trajectory types.
 
-    .venv/bin/python -m surestep_ocp.evaluation.table2 [--rollouts 500] [--seed 0] [--output benchmarks/results/...md]
+    .venv/bin/python -m surestep_ocp.evaluation.table2 [--rollouts 500] [--seed 0]
+        [--output benchmarks/results/...md]
 
 The paper's Table II is 60 regrasps on the real dVRK over four trajectory types. Here each
 type is its problem file (`problems/type*.yaml`: one configuration each, Type 1 easy /
@@ -40,15 +42,17 @@ from .configs import GRASP_ANGLE_RAD, GRASP_POSITION_M
 from .rollout import MODES, Detection, rollout
 
 TYPES = [("Type 1 easy", "type1_easy.yaml"), ("Type 1 medium", "type1_medium.yaml"),
-         ("Type 1 hard (dim light)", "type1_hard.yaml"), ("Type 2 (needle arm moves)", "type2_needle_arm_moves.yaml"),
+         ("Type 1 hard (dim light)", "type1_hard.yaml"),
+         ("Type 2 (needle arm moves)", "type2_needle_arm_moves.yaml"),
          ("Type 3 (camera moves once)", "type3_camera_moves_once.yaml"),
          ("Type 4 (camera moves 4x, re-planned)", "type4_camera_moves.yaml")]
 METHODS = ("baseline", "gradient", "gradient-paper", "gradient-no-pose-loss", "ocp", "ocp-expected")
 
 
 def plans(setup, methods=METHODS, replanned: bool = False) -> dict:
-    """Each method's waypoints, each in its step's camera frame (as `Solution.poses` holds them: `evaluate`
-    re-expresses a plan made in the first camera frame); `gradient-paper` is `gradient` with `preset: paper`."""
+    """Each method's waypoints, each in its step's camera frame (as `Solution.poses` holds them:
+    `evaluate` re-expresses a plan made in the first camera frame); `gradient-paper` is `gradient`
+    with `preset: paper`."""
     out = {}
     for m in methods:
         if m == "gradient-paper":
@@ -66,14 +70,16 @@ def plans(setup, methods=METHODS, replanned: bool = False) -> dict:
 
 
 class RolloutReplanner:
-    """`rollout`'s `replan` hook for Type 4: each rollout re-plans after each camera move from its own belief.
+    """`rollout`'s `replan` hook for Type 4: each rollout re-plans after each camera move from its
+    own belief.
 
-    At the move before step t -> t+1, rollout i's EKF mean and covariance (in the new camera frame) go to its
-    own copy of one `Planner` (`replan(mean_i, cov_i, camera_pose=C[t+1], step=t)`: warm from that rollout's
-    previous plan, over the steps left, the goal's joints kept); the copies share the Planner's solvers (one
-    per remaining horizon, built once). The new plan's joints give rollout i's waypoints t+1..T, each in its
-    step's camera frame. A re-plan that fails (an unreachable mean, a solver failure) keeps that rollout's
-    previous waypoints and is counted in `failures`. `times` holds each re-plan's time without builds [s].
+    At the move before step t -> t+1, rollout i's EKF mean and covariance (in the new camera frame)
+    go to its own copy of one `Planner` (`replan(mean_i, cov_i, camera_pose=C[t+1], step=t)`: warm
+    from that rollout's previous plan, over the steps left, the goal's joints kept); the copies
+    share the Planner's solvers (one per remaining horizon, built once). The new plan's joints give
+    rollout i's waypoints t+1..T, each in its step's camera frame. A re-plan that fails (an
+    unreachable mean, a solver failure) keeps that rollout's previous waypoints and is counted in
+    `failures`. `times` holds each re-plan's time without builds [s].
     """
 
     def __init__(self, setup, planner=None):
@@ -82,10 +88,12 @@ class RolloutReplanner:
         self.cameras = setup.camera_poses()
         self.times: list[float] = []
         self.failures: list[tuple[int, int, str]] = []  # (step, rollout, why)
-        self.planners: list | None = None  # each rollout's Planner copy (its current plan), after the first move
+        # each rollout's Planner copy (its current plan), after the first move
+        self.planners: list | None = None
 
     def initial_poses(self) -> np.ndarray:
-        """(T+1, 6) the first plan (for the first camera pose), each waypoint in its step's camera frame."""
+        """(T+1, 6) the first plan (for the first camera pose), each waypoint in its step's camera
+        frame."""
         return self.poses_in_step_frames(np.asarray(self.planner.plan.q, float), 0)
 
     def reset(self) -> None:
@@ -95,12 +103,15 @@ class RolloutReplanner:
     def poses_in_step_frames(self, q: np.ndarray, first: int) -> np.ndarray:
         """(len(q), 6) the tracked frame at joints q[j] in the camera frame of step first + j."""
         robot = self.setup.robot
-        return np.array([matrix_to_pose(np.linalg.inv(self.cameras[first + j]) @ robot.base_pose @ robot.frame_pose(qj))
+        return np.array([matrix_to_pose(np.linalg.inv(self.cameras[first + j])
+                                        @ robot.base_pose @ robot.frame_pose(qj))
                          for j, qj in enumerate(np.asarray(q, float))])
 
-    def __call__(self, t: int, mean: np.ndarray, cov: np.ndarray, waypoints: np.ndarray) -> np.ndarray:
+    def __call__(self, t: int, mean: np.ndarray, cov: np.ndarray,
+                 waypoints: np.ndarray) -> np.ndarray:
         if self.planners is None or len(self.planners) != len(mean):
-            self.planners = [copy.copy(self.planner) for _ in range(len(mean))]  # shallow: the solvers are shared
+            # shallow: the solvers are shared
+            self.planners = [copy.copy(self.planner) for _ in range(len(mean))]
         out = np.array(waypoints, float)
         for i, planner in enumerate(self.planners):
             t0 = time.perf_counter()
@@ -124,14 +135,15 @@ def _record(ro, grasp) -> dict:
             "max_mm": float(np.max(ro.pos_err) * 1e3)}
 
 
-def success_table(problems_dir: Path, rollouts: int = 500, seed: int = 0, detection: Detection | None = Detection(),
+def success_table(problems_dir: Path, rollouts: int = 500, seed: int = 0,
+                  detection: Detection | None = Detection(),
                   grasp=(GRASP_POSITION_M, GRASP_ANGLE_RAD), types=TYPES, methods=METHODS,
                   replan_rollouts: int | None = None) -> tuple[str, dict]:
     """(Markdown table, results[type][method][mode] = success share) over the scenario types.
 
-    `replan_rollouts`: rollouts per mode of Type 4's per-rollout re-planning (`ocp-replanned`; default
-    `rollouts`; 0 leaves it out); results[type]["ocp-replanned"]["replans"] has its re-plans' count, failures
-    and times.
+    `replan_rollouts`: rollouts per mode of Type 4's per-rollout re-planning (`ocp-replanned`;
+    default `rollouts`; 0 leaves it out); results[type]["ocp-replanned"]["replans"] has its
+    re-plans' count, failures and times.
     """
     replan_rollouts = rollouts if replan_rollouts is None else replan_rollouts
     res: dict = {}
@@ -141,65 +153,76 @@ def success_table(problems_dir: Path, rollouts: int = 500, seed: int = 0, detect
         type4 = fname.startswith("type4")
         res[label] = {}
         for m, (poses, ok) in plans(setup, methods, replanned=type4).items():
-            # (step frames already: re-expressing them again, as before, moved every waypoint after a camera move
-            # and the goal by the camera's motion on Types 3 and 4)
+            # (step frames already: re-expressing them again, as before, moved every waypoint after
+            # a camera move and the goal by the camera's motion on Types 3 and 4)
             res[label][m] = {"solved": ok}
             for mi, mode in enumerate(MODES):
-                ro = rollout(setup.eval_model, poses, poses[-1], rollouts, np.random.default_rng([seed, k, mi]),
-                             mode, detection=detection, changes=changes)
+                ro = rollout(setup.eval_model, poses, poses[-1], rollouts,
+                             np.random.default_rng([seed, k, mi]), mode, detection=detection,
+                             changes=changes)
                 r = _record(ro, grasp)
                 res[label][m][mode], res[label][m][f"{mode}_median_mm"] = r["share"], r["median_mm"]
                 res[label][m][f"{mode}_max_mm"] = r["max_mm"]
         if type4 and replan_rollouts > 0:
             hook = RolloutReplanner(setup)
             poses = hook.initial_poses()
-            res[label]["ocp-replanned"] = {"solved": hook.planner.plan.success, "rollouts": replan_rollouts}
+            res[label]["ocp-replanned"] = {"solved": hook.planner.plan.success,
+                                           "rollouts": replan_rollouts}
             t0 = time.perf_counter()
             for mi, mode in enumerate(MODES):
                 hook.reset()
-                ro = rollout(setup.eval_model, poses, poses[-1], replan_rollouts, np.random.default_rng([seed, k, mi]),
-                             mode, detection=detection, changes=changes, replan=hook)
+                ro = rollout(setup.eval_model, poses, poses[-1], replan_rollouts,
+                             np.random.default_rng([seed, k, mi]), mode, detection=detection,
+                             changes=changes, replan=hook)
                 r = _record(ro, grasp)
-                res[label]["ocp-replanned"][mode], res[label]["ocp-replanned"][f"{mode}_median_mm"] = \
-                    r["share"], r["median_mm"]
+                (res[label]["ocp-replanned"][mode],
+                 res[label]["ocp-replanned"][f"{mode}_median_mm"]) = r["share"], r["median_mm"]
                 res[label]["ocp-replanned"][f"{mode}_max_mm"] = r["max_mm"]
             times = np.asarray(hook.times)
             res[label]["ocp-replanned"]["replans"] = {
-                "count": len(times), "failed": len(hook.failures), "wall_s": time.perf_counter() - t0,
-                "median_ms": float(np.median(times) * 1e3), "p95_ms": float(np.percentile(times, 95) * 1e3),
+                "count": len(times), "failed": len(hook.failures),
+                "wall_s": time.perf_counter() - t0, "median_ms": float(np.median(times) * 1e3),
+                "p95_ms": float(np.percentile(times, 95) * 1e3),
                 "max_ms": float(times.max() * 1e3), "build_s": hook.planner.build_time_s,
                 "failures": hook.failures[:5]}
     all_methods = list(dict.fromkeys(m for t in res.values() for m in t))
-    lines = [f"Grasp success (final true pose within {grasp[0] * 1e3:g} mm and {grasp[1]:g} rad of the goal), "
-             f"{rollouts} rollouts per plan and mode, cells `model` / `true` (median final position error in mm "
-             "in brackets, `true` mode):", "",
+    lines = [(f"Grasp success (final true pose within {grasp[0] * 1e3:g} mm and {grasp[1]:g} rad "
+              f"of the goal), {rollouts} rollouts per plan and mode, cells `model` / `true` "
+              "(median final position error in mm in brackets, `true` mode):"), "",
              "| type | " + " | ".join(all_methods) + " |", "|---" * (len(all_methods) + 1) + "|"]
     for label, row in res.items():
         cells = []
         for m in all_methods:
             r = row.get(m)
-            cells.append("" if r is None else f"{r['model']:.0%} / {r['true']:.0%} ({r['true_median_mm']:.1f})"
+            cells.append("" if r is None
+                         else f"{r['model']:.0%} / {r['true']:.0%} ({r['true_median_mm']:.1f})"
                          + ("" if r["solved"] else " (failed)"))
         lines.append(f"| {label} | " + " | ".join(cells) + " |")
     mean = {m: [np.mean([row[m][mode] for row in res.values()]) for mode in MODES]
             for m in all_methods if all(m in row for row in res.values())}
-    lines.append("| mean over types | " + " | ".join(f"{mean[m][0]:.0%} / {mean[m][1]:.0%}" if m in mean else ""
-                                                   for m in all_methods) + " |")
-    lines += ["", "Paper (Table II, real dVRK, 60 regrasps over the four types): SURESTEP 82 %, baseline 18 %."]
+    lines.append("| mean over types | "
+                 + " | ".join(f"{mean[m][0]:.0%} / {mean[m][1]:.0%}" if m in mean else ""
+                              for m in all_methods) + " |")
+    lines += ["",
+              ("Paper (Table II, real dVRK, 60 regrasps over the four types): SURESTEP "
+               "82 %, baseline 18 %.")]
     for mode in MODES:
         worst = max((row[m][f"{mode}_max_mm"], label, m) for label, row in res.items() for m in row)
-        lines += ["", f"Worst final position error of any rollout, mode `{mode}`: {worst[0]:.1f} mm ({worst[1]}, "
-                      f"{worst[2]})."]
+        lines += ["",
+                  (f"Worst final position error of any rollout, mode `{mode}`: {worst[0]:.1f} mm "
+                   f"({worst[1]}, {worst[2]}).")]
     for label, row in res.items():
         rp = row.get("ocp-replanned", {}).get("replans")
         if rp:
-            lines += ["", f"{label}, `ocp-replanned`: every rollout re-plans after each camera move from its own EKF "
-                          f"mean and covariance ({row['ocp-replanned']['rollouts']} rollouts per mode); "
-                          f"`ocp-replanned-ml`: one trajectory re-planned from the maximum-likelihood belief, run by "
-                          f"every rollout. {rp['count']} re-plans, {rp['failed']} failed (previous plan kept); "
-                          f"per re-plan {rp['median_ms']:.1f} ms median, {rp['p95_ms']:.1f} ms p95, "
-                          f"{rp['max_ms']:.1f} ms worst (builds apart: {rp['build_s']:.1f} s); "
-                          f"{rp['wall_s']:.0f} s for both modes' rollouts."]
+            lines += ["",
+                      (f"{label}, `ocp-replanned`: every rollout re-plans after each camera move "
+                       f"from its own EKF mean and covariance ({row['ocp-replanned']['rollouts']} "
+                       "rollouts per mode); `ocp-replanned-ml`: one trajectory re-planned from "
+                       f"the maximum-likelihood belief, run by every rollout. {rp['count']} "
+                       f"re-plans, {rp['failed']} failed (previous plan kept); per re-plan "
+                       f"{rp['median_ms']:.1f} ms median, {rp['p95_ms']:.1f} ms p95, "
+                       f"{rp['max_ms']:.1f} ms worst (builds apart: {rp['build_s']:.1f} s); "
+                       f"{rp['wall_s']:.0f} s for both modes' rollouts.")]
             lines += [f"  failed: step {t}, rollout {i}: {why}" for t, i, why in rp["failures"]]
     return "\n".join(lines), res
 
@@ -211,13 +234,18 @@ def main(argv=None) -> None:
     ap.add_argument("--rollouts", type=int, default=500)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--replan-rollouts", type=int, default=None,
-                    help="rollouts per mode of Type 4's per-rollout re-planning (default --rollouts; 0: leave out)")
-    ap.add_argument("--output", default=str(root / "benchmarks" / "results" / "evaluation_table2_types.md"))
+                    help="rollouts per mode of Type 4's per-rollout re-planning (default "
+                         "--rollouts; 0: leave out)")
+    ap.add_argument("--output", default=str(root / "benchmarks" / "results"
+                                            / "evaluation_table2_types.md"))
     args = ap.parse_args(argv)
-    table, _ = success_table(Path(args.problems), args.rollouts, args.seed, replan_rollouts=args.replan_rollouts)
+    table, _ = success_table(Path(args.problems), args.rollouts, args.seed,
+                             replan_rollouts=args.replan_rollouts)
     extra = "" if args.replan_rollouts is None else f" --replan-rollouts {args.replan_rollouts}"
-    cmd = f"`.venv/bin/python -m surestep_ocp.evaluation.table2 --rollouts {args.rollouts} --seed {args.seed}{extra}`"
-    write_text_atomic(Path(args.output), f"# Simulated Table II per scenario type\n\n{cmd}\n\n{table}\n")
+    cmd = (f"`.venv/bin/python -m surestep_ocp.evaluation.table2 --rollouts {args.rollouts} --seed "
+           f"{args.seed}{extra}`")
+    write_text_atomic(Path(args.output),
+                      f"# Simulated Table II per scenario type\n\n{cmd}\n\n{table}\n")
     print(table)
 
 

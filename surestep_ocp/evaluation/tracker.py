@@ -1,9 +1,10 @@
-"""A simulated tracker for re-planning loops: one rollout of `rollout.py`, stepped one waypoint at a time.
+"""A simulated tracker for re-planning loops: one rollout of `rollout.py`, stepped one waypoint at a
+time.
 
-Per call the tool is commanded from the tracker's estimate to the next waypoint, moves with the model's
-motion noise, is observed with its observation noise, and the EKF updates (the formulas and the noise draws of
-`rollout.rollout` with n = 1, mode `model`, always detected, a fixed camera). Between calls the planner may
-change the plan, which a whole-plan rollout cannot express.
+Per call the tool is commanded from the tracker's estimate to the next waypoint, moves with the
+model's motion noise, is observed with its observation noise, and the EKF updates (the formulas and
+the noise draws of `rollout.rollout` with n = 1, mode `model`, always detected, a fixed camera).
+Between calls the planner may change the plan, which a whole-plan rollout cannot express.
 """
 
 from __future__ import annotations
@@ -19,7 +20,8 @@ class SimulatedTracker:
     """The true tool pose and the tracker's estimate (mean [m, rad] and covariance), camera frame.
 
     Args:
-        model: the belief model of the noise and of the EKF (use `Setup.eval_model`: every component).
+        model: the belief model of the noise and of the EKF (use `Setup.eval_model`: every
+            component).
         start: (6,) the true and estimated start pose `[p, axis-angle]`.
         sigma0: (6, 6) the estimate's initial covariance (default: the model's Sigma0).
         rng: a NumPy Generator or a seed.
@@ -44,7 +46,8 @@ class SimulatedTracker:
         return np.hstack([self.true_p, self.true_R.as_rotvec()])
 
     def move_to(self, waypoint) -> tuple[np.ndarray, np.ndarray]:
-        """Command the step from the estimate to `waypoint` (6,), move, observe, update; the new (mean, covariance)."""
+        """Command the step from the estimate to `waypoint` (6,), move, observe, update; the new
+        (mean, covariance)."""
         x = np.asarray(waypoint, float)
         z_w, z_v = self.rng.standard_normal((1, NX)), self.rng.standard_normal((1, NX))
         W = self._noise.motion(self.mean[None], x[None])[0]

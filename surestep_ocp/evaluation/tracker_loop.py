@@ -45,7 +45,8 @@ def tracker_loop(setup: Setup, seed: int = 0, progress=None) -> dict:
         "replan_worst_ms": float(ms.max()) if len(ms) else None,
         "steps_later": planner.horizon - setup.ocp.horizon,
         "build_time_s": planner.build_time_s,
-        "final_error_mm": float(np.linalg.norm(tracker.true_pose[:3] - planner.plan.positions[-1]) * 1e3),
+        "final_error_mm": float(np.linalg.norm(tracker.true_pose[:3] - planner.plan.positions[-1])
+                                * 1e3),
     }
     return {"planner": planner, "plans": plans, "pieces": pieces, "summary": summary}
 

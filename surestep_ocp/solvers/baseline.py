@@ -26,9 +26,10 @@ from .iterate import InitialGuess
 
 def straight_line(x_start: np.ndarray, x_goal: np.ndarray, horizon: int,
                   fractions: np.ndarray | None = None) -> np.ndarray:
-    """(T+1, 6) waypoints from start to goal, evenly spaced in position and in angle (the shortest rotation),
-    the rotation vector continued along them from the start's (it may end on the goal's other side);
-    `fractions` (T+1 from 0 to 1): the waypoints at these fractions of the way instead (a time law)."""
+    """(T+1, 6) waypoints from start to goal, evenly spaced in position and in angle (the shortest
+    rotation), the rotation vector continued along them from the start's (it may end on the goal's
+    other side); `fractions` (T+1 from 0 to 1): the waypoints at these fractions of the way instead
+    (a time law)."""
     s = np.linspace(0.0, 1.0, horizon + 1) if fractions is None else np.asarray(fractions, float)
     p = (1 - s)[:, None] * x_start[:3] + s[:, None] * x_goal[:3]
     r = slerp_many(x_start[3:], x_goal[3:], s)
@@ -37,31 +38,36 @@ def straight_line(x_start: np.ndarray, x_goal: np.ndarray, horizon: int,
 
 
 def minimum_jerk(T: int) -> np.ndarray:
-    """(T+1,) fractions of the way at the waypoints of a rest-to-rest minimum-jerk time law, 10 s^3 - 15 s^4 + 6 s^5:
-    zero velocity and acceleration at both ends, so the straight line keeps within the acceleration limits where a
-    constant pace breaks them in its first and last step."""
+    """(T+1,) fractions of the way at the waypoints of a rest-to-rest minimum-jerk time law,
+    10 s^3 - 15 s^4 + 6 s^5:
+    zero velocity and acceleration at both ends, so the straight line keeps within the acceleration
+    limits where a constant pace breaks them in its first and last step."""
     s = np.linspace(0.0, 1.0, T + 1)
     return 10 * s**3 - 15 * s**4 + 6 * s**5
 
 
 def trapezoid(T: int, ramp: float) -> np.ndarray:
-    """(T+1,) fractions of the way at the waypoints of a rest-to-rest trapezoidal speed profile that accelerates and
-    decelerates over `ramp` of the time each: a peak speed 1 / (1 - ramp) of the mean, where the minimum-jerk law's
-    is 1.875 of it (for moves near the tool's speed limits)."""
+    """(T+1,) fractions of the way at the waypoints of a rest-to-rest trapezoidal speed profile that
+    accelerates and decelerates over `ramp` of the time each: a peak speed 1 / (1 - ramp) of the
+    mean, where the minimum-jerk law's is 1.875 of it (for moves near the tool's speed limits)."""
     s = np.linspace(0.0, 1.0, T + 1)
     v = 1.0 / (1.0 - ramp)  # the cruise speed (the fraction of the way per unit time)
     a = v / ramp
     return np.where(s < ramp, 0.5 * a * s**2,
-                    np.where(s > 1 - ramp, 1 - 0.5 * a * (1 - s) ** 2, 0.5 * a * ramp**2 + v * (s - ramp)))
+                    np.where(s > 1 - ramp, 1 - 0.5 * a * (1 - s) ** 2,
+                             0.5 * a * ramp**2 + v * (s - ramp)))
 
 
-# the time laws the interior-point method's start tries in turn (backends/interior_point.py, feasible_line)
-TIME_LAWS = (("minimum-jerk", minimum_jerk), *((f"trapezoidal ({r:g} ramps)", lambda T, r=r: trapezoid(T, r))
-                                                for r in (0.3, 0.2, 0.12)))
+# the time laws the interior-point method's start tries in turn (backends/interior_point.py,
+# feasible_line)
+TIME_LAWS = (("minimum-jerk", minimum_jerk),
+             *((f"trapezoidal ({r:g} ramps)", lambda T, r=r: trapezoid(T, r))
+                for r in (0.3, 0.2, 0.12)))
 
 
 def timed_line(setup, law=minimum_jerk, name: str = "minimum-jerk") -> InitialGuess:
-    """The straight line from start to goal (the baseline's) at the pace of a time law, by IK from the joint line."""
+    """The straight line from start to goal (the baseline's) at the pace of a time law, by IK from
+    the joint line."""
     T = setup.ocp.horizon
     poses = straight_line(setup.x_start, setup.x_goal, T, law(T))
     q = setup.joints_along(poses, setup.q_start, guesses=setup.joint_line(T))[0]
@@ -71,8 +77,10 @@ def timed_line(setup, law=minimum_jerk, name: str = "minimum-jerk") -> InitialGu
 
 def reachability(setup: Setup, poses: np.ndarray) -> tuple[list, dict]:
     """Joint solutions of pose-space waypoints and a summary of which are reachable."""
-    # batched Newton from the joint-space line first (as for the OCP's initial guess), then sequential IK
-    q_best, ok, res_m, res_r = setup.joints_along(poses, setup.q_start, guesses=setup.joint_line(len(poses) - 1))
+    # batched Newton from the joint-space line first (as for the OCP's initial guess), then
+    # sequential IK
+    q_best, ok, res_m, res_r = setup.joints_along(poses, setup.q_start,
+                                                  guesses=setup.joint_line(len(poses) - 1))
     qs = [q if k else None for q, k in zip(q_best, ok)]
     info = {
         "reachable": int(ok.sum()),
@@ -91,8 +99,9 @@ def solve_baseline(setup: Setup) -> Solution:
     poses = straight_line(setup.x_start, setup.x_goal, setup.ocp.horizon)
     elapsed = time.perf_counter() - t0
     qs, info = reachability(setup, poses)
-    sol = evaluate(setup, "baseline", poses, qs, success=True, status="not optimised", solve_time_s=elapsed,
-                   iterations=0, objective=np.nan, extras={"reachability": info})
+    sol = evaluate(setup, "baseline", poses, qs, success=True, status="not optimised",
+                   solve_time_s=elapsed, iterations=0, objective=np.nan,
+                   extras={"reachability": info})
     sol.objective = sol.trace_final
     return sol
 

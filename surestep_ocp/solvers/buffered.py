@@ -1,5 +1,5 @@
-"""A CasADi Function called in place on NumPy arrays, through CasADi's buffer interface: no DM conversions on the
-hot paths (Newton's iterations, the lifted form's initial multipliers)."""
+"""A CasADi Function called in place on NumPy arrays, through CasADi's buffer interface: no DM
+conversions on the hot paths (Newton's iterations, the lifted form's initial multipliers)."""
 
 from __future__ import annotations
 

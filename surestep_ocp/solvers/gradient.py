@@ -1,4 +1,5 @@
-"""The paper's gradient-descent variant: L-BFGS over waypoint differences, clipping action, pose loss.
+"""The paper's gradient-descent variant: L-BFGS over waypoint differences, clipping action, pose
+loss.
 
 As published (SURESTEP, section 5 of the method page):
 
@@ -47,10 +48,11 @@ EPS_POS = 1e-6  # [m]
 EPS_ANG = 1e-6  # [rad]
 BARELY_MOVED_M = 1e-3  # [m]  max waypoint position change vs the baseline
 BARELY_MOVED_RAD = 1e-2  # [rad] max waypoint orientation change vs the baseline
-# the paper's variant optimises pose-space waypoints: it has no joints to take the joint-space term's Jacobian at
-JOINT_NOISE_UNSUPPORTED = ("noise.joint_motion_sigma: the gradient variant plans waypoints in pose space, without the "
-                           "joints the joint-space motion noise needs; run the OCP and the baseline (--methods ocp "
-                           "baseline)")
+# the paper's variant optimises pose-space waypoints: it has no joints to take the joint-space
+# term's Jacobian at
+JOINT_NOISE_UNSUPPORTED = ("noise.joint_motion_sigma: the gradient variant plans waypoints in pose "
+                           "space, without the joints the joint-space motion noise needs; run the "
+                           "OCP and the baseline (--methods ocp baseline)")
 FAR_M = 10.0  # [m] waypoints this far from the camera are not checked by IK (a diverged optimiser)
 
 
@@ -60,7 +62,8 @@ def _smooth_norm(sq, eps: float):
 
 def build_loss(setup: Setup, model, pose_loss: bool, weight: float,
                trace_scale: float = 1.0) -> tuple[ca.Function, ca.Function]:
-    """The loss `trace_scale Tr(Sigma_T) [+ weight pose loss]` of the stacked differences d (6T), CasADi Functions.
+    """The loss `trace_scale Tr(Sigma_T) [+ weight pose loss]` of the stacked differences d (6T),
+    CasADi Functions.
 
     Returns:
         (terms, loss_grad): `terms(d) -> (loss, trace, step_m, step_rad)` where step_m and
@@ -76,7 +79,8 @@ def build_loss(setup: Setup, model, pose_loss: bool, weight: float,
         x = x + d[NX * t:NX * (t + 1)]
         xs.append(x)
     xs[T] = ca.DM(setup.x_goal)  # the clipping action
-    ms = [pose_mean(x) for x in xs]  # the belief's means of the pose-space waypoints (the paper's decision space)
+    # the belief's means of the pose-space waypoints (the paper's decision space)
+    ms = [pose_mean(x) for x in xs]
     for t in range(T - 1):
         s = model.step(ms[t], ms[t + 1], s)
     if model.noise.objective == "predicted":  # Sigma_T|T-1: before the last observation
@@ -90,7 +94,8 @@ def build_loss(setup: Setup, model, pose_loss: bool, weight: float,
     loss = trace_scale * trace + weight * (step_m + step_rad) if pose_loss else trace_scale * trace
     terms = ca.Function("gradient_loss_terms", [d], [loss, trace, step_m, step_rad],
                         ["d"], ["loss", "trace", "step_m", "step_rad"])
-    loss_grad = ca.Function("gradient_loss_grad", [d], [loss, ca.gradient(loss, d)], ["d"], ["loss", "grad"])
+    loss_grad = ca.Function("gradient_loss_grad", [d], [loss, ca.gradient(loss, d)], ["d"],
+                            ["loss", "grad"])
     return terms, loss_grad
 
 
@@ -133,7 +138,8 @@ def solve_gradient(
     spec = prob.gradient
     T = prob.horizon
     components = tuple(setup.model.components if components is None else components)
-    model = setup.model if components == tuple(setup.model.components) else setup.model.with_components(components)
+    model = (setup.model if components == tuple(setup.model.components)
+             else setup.model.with_components(components))
 
     base = straight_line(setup.x_start, setup.x_goal, T)
     init = base if init_poses is None else np.array(init_poses, dtype=float)
@@ -164,7 +170,8 @@ def solve_gradient(
     # 2 stopped otherwise (e.g. ABNORMAL line search: no further decrease found).
     finite = bool(np.isfinite(end["loss"]) and np.all(np.isfinite(poses)))
     success = finite and error is None and run["ok"] and end["loss"] <= start["loss"]
-    status = run["status"] if finite else f"{run['status']}; diverged (non-finite loss or waypoints)"
+    status = (run["status"] if finite
+              else f"{run['status']}; diverged (non-finite loss or waypoints)")
     if finite and end["loss"] > start["loss"]:
         status += f"; the loss rose from {start['loss']:.3g} to {end['loss']:.3g}"
 
@@ -176,7 +183,8 @@ def solve_gradient(
     else:  # a diverged run (e.g. torch's fixed step without line search): no IK on absurd waypoints
         far = ~np.all(np.isfinite(poses), axis=1) | (np.max(np.abs(poses[:, :3]), axis=1) >= FAR_M)
         qs = [None] * len(poses)
-        info = {"reachable": 0, "unreachable": len(poses), "ik_residual_m": [], "ik_residual_rad": [],
+        info = {"reachable": 0, "unreachable": len(poses), "ik_residual_m": [],
+                "ik_residual_rad": [],
                 "note": f"not checked: {int(far.sum())} waypoints non-finite or beyond {FAR_M:g} m"}
     ik_s = time.perf_counter() - t_ik
     method = "gradient" if pose_loss else "gradient-no-pose-loss"
@@ -216,9 +224,11 @@ def _run_scipy(fun, d0: np.ndarray, spec) -> dict:
         )
     except (RuntimeError, ValueError, FloatingPointError) as exc:  # NaN from CasADi, etc.
         error = f"{type(exc).__name__}: {exc}"
-        return {"x": d0, "iterations": 0, "evaluations": 0, "error": error, "ok": False, "status": error,
-                "extras": {"optimiser": "scipy L-BFGS-B", "scipy_message": error, "scipy_status": -1,
-                           "iterations_requested": spec.iterations, "memory": spec.memory}}
+        return {"x": d0, "iterations": 0, "evaluations": 0, "error": error, "ok": False,
+                "status": error,
+                "extras": {"optimiser": "scipy L-BFGS-B", "scipy_message": error,
+                           "scipy_status": -1, "iterations_requested": spec.iterations,
+                           "memory": spec.memory}}
     nit, code = int(res.nit), int(res.status)
     # scipy's status: 0 converged, 1 iteration/evaluation limit (the normal stop here),
     # 2 stopped otherwise (e.g. ABNORMAL line search: no further decrease found).
@@ -226,16 +236,19 @@ def _run_scipy(fun, d0: np.ndarray, spec) -> dict:
         status = f"completed {nit} iterations"
     else:
         status = f"stopped after {nit} of {spec.iterations} iterations: {res.message}"
-    return {"x": res.x, "iterations": nit, "evaluations": int(res.nfev), "error": None, "ok": code in (0, 1, 2),
-            "status": status,
-            "extras": {"optimiser": "scipy L-BFGS-B", "scipy_message": str(res.message), "scipy_status": code,
-                       "iterations_requested": spec.iterations, "memory": spec.memory}}
+    return {"x": res.x, "iterations": nit, "evaluations": int(res.nfev), "error": None,
+            "ok": code in (0, 1, 2), "status": status,
+            "extras": {"optimiser": "scipy L-BFGS-B", "scipy_message": str(res.message),
+                       "scipy_status": code, "iterations_requested": spec.iterations,
+                       "memory": spec.memory}}
 
 
 def _run_torch(fun, d0: np.ndarray, spec) -> dict:
-    """`spec.steps` step() calls of torch.optim.LBFGS's algorithm (`lbfgs.LBFGS`); stops early on a non-finite loss."""
-    opt = LBFGS(d0, lr=spec.lr, max_iter=spec.max_iter, max_eval=spec.max_eval, tolerance_grad=spec.tolerance_grad,
-                tolerance_change=spec.tolerance_change, history_size=spec.history_size,
+    """`spec.steps` step() calls of torch.optim.LBFGS's algorithm (`lbfgs.LBFGS`); stops early on a
+    non-finite loss."""
+    opt = LBFGS(d0, lr=spec.lr, max_iter=spec.max_iter, max_eval=spec.max_eval,
+                tolerance_grad=spec.tolerance_grad, tolerance_change=spec.tolerance_change,
+                history_size=spec.history_size,
                 line_search=spec.line_search)
     error = None
     done = 0
@@ -255,11 +268,14 @@ def _run_torch(fun, d0: np.ndarray, spec) -> dict:
     if error is None:
         status = f"completed {done} steps ({opt.n_iter} inner iterations)"
     else:
-        status = f"stopped after {done} of {spec.steps} steps ({opt.n_iter} inner iterations): {error}"
-    return {"x": opt.x, "iterations": opt.n_iter, "evaluations": opt.func_evals, "error": error, "ok": error is None,
-            "status": status,
-            "extras": {"optimiser": f"torch-semantics L-BFGS (lbfgs.py, line search {spec.line_search})",
+        status = (f"stopped after {done} of {spec.steps} steps ({opt.n_iter} inner "
+                  f"iterations): {error}")
+    return {"x": opt.x, "iterations": opt.n_iter, "evaluations": opt.func_evals, "error": error,
+            "ok": error is None, "status": status,
+            "extras": {"optimiser": "torch-semantics L-BFGS (lbfgs.py, line search "
+                                    f"{spec.line_search})",
                        "steps_requested": spec.steps, "steps_done": done, "max_iter": spec.max_iter,
                        "max_eval": opt.max_eval, "history_size": spec.history_size, "lr": spec.lr,
-                       "tolerance_grad": spec.tolerance_grad, "tolerance_change": spec.tolerance_change,
-                       "inner_iterations": opt.n_iter, "step_stops": stops}}
+                       "tolerance_grad": spec.tolerance_grad,
+                       "tolerance_change": spec.tolerance_change, "inner_iterations": opt.n_iter,
+                       "step_stops": stops}}

@@ -1,8 +1,9 @@
 """Where a solve starts and where it ends: the typed points handed between solves.
 
-`InitialGuess` is a joint trajectory to start from. `Iterate` is where a solve ended, to warm-start the next
-solve of the same structure: the joints, and for IPOPT its primal-dual point (`PrimalDual`, in the scaled NLP's
-variables). A projected Newton run ends with joints only: its bound multipliers are implicit.
+`InitialGuess` is a joint trajectory to start from. `Iterate` is where a solve ended, to warm-start
+the next solve of the same structure: the joints, and for IPOPT its primal-dual point (`PrimalDual`,
+in the scaled NLP's variables). A projected Newton run ends with joints only: its bound multipliers
+are implicit.
 """
 
 from __future__ import annotations
@@ -22,8 +23,9 @@ class InitialGuess:
 
 @dataclass(frozen=True)
 class PrimalDual:
-    """IPOPT's primal and dual values at the end of a solve, with the scaling they are expressed in (covariance
-    scales, objective reference): a warm solve of the same NLP reuses the scaling with them."""
+    """IPOPT's primal and dual values at the end of a solve, with the scaling they are expressed in
+    (covariance scales, objective reference): a warm solve of the same NLP reuses the scaling with
+    them."""
 
     x: np.ndarray
     lam_x: np.ndarray
@@ -34,8 +36,8 @@ class PrimalDual:
 
 @dataclass(frozen=True)
 class Iterate:
-    """The end of a converged solve: its joints, and IPOPT's primal-dual point when IPOPT made it, or the interior
-    point method's row multipliers when it did."""
+    """The end of a converged solve: its joints, and IPOPT's primal-dual point when IPOPT made it,
+    or the interior point method's row multipliers when it did."""
 
     q: np.ndarray  # (T+1, nq)
     dual: PrimalDual | None = None
@@ -43,5 +45,6 @@ class Iterate:
 
     @property
     def has_duals(self) -> bool:
-        """Whether IPOPT can warm-start from it (a Newton iterate starts Newton again, or IPOPT cold)."""
+        """Whether IPOPT can warm-start from it (a Newton iterate starts Newton again, or IPOPT
+        cold)."""
         return self.dual is not None

@@ -73,9 +73,10 @@ class _Point:
     gtd: float
 
 
-def strong_wolfe(fun: Callable[[float], tuple[float, np.ndarray]], d: np.ndarray, t: float, f0: float,
-                 g0: np.ndarray, gtd0: float, c1: float = 1e-4, c2: float = 0.9,
-                 tolerance_change: float = 1e-9, max_ls: int = 25) -> tuple[float, np.ndarray, float, int]:
+def strong_wolfe(fun: Callable[[float], tuple[float, np.ndarray]], d: np.ndarray, t: float,
+                 f0: float, g0: np.ndarray, gtd0: float, c1: float = 1e-4, c2: float = 0.9,
+                 tolerance_change: float = 1e-9,
+                 max_ls: int = 25) -> tuple[float, np.ndarray, float, int]:
     """Strong-Wolfe line search along d from the point with loss f0, gradient g0, slope gtd0 < 0.
 
     `fun(t)` returns the loss and gradient at x + t d. Returns (f, g, t, evaluations) of the
@@ -101,7 +102,8 @@ def strong_wolfe(fun: Callable[[float], tuple[float, np.ndarray]], d: np.ndarray
         if gtd >= 0:
             bracket = [prev, cur]
             break
-        t_new = cubic_minimiser(prev.t, prev.f, prev.gtd, t, f, gtd, bounds=(t + 0.01 * (t - prev.t), 10.0 * t))
+        t_new = cubic_minimiser(prev.t, prev.f, prev.gtd, t, f, gtd,
+                                bounds=(t + 0.01 * (t - prev.t), 10.0 * t))
         prev = cur
         t = t_new
         f, g = fun(t)
@@ -123,7 +125,8 @@ def strong_wolfe(fun: Callable[[float], tuple[float, np.ndarray]], d: np.ndarray
         t = cubic_minimiser(a, bracket[0].f, bracket[0].gtd, b, bracket[1].f, bracket[1].gtd)
         lo, hi = min(a, b), max(a, b)
         eps = 0.1 * (hi - lo)
-        if min(hi - t, t - lo) < eps:  # too close to an end: move inside unless the last step was fine
+        # too close to an end: move inside unless the last step was fine
+        if min(hi - t, t - lo) < eps:
             if insufficient or t >= hi or t <= lo:
                 t = hi - eps if abs(t - hi) < abs(t - lo) else lo + eps
                 insufficient = False
@@ -162,7 +165,8 @@ class StepInfo:
 
 @dataclass
 class LBFGS:
-    """torch.optim.LBFGS's algorithm on a flat float64 vector; state persists across `step()` calls."""
+    """torch.optim.LBFGS's algorithm on a flat float64 vector; state persists across `step()`
+    calls."""
 
     x: np.ndarray
     lr: float = 1.0
@@ -172,7 +176,8 @@ class LBFGS:
     tolerance_change: float = 1e-9
     history_size: int = 100
     line_search: str = "strong_wolfe"
-    wolfe_c1: float = 1e-4  # torch fixes these two; exposed for tests (e.g. near-exact line searches)
+    # torch fixes these two; exposed for tests (e.g. near-exact line searches)
+    wolfe_c1: float = 1e-4
     wolfe_c2: float = 0.9
     # state
     n_iter: int = 0
@@ -192,7 +197,8 @@ class LBFGS:
         if self.max_eval is None:
             self.max_eval = self.max_iter * 5 // 4
         if self.line_search not in LINE_SEARCHES:
-            raise ValueError(f"unknown line search '{self.line_search}'; allowed: {', '.join(LINE_SEARCHES)}")
+            raise ValueError(f"unknown line search '{self.line_search}'; allowed: "
+                             f"{', '.join(LINE_SEARCHES)}")
         if self.max_iter < 1 or self.history_size < 1 or self.lr <= 0:
             raise ValueError("need max_iter >= 1, history_size >= 1, lr > 0")
 
@@ -252,8 +258,8 @@ class LBFGS:
                     ff, gg = closure(x0 + tt * d)
                     return float(ff), np.asarray(gg, dtype=float).ravel()
 
-                f, g, t, ls = strong_wolfe(along, d, t, f, g, gtd, c1=self.wolfe_c1, c2=self.wolfe_c2,
-                                          tolerance_change=self.tolerance_change)
+                f, g, t, ls = strong_wolfe(along, d, t, f, g, gtd, c1=self.wolfe_c1,
+                                           c2=self.wolfe_c2, tolerance_change=self.tolerance_change)
                 self._t = t
                 self.x = x0 + t * d
                 grad_ok = np.max(np.abs(g)) <= self.tolerance_grad
@@ -287,8 +293,10 @@ class LBFGS:
         return f_start
 
 
-def minimize(closure: Closure, x0: np.ndarray, steps: int = 50, **options) -> tuple[np.ndarray, LBFGS]:
-    """`steps` outer `step()` calls from x0 (torch's training-loop usage); returns (x, optimiser)."""
+def minimize(closure: Closure, x0: np.ndarray, steps: int = 50,
+             **options) -> tuple[np.ndarray, LBFGS]:
+    """`steps` outer `step()` calls from x0 (torch's training-loop usage); returns (x,
+    optimiser)."""
     opt = LBFGS(x0, **options)
     for _ in range(steps):
         opt.step(closure)

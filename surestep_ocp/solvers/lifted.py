@@ -1,7 +1,9 @@
-"""The lifted multiple-shooting OCP: vech(Sigma_t) as node variables, the Kalman step as the shooting constraint.
+"""The lifted multiple-shooting OCP: vech(Sigma_t) as node variables, the Kalman step as the
+shooting constraint.
 
-Per node t: joints `q_t`, mean `mu_t` (position and unit quaternion, `Robot.camera_pose`) and `s_t = vech(Sigma_t) / scale_t` (21 numbers, scaled by the
-initial guess's covariance size). Constraints:
+Per node t: joints `q_t`, mean `mu_t` (position and unit quaternion, `Robot.camera_pose`) and
+`s_t = vech(Sigma_t) / scale_t` (21 numbers, scaled by the initial guess's covariance size).
+Constraints:
 
     mu_t - pose(q_t) = 0                                   every node (kinematics)
     Phi(scale_t s_t, c(mu_t, mu_t+1)) / scale_t+1 - s_t+1 = 0   every interval (the EKF step)
@@ -11,20 +13,20 @@ with `Phi(Sigma, c) = P - P H^T (H P H^T + R V R^T)^-1 H P`, `P = F Sigma F^T + 
 `W = sum_k c_k W_k`, `V = V_min + sum_k c_k V_k` and `c` the scalar noise coefficients (squared
 residuals of the means). Objective: `scale_T Tr(s_T) / Tr_ref` (linear) plus the joint smoothness.
 
-The Hessian: `Tr(Sigma_T)` along the shooting constraints is `S(c)`, concave and nondecreasing in the
-coefficients (`BeliefModel.structured`); its curvature in c makes the exact Hessian of the Lagrangian
-indefinite. The structured Hessian is the condensed surrogate's, `sum_k w_tk Hess c_k(mu_t, mu_t+1)`
-with the weights `w = dS/dc` of the recursion along the current means (`surrogate.recursion_weights`),
-plus the kinematic curvature; zero in the covariance block (the shooting constraints, Jacobian -I in
-s_t+1, determine it). At a KKT point these weights equal `(dPhi_t/dc)^T lam_t`, so it is the
-Lagrangian's Hessian without the concave part of `lam . Phi`; a converged point is a KKT point of the
-lifted NLP. Every derivative is one small Function per interval or node, mapped and scattered
-(`stages.py`), compiled with `solver.codegen`.
+The Hessian: `Tr(Sigma_T)` along the shooting constraints is `S(c)`, concave and nondecreasing in
+the coefficients (`BeliefModel.structured`); its curvature in c makes the exact Hessian of the
+Lagrangian indefinite. The structured Hessian is the condensed surrogate's,
+`sum_k w_tk Hess c_k(mu_t, mu_t+1)` with the weights `w = dS/dc` of the recursion along the current
+means (`surrogate.recursion_weights`), plus the kinematic curvature; zero in the covariance block
+(the shooting constraints, Jacobian -I in s_t+1, determine it). At a KKT point these weights equal
+`(dPhi_t/dc)^T lam_t`, so it is the Lagrangian's Hessian without the concave part of `lam . Phi`; a
+converged point is a KKT point of the lifted NLP. Every derivative is one small Function per
+interval or node, mapped and scattered (`stages.py`), compiled with `solver.codegen`.
 
-Where it converges: near a solution (the strategy in `ocp.py` starts it at the condensed solution, with
-the adjoint recursion's multipliers). From the straight line IPOPT's filter accepts first steps whose
-covariances are far from the recursion; the trace variable goes negative and it does not recover
-(docs/general_models.md).
+Where it converges: near a solution (the strategy in `ocp.py` starts it at the condensed solution,
+with the adjoint recursion's multipliers). From the straight line IPOPT's filter accepts first steps
+whose covariances are far from the recursion; the trace variable goes negative and it does not
+recover (docs/general_models.md).
 """
 
 from __future__ import annotations
@@ -53,16 +55,18 @@ from .transcription import ipopt_solution
 
 
 class LiftedTranscription:
-    """The lifted NLP of one structure (robot, structured belief model, horizon, smoothness), built once."""
+    """The lifted NLP of one structure (robot, structured belief model, horizon, smoothness), built
+    once."""
 
     form = "full"
     hessian = "surrogate"
 
-    def __init__(self, robot: Robot, model: BeliefModel, horizon: int, smoothness: float, options: dict,
-                 codegen: bool = False, codegen_required: bool = False):
+    def __init__(self, robot: Robot, model: BeliefModel, horizon: int, smoothness: float,
+                 options: dict, codegen: bool = False, codegen_required: bool = False):
         if not model.structured or model.noise.objective != "posterior" or model.joint_noise:
-            raise ValueError("the lifted form's structured Hessian needs a structured model without joint-space noise "
-                             "minimising Tr(Sigma_T|T) (solver_config.resolve rejects the others for users)")
+            raise ValueError("the lifted form's structured Hessian needs a structured model "
+                             "without joint-space noise minimising Tr(Sigma_T|T) "
+                             "(solver_config.resolve rejects the others for users)")
         t0 = time.perf_counter()
         self.robot, self.model, self.T = robot, model, horizon
         T, nq = horizon, robot.nq
@@ -73,7 +77,8 @@ class LiftedTranscription:
         pose = pose_function(robot)
         stage = kalman_stage(model)
 
-        # ---- interval functions: (a, b) the means at both ends, s the scaled covariance, sc0/sc1 the scales
+        # ---- interval functions: (a, b) the means at both ends, s the scaled covariance, sc0/sc1
+        # the scales
         a, b, s = ca.SX.sym("a", NM), ca.SX.sym("b", NM), ca.SX.sym("s", NV)
         sc0, sc1 = ca.SX.sym("sc0"), ca.SX.sym("sc1")
         (_, _), coefficients, (wm, wo, _), weighted = interval_terms(model, a, b)
@@ -83,11 +88,13 @@ class LiftedTranscription:
         interval_g = ca.Function("lifted_g", [a, b, s, sc0, sc1], [g_int])
         Jsc = kalman_stage_jacobian(model)(sc0 * s, c) / sc1  # d g / d(Sigma, c)
         Jab = ca.mtimes(Jsc[:, NV:], ca.jacobian(c, ca.vertcat(a, b)))
-        interval_jac = ca.Function("lifted_jac", [a, b, s, sc0, sc1], [ca.densify(ca.horzcat(Jab, sc0 * Jsc[:, :NV]))])
+        interval_jac = ca.Function("lifted_jac", [a, b, s, sc0, sc1],
+                                   [ca.densify(ca.horzcat(Jab, sc0 * Jsc[:, :NV]))])
         interval_hess = ca.Function("lifted_hess", [a, b, wm, wo],
                                     [ca.densify(ca.hessian(weighted, ca.vertcat(a, b))[0])])
         q, lk, Tcb = ca.SX.sym("q", nq), ca.SX.sym("lk", NM), ca.SX.sym("camera", CAMERA_PARAMETERS)
-        node_jac = ca.Function("lifted_node_jac", [q, Tcb], [ca.densify(-ca.jacobian(pose(q, Tcb), q))])
+        node_jac = ca.Function("lifted_node_jac", [q, Tcb],
+                               [ca.densify(-ca.jacobian(pose(q, Tcb), q))])
         node_hess = ca.Function("lifted_node_hess", [q, lk, Tcb],
                                 [ca.densify(ca.hessian(-ca.dot(lk, pose(q, Tcb)), q)[0])])
 
@@ -114,27 +121,33 @@ class LiftedTranscription:
         g = ca.vertcat(g_kin, g_step)
         trace_T = scale[T] * sum(ss[k, T] for k in DIAG)
         f = trace_T / ref + (0.5 * ca.bilin(ca.DM(D), X, X) if smoothness > 0 else 0)
-        grad_f = ca.Function("lifted_grad_f", [X, P], [f, ca.densify(ca.gradient(f, X))], ["x", "p"], ["f", "grad"])
+        grad_f = ca.Function("lifted_grad_f", [X, P], [f, ca.densify(ca.gradient(f, X))],
+                             ["x", "p"], ["f", "grad"])
 
         eye_nv = -np.eye(NV).ravel(order="F")
         jac_sp, (j_q, j_mu, j_int, j_next), _ = assemble((self.ng, n), [
             entries(list(zip(kin_rows, q_idx))), entries(list(zip(kin_rows, mu_idx))),
-            entries([(step_rows[t], np.concatenate([mu_idx[t], mu_idx[t + 1], s_idx[t]])) for t in range(T)]),
+            entries([(step_rows[t], np.concatenate([mu_idx[t], mu_idx[t + 1], s_idx[t]]))
+                     for t in range(T)]),
             entries([(step_rows[t], s_idx[t + 1]) for t in range(T)])])
         J_nz = (ca.mtimes(j_q, ca.vec(node_jac.map(T + 1)(qs, Tc)))
                 + ca.mtimes(j_mu, ca.DM(np.tile(np.eye(NM).ravel(order="F"), T + 1)))
                 + ca.mtimes(j_int, ca.vec(interval_jac.map(T)(*args)))
                 + ca.mtimes(j_next, ca.DM(np.tile(eye_nv, T))))
-        jac_g = ca.Function("lifted_jac_g", [X, P], [g, ca.MX(jac_sp, J_nz)], ["x", "p"], ["g", "jac"])
+        jac_g = ca.Function("lifted_jac_g", [X, P], [g, ca.MX(jac_sp, J_nz)], ["x", "p"],
+                            ["g", "jac"])
 
         hess_sp, (h_int, h_q), const = assemble((n, n), [
             entries([(np.concatenate([mu_idx[t], mu_idx[t + 1]]),) * 2 for t in range(T)]),
             entries([(i, i) for i in q_idx])], np.triu(D))
         lam_kin = ca.reshape(lam_g[:NM * (T + 1)], NM, T + 1)
-        C, nm = self.coef.map(T)(mus[:, :T], mus[:, 1:]), wm.shape[0]  # motion coefficients, then observation
-        _, w_m, w_o, _ = recursion_weights(model, T, ca.SX.sym("sigma0", NV), ca.SX.sym("trace_ref"))(
+        # motion coefficients, then observation
+        C, nm = self.coef.map(T)(mus[:, :T], mus[:, 1:]), wm.shape[0]
+        _, w_m, w_o, _ = recursion_weights(model, T, ca.SX.sym("sigma0", NV),
+                                           ca.SX.sym("trace_ref"))(
             C[:nm, :], C[nm:, :], ca.MX(0, T), P[c0 + T + 2:], ref)
-        H_nz = (lam_f * (const + ca.mtimes(h_int, ca.vec(interval_hess.map(T)(mus[:, :T], mus[:, 1:], w_m, w_o))))
+        H_nz = (lam_f * (const + ca.mtimes(
+                    h_int, ca.vec(interval_hess.map(T)(mus[:, :T], mus[:, 1:], w_m, w_o))))
                 + ca.mtimes(h_q, ca.vec(node_hess.map(T + 1)(qs, lam_kin, Tc))))
         hess_lag = ca.Function("lifted_hess_l", [X, P, lam_f, lam_g], [ca.MX(hess_sp, H_nz)],
                                ["x", "p", "lam_f", "lam_g"], ["hess"])
@@ -144,24 +157,29 @@ class LiftedTranscription:
         if codegen:
             staged, self.codegen_note = compiled_or_interpreted(staged, codegen_required)
             self.codegen = self.codegen_note is None
-        self.hess_lag, self.jac_g, self.grad_f = staged["hess_lag"], staged["jac_g"], staged["grad_f"]
+        self.hess_lag, self.jac_g, self.grad_f = (staged["hess_lag"], staged["jac_g"],
+                                                  staged["grad_f"])
         self._jac_nz = None  # the buffered Jacobian of `multipliers`, made on first use
-        # initial covariances: the Kalman recursion along the initial means (mapaccum of the same stage)
+        # initial covariances: the Kalman recursion along the initial means (mapaccum of the same
+        # stage)
         M, S0 = ca.MX.sym("mus", NM, T + 1), ca.MX.sym("sigma0", NV)
         roll = stage.mapaccum("lifted_roll", T)(S0, self.coef.map(T)(M[:, :T], M[:, 1:]))[0]
         self.roll = ca.Function("lifted_rollout", [M, S0], [roll])
         self.poses = pose.map(T + 1)
-        # the initial multipliers are always given (the adjoint recursion, or a warm start's): IPOPT uses them
+        # the initial multipliers are always given (the adjoint recursion, or a warm start's): IPOPT
+        # uses them
         self.solver = ca.nlpsol("surestep_lifted", "ipopt", {"x": X, "f": f, "g": g, "p": P},
                                 {**options, "ipopt.warm_start_init_point": "yes", **staged,
-                                 # a trial point whose covariance is not PD has no Cholesky factor (NaN): IPOPT
-                                 # shortens the step, which is its answer; no warning per evaluation
+                                 # a trial point whose covariance is not PD has no Cholesky factor
+                                 # (NaN): IPOPT shortens the step, which is its answer; no warning
+                                 # per evaluation
                                  "show_eval_warnings": False})
         self.build_time_s = time.perf_counter() - t0
 
     # ------------------------------------------------------------------ one solve
     def _start(self, setup: Setup, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
-        """Consistent initial point (joints, means by FK, covariances by the recursion), scales, initial trace."""
+        """Consistent initial point (joints, means by FK, covariances by the recursion), scales,
+        initial trace."""
         T = self.T
         mu = np.asarray(self.poses(q.T, setup.camera_parameter()))  # 7 x T+1
         s0 = vech(np.asarray(setup.ocp.sigma0, float))
@@ -172,24 +190,28 @@ class LiftedTranscription:
         return Z.ravel(order="F"), scale, float(tr[T])
 
     def multipliers(self, x: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Multipliers at `x`: `lam_g` with the Lagrangian stationary in the means and covariances (the adjoint
-        recursion, solved backwards as one sparse triangular system), and `lam_x = -(grad f + J^T lam_g)`, the
-        bound multipliers that make it stationary in every variable (exact at a KKT point of the condensed
-        form, whose joints are the same)."""
-        if self._jac_nz is None:  # the Jacobian's nonzeros through CasADi's buffer interface: a DM's conversion to
-            self._jac_nz = Buffered(self.jac_g)  # scipy cost 6 ms at T = 20, about half of this function
+        """Multipliers at `x`: `lam_g` with the Lagrangian stationary in the means and covariances
+        (the adjoint recursion, solved backwards as one sparse triangular system), and
+        `lam_x = -(grad f + J^T lam_g)`, the bound multipliers that make it stationary in every
+        variable (exact at a KKT point of the condensed form, whose joints are the same)."""
+        # the Jacobian's nonzeros through CasADi's buffer interface: a DM's conversion to scipy
+        # cost about half of this function (docs/general_models.md, "The secant end-game")
+        if self._jac_nz is None:
+            self._jac_nz = Buffered(self.jac_g)
             self._adjoint = self._adjoint_pattern()
         nz = self._jac_nz(x, p)[1]
         sel, indices, indptr, rows, col_of, cols = self._adjoint
-        A = scipy.sparse.csr_matrix((nz[sel], indices, indptr), shape=(len(cols), self.ng))  # J[:, cols]^T
+        # J[:, cols]^T
+        A = scipy.sparse.csr_matrix((nz[sel], indices, indptr), shape=(len(cols), self.ng))
         grad = np.asarray(self.grad_f(x, p)[1]).ravel()
         lam_g = scipy.sparse.linalg.spsolve(A, -grad[cols])
         return lam_g, -(grad + np.bincount(col_of, weights=nz * lam_g[rows], minlength=self.n))
 
     def _adjoint_pattern(self) -> tuple:
-        """The constraint Jacobian's fixed pattern, for `multipliers`: the nonzeros (`sel`, in order) and the CSR
-        indices of `J[:, cols]^T` (cols: the means and the covariances after the first), and each nonzero's row and
-        column (for `J^T lam` by one bincount); built once instead of scipy's slicing per call."""
+        """The constraint Jacobian's fixed pattern, for `multipliers`: the nonzeros (`sel`, in
+        order) and the CSR indices of `J[:, cols]^T` (cols: the means and the covariances after the
+        first), and each nonzero's row and column (for `J^T lam` by one bincount); built once
+        instead of scipy's slicing per call."""
         sp = self.jac_g.sparsity_out(1)
         rows, colind = np.asarray(sp.row()), np.asarray(sp.colind())
         col_of = np.repeat(np.arange(self.n), np.diff(colind))
@@ -198,7 +220,8 @@ class LiftedTranscription:
         position[cols] = np.arange(len(cols))
         keep = np.flatnonzero(position[col_of] >= 0)
         sel = keep[np.argsort(position[col_of[keep]], kind="stable")]
-        indptr = np.concatenate([[0], np.cumsum(np.bincount(position[col_of[sel]], minlength=len(cols)))])
+        indptr = np.concatenate([[0], np.cumsum(np.bincount(position[col_of[sel]],
+                                                            minlength=len(cols)))])
         return sel, rows[sel], indptr, rows, col_of, cols
 
     def bounds(self, setup: Setup, scale: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -224,18 +247,22 @@ class LiftedTranscription:
             x0, scale, trace_ref = warm.x, warm.scale, warm.trace_ref
         lbx, ubx = self.bounds(setup, scale)
         p = np.concatenate([setup.camera_parameter(), scale, [trace_ref],
-                            setup.model.recursion_sigma0(setup.ocp.sigma0)])  # for the Hessian's weights
+                            # for the Hessian's weights
+                            setup.model.recursion_sigma0(setup.ocp.sigma0)])
         args = dict(x0=x0, lbx=lbx, ubx=ubx, lbg=0.0, ubg=0.0, p=p)
         if warm is not None:
             args.update(lam_x0=warm.lam_x, lam_g0=warm.lam_g)
-        else:  # the multipliers of the initial point: adjoint recursion, bound multipliers from the residual
+        else:
+            # the multipliers of the initial point: adjoint recursion, bound multipliers from the
+            # residual
             args.update(zip(("lam_g0", "lam_x0"), self.multipliers(x0, p)))
         res = self.solver(**args)
         solve_s = time.perf_counter() - t0
         Z = np.asarray(res["x"]).reshape(self.nz, T + 1, order="F")
-        return ipopt_solution(self, setup, method, init, warm, Z[:nq, :].T.copy(), res, solve_s, scale, trace_ref,
-                              float(scale[T] * np.trace(unvech(Z[nq + NM:, T]))),
-                              float(np.max(np.abs(np.asarray(res["g"])))), "full (lifted, structured Hessian)")
+        return ipopt_solution(self, setup, method, init, warm, Z[:nq, :].T.copy(), res, solve_s,
+                              scale, trace_ref, float(scale[T] * np.trace(unvech(Z[nq + NM:, T]))),
+                              float(np.max(np.abs(np.asarray(res["g"])))),
+                              "full (lifted, structured Hessian)")
 
     def start_solution(self, setup: Setup, init, method: str = "ocp") -> Solution | None:
         """Not offered by the lifted form (the condensed form keeps a feasible start)."""

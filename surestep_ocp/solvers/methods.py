@@ -1,9 +1,9 @@
 """Method names and dispatch: every method takes a Setup and returns a Solution.
 
-Names (`method_grammar`): `baseline`, `gradient`, `gradient-no-pose-loss`, `ocp`, `ocp-from-gradient`
-(the OCP started from the gradient solution), each optionally with an ablation suffix
-`-no-depth`, `-no-fov` or `-no-orientation` (that observation component is left out
-during optimisation; evaluation always uses all components), then `-expected`, then `-predicted`.
+Names (`method_grammar`): `baseline`, `gradient`, `gradient-no-pose-loss`, `ocp`,
+`ocp-from-gradient` (the OCP started from the gradient solution), each optionally with an ablation
+suffix `-no-depth`, `-no-fov` or `-no-orientation` (that observation component is left out during
+optimisation; evaluation always uses all components), then `-expected`, then `-predicted`.
 """
 
 from __future__ import annotations
@@ -27,7 +27,8 @@ COMPARE_METHODS = BASE_METHODS
 
 
 def parse_method(name: str) -> tuple[str, tuple[str, ...] | None, str | None, str | None]:
-    """Split a method name into (base, components or None, observation-noise form or None, objective or None).
+    """Split a method name into (base, components or None, observation-noise form or None, objective
+    or None).
 
     A trailing `-predicted` minimises Tr(Sigma_T|T-1); before it, `-expected` plans with the
     belief-aware observation noise (section 8). The grammar is `method_grammar.split_name`'s.
@@ -51,14 +52,17 @@ def _variant(setup: Setup, components: tuple[str, ...] | None, form: str | None,
     return setup.with_ocp(noise=noise)
 
 
-def ocp_initial_guess(setup: Setup, source: str = "baseline", gradient: Solution | None = None) -> InitialGuess:
+def ocp_initial_guess(setup: Setup, source: str = "baseline",
+                      gradient: Solution | None = None) -> InitialGuess:
     """Joint trajectory to start the OCP from: IK of the straight line or of a gradient solution."""
     if source == "baseline":
         poses = straight_line(setup.x_start, setup.x_goal, setup.ocp.horizon)
     else:
         poses = np.asarray(gradient.poses)
-    q_best, ok, _, _ = setup.joints_along(poses, setup.q_start, guesses=setup.joint_line(len(poses) - 1))
-    note = source if ok.all() else f"{source} ({int((~ok).sum())} waypoints unreachable, best-effort IK used)"
+    q_best, ok, _, _ = setup.joints_along(poses, setup.q_start,
+                                          guesses=setup.joint_line(len(poses) - 1))
+    note = (source if ok.all()
+            else f"{source} ({int((~ok).sum())} waypoints unreachable, best-effort IK used)")
     return InitialGuess(q_best, note)
 
 
@@ -71,10 +75,12 @@ def honours_limits(name: str) -> bool:
 
 
 def counted_failures(sols: list[Solution]) -> tuple[list[str], list[str]]:
-    """(failed, over the limits only): methods whose failure counts (any failure of a method that honours the limits,
-    any other failure of one that cannot), and methods that cannot honour them reported over them
-    (`Motion_Limits_Violated`), which `surestep compare` prints and does not count."""
-    failed = [s.method for s in sols if not s.success and (honours_limits(s.method) or s.status != VIOLATED)]
+    """(failed, over the limits only): methods whose failure counts (any failure of a method that
+    honours the limits, any other failure of one that cannot), and methods that cannot honour them
+    reported over them (`Motion_Limits_Violated`), which `surestep compare` prints and does not
+    count."""
+    failed = [s.method for s in sols if not s.success
+              and (honours_limits(s.method) or s.status != VIOLATED)]
     reported = [s.method for s in sols if not s.success and s.method not in failed]
     return failed, reported
 
@@ -95,8 +101,10 @@ def run_method(setup: Setup, name: str, cache: dict[str, Solution] | None = None
         sol = solve_ocp(s, ocp_initial_guess(s), solver_options)
     else:  # ocp-from-gradient
         suffix = name[len(base):]
-        grad = (cache or {}).get("gradient" + suffix) or run_method(setup, "gradient" + suffix, cache)
+        grad = ((cache or {}).get("gradient" + suffix)
+                or run_method(setup, "gradient" + suffix, cache))
         sol = solve_ocp(s, ocp_initial_guess(s, "gradient", grad), solver_options)
-    enforce_limits(s, sol)  # limits.enforce: true: a plan over a limit is not a success, whichever method made it
+    # limits.enforce: true: a plan over a limit is not a success, whichever method made it
+    enforce_limits(s, sol)
     sol.method = name
     return sol

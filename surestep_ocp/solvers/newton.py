@@ -1,11 +1,11 @@
-"""A projected Newton solver for the condensed OCP with the surrogate Hessian (`solver.name: newton`).
+"""A projected Newton solver for the condensed OCP with the surrogate Hessian
+(`solver.name: newton`).
 
 With the condensed form of a scalar model the belief means are functions of the joints,
 `mu_t = pose(q_t)`; `q_0` is fixed, and the terminal equality `mu_T = x^G` with exactly six
 joints moving the tracked frame fixes `q_T` to the goal's IK solution, locally
-(`solver_config.resolve`, `newton_fits`; IPOPT's solutions keep it: measured `|q_T - q_goal| <= 7e-16` on 19
-evaluation instances). What is left is a box-constrained problem in the interior joints
-`q_1 .. q_T-1`:
+(`solver_config.resolve`, `newton_fits`; IPOPT's solutions keep it: docs/hessian_and_newton.md,
+"The solvers"). What is left is a box-constrained problem in the interior joints `q_1 .. q_T-1`:
 
     min f(q) = S(c(pose(q))) / S_ref + smoothness * sum |q_t+1 - q_t|^2,   q_lo <= q <= q_hi
 
@@ -23,12 +23,12 @@ at small sizes (`EXACT_MAX_N`, a dense step), otherwise by a limited-memory symm
 correction learnt from the steps taken (`_SecantCorrection`, banded solves plus a small dense one).
 
 The minimum-depth bound is not in this formulation: it is checked in the end phase and at the
-end, and a violation is a failure, after which `solve_ocp_warm` runs `run_barrier`: Newton on IPOPT's
-barrier problem (the bounds and the depth bound as log-barriers, IPOPT's monotone update of the barrier
-parameter), which follows the central path of the IPOPT fallback it replaces in joint space.
-Every evaluation is one call of a stage-wise Function (compiled with `solver.codegen`)
-through CasADi's buffer interface (no conversions), so an iteration costs about 0.3 ms at
-T = 20 where IPOPT's own work is 0.43 ms (docs/solve_speed.md).
+end, and a violation is a failure, after which `solve_ocp_warm` runs `run_barrier`: Newton on
+IPOPT's barrier problem (the bounds and the depth bound as log-barriers, IPOPT's monotone update of
+the barrier parameter), which follows the central path of the IPOPT fallback it replaces in joint
+space. Every evaluation is one call of a stage-wise Function (compiled with `solver.codegen`)
+through CasADi's buffer interface (no conversions), so an iteration costs less than IPOPT's own
+work per iteration (docs/solve_speed.md).
 """
 
 from __future__ import annotations
@@ -51,7 +51,8 @@ from .buffered import Buffered
 from .codegen import Deferred, compiled_or_interpreted
 from .surrogate import interval_terms, pose_function, recursion_weights
 
-EXACT_BELOW = 1e-3  # projected gradient (objective 1 at the start) below which Newton tries the exact Hessian
+# projected gradient (objective 1 at the start) below which Newton tries the exact Hessian
+EXACT_BELOW = 1e-3
 # The exact Hessian is dense (S couples every interval): its cost grows as n^3 and its curvature's
 # as T^2, so above this many joint variables (T of about 27 for the PSM) Newton keeps the banded
 # surrogate, linear in T: at T = 40 two dense steps cost more than the surrogate iterations they
@@ -63,12 +64,11 @@ EXACT_MAX_N = 200
 STALL_WINDOW, STALL_DECREASE = 10, 1e-10
 # In its end phase (projected gradient below this) Newton stops as soon as an iterate is below the
 # depth bound, which its formulation does not carry, and a solver that has it takes over
-# (`run_barrier`, then IPOPT): most such runs converged below it anyway after tens more iterations
-# (evaluation configuration 73 at T = 40: below it from iteration 22 to the end at 66); where one
-# came back above it (5 of 100 at T = 40), IPOPT's plan was lower (docs/solve_speed.md, "Worst
-# case")
+# (`run_barrier`, then IPOPT): most such runs converged below it anyway, and where one came back
+# above it IPOPT's plan was lower (docs/solve_speed.md, "Worst case")
 DEPTH_CHECK_BELOW = 1e-3
-SECANT_MEMORY = 20  # rank-one terms the secant end-game keeps (its tail is a few iterations: rarely reached)
+# rank-one terms the secant end-game keeps (its tail is a few iterations: rarely reached)
+SECANT_MEMORY = 20
 # `run_barrier`: IPOPT's defaults for its barrier problem and the monotone update (mu_init,
 # barrier_tol_factor, mu_linear_decrease_factor, mu_superlinear_decrease_power, tau_min, bound_push
 # = bound_frac)
@@ -76,8 +76,8 @@ MU_INIT, KAPPA_EPS, KAPPA_MU, THETA_MU, TAU_MIN, BOUND_PUSH = 0.1, 10.0, 0.2, 1.
 
 
 def _backtrack(alpha: float, trial_at) -> np.ndarray | None:
-    """Halve the step length from `alpha` until `trial_at(alpha)` returns an accepted point (each caller's Armijo
-    test); None once it is below 1e-12 (a failed line search)."""
+    """Halve the step length from `alpha` until `trial_at(alpha)` returns an accepted point (each
+    caller's Armijo test); None once it is below 1e-12 (a failed line search)."""
     while alpha > 1e-12:
         trial = trial_at(alpha)
         if trial is not None:
@@ -87,21 +87,23 @@ def _backtrack(alpha: float, trial_at) -> np.ndarray | None:
 
 
 class _SecantCorrection:
-    """A limited-memory SR1 correction `A = U diag(w) U^T` of the surrogate Hessian (structured quasi-Newton).
+    """A limited-memory SR1 correction `A = U diag(w) U^T` of the surrogate Hessian (structured
+    quasi-Newton).
 
-    The surrogate misses S's own curvature in the coefficients (concave: negative semidefinite), which has no cheap
-    exact form for the 6x6 recursion (nc Hessian-vector products) or at long horizons. Each step s with gradient change
-    y gives the secant residual `r = y - H s - A s` of the current surrogate H; SR1 adds `r r^T / (r . s)` (indefinite
-    updates allowed, as the missing part is). The step solves `(H + A) d = -g` by Woodbury on H's banded factor, and
-    is used only where `H + A` is positive definite on the free variables (Haynsworth: the capacitance matrix
+    The surrogate misses S's own curvature in the coefficients (concave: negative semidefinite),
+    which has no cheap exact form for the 6x6 recursion (nc Hessian-vector products) or at long
+    horizons. Each step s with gradient change y gives the secant residual `r = y - H s - A s` of
+    the current surrogate H; SR1 adds `r r^T / (r . s)` (indefinite updates allowed, as the missing
+    part is). The step solves `(H + A) d = -g` by Woodbury on H's banded factor, and is used only
+    where `H + A` is positive definite on the free variables (Haynsworth: the capacitance matrix
     `W^-1 + U^T H^-1 U` then has the inertia of `W^-1`)."""
 
     def __init__(self, n: int):
         self.U, self.w = np.zeros((n, 0)), np.zeros(0)
 
     def update(self, s: np.ndarray, r_surrogate: np.ndarray) -> None:
-        """Add the SR1 term for step s, given `y - H s` (H: the surrogate at the new point); skipped when r . s is
-        tiny against |r| |s| (SR1's safeguard)."""
+        """Add the SR1 term for step s, given `y - H s` (H: the surrogate at the new point); skipped
+        when r . s is tiny against |r| |s| (SR1's safeguard)."""
         r = r_surrogate - self.U @ (self.w * (self.U.T @ s))
         den = float(r @ s)
         if abs(den) <= 1e-8 * np.linalg.norm(r) * np.linalg.norm(s):
@@ -110,8 +112,8 @@ class _SecantCorrection:
         self.w = np.append(self.w, 1.0 / den)[-SECANT_MEMORY:]
 
     def step(self, factor: np.ndarray, fixed: np.ndarray, z0: np.ndarray) -> np.ndarray | None:
-        """`(H + A)^-1 (-g)` from `z0 = H^-1 (-g)` and H's banded Cholesky factor (held variables: identity rows,
-        no correction), or None where `H + A` is not positive definite there."""
+        """`(H + A)^-1 (-g)` from `z0 = H^-1 (-g)` and H's banded Cholesky factor (held variables:
+        identity rows, no correction), or None where `H + A` is not positive definite there."""
         if not self.w.size:
             return None
         U = np.where(fixed[:, None], 0.0, self.U)
@@ -128,28 +130,35 @@ class _SecantCorrection:
 class NewtonSolver:
     """The joint-space problem of one structure (robot, model, horizon, smoothness), built once."""
 
-    def __init__(self, robot: Robot, model: BeliefModel, horizon: int, smoothness: float, codegen: bool,
-                 codegen_required: bool = False, background: bool = False):
+    def __init__(self, robot: Robot, model: BeliefModel, horizon: int, smoothness: float,
+                 codegen: bool, codegen_required: bool = False, background: bool = False):
         t0 = time.perf_counter()
         self.robot, self.T, nq = robot, horizon, robot.nq
         T = horizon
-        Tcb, ref, sigma0 = ca.SX.sym("camera", CAMERA_PARAMETERS), ca.SX.sym("trace_ref"), ca.SX.sym("sigma0", NV)
+        Tcb, ref, sigma0 = (ca.SX.sym("camera", CAMERA_PARAMETERS), ca.SX.sym("trace_ref"),
+                            ca.SX.sym("sigma0", NV))
         pose = pose_function(robot)
         weights = recursion_weights(model, T, sigma0, ref)
         qa, qb = ca.SX.sym("qa", nq), ca.SX.sym("qb", nq)
-        joint = (vech(joint_noise_expr(robot, model.noise.joint_sigma, qa, qb, Tcb)) if model.joint_noise else None)
-        _, coefficients, (wm, wo, wj), weighted = interval_terms(model, pose(qa, Tcb), pose(qb, Tcb), joint)
+        joint = (vech(joint_noise_expr(robot, model.noise.joint_sigma, qa, qb, Tcb))
+                 if model.joint_noise else None)
+        _, coefficients, (wm, wo, wj), weighted = interval_terms(model, pose(qa, Tcb),
+                                                                 pose(qb, Tcb), joint)
         coef = ca.Function("coef", [qa, qb, Tcb], list(coefficients))
         surrogate = weighted + smoothness * ca.sumsqr(qb - qa)
         g = ca.gradient(surrogate, ca.vertcat(qa, qb))
         if joint is None:
             H = ca.hessian(surrogate, ca.vertcat(qa, qb))[0]
-        else:  # the joint-space term's curvature with J held at qa (exact in qb; no third derivatives of the FK)
+        else:
+            # the joint-space term's curvature with J held at qa (exact in qb; no third derivatives
+            # of the FK)
             means_only = ca.substitute(surrogate, wj, ca.DM.zeros(wj.shape[0]))
             H = ca.hessian(means_only, ca.vertcat(qa, qb))[0] + joint_noise_curvature(
                 robot, model.noise.joint_sigma, qa, Tcb, wj)
-        interval = ca.Function("interval", [qa, qb, wm, wo, wj, Tcb], [ca.densify(g), ca.densify(H)])
-        Q, P = ca.MX.sym("Q", nq, T + 1), ca.MX.sym("P", CAMERA_PARAMETERS + 1 + NV)  # camera, trace_ref, sigma0
+        interval = ca.Function("interval", [qa, qb, wm, wo, wj, Tcb],
+                               [ca.densify(g), ca.densify(H)])
+        # camera, trace_ref, sigma0
+        Q, P = ca.MX.sym("Q", nq, T + 1), ca.MX.sym("P", CAMERA_PARAMETERS + 1 + NV)
         Tc, r, s0 = P[:CAMERA_PARAMETERS], P[CAMERA_PARAMETERS], P[CAMERA_PARAMETERS + 1:]
         S_x, w_m, w_o, w_j = weights(*coef.map(T)(Q[:, :T], Q[:, 1:], Tc), s0, r)
         G, HB = interval.map(T)(Q[:, :T], Q[:, 1:], w_m, w_o, w_j, Tc)
@@ -157,7 +166,8 @@ class NewtonSolver:
         # S's own curvature in the coefficients (dense, 5T x 5T, negative semidefinite) and the
         # coefficients' Jacobians per interval: the exact Hessian is the surrogate's plus C^T
         # (d2S/dc2) C (the end-game)
-        depth = ca.mmin(pose.map(T + 1)(Q, Tc)[2, :])  # the means' smallest depth (the end phase's check)
+        # the means' smallest depth (the end phase's check)
+        depth = ca.mmin(pose.map(T + 1)(Q, Tc)[2, :])
         # each node's depth with its gradient and Hessian in the node's joints (the barrier of
         # `run_barrier`)
         z = pose(qa, Tcb)[2]
@@ -173,9 +183,11 @@ class NewtonSolver:
         # the 6x6 one, where Newton keeps the surrogate throughout (docs/hessian_and_newton.md, "The
         # solvers")
         if model.scalar and nq * (T + 1) <= EXACT_MAX_N:
-            fns["newton_curv"] = self._curvature(weights, coef, coefficients, qa, qb, Tcb, Q, P, w_m, w_o)
+            fns["newton_curv"] = self._curvature(weights, coef, coefficients, qa, qb, Tcb, Q, P,
+                                                 w_m, w_o)
         self.codegen, self.codegen_note, self._pending = codegen, None, None
-        if codegen and background:  # compiled in the background; the Functions are loaded on first use (`ready`)
+        # compiled in the background; the Functions are loaded on first use (`ready`)
+        if codegen and background:
             self._pending = Deferred(fns, codegen_required)
         else:
             if codegen:
@@ -199,7 +211,8 @@ class NewtonSolver:
         # band slot (k, c) couples columns c and c + k (past the end: a padding slot, index n)
         self.band_partner = np.minimum(np.arange(n)[None, :] + np.arange(self.band)[:, None], n)
         self.h_full = hr * n + hc  # the same entries in a dense n x n matrix (both triangles)
-        a, b = np.tril_indices(nq)  # one node's block (a >= b) in the band: the depth barrier's curvature
+        # one node's block (a >= b) in the band: the depth barrier's curvature
+        a, b = np.tril_indices(nq)
         self.node_pairs = (a, b)
         self.node_band = np.concatenate([(a - b) * n + t * nq + b for t in range(T + 1)])
         self.h_rows, self.h_cols = hr, hc
@@ -207,9 +220,11 @@ class NewtonSolver:
         # coefficient k of interval t is row k + nm t (motion) or nm T + (k - nm) + no t
         # (observation), as d2S/dc2 orders them
         nm, no = self.nm, self.no
-        c_row = [[k + nm * t if k < nm else nm * T + (k - nm) + no * t for k in range(nm + no)] for t in range(T)]
+        c_row = [[k + nm * t if k < nm else nm * T + (k - nm) + no * t for k in range(nm + no)]
+                 for t in range(T)]
         self.nc = (nm + no) * T
-        self.c_index = np.array([c_row[t][k] * n + rows[t][j] for t in range(T) for j in range(2 * nq)
+        self.c_index = np.array([c_row[t][k] * n + rows[t][j] for t in range(T)
+                                 for j in range(2 * nq)
                                  for k in range(nm + no)])
         self.build_time_s = time.perf_counter() - t0
 
@@ -219,7 +234,8 @@ class NewtonSolver:
         self.curv = Buffered(fns["newton_curv"]) if "newton_curv" in fns else None
 
     def ready(self) -> float:
-        """Wait for a background compile and load its Functions (seconds waited; 0 when there was none)."""
+        """Wait for a background compile and load its Functions (seconds waited; 0 when there was
+        none)."""
         if self.__dict__.get("_pending") is None:
             return 0.0
         t0 = time.perf_counter()
@@ -230,43 +246,50 @@ class NewtonSolver:
 
     def __getattr__(self, name: str):
         """The compiled Functions of a background compile, loaded when first used."""
-        if name in ("step", "f", "depth", "fz", "curv") and self.__dict__.get("_pending") is not None:
+        if (name in ("step", "f", "depth", "fz", "curv")
+            and self.__dict__.get("_pending") is not None):
             self.ready()
             return getattr(self, name)
         raise AttributeError(f"'{type(self).__name__}' object has no attribute '{name}'")
 
     def _curvature(self, weights, coef, coefficients, qa, qb, Tcb, Q, P, w_m, w_o) -> ca.Function:
-        """`(Q, P) -> (d2S/dc2, coefficient Jacobians per interval)`: the exact Hessian is the surrogate's plus
-        C^T (d2S/dc2) C (the end-game). One Hessian-vector product of S, forward over the recursion's reverse
-        sweep, mapped over the unit directions: the generated code holds one sweep (a symbolic dense Hessian did
-        not compile in minutes)."""
-        T, Tc, s0, r = self.T, P[:CAMERA_PARAMETERS], P[CAMERA_PARAMETERS + 1:], P[CAMERA_PARAMETERS]
+        """`(Q, P) -> (d2S/dc2, coefficient Jacobians per interval)`: the exact Hessian is the
+        surrogate's plus C^T (d2S/dc2) C (the end-game). One Hessian-vector product of S, forward
+        over the recursion's reverse sweep, mapped over the unit directions: the generated code
+        holds one sweep (a symbolic dense Hessian did not compile in minutes)."""
+        T, Tc, s0, r = (self.T, P[:CAMERA_PARAMETERS], P[CAMERA_PARAMETERS + 1:],
+                        P[CAMERA_PARAMETERS])
         cm, co = ca.MX.sym("cm", *w_m.shape), ca.MX.sym("co", *w_o.shape)
         nc = w_m.numel() + w_o.numel()
-        _, dm, do, _ = weights(cm, co, ca.MX(0, T), s0, r)  # scalar models only: no joint-space term
+        # scalar models only: no joint-space term
+        _, dm, do, _ = weights(cm, co, ca.MX(0, T), s0, r)
         direction = ca.MX.sym("dc", nc)
         hvp = ca.Function("hvp", [cm, co, P, direction],
-                          [ca.jtimes(ca.vertcat(ca.vec(dm), ca.vec(do)), ca.vertcat(ca.vec(cm), ca.vec(co)), direction)])
+                          [ca.jtimes(ca.vertcat(ca.vec(dm), ca.vec(do)),
+                                     ca.vertcat(ca.vec(cm), ca.vec(co)), direction)])
         CM, CO = ca.MX.sym("CM", *w_m.shape), ca.MX.sym("CO", *w_o.shape)
         curv = ca.Function("curv", [CM, CO, P], [hvp.map(nc)(CM, CO, P, ca.DM.eye(nc))])
-        coef_jac = ca.Function("coef_jac", [qa, qb, Tcb], [ca.densify(ca.jacobian(ca.vertcat(*coefficients[:2]),
-                                                                                    ca.vertcat(qa, qb)))])
-        return ca.Function("newton_curv", [Q, P], [ca.densify(curv(*coef.map(T)(Q[:, :T], Q[:, 1:], Tc)[:2], P)),
-                                                   coef_jac.map(T)(Q[:, :T], Q[:, 1:], Tc)])
+        coef_jac = ca.Function("coef_jac", [qa, qb, Tcb],
+                               [ca.densify(ca.jacobian(ca.vertcat(*coefficients[:2]),
+                                                       ca.vertcat(qa, qb)))])
+        return ca.Function("newton_curv", [Q, P],
+                           [ca.densify(curv(*coef.map(T)(Q[:, :T], Q[:, 1:], Tc)[:2], P)),
+                            coef_jac.map(T)(Q[:, :T], Q[:, 1:], Tc)])
 
     def solve(self, setup: Setup, init, method: str = "ocp", tol: float = 1e-6, max_iter: int = 300,
               verbose: bool = False, barrier: bool = False) -> Solution:
-        """Projected Newton from `init`: converged when the projected gradient's inf-norm is at most `tol` (the
-        objective is 1 at the start), at most `max_iter` iterations; `verbose` prints one line per iteration.
-        With `barrier`, `run_barrier` (the depth bound kept)."""
+        """Projected Newton from `init`: converged when the projected gradient's inf-norm is at most
+        `tol` (the objective is 1 at the start), at most `max_iter` iterations; `verbose` prints one
+        line per iteration. With `barrier`, `run_barrier` (the depth bound kept)."""
         run = self.run_barrier if barrier else self.run
         return self.solution(setup, method, init, run(setup, init, tol, max_iter, verbose))
 
     def run(self, setup: Setup, init, tol: float = 1e-6, max_iter: int = 300, verbose: bool = False,
             exact_below: float = EXACT_BELOW, use_secant: bool = True) -> NewtonRun:
-        """`solve` without the evaluation of its plan (the re-planning loop evaluates it faster, planner.py);
-        exact Hessian steps (or, without them, the secant end-game unless `use_secant` is false: for measurements)
-        once the projected gradient is at most `exact_below` (inf: from a warm start on)."""
+        """`solve` without the evaluation of its plan (the re-planning loop evaluates it faster,
+        planner.py); exact Hessian steps (or, without them, the secant end-game unless `use_secant`
+        is false: for measurements) once the projected gradient is at most `exact_below` (inf: from
+        a warm start on)."""
         t0 = time.perf_counter()
         T, nq, n, robot = self.T, self.robot.nq, self.n, self.robot
         sigma0 = setup.model.recursion_sigma0(setup.ocp.sigma0)
@@ -278,21 +301,27 @@ class NewtonSolver:
         free = free.ravel()
         start_ok = bool(np.all(x >= lo - 1e-12) and np.all(x <= hi + 1e-12)
                         and np.allclose(x[:nq], setup.q_start, atol=1e-12))
-        P[CAMERA_PARAMETERS] = trace_ref = float(self.step(x, P)[0][0])  # the objective is 1 (plus smoothness) at the start
-        status, it, shift = "Maximum_Iterations_Exceeded" if start_ok else "Infeasible_Start", 0, 0.0
+        # the objective is 1 (plus smoothness) at the start
+        P[CAMERA_PARAMETERS] = trace_ref = float(self.step(x, P)[0][0])
+        status, it, shift = ("Maximum_Iterations_Exceeded" if start_ok
+                             else "Infeasible_Start"), 0, 0.0
         exact_steps, secant_steps, history = 0, 0, []
         secant, previous = None, None  # the end-game's correction; the last point and its gradient
         while start_ok and it <= max_iter:
             _, f_val, G, HB, depth = self.step(x, P)
             f_val = float(f_val[0])
             history.append(f_val)
-            if len(history) > STALL_WINDOW and history[-STALL_WINDOW - 1] - f_val <= STALL_DECREASE * abs(f_val):
-                status = "Stalled"  # not converged, and not getting there: the caller's fallback, not the cap
+            if (len(history) > STALL_WINDOW
+                and history[-STALL_WINDOW - 1] - f_val <= STALL_DECREASE * abs(f_val)):
+                # not converged, and not getting there: the caller's fallback, not the cap
+                status = "Stalled"
                 break
             g = np.bincount(self.g_index, weights=G, minlength=n)
-            if secant is not None:  # the secant pair of the last step, against the surrogate at the new point
+            # the secant pair of the last step, against the surrogate at the new point
+            if secant is not None:
                 s = x - previous[0]
-                secant.update(s, g - previous[1] - np.bincount(self.h_rows, weights=HB * s[self.h_cols], minlength=n))
+                secant.update(s, g - previous[1]
+                              - np.bincount(self.h_rows, weights=HB * s[self.h_cols], minlength=n))
             held = ((x <= lo) & (g > 0)) | ((x >= hi) & (g < 0))
             idx = np.flatnonzero(free & ~held)
             if np.max(np.abs(g[idx]), initial=0.0) <= tol:
@@ -304,12 +333,14 @@ class NewtonSolver:
             if pg <= DEPTH_CHECK_BELOW and float(depth[0]) < setup.ocp.min_depth:
                 status = "Depth_Bound_Violated"
                 break
-            d = self._exact_step(x, P, HB, g, idx) if pg <= exact_below and self.curv is not None else None
+            d = (self._exact_step(x, P, HB, g, idx) if pg <= exact_below and self.curv is not None
+                 else None)
             exact_steps += d is not None
             kind = "exact" if d is not None else "surrogate"
             if d is None:
                 if use_secant and secant is None and pg <= exact_below and self.curv is None:
-                    secant = _SecantCorrection(n)  # the end-game starts: pairs from the next step on
+                    # the end-game starts: pairs from the next step on
+                    secant = _SecantCorrection(n)
                 step = self._surrogate_step(HB, g, idx, shift, secant)
                 if step is None:
                     status = "Singular_Hessian"
@@ -318,13 +349,16 @@ class NewtonSolver:
                 secant_steps += corrected
                 kind = "secant" if corrected else kind
                 if secant is not None and not corrected and secant.w.size:
-                    secant = _SecantCorrection(n)  # H + A was not positive definite: start the correction afresh
+                    # H + A was not positive definite: start the correction afresh
+                    secant = _SecantCorrection(n)
             if verbose:
-                print(f"newton {it:4d}  f {f_val:.10e}  |pg| {pg:.2e}  free {idx.size:4d}  {kind}", flush=True)
+                print(f"newton {it:4d}  f {f_val:.10e}  |pg| {pg:.2e}  free {idx.size:4d}  {kind}",
+                      flush=True)
             previous = (x, g)
             def projected(alpha, x=x, d=d, g=g, f_val=f_val):  # Armijo along the projected path
                 trial = np.clip(x + alpha * d, lo, hi)
-                return trial if float(self.f(trial, P)[0][0]) <= f_val + 1e-4 * g @ (trial - x) else None
+                return (trial if float(self.f(trial, P)[0][0]) <= f_val + 1e-4 * g @ (trial - x)
+                        else None)
 
             trial = _backtrack(1.0, projected)
             if trial is None:
@@ -335,14 +369,16 @@ class NewtonSolver:
 
     def run_barrier(self, setup: Setup, init, tol: float = 1e-6, max_iter: int = 300,
                     verbose: bool = False) -> NewtonRun:
-        """Newton on IPOPT's barrier problem, which keeps the minimum-depth bound: the objective minus mu times the
-        logs of the free joints' distances to their bounds and of the interior means' depths above the bound,
-        mu updated as IPOPT's monotone strategy does (from MU_INIT; once the barrier gradient's inf-norm is below
-        KAPPA_EPS mu, to max(tol / 10, min(KAPPA_MU mu, mu^THETA_MU))), the start pushed inside the bounds as
-        IPOPT does. The barrier problem's minimisers do not depend on the method, so this follows the central path
-        of IPOPT's monotone fallback (`solve_ocp_warm`) with Newton's cheaper steps in joint space. Steps: the
-        surrogate's banded Hessian plus the barrier's, an Armijo search on the barrier function with IPOPT's
-        fraction to the boundary. Converged when the barrier gradient is at most `tol` at mu = tol / 10."""
+        """Newton on IPOPT's barrier problem, which keeps the minimum-depth bound: the objective
+        minus mu times the logs of the free joints' distances to their bounds and of the interior
+        means' depths above the bound, mu updated as IPOPT's monotone strategy does (from MU_INIT;
+        once the barrier gradient's inf-norm is below KAPPA_EPS mu, to max(tol / 10, min(KAPPA_MU
+        mu, mu^THETA_MU))), the start pushed inside the bounds as IPOPT does. The barrier problem's
+        minimisers do not depend on the method, so this follows the central path of IPOPT's monotone
+        fallback (`solve_ocp_warm`) with Newton's cheaper steps in joint space. Steps: the
+        surrogate's banded Hessian plus the barrier's, an Armijo search on the barrier function with
+        IPOPT's fraction to the boundary. Converged when the barrier gradient is at most `tol` at
+        mu = tol / 10."""
         t0 = time.perf_counter()
         T, nq, n, robot = self.T, self.robot.nq, self.n, self.robot
         sigma0 = setup.model.recursion_sigma0(setup.ocp.sigma0)
@@ -361,13 +397,15 @@ class NewtonSolver:
         x = np.where(free, np.clip(x, lo + push_lo, hi - push_hi), x)
         xl, xh = lo[idx], hi[idx]
 
-        def barrier_value(f_y: float, z_y: np.ndarray, y: np.ndarray, m: float) -> tuple[float, np.ndarray]:
-            """The barrier function at y from its objective and node depths (inf where a depth is at or below the
-            bound), and the interior slacks."""
+        def barrier_value(f_y: float, z_y: np.ndarray, y: np.ndarray,
+                          m: float) -> tuple[float, np.ndarray]:
+            """The barrier function at y from its objective and node depths (inf where a depth is at
+            or below the bound), and the interior slacks."""
             s_y = z_y[1:T] - min_depth
             if np.any(s_y <= 0):
                 return np.inf, s_y
-            return f_y - m * (np.sum(np.log(s_y)) + np.sum(np.log(y[idx] - xl)) + np.sum(np.log(xh - y[idx]))), s_y
+            return f_y - m * (np.sum(np.log(s_y)) + np.sum(np.log(y[idx] - xl))
+                              + np.sum(np.log(xh - y[idx]))), s_y
 
         def merit(y: np.ndarray, m: float) -> tuple[float, np.ndarray]:
             f_y, z_y = self.fz(y, P)
@@ -387,12 +425,15 @@ class NewtonSolver:
             g = np.bincount(self.g_index, weights=G, minlength=n)
             gb = -(inv_s[:, None] * dz).ravel()  # the barrier's gradient and curvature, per unit mu
             gb[idx] += 1.0 / (xh - x[idx]) - 1.0 / (x[idx] - xl)
-            blocks = inv_s[:, None, None] ** 2 * dz[:, :, None] * dz[:, None, :] - inv_s[:, None, None] * d2z
-            band = np.bincount(self.node_band, weights=blocks[:, a, b].ravel(), minlength=self.band * n)
+            blocks = (inv_s[:, None, None] ** 2 * dz[:, :, None] * dz[:, None, :]
+                      - inv_s[:, None, None] * d2z)
+            band = np.bincount(self.node_band, weights=blocks[:, a, b].ravel(),
+                               minlength=self.band * n)
             band = band.reshape(self.band, n)
             band[0, idx] += 1.0 / (x[idx] - xl) ** 2 + 1.0 / (xh - x[idx]) ** 2
             err = np.max(np.abs(g[idx] + m * gb[idx]))
-            while err <= KAPPA_EPS * m and m > mu_min:  # the barrier problem solved well enough: a smaller mu
+            # the barrier problem solved well enough: a smaller mu
+            while err <= KAPPA_EPS * m and m > mu_min:
                 m = max(mu_min, min(KAPPA_MU * m, m ** THETA_MU))
                 err = np.max(np.abs(g[idx] + m * gb[idx]))
             if m <= mu_min and err <= tol:
@@ -411,15 +452,19 @@ class NewtonSolver:
             with np.errstate(divide="ignore", invalid="ignore"):
                 room = np.concatenate([np.where(di < 0, (x[idx] - xl) / -di, np.inf),
                                        np.where(di > 0, (xh - x[idx]) / di, np.inf)])
-            alpha = min(1.0, tau * float(np.min(room, initial=np.inf)))  # IPOPT's fraction to the boundary
-            value, s = barrier_value(float(f_val[0]), z, x, m)  # this iterate's objective and depths, evaluated above
+            # IPOPT's fraction to the boundary
+            alpha = min(1.0, tau * float(np.min(room, initial=np.inf)))
+            # this iterate's objective and depths, evaluated above
+            value, s = barrier_value(float(f_val[0]), z, x, m)
             if verbose:
-                print(f"newton barrier {it:4d}  f {float(f_val[0]):.10e}  mu {m:.1e}  |g_mu| {err:.2e}  "
-                      f"depth margin {s.min(initial=np.inf):.3e}", flush=True)
-            def barrier_step(alpha, x=x, d=d, s=s, m=m, tau=tau, value=value, slope=float(gm @ d)):  # Armijo, boundary
+                print(f"newton barrier {it:4d}  f {float(f_val[0]):.10e}  mu {m:.1e}  |g_mu| "
+                      f"{err:.2e}  depth margin {s.min(initial=np.inf):.3e}", flush=True)
+            # Armijo, boundary
+            def barrier_step(alpha, x=x, d=d, s=s, m=m, tau=tau, value=value, slope=float(gm @ d)):
                 trial = x + alpha * d
                 v_trial, s_trial = merit(trial, m)
-                return trial if np.all(s_trial >= (1 - tau) * s) and v_trial <= value + 1e-4 * alpha * slope else None
+                return (trial if np.all(s_trial >= (1 - tau) * s)
+                        and v_trial <= value + 1e-4 * alpha * slope else None)
 
             trial = _backtrack(alpha, barrier_step)
             if trial is None:
@@ -429,8 +474,8 @@ class NewtonSolver:
         return self._end(setup, x, P, trace_ref, status, it, 0, t0)
 
     def _exact_step(self, x, P, HB, g, idx) -> np.ndarray | None:
-        """Newton's step with the exact Hessian (the surrogate's plus S's own curvature C^T d2S/dc2 C) on the free
-        variables, or None where it is not positive definite there."""
+        """Newton's step with the exact Hessian (the surrogate's plus S's own curvature C^T d2S/dc2
+        C) on the free variables, or None where it is not positive definite there."""
         n = self.n
         Hs, CJ = self.curv(x, P)
         C = np.zeros(self.nc * n)
@@ -446,27 +491,31 @@ class NewtonSolver:
         d[idx] = scipy.linalg.cho_solve(factor, -g[idx], check_finite=False)
         return d if np.all(np.isfinite(d)) else None
 
-    def _surrogate_step(self, HB, g, idx, shift, secant: _SecantCorrection | None = None, band_extra=None):
-        """The step with the surrogate Hessian (banded; plus `band_extra` in the same band storage, the barrier's),
-        shifted until positive definite, and with the secant correction where it has one and stays positive
-        definite: (d, shift, corrected) or None.
+    def _surrogate_step(self, HB, g, idx, shift, secant: _SecantCorrection | None = None,
+                        band_extra=None):
+        """The step with the surrogate Hessian (banded; plus `band_extra` in the same band storage,
+        the barrier's), shifted until positive definite, and with the secant correction where it has
+        one and stays positive definite: (d, shift, corrected) or None.
 
-        LAPACK's banded Cholesky (dpbtrf / dpbtrs) is called directly: scipy's solveh_banded wrapper cost more than
-        the factorisation at these sizes."""
+        LAPACK's banded Cholesky (dpbtrf / dpbtrs) is called directly: scipy's solveh_banded wrapper
+        cost more than the factorisation at these sizes."""
         n = self.n
-        ab = np.bincount(self.h_index, weights=HB[self.h_lower], minlength=self.band * n).reshape(self.band, n)
+        ab = np.bincount(self.h_index, weights=HB[self.h_lower],
+                         minlength=self.band * n).reshape(self.band, n)
         if band_extra is not None:
             ab += band_extra
         fixed = np.ones(n + 1, bool)
         fixed[idx] = False
-        ab[fixed[:n][None, :] | fixed[self.band_partner]] = 0.0  # rows and columns of the held variables out,
+        # rows and columns of the held variables out,
+        ab[fixed[:n][None, :] | fixed[self.band_partner]] = 0.0
         fixed = fixed[:n]
         ab[0, fixed] = 1.0  # identity in
         rhs = np.where(fixed, 0.0, -g)
         shift = shift / 4 if shift > 1e-14 else 0.0
         free_diag = ab[0, ~fixed]
         scale = max(float(np.max(np.abs(free_diag))) if free_diag.size else 0.0, 1e-12)
-        while shift <= 1e12 * scale:  # a diagonal shift until positive definite (IPOPT's inertia correction)
+        # a diagonal shift until positive definite (IPOPT's inertia correction)
+        while shift <= 1e12 * scale:
             shifted = ab.copy()
             shifted[0, ~fixed] += shift
             factor, info = dpbtrf(shifted, lower=1, overwrite_ab=1)
@@ -478,7 +527,8 @@ class NewtonSolver:
             shift = max(1e-8 * scale, 10 * shift)  # not positive definite (or not finite)
         return None
 
-    def _end(self, setup, x, P, trace_ref, status, it, exact_steps, t0, secant_steps=0) -> NewtonRun:
+    def _end(self, setup, x, P, trace_ref, status, it, exact_steps, t0,
+             secant_steps=0) -> NewtonRun:
         T, nq = self.T, self.robot.nq
         q = x.reshape(T + 1, nq)
         mu = np.asarray(self.poses(q.T, setup.camera_parameter())).T  # means (p, Q)
@@ -488,15 +538,16 @@ class NewtonSolver:
             status = "Depth_Bound_Violated" if depth > 0 else "Terminal_Pose_Not_Met"
         solve_s = time.perf_counter() - t0
         trace, f_val = (float(v[0]) for v in self.step(x, P)[:2])
-        return NewtonRun(q, np_poses(mu), status, it, exact_steps, f_val * trace_ref, trace * trace_ref, trace_ref,
-                         max(terminal, depth), solve_s, secant_steps)
+        return NewtonRun(q, np_poses(mu), status, it, exact_steps, f_val * trace_ref,
+                         trace * trace_ref, trace_ref, max(terminal, depth), solve_s, secant_steps)
 
     def solution(self, setup, method, init, r: NewtonRun) -> Solution:
-        """The Solution of a run: its plan evaluated by the exact EKF (`output.solution.evaluate`)."""
+        """The Solution of a run: its plan evaluated by the exact EKF
+        (`output.solution.evaluate`)."""
         return evaluate(
             setup, method, r.poses, list(r.q),
-            success=r.success, status=r.status, solve_time_s=r.solve_time_s, iterations=r.iterations,
-            objective=r.objective,
+            success=r.success, status=r.status, solve_time_s=r.solve_time_s,
+            iterations=r.iterations, objective=r.objective,
             extras={"init": init.source, "solver": "newton", "covariance_form": "condensed",
                     "exact_steps": r.exact_steps, "secant_steps": r.secant_steps,
                     "build_time_s": self.build_time_s, "compiled": self.codegen,

@@ -1,9 +1,11 @@
-"""The belief-space OCP solved by its strategy: choices resolved, attempts run, the plan picked and reported.
+"""The belief-space OCP solved by its strategy: choices resolved, attempts run, the plan picked and
+reported.
 
-`solve_ocp` / `solve_ocp_warm` take a Setup and an initial joint trajectory and return one Solution. The solver
-choices are resolved once (`problem/solver_config.py`), the attempts are data (`strategy.py`), each runs on a
-backend (`backends/`); here the best converged attempt is kept (or the feasible start, when every converged point
-is above it), the attempts are recorded, and a 6x6-recursion model gets its second start.
+`solve_ocp` / `solve_ocp_warm` take a Setup and an initial joint trajectory and return one Solution.
+The solver choices are resolved once (`problem/solver_config.py`), the attempts are data
+(`strategy.py`), each runs on a backend (`backends/`); here the best converged attempt is kept (or
+the feasible start, when every converged point is above it), the attempts are recorded, and a
+6x6-recursion model gets its second start.
 """
 
 from __future__ import annotations
@@ -33,20 +35,23 @@ def resolved_solver(setup: Setup, form: str | None = None):
 
 def solve_ocp(setup: Setup, init: InitialGuess, solver_options: dict | None = None,
               method: str = "ocp", form: str | None = None) -> Solution:
-    """Solve the belief-space OCP from the initial joint trajectory `init` (see `solve_ocp_warm`)."""
+    """Solve the belief-space OCP from the initial joint trajectory `init` (see
+    `solve_ocp_warm`)."""
     return solve_ocp_warm(setup, init, solver_options, method, form)[0]
 
 
-def solve_ocp_warm(setup: Setup, init: InitialGuess, solver_options: dict | None = None, method: str = "ocp",
-                   form: str | None = None, warm: Iterate | None = None) -> tuple[Solution, Iterate | None]:
+def solve_ocp_warm(setup: Setup, init: InitialGuess, solver_options: dict | None = None,
+                   method: str = "ocp", form: str | None = None,
+                   warm: Iterate | None = None) -> tuple[Solution, Iterate | None]:
     """Solve the belief-space OCP; also return where it ended, for a later warm start.
 
-    The attempts are `strategy.default_strategy`'s; the lifted form starts at the condensed solution. A
-    feasible start is returned (`Initial_Guess_Kept`) when every converged point is worse, so the plan is never
-    worse than where it began. With `limits.enforce` the returned plan is checked against the motion limits
-    (`Motion_Limits_Violated` otherwise). Every attempt is in `Solution.attempts` (with `kept`); time and
-    iterations are their sums. Returns a Solution whatever the solvers' status; check `success` (the CLI turns
-    a failure into an error carrying the status).
+    The attempts are `strategy.default_strategy`'s; the lifted form starts at the condensed
+    solution. A feasible start is returned (`Initial_Guess_Kept`) when every converged point is
+    worse, so the plan is never worse than where it began. With `limits.enforce` the returned plan
+    is checked against the motion limits (`Motion_Limits_Violated` otherwise). Every attempt is in
+    `Solution.attempts` (with `kept`); time and iterations are their sums. Returns a Solution
+    whatever the solvers' status; check `success` (the CLI turns a failure into an error carrying
+    the status).
     """
     resolved = resolved_solver(setup, form)
     spec, opts = setup.ocp.solver, dict(solver_options or {})
@@ -59,9 +64,10 @@ def solve_ocp_warm(setup: Setup, init: InitialGuess, solver_options: dict | None
         # multipliers follow): from the straight line IPOPT's first steps left the recursion and the
         # PSD cone (docs/general_models.md).
         pre = solve_ocp_warm(setup, init, solver_options, method, "condensed")[0]
-        if pre.status == "Initial_Guess_Kept":  # no stationary point to start the lifted NLP from: the same plan
-            pre.extras["lifted"] = ("not run: the condensed solve kept its start, where the lifted NLP does not "
-                                    "converge (docs/general_models.md)")
+        # no stationary point to start the lifted NLP from: the same plan
+        if pre.status == "Initial_Guess_Kept":
+            pre.extras["lifted"] = ("not run: the condensed solve kept its start, where the lifted "
+                                    "NLP does not converge (docs/general_models.md)")
             return pre, None
         if pre.success:
             init = InitialGuess(np.array(pre.q), f"condensed solution ({init.source})")
@@ -73,7 +79,8 @@ def solve_ocp_warm(setup: Setup, init: InitialGuess, solver_options: dict | None
     smooth0 = setup.ocp.smoothness * float(np.sum(np.diff(np.asarray(cold.q, float), axis=0) ** 2))
     costly = setup.model.structured and not setup.model.scalar
 
-    def start_objective(s_k: Solution) -> float:  # the planner's objective at the cold start (trace + smoothness)
+    # the planner's objective at the cold start (trace + smoothness)
+    def start_objective(s_k: Solution) -> float:
         return s_k.extras["initial_trace"] * (1 + smooth0)
 
     if warm is None and ((finished and tried[pick][2].objective > start_objective(tried[pick][2]))
@@ -86,29 +93,36 @@ def solve_ocp_warm(setup: Setup, init: InitialGuess, solver_options: dict | None
         start = nlps[-1](init) if nlps else None  # the last NLP's start point and bounds
         if start is not None:
             ran = sorted({s_k.extras["solver"] for _, _, s_k, _ in tried})
-            start.extras["solver"] = f"none (the initial guess; {', '.join(ran)} did not end below it)"
-            tried.append(("none: the feasible initial guess, below every converged point" if finished else
-                          "none: the feasible initial guess (no attempt converged)", None, start, None))
+            start.extras["solver"] = (f"none (the initial guess; {', '.join(ran)} did not "
+                                      "end below it)")
+            tried.append(("none: the feasible initial guess, below every converged point"
+                          if finished
+                          else "none: the feasible initial guess (no attempt converged)",
+                          None, start, None))
             pick = len(tried) - 1
     sol, last = tried[pick][2], tried[pick][3]
-    sol.attempts = [record(label, hess, s_k, k == pick) for k, (label, hess, s_k, _) in enumerate(tried)]
+    sol.attempts = [record(label, hess, s_k, k == pick)
+                    for k, (label, hess, s_k, _) in enumerate(tried)]
     sol.extras["hessian"] = " + ".join(label for label, _, _, _ in tried)
     sol.extras["initial_objective"] = start_objective(sol)
     sol.extras["worse_than_initial_guess"] = bool(sol.objective > sol.extras["initial_objective"])
     sol.extras["init"] = init.source if warm is None else f"warm start ({init.source})"
     sol.solve_time_s = sum(s_k.solve_time_s for _, _, s_k, _ in tried)
     sol.iterations = sum(s_k.iterations for _, _, s_k, _ in tried)
-    if pre is not None:  # the condensed solve that started the lifted one: reported, and counted in time
-        sol.extras["condensed_start"] = {"status": pre.status, "iterations": pre.iterations, "solver":
-                                         pre.extras.get("solver"), "solve_time_s": pre.solve_time_s,
+    # the condensed solve that started the lifted one: reported, and counted in time
+    if pre is not None:
+        sol.extras["condensed_start"] = {"status": pre.status, "iterations": pre.iterations,
+                                         "solver": pre.extras.get("solver"),
+                                         "solve_time_s": pre.solve_time_s,
                                          "objective": pre.objective}
         sol.extras["initial_trace"] = pre.extras["initial_trace"]
         sol.extras["initial_objective"] = pre.extras["initial_objective"]
-        sol.extras["worse_than_initial_guess"] = bool(sol.objective > sol.extras["initial_objective"])
+        sol.extras["worse_than_initial_guess"] = bool(
+            sol.objective > sol.extras["initial_objective"])
         sol.solve_time_s += pre.solve_time_s
         sol.iterations += pre.iterations
-    if (costly and resolved.form == "condensed" and warm is None and not limited and resolved.newton_fits
-            and spec.name != "ipopt"):
+    if (costly and resolved.form == "condensed" and warm is None and not limited
+            and resolved.newton_fits and spec.name != "ipopt"):
         sol, last = _second_start(setup, cold, sol, last, solver_options, method)
     if enforce_limits(setup, sol) and not sol.success:
         last = None  # no warm start from a plan that breaks a limit
@@ -116,12 +130,13 @@ def solve_ocp_warm(setup: Setup, init: InitialGuess, solver_options: dict | None
 
 
 SECOND_START_ITER = 60
-GATE_ITER = 100  # Newton iterations for the diagonal model's plan beyond EXACT_MAX_N joint variables
+# Newton iterations for the diagonal model's plan beyond EXACT_MAX_N joint variables
+GATE_ITER = 100
 
 
 def diagonal_model_setup(setup: Setup) -> Setup:
-    """The same setup with every base covariance replaced by its diagonal and no joint-space motion noise: a scalar
-    model, cheap to solve."""
+    """The same setup with every base covariance replaced by its diagonal and no joint-space motion
+    noise: a scalar model, cheap to solve."""
     n = setup.ocp.noise
     diag = {k: np.diag(np.diag(np.asarray(getattr(n, k), float)))
             for k in ("W_p0", "W_o0", "V_d0", "V_f0", "V_o0", "V_min", "Sigma0")}
@@ -129,8 +144,8 @@ def diagonal_model_setup(setup: Setup) -> Setup:
 
 
 def _objective_at(setup: Setup, sol: Solution, other: Solution) -> float:
-    """The planner's objective (its model's Tr(Sigma_T) plus the smoothness term, scaled like `sol.objective`) at
-    the joints of another plan."""
+    """The planner's objective (its model's Tr(Sigma_T) plus the smoothness term, scaled like
+    `sol.objective`) at the joints of another plan."""
     q = np.asarray(other.q, float)
     sig, pred = setup.model.propagate(setup.poses_of(q), joint=setup.joint_noises(q))
     trace = float(np.trace(pred[-1] if setup.model.noise.objective == "predicted" else sig[-1]))
@@ -138,11 +153,13 @@ def _objective_at(setup: Setup, sol: Solution, other: Solution) -> float:
     return trace + smooth * sol.extras["initial_trace"]
 
 
-def _second_start(setup: Setup, cold: InitialGuess, sol: Solution, last, solver_options, method: str):
-    """A 6x6-recursion model also solves its diagonal approximation (a scalar model, a few ms); where that plan
-    scores below the first one in this model, Newton starts from it too and the better converged plan is kept, so
-    the plan is never above the diagonal model's: from the straight line alone a few per cent of the
-    optima were above the paper plan evaluated in the same model (docs/general_models.md)."""
+def _second_start(setup: Setup, cold: InitialGuess, sol: Solution, last, solver_options,
+                  method: str):
+    """A 6x6-recursion model also solves its diagonal approximation (a scalar model, a few ms);
+    where that plan scores below the first one in this model, Newton starts from it too and the
+    better converged plan is kept, so the plan is never above the diagonal model's: from the
+    straight line alone a few per cent of the optima were above the paper plan evaluated in the same
+    model (docs/general_models.md)."""
     diag = diagonal_model_setup(setup)
     if setup.robot.nq * (setup.ocp.horizon + 1) <= EXACT_MAX_N:
         approx = solve_ocp_warm(diag, cold, solver_options, method, "condensed")[0]
@@ -150,28 +167,35 @@ def _second_start(setup: Setup, cold: InitialGuess, sol: Solution, last, solver_
         # long horizons: the scalar recursion has no exact end-game there; a capped Newton run, not
         # the full strategy, which can cost many times the plan itself (docs/general_models.md)
         spec = setup.ocp.solver
-        approx = newton_solver(diag).solve(diag, cold, method, tol=spec.tol, max_iter=min(GATE_ITER, spec.max_iter))
-    gate = {"status": approx.status, "iterations": approx.iterations, "solve_time_s": approx.solve_time_s}
+        approx = newton_solver(diag).solve(diag, cold, method, tol=spec.tol,
+                                           max_iter=min(GATE_ITER, spec.max_iter))
+    gate = {"status": approx.status, "iterations": approx.iterations,
+            "solve_time_s": approx.solve_time_s}
     extra_time, extra_it = approx.solve_time_s, approx.iterations
-    ahead = approx.success and approx.status != "Initial_Guess_Kept" and _objective_at(setup, sol, approx) < sol.objective
-    gate["ahead"] = bool(ahead)  # the diagonal plan itself scores below the first plan: worth a Newton run from it
+    ahead = (approx.success and approx.status != "Initial_Guess_Kept"
+             and _objective_at(setup, sol, approx) < sol.objective)
+    # the diagonal plan itself scores below the first plan: worth a Newton run from it
+    gate["ahead"] = bool(ahead)
     if ahead:
         spec = setup.ocp.solver
         # a short Newton run (the surrogate converges linearly on the 6x6 recursion, so a long run
         # is slow: docs/general_models.md, "The secant end-game"), then IPOPT finishes it if it is
         # the better point
-        second = newton_solver(setup).solve(setup, InitialGuess(np.array(approx.q), "diagonal model's plan"),
-                                            method, tol=spec.tol, max_iter=min(SECOND_START_ITER, spec.max_iter))
+        second = newton_solver(setup).solve(
+            setup, InitialGuess(np.array(approx.q), "diagonal model's plan"), method, tol=spec.tol,
+            max_iter=min(SECOND_START_ITER, spec.max_iter))
         gate.update(newton_status=second.status, newton_iterations=second.iterations,
                       newton_objective=second.objective)
         extra_time += second.solve_time_s
         extra_it += second.iterations
-        if not second.success and second.status == "Maximum_Iterations_Exceeded" and second.objective < sol.objective:
+        if (not second.success and second.status == "Maximum_Iterations_Exceeded"
+            and second.objective < sol.objective):
             # Newton's surrogate converges linearly on the 6x6 recursion; a better unfinished point
             # is finished by IPOPT (same surrogate Hessian, with the depth bound)
             tr = transcription(setup, "condensed", solver_options, hessian="surrogate")
-            second, _ = tr.solve(setup, InitialGuess(np.array(second.q), "Newton from the diagonal model's plan"),
-                                 method)
+            second, _ = tr.solve(
+                setup, InitialGuess(np.array(second.q), "Newton from the diagonal model's plan"),
+                method)
             gate.update(ipopt_status=second.status, ipopt_iterations=second.iterations)
             extra_time += second.solve_time_s
             extra_it += second.iterations
@@ -183,9 +207,11 @@ def _second_start(setup: Setup, cold: InitialGuess, sol: Solution, last, solver_
                 record(label, "surrogate", second, True)]
             second.extras["hessian"] = sol.extras["hessian"] + f" + {label}"
             second.extras["init"] = sol.extras["init"]
-            second.extras["worse_than_initial_guess"] = bool(second.objective > second.extras["initial_objective"])
+            second.extras["worse_than_initial_guess"] = bool(
+                second.objective > second.extras["initial_objective"])
             second.solve_time_s, second.iterations = sol.solve_time_s, sol.iterations
-            sol, last = second, Iterate(np.array(second.q)) if second.extras["solver"] == "newton" else None
+            sol, last = second, (Iterate(np.array(second.q))
+                                 if second.extras["solver"] == "newton" else None)
     sol.extras["second_start"] = gate
     sol.solve_time_s += extra_time
     sol.iterations += extra_it

@@ -15,7 +15,8 @@ import numpy as np
 
 
 def entries(pairs) -> tuple[np.ndarray, np.ndarray]:
-    """(row, column) of each entry of each stage's dense (rows x cols) block, column-major within a block.
+    """(row, column) of each entry of each stage's dense (rows x cols) block, column-major within a
+    block.
 
     `pairs`: a list of (row indices, column indices), one per stage."""
     r = np.concatenate([np.tile(ri, len(ci)) for ri, ci in pairs])
@@ -24,9 +25,9 @@ def entries(pairs) -> tuple[np.ndarray, np.ndarray]:
 
 
 def assemble(shape, parts, constant=None) -> tuple[ca.Sparsity, list[ca.DM], ca.DM]:
-    """Sparsity of the sum of scattered stage parts [(rows, cols)] (upper triangle only when square: a
-    Hessian), one scatter matrix per part (global nonzeros x part entries) and the nonzeros of `constant`
-    (a dense matrix added to the sum, or None)."""
+    """Sparsity of the sum of scattered stage parts [(rows, cols)] (upper triangle only when square:
+    a Hessian), one scatter matrix per part (global nonzeros x part entries) and the nonzeros of
+    `constant` (a dense matrix added to the sum, or None)."""
     keep = [np.ones(len(r), bool) if shape[0] != shape[1] else r <= c for r, c in parts]
     rows = [r[k] for (r, _), k in zip(parts, keep)]
     cols = [c[k] for (_, c), k in zip(parts, keep)]
@@ -55,7 +56,7 @@ def smoothness_matrix(n: int, q_idx: list[np.ndarray], smoothness: float) -> np.
     D = np.zeros((n, n))
     for t in range(len(q_idx) - 1) if smoothness > 0 else ():
         nq = len(q_idx[t])
-        for i, j, sign in ((q_idx[t], q_idx[t], 1), (q_idx[t + 1], q_idx[t + 1], 1), (q_idx[t], q_idx[t + 1], -1),
-                           (q_idx[t + 1], q_idx[t], -1)):
+        for i, j, sign in ((q_idx[t], q_idx[t], 1), (q_idx[t + 1], q_idx[t + 1], 1),
+                           (q_idx[t], q_idx[t + 1], -1), (q_idx[t + 1], q_idx[t], -1)):
             D[np.ix_(i, j)] += 2 * smoothness * sign * np.eye(nq)
     return D

@@ -10,6 +10,7 @@ from .interior_point import InteriorPointBackend
 from .ipopt import IpoptBackend
 from .projected_newton import NewtonBackend
 
-BACKENDS: dict[str, Backend] = {b.name: b for b in (NewtonBackend(), InteriorPointBackend(), IpoptBackend())}
+BACKENDS: dict[str, Backend] = {b.name: b
+                                for b in (NewtonBackend(), InteriorPointBackend(), IpoptBackend())}
 
 __all__ = ["BACKENDS", "Backend", "Context", "Outcome"]

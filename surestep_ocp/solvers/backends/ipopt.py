@@ -1,5 +1,6 @@
-"""IPOPT (through CasADi) on the multiple-shooting NLP: the condensed, gain-lifted and diagonal transcriptions
-(`transcription.py`) and the lifted vech(Sigma) form with the structured Hessian (`lifted.py`)."""
+"""IPOPT (through CasADi) on the multiple-shooting NLP: the condensed, gain-lifted and diagonal
+transcriptions (`transcription.py`) and the lifted vech(Sigma) form with the structured Hessian
+(`lifted.py`)."""
 
 from __future__ import annotations
 
@@ -9,7 +10,8 @@ from .base import Context, Outcome
 
 
 class IpoptBackend:
-    """Any model, form and Hessian; the motion limits as constraint rows; warm starts from a primal-dual point."""
+    """Any model, form and Hessian; the motion limits as constraint rows; warm starts from a
+    primal-dual point."""
 
     name = "ipopt"
 
@@ -22,4 +24,5 @@ class IpoptBackend:
         extra = {**options, **WARM_OPTIONS} if dual is not None else dict(options)
         nlp = transcription(ctx.setup, ctx.resolved.form, {**ctx.options, **extra}, hessian=hessian)
         sol, reached = nlp.solve(ctx.setup, start, ctx.method, warm=dual)
-        return Outcome(sol, Iterate(sol.joints, reached), lambda init: nlp.start_solution(ctx.setup, init, ctx.method))
+        return Outcome(sol, Iterate(sol.joints, reached),
+                       lambda init: nlp.start_solution(ctx.setup, init, ctx.method))

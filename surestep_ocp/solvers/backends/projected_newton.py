@@ -1,5 +1,6 @@
-"""The projected Newton solver (`newton.py`) on the condensed scalar recursion, and its barrier run for the depth
-bound; a plan over an enforced motion limit is reported as such (Newton has no step constraints)."""
+"""The projected Newton solver (`newton.py`) on the condensed scalar recursion, and its barrier run
+for the depth bound; a plan over an enforced motion limit is reported as such (Newton has no step
+constraints)."""
 
 from __future__ import annotations
 
@@ -11,29 +12,34 @@ from .base import Context, Outcome
 
 
 class NewtonBackend:
-    """Exact for the surrogate model with six joints moving the tracked frame (`ResolvedSolver.newton_fits`).
+    """Exact for the surrogate model with six joints moving the tracked frame
+    (`ResolvedSolver.newton_fits`).
 
-    Options: `barrier` (bool) runs Newton on IPOPT's barrier problem, which keeps the depth bound; `exact_below`
-    the projected gradient's norm below which it takes exact Hessian steps (inf: from the start, for warm starts).
-    The plan is evaluated by `ctx.evaluate_newton` when the caller has a faster evaluation (the Planner's)."""
+    Options: `barrier` (bool) runs Newton on IPOPT's barrier problem, which keeps the depth bound;
+    `exact_below` the projected gradient's norm below which it takes exact Hessian steps (inf: from
+    the start, for warm starts). The plan is evaluated by `ctx.evaluate_newton` when the caller has
+    a faster evaluation (the Planner's)."""
 
     name = "newton"
 
     def applies(self, ctx: Context) -> str | None:
         if not ctx.resolved.newton_fits:
-            return ("Newton needs the condensed scalar recursion with the mean observation noise and six joints "
-                    "moving the tracked frame")
+            return ("Newton needs the condensed scalar recursion with the mean observation noise "
+                    "and six joints moving the tracked frame")
         return None
 
     def solve(self, ctx: Context, start: InitialGuess, warm: Iterate | None, hessian: str | None,
               options: dict) -> Outcome:
         spec = ctx.setup.ocp.solver
         solver = newton_solver(ctx.setup)
-        kw = dict(tol=spec.tol, max_iter=min(spec.surrogate_max_iter, spec.max_iter), verbose=spec.print_level > 0)
+        kw = dict(tol=spec.tol, max_iter=min(spec.surrogate_max_iter, spec.max_iter),
+                  verbose=spec.print_level > 0)
         if options.get("barrier"):
             run = solver.run_barrier(ctx.setup, start, **kw)
         else:
-            run = solver.run(ctx.setup, start, exact_below=options.get("exact_below", EXACT_BELOW), **kw)
+            run = solver.run(ctx.setup, start, exact_below=options.get("exact_below", EXACT_BELOW),
+                             **kw)
         sol = (ctx.evaluate_newton or solver.solution)(ctx.setup, ctx.method, start, run)
-        enforce_limits(ctx.setup, sol)  # a plan over an enforced limit is not a success: the strategy goes on
+        # a plan over an enforced limit is not a success: the strategy goes on
+        enforce_limits(ctx.setup, sol)
         return Outcome(sol, Iterate(sol.joints) if sol.success else None)
