@@ -30,7 +30,8 @@ def episode(problem, budget: int, seed: int) -> tuple[list[float], int, float, f
         fails += not plan.success
     tracker.move_to(planner.plan.poses[-1])
     error = float(np.linalg.norm(tracker.true_pose[:3] - planner.setup.x_goal[:3]) * 1e3)
-    return ms, fails, float(np.trace(tracker.covariance)), error, planner.horizon - planner.setup.ocp.horizon
+    later = planner.horizon - planner.setup.ocp.horizon
+    return ms, fails, float(np.trace(tracker.covariance)), error, later
 
 
 def main() -> None:
@@ -46,13 +47,15 @@ def main() -> None:
         s = h.stats(ms)
         medians[str(budget)] = f"{s.median:.1f}"
         rows.append((budget, f"{s.median:.1f} / {s.p90:.1f} / {s.worst:.1f}",
-                     f"{sum(r[1] for r in runs)} of {len(ms)}", f"{np.mean([r[2] for r in runs]):.3e}",
+                     f"{sum(r[1] for r in runs)} of {len(ms)}",
+                     f"{np.mean([r[2] for r in runs]):.3e}",
                      f"{np.mean([r[3] for r in runs]):.2f} mm", max(r[4] for r in runs)))
         print(*rows[-1], flush=True)
     lines = ["# The re-plan's iteration budget within the limits", "",
-             f"`OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/replan_budget.py --episodes "
-             f"{args.episodes} --budgets {' '.join(map(str, args.budgets))}`: the default problem, seeds "
-             f"0-{args.episodes - 1} per budget (docs/realtime.md).", "",
+             (f"`OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/replan_budget.py --episodes "
+              f"{args.episodes} --budgets {' '.join(map(str, args.budgets))}`: the default "
+              "problem, "
+              f"seeds 0-{args.episodes - 1} per budget (docs/realtime.md)."), "",
              *h.table(["budget", "re-plan median / p90 / worst [ms]", "kept the previous plan",
                        "tracker's final Tr(Sigma), mean", "final position error, mean",
                        "most steps later"], rows), ""]

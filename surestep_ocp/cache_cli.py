@@ -1,4 +1,5 @@
-"""`surestep cache [--info | --clear | --prune [--max-mb N]]`: the compile cache of the OCP's derivatives.
+"""`surestep cache [--info | --clear | --prune [--max-mb N]]`: the compile cache of the OCP's
+derivatives.
 
 Where it is and how it is bounded: `solvers/codegen.py` (README, "The compile cache").
 """
@@ -18,8 +19,9 @@ def info_text() -> str:
     folder = codegen.cache_dir()
     libs = codegen.entries(folder)
     bound = codegen.max_bytes()
-    where = ("$SURESTEP_CACHE" if __import__("os").environ.get("SURESTEP_CACHE") else
-             "$XDG_CACHE_HOME/surestep_ocp" if __import__("os").environ.get("XDG_CACHE_HOME", "").startswith("/")
+    env = __import__("os").environ
+    where = ("$SURESTEP_CACHE" if env.get("SURESTEP_CACHE") else
+             "$XDG_CACHE_HOME/surestep_ocp" if env.get("XDG_CACHE_HOME", "").startswith("/")
              else "the default, ~/.cache/surestep_ocp")
     rate, basis = codegen._rate(folder)
     lines = [
@@ -27,15 +29,17 @@ def info_text() -> str:
         f"libraries   {len(libs)} ({_mb(sum(e.size for e in libs))} with their checksums; "
         f"{_mb(codegen.total_bytes(folder))} in all)",
         "bound       " + ("none ($SURESTEP_CACHE_MAX_MB=0)" if bound is None else
-                          f"{_mb(bound)}: the least recently used libraries are removed after a compile "
-                          f"($SURESTEP_CACHE_MAX_MB, default {codegen.DEFAULT_MAX_MB})"),
+                          f"{_mb(bound)}: the least recently used libraries are removed after a "
+                          f"compile ($SURESTEP_CACHE_MAX_MB, default {codegen.DEFAULT_MAX_MB})"),
         f"estimate    {basis} (the compile notes' time estimate)",
     ]
     if libs:
-        lines.append(f"last used   {time.strftime('%Y-%m-%d %H:%M', time.localtime(libs[-1].last_use))} "
-                     f"(least recently: {time.strftime('%Y-%m-%d %H:%M', time.localtime(libs[0].last_use))})")
-    lines.append("clear it    surestep cache --clear (it is rebuilt as needed; the first solve of each problem "
-                 "structure and horizon compiles again)")
+        def when(lib) -> str:
+            return time.strftime('%Y-%m-%d %H:%M', time.localtime(lib.last_use))
+
+        lines.append(f"last used   {when(libs[-1])} (least recently: {when(libs[0])})")
+    lines.append("clear it    surestep cache --clear (it is rebuilt as needed; the first solve of "
+                 "each problem structure and horizon compiles again)")
     return "\n".join(lines)
 
 
@@ -54,8 +58,8 @@ def cmd_cache(args) -> int:
         limit = codegen.max_bytes() if args.max_mb is None else int(args.max_mb * 1e6)
         removed = codegen.prune(limit, folder)
         left = codegen.entries(folder)
-        print(f"pruned      {len(removed)} libraries ({_mb(sum(e.size for e in removed))}) from {folder}; "
-              f"{len(left)} left ({_mb(sum(e.size for e in left))}, bound "
+        print(f"pruned      {len(removed)} libraries ({_mb(sum(e.size for e in removed))}) from "
+              f"{folder}; {len(left)} left ({_mb(sum(e.size for e in left))}, bound "
               f"{'none' if limit is None else _mb(limit)})")
         return 0
     if args.max_mb is not None:
@@ -66,19 +70,22 @@ def cmd_cache(args) -> int:
 
 def register(sub) -> None:
     """Add `surestep cache` to the CLI's subcommands."""
-    c = sub.add_parser("cache", help="where the compiled derivatives are cached, their size; clear or prune them",
-                       description="The OCP's derivatives compiled to C are cached by content in $SURESTEP_CACHE, "
-                                   "else $XDG_CACHE_HOME/surestep_ocp, else ~/.cache/surestep_ocp; after a "
-                                   "compile the least recently used libraries are removed while the cache holds "
-                                   "more than $SURESTEP_CACHE_MAX_MB megabytes (0: unbounded).")
+    c = sub.add_parser(
+        "cache", help="where the compiled derivatives are cached, their size; clear or prune them",
+        description="The OCP's derivatives compiled to C are cached by content in $SURESTEP_CACHE, "
+                    "else $XDG_CACHE_HOME/surestep_ocp, else ~/.cache/surestep_ocp; after a "
+                    "compile the least recently used libraries are removed while the cache holds "
+                    "more than $SURESTEP_CACHE_MAX_MB megabytes (0: unbounded).")
     what = c.add_mutually_exclusive_group()
     what.add_argument("--info", action="store_true",
-                      help="print the folder, its size, its bound and the compile estimate's rate (what "
-                           "`surestep cache` alone does)")
-    what.add_argument("--clear", action="store_true", help="remove every compiled library from the cache")
+                      help="print the folder, its size, its bound and the compile estimate's rate "
+                           "(what `surestep cache` alone does)")
+    what.add_argument("--clear", action="store_true",
+                      help="remove every compiled library from the cache")
     what.add_argument("--prune", action="store_true",
-                      help="remove the least recently used libraries until the cache holds at most --max-mb")
+                      help="remove the least recently used libraries until the cache holds at most "
+                           "--max-mb")
     c.add_argument("--max-mb", type=float, metavar="MB",
-                   help="the size to prune to, in megabytes (with --prune; default: $SURESTEP_CACHE_MAX_MB, else "
-                        "the default bound)")
+                   help="the size to prune to, in megabytes (with --prune; default: "
+                        "$SURESTEP_CACHE_MAX_MB, else the default bound)")
     c.set_defaults(func=cmd_cache)

@@ -47,7 +47,8 @@ ACCEPTABLE_CHANGE, ACCEPTABLE_ITER = 1e-9, 3
 # status, a success: its plan keeps every limit and reaches the goal, not yet optimal (a re-planning
 # loop's iteration budget)
 FEASIBLE = "Feasible_Point_Found"
-# with `feasible_ok`, the steps that shrink a relaxation do not count against max_iter, up to this many
+# with `feasible_ok`, the steps that shrink a relaxation do not count against max_iter, up to this
+# many
 RELAXED_MAX = 30
 # the secant end-game (newton.py's SR1 correction of the surrogate Hessian) starts once the average
 # complementarity is this small and no row is relaxed
