@@ -232,10 +232,11 @@ OCP_FLAGS = ("solver", "hessian", "codegen")  # act on the OCP only (method_gram
 def _solver_flags(parser: argparse.ArgumentParser) -> None:
     """--solver, --hessian, --codegen: the OCP's settings over the problem file's `solver:`
     section."""
+    from .problem.solver_config import SolverName
     from .problem.spec import SolverSpec
 
     d = SolverSpec()
-    parser.add_argument("--solver", choices=("auto", "ipopt", "newton", "interior"),
+    parser.add_argument("--solver", choices=[name.value for name in SolverName],
                         help=f"OCP solver (default: the problem file's solver.name, else {d.name}: "
                              "projected Newton in the joints where it applies, IPOPT as its "
                              "fallback; docs/solve_speed.md); OCP methods only")

@@ -93,7 +93,7 @@ def reachability(setup: Setup, poses: np.ndarray) -> tuple[list, dict]:
 
 def solve_baseline(setup: Setup) -> Solution:
     """The straight line: at a constant pace, or (limits enforced) a time law within them."""
-    if setup.problem.limits.enforce:
+    if setup.ocp.limits.enforce:
         return _within_limits(setup)
     t0 = time.perf_counter()
     poses = straight_line(setup.x_start, setup.x_goal, setup.ocp.horizon)
@@ -147,7 +147,7 @@ def _timed(setup: Setup, limits: MotionLimits, steps: int, name: str, law) -> _T
     qs, reach = reachability(setup, poses)
     played = None
     if not reach["unreachable"]:
-        dt = setup.problem.timing.step_s
+        dt = setup.ocp.timing.step_s
         q = np.array(qs, float)
         played = planned_curve(q, dt, limits, 1.0 / dt, setup.robot, setup.robot.frame)[1]
     return _Timed(steps, name, poses, qs, reach, played)
@@ -219,7 +219,7 @@ def _within_limits(setup: Setup) -> Solution:
     in the problem's steps, then toppra's time-optimal law too, in as many steps as it takes."""
     t0 = time.perf_counter()
     limits = problem_limits(setup)
-    T, dt = setup.ocp.horizon, setup.problem.timing.step_s
+    T, dt = setup.ocp.horizon, setup.ocp.timing.step_s
     laws = list(BASELINE_LAWS)
     best, tried = _first_within(setup, limits, T, laws)
     optimal = None

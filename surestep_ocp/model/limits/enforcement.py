@@ -15,12 +15,12 @@ def enforce(setup, sol, limits: MotionLimits | None = None) -> dict:
     with status `Motion_Limits_Violated` (the solver's own status kept as `extras["solver_status"]`;
     a failed solution keeps its status). Returns the report (an empty dict when the limits are not
     enforced)."""
-    if not setup.problem.limits.enforce:
+    if not setup.ocp.limits.enforce:
         return {}
     if any(q is None for q in sol.q):
         rep = {"skipped": "a waypoint has no IK solution (see reachability)", "ok": False}
     else:
-        rep = plan_report(setup.robot, np.array(sol.q, float), setup.problem.timing.step_s,
+        rep = plan_report(setup.robot, np.array(sol.q, float), setup.ocp.timing.step_s,
                           limits or problem_limits(setup), tool_frame=setup.robot.frame)
     rep["enforced"] = True
     sol.extras["motion_limits"] = rep

@@ -204,7 +204,7 @@ def is_psm(robot) -> bool:
 
 def problem_limits(setup) -> MotionLimits:
     """The limits of a Setup's plan: the defaults with the problem file's `limits:` overrides."""
-    spec = setup.problem.limits
+    spec = setup.ocp.limits
     return motion_limits(setup.robot.urdf, setup.robot.joint_names, dict(spec.joint_velocity),
                          dict(spec.joint_acceleration), spec.tool_speed, spec.tool_rotation_speed,
                          spec.rcm_distance, label=PROBLEM_SOURCE)
@@ -215,9 +215,9 @@ def recorded_limits(setup) -> dict:
     `surestep export`): `enforce` and the resolved limits with their sources; for a robot without
     URDF velocity limits, `enforce` and the reason instead."""
     try:
-        return {"enforce": bool(setup.problem.limits.enforce), **problem_limits(setup).to_dict()}
+        return {"enforce": bool(setup.ocp.limits.enforce), **problem_limits(setup).to_dict()}
     except SurestepError as exc:
-        return {"enforce": bool(setup.problem.limits.enforce), "unavailable": str(exc)}
+        return {"enforce": bool(setup.ocp.limits.enforce), "unavailable": str(exc)}
 
 
 def rcm_insertion_bound(robot, rcm_min_distance: float) -> tuple[int, float] | None:
