@@ -82,6 +82,7 @@ from surestep_ocp.evaluation.configs import ConfigurationSampler, load_evaluatio
 from surestep_ocp.evaluation.evaluation import read_progress  # noqa: E402
 from surestep_ocp.evaluation.rollout import MODES as ROLLOUT_MODES, rollout  # noqa: E402
 from surestep_ocp.evaluation.tracker import SimulatedTracker  # noqa: E402
+from surestep_ocp.evaluation.tracker_loop import tracker_loop  # noqa: E402
 from surestep_ocp.model import limits as _limits  # noqa: E402
 from surestep_ocp.model.lie import np_exp  # noqa: E402
 from surestep_ocp.model.limits import motion_limits, plan_report, problem_limits  # noqa: E402
@@ -111,7 +112,8 @@ __all__ = [
     "geomean", "row", "table", "write_result", "key_values", "last_line", "parser",
     # package names the studies use as they are (classes, constants, helpers of the limits, export
     # and evaluation)
-    "ProblemError", "SurestepError", "Planner", "SimulatedTracker", "ROLLOUT_MODES", "rollout",
+    "ProblemError", "SurestepError", "Planner", "SimulatedTracker", "tracker_loop", "ROLLOUT_MODES",
+    "rollout",
     "read_progress", "motion_limits", "plan_report", "problem_limits", "time_parametrise",
     "within_position_limits", "tool_speeds",
     "np_exp", "write_text_atomic", "time_optimal_law", "played_line",

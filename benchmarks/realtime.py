@@ -118,24 +118,14 @@ def violations(setup, q: np.ndarray) -> int:
 
 def loop(args) -> tuple[list[str], dict]:
     """The 20 Hz loop's episodes: table lines and the figures."""
-    problem = h.load_problem(h.DEFAULT_PROBLEM).with_solver(name="interior")
+    setup = h.setup(h.load_problem(h.DEFAULT_PROBLEM).with_solver(name="interior"))
     rows, times, failed, bad, late = [], [], 0, 0, []
     for seed in range(args.episodes):
-        planner = h.Planner(problem)
+        episode = h.tracker_loop(setup, seed=seed)  # what `surestep replan` runs
+        planner, pieces = episode["planner"], episode["pieces"]
         dt = planner.setup.ocp.timing.step_s
-        tracker = h.SimulatedTracker(planner.setup.eval_model, planner.plan.poses[0], rng=seed)
-        pieces, ep_times, ep_failed, k = [(0, np.array(planner.plan.q, float), None)], [], 0, 0
-        while k + 1 < planner.horizon:
-            k += 1
-            mean, cov = tracker.move_to(planner.plan.poses[k - planner.step])
-            plan = planner.replan(mean, cov, step=k)
-            ep_times.append(plan.extras["replan"]["time_s"] * 1e3)
-            if plan.success:
-                st = plan.extras["start_state"]
-                pieces.append((k, np.array(plan.q, float),
-                               (np.array(st["velocity"]), np.array(st["acceleration"]))))
-            else:
-                ep_failed += 1
+        ep_times = [p.extras["replan"]["time_s"] * 1e3 for p in episode["plans"]]
+        ep_failed = episode["summary"]["failed"]
         n_bad = violations(planner.setup, executed(pieces, dt))
         s = h.stats(ep_times)
         late.append(planner.horizon - planner.setup.ocp.horizon)
