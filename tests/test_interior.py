@@ -74,3 +74,56 @@ def test_a_curve_started_in_motion_continues_the_executed_one():
     jerk_bound = 1e4
     for order in range(3):
         assert np.abs(right[order] - left[order]).max() <= 2 * h * jerk_bound * (1 + dt) ** 3
+
+
+def _played_peaks(setup, q):
+    """The played curve's largest joint velocity and acceleration over their limits, sampled every
+    millisecond and differenced with NumPy (not the solver's rows)."""
+    dt, lim = setup.ocp.timing.step_s, problem_limits(setup)
+    h = 1e-3
+    p = evaluate_curve(np.asarray(q, float), dt, np.arange(0.0, (len(q) - 1) * dt + h / 2, h))[0]
+    mov = setup.robot.supporting_joints()
+    v = np.abs(np.diff(p, axis=0)[:, mov]) / h / lim.velocity[mov]
+    a = np.abs(np.diff(p, n=2, axis=0)[:, mov]) / h**2 / lim.acceleration[mov]
+    return v.max(), a.max()
+
+
+@pytest.fixture(scope="module")
+def relaxed_runs():
+    """The default problem from the straight line at a constant pace (which breaks the acceleration
+    rows in its first and last step), relaxed; and from its plan again within a 5 % reserve."""
+    from surestep_ocp.solvers.backends.interior_point import timed_line
+    from surestep_ocp.solvers.iterate import InitialGuess
+    from surestep_ocp.solvers.nlp_cache import interior_solver
+
+    setup = build_setup(ss.load_problem("problems/needle_regrasp.yaml"))
+    solver = interior_solver(setup)
+    line = timed_line(setup, lambda T: np.linspace(0.0, 1.0, T + 1), "constant")
+    start_margin = solver.start_margin(setup, line)
+    plain = solver.run(setup, line, tol=1e-6, max_iter=300)
+    relaxed = solver.run(setup, line, tol=1e-6, max_iter=300, relax=True)
+    tight = solver.run(setup, InitialGuess(relaxed.q, "relaxed run"), tol=1e-6, max_iter=300,
+                       relax=True, reserve=0.05)
+    return setup, start_margin, plain, relaxed, tight
+
+
+def test_a_start_outside_the_rows_is_relaxed_to_a_plan_within_them(relaxed_runs):
+    """The constant-pace line is outside the rows (margin < 0): without `relax` the run refuses it,
+    with it the run ends within every limit (the played curve differenced, not the rows)."""
+    setup, margin, plain, relaxed, _ = relaxed_runs
+    assert margin < 0 and plain.status == "Infeasible_Start"
+    assert relaxed.success and relaxed.relaxed_iterations > 0
+    v, a = _played_peaks(setup, relaxed.q)
+    assert v <= 1.0 + 1e-3 and a <= 1.0 + 1e-2
+
+
+def test_a_reserve_keeps_the_plan_inside_the_tightened_limits(relaxed_runs):
+    """`reserve=0.05`: the plan keeps to 95 % of the velocity and acceleration limits (within the
+    differencing error), where the plan without it uses them to the full."""
+    setup, _, _, relaxed, tight = relaxed_runs
+    assert tight.success
+    v_full, a_full = _played_peaks(setup, relaxed.q)
+    v, a = _played_peaks(setup, tight.q)
+    assert a_full > 0.98  # the plan without a reserve is on the acceleration limit somewhere
+    assert v <= 0.95 + 1e-3 and a <= 0.95 + 5e-3
+    assert tight.trace >= relaxed.trace * (1 - 1e-9)  # less room: no better plan
