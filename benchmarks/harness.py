@@ -301,6 +301,16 @@ class Stats:
         return self.worst / self.median if self.median else float("nan")
 
 
+def replan_first_mu(value: float | None = None) -> float:
+    """The Planner's first barrier parameter of a re-plan within the limits, set to `value` (None:
+    kept); the one in force."""
+    from surestep_ocp.solvers import planner as _planner
+
+    if value is not None:
+        _planner.REPLAN_MU = float(value)
+    return _planner.REPLAN_MU
+
+
 def stats(xs: Iterable[float]) -> Stats:
     """Median, 90th and 95th percentile (NumPy's linear interpolation), worst (largest) and best."""
     a = np.asarray(list(xs), float)

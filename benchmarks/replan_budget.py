@@ -3,7 +3,7 @@ simulated tracker per budget (`Planner(replan_iterations=...)`), re-plan times a
 plans are for (the tracker's final covariance and position error).
 
     OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/replan_budget.py [--episodes 8] \\
-        [--budgets 12 6 4]
+        [--budgets 12 6 4] [--first-mu MU] [--output replan_budget.md]
 
 Writes benchmarks/results/replan_budget.md; the last line is `replan_budget: <budget>=<median ms>
 ...`.
@@ -38,7 +38,11 @@ def main() -> None:
     ap = h.parser(__doc__)
     ap.add_argument("--episodes", type=int, default=8)
     ap.add_argument("--budgets", type=int, nargs="+", default=[12, 6, 4])
+    ap.add_argument("--first-mu", type=float, default=None,
+                    help="the re-plans' first barrier parameter (default: the Planner's REPLAN_MU)")
+    ap.add_argument("--output", default="replan_budget.md")
     args = ap.parse_args()
+    first_mu = h.replan_first_mu(args.first_mu)
     problem = h.load_problem(h.DEFAULT_PROBLEM)
     rows, medians = [], {}
     for budget in args.budgets:
@@ -53,14 +57,16 @@ def main() -> None:
         print(*rows[-1], flush=True)
     lines = ["# The re-plan's iteration budget within the limits", "",
              (f"`OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/replan_budget.py --episodes "
-              f"{args.episodes} --budgets {' '.join(map(str, args.budgets))}`: the default "
+              f"{args.episodes} --budgets {' '.join(map(str, args.budgets))}"
+              + (f" --first-mu {args.first_mu:g}" if args.first_mu is not None else "")
+              + f"` (the re-plans' first barrier parameter {first_mu:g}): the default "
               "problem, "
               f"seeds 0-{args.episodes - 1} per budget (docs/realtime.md)."), "",
              *h.table(["budget", "re-plan median / p90 / worst [ms]", "kept the previous plan",
                        "tracker's final Tr(Sigma), mean", "final position error, mean",
                        "most steps later"], rows), ""]
     text = "\n".join(lines + [h.last_line("replan_budget", h.key_values(**medians))]) + "\n"
-    h.write_result("replan_budget.md", text)
+    h.write_result(args.output, text)
     print(text)
 
 

@@ -44,11 +44,13 @@ from ..problem.setup import Setup, build_setup
 from ..output.solution import Solution, evaluate
 
 _UNVECH = unvech(np.arange(NV, dtype=float)).astype(int)  # (6, 6) positions of each entry in vech
-REPLAN_MU = 1e-4  # a re-plan starts near the optimum: the barrier parameter of its first step
+# a re-plan's first barrier parameter: its few iterations end well inside the rows, which leaves the
+# next frame's correction room (measured against 1e-4 and others: docs/realtime.md)
+REPLAN_MU = 3e-3
 # within the limits: a re-plan's iteration budget (its last iterate, within every limit, is the
 # plan: the next frame improves it) and the objective change (relative, over 3 iterations) at which
 # it stops early
-REPLAN_ITERATIONS, REPLAN_ACCEPTABLE = 6, 1e-7
+REPLAN_ITERATIONS, REPLAN_ACCEPTABLE = 4, 1e-7
 
 
 class Planner:
@@ -61,6 +63,9 @@ class Planner:
             others' C compiled in a background thread while the loop runs, each loaded when first
             needed (else each built when first needed); their build times, waits included, are in
             `builds`, never in a plan's time (the IPOPT path builds its NLPs inside the solve).
+        replan_iterations: within enforced limits, a re-plan's iteration budget: its last iterate
+            keeps every limit and reaches the goal (status `Feasible_Point_Found` when it is not
+            yet optimal), and the next frame's re-plan continues from it.
     """
 
     def __init__(self, problem: Problem | Setup, prebuild: bool = True,
@@ -219,8 +224,10 @@ class Planner:
         # previous plan with the rows it breaks relaxed (the goal's shift, the active rows it sits
         # on)
         tried = []  # (reserve, steps added, status, iterations, relaxed iterations) of each attempt
-        attempts = ([a for a in ATTEMPTS if not a[1] or n < EXTEND_BELOW] if reachable
-                    else ATTEMPTS[:1])
+        late = self.horizon - self.setup.ocp.horizon  # steps the goal has moved later so far
+        attempts = ([a for a in ATTEMPTS
+                     if not a[1] or (n < EXTEND_BELOW and late + a[1] <= MAX_LATE)]
+                    if reachable else ATTEMPTS[:1])
         for reserve, extra in attempts:
             sub = replace(registered.with_ocp(horizon=n + extra, sigma0=cov), q_start=q0,
                           q_goal=q_goal)
@@ -323,6 +330,8 @@ RESERVE = 0.02
 EXTEND = 2  # steps a re-plan may add when the correction does not fit in the time left
 # ... when fewer steps than this are left (earlier, the time left is not what is short)
 EXTEND_BELOW = 10
+# ... and the goal at most this many steps later in all (past it, the previous plan is kept)
+MAX_LATE = 10
 # a re-plan's (reserve, steps added), in order
 ATTEMPTS = ((RESERVE, 0), (0.0, 0), (RESERVE, EXTEND), (0.0, 2 * EXTEND))
 
