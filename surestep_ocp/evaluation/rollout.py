@@ -197,6 +197,7 @@ def rollout(
     detection: Detection | None = None,
     changes: list | None = None,
     replan=None,
+    policy=None,
 ) -> Rollouts:
     """Execute a plan `n` times in closed loop with sampled motion and observation noise.
 
@@ -234,6 +235,12 @@ def rollout(
             rollout follows (N, T+1, 6, step frames; a copy); it returns the (N, T+1, 6) waypoints
             to follow from step t+1 on (rows up to t are not used). It draws nothing from `rng`,
             so the normal draws are those of the same plan without re-planning.
+        policy: a closed-loop controller (`closed_loop.ClosedLoop`), called at every step t after
+            any camera move as `policy(t, mean, cov)` with every rollout's EKF mean (N, 6) and
+            covariance (N, 6, 6); it returns the (N, 6) targets of the step t -> t+1 and an (N,)
+            mask of the rollouts still moving. A rollout whose plan has ended holds still (nothing
+            moves, nothing is observed: its final values are those at its end). The rollouts run
+            `policy.steps` steps; `poses[0]` is the start. It draws nothing from `rng`.
     """
     if mode not in MODES:
         raise ValueError(f"unknown rollout mode '{mode}'; allowed: {', '.join(MODES)}")
@@ -265,11 +272,12 @@ def rollout(
     paths_true, paths_est = (([_pose(true_p, true_R)], [_pose(mu_p, mu_R)]) if keep_paths
                              else (None, None))
 
-    detected = np.ones((n, len(poses) - 1), dtype=bool)
+    steps = len(poses) - 1 if policy is None else int(policy.steps)
+    detected = np.ones((n, steps), dtype=bool)
     # leaves rng's stream
     u_rng = rng.spawn(1)[0] if detection is not None and detection.falloff > 0 else None
     own = None  # (N, T+1, 6) each rollout's waypoints, once `replan` has been called
-    for t in range(len(poses) - 1):
+    for t in range(steps):
         if changes is not None and t < len(changes) and changes[t] is not None:  # then it holds
             Dc = np.asarray(changes[t], float)
             R_D, t_D = Rotation.from_matrix(Dc[:3, :3]), Dc[:3, 3]
@@ -289,13 +297,27 @@ def rollout(
                 if own.shape != current.shape or not np.all(np.isfinite(own[:, t + 1:])):
                     raise ValueError(f"replan at step {t} returned waypoints of shape {own.shape} "
                                      f"(expected {current.shape}, finite)")
-        target = np.tile(poses[t + 1], (n, 1)) if own is None else own[:, t + 1].copy()
+        moving = None
+        if policy is not None:
+            target, moving = policy(t, _pose(mu_p, mu_R), sigma.copy())
+            target, moving = np.asarray(target, float), np.asarray(moving, bool)
+            if target.shape != (n, NX) or moving.shape != (n,) or \
+                    not np.all(np.isfinite(target[moving])):
+                raise ValueError(f"policy at step {t} returned targets of shape {target.shape} "
+                                 f"and a mask of shape {moving.shape} (expected ({n}, {NX}), "
+                                 f"finite, and ({n},))")
+            held = (true_p, true_R.as_quat(), mu_p, mu_R.as_quat(), sigma)
+        elif own is None:
+            target = np.tile(poses[t + 1], (n, 1))
+        else:
+            target = own[:, t + 1].copy()
         z_w, z_v = rng.standard_normal((n, NX)), rng.standard_normal((n, NX))
         u_det = None if u_rng is None else u_rng.random(n)
         # command: from the estimate to the next waypoint; W of that step
         W = noise.motion(_pose(mu_p, mu_R), target)
         dp = target[:, :3] - mu_p
-        D = mu_R.inv() * (waypoints[t + 1] if own is None else Rotation.from_rotvec(target[:, 3:]))
+        D = mu_R.inv() * (waypoints[t + 1] if own is None and policy is None
+                          else Rotation.from_rotvec(target[:, 3:]))
         w = sample_gaussian(W, z_w)
         true_p = true_p + dp + w[:, :3]
         true_R = Rotation.from_rotvec(w[:, 3:]) * true_R * D
@@ -327,6 +349,14 @@ def rollout(
         mu_p, mu_R = pred_p + dx[:, :3], Rotation.from_rotvec(dx[:, 3:]) * pred_R
         post = P - np.swapaxes(KT, 1, 2) @ P
         sigma = 0.5 * (post + np.swapaxes(post, 1, 2))
+        if moving is not None:  # the rollouts at their end hold still
+            still = ~moving
+            detected[still, t] = False
+            true_p, mu_p = np.where(still[:, None], held[0], true_p), np.where(still[:, None],
+                                                                             held[2], mu_p)
+            true_R = Rotation.from_quat(np.where(still[:, None], held[1], true_R.as_quat()))
+            mu_R = Rotation.from_quat(np.where(still[:, None], held[3], mu_R.as_quat()))
+            sigma = np.where(still[:, None, None], held[4], sigma)
         if keep_paths:
             paths_true.append(_pose(true_p, true_R))
             paths_est.append(_pose(mu_p, mu_R))

@@ -39,6 +39,8 @@ from ..solvers.methods import run_method
 from ..solvers.planner import Planner
 from ..solvers.camera_move_replan import replan_after_camera_moves
 from .configs import GRASP_ANGLE_RAD, GRASP_POSITION_M
+from .closed_loop import ClosedLoop, robot_pace
+from .table2_figure import error_figure
 from .rollout import MODES, Detection, rollout
 
 TYPES = [("Type 1 easy", "type1_easy.yaml"), ("Type 1 medium", "type1_medium.yaml"),
@@ -132,23 +134,73 @@ class RolloutReplanner:
 def _record(ro, grasp) -> dict:
     hit = (ro.pos_err <= grasp[0]) & (ro.ori_err <= grasp[1])
     return {"share": float(np.mean(hit)), "median_mm": float(np.median(ro.pos_err) * 1e3),
+            "p90_mm": float(np.percentile(ro.pos_err, 90) * 1e3),
             "max_mm": float(np.max(ro.pos_err) * 1e3)}
+
+
+def _store(cell: dict, mode: str, ro, grasp) -> None:
+    """A rollout run's grasp share and final position errors into a table cell, per mode."""
+    r = _record(ro, grasp)
+    cell[mode] = r["share"]
+    for key in ("median_mm", "p90_mm", "max_mm"):
+        cell[f"{mode}_{key}"] = r[key]
+
+
+def closed_loop_rows(problem, k: int, rollouts: int, seed: int, detection, grasp,
+                     keep_paths: bool = False) -> dict:
+    """The type at the robot's pace (`closed_loop.robot_pace`): `ocp-robot-pace`, its first plan
+    within the limits run once (open loop), and `ocp-mpc`, re-planned at every frame by every
+    rollout (`closed_loop.ClosedLoop`), each `rollouts` rollouts per mode with the type's random
+    numbers; `ocp-mpc` has its re-plans' figures under "replans" (per mode) and its executed samples
+    beyond a limit under "violations"; with `keep_paths`, each row's rollouts under "paths"
+    (per mode)."""
+    setup = build_setup(robot_pace(problem))
+    changes = setup.camera_changes()
+    policy = ClosedLoop(setup)
+    once = setup.in_step_frames(np.asarray(policy.first_plan.poses, float))
+    start, goal = once[0], once[-1]
+    rows = {"ocp-robot-pace": {"solved": True, "rollouts": rollouts},
+            "ocp-mpc": {"solved": True, "rollouts": rollouts, "replans": {}, "violations": 0}}
+    for name, cell in rows.items():
+        cell["paths"] = {}
+        for mi, mode in enumerate(MODES):
+            policy.reset()
+            t0 = time.perf_counter()
+            ro = rollout(setup.eval_model, once if name == "ocp-robot-pace" else once[[0, -1]],
+                         goal, rollouts, np.random.default_rng([seed, k, mi]), mode,
+                         detection=detection, changes=changes, keep_paths=keep_paths,
+                         policy=policy if name == "ocp-mpc" else None)
+            _store(cell, mode, ro, grasp)
+            if keep_paths:
+                cell["paths"][mode] = ro
+            if name == "ocp-mpc":
+                summary = policy.summary()
+                summary["wall_s"] = time.perf_counter() - t0
+                cell["replans"][mode] = summary
+                cell["violations"] += summary["violations"]
+    return rows
 
 
 def success_table(problems_dir: Path, rollouts: int = 500, seed: int = 0,
                   detection: Detection | None = Detection(),
                   grasp=(GRASP_POSITION_M, GRASP_ANGLE_RAD), types=TYPES, methods=METHODS,
-                  replan_rollouts: int | None = None) -> tuple[str, dict]:
-    """(Markdown table, results[type][method][mode] = success share) over the scenario types.
+                  replan_rollouts: int | None = None, closed_loop_rollouts: int | None = None,
+                  keep_paths: bool = False) -> tuple[str, dict]:
+    """(Markdown tables, results[type][method][mode] = success share) over the scenario types.
 
     `replan_rollouts`: rollouts per mode of Type 4's per-rollout re-planning (`ocp-replanned`;
     default `rollouts`; 0 leaves it out); results[type]["ocp-replanned"]["replans"] has its
-    re-plans' count, failures and times.
+    re-plans' count, failures and times. `closed_loop_rollouts`: rollouts per mode of every type at
+    the robot's pace (`closed_loop_rows`: `ocp-robot-pace` and `ocp-mpc`; default `rollouts`; 0
+    leaves them out). Each cell also has the final position errors' median and 90th percentile
+    (`<mode>_median_mm`, `<mode>_p90_mm`).
     """
     replan_rollouts = rollouts if replan_rollouts is None else replan_rollouts
+    closed_loop_rollouts = rollouts if closed_loop_rollouts is None else closed_loop_rollouts
     res: dict = {}
     for k, (label, fname) in enumerate(types):
-        setup = build_setup(load_problem(problems_dir / fname))
+        problem = load_problem(problems_dir / fname)
+        setup = build_setup(problem)
         changes = setup.camera_changes()
         type4 = fname.startswith("type4")
         res[label] = {}
@@ -159,10 +211,10 @@ def success_table(problems_dir: Path, rollouts: int = 500, seed: int = 0,
             for mi, mode in enumerate(MODES):
                 ro = rollout(setup.eval_model, poses, poses[-1], rollouts,
                              np.random.default_rng([seed, k, mi]), mode, detection=detection,
-                             changes=changes)
-                r = _record(ro, grasp)
-                res[label][m][mode], res[label][m][f"{mode}_median_mm"] = r["share"], r["median_mm"]
-                res[label][m][f"{mode}_max_mm"] = r["max_mm"]
+                             changes=changes, keep_paths=keep_paths)
+                _store(res[label][m], mode, ro, grasp)
+                if keep_paths:
+                    res[label][m].setdefault("paths", {})[mode] = ro
         if type4 and replan_rollouts > 0:
             hook = RolloutReplanner(setup)
             poses = hook.initial_poses()
@@ -174,10 +226,7 @@ def success_table(problems_dir: Path, rollouts: int = 500, seed: int = 0,
                 ro = rollout(setup.eval_model, poses, poses[-1], replan_rollouts,
                              np.random.default_rng([seed, k, mi]), mode, detection=detection,
                              changes=changes, replan=hook)
-                r = _record(ro, grasp)
-                (res[label]["ocp-replanned"][mode],
-                 res[label]["ocp-replanned"][f"{mode}_median_mm"]) = r["share"], r["median_mm"]
-                res[label]["ocp-replanned"][f"{mode}_max_mm"] = r["max_mm"]
+                _store(res[label]["ocp-replanned"], mode, ro, grasp)
             times = np.asarray(hook.times)
             res[label]["ocp-replanned"]["replans"] = {
                 "count": len(times), "failed": len(hook.failures),
@@ -185,24 +234,35 @@ def success_table(problems_dir: Path, rollouts: int = 500, seed: int = 0,
                 "p95_ms": float(np.percentile(times, 95) * 1e3),
                 "max_ms": float(times.max() * 1e3), "build_s": hook.planner.build_time_s,
                 "failures": hook.failures[:5]}
+        if closed_loop_rollouts > 0:
+            res[label].update(closed_loop_rows(problem, k, closed_loop_rollouts, seed, detection,
+                                               grasp, keep_paths=keep_paths))
+    return _tables(res, rollouts, grasp), res
+
+
+def _tables(res: dict, rollouts: int, grasp) -> str:
+    """The Markdown of `success_table`'s results: grasp shares, final position errors, notes."""
     all_methods = list(dict.fromkeys(m for t in res.values() for m in t))
+    head = ["| type | " + " | ".join(all_methods) + " |", "|---" * (len(all_methods) + 1) + "|"]
     lines = [(f"Grasp success (final true pose within {grasp[0] * 1e3:g} mm and {grasp[1]:g} rad "
-              f"of the goal), {rollouts} rollouts per plan and mode, cells `model` / `true` "
-              "(median final position error in mm in brackets, `true` mode):"), "",
-             "| type | " + " | ".join(all_methods) + " |", "|---" * (len(all_methods) + 1) + "|"]
+              f"of the goal), {rollouts} rollouts per plan and mode, cells `model` / `true`:"), "",
+             *head]
     for label, row in res.items():
-        cells = []
-        for m in all_methods:
-            r = row.get(m)
-            cells.append("" if r is None
-                         else f"{r['model']:.0%} / {r['true']:.0%} ({r['true_median_mm']:.1f})"
-                         + ("" if r["solved"] else " (failed)"))
+        cells = ["" if row.get(m) is None
+                 else f"{row[m]['model']:.0%} / {row[m]['true']:.0%}"
+                 + ("" if row[m]["solved"] else " (failed)") for m in all_methods]
         lines.append(f"| {label} | " + " | ".join(cells) + " |")
     mean = {m: [np.mean([row[m][mode] for row in res.values()]) for mode in MODES]
             for m in all_methods if all(m in row for row in res.values())}
     lines.append("| mean over types | "
                  + " | ".join(f"{mean[m][0]:.0%} / {mean[m][1]:.0%}" if m in mean else ""
                               for m in all_methods) + " |")
+    lines += ["", "Final position error [mm], median / 90th percentile, `model`; `true`:", "", *head]
+    for label, row in res.items():
+        cells = ["" if row.get(m) is None else "; ".join(
+            f"{row[m][f'{mode}_median_mm']:.1f} / {row[m][f'{mode}_p90_mm']:.1f}"
+            for mode in MODES) for m in all_methods]
+        lines.append(f"| {label} | " + " | ".join(cells) + " |")
     lines += ["",
               ("Paper (Table II, real dVRK, 60 regrasps over the four types): SURESTEP "
                "82 %, baseline 18 %.")]
@@ -224,7 +284,25 @@ def success_table(problems_dir: Path, rollouts: int = 500, seed: int = 0,
                        f"{rp['max_ms']:.1f} ms worst (builds apart: {rp['build_s']:.1f} s); "
                        f"{rp['wall_s']:.0f} s for both modes' rollouts.")]
             lines += [f"  failed: step {t}, rollout {i}: {why}" for t, i, why in rp["failures"]]
-    return "\n".join(lines), res
+    mpc = {label: row["ocp-mpc"] for label, row in res.items() if "ocp-mpc" in row}
+    if mpc:
+        lines += ["", ("`ocp-robot-pace` and `ocp-mpc`: the type at the robot's pace (twice the "
+                       "steps of 0.05 s, the camera moves at the same times, the limits enforced); "
+                       "`ocp-robot-pace` runs its first plan once, `ocp-mpc` re-plans at every "
+                       "frame from each rollout's own belief within the limits "
+                       "(surestep_ocp/evaluation/closed_loop.py). Its re-plans (both modes):"), "",
+                  "| type | re-plans | failed (previous plan kept) | median ms | p90 ms | worst ms "
+                  "| steps later (median, worst) | executed samples beyond a limit |",
+                  "|---|---|---|---|---|---|---|---|"]
+        for label, cell in mpc.items():
+            r = list(cell["replans"].values())
+            lines.append(f"| {label} | {sum(x['replans'] for x in r)} | "
+                         f"{sum(x['failed'] for x in r)} | "
+                         f"{max(x['median_ms'] for x in r):.1f} | {max(x['p90_ms'] for x in r):.1f}"
+                         f" | {max(x['worst_ms'] for x in r):.1f} | "
+                         f"{max(x['late_median'] for x in r):g}, {max(x['late_worst'] for x in r)}"
+                         f" | {cell['violations']} |")
+    return "\n".join(lines)
 
 
 def main(argv=None) -> None:
@@ -236,12 +314,24 @@ def main(argv=None) -> None:
     ap.add_argument("--replan-rollouts", type=int, default=None,
                     help="rollouts per mode of Type 4's per-rollout re-planning (default "
                          "--rollouts; 0: leave out)")
+    ap.add_argument("--closed-loop-rollouts", type=int, default=None,
+                    help="rollouts per mode of every type at the robot's pace (ocp-robot-pace, "
+                         "ocp-mpc; default --rollouts; 0: leave out)")
+    ap.add_argument("--figure", default=None,
+                    help="also write a PNG of one rollout's executed error against time per method "
+                         "(Type 1 medium, mode true)")
     ap.add_argument("--output", default=str(root / "benchmarks" / "results"
                                             / "evaluation_table2_types.md"))
     args = ap.parse_args(argv)
-    table, _ = success_table(Path(args.problems), args.rollouts, args.seed,
-                             replan_rollouts=args.replan_rollouts)
-    extra = "" if args.replan_rollouts is None else f" --replan-rollouts {args.replan_rollouts}"
+    table, res = success_table(Path(args.problems), args.rollouts, args.seed,
+                               replan_rollouts=args.replan_rollouts,
+                               closed_loop_rollouts=args.closed_loop_rollouts,
+                               keep_paths=args.figure is not None)
+    extra = "".join(f" --{k.replace('_', '-')} {v}" for k, v in vars(args).items()
+                    if k in ("replan_rollouts", "closed_loop_rollouts", "figure")
+                    and v is not None)
+    if args.figure:
+        error_figure(res, Path(args.figure))
     cmd = (f"`.venv/bin/python -m surestep_ocp.evaluation.table2 --rollouts {args.rollouts} --seed "
            f"{args.seed}{extra}`")
     write_text_atomic(Path(args.output),

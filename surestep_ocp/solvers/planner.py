@@ -226,7 +226,7 @@ class Planner:
         tried = []  # (reserve, steps added, status, iterations, relaxed iterations) of each attempt
         late = self.horizon - self.setup.ocp.horizon  # steps the goal has moved later so far
         attempts = ([a for a in ATTEMPTS
-                     if not a[1] or (n < EXTEND_BELOW and late + a[1] <= MAX_LATE)]
+                     if not a[1] or late + a[1] <= MAX_LATE]
                     if reachable else ATTEMPTS[:1])
         for reserve, extra in attempts:
             sub = replace(registered.with_ocp(horizon=n + extra, sigma0=cov), q_start=q0,
@@ -328,8 +328,6 @@ class Planner:
 # re-plans keep this fraction of the velocity, acceleration and tool-speed limits for corrections
 RESERVE = 0.02
 EXTEND = 2  # steps a re-plan may add when the correction does not fit in the time left
-# ... when fewer steps than this are left (earlier, the time left is not what is short)
-EXTEND_BELOW = 10
 # ... and the goal at most this many steps later in all (past it, the previous plan is kept)
 MAX_LATE = 10
 # a re-plan's (reserve, steps added), in order

@@ -1,0 +1,160 @@
+"""Belief-space MPC in the rollouts (`ocp-mpc`): every rollout re-plans at every tracker frame from
+its own EKF belief, within the motion limits, from the robot's moving state.
+
+`ClosedLoop` is `rollout.rollout`'s `policy`. Each rollout has its own copy of one `Planner` (the
+copies share its solvers, built once). At step t each copy re-plans from the executed curve's state
+with the camera registered to that rollout's EKF mean (`Planner.replan`, docs/realtime.md); the
+robot then runs the current plan's step t -> t+1, which the rollout applies from the estimate (the
+planned displacement and body-frame rotation). A re-plan that fails keeps the rollout on its
+previous plan, which it runs on (counted in `failures`). The executed motion of each rollout (every
+plan from its start until the next one's) is checked against the limits independently
+(`executed_motion.violations`) when the rollout reaches its goal.
+
+The rollouts of one plan run at the robot's pace: `robot_pace` turns a problem at the paper's pace
+into one the limits allow (twice the steps of the same length, the camera moves at the same times,
+the limits enforced).
+"""
+
+from __future__ import annotations
+
+import copy
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from ..errors import SurestepError
+from ..problem.spec import Problem
+from ..solvers.planner import MAX_LATE, Planner
+from .executed_motion import stitched, violations
+
+
+def robot_pace(problem: Problem, factor: int = 2) -> Problem:
+    """The problem with `factor` times the steps (of the same length), its camera moves at the same
+    fraction of the motion, and the motion limits enforced."""
+    tree = problem.source if isinstance(problem.source, dict) else {}
+    camera = dict(tree.get("camera", {}))
+    if camera.get("moves"):
+        camera["moves"] = [{**m, "step": int(m["step"]) * factor} for m in camera["moves"]]
+    limits = {**tree.get("limits", {}), "enforce": True}
+    return problem.with_sections(horizon=problem.horizon * factor, camera=camera, limits=limits)
+
+
+class ClosedLoop:
+    """`rollout`'s policy: per rollout, a re-plan at every step from its own belief (module
+    docstring).
+
+    Args:
+        setup: the problem within enforced limits (`robot_pace`), solved by the interior point
+            (`solver.name` auto or interior); its camera schedule, if any, is the rollouts'.
+        planner: a Planner of `setup` (default: made here; its first plan is every rollout's).
+
+    After a rollout call: `times` (each re-plan's time without builds [s]), `failures` ((step,
+    rollout, status) of each re-plan that kept the previous plan), `late` (steps each rollout's goal
+    moved later), `violations` (executed samples beyond a limit, per rollout).
+    """
+
+    def __init__(self, setup, planner: Planner | None = None):
+        self.planner = Planner(setup) if planner is None else planner
+        if not self.planner.limited:
+            raise SurestepError(
+                "ocp-mpc re-plans within enforced motion limits with the interior-point solver: "
+                "the problem needs `limits: {enforce: true}` and `solver.name` auto or interior "
+                "(evaluation files: `limits: {enforce: true}` and a horizon the limits allow, "
+                "e.g. 40 steps of 0.05 s)")
+        if not self.planner.plan.success:
+            raise SurestepError(f"ocp-mpc: the first plan failed ({self.planner.plan.status})")
+        self.setup = setup
+        self.dt = setup.ocp.timing.step_s
+        self.cameras = setup.camera_poses()
+        self.steps = setup.ocp.horizon + MAX_LATE
+        self.reset()
+
+    @property
+    def first_plan(self):
+        """The plan every rollout starts with (a Solution, first camera frame)."""
+        return self.planner.plan
+
+    def start_and_goal(self) -> tuple[np.ndarray, np.ndarray]:
+        """(start pose in the first camera frame, goal in the last camera frame), (6,) each."""
+        poses = self.setup.in_step_frames(np.asarray(self.first_plan.poses, float))
+        return poses[0], poses[-1]
+
+    def reset(self) -> None:
+        """Start over: the next rollout call's rollouts begin with the first plan."""
+        self.planners: list[Planner] | None = None
+        self.pieces: list[list] = []
+        self.times: list[float] = []
+        self.failures: list[tuple[int, int, str]] = []
+        self.late: list[int] = []
+        self.violations: list[int] = []
+
+    def __call__(self, t: int, mean: np.ndarray, cov: np.ndarray):
+        n = len(mean)
+        if self.planners is None:
+            self.planners = [copy.copy(self.planner) for _ in range(n)]
+            self.pieces = [[(0, np.array(self.planner.plan.q, float), None)] for _ in range(n)]
+            self.late, self.violations = [0] * n, [0] * n
+        # a rollout at its goal holds still: its target is where it is (finite, not used)
+        targets, moving = np.array(mean, float), np.zeros(n, bool)
+        camera = self.cameras[min(t, len(self.cameras) - 1)]
+        for i, planner in enumerate(self.planners):
+            if t >= planner.horizon:
+                if t == planner.horizon:  # at its goal: check what it executed
+                    self._finish(i, planner)
+                continue
+            if t > 0:
+                self._replan(i, planner, t, mean[i], cov[i], camera)
+            targets[i] = self._target(planner, t, mean[i])
+            moving[i] = True
+        return targets, moving
+
+    def _replan(self, i: int, planner: Planner, t: int, mean, cov, camera) -> None:
+        try:
+            sol = planner.replan(mean, cov, camera_pose=camera, step=t)
+        except SurestepError as exc:  # e.g. an estimate the checks reject: the previous plan runs
+            self.failures.append((t, i, str(exc)))
+            return
+        self.times.append(sol.extras["replan"]["time_s"])
+        if not sol.success:
+            self.failures.append((t, i, sol.status))
+            return
+        st = sol.extras["start_state"]
+        self.pieces[i].append((t, np.array(sol.q, float),
+                               (np.array(st["velocity"]), np.array(st["acceleration"]))))
+
+    def _target(self, planner: Planner, t: int, mean: np.ndarray) -> np.ndarray:
+        """The current plan's step t -> t+1 applied from the estimate: its displacement (turned by
+        the camera's moves since the plan was made) and its body-frame rotation."""
+        poses = np.asarray(planner.plan.poses, float)
+        j = t - planner.step
+        turn = (np.linalg.inv(self.cameras[min(t, len(self.cameras) - 1)])
+                @ self.cameras[min(planner.step, len(self.cameras) - 1)])[:3, :3]
+        R0, R1 = Rotation.from_rotvec(poses[j, 3:]), Rotation.from_rotvec(poses[j + 1, 3:])
+        R = Rotation.from_rotvec(mean[3:]) * R0.inv() * R1
+        return np.hstack([mean[:3] + turn @ (poses[j + 1, :3] - poses[j, :3]), R.as_rotvec()])
+
+    def _finish(self, i: int, planner: Planner) -> None:
+        self.late[i] = planner.horizon - self.setup.ocp.horizon
+        self.violations[i] = violations(planner.setup, stitched(self.pieces[i], self.dt))
+        self.pieces[i] = []  # checked: free the memory
+
+    def finish(self) -> None:
+        """Check the rollouts that had not reached their goal when the rollout call ended (none
+        when it ran `steps` steps)."""
+        for i, planner in enumerate(self.planners or []):
+            if self.pieces[i]:
+                self._finish(i, planner)
+
+    def summary(self) -> dict:
+        """Re-plans (count, failures, median, p90 and worst time [ms]), the steps the goal moved
+        later (median, worst) and the executed samples beyond a limit, over the last rollout call."""
+        self.finish()
+        ms = np.asarray(self.times) * 1e3
+        return {"replans": len(ms), "failed": len(self.failures),
+                "median_ms": float(np.median(ms)) if len(ms) else None,
+                "p90_ms": float(np.percentile(ms, 90)) if len(ms) else None,
+                "worst_ms": float(ms.max()) if len(ms) else None,
+                "late_median": float(np.median(self.late)) if self.late else 0.0,
+                "late_worst": int(max(self.late)) if self.late else 0,
+                "violations": int(sum(self.violations)), "build_s": self.planner.build_time_s,
+                "failures": self.failures[:5]}
