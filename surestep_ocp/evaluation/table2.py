@@ -257,7 +257,8 @@ def _tables(res: dict, rollouts: int, grasp) -> str:
     lines.append("| mean over types | "
                  + " | ".join(f"{mean[m][0]:.0%} / {mean[m][1]:.0%}" if m in mean else ""
                               for m in all_methods) + " |")
-    lines += ["", "Final position error [mm], median / 90th percentile, `model`; `true`:", "", *head]
+    lines += ["", "Final position error [mm], median / 90th percentile, `model`; `true`:", "",
+              *head]
     for label, row in res.items():
         cells = ["" if row.get(m) is None else "; ".join(
             f"{row[m][f'{mode}_median_mm']:.1f} / {row[m][f'{mode}_p90_mm']:.1f}"

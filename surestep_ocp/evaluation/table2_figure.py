@@ -1,9 +1,9 @@
 """The simulated Table II's figure: one rollout's executed error against time, per method.
 
 Two panels: the true tool position's distance to the goal, and the tracker's error (true position
-minus the EKF mean), both [mm], against time [s] (each step `STEP_S`: the type files' and the robot's
-pace share the step length; the robot's pace has twice the steps). One rollout (the first) of each
-method that kept its paths (`success_table(..., keep_paths=True)`), in one mode.
+minus the EKF mean), both [mm], against time [s] (each step `STEP_S`: the type files' and the
+robot's pace share the step length; the robot's pace has twice the steps). One rollout (the first)
+of each method that kept its paths (`success_table(..., keep_paths=True)`), in one mode.
 """
 
 from __future__ import annotations
