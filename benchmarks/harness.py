@@ -43,6 +43,7 @@ The studies (benchmarks/README.md: each one's command and result files):
 - replan_budget.py: the re-plan's iteration budget within the limits.
 - scenarios.py: `surestep compare` on every scenario file.
 - baseline_timing.py: the baseline within enforced limits: kept or lengthened, against toppra.
+- closed_loop.py: the simulated Table II with the closed loop (`ocp-mpc`) beside the open loop.
 - plan_steps.py, large_rollout_errors.py, worst_rollout.py: where the evaluation's large rollout
   errors come from.
 - evaluation_limits.py, motion_limits_evaluation.py, execution_pace.py, rollout_variants.py:
@@ -83,6 +84,9 @@ from surestep_ocp.evaluation.evaluation import read_progress  # noqa: E402
 from surestep_ocp.evaluation.rollout import MODES as ROLLOUT_MODES, rollout  # noqa: E402
 from surestep_ocp.evaluation.tracker import SimulatedTracker  # noqa: E402
 from surestep_ocp.evaluation.tracker_loop import tracker_loop  # noqa: E402
+from surestep_ocp.evaluation.table2 import TYPES, success_table  # noqa: E402
+from surestep_ocp.evaluation.table2_figure import error_figure  # noqa: E402
+from surestep_ocp.evaluation.executed_motion import stitched, violations  # noqa: E402
 from surestep_ocp.model import limits as _limits  # noqa: E402
 from surestep_ocp.model.lie import np_exp  # noqa: E402
 from surestep_ocp.model.limits import motion_limits, plan_report, problem_limits  # noqa: E402
@@ -117,6 +121,7 @@ __all__ = [
     "read_progress", "motion_limits", "plan_report", "problem_limits", "time_parametrise",
     "within_position_limits", "tool_speeds",
     "np_exp", "write_text_atomic", "time_optimal_law", "played_line",
+    "TYPES", "success_table", "error_figure", "stitched", "violations",
 ]
 
 # --- the test set ---------------------------------------------------------------------------------

@@ -12,8 +12,11 @@ from itertools import product
 from .model.belief import COMPONENTS
 
 BASE_METHODS = ("baseline", "gradient", "gradient-no-pose-loss", "ocp", "ocp-from-gradient")
+# closed-loop methods: a policy, not a plan; the rollouts re-plan at every step from each rollout's
+# own belief within the motion limits (evaluation/closed_loop.py); as a plan, the first one
+CLOSED_LOOP_METHODS = ("ocp-mpc",)
 # the bases the OCP solver flags (--solver, --hessian, ...) act on
-OCP_METHODS = ("ocp", "ocp-from-gradient")
+OCP_METHODS = ("ocp", "ocp-from-gradient", *CLOSED_LOOP_METHODS)
 # that observation component left out while planning
 ABLATIONS = {f"-no-{c}": c for c in COMPONENTS}
 EXPECTED = "-expected"  # plan with the observation noise expected under the belief
@@ -30,21 +33,29 @@ def split_name(name: str) -> tuple[str, str | None, bool, bool]:
     rest = rest[: -len(PREDICTED)] if predicted else rest
     expected = rest.endswith(EXPECTED)
     rest = rest[: -len(EXPECTED)] if expected else rest
+    bases = (*BASE_METHODS, *CLOSED_LOOP_METHODS)
     for suffix, comp in ABLATIONS.items():
-        if rest.endswith(suffix) and rest[: -len(suffix)] in BASE_METHODS:
+        if rest.endswith(suffix) and rest[: -len(suffix)] in bases:
             return rest[: -len(suffix)], comp, expected, predicted
-    if rest in BASE_METHODS:
+    if rest in bases:
         return rest, None, expected, predicted
     raise ValueError(f"unknown method '{name}'; allowed: {grammar()}")
 
 
 def grammar() -> str:
     """The accepted names in one line (for help texts and error messages)."""
-    return (f"{' | '.join(BASE_METHODS)}, optionally followed by {' | '.join(ABLATIONS)}, "
+    return (f"{' | '.join((*BASE_METHODS, *CLOSED_LOOP_METHODS))}, optionally followed by "
+            f"{' | '.join(ABLATIONS)}, "
             f"then {EXPECTED}, then {PREDICTED}")
 
 
 def all_names() -> list[str]:
     """Every name `split_name` accepts, grouped by base method."""
     return [b + a + e + p for b, a, e, p
-            in product(BASE_METHODS, ("", *ABLATIONS), ("", EXPECTED), ("", PREDICTED))]
+            in product((*BASE_METHODS, *CLOSED_LOOP_METHODS), ("", *ABLATIONS), ("", EXPECTED),
+                       ("", PREDICTED))]
+
+
+def is_closed_loop(name: str) -> bool:
+    """Whether the method name is a closed-loop method (`CLOSED_LOOP_METHODS` and its variants)."""
+    return split_name(name)[0] in CLOSED_LOOP_METHODS

@@ -38,11 +38,14 @@ def _scalar(M) -> float:
     return c
 
 
-def replay(poses, noise, cam, mode: str, z_w, z_v, detection=None) -> list[dict]:
+def replay(poses, noise, cam, mode: str, z_w, z_v, detection=None, target=None,
+           steps: int | None = None) -> list[dict]:
     """Per step t -> t+1, a record of one rollout of `poses` ((T+1, 6), camera frame) from normals
     z_w, z_v (T, 6).
 
-    detection: (margin, min_depth, max_depth) or None (every step observed). Records: the commanded
+    detection: (margin, min_depth, max_depth) or None (every step observed). target: None (the
+    waypoints), or a closed loop's `target(t, estimate)` -> the (6,) pose to command at step t;
+    `steps`: how many steps to run (default T). Records: the commanded
     step `dp` and rotation `angle` (from the estimate to the waypoint), the motion-noise variance
     `cW` (W = cW I) and its draw `w`, the true pose `true` and estimate `est` after the step,
     `true_seen` (the true pose detectable), `seen` (and the measurement too: the EKF updated), the
@@ -55,21 +58,22 @@ def replay(poses, noise, cam, mode: str, z_w, z_v, detection=None) -> list[dict]
     p_tr, R_tr = p_mu.copy(), R_mu
     sig = np.asarray(noise.Sigma0, float).copy()
     rows = []
-    for t in range(len(poses) - 1):
-        tgt_p, tgt_R = poses[t + 1, :3], Rotation.from_rotvec(poses[t + 1, 3:])
+    for t in range(len(poses) - 1 if steps is None else steps):
+        goal = (poses[t + 1] if target is None
+                else np.asarray(target(t, np.hstack([p_mu, R_mu.as_rotvec()])), float))
+        tgt_p, tgt_R = goal[:3], Rotation.from_rotvec(goal[3:])
         dp = tgt_p - p_mu
         D = R_mu.inv() * tgt_R  # the commanded rotation, body frame of the estimate
-        cW = _scalar(numpy_ekf.motion_noise(np.hstack([p_mu, R_mu.as_rotvec()]), poses[t + 1],
-                                            noise))
+        cW = _scalar(numpy_ekf.motion_noise(np.hstack([p_mu, R_mu.as_rotvec()]), goal, noise))
         w = np.sqrt(cW) * np.asarray(z_w[t], float)
         p_tr = p_tr + dp + w[:3]
         R_tr = Rotation.from_rotvec(w[3:]) * R_tr * D
         x_tr = np.hstack([p_tr, R_tr.as_rotvec()])
         P = sig + cW * np.eye(6)
-        V_ekf = numpy_ekf.observation_noise(poses[t + 1], noise, cam, guard=guard, band=band)
+        V_ekf = numpy_ekf.observation_noise(goal, noise, cam, guard=guard, band=band)
         seen = True if detection is None else detectable(p_tr, cam, *detection)
         true_seen = seen
-        at = x_tr if (mode == "true" and seen) else poses[t + 1]
+        at = x_tr if (mode == "true" and seen) else goal
         cV = _scalar(numpy_ekf.observation_noise(at, noise, cam, guard=guard, band=band))
         v = np.sqrt(cV) * np.asarray(z_v[t], float)
         z_p, z_R = p_tr + v[:3], Rotation.from_rotvec(v[3:]) * R_tr

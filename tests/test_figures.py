@@ -34,12 +34,13 @@ def test_registry_is_what_the_code_runs():
     """The style registry's names are the ones `run_method` parses, compare and evaluate run."""
     from surestep_ocp.model.belief import COMPONENTS
     from surestep_ocp.evaluation.evaluation import DEFAULT_METHODS
+    from surestep_ocp.method_grammar import CLOSED_LOOP_METHODS
     from surestep_ocp.solvers.methods import COMPARE_METHODS, parse_method
 
     names = all_names()
     for m in names:
         parse_method(m)
-    assert len(names) == len(BASE_METHODS) * (len(COMPONENTS) + 1) * 4
+    assert len(names) == (len(BASE_METHODS) + len(CLOSED_LOOP_METHODS)) * (len(COMPONENTS) + 1) * 4
     assert set(COMPARE_METHODS) | set(DEFAULT_METHODS) <= set(names)
 
 

@@ -24,6 +24,7 @@ from scipy.spatial.transform import Rotation
 
 from ..errors import SurestepError
 from ..problem.spec import Problem
+from ..solvers.methods import CLOSED_LOOP_NEEDS
 from ..solvers.planner import MAX_LATE, Planner
 from .executed_motion import stitched, violations
 
@@ -47,26 +48,25 @@ class ClosedLoop:
         setup: the problem within enforced limits (`robot_pace`), solved by the interior point
             (`solver.name` auto or interior); its camera schedule, if any, is the rollouts'.
         planner: a Planner of `setup` (default: made here; its first plan is every rollout's).
+        keep_pieces: keep each rollout's executed pieces (start step, joints, start state) in
+            `pieces` after its check (by default freed).
 
     After a rollout call: `times` (each re-plan's time without builds [s]), `failures` ((step,
     rollout, status) of each re-plan that kept the previous plan), `late` (steps each rollout's goal
     moved later), `violations` (executed samples beyond a limit, per rollout).
     """
 
-    def __init__(self, setup, planner: Planner | None = None):
+    def __init__(self, setup, planner: Planner | None = None, keep_pieces: bool = False):
         self.planner = Planner(setup) if planner is None else planner
         if not self.planner.limited:
-            raise SurestepError(
-                "ocp-mpc re-plans within enforced motion limits with the interior-point solver: "
-                "the problem needs `limits: {enforce: true}` and `solver.name` auto or interior "
-                "(evaluation files: `limits: {enforce: true}` and a horizon the limits allow, "
-                "e.g. 40 steps of 0.05 s)")
+            raise SurestepError(CLOSED_LOOP_NEEDS)
         if not self.planner.plan.success:
             raise SurestepError(f"ocp-mpc: the first plan failed ({self.planner.plan.status})")
         self.setup = setup
         self.dt = setup.ocp.timing.step_s
         self.cameras = setup.camera_poses()
         self.steps = setup.ocp.horizon + MAX_LATE
+        self.keep_pieces = keep_pieces
         self.reset()
 
     @property
@@ -83,6 +83,7 @@ class ClosedLoop:
         """Start over: the next rollout call's rollouts begin with the first plan."""
         self.planners: list[Planner] | None = None
         self.pieces: list[list] = []
+        self.checked: list[bool] = []
         self.times: list[float] = []
         self.failures: list[tuple[int, int, str]] = []
         self.late: list[int] = []
@@ -93,7 +94,7 @@ class ClosedLoop:
         if self.planners is None:
             self.planners = [copy.copy(self.planner) for _ in range(n)]
             self.pieces = [[(0, np.array(self.planner.plan.q, float), None)] for _ in range(n)]
-            self.late, self.violations = [0] * n, [0] * n
+            self.late, self.violations, self.checked = [0] * n, [0] * n, [False] * n
         # a rollout at its goal holds still: its target is where it is (finite, not used)
         targets, moving = np.array(mean, float), np.zeros(n, bool)
         camera = self.cameras[min(t, len(self.cameras) - 1)]
@@ -136,19 +137,21 @@ class ClosedLoop:
     def _finish(self, i: int, planner: Planner) -> None:
         self.late[i] = planner.horizon - self.setup.ocp.horizon
         self.violations[i] = violations(planner.setup, stitched(self.pieces[i], self.dt))
-        self.pieces[i] = []  # checked: free the memory
+        self.checked[i] = True
+        if not self.keep_pieces:
+            self.pieces[i] = []
 
     def finish(self) -> None:
         """Check the rollouts that had not reached their goal when the rollout call ended (none
         when it ran `steps` steps)."""
         for i, planner in enumerate(self.planners or []):
-            if self.pieces[i]:
+            if not self.checked[i]:
                 self._finish(i, planner)
 
     def summary(self) -> dict:
-        """Re-plans (count, failures, median, p90 and worst time [ms]), the steps the goal moved
-        later (median, worst) and the executed samples beyond a limit, over the last rollout
-        call."""
+        """Re-plans (count, failures, median, p90 and worst time [ms], every time), the steps the
+        goal moved later (median, worst) and the executed samples beyond a limit, over the last
+        rollout call."""
         self.finish()
         ms = np.asarray(self.times) * 1e3
         return {"replans": len(ms), "failed": len(self.failures),
@@ -158,4 +161,4 @@ class ClosedLoop:
                 "late_median": float(np.median(self.late)) if self.late else 0.0,
                 "late_worst": int(max(self.late)) if self.late else 0,
                 "violations": int(sum(self.violations)), "build_s": self.planner.build_time_s,
-                "failures": self.failures[:5]}
+                "failures": self.failures[:5], "times_ms": ms.tolist()}

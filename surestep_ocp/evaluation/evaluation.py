@@ -57,7 +57,9 @@ from .rollout import METRICS, MODES, plan_metrics
 from .run_lock import hold
 from ..output.files import check_output_dir, check_output_file
 from ..output.solution import _jsonable, write_json_atomic, write_text_atomic
-from ..solvers.methods import parse_method, run_method
+from ..method_grammar import is_closed_loop
+from ..solvers.methods import CLOSED_LOOP_NEEDS, method_setup, parse_method, run_method
+from .closed_loop import ClosedLoop
 
 MAX_CONFIGS = 100_000
 MAX_ROLLOUTS = 100_000
@@ -109,8 +111,14 @@ def evaluate_configuration(eval_path: str, seed: int, index: int, methods: tuple
     cache = {}
     for name in methods:
         t0 = time.perf_counter()
+        policy = None
         try:
-            sol = run_method(setup, name, cache)
+            if is_closed_loop(name):  # re-plans in every rollout, from this first plan
+                policy = ClosedLoop(method_setup(setup, name))
+                sol = policy.first_plan
+                sol.method = name
+            else:
+                sol = run_method(setup, name, cache)
         except Exception as exc:  # noqa: BLE001 - recorded in solves.csv and counted in the table
             rec["solves"][name] = {"success": False,
                                    "status": f"error: {type(exc).__name__}: {exc}",
@@ -124,12 +132,21 @@ def evaluate_configuration(eval_path: str, seed: int, index: int, methods: tuple
             solve["kept_start"] = ("; ".join(f"{a.label}: {a.status}" for a in sol.attempts)
                                    or sol.extras.get("solver", ""))
         try:
-            poses = executed_poses(setup, sol.poses, spec.pace)
+            # a closed loop runs within the limits: at the robot's pace already
+            poses = (np.asarray(sol.poses, float) if policy is not None
+                     else executed_poses(setup, sol.poses, spec.pace))
             solve["rollout_steps"] = len(poses) - 1
             for mode in modes:
                 rng = np.random.default_rng([seed, index, MODES.index(mode)])
+                if policy is not None:
+                    policy.reset()
                 met, ro = plan_metrics(setup.eval_model, poses, setup.x_goal, rollouts, rng, mode,
-                                       sol.sigma_final, detection=spec.detection)
+                                       sol.sigma_final, detection=spec.detection, policy=policy)
+                if policy is not None:
+                    summary = policy.summary()
+                    solve.setdefault("replans", {})[mode] = {
+                        k: summary[k] for k in ("replans", "failed", "median_ms", "worst_ms",
+                                                "late_worst", "violations")}
                 rec["metrics"][mode][name] = met
                 rec["pos_errors"][mode][name] = ro.pos_err.tolist()
                 rec["ori_errors"][mode][name] = ro.ori_err.tolist()
@@ -364,6 +381,11 @@ def _run_evaluation(eval_path, out_dir, configs, rollouts, seed, methods, modes,
     methods = tuple(dict.fromkeys(("baseline", *methods)))
     eval_path = str(eval_path)
     spec = load_evaluation(eval_path)
+    closed = [m for m in methods if is_closed_loop(m)]
+    if closed and not spec.base.limits.enforce:
+        raise SurestepError(f"{eval_path}: --methods {' '.join(closed)}: {CLOSED_LOOP_NEEDS}; set "
+                            "`limits: {enforce: true}` and `horizon: 40` in the evaluation file "
+                            "(as problems/evaluations/robot_pace.yaml does)")
     inputs = (spec.path, spec.base_path)
     out = check_output_dir(out_dir, inputs, "the evaluation")
     with hold(out, "an evaluation"):  # one writer per folder, for the whole run

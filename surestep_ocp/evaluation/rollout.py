@@ -378,14 +378,15 @@ def rollout(
 
 
 def plan_metrics(model: BeliefModel, poses: np.ndarray, goal: np.ndarray, n: int, rng, mode: str,
-                 sigma_ml: np.ndarray | None = None,
-                 detection: Detection | None = None) -> tuple[dict[str, float], Rollouts]:
-    """The eight evaluation metrics (`METRICS`) of one plan in one rollout mode.
+                 sigma_ml: np.ndarray | None = None, detection: Detection | None = None,
+                 policy=None) -> tuple[dict[str, float], Rollouts]:
+    """The eight evaluation metrics (`METRICS`) of one plan in one rollout mode (with `policy`, of
+    a closed-loop method whose first plan is `poses`: `rollout`'s).
 
     `trace_ml` and `entropy_ml` are of the plan's own maximum-likelihood Sigma_T
     (`sigma_ml`, e.g. `Solution.sigma_final`; computed with `model.propagate` if omitted).
     """
-    ro = rollout(model, poses, goal, n, rng, mode, detection=detection)
+    ro = rollout(model, poses, goal, n, rng, mode, detection=detection, policy=policy)
     if sigma_ml is None:
         sigma_ml = model.propagate(np.asarray(poses, float))[0][-1]
     sigma_ml = np.asarray(sigma_ml, dtype=float)

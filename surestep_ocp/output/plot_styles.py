@@ -1,7 +1,7 @@
 """One look per method name (colour, marker, line style), shared by every PNG and the 3D scene.
 
-Each base method (`method_grammar.BASE_METHODS`) and each `surestep replan` name has a fixed colour
-and marker. A variant keeps its base's marker: an ablation suffix shades the colour and hollows the
+Each base method (`method_grammar.BASE_METHODS`, `CLOSED_LOOP_METHODS`) and each `surestep replan`
+name has a fixed colour and marker. A variant keeps its base's marker: an ablation suffix shades the colour and hollows the
 marker, `-expected` / `-predicted` shade it again and change the line style, so every accepted name
 looks unlike every other. Names outside the grammar (`ocp-replan-<step>`, hand-made files)
 take PALETTE in order.
@@ -49,6 +49,8 @@ BASE_STYLES: dict[str, MethodStyle] = {
     "ocp": MethodStyle("#1f77b4", "o", width=3.2, size=8.0),
     # green, dashed, on top
     "ocp-from-gradient": MethodStyle("#2ca02c", "D", "--", width=1.4, size=4.0),
+    # the closed loop (its rollouts re-plan at every step), dark teal
+    "ocp-mpc": MethodStyle("#006d77", "*", size=7.0),
 }
 REPLAN_STYLES: dict[str, MethodStyle] = dict(zip(REPLAN_METHODS, (
     MethodStyle("#8c564b", "P"),  # ocp-once, brown: planned once, executed while the camera moves

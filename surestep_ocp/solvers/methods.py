@@ -1,7 +1,8 @@
 """Method names and dispatch: every method takes a Setup and returns a Solution.
 
 Names (`method_grammar`): `baseline`, `gradient`, `gradient-no-pose-loss`, `ocp`,
-`ocp-from-gradient` (the OCP started from the gradient solution), each optionally with an ablation
+`ocp-from-gradient` (the OCP started from the gradient solution), `ocp-mpc` (closed loop: as a plan,
+its first one within the enforced limits), each optionally with an ablation
 suffix `-no-depth`, `-no-fov` or `-no-orientation` (that observation component is left out during
 optimisation; evaluation always uses all components), then `-expected`, then `-predicted`.
 """
@@ -17,13 +18,13 @@ from .gradient import solve_gradient
 from ..model.belief import COMPONENTS
 from ..errors import SurestepError
 from ..model.limits import VIOLATED, enforce as enforce_limits
-from ..method_grammar import BASE_METHODS, split_name
+from ..method_grammar import BASE_METHODS, CLOSED_LOOP_METHODS, split_name
 from .iterate import InitialGuess
 from .ocp import solve_ocp
 from ..problem.setup import Setup
 from ..output.solution import Solution
 
-COMPARE_METHODS = BASE_METHODS
+COMPARE_METHODS = BASE_METHODS  # the open-loop plans
 
 
 def parse_method(name: str) -> tuple[str, tuple[str, ...] | None, str | None, str | None]:
@@ -52,6 +53,13 @@ def _variant(setup: Setup, components: tuple[str, ...] | None, form: str | None,
     return setup.with_ocp(noise=noise)
 
 
+def method_setup(setup: Setup, name: str) -> Setup:
+    """The setup the named method plans with (its observation components, noise form,
+    objective)."""
+    _, comps, form, objective = parse_method(name)
+    return _variant(setup, comps, form, objective)
+
+
 def ocp_initial_guess(setup: Setup, source: str = "baseline",
                       gradient: Solution | None = None) -> InitialGuess:
     """Joint trajectory to start the OCP from: IK of the straight line or of a gradient solution."""
@@ -64,6 +72,25 @@ def ocp_initial_guess(setup: Setup, source: str = "baseline",
     note = (source if ok.all()
             else f"{source} ({int((~ok).sum())} waypoints unreachable, best-effort IK used)")
     return InitialGuess(q_best, note)
+
+
+def closed_loop_plan(setup: Setup, solver_options: dict | None = None) -> Solution:
+    """A closed-loop method's first plan: the `Planner`'s within the enforced limits (its rollouts
+    re-plan from there, evaluation/closed_loop.py); an error naming what is missing otherwise."""
+    from .planner import Planner  # planner imports this module
+
+    if solver_options:
+        raise SurestepError("ocp-mpc: IPOPT options do not apply (it re-plans with the "
+                            "interior-point solver)")
+    planner = Planner(setup, prebuild=False)
+    if not planner.limited:
+        raise SurestepError(CLOSED_LOOP_NEEDS)
+    return planner.plan
+
+
+CLOSED_LOOP_NEEDS = ("ocp-mpc re-plans within enforced motion limits with the interior-point "
+                     "solver: it needs `limits: {enforce: true}` (and a horizon the limits allow, "
+                     "e.g. 40 steps of 0.05 s) and `solver.name` auto or interior")
 
 
 def honours_limits(name: str) -> bool:
@@ -91,14 +118,16 @@ def run_method(setup: Setup, name: str, cache: dict[str, Solution] | None = None
 
     `cache` (method name -> Solution) lets `ocp-from-gradient` reuse a gradient solution.
     """
-    base, comps, form, objective = parse_method(name)
-    s = _variant(setup, comps, form, objective)
+    base, comps, _, _ = parse_method(name)
+    s = method_setup(setup, name)
     if base == "baseline":
         sol = solve_baseline(s)
     elif base in ("gradient", "gradient-no-pose-loss"):
         sol = solve_gradient(s, pose_loss=(base == "gradient"), components=comps)
     elif base == "ocp":
         sol = solve_ocp(s, ocp_initial_guess(s), solver_options)
+    elif base in CLOSED_LOOP_METHODS:
+        sol = closed_loop_plan(s, solver_options)
     else:  # ocp-from-gradient
         suffix = name[len(base):]
         grad = ((cache or {}).get("gradient" + suffix)
