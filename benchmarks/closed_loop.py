@@ -6,8 +6,8 @@ Every scenario type (problems/type*.yaml) as `python -m surestep_ocp.evaluation.
 baseline, the paper's preset gradient and the OCP planned once at the paper's pace, and the type at
 the robot's pace (twice the steps of 0.05 s, the camera moves at the same times, the limits
 enforced) planned once (`ocp-robot-pace`) and re-planned at every frame by every rollout from its
-own belief (`ocp-mpc`, surestep_ocp/evaluation/closed_loop.py); `--rollouts` rollouts per method, type
-and mode. Each MPC rollout's executed motion (every plan from its start to the next one's) is
+own belief (`ocp-mpc`, surestep_ocp/evaluation/closed_loop.py); `--rollouts` rollouts per method,
+type and mode. Each MPC rollout's executed motion (every plan from its start to the next one's) is
 checked against the limits by finite differences and Pinocchio's kinematics. Writes
 benchmarks/results/closed_loop.md and docs/closed_loop_error.png (one rollout's executed error
 against time, Type 1 medium, mode `true`); the last line is `closed-loop: grasp_model=...

@@ -1,9 +1,9 @@
 """One look per method name (colour, marker, line style), shared by every PNG and the 3D scene.
 
 Each base method (`method_grammar.BASE_METHODS`, `CLOSED_LOOP_METHODS`) and each `surestep replan`
-name has a fixed colour and marker. A variant keeps its base's marker: an ablation suffix shades the colour and hollows the
-marker, `-expected` / `-predicted` shade it again and change the line style, so every accepted name
-looks unlike every other. Names outside the grammar (`ocp-replan-<step>`, hand-made files)
+name has a fixed colour and marker. A variant keeps its base's marker: an ablation suffix shades the
+colour and hollows the marker, `-expected` / `-predicted` shade it again and change the line style,
+so every accepted name looks unlike every other. Names outside the grammar (`ocp-replan-<step>`, hand-made files)
 take PALETTE in order.
 """
 
