@@ -3,8 +3,8 @@
 Each base method (`method_grammar.BASE_METHODS`, `CLOSED_LOOP_METHODS`) and each `surestep replan`
 name has a fixed colour and marker. A variant keeps its base's marker: an ablation suffix shades the
 colour and hollows the marker, `-expected` / `-predicted` shade it again and change the line style,
-so every accepted name looks unlike every other. Names outside the grammar (`ocp-replan-<step>`, hand-made files)
-take PALETTE in order.
+so every accepted name looks unlike every other. Names outside the grammar (`ocp-replan-<step>`,
+hand-made files) take PALETTE in order.
 """
 
 from __future__ import annotations
