@@ -50,13 +50,18 @@ class ClosedLoop:
         planner: a Planner of `setup` (default: made here; its first plan is every rollout's).
         keep_pieces: keep each rollout's executed pieces (start step, joints, start state) in
             `pieces` after its check (by default freed).
+        deadline_s: a re-plan that takes longer than this [s] (builds apart) is late: the rollout
+            keeps its previous plan, as a real-time loop would. None (the default): no re-plan is
+            discarded for its time, so the rollouts do not depend on the machine's speed; the late
+            ones (longer than a step, `timing.step_s`) are counted all the same (`late_replans`).
 
     After a rollout call: `times` (each re-plan's time without builds [s]), `failures` ((step,
     rollout, status) of each re-plan that kept the previous plan), `late` (steps each rollout's goal
     moved later), `violations` (executed samples beyond a limit, per rollout).
     """
 
-    def __init__(self, setup, planner: Planner | None = None, keep_pieces: bool = False):
+    def __init__(self, setup, planner: Planner | None = None, keep_pieces: bool = False,
+                 deadline_s: float | None = None):
         self.planner = Planner(setup) if planner is None else planner
         if not self.planner.limited:
             raise SurestepError(CLOSED_LOOP_NEEDS)
@@ -66,7 +71,7 @@ class ClosedLoop:
         self.dt = setup.ocp.timing.step_s
         self.cameras = setup.camera_poses()
         self.steps = setup.ocp.horizon + MAX_LATE
-        self.keep_pieces = keep_pieces
+        self.keep_pieces, self.deadline_s = keep_pieces, deadline_s
         self.reset()
 
     @property
@@ -110,14 +115,20 @@ class ClosedLoop:
         return targets, moving
 
     def _replan(self, i: int, planner: Planner, t: int, mean, cov, camera) -> None:
+        before = {k: planner.__dict__[k] for k in ("plan", "step", "_q", "_start", "horizon")}
         try:
             sol = planner.replan(mean, cov, camera_pose=camera, step=t)
         except SurestepError as exc:  # e.g. an estimate the checks reject: the previous plan runs
             self.failures.append((t, i, str(exc)))
             return
-        self.times.append(sol.extras["replan"]["time_s"])
+        took = sol.extras["replan"]["time_s"]
+        self.times.append(took)
         if not sol.success:
             self.failures.append((t, i, sol.status))
+            return
+        if self.deadline_s is not None and took > self.deadline_s:  # too late to run
+            planner.__dict__.update(before)
+            self.failures.append((t, i, f"late ({took * 1e3:.1f} ms)"))
             return
         st = sol.extras["start_state"]
         self.pieces[i].append((t, np.array(sol.q, float),
@@ -149,12 +160,13 @@ class ClosedLoop:
                 self._finish(i, planner)
 
     def summary(self) -> dict:
-        """Re-plans (count, failures, median, p90 and worst time [ms], every time), the steps the
-        goal moved later (median, worst) and the executed samples beyond a limit, over the last
+        """Re-plans (count, failures, those longer than a step, median, p90 and worst time [ms],
+        every time), the steps the goal moved later (median, worst) and the executed samples beyond a limit, over the last
         rollout call."""
         self.finish()
         ms = np.asarray(self.times) * 1e3
         return {"replans": len(ms), "failed": len(self.failures),
+                "late_replans": int(np.sum(ms > self.dt * 1e3)),
                 "median_ms": float(np.median(ms)) if len(ms) else None,
                 "p90_ms": float(np.percentile(ms, 90)) if len(ms) else None,
                 "worst_ms": float(ms.max()) if len(ms) else None,

@@ -145,8 +145,8 @@ def evaluate_configuration(eval_path: str, seed: int, index: int, methods: tuple
                 if policy is not None:
                     summary = policy.summary()
                     solve.setdefault("replans", {})[mode] = {
-                        k: summary[k] for k in ("replans", "failed", "median_ms", "worst_ms",
-                                                "late_worst", "violations")}
+                        k: summary[k] for k in ("replans", "failed", "late_replans", "median_ms",
+                                                "worst_ms", "late_worst", "violations")}
                 rec["metrics"][mode][name] = met
                 rec["pos_errors"][mode][name] = ro.pos_err.tolist()
                 rec["ori_errors"][mode][name] = ro.ori_err.tolist()
