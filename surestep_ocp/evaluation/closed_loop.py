@@ -161,8 +161,8 @@ class ClosedLoop:
 
     def summary(self) -> dict:
         """Re-plans (count, failures, those longer than a step, median, p90 and worst time [ms],
-        every time), the steps the goal moved later (median, worst) and the executed samples beyond a limit, over the last
-        rollout call."""
+        every time), the steps the goal moved later (median, worst) and the executed samples beyond
+        a limit, over the last rollout call."""
         self.finish()
         ms = np.asarray(self.times) * 1e3
         return {"replans": len(ms), "failed": len(self.failures),

@@ -292,9 +292,9 @@ def _tables(res: dict, rollouts: int, grasp) -> str:
                        "`ocp-robot-pace` runs its first plan once, `ocp-mpc` re-plans at every "
                        "frame from each rollout's own belief within the limits "
                        "(surestep_ocp/evaluation/closed_loop.py). Its re-plans (both modes):"), "",
-                  "| type | re-plans | failed (previous plan kept) | longer than a step | median ms "
-                  "| p90 ms | worst ms | steps later (median, worst) | executed samples beyond a "
-                  "limit |", "|---|---|---|---|---|---|---|---|---|"]
+                  "| type | re-plans | failed (previous plan kept) | longer than a step "
+                  "| median ms | p90 ms | worst ms | steps later (median, worst) "
+                  "| executed samples beyond a limit |", "|---|---|---|---|---|---|---|---|---|"]
         for label, cell in mpc.items():
             r = list(cell["replans"].values())
             lines.append(f"| {label} | {sum(x['replans'] for x in r)} | "
