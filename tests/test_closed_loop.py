@@ -24,6 +24,7 @@ from surestep_ocp.model.limits import evaluate_curve
 from surestep_ocp.problem.load import load_problem
 from surestep_ocp.problem.setup import build_setup
 from surestep_ocp.solvers.baseline import straight_line
+from surestep_ocp.solvers.methods import run_method
 
 T = 6
 
@@ -184,6 +185,9 @@ def test_a_late_replan_keeps_the_previous_plan():
 def test_a_closed_loop_needs_enforced_limits(tmp_path):
     with pytest.raises(SurestepError, match="limits: {enforce: true}"):
         ClosedLoop(build_setup(load_problem("problems/type1_medium.yaml")))
+    paced = build_setup(robot_pace(load_problem("problems/type1_medium.yaml")))
+    with pytest.raises(SurestepError, match="observation_noise: mean"):
+        run_method(paced, "ocp-mpc-expected")
     res = subprocess.run([sys.executable, "-m", "surestep_ocp.cli", "evaluate",
                           "problems/evaluations/evaluation.yaml", "--methods", "ocp-mpc",
                           "--configs", "1", "--rollouts", "2", "--output-dir",

@@ -24,7 +24,7 @@ from scipy.spatial.transform import Rotation
 
 from ..errors import SurestepError
 from ..problem.spec import Problem
-from ..solvers.methods import CLOSED_LOOP_NEEDS
+from ..solvers.methods import closed_loop_unavailable
 from ..solvers.planner import MAX_LATE, Planner
 from .executed_motion import stitched, violations
 
@@ -62,9 +62,10 @@ class ClosedLoop:
 
     def __init__(self, setup, planner: Planner | None = None, keep_pieces: bool = False,
                  deadline_s: float | None = None):
+        why = closed_loop_unavailable(setup)
+        if why:
+            raise SurestepError(why)
         self.planner = Planner(setup) if planner is None else planner
-        if not self.planner.limited:
-            raise SurestepError(CLOSED_LOOP_NEEDS)
         if not self.planner.plan.success:
             raise SurestepError(f"ocp-mpc: the first plan failed ({self.planner.plan.status})")
         self.setup = setup

@@ -82,15 +82,31 @@ def closed_loop_plan(setup: Setup, solver_options: dict | None = None) -> Soluti
     if solver_options:
         raise SurestepError("ocp-mpc: IPOPT options do not apply (it re-plans with the "
                             "interior-point solver)")
-    planner = Planner(setup, prebuild=False)
-    if not planner.limited:
-        raise SurestepError(CLOSED_LOOP_NEEDS)
-    return planner.plan
+    why = closed_loop_unavailable(setup)
+    if why:
+        raise SurestepError(why)
+    return Planner(setup, prebuild=False).plan
 
 
 CLOSED_LOOP_NEEDS = ("ocp-mpc re-plans within enforced motion limits with the interior-point "
                      "solver: it needs `limits: {enforce: true}` (and a horizon the limits allow, "
                      "e.g. 40 steps of 0.05 s) and `solver.name` auto or interior")
+
+
+def closed_loop_unavailable(setup: Setup) -> str | None:
+    """Why a closed-loop method cannot re-plan this setup (None: it can): the `Planner`'s
+    conditions for re-planning within the limits, said."""
+    from .ocp import resolved_solver  # ocp imports this module's neighbours; kept light
+
+    resolved = resolved_solver(setup)
+    if not setup.ocp.limits.enforce or resolved.name not in ("auto", "interior"):
+        return CLOSED_LOOP_NEEDS
+    if not resolved.newton_fits:
+        return ("ocp-mpc re-plans with the interior-point solver, which needs what newton "
+                "needs: the condensed form of a model with constant motion and observation maps, "
+                "noise.observation_noise: mean (not -expected), solver.hessian: auto and six "
+                "joints moving the tracked frame")
+    return None
 
 
 def honours_limits(name: str) -> bool:
