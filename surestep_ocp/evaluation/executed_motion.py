@@ -32,12 +32,13 @@ def violations(setup, q: np.ndarray) -> int:
     """Samples of the executed joints `q` (every H seconds) beyond a limit: joint bounds, joint
     velocities and accelerations (finite differences), the tool's speed and rotation speed
     (Pinocchio's kinematics every 5 ms); each beyond by more than the differencing error (0.1 % of
-    the velocity limits, 1 % of the acceleration ones)."""
+    the velocity limits, 1 % of the acceleration ones). The tool is the robot's frame without a
+    needle offset (as the limits define it, `plan_report`)."""
     lim, robot = problem_limits(setup), setup.robot
     mov = robot.supporting_joints()
     v = np.diff(q, axis=0)[:, mov] / H
     a = np.diff(q, n=2, axis=0)[:, mov] / H**2
-    poses = np.array([robot.frame_pose(qi) for qi in q[::5]])
+    poses = np.array([robot.frame_pose(qi, robot.frame) for qi in q[::5]])
     speed = np.linalg.norm(np.diff(poses[:, :3, 3], axis=0), axis=1) / (5 * H)
     rel = np.einsum("nji,njk->nik", poses[:-1, :3, :3], poses[1:, :3, :3])
     turn = np.arccos(np.clip((np.trace(rel, axis1=1, axis2=2) - 1) / 2, -1, 1)) / (5 * H)
