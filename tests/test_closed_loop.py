@@ -164,6 +164,33 @@ def test_the_rollouts_run_each_plan_then_hold_still(mpc):
         assert not ro.detected[i, h:].any()
 
 
+def test_after_a_camera_move_the_replan_aims_at_the_goal_as_the_moved_camera_sees_it():
+    """Type 4 at the robot's pace: every re-plan ends at the goal (fixed in the world) expressed in
+    the camera the rollout's estimate is in, the moved one right after a move."""
+    problem = robot_pace(load_problem("problems/type4_camera_moves.yaml")).with_solver(
+        codegen=False)
+    setup = build_setup(problem)
+    policy = ClosedLoop(setup)
+    goals = []  # (step, the plan's last pose) of each successful re-plan
+    replan = policy._replan
+
+    def spy(i, planner, t, mean, cov, camera):
+        replan(i, planner, t, mean, cov, camera)
+        if planner.step == t:
+            goals.append((t, np.asarray(planner.plan.poses[-1], float)))
+
+    policy._replan = spy
+    start, goal = policy.start_and_goal()
+    rollout(setup.eval_model, np.vstack([start, goal]), goal, n=1, rng=0, mode="model",
+            changes=setup.camera_changes(), policy=policy)
+    cameras = setup.camera_poses()
+    moves = [t for t, c in enumerate(setup.camera_changes()) if c is not None]
+    assert {t for t, _ in goals} >= set(moves)  # re-planned right after every move
+    for t, end in goals:
+        want = setup.seen_from(cameras[min(t + 1, len(cameras) - 1)]).x_goal
+        np.testing.assert_allclose(end[:3], want[:3], atol=1e-6, err_msg=f"step {t}")
+
+
 def test_a_late_replan_keeps_the_previous_plan():
     """With a deadline no re-plan meets (0 s), every rollout runs its first plan to the end: its
     executed motion is that plan's, and every successful re-plan is counted as late."""

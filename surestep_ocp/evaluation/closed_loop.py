@@ -103,7 +103,7 @@ class ClosedLoop:
             self.late, self.violations, self.checked = [0] * n, [0] * n, [False] * n
         # a rollout at its goal holds still: its target is where it is (finite, not used)
         targets, moving = np.array(mean, float), np.zeros(n, bool)
-        camera = self.cameras[min(t, len(self.cameras) - 1)]
+        camera = self._camera(t)
         for i, planner in enumerate(self.planners):
             if t >= planner.horizon:
                 if t == planner.horizon:  # at its goal: check what it executed
@@ -140,11 +140,15 @@ class ClosedLoop:
         the camera's moves since the plan was made) and its body-frame rotation."""
         poses = np.asarray(planner.plan.poses, float)
         j = t - planner.step
-        turn = (np.linalg.inv(self.cameras[min(t, len(self.cameras) - 1)])
-                @ self.cameras[min(planner.step, len(self.cameras) - 1)])[:3, :3]
+        turn = (np.linalg.inv(self._camera(t)) @ self._camera(planner.step))[:3, :3]
         R0, R1 = Rotation.from_rotvec(poses[j, 3:]), Rotation.from_rotvec(poses[j + 1, 3:])
         R = Rotation.from_rotvec(mean[3:]) * R0.inv() * R1
         return np.hstack([mean[:3] + turn @ (poses[j + 1, :3] - poses[j, :3]), R.as_rotvec()])
+
+    def _camera(self, t: int) -> np.ndarray:
+        """The camera whose frame the rollout's poses are in when the policy is called at step t:
+        a move at entry t of the schedule's changes has happened (the camera of waypoint t + 1)."""
+        return self.cameras[min(t + 1, len(self.cameras) - 1)]
 
     def _finish(self, i: int, planner: Planner) -> None:
         self.late[i] = planner.horizon - self.setup.ocp.horizon
