@@ -127,3 +127,22 @@ def test_a_reserve_keeps_the_plan_inside_the_tightened_limits(relaxed_runs):
     assert a_full > 0.98  # the plan without a reserve is on the acceleration limit somewhere
     assert v <= 0.95 + 1e-3 and a <= 0.95 + 5e-3
     assert tight.trace >= relaxed.trace * (1 - 1e-9)  # less room: no better plan
+
+
+def test_an_infeasibility_verdict_is_the_interior_points_own_and_ends_the_solve():
+    """A tool speed limit under the straight distance over the duration (no plan exists): the
+    interior point's relaxed rows stop shrinking, its `Infeasible_Problem_Detected` is the solve's
+    status and no IPOPT attempt follows (it took 36 s to agree on evaluation configuration 33;
+    benchmarks/realtime.py checks each such verdict with IPOPT)."""
+    import dataclasses
+
+    problem = ss.load_problem("problems/needle_regrasp.yaml").with_solver(name="interior")
+    slow = dataclasses.replace(problem, limits=dataclasses.replace(problem.limits,
+                                                                   tool_speed=0.01))
+    setup = build_setup(slow)
+    start, goal = (setup.robot.frame_pose(q)[:3, 3] for q in (setup.q_start, setup.q_goal))
+    assert np.linalg.norm(goal - start) > 0.01 * slow.horizon * slow.timing.step_s
+    sol = ss.solve(slow, "ocp")
+    assert not sol.success and sol.status == "Infeasible_Problem_Detected"
+    assert [(a.label, a.solver, a.status) for a in sol.attempts] == [
+        ("interior point", "interior", "Infeasible_Problem_Detected")]
