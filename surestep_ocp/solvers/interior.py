@@ -587,11 +587,13 @@ class InteriorNewton:
         _, fixed, outside = self._held
         ab[outside] = 0.0
         ab[0, fixed] = 1.0
+        free = ~fixed
         shift = shift / 4 if shift > 1e-14 else 0.0
-        scale = max(float(np.max(np.abs(ab[0, ~fixed]))) if (~fixed).any() else 0.0, 1e-12)
+        scale = max(float(np.max(np.abs(ab[0, free]))) if free.any() else 0.0, 1e-12)
         while shift <= 1e12 * scale:
             shifted = ab.copy()
-            shifted[0, ~fixed] += shift
+            if shift:
+                shifted[0, free] += shift
             factor, info = dpbtrf(shifted, lower=1, overwrite_ab=1)
             if info == 0:
                 def solve(rhs, factor=factor):
