@@ -340,6 +340,17 @@ class InteriorNewton:
     def lin_coef_dot(self, x: np.ndarray) -> np.ndarray:
         return self.lin_map @ x
 
+    def _tool_gradients(self, vel: np.ndarray, A: np.ndarray, tool_scale: np.ndarray
+                        ) -> tuple[np.ndarray, np.ndarray]:
+        """The compiled velocities and their Jacobian (flat) -> (points, 12, 2 nq) Jacobian and
+        (points, k, 2 nq) scaled gradients of the tool rows' g in each point's (q(s), q'(s))."""
+        nq = self.nq
+        vel = vel.reshape(12, self.n_pts, order="F")
+        A = A.reshape(12, 2 * nq, self.n_pts, order="F").transpose(2, 0, 1)
+        gy = np.stack([2 * np.einsum("vp,pvy->py", vel[:3], A[:, :3]),
+                       np.einsum("vp,pvy->py", vel[3:], A[:, 3:])], axis=1)
+        return A, gy * tool_scale[None, :, None]
+
     def _to_window(self, Y: np.ndarray) -> np.ndarray:
         """(points, r, 2 nq) derivatives in each point's (q(s), q'(s)) -> (points, r, W nq) in
         its window's waypoints."""
@@ -431,13 +442,7 @@ class InteriorNewton:
                 hy = hy.reshape(2 * nq, 2 * nq, self.n_pts, order="F").transpose(2, 0, 1)
             else:
                 vel, A = self.tool_jacs(x, offsets)
-            vel = vel.reshape(12, self.n_pts, order="F")
-            # (points, 12, 2 nq)
-            A = A.reshape(12, 2 * nq, self.n_pts, order="F").transpose(2, 0, 1)
-            # (points, k, 2 nq): d g / d(q(s), q'(s))
-            gy = np.stack([2 * np.einsum("vp,pvy->py", vel[:3], A[:, :3]),
-                           np.einsum("vp,pvy->py", vel[3:], A[:, 3:])], axis=1)
-            gy *= tool_scale[None, :, None]
+            A, gy = self._tool_gradients(vel, A, tool_scale)
             # (points, k, W nq): the rows' gradients in the window
             tj = self._to_window(gy)
             g = np.bincount(nw.g_index, weights=G, minlength=n)  # grad f
