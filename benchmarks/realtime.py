@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import harness as h  # first: one BLAS thread
 
+import os  # noqa: E402
 from dataclasses import replace  # noqa: E402
 
 import numpy as np  # noqa: E402
@@ -256,17 +257,22 @@ def main() -> None:
                     help="a git revision whose interior.py to alternate with this checkout's")
     ap.add_argument("--repeats", type=int, default=1)
     args = ap.parse_args()
+    load = [os.getloadavg()[0]]  # the machine's load: absolute times depend on it
     lines = ["# Plans within the motion limits at tracker rate", "",
              (f"`OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/realtime.py "
               f"--configs {args.configs} --seed {args.seed} --episodes {args.episodes}"
               f"{f' --against {args.against} --repeats {args.repeats}' if args.against else ''}` "
               f"(one BLAS thread; builds cached, not counted)."), ""]
     block, figs = cold(args)
-    lines += block
     if args.against:
-        lines += against(args)
-    block, lp = loop(args)
-    lines += block
+        block += against(args)
+    load.append(os.getloadavg()[0])
+    block2, lp = loop(args)
+    load.append(os.getloadavg()[0])
+    lines += [(f"Load average (1 min) at the start, after the cold solves, at the end: "
+               f"{', '.join(f'{x:.2f}' for x in load)} on {os.cpu_count()} cores (above about 1: "
+               f"other work ran beside the benchmark, absolute times are inflated; "
+               f"`--against` gives ratios measured alternately)."), "", *block, *block2]
     last = h.last_line("realtime", h.key_values(
         cold_median_ms=f"{figs['cold_median_ms']:.1f}",
         cold_worst_ms=f"{figs['cold_worst_ms']:.1f}",
