@@ -321,8 +321,7 @@ class InteriorNewton:
         f_y, z_y = self.newton.fz(x, P)
         raw, lin = self.tool_rows(x, offsets)
         lin = lin + lin_c
-        raw = raw.reshape(self.tool_k, self.n_pts,
-                                                                    order="F")
+        raw = raw.reshape(self.tool_k, self.n_pts, order="F")
         tool = (self.tool_scale[:, None] / keep**2 * raw).ravel(order="F")
         return float(f_y[0]), np.concatenate([x[idx] - lo[idx], hi[idx] - x[idx],
                                               keep + lin, keep - lin,
