@@ -2,13 +2,19 @@
 cold and in a 20 Hz re-planning loop.
 
     OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/realtime.py [--configs 100] [--seed 0]
+        [--episodes 20] [--against main] [--repeats 1]
 
 Cold: the default problem (problems/needle_regrasp.yaml: 40 steps of 50 ms, the limits enforced) and
 the first `--configs` configurations of problems/evaluations/evaluation.yaml at the same horizon,
 pace and limits, each solved by `solver.name: interior` (the interior-point method, IPOPT as its
 fallback) and by IPOPT (`solver.name: ipopt`, the reference and today's default) in the same run;
 the solve times (builds cached and not counted), the interior attempt's own status, iterations and
-time, and Tr(Sigma_T) of both.
+time, and Tr(Sigma_T) of both. An infeasibility verdict ends `solver.name: interior`'s solve (no
+IPOPT fallback); the separate IPOPT solve says whether it agrees. Where our Tr(Sigma_T) is above
+IPOPT's, the row IPOPT's plan breaks most (the interior point's rows, negative: beyond a limit).
+`--against REV`: the interior-point attempt alone of this checkout and of REV's
+surestep_ocp/solvers/interior.py (loaded beside it as a module), alternated per problem
+(`--repeats` timed solves each after a warm-up), for load-independent ratios.
 The 20 Hz loop: `--episodes` episodes of a `Planner` on the default problem (`solver.name:
 interior`) against a simulated tracker (seeds 0, 1, ...), a re-plan at every waypoint from the
 executed curve's state; per re-plan its time (builds apart) and whether it succeeded; per episode
@@ -23,6 +29,7 @@ from __future__ import annotations
 
 import harness as h  # first: one BLAS thread
 
+import os  # noqa: E402
 from dataclasses import replace  # noqa: E402
 
 import numpy as np  # noqa: E402
@@ -32,13 +39,32 @@ from surestep_ocp.model.limits import evaluate_curve  # noqa: E402
 H = 1e-3  # [s] sampling of the executed motion
 
 
-
-def cold(args) -> tuple[list[str], dict]:
-    """Every cold problem by both solvers: table lines and the figures."""
+def cold_problems(args) -> list:
+    """(name, problem): the default problem and the evaluation configurations at its horizon, pace
+    and limits."""
     problems = [("default", h.load_problem(h.DEFAULT_PROBLEM))]
     base = problems[0][1]
     for c, p in h.configurations(h.sampler(), args.configs, args.seed, horizon=base.horizon):
         problems.append((str(c), replace(p, timing=base.timing, limits=base.limits)))
+    return problems
+
+
+def worst_row(setup, q) -> float:
+    """The smallest of the interior point's rows at the plan q (scaled; negative: beyond)."""
+    from surestep_ocp.solvers.nlp_cache import interior_solver
+
+    solver = interior_solver(setup)
+    lo, hi, free = solver.bounds(setup.q_start)
+    sigma0 = setup.model.recursion_sigma0(setup.ocp.sigma0)
+    P = np.concatenate([setup.camera_parameter(), [1.0], sigma0])
+    return float(solver.constraints(np.asarray(q, float).ravel(), P, solver._lin_const(None, None),
+                                    solver._tool_offsets(None, None), setup.ocp.min_depth,
+                                    np.flatnonzero(free), lo, hi)[1].min())
+
+
+def cold(args) -> tuple[list[str], dict]:
+    """Every cold problem by both solvers: table lines and the figures."""
+    problems = cold_problems(args)
     rows, ours, ref, worse, failed, disagree, alone, own_ok = [], [], [], [], [], [], [], 0
     for name, prob in problems:
         setup = h.setup(h.with_solver(prob, name="interior"))
@@ -53,7 +79,7 @@ def cold(args) -> tuple[list[str], dict]:
         rel = (sol.trace_final / ipopt.trace_final - 1 if ipopt.success and sol.success
                else float("nan"))
         if sol.success and ipopt.success and rel > 1e-6:
-            worse.append((name, rel))
+            worse.append((name, rel, worst_row(setup, ipopt.joints)))
         if not sol.success:
             failed.append((name, sol.status, ipopt.status))
             if ipopt.success:
@@ -63,10 +89,13 @@ def cold(args) -> tuple[list[str], dict]:
         print(name, sol.status, f"{ours[-1]:.1f} ms", ipopt.status, f"{ref[-1]:.1f} ms",
               f"rel {rel:.1e}", flush=True)
     so, sr, sa = h.stats(ours), h.stats(ref), h.stats(alone)
+    worse_text = ", ".join(f"{n}: {r:.1e} (IPOPT's plan's lowest row {c:.1e})"
+                           for n, r, c in worse)
     lines = ["## Cold, within the limits (T = 40, 50 ms steps)", "",
              (f"{len(problems)} problems: the default and {args.configs} evaluation "
               f"configurations (seed {args.seed})."),
-             (f"solver.name: interior (IPOPT its fallback): median {so.median:.1f} ms, "
+             (f"solver.name: interior (IPOPT its fallback, not after an infeasibility verdict): "
+              f"median {so.median:.1f} ms, "
               f"p90 {so.p90:.1f} ms, worst {so.worst:.1f} ms; IPOPT in the "
               f"same run: median {sr.median:.1f} ms, worst {sr.worst:.1f} ms "
               f"(IPOPT / ours, medians: {sr.median / so.median:.1f}x). "
@@ -74,7 +103,7 @@ def cold(args) -> tuple[list[str], dict]:
               f"({', '.join(f'{n}: {s} (IPOPT {i})' for n, s, i in failed) or 'none'}); "
               f"of those, solved by IPOPT: {len(disagree)}. "
               f"Tr(Sigma_T) more than 1e-6 above IPOPT's: {len(worse)} "
-              f"({', '.join(f'{n}: {r:.1e}' for n, r in worse) or 'none'}). "
+              f"({worse_text or 'none'}). "
               f"The interior-point attempt alone: "
               f"converged on {own_ok} of {len(problems)}, median {sa.median:.1f} ms, "
               f"worst {sa.worst:.1f} ms."), "",
@@ -151,18 +180,99 @@ def loop(args) -> tuple[list[str], dict]:
                    "violations": bad}
 
 
+def against(args) -> list[str]:
+    """The interior-point attempt alone, this checkout's interior.py against `args.against`'s,
+    alternated per problem: table lines."""
+    import importlib.util
+    import subprocess
+    import sys
+    import tempfile
+    from pathlib import Path
+
+    import surestep_ocp.solvers.backends.interior_point as backend
+    import surestep_ocp.solvers.ocp as ocp_module
+    from surestep_ocp.solvers import nlp_cache
+    from surestep_ocp.solvers.strategy import Attempt, Start
+
+    src = subprocess.run(["git", "show", f"{args.against}:surestep_ocp/solvers/interior.py"],
+                         cwd=h.ROOT, check=True, capture_output=True, text=True).stdout
+    path = Path(tempfile.mkdtemp()) / "interior_against.py"
+    path.write_text(src)
+    spec = importlib.util.spec_from_file_location("surestep_ocp.solvers.interior_against", path)
+    other = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = other
+    spec.loader.exec_module(other)
+    built = {}
+
+    def other_solver(setup, moving=False):
+        ours = nlp_cache.interior_solver(setup, moving)
+        if id(ours) not in built:
+            built[id(ours)] = other.InteriorNewton(ours.newton, ours.robot, ours.dt, ours.limits,
+                                                   ours.moving, codegen=True)
+        return built[id(ours)]
+
+    strategy, solver = ocp_module.default_strategy, backend.interior_solver
+    ocp_module.default_strategy = lambda *a, **k: (Attempt("interior point", "interior",
+                                                           start=Start.GIVEN),)
+    rows, mine, theirs, its_mine, its_theirs = [], [], [], [], []
+    try:
+        for name, prob in cold_problems(args):
+            setup = h.setup(h.with_solver(prob, name="interior"))
+            res = {"this": [], "other": []}
+            for k in range(2 * (args.repeats + 1)):
+                variant = ("this", "other")[k % 2]
+                backend.interior_solver = solver if variant == "this" else other_solver
+                a = h.ocp(setup).attempts[0]
+                if k >= 2:  # after a warm-up of each
+                    res[variant].append((a.solve_time_s * 1e3, a.iterations, a.status))
+            t1, t0 = (float(np.median([r[0] for r in res[v]])) for v in ("this", "other"))
+            mine.append(t1)
+            theirs.append(t0)
+            its_mine.append(res["this"][0][1])
+            its_theirs.append(res["other"][0][1])
+            rows.append((name, f"{t0:.1f}", res["other"][0][1], res["other"][0][2], f"{t1:.1f}",
+                         res["this"][0][1], res["this"][0][2], f"{t1 / t0:.2f}"))
+            print("against", *rows[-1], flush=True)
+    finally:
+        ocp_module.default_strategy, backend.interior_solver = strategy, solver
+    a, b = h.stats(theirs), h.stats(mine)
+    return [f"## The interior point against {args.against}'s", "",
+            (f"`--against {args.against} --repeats {args.repeats}`: the interior-point attempt "
+             f"alone (no fallback) of {args.against}'s surestep_ocp/solvers/interior.py and of "
+             f"this checkout's, alternated per problem, the median of {args.repeats} timed "
+             f"solve(s) each after a warm-up: median {a.median:.1f} ms against this "
+             f"checkout's {b.median:.1f} ms (ratio of medians {b.median / a.median:.2f}; "
+             f"median of the per-problem ratios "
+             f"{float(np.median(np.array(mine) / np.array(theirs))):.2f}), worst {a.worst:.1f} "
+             f"against {b.worst:.1f} ms, iterations median {np.median(its_theirs):.0f} against "
+             f"{np.median(its_mine):.0f}, worst {max(its_theirs)} against {max(its_mine)}."), "",
+            *h.table(["problem", f"{args.against} ms", "its iterations", "its status",
+                      "this ms", "iterations", "status", "this / theirs"], rows), ""]
+
+
 def main() -> None:
     ap = h.parser(__doc__, configs=100, seed=0)
     ap.add_argument("--episodes", type=int, default=20)
+    ap.add_argument("--against", default=None,
+                    help="a git revision whose interior.py to alternate with this checkout's")
+    ap.add_argument("--repeats", type=int, default=1)
     args = ap.parse_args()
+    load = [os.getloadavg()[0]]  # the machine's load: absolute times depend on it
     lines = ["# Plans within the motion limits at tracker rate", "",
              (f"`OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/realtime.py "
-              f"--configs {args.configs} --seed {args.seed}` "
+              f"--configs {args.configs} --seed {args.seed} --episodes {args.episodes}"
+              f"{f' --against {args.against} --repeats {args.repeats}' if args.against else ''}` "
               f"(one BLAS thread; builds cached, not counted)."), ""]
     block, figs = cold(args)
-    lines += block
-    block, lp = loop(args)
-    lines += block
+    if args.against:
+        block += against(args)
+    load.append(os.getloadavg()[0])
+    block2, lp = loop(args)
+    load.append(os.getloadavg()[0])
+    lines += [(f"Load average (1 min) at the start, after the cold solves, at the end: "
+               f"{', '.join(f'{x:.2f}' for x in load)} on {os.cpu_count()} cores (above about 1: "
+               f"other work ran beside the benchmark, absolute times are inflated; "
+               f"`--against` gives ratios measured alternately)."), "", *block, *block2]
     last = h.last_line("realtime", h.key_values(
         cold_median_ms=f"{figs['cold_median_ms']:.1f}",
         cold_worst_ms=f"{figs['cold_worst_ms']:.1f}",

@@ -228,7 +228,9 @@ EXPECTED = {
     "newton": NEWTON + SURROGATE_THEN_EXACT,
     # enforced limits: no Newton under auto, no barrier retry; an infeasibility verdict is the
     # limits' (stop)
-    "auto, limits": INTERIOR + SURROGATE_THEN_EXACT[:2] + ["STOP"] + SURROGATE_THEN_EXACT[3:],
+    # (the interior point's own verdict stops too)
+    "auto, limits": INTERIOR + ["STOP"] + SURROGATE_THEN_EXACT[:2] + ["STOP"]
+    + SURROGATE_THEN_EXACT[3:],
     "newton, limits": NEWTON + SURROGATE_THEN_EXACT[:2] + ["STOP"] + SURROGATE_THEN_EXACT[3:],
     # a forced Hessian: its own runs only, no exact-Hessian attempt
     "gauss-newton": [("gauss-newton, monotone barrier", "ipopt", "gauss-newton", "init"),

@@ -25,6 +25,7 @@ from dataclasses import dataclass
 
 import casadi as ca
 import numpy as np
+import scipy.sparse as sp
 from scipy.linalg.lapack import dpbtrf, dpbtrs
 
 from ..model import limits as lm
@@ -50,9 +51,12 @@ FEASIBLE = "Feasible_Point_Found"
 # with `feasible_ok`, the steps that shrink a relaxation do not count against max_iter, up to this
 # many
 RELAXED_MAX = 30
-# the secant end-game (newton.py's SR1 correction of the surrogate Hessian) starts once the average
-# complementarity is this small and no row is relaxed
-SECANT_GAP = 1e-8
+# the secant end-game (newton.py's SR1 correction of the surrogate Hessian, the tool rows' exact
+# curvature) starts once the average complementarity is this small and no row is relaxed (1e-8
+# before: configuration 47 then crawled for 200 iterations at 1.5e-8 with Gauss-Newton's curvature,
+# and 86 stalled 2e-4 above IPOPT; most iterations over benchmarks/realtime.py's 101 problems at
+# 1e-8, 3e-8, 5e-8, 1e-7: 248, 81, 117, 113; docs/realtime.md)
+SECANT_GAP = 3e-8
 MAX_SOC = 4  # second-order corrections per iteration (IPOPT's max_soc)
 # `relax`: a start's rows below this (of their limit) get it as slack, the relaxation then shrinks
 RELAX_TO = 1e-2
@@ -147,37 +151,62 @@ class InteriorNewton:
         self.tool_nodes = np.array(windows)
         self.tool_weights = weights.T  # (2 WINDOW, points)
         self.tool_consts = consts  # (points, 4): position (v0, a0) weights, then velocity's
-        npts = self.n_pts
-        Qm, Dm, Lm = (ca.MX.sym("Q", nq, npts), ca.MX.sym("D", nq, npts),
+        npts, n = self.n_pts, self.n
+        # the linear rows as a sparse matrix
+        self.lin_map = sp.csr_matrix((self.lin_coef.ravel(),
+                                      (np.repeat(np.arange(self.n_lin), width),
+                                       self.lin_idx.ravel())), shape=(self.n_lin, n))
+        self.lin_map.eliminate_zeros()
+        # variable indices of each point's window (node-major)
+        self.tool_var = (self.tool_nodes[:, :, None] * nq
+                         + np.arange(nq)[None, None, :]).reshape(npts, -1)
+        # (points, 2, W): each point's weights of its window's nodes in q(s), then in q'(s)
+        self.point_cw = self.tool_weights.T.reshape(npts, 2, WINDOW)
+        # each point's (q(s), q'(s)) from the joints, point-major (in the compiled functions)
+        pr = np.arange(npts * nq).reshape(npts, 1, nq).repeat(WINDOW, 1)
+        pc = self.tool_var.reshape(npts, WINDOW, nq)
+        point_map = sp.coo_matrix(
+            (np.concatenate([(self.point_cw[:, 0, :, None] * np.ones(nq)).ravel(),
+                             (self.point_cw[:, 1, :, None] * np.ones(nq)).ravel()]),
+             (np.concatenate([pr.ravel(), pr.ravel() + npts * nq]),
+              np.concatenate([pc.ravel(), pc.ravel()]))), shape=(2 * npts * nq, n)).tocsc()
+        point_map.eliminate_zeros()
+        point_map.sort_indices()
+        Mq = ca.DM(ca.Sparsity(2 * npts * nq, n, point_map.indptr.tolist(),
+                               point_map.indices.tolist()), point_map.data)
+        # inputs: the joints, the points' offsets from the start's derivatives (2 nq, points)
+        Xm, Om, Lm = (ca.MX.sym("x", n), ca.MX.sym("off", 2 * nq, npts),
                       ca.MX.sym("L", self.tool_k, npts))
+        Y = ca.mtimes(Mq, Xm)
+        Qm = ca.reshape(Y[:npts * nq], nq, npts) + Om[:nq, :]
+        Dm = ca.reshape(Y[npts * nq:], nq, npts) + Om[nq:, :]
         f_val = ca.Function("tool", [qa, qd], [out])
-        # the rows' gradients and exact curvature, and the velocities (pv, vec(R)') with their
-        # Jacobian in (q, q') for the Gauss-Newton curvature, the cheaper one (their operation
-        # counts: docs/realtime.md, "The method")
-        f_der = ca.Function("tool_der", [qa, qd, lam],
-                            [ca.densify(ca.jacobian(out, y)),
-                             ca.densify(ca.hessian(ca.dot(lam, out), y)[0])])
+        # the velocities (pv, vec(R)') with their Jacobian in (q, q') for the Gauss-Newton
+        # curvature; the end-game adds the rest of the exact curvature, the Hessian of c . (pv,
+        # vec(R)') with c = (2 lam_0 pv, lam_1 vec(R)') held (their operation counts:
+        # docs/realtime.md, "The method")
         vel = ca.vertcat(pv, Rd)
         f_jac = ca.Function("tool_jac", [qa, qd], [vel, ca.densify(ca.jacobian(vel, y))])
-        fns = {"tool_rows": ca.Function("tool_rows", [Qm, Dm], [f_val.map(npts)(Qm, Dm)]),
-               "tool_derivs": ca.Function("tool_derivs", [Qm, Dm, Lm], f_der.map(npts)(Qm, Dm, Lm)),
-               "tool_jacs": ca.Function("tool_jacs", [Qm, Dm], f_jac.map(npts)(Qm, Dm))}
+        c_vel = ca.SX.sym("c", vel.shape[0])
+        h_res = ca.substitute(ca.hessian(ca.dot(c_vel, vel), y)[0], c_vel,
+                              ca.vertcat(2 * lam[0] * pv, lam[1] * Rd))
+        f_res = ca.Function("tool_res", [qa, qd, lam],
+                            [vel, ca.densify(ca.jacobian(vel, y)), ca.densify(h_res)])
+        L = self.lin_map.tocsc()
+        L.sort_indices()
+        lin_dm = ca.DM(ca.Sparsity(L.shape[0], n, L.indptr.tolist(), L.indices.tolist()), L.data)
+        # the tool rows and the linear rows (without their constant part)
+        fns = {"tool_rows": ca.Function("tool_rows", [Xm, Om], [f_val.map(npts)(Qm, Dm),
+                                                                 ca.mtimes(lin_dm, Xm)]),
+               "tool_jacs": ca.Function("tool_jacs", [Xm, Om], f_jac.map(npts)(Qm, Dm)),
+               "tool_res": ca.Function("tool_res", [Xm, Om, Lm], f_res.map(npts)(Qm, Dm, Lm))}
         self.codegen_note = None
         if codegen:
             fns, self.codegen_note = compiled_or_interpreted(fns, codegen_required)
-        self.tool_rows, self.tool_derivs = Buffered(fns["tool_rows"]), Buffered(fns["tool_derivs"])
-        self.tool_jacs = Buffered(fns["tool_jacs"])
-        # variable indices of each point's window (node-major), and the band layout (lower storage,
-        # half-bandwidth WINDOW nodes)
-        self.tool_var = (self.tool_nodes[:, :, None] * nq
-                         + np.arange(nq)[None, None, :]).reshape(npts, -1)
-        eye = np.eye(nq)
-        self.tool_map = np.array(  # (points, 2 nq, W nq)
-            [np.vstack([np.hstack([cw[m] * eye for m in range(WINDOW)]),
-                        np.hstack([cw[WINDOW + m] * eye for m in range(WINDOW)])])
-             for cw in self.tool_weights.T])
+        self.tool_rows, self.tool_jacs = Buffered(fns["tool_rows"]), Buffered(fns["tool_jacs"])
+        self.tool_res = Buffered(fns["tool_res"])
+        # the band layout (lower storage, half-bandwidth WINDOW nodes)
         self.bw = WINDOW * nq
-        n = self.n
         r, cc = np.meshgrid(np.arange(WINDOW * nq), np.arange(WINDOW * nq), indexing="ij")
         # the points of one piece share its window: their blocks are summed per window, then
         # scattered
@@ -188,7 +217,17 @@ class InteriorNewton:
             slot[p] = slot[p - 1] + 1 if self.point_window[p] == self.point_window[p - 1] else 0
         self.point_slot, self.n_windows, self.window_points = (slot, len(windows_u),
                                                                int(slot.max()) + 1)
-        self.window_start = np.flatnonzero(slot == 0)
+        # (points, 2 nq, W nq): each point's (q(s), q'(s)) from its window's waypoints
+        cw, eye = self.point_cw, np.eye(nq)
+        self.tool_map = np.concatenate([np.concatenate([cw[:, a, m, None, None] * eye
+                                                        for m in range(WINDOW)], axis=2)
+                                        for a in range(2)], axis=1)
+        # (windows, W W, points x (a, b)): C_pa[m] C_pb[n] of each window's points (zero-padded)
+        self.point_flat = self.point_window * self.window_points + slot
+        U = np.zeros((self.n_windows * self.window_points, 4, WINDOW * WINDOW))
+        U[self.point_flat] = np.einsum("pam,pbn->pabmn", cw, cw).reshape(npts, 4, -1)
+        self.window_weights = (U.reshape(self.n_windows, -1, WINDOW * WINDOW)
+                               .transpose(0, 2, 1).copy())
         if np.any(np.diff(self.point_window) < 0):
             raise ValueError("tool points are not ordered by window")
         wvar = (windows_u[:, :, None] * nq
@@ -211,7 +250,39 @@ class InteriorNewton:
         self.node_band = np.concatenate([(a - b) * n + t * nq + b for t in range(T + 1)])
         self.band_partner = np.minimum(np.arange(n)[None, :] + np.arange(self.bw)[:, None], n)
         self.rcm = lm.rcm_insertion_bound(robot, lim.rcm_min_distance)
+        self._jac_pattern(np.flatnonzero(self.bounds(None)[2]))
+        self._held = None  # (free indices, held mask, band entries outside the free block)
+        # one scatter of every band entry: the surrogate's, the linear rows', the nodes', the
+        # windows'
+        self.band_index = np.concatenate([self.h_band, self.lin_band, self.node_band,
+                                          self.tool_band])
         self.build_time_s = time.perf_counter() - t0
+
+    def _jac_pattern(self, idx: np.ndarray) -> None:
+        """The rows' Jacobian as CSR in `constraints`' order for the free variables `idx`: its
+        constant entries (bounds, linear rows) and the slots of the depths' and tool rows'."""
+        T, nq, nb = self.T, self.nq, len(idx)
+        L = self.lin_map
+        eye = sp.csr_matrix((np.ones(nb), (np.arange(nb), idx)), shape=(nb, self.n))
+        depth = sp.csr_matrix((np.ones((T - 1) * nq), (np.repeat(np.arange(T - 1), nq),
+                                                        np.arange(nq, T * nq))),
+                              shape=(T - 1, self.n))
+        tool = (self.tool_var[:, None, :].repeat(self.tool_k, 1)
+                .reshape(self.n_pts * self.tool_k, -1))
+        nnz_pre = 2 * nb + 2 * L.nnz
+        indptr = np.concatenate([eye.indptr, nb + eye.indptr[1:], 2 * nb + L.indptr[1:],
+                                 2 * nb + L.nnz + L.indptr[1:], nnz_pre + depth.indptr[1:],
+                                 nnz_pre + depth.nnz + tool.shape[1] * np.arange(
+                                     1, tool.shape[0] + 1)])
+        self.jac_idx = idx
+        self.jac = sp.csr_matrix((np.concatenate([eye.data, -eye.data, L.data, -L.data,
+                                                  np.zeros(depth.nnz + tool.size)]),
+                                  np.concatenate([eye.indices, eye.indices, L.indices, L.indices,
+                                                  depth.indices, tool.ravel()]), indptr),
+                                 shape=(len(indptr) - 1, self.n))
+        self.jac_T = self.jac.T  # the same entries (`_RowJacobian` writes them in place)
+        self.jac_depth = slice(nnz_pre, nnz_pre + depth.nnz)
+        self.jac_tool = slice(nnz_pre + depth.nnz, self.jac.nnz)
 
     # ---------------------------------------------------------------------------- constraint values
     def _lin_const(self, v0: np.ndarray | None, a0: np.ndarray | None) -> np.ndarray:
@@ -229,13 +300,6 @@ class InteriorNewton:
         C = self.tool_consts
         return np.vstack([np.outer(v0, C[:, 0]) + np.outer(a0, C[:, 1]),
                           np.outer(v0, C[:, 2]) + np.outer(a0, C[:, 3])])
-
-    def _points(self, x: np.ndarray, offsets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(nq, points) each tool point's joints q(s) and joint velocities q'(s) on the curve."""
-        X = x[self.tool_var].reshape(self.n_pts, WINDOW, self.nq)
-        cw = self.tool_weights
-        return (np.einsum("pmj,mp->jp", X, cw[:WINDOW]) + offsets[:self.nq],
-                np.einsum("pmj,mp->jp", X, cw[WINDOW:]) + offsets[self.nq:])
 
     def bounds(self, q_start: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(lower, upper, free mask) of the node-major joints: the interior moving joints free
@@ -255,9 +319,9 @@ class InteriorNewton:
         and upper, linear rows lower and upper: exact under linearisation), then the nonlinear ones
         (depths of the interior nodes, tool rows), which the method gives slacks."""
         f_y, z_y = self.newton.fz(x, P)
-        lin = self.lin_coef_dot(x) + lin_c
-        raw = self.tool_rows(*self._points(x, offsets))[0].reshape(self.tool_k, self.n_pts,
-                                                                    order="F")
+        raw, lin = self.tool_rows(x, offsets)
+        lin = lin + lin_c
+        raw = raw.reshape(self.tool_k, self.n_pts, order="F")
         tool = (self.tool_scale[:, None] / keep**2 * raw).ravel(order="F")
         return float(f_y[0]), np.concatenate([x[idx] - lo[idx], hi[idx] - x[idx],
                                               keep + lin, keep - lin,
@@ -274,7 +338,35 @@ class InteriorNewton:
         return float(c.min())
 
     def lin_coef_dot(self, x: np.ndarray) -> np.ndarray:
-        return np.einsum("ij,ij->i", self.lin_coef, x[self.lin_idx])
+        return self.lin_map @ x
+
+    def _tool_gradients(self, vel: np.ndarray, A: np.ndarray, tool_scale: np.ndarray
+                        ) -> tuple[np.ndarray, np.ndarray]:
+        """The compiled velocities and their Jacobian (flat) -> (points, 12, 2 nq) Jacobian and
+        (points, k, 2 nq) scaled gradients of the tool rows' g in each point's (q(s), q'(s))."""
+        nq = self.nq
+        vel = vel.reshape(12, self.n_pts, order="F")
+        A = A.reshape(12, 2 * nq, self.n_pts, order="F").transpose(2, 0, 1)
+        gy = np.stack([2 * np.einsum("vp,pvy->py", vel[:3], A[:, :3]),
+                       np.einsum("vp,pvy->py", vel[3:], A[:, 3:])], axis=1)
+        return A, gy * tool_scale[None, :, None]
+
+    def _to_window(self, Y: np.ndarray) -> np.ndarray:
+        """(points, r, 2 nq) derivatives in each point's (q(s), q'(s)) -> (points, r, W nq) in
+        its window's waypoints."""
+        return Y @ self.tool_map
+
+    def _window_sum(self, H: np.ndarray) -> np.ndarray:
+        """(points, 2 nq, 2 nq) Hessians in each point's (q(s), q'(s)) -> (windows, W nq, W nq)
+        in the windows' waypoints, summed over each window's points: sum_p K_p^T H_p K_p with
+        K_p = C_p kron I, i.e. sum_p,a,b (C_pa C_pb^T) kron H_p,ab, one product per window."""
+        nq, nw, npts = self.nq, self.n_windows, self.n_pts
+        V = np.zeros((nw * self.window_points, 4, nq * nq))
+        V[self.point_flat] = (H.reshape(npts, 2, nq, 2, nq).transpose(0, 1, 3, 2, 4)
+                              .reshape(npts, 4, nq * nq))
+        R = self.window_weights @ V.reshape(nw, -1, nq * nq)  # (windows, m n, i j)
+        return (R.reshape(nw, WINDOW, WINDOW, nq, nq).transpose(0, 1, 3, 2, 4)
+                .reshape(nw, self.bw, self.bw))
 
     # ---------------------------------------------------------------------------------------- solve
     def run(self, setup, init, v0=None, a0=None, tol: float = 1e-6, max_iter: int = 300,
@@ -345,24 +437,14 @@ class InteriorNewton:
             DZ, D2Z = DZ.reshape(T + 1, nq), D2Z.reshape(T + 1, nq, nq)
             wt = w[nd_ + T - 1:]
             wk = wt.reshape(self.n_pts, self.tool_k).T * tool_scale[:, None]  # (k, points)
-            if end_game:
-                gy, hy = self.tool_derivs(*self._points(x, offsets), wk)
-                gy = gy.reshape(self.tool_k, 2 * nq, self.n_pts, order="F")  # d g / d(q(s), q'(s))
-                # Hess of w . g
+            if end_game:  # the exact curvature beyond Gauss-Newton's: Hess of w . g - GN's
+                vel, A, hy = self.tool_res(x, offsets, wk)
                 hy = hy.reshape(2 * nq, 2 * nq, self.n_pts, order="F").transpose(2, 0, 1)
             else:
-                vel, A = self.tool_jacs(*self._points(x, offsets))
-                vel = vel.reshape(12, self.n_pts, order="F")
-                # (points, 12, 2 nq)
-                A = A.reshape(12, 2 * nq, self.n_pts, order="F").transpose(2, 0, 1)
-                gy = np.stack([2 * np.einsum("vp,pvy->yp", vel[:3], A[:, :3]),
-                               np.einsum("vp,pvy->yp", vel[3:], A[:, 3:])])
-                Ap, Ar = (A[:, :3] * np.sqrt(2 * wk[0])[:, None, None],
-                          A[:, 3:] * np.sqrt(wk[1])[:, None, None])
-            gy = gy * tool_scale[:, None, None]
-            K = self.tool_map  # (points, 2 nq, W nq): (q(s), q'(s)) from the window
-            # (k, W nq, points): the rows' gradients in the window
-            tj = np.einsum("kyp,pyw->kwp", gy, K)
+                vel, A = self.tool_jacs(x, offsets)
+            A, gy = self._tool_gradients(vel, A, tool_scale)
+            # (points, k, W nq): the rows' gradients in the window
+            tj = self._to_window(gy)
             g = np.bincount(nw.g_index, weights=G, minlength=n)  # grad f
             if secant is not None:
                 # the last step's secant pair, against the surrogate at this point
@@ -390,33 +472,27 @@ class InteriorNewton:
             # the reduced matrix in band storage: the surrogate, then sum (w / c) grad c grad c^T +
             # w Hess(-c)
             sig = w / s
-            ab = np.bincount(self.h_band, weights=HB[self.h_low],
-                             minlength=self.bw * n).reshape(self.bw, n)
-            ab[0, idx] += sig[:nb] + sig[nb:2 * nb]
             wl = sig[2 * nb:2 * nb + nl] + sig[2 * nb + nl:nd_]
-            ab += np.bincount(self.lin_band, weights=wl[self.lin_pair_row] * self.lin_pair,
-                              minlength=self.bw * n).reshape(self.bw, n)
             wd, zdn = np.zeros(T + 1), np.zeros(T + 1)
             wd[1:T], zdn[1:T] = sig[nd_:nd_ + T - 1], w[nd_:nd_ + T - 1]
             a_, b_ = nw.node_pairs
             blocks = wd[:, None, None] * DZ[:, :, None] * DZ[:, None, :] - zdn[:, None, None] * D2Z
-            ab += np.bincount(self.node_band, weights=blocks[:, a_, b_].ravel(),
-                              minlength=self.bw * n).reshape(self.bw, n)
             st = sig[nd_ + T - 1:].reshape(self.n_pts, self.tool_k)  # (points, k)
-            G_ = tj.transpose(2, 1, 0) * np.sqrt(st)[:, None, :]  # (points, W nq, k)
-            if end_game:  # per point sum_k (w/c) grad g grad g^T + w Hess g, summed per window
-                JJ = G_ @ G_.transpose(0, 2, 1) + K.transpose(0, 2, 1) @ hy @ K
-                JW = np.add.reduceat(JJ, self.window_start, axis=0)
-            else:
-                # Gauss-Newton: B^T B with B the scaled gradients and velocity Jacobians, per
-                # window; rows: (points, r, W nq)
-                rows = np.concatenate([G_.transpose(0, 2, 1), Ap @ K, Ar @ K], axis=1)
-                B = np.zeros((self.n_windows, self.window_points, rows.shape[1], self.bw))
-                B[self.point_window, self.point_slot] = rows
-                B = B.reshape(self.n_windows, -1, self.bw)
-                JW = B.transpose(0, 2, 1) @ B
-            ab += np.bincount(self.tool_band, weights=JW.reshape(self.n_windows, -1)[self.tool_low],
-                              minlength=self.bw * n).reshape(self.bw, n)
+            # the tool rows per point in (q(s), q'(s)): sum_k (w / c) grad g grad g^T and
+            # Gauss-Newton's w Hess g (the velocities' Jacobians weighted), the end-game's rest of
+            # it; then per window
+            wv = np.empty((self.n_pts, 12))
+            wv[:, :3], wv[:, 3:] = 2 * wk[0][:, None], wk[1][:, None]
+            Hp = ((A * wv[:, :, None]).transpose(0, 2, 1) @ A
+                  + (gy * st[:, :, None]).transpose(0, 2, 1) @ gy)
+            if end_game:
+                Hp += hy
+            JW = self._window_sum(Hp)
+            ab = np.bincount(self.band_index, weights=np.concatenate([
+                HB[self.h_low], wl[self.lin_pair_row] * self.lin_pair,
+                blocks[:, a_, b_].ravel(), JW.reshape(self.n_windows, -1)[self.tool_low]]),
+                minlength=self.bw * n).reshape(self.bw, n)
+            ab[0, idx] += sig[:nb] + sig[nb:2 * nb]
             factor = self._factor(ab, idx, shift)
             if factor is None:
                 status = "Singular_Hessian"
@@ -509,16 +585,20 @@ class InteriorNewton:
         """The banded matrix on the free variables (held ones: identity) factorised, shifted until
         positive definite: (solve(rhs), shift, its banded factor, the held mask) or None."""
         n = self.n
-        fixed = np.ones(n + 1, bool)
-        fixed[idx] = False
-        ab[fixed[:n][None, :] | fixed[self.band_partner]] = 0.0
-        fixed = fixed[:n]
+        if self._held is None or self._held[0] is not idx:
+            fixed = np.ones(n + 1, bool)
+            fixed[idx] = False
+            self._held = (idx, fixed[:n], fixed[:n][None, :] | fixed[self.band_partner])
+        _, fixed, outside = self._held
+        ab[outside] = 0.0
         ab[0, fixed] = 1.0
+        free = ~fixed
         shift = shift / 4 if shift > 1e-14 else 0.0
-        scale = max(float(np.max(np.abs(ab[0, ~fixed]))) if (~fixed).any() else 0.0, 1e-12)
+        scale = max(float(np.max(np.abs(ab[0, free]))) if free.any() else 0.0, 1e-12)
         while shift <= 1e12 * scale:
             shifted = ab.copy()
-            shifted[0, ~fixed] += shift
+            if shift:
+                shifted[0, free] += shift
             factor, info = dpbtrf(shifted, lower=1, overwrite_ab=1)
             if info == 0:
                 def solve(rhs, factor=factor):
@@ -530,35 +610,22 @@ class InteriorNewton:
 
 
 class _RowJacobian:
-    """The rows' Jacobian at one iterate, in the order of `InteriorNewton.constraints`: products
-    with it and with its transpose (bounds +-e_i, linear rows +-a_i, depths grad z, tool rows -grad
-    g)."""
+    """The rows' Jacobian at one iterate, in the order of `InteriorNewton.constraints` (bounds
+    +-e_i, linear rows +-a_i, depths grad z, tool rows -grad g): products with it and with its
+    transpose. Its entries are written into the solver's CSR matrix in place (valid until the next
+    iterate's)."""
 
     def __init__(self, ip: InteriorNewton, idx: np.ndarray, DZ: np.ndarray, tj: np.ndarray):
-        self.ip, self.idx, self.DZ, self.tj = ip, idx, DZ, tj
-        self.nb, self.nd, self.nl = len(idx), ip.T - 1, ip.n_lin
+        if ip.jac_idx is not idx and not np.array_equal(ip.jac_idx, idx):
+            ip._jac_pattern(idx)
+        self.J, self.JT = ip.jac, ip.jac_T
+        self.J.data[ip.jac_depth] = DZ[1:ip.T].ravel()
+        self.J.data[ip.jac_tool] = -tj.ravel()  # (points, k, W nq)
 
     def T(self, v: np.ndarray) -> np.ndarray:
         """sum_i v_i grad c_i"""
-        ip, nb, nd, nl, n = self.ip, self.nb, self.nd, self.nl, self.ip.n
-        out = np.zeros(n)
-        out[self.idx] += v[:nb] - v[nb:2 * nb]
-        lin = v[2 * nb:2 * nb + nl] - v[2 * nb + nl:2 * nb + 2 * nl]
-        out += np.bincount(ip.lin_idx.ravel(), weights=(ip.lin_coef * lin[:, None]).ravel(),
-                           minlength=n)
-        o = 2 * nb + 2 * nl
-        vd = np.zeros(ip.T + 1)
-        vd[1:ip.T] = v[o:o + nd]
-        out += (vd[:, None] * self.DZ).ravel()
-        vv = v[o + nd:].reshape(ip.n_pts, ip.tool_k).T  # (k, points)
-        contrib = np.einsum("kwp,kp->pw", self.tj, vv)
-        out -= np.bincount(ip.tool_var.ravel(), weights=contrib.ravel(), minlength=n)
-        return out
+        return self.JT @ v
 
     def dot(self, dx: np.ndarray) -> np.ndarray:
         """grad c_i . dx for every row"""
-        ip = self.ip
-        dd = (self.DZ * dx.reshape(ip.T + 1, ip.nq)).sum(axis=1)[1:ip.T]
-        dl = ip.lin_coef_dot(dx)
-        dt_ = -np.einsum("kwp,wp->pk", self.tj, dx[ip.tool_var].T).ravel()
-        return np.concatenate([dx[self.idx], -dx[self.idx], dl, -dl, dd, dt_])
+        return self.J @ dx

@@ -100,6 +100,8 @@ class _SecantCorrection:
 
     def __init__(self, n: int):
         self.U, self.w = np.zeros((n, 0)), np.zeros(0)
+        # (factor, U H^-1 terms) of the last `step`: the interior point solves twice per factor
+        self._last = None
 
     def update(self, s: np.ndarray, r_surrogate: np.ndarray) -> None:
         """Add the SR1 term for step s, given `y - H s` (H: the surrogate at the new point); skipped
@@ -110,18 +112,24 @@ class _SecantCorrection:
             return
         self.U = np.column_stack([self.U, r])[:, -SECANT_MEMORY:]
         self.w = np.append(self.w, 1.0 / den)[-SECANT_MEMORY:]
+        self._last = None
 
     def step(self, factor: np.ndarray, fixed: np.ndarray, z0: np.ndarray) -> np.ndarray | None:
         """`(H + A)^-1 (-g)` from `z0 = H^-1 (-g)` and H's banded Cholesky factor (held variables:
         identity rows, no correction), or None where `H + A` is not positive definite there."""
         if not self.w.size:
             return None
-        U = np.where(fixed[:, None], 0.0, self.U)
-        Z = dpbtrs(factor, U, lower=1)[0]
-        cap = np.diag(1.0 / self.w) + U.T @ Z
-        cap = 0.5 * (cap + cap.T)
-        ev = np.linalg.eigvalsh(cap)
-        if np.min(np.abs(ev)) <= 1e-12 * np.max(np.abs(ev)) or np.sum(ev < 0) != np.sum(self.w < 0):
+        if self._last is None or self._last[0] is not factor or self._last[1] is not fixed:
+            U = np.where(fixed[:, None], 0.0, self.U)
+            Z = dpbtrs(factor, U, lower=1)[0]
+            cap = np.diag(1.0 / self.w) + U.T @ Z
+            cap = 0.5 * (cap + cap.T)
+            ev = np.linalg.eigvalsh(cap)
+            ok = not (np.min(np.abs(ev)) <= 1e-12 * np.max(np.abs(ev))
+                      or np.sum(ev < 0) != np.sum(self.w < 0))
+            self._last = (factor, fixed, U, Z, cap, ok)
+        _, _, U, Z, cap, ok = self._last
+        if not ok:
             return None
         d = z0 - Z @ np.linalg.solve(cap, U.T @ z0)
         return d if np.all(np.isfinite(d)) else None
