@@ -34,10 +34,6 @@ from dataclasses import replace  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from surestep_ocp.model.limits import evaluate_curve  # noqa: E402
-
-H = 1e-3  # [s] sampling of the executed motion
-
 
 def cold_problems(args) -> list:
     """(name, problem): the default problem and the evaluation configurations at its horizon, pace
@@ -115,36 +111,6 @@ def cold(args) -> tuple[list[str], dict]:
                    "cold_worse": len(worse)}
 
 
-def executed(pieces, dt: float) -> np.ndarray:
-    """Joint samples every H seconds of the executed motion: each plan (start step, joints, start
-    state) from its start until the next one's."""
-    out = []
-    for i, (k, q, start) in enumerate(pieces):
-        end = pieces[i + 1][0] if i + 1 < len(pieces) else k + len(q) - 1
-        t = np.arange(round((end - k) * dt / H) + (i + 1 == len(pieces))) * H
-        out.append(evaluate_curve(q, dt, t, start=start)[0])
-    return np.vstack(out)
-
-
-def violations(setup, q: np.ndarray) -> int:
-    """Samples of the executed joints beyond a limit: joint bounds, joint velocities and
-    accelerations (finite differences), the tool's speed and rotation speed (Pinocchio's kinematics
-    every 5 ms); each beyond by more than the differencing error (0.1 % of the velocity limits, 1 %
-    of the acceleration ones)."""
-    lim, robot = h.problem_limits(setup), setup.robot
-    mov = robot.supporting_joints()
-    v = np.diff(q, axis=0)[:, mov] / H
-    a = np.diff(q, n=2, axis=0)[:, mov] / H**2
-    poses = np.array([robot.frame_pose(qi) for qi in q[::5]])
-    speed = np.linalg.norm(np.diff(poses[:, :3, 3], axis=0), axis=1) / (5 * H)
-    rel = np.einsum("nji,njk->nik", poses[:-1, :3, :3], poses[1:, :3, :3])
-    turn = np.arccos(np.clip((np.trace(rel, axis1=1, axis2=2) - 1) / 2, -1, 1)) / (5 * H)
-    return int(np.sum((q < robot.lower - 1e-9) | (q > robot.upper + 1e-9))
-               + np.sum(np.abs(v) > lim.velocity[mov] * 1.001 + 1e-6)
-               + np.sum(np.abs(a) > lim.acceleration[mov] * 1.01 + 1e-3)
-               + np.sum(speed > lim.tool_speed * 1.001) + np.sum(turn > lim.tool_rotation * 1.001))
-
-
 def loop(args) -> tuple[list[str], dict]:
     """The 20 Hz loop's episodes: table lines and the figures."""
     setup = h.setup(h.load_problem(h.DEFAULT_PROBLEM).with_solver(name="interior"))
@@ -155,7 +121,7 @@ def loop(args) -> tuple[list[str], dict]:
         dt = planner.setup.ocp.timing.step_s
         ep_times = [p.extras["replan"]["time_s"] * 1e3 for p in episode["plans"]]
         ep_failed = episode["summary"]["failed"]
-        n_bad = violations(planner.setup, executed(pieces, dt))
+        n_bad = h.violations(planner.setup, h.stitched(pieces, dt))
         s = h.stats(ep_times)
         late.append(planner.horizon - planner.setup.ocp.horizon)
         rows.append((seed, len(ep_times), ep_failed, f"{s.median:.1f}", f"{s.worst:.1f}", late[-1],
