@@ -98,26 +98,12 @@ class InteriorNewton:
         # linear rows on the extended vector of one joint (waypoints, then v_0, a_0 when moving), as
         # transcription.py
         dt, lim = step_s, limits
-        Rv, Ra = lm.curve_control_rows(T, dt, moving=moving)
-        v_scale = lim.velocity
-        slack = lim.velocity - lim.acceleration * dt / 2
-        if np.all(slack[mov] > 0):
-            # knot velocities within v_max - a_max dt / 2 (sufficient given the a rows)
-            Rv = lm.knot_derivatives(T, dt, moving)[0][1:T]
-            v_scale = slack
-        # per row: coefficients on x (node-major), the joint, the (v0, a0) part
-        rows, joints, ext = [], [], []
-        for R, scale in ((Rv, v_scale), (Ra, lim.acceleration)):
-            for row in R:
-                for j in mov:
-                    r = row / scale[j]
-                    rows.append(r[:T + 1])
-                    ext.append(r[T + 1:] if moving else np.zeros(2))
-                    joints.append(j)
-        W = np.array(rows)
-        big = np.abs(np.hstack([W, np.array(ext)])).max(axis=1, keepdims=True)
+        R, joints = lm.curve_limit_rows(T, dt, lim, mov, moving)
+        # per row: coefficients on the waypoints, the (v0, a0) part
+        W = R[:, :T + 1].copy()
+        E = R[:, T + 1:].copy() if moving else np.zeros((len(R), 2))
+        big = np.abs(np.hstack([W, E])).max(axis=1, keepdims=True)
         W[np.abs(W) < 1e-12 * big] = 0.0
-        E = np.array(ext)
         E[np.abs(E) < 1e-12 * big] = 0.0
         # rows that are 0 by construction (velocities at rest) or constant
         keep = np.any(W != 0, axis=1)

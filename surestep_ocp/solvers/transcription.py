@@ -203,28 +203,21 @@ class Transcription:
         self.curve = lm.CURVE_ROWS
         if self.curve not in ("curve", "steps"):
             raise SurestepError(f"limits.CURVE_ROWS must be 'curve' or 'steps', got {self.curve!r}")
-        v_scale = lim.velocity
         if self.curve == "curve":
-            Rv, Ra = lm.curve_control_rows(T, dt)
-            slack = lim.velocity - lim.acceleration * dt / 2
-            # the knot velocities within v_max - a_max dt / 2 (sufficient, fewer rows: |a| <= a_max
-            # everywhere, a knot is dt / 2 away at most)
-            if np.all(slack[mov] > 0):
-                Rv = lm.knot_derivatives(T, dt)[0][1:T]
-                v_scale = slack
+            rows, joints = lm.curve_limit_rows(T, dt, lim, mov)  # the interior point's too
         else:
             # (q_t+1 - q_t) / dt per step; acceleration at waypoint t, at rest before q_0 and after
             # q_T
-            Dv, Da = lm.knot_derivatives(T, dt)
             Rv = (np.eye(T + 1, k=1) - np.eye(T + 1))[:T] / dt
-            Ra = Da
+            Ra = lm.knot_derivatives(T, dt)[1]
+            rows = [row / scale[j] for R, scale in ((Rv, lim.velocity), (Ra, lim.acceleration))
+                    for row in R for j in mov]
+            joints = [j for R in (Rv, Ra) for _ in R for j in mov]
         blocks = []
-        for R, scale in ((Rv, v_scale), (Ra, lim.acceleration)):
-            for row in R:
-                for j in mov:
-                    B = np.zeros(n)
-                    B[[idx[m][j] for m in range(T + 1)]] = row / scale[j]
-                    blocks.append(B)
+        for row, j in zip(rows, joints):
+            B = np.zeros(n)
+            B[[idx[m][j] for m in range(T + 1)]] = row
+            blocks.append(B)
         self.A = np.array(blocks)
         # exact zeros, rounded
         self.A[np.abs(self.A) < 1e-12 * np.abs(self.A).max(axis=1, keepdims=True)] = 0.0

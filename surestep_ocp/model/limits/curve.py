@@ -136,6 +136,31 @@ def curve_control_rows(T: int, dt: float, pieces: dict | None = None,
     return out[0], out[1]
 
 
+def curve_limit_rows(T: int, dt: float, limits, joints, moving: bool = False
+                     ) -> tuple[np.ndarray, np.ndarray]:
+    """(rows, the joint of each row): the OCP's linear limit rows on one joint's extended vector
+    (its T+1 waypoints, then v_0 and a_0 when `moving`), each normalised by its limit, so that
+    |row . x_j| <= 1 keeps it; the one builder of the transcription's and the interior point's rows.
+
+    The knot velocities within v_max - a_max dt / 2 when that is positive for every joint in
+    `joints` (sufficient given the acceleration rows: |a| <= a_max everywhere and a knot is dt / 2
+    away at most; fewer rows), else the velocity quartic's control points; then the acceleration
+    cubic's control points (`curve_control_rows`). Rows ordered by kind, row, then joint."""
+    Rv, Ra = curve_control_rows(T, dt, moving=moving)
+    v_scale = limits.velocity
+    slack = limits.velocity - limits.acceleration * dt / 2
+    if np.all(slack[joints] > 0):
+        Rv = knot_derivatives(T, dt, moving)[0][1:T]
+        v_scale = slack
+    rows, which = [], []
+    for R, scale in ((Rv, v_scale), (Ra, limits.acceleration)):
+        for row in R:
+            for j in joints:
+                rows.append(row / scale[j])
+                which.append(j)
+    return np.array(rows), np.array(which)
+
+
 def curve_point_weights(T: int, dt: float, t: int, s: float,
                         moving: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """(m,) weights of one joint's waypoints (and start derivatives, `moving`) giving the curve's
