@@ -140,7 +140,9 @@ class ClosedLoop:
         the camera's moves since the plan was made) and its body-frame rotation."""
         poses = np.asarray(planner.plan.poses, float)
         j = t - planner.step
-        turn = (np.linalg.inv(self._camera(t)) @ self._camera(planner.step))[:3, :3]
+        # the camera a plan was made in: the first camera for the first plan
+        made_in = self.cameras[0] if planner.step == 0 else self._camera(planner.step)
+        turn = (np.linalg.inv(self._camera(t)) @ made_in)[:3, :3]
         R0, R1 = Rotation.from_rotvec(poses[j, 3:]), Rotation.from_rotvec(poses[j + 1, 3:])
         R = Rotation.from_rotvec(mean[3:]) * R0.inv() * R1
         return np.hstack([mean[:3] + turn @ (poses[j + 1, :3] - poses[j, :3]), R.as_rotvec()])
