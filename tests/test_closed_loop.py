@@ -241,3 +241,6 @@ def test_evaluate_runs_the_closed_loop_beside_the_open_loop(tmp_path, monkeypatc
     assert rp["replans"] >= 2 * 39 - rp["failed"] and rp["violations"] == 0
     assert len(rec["pos_errors"]["model"]["ocp-mpc"]) == 2
     assert "| ocp-mpc |" in table
+    # the closed loop's re-plans in the table, from the record
+    row = next(line for line in table.splitlines() if line.startswith("| ocp-mpc | `model` |"))
+    assert row.split(" | ")[2] == str(rp["replans"])

@@ -247,7 +247,39 @@ def markdown(records, methods, modes, header, spec) -> str:
             lines.append(f"| {m} | " + " | ".join(cells) + " |")
         lines.append("")
     lines += table2(records, methods, modes, gp, ga)
+    lines += closed_loop(records, methods, modes)
     return "\n".join(lines)
+
+
+def closed_loop(records, methods, modes) -> list[str]:
+    """The closed-loop methods' re-plans over every configuration and rollout, per mode: count,
+    kept the previous plan, longer than a step, the median of the configurations' median times, the
+    worst time, the most steps the goal moved later, executed samples beyond a limit."""
+    rows = []
+    for m in methods:
+        for mode in modes:
+            rp = [r["solves"][m]["replans"][mode] for r in records
+                  if mode in r["solves"].get(m, {}).get("replans", {})]
+            if not rp:
+                continue
+            med = [x["median_ms"] for x in rp if x["median_ms"] is not None]
+            worst = [x["worst_ms"] for x in rp if x["worst_ms"] is not None]
+            rows.append(f"| {m} | `{mode}` | {sum(x['replans'] for x in rp)} | "
+                        f"{sum(x['failed'] for x in rp)} | "
+                        f"{sum(x.get('late_replans', 0) for x in rp)} | "
+                        f"{_fmt(float(np.median(med)) if med else math.nan, '{:.1f}')} | "
+                        f"{_fmt(max(worst) if worst else math.nan, '{:.1f}')} | "
+                        f"{max(x['late_worst'] for x in rp)} | "
+                        f"{sum(x['violations'] for x in rp)} |")
+    if not rows:
+        return []
+    return ["## The closed loop's re-plans", "",
+            ("Every rollout of a closed-loop method re-plans at every step from its own belief "
+             "within the limits (surestep_ocp/evaluation/closed_loop.py); its executed motion is "
+             "checked against the limits by finite differences and Pinocchio's kinematics."), "",
+            "| method | mode | re-plans | kept the previous plan | longer than a step | median ms "
+            "(median over configurations) | worst ms | most steps later | executed samples beyond "
+            "a limit |", "|---|---|---|---|---|---|---|---|---|", *rows, ""]
 
 
 def table2(records, methods, modes, gp: float, ga: float) -> list[str]:
