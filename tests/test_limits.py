@@ -282,3 +282,38 @@ def test_bad_limits_sections_are_named_errors(write_problem, section, key):
     path = write_problem(lambda t: t.update(limits=section), "bad_limits")
     with pytest.raises(ProblemError, match=key.replace(".", r"\.")):
         load_problem(path)
+
+
+@pytest.mark.parametrize("moving", [False, True])
+def test_position_rows_are_the_curves_control_points_and_bound_it(moving):
+    """`curve_position_rows` are the quintic's interior Bernstein control points (against the power
+    coefficients of `curve_coefficients`), and the played curve (`evaluate_curve`, sampled densely)
+    stays between each piece's smallest and largest control point; centred and normalised, a curve
+    passing a bound between two waypoints breaks a row."""
+    from surestep_ocp.model.limits import curve_position_rows, evaluate_curve
+    from surestep_ocp.model.limits.curve import _to_bernstein, curve_coefficients
+
+    T, dt = 8, 0.05
+    rows, which, off = curve_position_rows(T, dt, [-0.5], [0.5], [0], moving)
+    assert rows.shape == (4 * T, T + 3 if moving else T + 1) and np.all(which == 0)
+    C, B = curve_coefficients(T, dt, moving), _to_bernstein(5)
+    for t in range(T):
+        np.testing.assert_allclose(rows[4 * t:4 * t + 4] * 0.5, (B @ C[t])[1:5], atol=1e-12)
+    rng = np.random.default_rng(3)
+    for _ in range(5):
+        x = np.cumsum(rng.normal(size=T + 1)) * 0.02
+        ext = np.r_[x, rng.normal(size=2) * 0.1] if moving else x
+        start = (np.array([ext[-2]]), np.array([ext[-1]])) if moving else None
+        tt = np.linspace(0, T * dt, 4001)
+        p = evaluate_curve(x[:, None], dt, tt, start=start)[0][:, 0]
+        ctrl = rows @ ext * 0.5  # the control points themselves (centre 0, half-range 0.5)
+        for t in range(T):
+            seg = p[(tt >= t * dt - 1e-12) & (tt <= (t + 1) * dt + 1e-12)]
+            hull = np.r_[x[t], ctrl[4 * t:4 * t + 4], x[t + 1]]
+            assert hull.min() - 1e-12 <= seg.min() and seg.max() <= hull.max() + 1e-12
+    # a joint at its upper bound at waypoints 4.. after rising: the curve passes the bound, a row
+    # says so
+    x = np.minimum(np.linspace(0, 0.9, T + 1), 0.5)
+    p = evaluate_curve(x[:, None], dt, np.linspace(0, T * dt, 4001))[0][:, 0]
+    rows, _, off = curve_position_rows(T, dt, [-0.5], [0.5], [0])
+    assert p.max() > 0.5 and np.max(np.abs(rows @ x + off)) > 1

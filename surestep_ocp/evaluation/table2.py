@@ -158,7 +158,7 @@ def closed_loop_rows(problem, k: int, rollouts: int, seed: int, detection, grasp
     changes = setup.camera_changes()
     policy = ClosedLoop(setup)
     once = setup.in_step_frames(np.asarray(policy.first_plan.poses, float))
-    start, goal = once[0], once[-1]
+    goal = once[-1]
     rows = {"ocp-robot-pace": {"solved": True, "rollouts": rollouts},
             "ocp-mpc": {"solved": True, "rollouts": rollouts, "replans": {}, "violations": 0}}
     for name, cell in rows.items():

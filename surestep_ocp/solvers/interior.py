@@ -99,6 +99,16 @@ class InteriorNewton:
         # transcription.py
         dt, lim = step_s, limits
         R, joints = lm.curve_limit_rows(T, dt, lim, mov, moving)
+        # the joint bounds on the curve between the waypoints (the insertion's lower one from the
+        # RCM distance, as `bounds`): centred rows, a constant each, no reserve
+        lower, upper = robot.lower.copy(), robot.upper.copy()
+        rcm = lm.rcm_insertion_bound(robot, lim.rcm_min_distance)
+        if rcm is not None:
+            lower[rcm[0]] = min(max(lower[rcm[0]], rcm[1]), upper[rcm[0]])
+        Rp, jp, off = lm.curve_position_rows(T, dt, lower, upper, mov, moving)
+        R, joints = np.vstack([R, Rp]), np.concatenate([joints, jp])
+        off = np.concatenate([np.zeros(len(R) - len(Rp)), off])
+        position = np.arange(len(R)) >= len(R) - len(Rp)
         # per row: coefficients on the waypoints, the (v0, a0) part
         W = R[:, :T + 1].copy()
         E = R[:, T + 1:].copy() if moving else np.zeros((len(R), 2))
@@ -108,6 +118,7 @@ class InteriorNewton:
         # rows that are 0 by construction (velocities at rest) or constant
         keep = np.any(W != 0, axis=1)
         self.lin_w, self.lin_ext, self.lin_joint = W[keep], E[keep], np.array(joints)[keep]
+        self.lin_off, self.lin_position = off[keep], position[keep]
         # per row: its (<= WINDOW) nonzero waypoints as variable indices and their coefficients
         nz = [np.flatnonzero(w) for w in self.lin_w]
         width = max(len(z) for z in nz)
@@ -272,11 +283,12 @@ class InteriorNewton:
 
     # ---------------------------------------------------------------------------- constraint values
     def _lin_const(self, v0: np.ndarray | None, a0: np.ndarray | None) -> np.ndarray:
-        """The linear rows' constant part from the start's velocity and acceleration (zero at
-        rest)."""
+        """The linear rows' constant part: from the start's velocity and acceleration (none at
+        rest), and the position rows' centring."""
         if not self.moving:
-            return np.zeros(self.n_lin)
-        return self.lin_ext[:, 0] * v0[self.lin_joint] + self.lin_ext[:, 1] * a0[self.lin_joint]
+            return self.lin_off.copy()
+        return (self.lin_ext[:, 0] * v0[self.lin_joint] + self.lin_ext[:, 1] * a0[self.lin_joint]
+                + self.lin_off)
 
     def _tool_offsets(self, v0, a0) -> np.ndarray:
         """(2 nq, points): each tool point's position and velocity offsets from the start's
@@ -309,8 +321,10 @@ class InteriorNewton:
         lin = lin + lin_c
         raw = raw.reshape(self.tool_k, self.n_pts, order="F")
         tool = (self.tool_scale[:, None] / keep**2 * raw).ravel(order="F")
+        # the reserve tightens the velocity and acceleration rows, not the joint bounds
+        keep_lin = np.where(self.lin_position, 1.0, keep) if keep != 1.0 else 1.0
         return float(f_y[0]), np.concatenate([x[idx] - lo[idx], hi[idx] - x[idx],
-                                              keep + lin, keep - lin,
+                                              keep_lin + lin, keep_lin - lin,
                                               z_y[1:self.T] - min_depth, 1.0 - tool])
 
     def start_margin(self, setup, init, v0=None, a0=None) -> float:

@@ -213,8 +213,16 @@ class Transcription:
             rows = [row / scale[j] for R, scale in ((Rv, lim.velocity), (Ra, lim.acceleration))
                     for row in R for j in mov]
             joints = [j for R in (Rv, Ra) for _ in R for j in mov]
+        # the joint bounds on the curve between the waypoints (the insertion's lower one from the
+        # RCM distance): |row . x + offset| <= 1 (the interior point's rows too)
+        lower, upper = self.robot.lower.copy(), self.robot.upper.copy()
+        rcm = lm.rcm_insertion_bound(self.robot, lim.rcm_min_distance)
+        if rcm is not None:
+            lower[rcm[0]] = min(max(lower[rcm[0]], rcm[1]), upper[rcm[0]])
+        Rp, jp, off = lm.curve_position_rows(T, dt, lower, upper, mov)
+        offsets = np.concatenate([np.zeros(len(rows)), off])
         blocks = []
-        for row, j in zip(rows, joints):
+        for row, j in zip([*rows, *Rp], [*joints, *jp]):
             B = np.zeros(n)
             B[[idx[m][j] for m in range(T + 1)]] = row
             blocks.append(B)
@@ -222,7 +230,8 @@ class Transcription:
         # exact zeros, rounded
         self.A[np.abs(self.A) < 1e-12 * np.abs(self.A).max(axis=1, keepdims=True)] = 0.0
         # rows that are 0 by construction (the velocities at rest)
-        self.A = self.A[np.any(self.A != 0, axis=1)]
+        nonzero = np.any(self.A != 0, axis=1)
+        self.A, self.A_offset = self.A[nonzero], offsets[nonzero]
         self.n_lin = len(self.A)
         qa, qd = ca.SX.sym("qa", nq), ca.SX.sym("qd", nq)
         Ta = self.robot.fk_expr(qa, self.robot.frame)
@@ -273,9 +282,9 @@ class Transcription:
     def g_bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """lbg, ubg: the equalities at 0, every normalised limit row at most 1 (the linear ones at
         least -1)."""
-        lo = np.concatenate([np.zeros(self.ng_eq), -np.ones(self.n_lin),
-                             np.full(self.n_tool, -np.inf)])
-        hi = np.concatenate([np.zeros(self.ng_eq), np.ones(self.n_lin + self.n_tool)])
+        off = self.A_offset if self.n_lin else np.zeros(0)
+        lo = np.concatenate([np.zeros(self.ng_eq), -1.0 - off, np.full(self.n_tool, -np.inf)])
+        hi = np.concatenate([np.zeros(self.ng_eq), 1.0 - off, np.ones(self.n_tool)])
         return lo, hi
 
     def _violation(self, g: np.ndarray) -> float:

@@ -161,6 +161,34 @@ def curve_limit_rows(T: int, dt: float, limits, joints, moving: bool = False
     return np.array(rows), np.array(which)
 
 
+def curve_position_rows(T: int, dt: float, lower, upper, joints, moving: bool = False
+                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(rows, the joint of each row, offsets): the joint bounds on the played curve between the
+    waypoints, as linear rows on one joint's extended vector (as `curve_limit_rows`): the interior
+    Bernstein control points b1..b4 of each step's quintic (b0, b5 are the waypoints), centred and
+    normalised, so that |row . x_j + offset| <= 1 keeps lower[j] <= b <= upper[j], and the curve
+    within the bounds everywhere (a polynomial lies between its smallest and largest control point).
+
+    With p' = dt v and p'' = dt^2 a at the knots: b1 = q_t + dt v_t / 5,
+    b2 = q_t + 2 dt v_t / 5 + dt^2 a_t / 20, and symmetrically b3, b4 from q_t+1."""
+    Dv, Da = knot_derivatives(T, dt, moving)
+    eye = np.eye(T + 1, Dv.shape[1])  # the waypoints in the extended vector
+    ctrl = []
+    for t in range(T):
+        q0, v0, a0 = eye[t], Dv[t] * dt, Da[t] * dt**2
+        q1, v1, a1 = eye[t + 1], Dv[t + 1] * dt, Da[t + 1] * dt**2
+        ctrl += [q0 + v0 / 5, q0 + 2 * v0 / 5 + a0 / 20, q1 - 2 * v1 / 5 + a1 / 20, q1 - v1 / 5]
+    lower, upper = np.asarray(lower, float), np.asarray(upper, float)
+    centre, half = (upper + lower) / 2, (upper - lower) / 2
+    rows, which, offsets = [], [], []
+    for b in ctrl:
+        for j in joints:
+            rows.append(b / half[j])
+            which.append(j)
+            offsets.append(-centre[j] / half[j])
+    return np.array(rows), np.array(which), np.array(offsets)
+
+
 def curve_point_weights(T: int, dt: float, t: int, s: float,
                         moving: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """(m,) weights of one joint's waypoints (and start derivatives, `moving`) giving the curve's
