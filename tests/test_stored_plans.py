@@ -8,8 +8,9 @@ enforced limits (joints moved by 1.3e-5 rad at most, Tr(Sigma_T) 9e-9 lower than
 default problem's `baseline` alone (`tests/stored_plans.py needle_regrasp/baseline`), when the
 baseline within enforced limits became the line at a minimum-jerk pace (issue 28; status
 `not optimised` for `Motion_Limits_Violated`, 41 waypoints as before); the default problem's `ocp`
-and `ocp-from-gradient` again when the joint bounds became rows on the played curve between the waypoints (joints moved by
-2.3e-6 rad, Tr(Sigma_T) equal to 1e-13 relative, status Solved_To_Acceptable_Level)."""
+and `ocp-from-gradient` again when the joint bounds became rows on the played curve between the
+waypoints (joints moved by 2.3e-6 rad, Tr(Sigma_T) equal to 1e-13 relative, status
+Solved_To_Acceptable_Level)."""
 
 from __future__ import annotations
 
