@@ -1,5 +1,6 @@
 """The curve played at a plan's pace (a quintic Hermite through the waypoints) and the linear rows
-that bound its velocity and acceleration (the OCP's limit rows, `CURVE_ROWS = "curve"`).
+that bound its velocity, acceleration and, between the waypoints, position (the OCP's limit rows,
+`CURVE_ROWS = "curve"`).
 
 `surestep export` plays it (`evaluate_curve`); the OCP's transcription bounds it
 (`curve_control_rows`, `curve_point_weights`); docs/motion_limits_and_export.md, "The curve and its
