@@ -44,9 +44,11 @@ def test_acceptable_stop_is_reported_as_such(enforced_default):
 
 
 def test_acceptable_plan_equals_a_tight_solve(enforced_default):
-    """Tr(Sigma_T) within 1e-6 of the same NLP solved to tol 1e-10 with the acceptable level off."""
+    """Tr(Sigma_T) within 1e-6 of the same NLP solved to tol 1e-9 with the acceptable level off (at
+    1e-10, with the joint bounds on the played curve as rows, IPOPT itself stops at an acceptable
+    point: the same Tr(Sigma_T) to 1e-15 relative, measured)."""
     setup, sol = enforced_default
-    tight_opts = {"ipopt.tol": 1e-10, "ipopt.acceptable_iter": 0, "ipopt.max_iter": 1000}
+    tight_opts = {"ipopt.tol": 1e-9, "ipopt.acceptable_iter": 0, "ipopt.max_iter": 1000}
     tr = transcription(setup, "condensed", tight_opts, hessian="surrogate")
     tight, _ = tr.solve(setup, ocp_initial_guess(setup))
     assert tight.status == "Solve_Succeeded", tight.status
