@@ -101,11 +101,9 @@ class InteriorNewton:
         R, joints = lm.curve_limit_rows(T, dt, lim, mov, moving)
         # the joint bounds on the curve between the waypoints (the insertion's lower one from the
         # RCM distance, as `bounds`): centred rows, a constant each, no reserve
-        lower, upper = robot.lower.copy(), robot.upper.copy()
-        rcm = lm.rcm_insertion_bound(robot, lim.rcm_min_distance)
-        if rcm is not None:
-            lower[rcm[0]] = min(max(lower[rcm[0]], rcm[1]), upper[rcm[0]])
-        Rp, jp, off = lm.curve_position_rows(T, dt, lower, upper, mov, moving)
+        self.joint_lower, self.joint_upper = lm.joint_bounds(robot, lim.rcm_min_distance)
+        Rp, jp, off = lm.curve_position_rows(T, dt, self.joint_lower, self.joint_upper, mov,
+                                             moving)
         R, joints = np.vstack([R, Rp]), np.concatenate([joints, jp])
         off = np.concatenate([np.zeros(len(R) - len(Rp)), off])
         position = np.arange(len(R)) >= len(R) - len(Rp)
@@ -246,7 +244,6 @@ class InteriorNewton:
         a, b = newton.node_pairs
         self.node_band = np.concatenate([(a - b) * n + t * nq + b for t in range(T + 1)])
         self.band_partner = np.minimum(np.arange(n)[None, :] + np.arange(self.bw)[:, None], n)
-        self.rcm = lm.rcm_insertion_bound(robot, lim.rcm_min_distance)
         self._jac_pattern(np.flatnonzero(self.bounds(None)[2]))
         self._held = None  # (free indices, held mask, band entries outside the free block)
         # one scatter of every band entry: the surrogate's, the linear rows', the nodes', the
@@ -302,11 +299,8 @@ class InteriorNewton:
     def bounds(self, q_start: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(lower, upper, free mask) of the node-major joints: the interior moving joints free
         within the joint limits (the insertion above the RCM bound), the others held."""
-        T, nq, robot = self.T, self.nq, self.robot
-        lo, hi = np.tile(robot.lower, T + 1), np.tile(robot.upper, T + 1)
-        if self.rcm is not None:
-            j, b = self.rcm
-            lo[j::nq] = np.minimum(np.maximum(lo[j::nq], b), hi[j::nq])
+        T, nq = self.T, self.nq
+        lo, hi = np.tile(self.joint_lower, T + 1), np.tile(self.joint_upper, T + 1)
         free = np.zeros((T + 1, nq), bool)
         free[1:T, self.mov] = True
         return lo, hi, free.ravel()

@@ -215,11 +215,8 @@ class Transcription:
             joints = [j for R in (Rv, Ra) for _ in R for j in mov]
         # the joint bounds on the curve between the waypoints (the insertion's lower one from the
         # RCM distance): |row . x + offset| <= 1 (the interior point's rows too)
-        lower, upper = self.robot.lower.copy(), self.robot.upper.copy()
-        rcm = lm.rcm_insertion_bound(self.robot, lim.rcm_min_distance)
-        if rcm is not None:
-            lower[rcm[0]] = min(max(lower[rcm[0]], rcm[1]), upper[rcm[0]])
-        Rp, jp, off = lm.curve_position_rows(T, dt, lower, upper, mov)
+        Rp, jp, off = lm.curve_position_rows(T, dt, *lm.joint_bounds(self.robot,
+                                                                      lim.rcm_min_distance), mov)
         offsets = np.concatenate([np.zeros(len(rows)), off])
         blocks = []
         for row, j in zip([*rows, *Rp], [*joints, *jp]):

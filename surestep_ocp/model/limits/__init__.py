@@ -49,6 +49,7 @@ from .values import (
     parse_overrides,
     problem_limits,
     rcm_insertion_bound,
+    joint_bounds,
     recorded_limits,
     urdf_velocity_limits,
 )
@@ -67,6 +68,7 @@ __all__ = [
     "curve_position_rows", "derivative_power",
     "enforce", "evaluate_curve",
     "is_psm", "knot_derivatives", "markdown_rows", "motion_limits", "parse_overrides",
-    "plan_report", "problem_limits", "rcm_insertion_bound", "recorded_limits", "rotation_angle",
+    "plan_report", "problem_limits", "rcm_insertion_bound", "joint_bounds", "recorded_limits",
+    "rotation_angle",
     "summary_row", "urdf_velocity_limits", "worst_violations",
 ]

@@ -247,3 +247,13 @@ def rcm_insertion_bound(robot, rcm_min_distance: float) -> tuple[int, float] | N
     s0 = float(np.dot(pts[0], axis)) - robot.lower[j]
     return j, rcm_min_distance - s0
 
+
+def joint_bounds(robot, rcm_min_distance: float) -> tuple[np.ndarray, np.ndarray]:
+    """(lower, upper) of every joint within enforced limits: the URDF's, the PSM's insertion raised
+    to `rcm_insertion_bound` (kept within its own range)."""
+    lower, upper = np.array(robot.lower, float), np.array(robot.upper, float)
+    rcm = rcm_insertion_bound(robot, rcm_min_distance)
+    if rcm is not None:
+        lower[rcm[0]] = min(max(lower[rcm[0]], rcm[1]), upper[rcm[0]])
+    return lower, upper
+
