@@ -20,8 +20,9 @@ from ..errors import SurestepError
 from ..model.limits import VIOLATED, enforce as enforce_limits
 from ..method_grammar import BASE_METHODS, CLOSED_LOOP_METHODS, split_name
 from .iterate import InitialGuess
-from .ocp import solve_ocp
+from .ocp import resolved_solver, solve_ocp
 from ..problem.setup import Setup
+from ..problem.solver_config import SolverName
 from ..output.solution import Solution
 
 COMPARE_METHODS = BASE_METHODS  # the open-loop plans
@@ -96,12 +97,10 @@ CLOSED_LOOP_NEEDS = ("ocp-mpc re-plans within enforced motion limits with the in
 def closed_loop_unavailable(setup: Setup) -> str | None:
     """Why a closed-loop method cannot re-plan this setup (None: it can): the `Planner`'s
     conditions for re-planning within the limits, said."""
-    from .ocp import resolved_solver  # ocp imports this module's neighbours; kept light
-
     resolved = resolved_solver(setup)
-    if not setup.ocp.limits.enforce or resolved.name not in ("auto", "interior"):
+    if not setup.ocp.limits.enforce or resolved.name not in (SolverName.AUTO, SolverName.INTERIOR):
         return CLOSED_LOOP_NEEDS
-    if not resolved.newton_fits:
+    if not resolved.interior_first:
         return ("ocp-mpc re-plans with the interior-point solver, which needs what newton "
                 "needs: the condensed form of a model with constant motion and observation maps, "
                 "noise.observation_noise: mean (not -expected), solver.hessian: auto and six "

@@ -39,7 +39,6 @@ from .ocp import resolved_solver, solve_ocp_warm
 from .strategy import records, replan_strategy
 from .strategy import run as run_strategy
 from ..problem.spec import Problem
-from ..problem.solver_config import SolverName
 from ..problem.setup import Setup, build_setup
 from ..output.solution import Solution, evaluate
 
@@ -85,8 +84,7 @@ class Planner:
         # within enforced limits, where the interior-point method applies (`solver.name` auto or
         # interior): it re-plans from the executed curve's state (docs/realtime.md); else a re-plan
         # runs the whole strategy
-        self.limited = bool(setup.ocp.limits.enforce and resolved.newton_fits
-                            and resolved.name in (SolverName.AUTO, SolverName.INTERIOR))
+        self.limited = bool(setup.ocp.limits.enforce and resolved.interior_first)
         for n in (range(self.horizon, 0, -1) if prebuild else [self.horizon]) if self.fast else ():
             self._solver(n, background=n != self.horizon)  # timed apart from the solves
         # every re-plan's structure
