@@ -175,9 +175,10 @@ def test_after_a_camera_move_the_replan_aims_at_the_goal_as_the_moved_camera_see
     replan = policy._replan
 
     def spy(i, planner, t, mean, cov, camera):
-        replan(i, planner, t, mean, cov, camera)
+        planner = replan(i, planner, t, mean, cov, camera)
         if planner.step == t:
             goals.append((t, np.asarray(planner.plan.poses[-1], float)))
+        return planner
 
     policy._replan = spy
     start, goal = policy.start_and_goal()

@@ -110,30 +110,33 @@ class ClosedLoop:
                     self._finish(i, planner)
                 continue
             if t > 0:
-                self._replan(i, planner, t, mean[i], cov[i], camera)
+                planner = self._replan(i, planner, t, mean[i], cov[i], camera)
             targets[i] = self._target(planner, t, mean[i])
             moving[i] = True
         return targets, moving
 
-    def _replan(self, i: int, planner: Planner, t: int, mean, cov, camera) -> None:
-        before = {k: planner.__dict__[k] for k in ("plan", "step", "_q", "_start", "horizon")}
+    def _replan(self, i: int, planner: Planner, t: int, mean, cov, camera) -> Planner:
+        """Rollout i's re-plan at step t on a copy of its Planner; the copy if it is kept, else the
+        Planner as it was (its previous plan runs on)."""
+        trial = copy.copy(planner)
         try:
-            sol = planner.replan(mean, cov, camera_pose=camera, step=t)
-        except SurestepError as exc:  # e.g. an estimate the checks reject: the previous plan runs
+            sol = trial.replan(mean, cov, camera_pose=camera, step=t)
+        except SurestepError as exc:  # e.g. an estimate the checks reject
             self.failures.append((t, i, str(exc)))
-            return
+            return planner
         took = sol.extras["replan"]["time_s"]
         self.times.append(took)
         if not sol.success:
             self.failures.append((t, i, sol.status))
-            return
+            return planner
         if self.deadline_s is not None and took > self.deadline_s:  # too late to run
-            planner.__dict__.update(before)
             self.failures.append((t, i, f"late ({took * 1e3:.1f} ms)"))
-            return
+            return planner
         st = sol.extras["start_state"]
         self.pieces[i].append((t, np.array(sol.q, float),
                                (np.array(st["velocity"]), np.array(st["acceleration"]))))
+        self.planners[i] = trial
+        return trial
 
     def _target(self, planner: Planner, t: int, mean: np.ndarray) -> np.ndarray:
         """The current plan's step t -> t+1 applied from the estimate: its displacement (turned by
