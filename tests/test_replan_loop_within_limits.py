@@ -13,7 +13,9 @@ from scipy.spatial.transform import Rotation
 
 import surestep_ocp as ss
 from surestep_ocp.model.limits import evaluate_curve, problem_limits
+from surestep_ocp.evaluation.tracker_loop import tracker_loop
 from surestep_ocp.model.limits.curve import TOOL_MARGIN
+from surestep_ocp.problem.setup import build_setup
 
 from limit_check import H, assert_within_limits, stitched as _stitched
 
@@ -22,21 +24,9 @@ from limit_check import H, assert_within_limits, stitched as _stitched
 def episode():
     problem = ss.load_problem("problems/needle_regrasp.yaml").with_solver(name="interior",
                                                                           codegen=False)
-    planner = ss.Planner(problem)
-    tracker = ss.SimulatedTracker(planner.setup.eval_model, planner.plan.poses[0], rng=0)
-    # (start step, joints, start state) of each plan
-    pieces = [(0, np.array(planner.plan.q, float), None)]
-    plans, k = [], 0
-    while k + 1 < planner.horizon:
-        k += 1
-        mean, cov = tracker.move_to(planner.plan.poses[k - planner.step])
-        plan = planner.replan(mean, cov, step=k)
-        plans.append(plan)
-        if plan.success:
-            st = plan.extras["start_state"]
-            pieces.append((k, np.array(plan.q, float),
-                           (np.array(st["velocity"]), np.array(st["acceleration"]))))
-    return planner, pieces, plans
+    # the loop `surestep replan` runs (evaluation/tracker_loop.py); the checks below are this file's
+    episode = tracker_loop(build_setup(problem), seed=0)
+    return episode["planner"], episode["pieces"], episode["plans"]
 
 
 def test_every_replan_succeeds_from_the_moving_robot(episode):
