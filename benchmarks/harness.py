@@ -44,6 +44,7 @@ The studies (benchmarks/README.md: each one's command and result files):
 - scenarios.py: `surestep compare` on every scenario file.
 - baseline_timing.py: the baseline within enforced limits: kept or lengthened, against toppra.
 - closed_loop.py: the simulated Table II with the closed loop (`ocp-mpc`) beside the open loop.
+- grasp_ceiling.py: the grasp success each type's best plan predicts from its own final belief.
 - plan_steps.py, large_rollout_errors.py, worst_rollout.py: where the evaluation's large rollout
   errors come from.
 - evaluation_limits.py, motion_limits_evaluation.py, execution_pace.py, rollout_variants.py:
@@ -87,8 +88,11 @@ from surestep_ocp.evaluation.tracker_loop import tracker_loop  # noqa: E402
 from surestep_ocp.evaluation.table2 import TYPES, success_table  # noqa: E402
 from surestep_ocp.evaluation.table2_figure import error_figure  # noqa: E402
 from surestep_ocp.evaluation.executed_motion import stitched, violations  # noqa: E402
+from surestep_ocp.evaluation.closed_loop import robot_pace  # noqa: E402
+from surestep_ocp.evaluation.configs import GRASP_ANGLE_RAD, GRASP_POSITION_M  # noqa: E402
 from surestep_ocp.model import limits as _limits  # noqa: E402
-from surestep_ocp.model.lie import np_exp  # noqa: E402
+from surestep_ocp.model.belief import unvech, vech  # noqa: E402
+from surestep_ocp.model.lie import np_exp, np_means  # noqa: E402
 from surestep_ocp.model.limits import motion_limits, plan_report, problem_limits  # noqa: E402
 from surestep_ocp.output.export import time_parametrise, within_position_limits  # noqa: E402
 from surestep_ocp.output.plots_motion import tool_speeds  # noqa: E402
@@ -121,7 +125,8 @@ __all__ = [
     "read_progress", "motion_limits", "plan_report", "problem_limits", "time_parametrise",
     "within_position_limits", "tool_speeds",
     "np_exp", "write_text_atomic", "time_optimal_law", "played_line",
-    "TYPES", "success_table", "error_figure", "stitched", "violations",
+    "TYPES", "success_table", "error_figure", "stitched", "violations", "robot_pace",
+    "GRASP_POSITION_M", "GRASP_ANGLE_RAD", "vech", "unvech", "np_means",
 ]
 
 # --- the test set ---------------------------------------------------------------------------------
