@@ -65,6 +65,11 @@ RELAX_TO = 1e-2
 STUCK_STEP, STUCK_ITER = 1e-3, 3
 # a step cut below this fraction: the next barrier parameter re-centres (no Mehrotra decrease)
 SHORT_STEP = 0.2
+# while the dual error is above the tolerance, the barrier parameter falls no lower than this times
+# it, nor than its last value: a complementarity far below the dual error leaves rows with tiny
+# slacks and multipliers that the Newton direction ignores and then runs into, 1 % of a step at a
+# time (tuned on benchmarks/realtime.py's 101 problems: 1e-4 and 1e-6 took more iterations)
+MU_PER_DUAL = 1e-5
 WINDOW = 4  # waypoints each curve piece depends on (t-1 .. t+2)
 
 
@@ -393,6 +398,7 @@ class InteriorNewton:
         tool_scale = self.tool_scale / keep**2
         P[CAMERA_PARAMETERS] = trace_ref = float(nw.step(x, P)[0][0])
         m = MU_INIT if mu0 is None else mu0
+        m_last = m  # the last iteration's barrier parameter
         push_lo = BOUND_PUSH * np.minimum(np.maximum(1.0, np.abs(lo)), hi - lo)
         push_hi = BOUND_PUSH * np.minimum(np.maximum(1.0, np.abs(hi)), hi - lo)
         nb, nl = len(idx), self.n_lin
@@ -479,15 +485,22 @@ class InteriorNewton:
             wv[:, :3], wv[:, 3:] = 2 * wk[0][:, None], wk[1][:, None]
             Hp = ((A * wv[:, :, None]).transpose(0, 2, 1) @ A
                   + (gy * st[:, :, None]).transpose(0, 2, 1) @ gy)
-            if end_game:
-                Hp += hy
             JW = self._window_sum(Hp)
             ab = np.bincount(self.band_index, weights=np.concatenate([
                 HB[self.h_low], wl[self.lin_pair_row] * self.lin_pair,
                 blocks[:, a_, b_].ravel(), JW.reshape(self.n_windows, -1)[self.tool_low]]),
                 minlength=self.bw * n).reshape(self.bw, n)
             ab[0, idx] += sig[:nb] + sig[nb:2 * nb]
-            factor = self._factor(ab, idx, shift)
+            factor = None
+            if end_game:
+                # the tool rows' exact curvature where the matrix with it is positive definite as
+                # it is, else Gauss-Newton's: shifted, the exact one gave short, gradient-like steps
+                JH = self._window_sum(hy).reshape(self.n_windows, -1)[self.tool_low]
+                exact = ab + np.bincount(self.tool_band, weights=JH,
+                                         minlength=self.bw * n).reshape(self.bw, n)
+                factor = self._factor(exact, idx, 0.0, may_shift=False)
+            if factor is None:
+                factor = self._factor(ab, idx, shift)
             if factor is None:
                 status = "Singular_Hessian"
                 break
@@ -522,6 +535,9 @@ class InteriorNewton:
                 # the last step was cut short (the iterate off the central path): re-centre at the
                 # current gap
                 m = max(MU_FINAL / 10, gap)
+            if err_d > tol and not stalled:
+                m = max(m, min(m_last, MU_PER_DUAL * err_d))
+            m_last = m
             dx, dc, dw = direction(m)
             tau = max(TAU_MIN, 1.0 - m)
             with np.errstate(divide="ignore", invalid="ignore"):
@@ -536,7 +552,8 @@ class InteriorNewton:
                 decrease (while rows are relaxed: the boundary fraction alone, the relaxation
                 shrinking with a), else None."""
                 d = a * dx
-                # the step, then its second-order corrections (at the first length)
+                # the step, then its second-order corrections (at every length: a row with a tiny
+                # slack breaks under the linearisation's error at any length)
                 for k in range(MAX_SOC + 1):
                     f_t, c_t = self.constraints(x + d, P, lin_c, offsets, min_depth, idx, lo, hi,
                                                 keep)
@@ -546,7 +563,7 @@ class InteriorNewton:
                             return x + d, c_t, a
                         v_t = f_t - m * float(np.sum(np.log(s_t)))
                         return (x + d, c_t, a) if v_t <= value + 1e-4 * a * slope else None
-                    if a < a_max or k == MAX_SOC or not np.all(s_t[:nd_] > 0):
+                    if k == MAX_SOC or not np.all(s_t[:nd_] > 0):
                         return None
                     e = np.zeros(nc)  # what the linearisation of the curved rows missed
                     e[nd_:] = c_t[nd_:] - (c[nd_:] + jac.dot(d)[nd_:])
@@ -575,9 +592,10 @@ class InteriorNewton:
         return InteriorRun(**{k: getattr(run, k) for k in NewtonRun.__dataclass_fields__},
                            multipliers=w, relaxed_iterations=relaxed_its)
 
-    def _factor(self, ab: np.ndarray, idx: np.ndarray, shift: float):
+    def _factor(self, ab: np.ndarray, idx: np.ndarray, shift: float, may_shift: bool = True):
         """The banded matrix on the free variables (held ones: identity) factorised, shifted until
-        positive definite: (solve(rhs), shift, its banded factor, the held mask) or None."""
+        positive definite (with `may_shift` false: only as it is): (solve(rhs), shift, its banded
+        factor, the held mask) or None."""
         n = self.n
         if self._held is None or self._held[0] is not idx:
             fixed = np.ones(n + 1, bool)
@@ -599,6 +617,8 @@ class InteriorNewton:
                     d = dpbtrs(factor, np.where(fixed, 0.0, rhs)[:, None], lower=1)[0][:, 0]
                     return d if np.all(np.isfinite(d)) else np.zeros(n)
                 return solve, shift, factor, fixed
+            if not may_shift:
+                return None
             shift = max(1e-8 * scale, 10 * shift)
         return None
 
