@@ -68,8 +68,8 @@ def test_newton_and_ipopt_reach_the_same_plan(plans):
 def test_each_plans_covariances_are_the_numpy_ekfs(small, plans, key):
     setup, _ = small
     sol = plans[key].solution
-    sig, _ = ref.propagate(np.asarray(sol.poses), setup.problem.noise,
-                           setup.problem.camera.intrinsics, guard=COSINE_GUARD)
+    sig, _ = ref.propagate(np.asarray(sol.poses), setup.ocp.noise,
+                           setup.ocp.intrinsics, guard=COSINE_GUARD)
     assert np.abs(sol.covariances - sig).max() <= 1e-9 * np.abs(sig).max()
     assert sol.trace_final == pytest.approx(np.trace(sig[-1]), rel=1e-9)
 
@@ -85,7 +85,7 @@ def test_each_backend_offers_where_it_ended(plans):
 def test_applies_says_why_newton_does_not_apply(small):
     setup, ctx = small
     assert BACKENDS["newton"].applies(ctx) is None and BACKENDS["ipopt"].applies(ctx) is None
-    spec = setup.problem.solver
+    spec = setup.ocp.solver
     cases = {"a redundant arm (7 joints)": resolve(spec, setup.model, 7),
              "the exact Hessian": resolve(replace(spec, hessian="exact"), setup.model, 6)}
     for case, r in cases.items():
