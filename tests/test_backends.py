@@ -1,8 +1,8 @@
 """The OCP solver backends (surestep_ocp.solvers.backends): every registered one keeps the `Backend`
-protocol; on one small problem Newton and IPOPT (another algorithm, with the exact Hessian) reach
-the same plan, and both plans' covariances are a plain NumPy EKF's (tests/numpy_ekf.py) along the
-plan's poses; `applies` says why Newton does not apply; and the solution file's attempt records read
-from the format before they were typed.
+protocol, and every solver name but `auto` has exactly one; on one small problem Newton and IPOPT
+(another algorithm, with the exact Hessian) reach the same plan, and both plans' covariances are a
+plain NumPy EKF's (tests/numpy_ekf.py) along the plan's poses; `applies` says why Newton does not
+apply; and the solution file's attempt records read from the format before they were typed.
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ from surestep_ocp.model.belief import COSINE_GUARD
 from surestep_ocp.output.attempt_record import AttemptRecord
 from surestep_ocp.output.solution import Solution
 from surestep_ocp.problem.setup import build_setup
-from surestep_ocp.problem.solver_config import resolve
+from surestep_ocp.problem.solver_config import SolverName, resolve
 from surestep_ocp.solvers.backends import BACKENDS, Backend, Context
 from surestep_ocp.solvers.iterate import Iterate
 from surestep_ocp.solvers.methods import ocp_initial_guess, run_method
@@ -53,6 +53,15 @@ def test_every_registered_backend_keeps_the_protocol(key):
         assert callable(getattr(backend, method))
         assert (list(inspect.signature(getattr(backend, method)).parameters)
                 == list(inspect.signature(getattr(Backend, method)).parameters)[1:])  # without self
+
+
+def test_every_solver_name_has_one_backend():
+    """`SolverName` is the one list of the solvers: every name but `auto` (a choice among them) has
+    exactly one backend, registered under it, and every backend's name is one of them."""
+    assert all(isinstance(b.name, SolverName) and key is b.name for key, b in BACKENDS.items())
+    names = [b.name for b in BACKENDS.values()]
+    assert sorted(names) == sorted(n for n in SolverName if n is not SolverName.AUTO)
+    assert BACKENDS["newton"] is BACKENDS[SolverName.NEWTON]  # the strategy's strings find them
 
 
 def test_newton_and_ipopt_reach_the_same_plan(plans):
