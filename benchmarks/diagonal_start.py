@@ -43,8 +43,8 @@ def main() -> None:
         t1 = time.perf_counter()
         plan = h.ocp(h.diagonal_model(setup), init)
         b = h.newton(setup).solve(setup, h.guess(plan.q, "diagonal model's plan"),
-                                  tol=setup.problem.solver.tol,
-                                  max_iter=setup.problem.solver.surrogate_max_iter)
+                                  tol=setup.ocp.solver.tol,
+                                  max_iter=setup.ocp.solver.surrogate_max_iter)
         t2 = time.perf_counter()
         t_default.append(t1 - t0)
         t_diag.append(t2 - t1)

@@ -30,7 +30,7 @@ def main() -> None:
         setup = h.config_setup(sampler, 0, i)
         sol = h.method(setup, "ocp")
         q = np.array(sol.q, float)
-        step = setup.problem.timing.step_s
+        step = setup.ocp.timing.step_s
         lim = h.motion_limits(setup.robot.urdf, setup.robot.joint_names)
         rep = h.plan_report(setup.robot, q, step, lim)
         t0 = time.perf_counter()

@@ -195,7 +195,7 @@ def with_solver(obj, **changes):
     """A problem, or a setup, with its `solver` settings changed."""
     if hasattr(obj, "solver"):
         return replace(obj, solver=replace(obj.solver, **changes))
-    return replace(obj, problem=with_solver(obj.problem, **changes))
+    return obj.with_ocp(solver=replace(obj.ocp.solver, **changes))
 
 
 # --- the methods ----------------------------------------------------------------------------------

@@ -36,7 +36,7 @@ def main() -> None:
                True: {"it": [], "t": [], "ok": 0, "f": []}}
         for c, problem in h.configurations(sampler, args.configs):
             setup = h.setup(variant(problem, noise, form, T))
-            init, solver, tol = h.initial_guess(setup), h.newton(setup), setup.problem.solver.tol
+            init, solver, tol = h.initial_guess(setup), h.newton(setup), setup.ocp.solver.tol
             runs = {False: [], True: []}
             for _ in range(args.repeats):  # interleaved
                 for sec in (False, True):

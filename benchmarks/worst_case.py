@@ -26,8 +26,8 @@ import numpy_ekf  # noqa: E402
 
 
 def ekf_trace(setup, poses) -> float:
-    n = setup.problem.noise
-    return float(np.trace(numpy_ekf.propagate(np.asarray(poses), n, setup.problem.camera.intrinsics,
+    n = setup.ocp.noise
+    return float(np.trace(numpy_ekf.propagate(np.asarray(poses), n, setup.ocp.intrinsics,
                                               guard=n.cosine_guard**2)[0][-1]))
 
 

@@ -14,15 +14,16 @@ from .errors import SolverError, SurestepError
 
 
 def _load(path: str):
+    """The problem file read, and its setup."""
     from .problem.load import load_problem
     from .problem.setup import build_setup
 
-    return build_setup(load_problem(path))
+    prob = load_problem(path)
+    return prob, build_setup(prob)
 
 
-def _inputs(setup, problem_path: str) -> list:
+def _inputs(prob, problem_path: str) -> list:
     """The files a command reads (an output must not replace any of them)."""
-    prob = setup.problem
     files = [problem_path, prob.robot.urdf]
     if prob.camera.ecm is not None:
         files.append(prob.camera.ecm.urdf)
@@ -37,7 +38,7 @@ LONG_HORIZON = 60
 
 
 def _long_work_note(setup) -> None:
-    T = setup.problem.horizon
+    T = setup.ocp.horizon
     if T > LONG_HORIZON:
         from .problem.parse import MAX_HORIZON
 
@@ -90,10 +91,10 @@ def _with_solver_flags(setup, args):
     file's."""
     from dataclasses import replace
 
-    spec = setup.problem.solver
+    spec = setup.ocp.solver
     spec = replace(spec, name=args.solver or spec.name, hessian=args.hessian or spec.hessian,
                    codegen=spec.codegen if args.codegen is None else args.codegen)
-    return replace(setup, problem=replace(setup.problem, solver=spec))
+    return setup.with_ocp(solver=spec)
 
 
 def cmd_solve(args) -> int:
@@ -103,9 +104,10 @@ def cmd_solve(args) -> int:
 
     method = _with_init(args.method, args.init)
     _check_ocp_flags([method], args, "--method")
-    setup = _with_solver_flags(_load(args.problem), args)
+    prob, setup = _load(args.problem)
+    setup = _with_solver_flags(setup, args)
     if args.output:  # before the work: a bad output path must not cost a solve
-        check_output_file(args.output, _inputs(setup, args.problem), "the solution")
+        check_output_file(args.output, _inputs(prob, args.problem), "the solution")
     _long_work_note(setup)
     sol = run_method(setup, method)
     base = run_method(setup, "baseline") if method != "baseline" else sol
@@ -130,8 +132,9 @@ def cmd_compare(args) -> int:
 
     methods = tuple(args.methods) if args.methods else COMPARE_METHODS
     _check_ocp_flags(methods, args, "--methods")
-    setup = _with_solver_flags(_load(args.problem), args)
-    inputs = _inputs(setup, args.problem)
+    prob, setup = _load(args.problem)
+    setup = _with_solver_flags(setup, args)
+    inputs = _inputs(prob, args.problem)
     out = check_output_dir(args.output_dir, inputs, "the comparison")
     for name in [f"{m}.json" for m in methods] + ["comparison.json", "comparison.md", "trace.png",
                                                   "path.png", "motion.png"]:
@@ -163,8 +166,9 @@ def cmd_replan(args) -> int:
 
     from .output.files import check_output_dir
 
-    setup = _with_solver_flags(_load(args.problem), args)
-    check_output_dir(args.output_dir, _inputs(setup, args.problem), "the re-planning")
+    prob, setup = _load(args.problem)
+    setup = _with_solver_flags(setup, args)
+    check_output_dir(args.output_dir, _inputs(prob, args.problem), "the re-planning")
     _long_work_note(setup)
     # a fixed camera: the tracker loop
     if not any(c is not None for c in setup.camera_changes() or ()):
@@ -193,8 +197,8 @@ def cmd_validate(args) -> int:
     bad = 0
     for path in args.problems:
         try:
-            setup = _load(path)
-            print(f"ok    {path}  (T={setup.problem.horizon}, goal depth {setup.x_goal[2]:.3f} m)")
+            _, setup = _load(path)
+            print(f"ok    {path}  (T={setup.ocp.horizon}, goal depth {setup.x_goal[2]:.3f} m)")
         except SurestepError as exc:  # every error of the file, one line each
             from .errors import error_lines
 
@@ -219,7 +223,7 @@ def cmd_show(args) -> int:
     if target.suffix in (".yaml", ".yml"):
         from .solvers.methods import run_method
 
-        setup = _load(str(target))
+        _, setup = _load(str(target))
         solutions = [run_method(setup, "baseline").to_dict()]
     return show(target, open_browser=args.open, html=Path(args.html) if args.html else None,
                 endoscope_view=args.endoscope_view, solutions=solutions,

@@ -47,11 +47,11 @@ def attach_motion_limits(setup: Setup, sol: Solution) -> None:
     if any(q is None for q in sol.q):
         sol.extras["motion_limits"] = {"skipped": "a waypoint has no IK solution "
                                                   "(see reachability)"}
-        if setup.problem.limits.enforce:
+        if setup.ocp.limits.enforce:
             enforce(setup, sol)
         return
-    q, step, limits = np.array(sol.q, float), setup.problem.timing.step_s, problem_limits(setup)
-    if setup.problem.limits.enforce:
+    q, step, limits = np.array(sol.q, float), setup.ocp.timing.step_s, problem_limits(setup)
+    if setup.ocp.limits.enforce:
         enforce(setup, sol, limits)
     else:
         sol.extras["motion_limits"] = plan_report(setup.robot, q, step, limits,

@@ -1,8 +1,8 @@
 """The OCP solver backends (surestep_ocp.solvers.backends): every registered one keeps the `Backend`
-protocol; on one small problem Newton and IPOPT (another algorithm, with the exact Hessian) reach
-the same plan, and both plans' covariances are a plain NumPy EKF's (tests/numpy_ekf.py) along the
-plan's poses; `applies` says why Newton does not apply; and the solution file's attempt records read
-from the format before they were typed.
+protocol, and every solver name but `auto` has exactly one; on one small problem Newton and IPOPT
+(another algorithm, with the exact Hessian) reach the same plan, and both plans' covariances are a
+plain NumPy EKF's (tests/numpy_ekf.py) along the plan's poses; `applies` says why Newton does not
+apply; and the solution file's attempt records read from the format before they were typed.
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ from surestep_ocp.model.belief import COSINE_GUARD
 from surestep_ocp.output.attempt_record import AttemptRecord
 from surestep_ocp.output.solution import Solution
 from surestep_ocp.problem.setup import build_setup
-from surestep_ocp.problem.solver_config import resolve
+from surestep_ocp.problem.solver_config import SolverName, resolve
 from surestep_ocp.solvers.backends import BACKENDS, Backend, Context
 from surestep_ocp.solvers.iterate import Iterate
 from surestep_ocp.solvers.methods import ocp_initial_guess, run_method
@@ -55,6 +55,15 @@ def test_every_registered_backend_keeps_the_protocol(key):
                 == list(inspect.signature(getattr(Backend, method)).parameters)[1:])  # without self
 
 
+def test_every_solver_name_has_one_backend():
+    """`SolverName` is the one list of the solvers: every name but `auto` (a choice among them) has
+    exactly one backend, registered under it, and every backend's name is one of them."""
+    assert all(isinstance(b.name, SolverName) and key is b.name for key, b in BACKENDS.items())
+    names = [b.name for b in BACKENDS.values()]
+    assert sorted(names) == sorted(n for n in SolverName if n is not SolverName.AUTO)
+    assert BACKENDS["newton"] is BACKENDS[SolverName.NEWTON]  # the strategy's strings find them
+
+
 def test_newton_and_ipopt_reach_the_same_plan(plans):
     newton, ipopt = plans["newton"].solution, plans["ipopt"].solution
     assert newton.success and ipopt.success, (newton.status, ipopt.status)
@@ -68,8 +77,8 @@ def test_newton_and_ipopt_reach_the_same_plan(plans):
 def test_each_plans_covariances_are_the_numpy_ekfs(small, plans, key):
     setup, _ = small
     sol = plans[key].solution
-    sig, _ = ref.propagate(np.asarray(sol.poses), setup.problem.noise,
-                           setup.problem.camera.intrinsics, guard=COSINE_GUARD)
+    sig, _ = ref.propagate(np.asarray(sol.poses), setup.ocp.noise,
+                           setup.ocp.intrinsics, guard=COSINE_GUARD)
     assert np.abs(sol.covariances - sig).max() <= 1e-9 * np.abs(sig).max()
     assert sol.trace_final == pytest.approx(np.trace(sig[-1]), rel=1e-9)
 
@@ -85,7 +94,7 @@ def test_each_backend_offers_where_it_ended(plans):
 def test_applies_says_why_newton_does_not_apply(small):
     setup, ctx = small
     assert BACKENDS["newton"].applies(ctx) is None and BACKENDS["ipopt"].applies(ctx) is None
-    spec = setup.problem.solver
+    spec = setup.ocp.solver
     cases = {"a redundant arm (7 joints)": resolve(spec, setup.model, 7),
              "the exact Hessian": resolve(replace(spec, hessian="exact"), setup.model, 6)}
     for case, r in cases.items():

@@ -40,7 +40,7 @@ def test_configurations_are_reachable_and_in_image(sampler):
         assert np.array_equal(cfg.q_goal, sampler.sample(0, i).q_goal)  # same draw every time
         # raises if a joint is outside its limits or a pose behind the camera
         setup = sampler.setup_of(cfg)
-        assert setup.problem.horizon == 20
+        assert setup.ocp.horizon == 20
         for q, x in ((cfg.q_start, setup.x_start), (cfg.q_goal, setup.x_goal)):
             assert np.all(q >= setup.robot.lower) and np.all(q <= setup.robot.upper)
             # the pose is the FK of a joint sample

@@ -61,7 +61,7 @@ def test_gradient_matches_finite_differences(setup, pose_loss):
     """A wrong CasADi gradient would make L-BFGS wander silently; check it against central
     differences."""
     _, loss_grad = build_loss(setup, setup.model, pose_loss,
-                              setup.problem.gradient.pose_loss_weight)
+                              setup.ocp.gradient.pose_loss_weight)
     rng = np.random.default_rng(0)
     d = np.diff(straight_line(setup.x_start, setup.x_goal, HORIZON), axis=0)
     d += rng.normal(scale=[5e-3] * 3 + [5e-2] * 3, size=d.shape)
@@ -111,7 +111,7 @@ def _with_gradient(setup, **kw):
     from surestep_ocp.problem.spec import GradientSpec
 
     spec = dataclasses.replace(GradientSpec(), **kw)
-    return dataclasses.replace(setup, problem=dataclasses.replace(setup.problem, gradient=spec))
+    return setup.with_ocp(gradient=spec)
 
 
 def test_gradient_keys_and_presets(tmp_path):

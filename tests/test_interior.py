@@ -40,7 +40,7 @@ def test_interior_point_plan_is_within_every_limit(plans):
     """The waypoints' finite differences (`plan_report`, not the solver's rows) and the played curve
     sampled densely (`enforce`'s check, recorded in the solution) are within every limit."""
     setup, sol, _ = plans
-    report = plan_report(setup.robot, sol.joints, setup.problem.timing.step_s,
+    report = plan_report(setup.robot, sol.joints, setup.ocp.timing.step_s,
                          problem_limits(setup), setup.robot.frame)
     assert report["ok"], report.get("violations")
     assert sol.extras["motion_limits"]["ok"] and sol.extras["motion_limits"]["enforced"]

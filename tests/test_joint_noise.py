@@ -44,9 +44,9 @@ def numpy_reference(setup, q):
     q = np.asarray(q, float)
     poses = np.array([setup.pose_of(qi) for qi in q])
     extra = [joint_motion_noise(setup.robot, setup.T_cam_base, q[t], q[t + 1],
-                                setup.problem.noise.joint_sigma)
+                                setup.ocp.noise.joint_sigma)
              for t in range(len(q) - 1)]
-    sig, _ = propagate(poses, setup.problem.noise, setup.problem.camera.intrinsics,
+    sig, _ = propagate(poses, setup.ocp.noise, setup.ocp.intrinsics,
                        guard=COSINE_GUARD, extra_W=extra)
     return sig
 
@@ -65,7 +65,7 @@ def test_joint_noise_matches_finite_differences_of_pinocchio():
     assert angles.max() > np.pi  # rotations past the cut are among them
     for t in range(len(q) - 1):
         ref = joint_motion_noise(setup.robot, setup.T_cam_base, q[t], q[t + 1],
-                                 setup.problem.noise.joint_sigma)
+                                 setup.ocp.noise.joint_sigma)
         got = unvech(W[t])
         assert np.max(np.abs(got - ref)) <= 1e-7 * np.max(np.abs(ref)), t
         assert np.min(np.linalg.eigvalsh(got)) >= -1e-15 * np.max(np.abs(ref))  # PSD

@@ -71,7 +71,7 @@ def test_lifted_form_converges_back_to_the_condensed_optimum(name):
     sol, _ = lifted.solve(setup, InitialGuess(q, "perturbed condensed optimum"))
     assert sol.success, sol.status
     assert sol.trace_final == pytest.approx(cond.trace_final, rel=1e-6)
-    sig, _ = propagate(np.array(sol.poses), setup.problem.noise, setup.problem.camera.intrinsics,
+    sig, _ = propagate(np.array(sol.poses), setup.ocp.noise, setup.ocp.intrinsics,
                        guard=COSINE_GUARD)
     assert sol.extras["ocp_trace_final"] == pytest.approx(np.trace(sig[-1]), rel=1e-6)
     assert sol.extras["constraint_violation"] < 1e-8

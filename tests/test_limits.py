@@ -46,7 +46,7 @@ def urdf_velocities(path: Path) -> dict[str, float]:
 def check_plan(setup, sol, velocity=None, accel=None, tool_speed=0.1, tool_rotation=math.pi / 2,
                rcm=0.045):
     """Assert every limit independently; return the peak ratios."""
-    dt = setup.problem.timing.step_s
+    dt = setup.ocp.timing.step_s
     names = sol.joint_names
     v_lim = {**urdf_velocities(setup.robot.urdf), **(velocity or {})}
     a_lim = {**ACCEL, **(accel or {})}
@@ -103,7 +103,7 @@ def played_curve(q, dt, per_step=200):
 def check_curve(setup, sol, velocity=None, accel=None, tool_speed=0.1, tool_rotation=math.pi / 2):
     """The played curve within the joint limits at every sample, and the tool's speed (chords of the
     FK over the samples); returns the peak ratios."""
-    dt = setup.problem.timing.step_s
+    dt = setup.ocp.timing.step_s
     names = sol.joint_names
     v_lim = np.array([{**urdf_velocities(setup.robot.urdf), **(velocity or {})}[n] for n in names])
     a_lim = np.array([{**ACCEL, **(accel or {})}[n] for n in names])
@@ -125,8 +125,8 @@ def check_curve(setup, sol, velocity=None, accel=None, tool_speed=0.1, tool_rota
 
 def check_solution(setup, sol):
     """The trace by the exact EKF along the plan's poses; the terminal equality."""
-    sig, _ = ref.propagate(np.asarray(sol.poses), setup.problem.noise,
-                           setup.problem.camera.intrinsics, guard=COSINE_GUARD)
+    sig, _ = ref.propagate(np.asarray(sol.poses), setup.ocp.noise,
+                           setup.ocp.intrinsics, guard=COSINE_GUARD)
     assert ref.rel_err(np.trace(sig[-1]), sol.trace_final) <= 1e-6
     assert np.abs(np.asarray(sol.poses[-1]) - setup.x_goal).max() <= 1e-6
 
@@ -134,8 +134,8 @@ def check_solution(setup, sol):
 def newton_attempt(setup) -> dict:
     """The same problem under `solver.name: newton`: its first attempt (Newton's unconstrained plan,
     then checked)."""
-    prob = replace(setup.problem, solver=replace(setup.problem.solver, name="newton"))
-    first = solve_ocp(build_setup(prob), ocp_initial_guess(setup)).attempts[0]
+    newton = setup.with_ocp(solver=replace(setup.ocp.solver, name="newton"))
+    first = solve_ocp(newton, ocp_initial_guess(setup)).attempts[0]
     assert first.label == "newton" and first.solver == "newton"
     return first
 
@@ -211,9 +211,9 @@ def test_rcm_distance_is_a_bound_on_the_insertion():
     j, bound = tr.rcm_bound
     assert (setup.robot.joint_names[j] == "insertion"
             and bound == pytest.approx(0.07 + 0.0156, abs=1e-9))
-    lbx, _ = tr.bounds(setup, np.ones(setup.problem.horizon + 1))
+    lbx, _ = tr.bounds(setup, np.ones(setup.ocp.horizon + 1))
     lo = tr.layout.split(lbx)
-    assert all(lo[f"q{t}"][j] == pytest.approx(0.0856) for t in range(1, setup.problem.horizon + 1))
+    assert all(lo[f"q{t}"][j] == pytest.approx(0.0856) for t in range(1, setup.ocp.horizon + 1))
     rng = np.random.default_rng(0)
     for _ in range(5):  # the distance does not depend on the other joints
         q = rng.uniform(setup.robot.lower, setup.robot.upper)

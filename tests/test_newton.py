@@ -30,8 +30,7 @@ DEFAULT = Path(__file__).resolve().parents[1] / "problems" / "needle_regrasp_pap
 
 
 def with_solver(setup, **kw):
-    return replace(setup, problem=replace(setup.problem,
-                                          solver=replace(setup.problem.solver, **kw)))
+    return setup.with_ocp(solver=replace(setup.ocp.solver, **kw))
 
 
 @pytest.fixture(scope="module")
@@ -42,14 +41,12 @@ def short():
 def test_newton_gradient_matches_finite_differences(short):
     """The assembled joint-space gradient (stage blocks scattered) is the objective's, by central
     differences."""
-    setup = replace(short, problem=replace(short.problem,
-                                           objective=replace(short.problem.objective,
-                                                             smoothness=0.2)))
+    setup = short.with_ocp(smoothness=0.2)
     ns = newton_solver(setup)
     q = np.asarray(ocp_initial_guess(setup).q, float)
     rng = np.random.default_rng(1)
     x = (q + 0.02 * rng.normal(size=q.shape)).ravel()
-    sigma0 = np.diag(setup.model.channel_variances(np.asarray(setup.problem.noise.Sigma0, float)))
+    sigma0 = np.diag(setup.model.channel_variances(np.asarray(setup.ocp.noise.Sigma0, float)))
     P = np.concatenate([setup.camera_parameter(), [3e-5], vech(sigma0)])
     _, _, G, _, _ = (v.copy() for v in ns.step(x, P))
     g = np.bincount(ns.g_index, weights=G, minlength=ns.n)
@@ -81,7 +78,7 @@ def test_newton_reaches_ipopts_optimum(horizon):
     np.testing.assert_array_equal(q[-1], np.asarray(init.q)[-1])
     assert np.all(q >= setup.robot.lower) and np.all(q <= setup.robot.upper)
     assert max(newton.terminal_error) <= 1e-9
-    assert min(p[2] for p in newton.poses) >= setup.problem.min_depth
+    assert min(p[2] for p in newton.poses) >= setup.ocp.min_depth
 
 
 def test_newton_keeps_the_depth_bound_with_its_barrier_run_when_violated():
@@ -103,7 +100,7 @@ def test_newton_keeps_the_depth_bound_with_its_barrier_run_when_violated():
     ipopt = solve_ocp(with_solver(setup, name="ipopt", options={"mu_strategy": "monotone"}), init)
     assert ipopt.success and ipopt.extras["solver"] == "ipopt"
     assert sol.trace_final == pytest.approx(ipopt.trace_final, rel=1e-6)
-    assert min(setup.pose_of(q)[2] for q in np.asarray(sol.q)) >= setup.problem.min_depth
+    assert min(setup.pose_of(q)[2] for q in np.asarray(sol.q)) >= setup.ocp.min_depth
     assert max(sol.terminal_error) <= 1e-9
 
 
@@ -141,8 +138,7 @@ def test_barrier_depth_derivatives_match_the_fk(short):
 
 
 def test_newton_needs_the_surrogate_model(short):
-    expected = replace(short, problem=replace(short.problem, noise=replace(short.problem.noise,
-                                                                           observation_noise="expected")))
+    expected = short.with_ocp(noise=replace(short.ocp.noise, observation_noise="expected"))
     with pytest.raises(SurestepError, match="newton"):
         solve_ocp(with_solver(expected, name="newton"), ocp_initial_guess(expected))
 
@@ -156,7 +152,7 @@ def test_newton_only_where_the_goal_fixes_the_last_joints(short):
     from surestep_ocp.solvers.ocp import resolved_solver
 
     assert resolved_solver(short).newton_fits
-    spec = short.problem.solver
+    spec = short.ocp.solver
     assert not resolve(replace(spec, hessian="exact"), short.model, 6).newton_fits
     assert not resolve(replace(spec, hessian="surrogate"), short.model, 6).newton_fits
     for n in (5, 7):
@@ -228,7 +224,7 @@ def test_newton_plans_non_diagonal_models_and_ipopt_agrees(name):
     init = ocp_initial_guess(newton)
     sol = solve_ocp(newton, init)
     assert sol.success and sol.extras["solver"] == "newton", (sol.status, sol.extras["hessian"])
-    sig, _ = propagate(np.array(sol.poses), newton.problem.noise, newton.problem.camera.intrinsics,
+    sig, _ = propagate(np.array(sol.poses), newton.ocp.noise, newton.ocp.intrinsics,
                        guard=COSINE_GUARD)
     assert sol.trace_final == pytest.approx(np.trace(sig[-1]), rel=1e-9)
     assert sol.extras["ocp_trace_final"] == pytest.approx(np.trace(sig[-1]), rel=1e-9)
@@ -255,7 +251,7 @@ def test_second_start_never_ends_above_the_diagonal_models_plan():
         plan = solve_ocp(approx, ocp_initial_guess(approx))
         sol = solve_ocp(corr, ocp_initial_guess(corr))
         assert sol.success and "second_start" in sol.extras
-        cam, noise = corr.problem.camera.intrinsics, corr.problem.noise
+        cam, noise = corr.ocp.intrinsics, corr.ocp.noise
         ref = np.trace(propagate(np.array(plan.poses), noise, cam, guard=COSINE_GUARD)[0][-1])
         own = np.trace(propagate(np.array(sol.poses), noise, cam, guard=COSINE_GUARD)[0][-1])
         assert own <= ref * (1 + 1e-6), c

@@ -60,14 +60,14 @@ def test_acceptable_plan_meets_every_limit(enforced_default):
     """The finite-difference report and the export's dense check of the played curve: within every
     limit, exported at its planned duration."""
     setup, sol = enforced_default
-    report = lm.plan_report(setup.robot, np.array(sol.q, float), setup.problem.timing.step_s,
+    report = lm.plan_report(setup.robot, np.array(sol.q, float), setup.ocp.timing.step_s,
                             lm.problem_limits(setup), tool_frame=setup.robot.frame)
     assert report["ok"], report["violations"][:3]
     q, _ = within_position_limits(np.array(sol.q, float), setup.robot)
-    traj = time_parametrise(q, setup.problem.timing.step_s, lm.problem_limits(setup),
+    traj = time_parametrise(q, setup.ocp.timing.step_s, lm.problem_limits(setup),
                             robot=setup.robot, tool_frame=setup.robot.frame)
     assert traj.timing == "planned"
-    assert traj.duration == pytest.approx(setup.problem.horizon * setup.problem.timing.step_s)
+    assert traj.duration == pytest.approx(setup.ocp.horizon * setup.ocp.timing.step_s)
 
 
 def test_transcription_cache_keys_on_the_row_kind(monkeypatch):

@@ -65,10 +65,10 @@ def test_solve_succeeds(solution):
 
 def test_waypoints_are_forward_kinematics_of_joints(solution, setup):
     """Every waypoint is where the arm really is: the camera-frame pose of Pinocchio FK of its q."""
-    model = pin.buildModelFromUrdf(str(setup.problem.robot.urdf))
+    model = pin.buildModelFromUrdf(str(setup.robot.urdf))
     data = model.createData()
-    fid = model.getFrameId(setup.problem.robot.frame)
-    T_cam_base = np.linalg.inv(setup.camera_pose) @ setup.problem.robot.base_pose
+    fid = model.getFrameId(setup.scene.robot.frame)
+    T_cam_base = np.linalg.inv(setup.camera_pose) @ setup.scene.robot.base_pose
     q, poses = np.asarray(solution.q), np.asarray(solution.poses)
     assert q.shape == (T + 1, setup.robot.nq) and poses.shape == (T + 1, 6)
     for qt, xt in zip(q, poses, strict=True):
@@ -88,7 +88,7 @@ def test_joints_inside_limits_and_start_fixed(solution, setup):
     np.testing.assert_allclose(q[0], setup.q_start, rtol=0, atol=1e-12)
     jaw = setup.robot.joint_names.index("jaw")
     np.testing.assert_allclose(q[:, jaw], setup.q_start[jaw], rtol=0, atol=1e-12)
-    assert np.all(np.asarray(solution.poses)[:, 2] >= setup.problem.min_depth - 1e-9)
+    assert np.all(np.asarray(solution.poses)[:, 2] >= setup.ocp.min_depth - 1e-9)
 
 
 def test_terminal_pose_is_the_goal(solution, setup):
@@ -104,11 +104,11 @@ def test_terminal_pose_is_the_goal(solution, setup):
 
 def test_trace_equals_numpy_ekf(solution, setup):
     """The reported Tr(Sigma_t) is the textbook EKF along the executed poses, all components."""
-    noise = setup.problem.noise
+    noise = setup.ocp.noise
     sig, _ = ref.propagate(
         np.asarray(solution.poses),
         noise,
-        setup.problem.camera.intrinsics,
+        setup.ocp.intrinsics,
         ref.ALL_COMPONENTS,
         guard=GUARD,
     )
@@ -130,8 +130,8 @@ def test_beats_straight_line_baseline(solution, baseline, setup):
     assert baseline.horizon == T
     sig_b, _ = ref.propagate(
         np.asarray(baseline.poses),
-        setup.problem.noise,
-        setup.problem.camera.intrinsics,
+        setup.ocp.noise,
+        setup.ocp.intrinsics,
         guard=GUARD,
     )
     assert baseline.trace_final == pytest.approx(np.trace(sig_b[-1]), rel=1e-9)

@@ -41,8 +41,8 @@ def _setup(sampler, c):
 
 
 def _ekf_trace(setup, poses) -> float:
-    n = setup.problem.noise
-    return float(np.trace(ref.propagate(np.asarray(poses), n, setup.problem.camera.intrinsics,
+    n = setup.ocp.noise
+    return float(np.trace(ref.propagate(np.asarray(poses), n, setup.ocp.intrinsics,
                                         guard=n.cosine_guard**2)[0][-1]))
 
 

@@ -10,6 +10,8 @@ from scipy.spatial.transform import Rotation
 
 from surestep_ocp.errors import ProblemError, SurestepError
 from surestep_ocp.problem.load import load_problem
+from surestep_ocp.problem.ocp_spec import OcpSpec
+from surestep_ocp.problem.scene import Scene
 from surestep_ocp.problem.setup import build_setup
 
 PROBLEMS_DIR = Path(__file__).resolve().parents[1] / "problems"
@@ -153,6 +155,26 @@ def test_default_problem_values(default_problem, default_setup):
     np.testing.assert_allclose(
         default_setup.pose_of(default_setup.q_start), default_setup.x_start, rtol=0, atol=1e-15
     )
+
+
+def test_a_setup_holds_its_ocp_data_and_scene_not_the_problem(default_problem, default_setup):
+    """`build_setup` turns the problem into what the solvers read (`OcpSpec`, the camera
+    intrinsics included) and what solution files record (`Scene`); `with_ocp` changes the OcpSpec
+    (Sigma_0 into the noise), rebuilds the models and refuses an unknown field."""
+    setup = default_setup
+    assert not hasattr(setup, "problem")
+    assert setup.ocp == OcpSpec.of(default_problem) and setup.scene == Scene.of(default_problem)
+    assert setup.ocp.intrinsics == default_problem.camera.intrinsics
+    assert setup.scene.robot.urdf == default_problem.robot.urdf_rel
+    assert setup.model.camera == setup.ocp.intrinsics and setup.model.noise == setup.ocp.noise
+    sigma0 = 2e-3 * np.eye(6)
+    changed = setup.with_ocp(horizon=5, smoothness=0.1, sigma0=sigma0)
+    assert (changed.ocp.horizon, changed.ocp.smoothness) == (5, 0.1)
+    np.testing.assert_array_equal(changed.model.noise.Sigma0, sigma0)
+    assert changed.scene is setup.scene and changed.ocp.source == setup.ocp.source
+    assert setup.ocp.horizon == default_problem.horizon  # the original unchanged
+    with pytest.raises(TypeError, match="unknown field.*intrinsics"):
+        setup.with_ocp(intrinsics=setup.ocp.intrinsics)
 
 
 # Monte-Carlo configuration files (not problems) live in problems/evaluations/, outside this glob

@@ -33,8 +33,8 @@ def test_zero_noise_reproduces_the_plan(default_setup, plan):
     """With every noise constant 0 (Sigma0 kept), true and estimated paths are the plan, in both
     modes."""
     z = np.zeros((6, 6))
-    noise = dataclasses.replace(default_setup.problem.noise, W_p0=z, W_o0=z, V_d0=z, V_f0=z, V_o0=z)
-    model = BeliefModel(noise, default_setup.problem.camera.intrinsics)
+    noise = dataclasses.replace(default_setup.ocp.noise, W_p0=z, W_o0=z, V_d0=z, V_f0=z, V_o0=z)
+    model = BeliefModel(noise, default_setup.ocp.intrinsics)
     for mode in ("model", "true"):
         ro = rollout(model, plan, default_setup.x_goal, n=7, rng=3, mode=mode, keep_paths=True)
         for path in (ro.true_path, ro.estimate_path):
@@ -155,9 +155,9 @@ def test_detection_changes_nothing_where_the_tool_is_always_seen(default_setup, 
     """Inside the image, far from its border, the detection model leaves the rollouts as they were
     (without the orientation and depth terms, whose centimetre position noise carries some
     measurements out of the image)."""
-    noise = dataclasses.replace(default_setup.problem.noise, V_o0=np.zeros((6, 6)),
+    noise = dataclasses.replace(default_setup.ocp.noise, V_o0=np.zeros((6, 6)),
                                 V_d0=np.zeros((6, 6)))
-    model = BeliefModel(noise, default_setup.problem.camera.intrinsics)
+    model = BeliefModel(noise, default_setup.ocp.intrinsics)
     central = plan.copy()
     # the default goal is near the right border: pull the plan toward the centre
     central[:, :2] *= 0.3
@@ -177,7 +177,7 @@ def moving():
 
     setup = build_setup(load_problem(Path(__file__).resolve().parents[1] / "problems"
                                      / "type4_camera_moves.yaml"))
-    plan = setup.in_step_frames(straight_line(setup.x_start, setup.x_goal, setup.problem.horizon))
+    plan = setup.in_step_frames(straight_line(setup.x_start, setup.x_goal, setup.ocp.horizon))
     return setup, plan
 
 
@@ -186,9 +186,9 @@ def test_camera_moves_without_noise_follow_the_plan(moving):
     through the moves."""
     setup, plan = moving
     z = np.zeros((6, 6))
-    noise = dataclasses.replace(setup.problem.noise, W_p0=z, W_o0=z, V_d0=z, V_f0=z, V_o0=z,
+    noise = dataclasses.replace(setup.ocp.noise, W_p0=z, W_o0=z, V_d0=z, V_f0=z, V_o0=z,
                                 camera_W_p0=z, camera_W_o0=z)
-    model = BeliefModel(noise, setup.problem.camera.intrinsics)
+    model = BeliefModel(noise, setup.ocp.intrinsics)
     changes = setup.camera_changes()
     assert sum(c is not None for c in changes) == 4
     ro = rollout(model, plan, n=3, rng=0, mode="true", keep_paths=True, changes=changes)
@@ -219,8 +219,8 @@ def test_measurements_outside_the_image_are_no_detection(default_setup, plan):
     """Gating: with an absurd FOV noise the sampled measurements mostly land outside the image, and
     those steps are predictions only (a camera cannot report a detection outside its own image);
     max_depth bounds depth."""
-    noise = dataclasses.replace(default_setup.problem.noise, V_f0=1e3 * np.eye(6))
-    model = BeliefModel(noise, default_setup.problem.camera.intrinsics)
+    noise = dataclasses.replace(default_setup.ocp.noise, V_f0=1e3 * np.eye(6))
+    model = BeliefModel(noise, default_setup.ocp.intrinsics)
     central = plan.copy()
     central[:, :2] *= 0.3
     ro = rollout(model, central, n=200, rng=2, mode="model", detection=Detection(margin=0.0))
@@ -243,8 +243,8 @@ def test_falloff_keeps_the_normal_draws_and_detects_at_its_probability(default_s
     rollouts are those without falloff, draw for draw; where it is 0.5 (Detection.probability, at
     every true pose of a noise-free rollout) half the steps are detected."""
     z = np.zeros((6, 6))
-    noise = dataclasses.replace(default_setup.problem.noise, W_p0=z, W_o0=z, V_d0=z, V_f0=z, V_o0=z)
-    still = BeliefModel(noise, default_setup.problem.camera.intrinsics)
+    noise = dataclasses.replace(default_setup.ocp.noise, W_p0=z, W_o0=z, V_d0=z, V_f0=z, V_o0=z)
+    still = BeliefModel(noise, default_setup.ocp.intrinsics)
     cam = still.camera
     central = plan.copy()
     central[:, :2] *= 0.3
@@ -295,9 +295,9 @@ def test_replan_hook_is_called_at_each_move_with_the_rollouts_own_belief(moving)
         assert cov.shape == (6, 6, 6) and np.all(np.linalg.eigvalsh(cov) > 0)
     # noise-free: the rollouts follow whatever the hook returns, from the step after the move
     z = np.zeros((6, 6))
-    noise = dataclasses.replace(setup.problem.noise, W_p0=z, W_o0=z, V_d0=z, V_f0=z, V_o0=z,
+    noise = dataclasses.replace(setup.ocp.noise, W_p0=z, W_o0=z, V_d0=z, V_f0=z, V_o0=z,
                                 camera_W_p0=z, camera_W_o0=z)
-    still = BeliefModel(noise, setup.problem.camera.intrinsics)
+    still = BeliefModel(noise, setup.ocp.intrinsics)
     # per rollout [m]
     offsets = np.array([0.0, 0.002, -0.004])[:, None] * np.array([1.0, -1.0, 0.5])
 
@@ -376,8 +376,8 @@ def test_a_pure_rotation_step_moves_the_position_by_angle_sqrt_W_o0(default_setu
     """Hand-computed: one step that only rotates (by 2 rad) with W_p0 = 0 perturbs the true position
     by 2 sqrt(W_o0) z_w[:3] (the paper's W^{o,0} = 1e-3 I is 6x6: 63 mm std here), and the EKF, not
     detecting (the plan is outside the image), keeps the waypoint and Sigma_0 + 4 W_o0."""
-    noise = dataclasses.replace(default_setup.problem.noise, W_p0=np.zeros((6, 6)))
-    model = BeliefModel(noise, default_setup.problem.camera.intrinsics)
+    noise = dataclasses.replace(default_setup.ocp.noise, W_p0=np.zeros((6, 6)))
+    model = BeliefModel(noise, default_setup.ocp.intrinsics)
     x0 = np.array([0.3, 0.0, 0.15, 0.0, 0.0, 0.5])  # 30 cm to the right: never detected
     x1 = x0.copy()
     x1[3:] = (Rotation.from_rotvec([2.0, 0.0, 0.0]) * Rotation.from_rotvec(x0[3:])).as_rotvec()

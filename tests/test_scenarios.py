@@ -22,7 +22,7 @@ def test_needle_pose_is_jaw_pose_composed_with_grasp():
     """The tracked needle's pose equals Pinocchio's jaw-frame pose times the grasp transform,
     symbolically too."""
     setup = build_setup(load_problem(PROBLEMS / "type2_needle_arm_moves.yaml"))
-    robot, grasp = setup.robot, setup.problem.robot.grasp
+    robot, grasp = setup.robot, setup.scene.robot.grasp
     rng = np.random.default_rng(4)
     fk = robot.fk_function()
     for _ in range(10):

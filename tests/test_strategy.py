@@ -45,8 +45,7 @@ def test_a_false_infeasibility_verdict_is_retried_with_the_monotone_barrier(monk
     import surestep_ocp.solvers.transcription as tr
 
     setup = build_setup(replace(load_problem(DEFAULT), horizon=6))
-    setup = replace(setup, problem=replace(setup.problem,
-                                           solver=replace(setup.problem.solver, name="ipopt")))
+    setup = setup.with_ocp(solver=replace(setup.ocp.solver, name="ipopt"))
     plain = solve_ocp(setup, ocp_initial_guess(setup))
     real, calls = tr.Transcription.solve, []
 
@@ -69,9 +68,9 @@ def test_a_false_infeasibility_verdict_is_retried_with_the_monotone_barrier(monk
 def _ipopt_monotone(setup):
     """IPOPT alone with its monotone barrier update: the central path Newton's barrier run
     follows."""
-    spec = setup.problem.solver
-    return replace(setup, problem=replace(setup.problem, solver=replace(
-        spec, name="ipopt", options={**spec.options, "mu_strategy": "monotone"})))
+    spec = setup.ocp.solver
+    return setup.with_ocp(solver=replace(spec, name="ipopt",
+                                         options={**spec.options, "mu_strategy": "monotone"}))
 
 
 def test_a_depth_violation_by_newton_goes_to_newton_on_the_barrier_problem():
@@ -90,10 +89,10 @@ def test_a_depth_violation_by_newton_goes_to_newton_on_the_barrier_problem():
     assert ipopt.extras["solver"] == "ipopt" and ipopt.success
     assert sol.trace_final == pytest.approx(ipopt.trace_final, rel=1e-6)
     depths = [setup.pose_of(q)[2] for q in np.asarray(sol.q)]
-    assert min(depths) >= setup.problem.min_depth
+    assert min(depths) >= setup.ocp.min_depth
     poses = np.asarray(sol.poses)
-    n = setup.problem.noise
-    ekf = np.trace(ref.propagate(poses, n, setup.problem.camera.intrinsics,
+    n = setup.ocp.noise
+    ekf = np.trace(ref.propagate(poses, n, setup.ocp.intrinsics,
                                  guard=n.cosine_guard**2)[0][-1])
     assert ekf == pytest.approx(sol.trace_final, rel=1e-9)
     assert sol.trace_final < solve_baseline(setup).trace_final
@@ -115,7 +114,7 @@ def test_a_failed_barrier_run_goes_to_ipopts_monotone_barrier(monkeypatch):
                      ("newton, depth barrier", "Maximum_Iterations_Exceeded"),
                      ("surrogate, monotone barrier", "Solve_Succeeded")]
     assert sol.extras["solver"] == "ipopt"
-    assert np.asarray(sol.poses)[:, 2].min() >= setup.problem.min_depth - 1e-8
+    assert np.asarray(sol.poses)[:, 2].min() >= setup.ocp.min_depth - 1e-8
 
 
 def test_newton_stops_early_below_the_depth_bound_and_the_fallback_meets_it(monkeypatch):
@@ -136,7 +135,7 @@ def test_newton_stops_early_below_the_depth_bound_and_the_fallback_meets_it(monk
     sol = solve_ocp(setup, init)
     assert sol.success and sol.attempts[0].status == "Depth_Bound_Violated"
     depths = [setup.pose_of(q)[2] for q in np.asarray(sol.q)]
-    assert min(depths) >= setup.problem.min_depth - 1e-7
+    assert min(depths) >= setup.ocp.min_depth - 1e-7
 
 
 # ------------------------------------------------------- the strategy as data (solvers/strategy.py)

@@ -22,7 +22,7 @@ def test_matrix_recursion_weights_match_a_numpy_ekf_and_finite_differences(name)
     """S(c) of the structured solvers (6x6 recursion) equals the NumPy EKF's trace for the same
     noise matrices, and its weights dS/dc equal central differences of that NumPy trace."""
     setup = build_setup(problem(4, **MODELS[name]))
-    m, n, T = setup.model, setup.problem.noise, 4
+    m, n, T = setup.model, setup.ocp.noise, 4
     assert m.structured and not m.scalar
     Wm, Vm = m.motion_matrices(), m.observation_matrices()
     rng = np.random.default_rng(0)

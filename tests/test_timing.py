@@ -77,7 +77,7 @@ def test_solution_trace_with_frames_matches_the_numpy_ekf(write_problem, default
     setup = build_setup(load_problem(path))
     sol = run_method(setup, "baseline")
     expected = sequential_ekf(np.asarray(sol.poses), default_problem.noise,
-                              setup.problem.camera.intrinsics, 4)
+                              setup.ocp.intrinsics, 4)
     np.testing.assert_allclose(sol.trace, np.trace(expected, axis1=1, axis2=2), rtol=1e-9, atol=0)
 
 

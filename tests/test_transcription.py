@@ -32,6 +32,10 @@ def with_solver(problem, **kw):
     return replace(problem, solver=replace(problem.solver, **kw))
 
 
+def setup_with_solver(setup, **kw):
+    return setup.with_ocp(solver=replace(setup.ocp.solver, **kw))
+
+
 @pytest.fixture(scope="module")
 def short():
     # IPOPT's Hessians
@@ -48,7 +52,7 @@ def residuals(setup, x0, x1) -> list[np.ndarray]:
     """Motion (step, relative rotation) then observation (depth, image offset, 1 - cos) residuals,
     NumPy, of two means `(p, Q)` (the NLP's variables); the cosine of scipy's principal rotation
     vector."""
-    n, cam = setup.problem.noise, setup.problem.camera.intrinsics
+    n, cam = setup.ocp.noise, setup.ocp.intrinsics
     rel = (rotation(x0).inv() * rotation(x1)).as_rotvec()
     o = np.asarray(n.o_star, float)
     r = rotation(x1).as_rotvec()
@@ -59,7 +63,7 @@ def residuals(setup, x0, x1) -> list[np.ndarray]:
 
 def trace_of_coefficients(setup, c: np.ndarray, T: int) -> float:
     """Tr(Sigma_T) of the scalar recursions given the (T, 5) noise coefficients."""
-    n = setup.problem.noise
+    n = setup.ocp.noise
     W = [np.diag(n.W_p0), np.diag(n.W_o0)]
     V = [np.diag(n.V_d0), np.diag(n.V_f0), np.diag(n.V_o0)]
     s = np.diag(np.asarray(n.Sigma0, float)).copy()
@@ -156,8 +160,7 @@ def test_staged_derivatives_equal_casadis_own(short, kind):
     """The stage-wise gradient, constraint Jacobian and kinematic/smoothness curvature (scattered
     stage blocks) equal what CasADi's AD derives from the whole NLP, at a perturbed point with
     random multipliers."""
-    setup = replace(short, problem=replace(short.problem, objective=replace(short.problem.objective,
-                                                                            smoothness=0.3)))
+    setup = short.with_ocp(smoothness=0.3)
     staged, exact = transcription(setup, hessian=kind), transcription(setup, hessian="exact")
     x0, scale = staged.guess(setup, np.asarray(ocp_initial_guess(setup).q))
     rng = np.random.default_rng(3)
@@ -286,13 +289,13 @@ def test_codegen_auto_follows_the_compiler(short, monkeypatch):
     compiler, or true with the exact Hessian, is an error (not a silent fallback)."""
     from surestep_ocp.solvers.nlp_cache import resolve_codegen
 
-    auto = replace(short, problem=with_solver(short.problem, codegen="auto"))
-    forced = replace(short, problem=with_solver(short.problem, codegen=True, hessian="exact"))
+    auto = setup_with_solver(short, codegen="auto")
+    forced = setup_with_solver(short, codegen=True, hessian="exact")
     assert resolve_codegen(auto, "exact") is False
     monkeypatch.setenv("CC", "no-such-compiler-here")
     assert resolve_codegen(auto, "surrogate") is False
     with pytest.raises(SurestepError, match="compiler"):
-        transcription(replace(short, problem=with_solver(short.problem, codegen=True)),
+        transcription(setup_with_solver(short, codegen=True),
                       hessian="surrogate", horizon=2)
     with pytest.raises(SurestepError, match="exact"):
         solve_ocp(forced, ocp_initial_guess(forced))
@@ -319,12 +322,12 @@ def test_codegen_auto_falls_back_when_the_compile_fails(short, monkeypatch, tmp_
     monkeypatch.setenv("CC", "false")
     monkeypatch.setenv("SURESTEP_CACHE", str(tmp_path))
     # a new structure
-    odd = replace(short.problem, objective=replace(short.problem.objective, smoothness=0.0123))
-    auto = replace(short, problem=with_solver(odd, codegen="auto", hessian="surrogate"))
+    odd = short.with_ocp(smoothness=0.0123)
+    auto = setup_with_solver(odd, codegen="auto", hessian="surrogate")
     sol = solve_ocp(auto, ocp_initial_guess(auto))
     assert (sol.success and sol.extras["compiled"] is False
             and "failed" in sol.extras["codegen_note"])
-    forced = replace(short, problem=with_solver(odd, codegen=True, hessian="surrogate"))
+    forced = setup_with_solver(odd, codegen=True, hessian="surrogate")
     with pytest.raises(SurestepError, match="failed on the generated code"):
         solve_ocp(forced, ocp_initial_guess(forced))
 
@@ -404,7 +407,7 @@ def test_isotropic_noise_with_a_full_sigma0_runs_scalar_recursions_on_its_eigenv
     assert resolve_form(setup.model, "auto") == "condensed"
     sol = solve_ocp(setup, ocp_initial_guess(setup))
     assert sol.success, sol.status
-    sig, _ = propagate(np.array(sol.poses), setup.problem.noise, setup.problem.camera.intrinsics,
+    sig, _ = propagate(np.array(sol.poses), setup.ocp.noise, setup.ocp.intrinsics,
                        guard=COSINE_GUARD)
     assert sol.extras["ocp_trace_final"] == pytest.approx(np.trace(sig[-1]), rel=1e-9)
     assert sol.trace_final == pytest.approx(np.trace(sig[-1]), rel=1e-9)
@@ -416,6 +419,6 @@ def test_isotropic_noise_with_a_full_sigma0_runs_scalar_recursions_on_its_eigenv
     assert (not aniso.model.scalar and aniso.model.structured
             and resolve_form(aniso.model, "auto") == "condensed")
     expected = build_setup(replace(prob, horizon=6,
-                                   noise=replace(aniso.problem.noise,
+                                   noise=replace(aniso.ocp.noise,
                                                  observation_noise="expected")))
     assert not expected.model.structured and resolve_form(expected.model, "auto") == "full"

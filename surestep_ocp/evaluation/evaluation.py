@@ -88,7 +88,7 @@ def executed_poses(setup, poses, pace: str) -> np.ndarray:
     if pace == "planned":
         return poses
     lim = problem_limits(setup)
-    return paced(poses, setup.problem.timing.step_s, lim.tool_speed, lim.tool_rotation)
+    return paced(poses, setup.ocp.timing.step_s, lim.tool_speed, lim.tool_rotation)
 
 
 def evaluate_configuration(eval_path: str, seed: int, index: int, methods: tuple[str, ...],

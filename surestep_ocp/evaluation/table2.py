@@ -59,7 +59,7 @@ def plans(setup, methods=METHODS, replanned: bool = False) -> dict:
     for m in methods:
         if m == "gradient-paper":
             spec = replace(GradientSpec(), **GRADIENT_PRESETS["paper"], preset="paper")
-            s = replace(setup, problem=replace(setup.problem, gradient=spec))
+            s = setup.with_ocp(gradient=spec)
             sol = run_method(s, "gradient")
         else:
             sol = run_method(setup, m)

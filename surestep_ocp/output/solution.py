@@ -15,6 +15,7 @@ from ..errors import SurestepError, shown
 from ..model.belief import entropy
 from ..model.lie import matrix_to_pose, np_angle, np_exp_many, np_log_many, pose_to_matrix
 from ..model.limits import recorded_limits
+from ..problem.scene import ArmRecord
 from ..problem.setup import Setup
 from .attempt_record import AttemptRecord
 from .files import check_finite, check_replaceable
@@ -177,7 +178,7 @@ def _cov_json(M: np.ndarray):
 
 
 def noise_dict(setup: Setup) -> dict:
-    n = setup.problem.noise
+    n = setup.ocp.noise
     d = {k: _cov_json(getattr(n, k)) for k in ("W_p0", "W_o0", "V_d0", "V_f0", "V_o0", "V_min",
                                                "Sigma0")}
     d.update(depth_star=n.depth_star, o_star=list(n.o_star),
@@ -187,6 +188,12 @@ def noise_dict(setup: Setup) -> dict:
     if setup.model.joint_noise:
         d["joint_motion_sigma"] = list(n.joint_sigma)
     return d
+
+
+def _needle(arm: ArmRecord) -> dict:
+    """A needle as the solution file records it: its radius [m] and its 4x4 pose in the arm's
+    frame."""
+    return {"radius": arm.needle_radius, "grasp": arm.grasp.tolist()}
 
 
 def _principal(poses: np.ndarray) -> np.ndarray:
@@ -231,40 +238,38 @@ def evaluate(
     sig = (setup.eval_model.propagate(poses, setup.camera_changes(),
                                       joint=joint)[0] if sigma is None
            else np.asarray(sigma))
-    prob = setup.problem
+    ocp, scene = setup.ocp, setup.scene
     noise = noise_dict(setup)
     if components is not None:
         noise["components"] = list(components)
-    robot = {"urdf": prob.robot.urdf_rel, "frame": prob.robot.frame,
+    robot = {"urdf": scene.robot.urdf, "frame": scene.robot.frame,
              "base_pose": setup.robot.base_pose.tolist()}
-    if prob.robot.grasp is not None:
-        robot["needle"] = {"radius": prob.robot.needle_radius, "grasp": prob.robot.grasp.tolist()}
+    if scene.robot.grasp is not None:
+        robot["needle"] = _needle(scene.robot)
     ext = dict(extras or {})
-    tm = prob.timing  # the file's timing (noise's V_* are already divided by frames_per_step)
+    tm = ocp.timing  # the file's timing (noise's V_* are already divided by frames_per_step)
     ext.setdefault("timing", {"step_s": tm.step_s, "tracker_hz": tm.tracker_hz,
                               "frames_per_step": tm.frames})
     # what `surestep export` honours (docs/motion_limits_and_export.md, "Export")
     ext.setdefault("limits", recorded_limits(setup))
     arms = []
-    for spec in (prob.start.relative, prob.goal.relative):
-        if spec is not None:
-            a = spec.arm
-            arm = {"urdf": a.urdf_rel, "frame": a.frame, "base_pose": a.base_pose.tolist(),
-                   "q": [float(v) for v in a.joints]}
-            if a.grasp is not None:
-                arm["needle"] = {"radius": a.needle_radius, "grasp": a.grasp.tolist()}
-            arms.append(arm)
+    for a in scene.other_arms:
+        arm = {"urdf": a.urdf, "frame": a.frame, "base_pose": a.base_pose.tolist(),
+               "q": [float(v) for v in a.joints]}
+        if a.grasp is not None:
+            arm["needle"] = _needle(a)
+        arms.append(arm)
     if arms:
         ext.setdefault("other_arms", arms)
     if setup.camera_schedule:
         ext.setdefault("camera_poses", [C.tolist() for C in setup.camera_schedule])
     if setup.ecm is not None:
-        ext.setdefault("ecm", {"urdf": prob.camera.ecm.urdf_rel, "frame": prob.camera.ecm.frame,
-                               "q": list(map(float, prob.camera.ecm_joints)),
+        ext.setdefault("ecm", {"urdf": scene.ecm.urdf, "frame": scene.ecm.frame,
+                               "q": list(map(float, scene.ecm.joints)),
                                "base_pose": setup.ecm.base_pose.tolist()})
     return Solution(
         method=method,
-        problem=str(prob.path),
+        problem=ocp.source,
         success=bool(success),
         status=str(status),
         solve_time_s=float(solve_time_s),
@@ -274,7 +279,7 @@ def evaluate(
         q=[None if qi is None else [float(v) for v in qi] for qi in q],
         poses=poses.tolist(),
         goal=_principal(setup.x_goal[None])[0].tolist(),
-        camera=prob.camera.intrinsics.to_dict(),
+        camera=ocp.intrinsics.to_dict(),
         camera_pose=setup.camera_pose.tolist(),
         robot=robot,
         noise=noise,

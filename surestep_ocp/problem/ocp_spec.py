@@ -1,10 +1,10 @@
 """What the solvers read of a problem: `OcpSpec`, the solver-facing view of `Problem`.
 
 The solvers take a `Setup` (robot, camera, start and goal made concrete) and read the rest through
-`setup.ocp`: horizon, noise, objective weight, depth bound, motion limits, timing, solver and
-gradient settings, and the file name for messages. None of them depends on the problem file's
-layout; a solver's variant of a problem (a re-plan's horizon and Sigma_0, a method's noise model)
-is `Setup.with_ocp`.
+`setup.ocp`: horizon, noise, camera intrinsics, objective weight, depth bound, motion limits,
+timing, solver and gradient settings, and the file name for messages. `build_setup` makes it once
+from the `Problem`; none of the solvers depends on the problem file's layout. A solver's variant of
+a problem (a re-plan's horizon and Sigma_0, a method's noise model) is `Setup.with_ocp`.
 """
 
 from __future__ import annotations
@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..model.belief import NoiseParams
+from ..model.camera import Intrinsics
 from .spec import GradientSpec, LimitsSpec, Problem, SolverSpec, TimingSpec
 
 
@@ -24,6 +25,7 @@ class OcpSpec:
     source: str  # the problem file (for messages)
     horizon: int  # T, steps
     noise: NoiseParams  # the belief model's constants, Sigma_0 included
+    intrinsics: Intrinsics  # the camera's (the belief model's field of view)
     smoothness: float  # weight of the joint-step term [1/rad^2]
     min_depth: float  # [m] the means' smallest depth
     solver: SolverSpec
@@ -33,9 +35,9 @@ class OcpSpec:
 
     @classmethod
     def of(cls, problem: Problem) -> OcpSpec:
-        return cls(str(problem.path), problem.horizon, problem.noise, problem.objective.smoothness,
-                   problem.min_depth, problem.solver, problem.gradient, problem.limits,
-                   problem.timing)
+        return cls(str(problem.path), problem.horizon, problem.noise, problem.camera.intrinsics,
+                   problem.objective.smoothness, problem.min_depth, problem.solver,
+                   problem.gradient, problem.limits, problem.timing)
 
     @property
     def sigma0(self) -> np.ndarray:
@@ -43,6 +45,5 @@ class OcpSpec:
         return np.asarray(self.noise.Sigma0, float)
 
 
-# OcpSpec fields that are fields of Problem too (the others:
-# smoothness -> objective, source -> path)
-SAME_NAME = ("horizon", "noise", "min_depth", "solver", "gradient", "limits", "timing")
+# the OcpSpec fields `Setup.with_ocp` changes (the problem's file and camera stay)
+EDITABLE = ("horizon", "noise", "smoothness", "min_depth", "solver", "gradient", "limits", "timing")

@@ -1,4 +1,9 @@
-"""A problem made concrete: robot and camera loaded, start and goal resolved to joints and poses."""
+"""A problem made concrete: robot and camera loaded, start and goal resolved to joints and poses.
+
+`build_setup` is the one place that turns a `Problem` into a `Setup`; the setup keeps what the
+solvers read of it (`OcpSpec`) and what solution files record of its scene (`Scene`), not the
+problem itself.
+"""
 
 from __future__ import annotations
 
@@ -14,7 +19,8 @@ from ..model.lie import (continued, matrix_to_pose, np_exp_many, np_means, np_po
                          np_quat_of_matrix, pose_to_matrix, quat_mul)
 from .spec import EndpointSpec, Problem
 from ..model.robot import Robot
-from .ocp_spec import SAME_NAME, OcpSpec
+from .ocp_spec import EDITABLE, OcpSpec
+from .scene import Scene
 from .solver_config import resolve
 from ..quiet import quiet_fd
 
@@ -30,7 +36,8 @@ class Setup:
     Poses `x = [p, r]` are in the camera frame (OpenCV) unless said otherwise.
     """
 
-    problem: Problem
+    ocp: OcpSpec  # what the solvers read of the problem
+    scene: Scene  # what a solution file records of the arms
     robot: Robot
     camera_pose: np.ndarray  # 4x4, camera in world
     q_start: np.ndarray
@@ -44,7 +51,7 @@ class Setup:
 
     def camera_poses(self, horizon: int | None = None) -> list[np.ndarray]:
         """Camera pose (world) at each waypoint 0..T: the schedule, or the fixed pose."""
-        T = self.problem.horizon if horizon is None else horizon
+        T = self.ocp.horizon if horizon is None else horizon
         return list(self.camera_schedule) if self.camera_schedule else [self.camera_pose] * (T + 1)
 
     def camera_changes(self) -> list | None:
@@ -70,31 +77,25 @@ class Setup:
         """4x4 pose of the robot's URDF root in the camera frame."""
         return np.linalg.inv(self.camera_pose) @ self.robot.base_pose
 
-    @property
-    def ocp(self) -> OcpSpec:
-        """What the solvers read of the problem (`ocp_spec.py`)."""
-        return OcpSpec.of(self.problem)
-
     def with_ocp(self, *, smoothness: float | None = None, sigma0=None, **changes) -> Setup:
-        """The same setup with OCP data changed (`OcpSpec`'s fields: horizon, noise, min_depth,
-        solver, gradient, limits, timing; `sigma0` the initial covariance, `smoothness` the
-        joint-step weight); its models are rebuilt for the new noise."""
-        unknown = set(changes) - set(SAME_NAME)
+        """The same setup with OCP data changed (`OcpSpec`'s fields: horizon, noise, smoothness
+        (the joint-step weight), min_depth, solver, gradient, limits, timing; `sigma0` the initial
+        covariance); its models are rebuilt for the new noise."""
+        unknown = set(changes) - set(EDITABLE)
         if unknown:
-            raise TypeError(f"with_ocp: unknown field(s) {sorted(unknown)}; allowed: smoothness, "
-                            f"sigma0, {', '.join(SAME_NAME)}")
-        prob = self.problem
-        if sigma0 is not None:
-            changes["noise"] = replace(changes.get("noise", prob.noise),
-                                       Sigma0=np.asarray(sigma0, float))
+            raise TypeError(f"with_ocp: unknown field(s) {sorted(unknown)}; allowed: sigma0, "
+                            f"{', '.join(EDITABLE)}")
         if smoothness is not None:
-            changes["objective"] = replace(prob.objective, smoothness=smoothness)
-        return replace(self, problem=replace(prob, **changes))
+            changes["smoothness"] = smoothness
+        if sigma0 is not None:
+            changes["noise"] = replace(changes.get("noise", self.ocp.noise),
+                                       Sigma0=np.asarray(sigma0, float))
+        return replace(self, ocp=replace(self.ocp, **changes))
 
     @cached_property
     def model(self) -> BeliefModel:
         """Belief model with the observation components used in optimisation."""
-        return BeliefModel(self.problem.noise, self.problem.camera.intrinsics)
+        return BeliefModel(self.ocp.noise, self.ocp.intrinsics)
 
     @cached_property
     def eval_model(self) -> BeliefModel:
@@ -162,7 +163,7 @@ class Setup:
         None when the model has none (`BeliefModel.propagate`'s `joint`)."""
         if not self.model.joint_noise:
             return None
-        return joint_noises(self.robot, self.problem.noise.joint_sigma, q, self.camera_parameter())
+        return joint_noises(self.robot, self.ocp.noise.joint_sigma, q, self.camera_parameter())
 
     def pose_of(self, q: np.ndarray) -> np.ndarray:
         """Camera-frame pose `[p, r]` of the tracked frame at joints `q` (see `poses_of`)."""
@@ -260,8 +261,8 @@ def build_setup(problem: Problem) -> Setup:
         camera_pose = ecm.base_pose @ ecm.frame_pose(cam.ecm_joints)
         schedule = _camera_schedule(problem, ecm, camera_pose)
 
-    setup = Setup(problem, robot, camera_pose, np.zeros(robot.nq), np.zeros(robot.nq), np.zeros(6),
-                  np.zeros(6), ecm)
+    setup = Setup(OcpSpec.of(problem), Scene.of(problem), robot, camera_pose, np.zeros(robot.nq),
+                  np.zeros(robot.nq), np.zeros(6), np.zeros(6), ecm)
     if ecm is not None:
         setup.camera_schedule = schedule
     mid = np.where(np.isfinite(robot.lower), 0.5 * (robot.lower + robot.upper), 0.0)

@@ -70,10 +70,10 @@ class Planner:
     def __init__(self, problem: Problem | Setup, prebuild: bool = True,
                  replan_iterations: int = REPLAN_ITERATIONS):
         setup = problem if isinstance(problem, Setup) else build_setup(problem)
-        prob = setup.problem
-        self.setup = replace(setup, problem=replace(prob, camera=replace(prob.camera, moves=())),
-                             camera_schedule=[])
-        self.horizon = prob.horizon
+        # planned for a fixed camera (`replan` takes its pose): without the schedule, the plans
+        # stay in one camera frame and their solutions record no camera moves
+        self.setup = replace(setup, camera_schedule=[])
+        self.horizon = setup.ocp.horizon
         self.replan_iterations = int(replan_iterations)
         # steps left -> seconds spent building its solver and evaluator
         self.builds: dict[int, float] = {}

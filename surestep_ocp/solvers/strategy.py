@@ -69,7 +69,7 @@ class Attempt:
     start."""
 
     label: str
-    backend: str  # a key of backends.BACKENDS
+    backend: str  # a solver name (`SolverName`'s value), a key of backends.BACKENDS
     hessian: str | None = None
     options: dict = field(default_factory=dict)
     start: Start = Start.INIT

@@ -2,7 +2,8 @@
 
 A backend solves the belief-space OCP of a Setup from a start: `applies` says why it cannot
 (or None), `solve` runs one attempt of the strategy (`strategy.Attempt`) and returns an `Outcome`.
-Backends are registered by name in `backends/__init__.py`; the strategy refers to them by that name.
+Backends are registered in `backends/__init__.py` by their name, a `SolverName` (the `solver.name`
+values, problem/solver_config.py); the strategy refers to them by that name.
 """
 
 from __future__ import annotations
@@ -13,7 +14,7 @@ from typing import Protocol
 
 from ...output.solution import Solution
 from ...problem.setup import Setup
-from ...problem.solver_config import ResolvedSolver
+from ...problem.solver_config import ResolvedSolver, SolverName
 from ..iterate import InitialGuess, Iterate
 
 
@@ -45,7 +46,7 @@ class Outcome:
 class Backend(Protocol):
     """An OCP solver behind the strategy."""
 
-    name: str
+    name: SolverName  # what `solver.name` calls it
 
     def applies(self, ctx: Context) -> str | None:
         """Why this backend cannot solve the context's OCP, or None when it can."""

@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from ...model.limits import enforce as enforce_limits
+from ...problem.solver_config import SolverName
 from ..baseline import TIME_LAWS, timed_line
 from ..iterate import InitialGuess, Iterate
 from ..nlp_cache import interior_solver
@@ -32,7 +33,7 @@ class InteriorPointBackend:
     """The OCP with enforced limits where projected Newton's reformulation is exact (`newton_fits`);
     a start within every row (the caller's, else the straight line at a minimum-jerk pace)."""
 
-    name = "interior"
+    name = SolverName.INTERIOR
 
     def applies(self, ctx: Context) -> str | None:
         if not ctx.setup.ocp.limits.enforce:

@@ -4,6 +4,7 @@ transcriptions (`transcription.py`) and the lifted vech(Sigma) form with the str
 
 from __future__ import annotations
 
+from ...problem.solver_config import SolverName
 from ..iterate import InitialGuess, Iterate
 from ..nlp_cache import WARM_OPTIONS, transcription
 from .base import Context, Outcome
@@ -13,7 +14,7 @@ class IpoptBackend:
     """Any model, form and Hessian; the motion limits as constraint rows; warm starts from a
     primal-dual point."""
 
-    name = "ipopt"
+    name = SolverName.IPOPT
 
     def applies(self, ctx: Context) -> str | None:
         return None

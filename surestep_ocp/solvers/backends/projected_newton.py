@@ -5,6 +5,7 @@ constraints)."""
 from __future__ import annotations
 
 from ...model.limits import enforce as enforce_limits
+from ...problem.solver_config import SolverName
 from ..iterate import InitialGuess, Iterate
 from ..newton import EXACT_BELOW
 from ..nlp_cache import newton_solver
@@ -20,7 +21,7 @@ class NewtonBackend:
     the start, for warm starts). The plan is evaluated by `ctx.evaluate_newton` when the caller has
     a faster evaluation (the Planner's)."""
 
-    name = "newton"
+    name = SolverName.NEWTON
 
     def applies(self, ctx: Context) -> str | None:
         if not ctx.resolved.newton_fits:
