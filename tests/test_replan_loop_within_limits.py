@@ -90,3 +90,25 @@ def test_cli_replan_runs_the_tracker_loop_within_the_limits(tmp_path):
     assert record["summary"]["failed"] == sum(r["kept_previous"] == "yes"
                                               for r in record["replans"])
     assert "re-plans" in (tmp_path / "out" / "loop.md").read_text()
+
+
+def test_a_correction_that_does_not_fit_is_bounded_work_and_keeps_the_previous_plan(monkeypatch):
+    """A 2.3 cm correction six steps before the end: the re-plan's attempts (reserve, then later
+    goals) share one iteration budget (without it they take 77 iterations here), and when none
+    fits the previous plan stays current."""
+    from surestep_ocp.solvers import planner as planner_module
+
+    budget = 12
+    monkeypatch.setattr(planner_module, "REPLAN_BUDGET", budget)
+    problem = ss.load_problem("problems/needle_regrasp.yaml").with_solver(name="interior")
+    planner = ss.Planner(problem, prebuild=False)
+    plan, k = planner.plan, planner.horizon - 6
+    mean = np.array(plan.poses[k], float)
+    mean[:3] += 0.02 * np.array([1.0, -0.7, 0.4])
+    sol = planner.replan(mean, 1e-6 * np.eye(6), step=k)
+    attempts = sol.extras["replan"]["attempts"]
+    assert len(attempts) > 1  # the first did not fit
+    assert sum(a["iterations"] for a in attempts) <= budget + planner_module.REPLAN_ITERATIONS
+    if not sol.success:
+        assert planner.plan is plan and planner.step == 0
+        assert sol.extras["replan"]["kept_previous"]

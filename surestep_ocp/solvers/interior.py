@@ -57,7 +57,7 @@ RELAXED_MAX = 30
 # and 86 stalled 2e-4 above IPOPT; most iterations over benchmarks/realtime.py's 101 problems at
 # 1e-8, 3e-8, 5e-8, 1e-7: 248, 81, 117, 113; docs/realtime.md)
 SECANT_GAP = 3e-8
-MAX_SOC = 4  # second-order corrections per iteration (IPOPT's max_soc)
+MAX_SOC = 4  # second-order corrections per iteration (IPOPT's max_soc), over all its step lengths
 # `relax`: a start's rows below this (of their limit) get it as slack, the relaxation then shrinks
 RELAX_TO = 1e-2
 # relaxed rows: STUCK_ITER steps in a row shorter than STUCK_STEP end the run as (locally)
@@ -372,7 +372,7 @@ class InteriorNewton:
             verbose: bool = False, warm: np.ndarray | None = None, mu0: float | None = None,
             relax: bool = False, reserve: float = 0.0,
             feasible_ok: bool = False, acceptable_change: float = ACCEPTABLE_CHANGE,
-            use_secant: bool = True) -> InteriorRun:
+            use_secant: bool = True, relaxed_max: int = RELAXED_MAX) -> InteriorRun:
         """From `init`, which must be strictly within every row (else status `Infeasible_Start`: the
         caller starts elsewhere or hands over to IPOPT), with the start's velocity and acceleration
         `v0`, `a0` when the structure starts in motion; `warm`: multipliers of a previous run of the
@@ -465,7 +465,7 @@ class InteriorNewton:
                 status = "Solve_Succeeded" if err_d <= tol else "Solved_To_Acceptable_Level"
                 break
             if (it - (relaxed_its if feasible_ok else 0) == max_iter
-                    or (feasible_ok and relaxed_its == RELAXED_MAX)):
+                    or (feasible_ok and relaxed_its >= relaxed_max)):
                 if feasible_ok and not rho.any() and np.all(c > 0):
                     status = FEASIBLE
                 break
@@ -552,9 +552,9 @@ class InteriorNewton:
                 decrease (while rows are relaxed: the boundary fraction alone, the relaxation
                 shrinking with a), else None."""
                 d = a * dx
-                # the step, then its second-order corrections (at every length: a row with a tiny
-                # slack breaks under the linearisation's error at any length)
-                for k in range(MAX_SOC + 1):
+                # the step, then its second-order corrections (at any length: a row with a tiny
+                # slack breaks under the linearisation's error at any length; MAX_SOC in all)
+                while True:
                     f_t, c_t = self.constraints(x + d, P, lin_c, offsets, min_depth, idx, lo, hi,
                                                 keep)
                     s_t = c_t + (1.0 - a) * rho
@@ -563,13 +563,14 @@ class InteriorNewton:
                             return x + d, c_t, a
                         v_t = f_t - m * float(np.sum(np.log(s_t)))
                         return (x + d, c_t, a) if v_t <= value + 1e-4 * a * slope else None
-                    if k == MAX_SOC or not np.all(s_t[:nd_] > 0):
+                    if socs[0] == MAX_SOC or not np.all(s_t[:nd_] > 0):
                         return None
+                    socs[0] += 1
                     e = np.zeros(nc)  # what the linearisation of the curved rows missed
                     e[nd_:] = c_t[nd_:] - (c[nd_:] + jac.dot(d)[nd_:])
                     d = d + solve(-jac.T(sig * e))
-                return None
 
+            socs = [0]  # this iteration's second-order corrections
             found = _backtrack(a_max, accept)
             if found is None:
                 status = "Infeasible_Problem_Detected" if rho.any() else "Line_Search_Failed"

@@ -50,6 +50,10 @@ REPLAN_MU = 3e-3
 # plan: the next frame improves it) and the objective change (relative, over 3 iterations) at which
 # it stops early
 REPLAN_ITERATIONS, REPLAN_ACCEPTABLE = 4, 1e-7
+# within the limits: the iterations (relaxed ones included) of all a re-plan's attempts together;
+# past them it fails and the previous plan runs on, so a frame's work is bounded (a correction that
+# does not fit took up to four attempts of 34 iterations, 150 ms, and then failed all the same)
+REPLAN_BUDGET = 20
 
 
 class Planner:
@@ -226,7 +230,10 @@ class Planner:
         attempts = ([a for a in ATTEMPTS
                      if not a[1] or late + a[1] <= MAX_LATE]
                     if reachable else ATTEMPTS[:1])
+        budget = REPLAN_BUDGET
         for reserve, extra in attempts:
+            if budget <= 0:
+                break
             sub = replace(registered.with_ocp(horizon=n + extra, sigma0=cov), q_start=q0,
                           q_goal=q_goal)
             sub.x_start, sub.x_goal = sub.pose_of(q0), sub.pose_of(q_goal)
@@ -236,9 +243,11 @@ class Planner:
             solver = self._interior(sub)
             run = solver.run(sub, warm, v0=v0, a0=a0, tol=spec.tol, mu0=REPLAN_MU, relax=True,
                              reserve=reserve,
-                             max_iter=(min(self.replan_iterations, spec.max_iter) if reachable
-                                       else 0),
-                             feasible_ok=True, acceptable_change=REPLAN_ACCEPTABLE)
+                             max_iter=(min(self.replan_iterations, spec.max_iter, budget)
+                                       if reachable else 0),
+                             feasible_ok=True, acceptable_change=REPLAN_ACCEPTABLE,
+                             relaxed_max=budget)
+            budget -= run.iterations
             tried.append({"reserve": reserve, "steps_added": extra, "status": run.status,
                           "iterations": run.iterations,
                           "relaxed_iterations": run.relaxed_iterations})
