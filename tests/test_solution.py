@@ -8,6 +8,7 @@ import json
 
 import pytest
 
+import surestep_ocp as ss
 from surestep_ocp.output.attempt_record import AttemptRecord
 from surestep_ocp.output.solution import Solution
 from surestep_ocp.output.solution_records import (
@@ -126,3 +127,12 @@ def test_a_value_of_another_shape_stays_an_extra(key, value):
     assert sol.extras == {key: value}
     assert sol.to_dict() == d
 
+
+def test_a_solved_plan_round_trips(tmp_path):
+    problem = ss.load_problem("problems/needle_regrasp_paper_pace.yaml").with_horizon(6)
+    sol = ss.solve(problem, "ocp")
+    assert sol.run.solver in ("newton", "ipopt") and sol.run.initial_trace > 0
+    assert sol.problem_record.timing.step_s > 0 and sol.problem_record.limits is not None
+    back = Solution.load(sol.save(tmp_path / "ocp.json"))
+    assert back.run == sol.run and back.problem_record == sol.problem_record
+    assert back.attempts == sol.attempts and back.to_dict() == sol.to_dict()
