@@ -41,8 +41,38 @@ def _take(cls, d: dict, nested: dict | None = None, whole: bool = False):
     return cls(**kw)
 
 
+class _Mapping:
+    """A record written as a mapping of its own (a value of the solution's mapping)."""
+
+    @staticmethod
+    def _readers() -> dict:
+        """Field name -> the function reading its value from the file (nested records)."""
+        return {}
+
+    def to_json(self) -> dict:
+        return _put(self, {})
+
+    @classmethod
+    def from_json(cls, d: dict):
+        """The record from its mapping; a key it does not know is a ValueError."""
+        return _take(cls, dict(d), cls._readers(), whole=True)
+
+
+class _TopLevel(_Mapping):
+    """A record whose fields are top-level keys of the solution's mapping."""
+
+    def to_json(self, d: dict) -> dict:
+        """Write the set fields into the solution's mapping `d`."""
+        return _put(self, d)
+
+    @classmethod
+    def from_json(cls, d: dict):
+        """The record from a solution's mapping; its keys are removed from `d`."""
+        return _take(cls, d, cls._readers())
+
+
 @dataclass(frozen=True)
-class CondensedStart:
+class CondensedStart(_Mapping):
     """The condensed solve the lifted form started from (its time and iterations are counted in
     the plan's)."""
 
@@ -52,16 +82,9 @@ class CondensedStart:
     solve_time_s: float  # [s]
     objective: float  # its Tr(Sigma_T) plus smoothness
 
-    def to_json(self) -> dict:
-        return _put(self, {})
-
-    @classmethod
-    def from_json(cls, d: dict) -> CondensedStart:
-        return _take(cls, dict(d), whole=True)
-
 
 @dataclass(frozen=True)
-class SecondStart:
+class SecondStart(_Mapping):
     """A 6x6-recursion model's second start from its diagonal model's plan (solvers/ocp.py,
     `_second_start`): that solve's end, whether it scored below the first plan, and the Newton (and
     IPOPT) runs from it when it did."""
@@ -76,31 +99,17 @@ class SecondStart:
     ipopt_status: str | None = None  # IPOPT finishing Newton's unfinished better point
     ipopt_iterations: int | None = None
 
-    def to_json(self) -> dict:
-        return _put(self, {})
-
-    @classmethod
-    def from_json(cls, d: dict) -> SecondStart:
-        return _take(cls, dict(d), whole=True)
-
 
 @dataclass(frozen=True)
-class StartState:
+class StartState(_Mapping):
     """The executed curve's state where a re-plan within enforced limits starts (it moves)."""
 
     velocity: list[float]  # [rad/s, or m/s for prismatic joints]
     acceleration: list[float]  # [rad/s^2, or m/s^2]
 
-    def to_json(self) -> dict:
-        return _put(self, {})
-
-    @classmethod
-    def from_json(cls, d: dict) -> StartState:
-        return _take(cls, dict(d), whole=True)
-
 
 @dataclass(frozen=True)
-class SolveRecord:
+class SolveRecord(_TopLevel):
     """How the solve went, whatever the backend; every field optional (None: not said, e.g. the
     baseline's). Keys of the solution file under their own names."""
 
@@ -127,20 +136,14 @@ class SolveRecord:
     condensed_start: CondensedStart | None = None  # the lifted form's start
     second_start: SecondStart | None = None  # a 6x6-recursion model's second start
 
-    def to_json(self, d: dict) -> dict:
-        """Write the set fields into the solution's mapping `d`."""
-        return _put(self, d)
-
-    @classmethod
-    def from_json(cls, d: dict) -> SolveRecord:
-        """The record from a solution's mapping; its keys are removed from `d`."""
-        return _take(cls, d, {"condensed_start": CondensedStart.from_json,
-                              "second_start": SecondStart.from_json,
-                              "start_state": StartState.from_json})
+    @staticmethod
+    def _readers() -> dict:
+        return {"condensed_start": CondensedStart.from_json,
+                "second_start": SecondStart.from_json, "start_state": StartState.from_json}
 
 
 @dataclass(frozen=True)
-class Timing:
+class Timing(_Mapping):
     """The problem's time (its `timing` section): what a waypoint step lasts and the tracker's
     rate."""
 
@@ -148,16 +151,9 @@ class Timing:
     tracker_hz: float  # [Hz]
     frames_per_step: int  # tracker frames folded into one observation per step
 
-    def to_json(self) -> dict:
-        return _put(self, {})
-
-    @classmethod
-    def from_json(cls, d: dict) -> Timing:
-        return _take(cls, dict(d), whole=True)
-
 
 @dataclass(frozen=True)
-class LimitsRecord:
+class LimitsRecord(_Mapping):
     """The motion limits the plan was made with (`surestep export` honours them): `enforce`, and
     the resolved limits with their sources, or why there are none (`unavailable`)."""
 
@@ -171,31 +167,17 @@ class LimitsRecord:
     sources: dict[str, str] | None = None  # where each limit came from
     unavailable: str | None = None  # no URDF velocity limits: why
 
-    def to_json(self) -> dict:
-        return _put(self, {})
-
-    @classmethod
-    def from_json(cls, d: dict) -> LimitsRecord:
-        return _take(cls, dict(d), whole=True)
-
 
 @dataclass(frozen=True)
-class Needle:
+class Needle(_Mapping):
     """A grasped needle: its radius and its pose in the arm's frame."""
 
     radius: float  # [m]
     grasp: list[list[float]]  # 4x4, position [m]
 
-    def to_json(self) -> dict:
-        return _put(self, {})
-
-    @classmethod
-    def from_json(cls, d: dict) -> Needle:
-        return _take(cls, dict(d), whole=True)
-
 
 @dataclass(frozen=True)
-class Placement:
+class Placement(_Mapping):
     """A robot of the scene besides the planned one (another arm, the ECM): its URDF, frame,
     base pose and fixed joints."""
 
@@ -205,16 +187,13 @@ class Placement:
     q: list[float]  # joints [rad, or m for prismatic joints]
     needle: Needle | None = None  # the needle it holds
 
-    def to_json(self) -> dict:
-        return _put(self, {})
-
-    @classmethod
-    def from_json(cls, d: dict) -> Placement:
-        return _take(cls, dict(d), {"needle": Needle.from_json}, whole=True)
+    @staticmethod
+    def _readers() -> dict:
+        return {"needle": Needle.from_json}
 
 
 @dataclass(frozen=True)
-class ProblemRecord:
+class ProblemRecord(_TopLevel):
     """What the solution file records of the problem beyond the Solution's own fields (`robot`,
     `camera`, `noise`, ...): its time, limits, other robots and camera moves."""
 
@@ -224,20 +203,15 @@ class ProblemRecord:
     camera_poses: list[list[list[float]]] | None = None  # a moving camera: 4x4 in world per step
     ecm: Placement | None = None  # the camera's arm, when the camera is on one
 
-    def to_json(self, d: dict) -> dict:
-        """Write the set fields into the solution's mapping `d`."""
-        return _put(self, d)
-
-    @classmethod
-    def from_json(cls, d: dict) -> ProblemRecord:
-        """The record from a solution's mapping; its keys are removed from `d`."""
-        return _take(cls, d, {"timing": Timing.from_json, "limits": LimitsRecord.from_json,
-                              "other_arms": lambda v: [Placement.from_json(a) for a in v],
-                              "ecm": Placement.from_json})
+    @staticmethod
+    def _readers() -> dict:
+        return {"timing": Timing.from_json, "limits": LimitsRecord.from_json,
+                "other_arms": lambda v: [Placement.from_json(a) for a in v],
+                "ecm": Placement.from_json}
 
 
 @dataclass(frozen=True)
-class ReplanAttempt:
+class ReplanAttempt(_Mapping):
     """One attempt of a re-plan within enforced limits (solvers/planner.py)."""
 
     reserve: float  # the fraction of each limit kept free for later corrections
@@ -246,16 +220,9 @@ class ReplanAttempt:
     iterations: int
     relaxed_iterations: int  # of them, with the broken rows relaxed
 
-    def to_json(self) -> dict:
-        return _put(self, {})
-
-    @classmethod
-    def from_json(cls, d: dict) -> ReplanAttempt:
-        return _take(cls, dict(d), whole=True)
-
 
 @dataclass(frozen=True)
-class ReplanRecord:
+class ReplanRecord(_Mapping):
     """A `Planner.replan` call (solution file key `replan`)."""
 
     step: int  # the waypoint the re-plan starts at
@@ -265,10 +232,6 @@ class ReplanRecord:
     kept_previous: bool | None = None  # within enforced limits: it failed, the previous plan stays
     attempts: list[ReplanAttempt] | None = None  # within enforced limits: its attempts
 
-    def to_json(self) -> dict:
-        return _put(self, {})
-
-    @classmethod
-    def from_json(cls, d: dict) -> ReplanRecord:
-        return _take(cls, dict(d), {"attempts": lambda v: [ReplanAttempt.from_json(a)
-                                                           for a in v]}, whole=True)
+    @staticmethod
+    def _readers() -> dict:
+        return {"attempts": lambda v: [ReplanAttempt.from_json(a) for a in v]}
