@@ -96,8 +96,8 @@ def main() -> None:
             r["t"].append(sol.solve_time_s)
             r["tr"].append(sol.trace_final)
             r["kept"].append(sol.status == "Initial_Guess_Kept")
-            r["form"].add(f"{sol.extras['covariance_form']} / "
-                          f"{sol.extras['hessian']}".split(" + ")[0])
+            r["form"].add(f"{sol.run.covariance_form} / "
+                          f"{sol.run.hessian}".split(" + ")[0])
             if name == "paper":
                 paper_poses, paper_q = np.array(sol.poses), np.array(sol.q)
             ref = float(np.trace(setup.eval_model.propagate(paper_poses,

@@ -56,12 +56,12 @@ def main() -> None:
                 vs_base.append(lim.trace_final / base.trace_final)
             else:
                 key = lim.status if lim.status != "Motion_Limits_Violated" else \
-                    f"Motion_Limits_Violated ({lim.extras.get('solver_status')})"
+                    f"Motion_Limits_Violated ({lim.run.solver_status})"
                 fail_status[key] = fail_status.get(key, 0) + 1
             detail.append(f"| {step:g} | {c} | {free.trace_final:.4e} | {lim.trace_final:.4e} | "
                           f"{base.trace_final:.4e} | {'yes' if base_ok else 'no'} | "
                           f"{free.solve_time_s:.3f} | {lim.solve_time_s:.3f} | {lim.status} | "
-                          f"{lim.extras.get('hessian', '')} |")
+                          f"{lim.run.hessian or ''} |")
             print(detail[-1], flush=True)
         n = args.configs
         fails = ", ".join(f"{k}: {v}" for k, v in sorted(fail_status.items())) or "-"

@@ -34,7 +34,7 @@ def main() -> None:
         t_newton.append(newton.solve_time_s)
         rows.append(f"| {c} | {ipopt.trace_final:.6e} | {newton.trace_final:.6e} | {ratio:.6f} | "
                     f"{ipopt.solve_time_s:.4f} | {newton.solve_time_s:.4f} | "
-                    f"{newton.extras['hessian']} | {newton.status} |")
+                    f"{newton.run.hessian} | {newton.status} |")
         print(rows[-1], flush=True)
     n = args.configs
     summary = (f"{n} configurations (seed {args.seed}, T = 20): same plan (Tr within 1e-6) {same}, "

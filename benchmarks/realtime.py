@@ -119,7 +119,7 @@ def loop(args) -> tuple[list[str], dict]:
         episode = h.tracker_loop(setup, seed=seed)  # what `surestep replan` runs
         planner, pieces = episode["planner"], episode["pieces"]
         dt = planner.setup.ocp.timing.step_s
-        ep_times = [p.extras["replan"]["time_s"] * 1e3 for p in episode["plans"]]
+        ep_times = [p.replan.time_s * 1e3 for p in episode["plans"]]
         ep_failed = episode["summary"]["failed"]
         n_bad = h.violations(planner.setup, h.stitched(pieces, dt))
         s = h.stats(ep_times)

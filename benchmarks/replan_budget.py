@@ -26,7 +26,7 @@ def episode(problem, budget: int, seed: int) -> tuple[list[float], int, float, f
         k += 1
         mean, cov = tracker.move_to(planner.plan.poses[k - planner.step])
         plan = planner.replan(mean, cov, step=k)
-        ms.append(plan.extras["replan"]["time_s"] * 1e3)
+        ms.append(plan.replan.time_s * 1e3)
         fails += not plan.success
     tracker.move_to(planner.plan.poses[-1])
     error = float(np.linalg.norm(tracker.true_pose[:3] - planner.setup.x_goal[:3]) * 1e3)

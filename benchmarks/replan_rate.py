@@ -48,10 +48,10 @@ def main() -> int:
                 # the noise carried the estimate out of the arm's reach: the episode ends
                 ended.append((i, k, str(exc)))
                 break
-            info = sol.extras["replan"]
-            ep.append(info["time_s"])
+            info = sol.replan
+            ep.append(info.time_s)
             solver_s.append(sol.solve_time_s)
-            fallbacks += info["solver"] != "newton"
+            fallbacks += info.solver != "newton"
             failed += not sol.success
         times += ep
         rows.append((i, first_status, len(ep), h.median(ep), max(ep, default=np.nan)))

@@ -28,14 +28,14 @@ def main() -> None:
         k += 1
         mean, cov = tracker.move_to(planner.plan.poses[k - planner.step])
         plan = planner.replan(mean, cov, step=k)
-        r = plan.extras["replan"]
-        ms = r["time_s"] * 1e3
+        r = plan.replan
+        ms = r.time_s * 1e3
         if plan.success:
             ok_ms.append(ms)
         elif first_kept is None:
             first_kept = k
         rows.append((k, plan.status, plan.iterations, f"{ms:.1f}",
-                     "yes" if r["kept_previous"] else "no"))
+                     "yes" if r.kept_previous else "no"))
         print(*rows[-1], flush=True)
     s = h.stats(ok_ms) if ok_ms else None
     lines = ["# Re-planning within the motion limits (experimental)", "",

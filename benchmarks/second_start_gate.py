@@ -29,10 +29,10 @@ def main() -> None:
         times.append(sol.solve_time_s)
         ref = h.objective_at(setup, sol, h.ocp(h.diagonal_model(setup)))
         above += sol.objective > ref * (1 + 1e-6)
-        gate = sol.extras["second_start"]
+        gate = sol.run.second_start
         print(c, sol.status, f"{sol.solve_time_s * 1e3:.0f} ms",
-              f"objective / diagonal plan's {sol.objective / ref:.4f}", gate.get("status"),
-              gate.get("ahead"), flush=True)
+              f"objective / diagonal plan's {sol.objective / ref:.4f}", gate and gate.status,
+              gate and gate.ahead, flush=True)
     t = h.stats(times)
     print(f"above the diagonal plan: {above}/{n}; median {t.median * 1e3:.0f} ms, worst "
           f"{t.worst * 1e3:.0f} ms")

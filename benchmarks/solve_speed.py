@@ -86,13 +86,13 @@ def run(instances: int, horizons: list[int], seed: int, codegen: bool | None = N
             ratios.append(ocp_time / grad.solve_time_s)
             wins += ocp.trace_final <= grad.trace_final
             fails += not ocp.success
-            alone += ocp.extras["hessian"] == ocp.attempts[0].label != "exact"
+            alone += ocp.run.hessian == ocp.attempts[0].label != "exact"
             t_ocp.append(ocp_time)
             t_grad.append(grad.solve_time_s)
             t_grad_ik.append(grad.solve_time_s + grad.extras["ik_time_s"])
             iters.append(ocp.iterations)
-            rows.append((T, i, ocp_time, ocp.iterations, ocp.status, ocp.extras["hessian"],
-                         ocp.trace_final, ocp.extras["constraint_violation"], grad.solve_time_s,
+            rows.append((T, i, ocp_time, ocp.iterations, ocp.status, ocp.run.hessian,
+                         ocp.trace_final, ocp.run.constraint_violation, grad.solve_time_s,
                          grad.iterations, grad.trace_final))
             if T == 20:
                 moved = camera_nudge(setup, rng)
@@ -100,7 +100,7 @@ def run(instances: int, horizons: list[int], seed: int, codegen: bool | None = N
                 cold_resolves += warm is None
                 warm_ms.append(again.solve_time_s * 1e3)
             print(f"T={T} #{i}: ocp {ocp_time:.3f} s ({ocp.iterations} it, {ocp.status}, "
-                  f"{ocp.extras['hessian']}) tr {ocp.trace_final:.3e} | gradient "
+                  f"{ocp.run.hessian}) tr {ocp.trace_final:.3e} | gradient "
                   f"{grad.solve_time_s:.3f} s tr {grad.trace_final:.3e}",
                   flush=True)
         builds[T] = sum(tr.build_time_s for tr in h.transcriptions(T))

@@ -34,8 +34,8 @@ while k + 1 < planner.horizon:
     k += 1
     mean, covariance = tracker.move_to(planner.plan.poses[k - planner.step])  # 1/20 s later
     plan = planner.replan(mean, covariance, step=k)  # camera_pose=... when the endoscope moves
-    times.append(plan.extras["replan"]["time_s"])
-    kept = " (previous plan kept)" if plan.extras["replan"].get("kept_previous") else ""
+    times.append(plan.replan.time_s)
+    kept = " (previous plan kept)" if plan.replan.kept_previous else ""
     print(f"step {k:2d}: {plan.horizon:2d} steps left, {plan.status}, "
           f"{times[-1] * 1e3:5.1f} ms{kept}")
 tracker.move_to(planner.plan.poses[-1])

@@ -71,13 +71,13 @@ def _summary(sol, base=None) -> str:
         lines.append(f"baseline    {base.trace_final:.4e}  "
                      f"(ratio baseline / {sol.method} = {ratio}{longer})")
     lines.append(f"terminal    {err_m:.2e} m, {err_rad:.2e} rad from the goal")
-    if sol.extras.get("codegen_note"):
+    if sol.run.codegen_note:
         lines.append("note        solver.codegen auto: "
-                     f"{sol.extras['codegen_note'].splitlines()[0]}")
+                     f"{sol.run.codegen_note.splitlines()[0]}")
     if sol.status == "Initial_Guess_Kept":
         lines.append("warning     every point the solvers converged to was worse than the initial "
                      "guess, which is returned (a poor local optimum; see docs/orientation.md)")
-    if sol.extras.get("worse_than_initial_guess"):
+    if sol.run.worse_than_initial_guess:
         lines.append("warning     the optimum found is worse than the initial guess (a poor local "
                      "optimum; see docs/orientation.md)")
     unreachable = sum(q is None for q in sol.q)
@@ -119,7 +119,7 @@ def cmd_solve(args) -> int:
     if args.output:
         print(f"wrote       {args.output}")
     if not sol.success:
-        raise SolverError(sol.extras.get("solver", sol.method), sol.status)
+        raise SolverError(sol.run.solver or sol.method, sol.status)
     return 0
 
 
@@ -175,7 +175,7 @@ def cmd_replan(args) -> int:
         from .evaluation.tracker_loop import tracker_loop, write_tracker_loop
 
         res = tracker_loop(setup, seed=args.seed, progress=lambda k, p: print(
-            f"step {k}: {p.status}, {p.extras['replan']['time_s'] * 1e3:.1f} ms", file=sys.stderr,
+            f"step {k}: {p.status}, {p.replan.time_s * 1e3:.1f} ms", file=sys.stderr,
             flush=True))
         print(write_tracker_loop(res, Path(args.output_dir)))
         print(f"wrote {args.output_dir}/loop.md, loop.json")

@@ -67,7 +67,7 @@ def test_every_solver_name_has_one_backend():
 def test_newton_and_ipopt_reach_the_same_plan(plans):
     newton, ipopt = plans["newton"].solution, plans["ipopt"].solution
     assert newton.success and ipopt.success, (newton.status, ipopt.status)
-    assert newton.extras["solver"] == "newton" and ipopt.extras["solver"] == "ipopt"
+    assert newton.run.solver == "newton" and ipopt.run.solver == "ipopt"
     assert newton.trace_final == pytest.approx(ipopt.trace_final, rel=1e-6)
     np.testing.assert_allclose(np.asarray(newton.q), np.asarray(ipopt.q), atol=1e-5)
 

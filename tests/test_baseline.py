@@ -205,7 +205,7 @@ def test_a_moving_camera_holds_its_last_pose_after_the_horizon():
     sol = ss.solve(problem, "baseline")
     T = problem.horizon
     assert sol.status == "Duration_Lengthened" and sol.horizon > T
-    cams = np.array(sol.extras["camera_poses"])
+    cams = np.array(sol.problem_record.camera_poses)
     assert len(cams) == sol.horizon + 1 and not np.array_equal(cams[0], cams[T])  # it moved
     np.testing.assert_array_equal(cams[T:], np.broadcast_to(cams[T], cams[T:].shape))
     ro = rollout(setup.eval_model, np.asarray(sol.poses), n=3, rng=0,

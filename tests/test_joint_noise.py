@@ -97,12 +97,12 @@ def test_newton_plan_with_joint_noise_equals_ipopt_exact_and_the_numpy_ekf(horiz
     assert setup.model.structured and not setup.model.scalar
     init = ocp_initial_guess(setup)
     sol = solve_ocp(setup, init)
-    assert sol.success and sol.extras["solver"] == "newton", sol.extras["hessian"]
+    assert sol.success and sol.run.solver == "newton", sol.run.hessian
     assert sol.trace_final == pytest.approx(np.trace(numpy_reference(setup, sol.q)[-1]), rel=1e-9)
-    assert sol.trace_final < sol.extras["initial_trace"]
+    assert sol.trace_final < sol.run.initial_trace
     exact = build_setup(problem(horizon, solver="ipopt", hessian="exact"))
     ref = solve_ocp(exact, init)
-    assert ref.success and ref.extras["solver"] == "ipopt", ref.extras["hessian"]
+    assert ref.success and ref.run.solver == "ipopt", ref.run.hessian
     assert sol.trace_final == pytest.approx(ref.trace_final, rel=1e-6)
     assert sol.noise["joint_motion_sigma"] == list(SIGMA)
 
@@ -112,7 +112,7 @@ def test_ipopt_gauss_newton_hessian_reaches_the_same_optimum():
     init = ocp_initial_guess(setup)
     newton = solve_ocp(setup, init)
     gn = solve_ocp(build_setup(problem(6, solver="ipopt", hessian="gauss-newton")), init)
-    assert gn.success and gn.extras["hessian"].startswith("gauss-newton"), gn.extras["hessian"]
+    assert gn.success and gn.run.hessian.startswith("gauss-newton"), gn.run.hessian
     assert gn.trace_final == pytest.approx(newton.trace_final, rel=1e-6)
 
 

@@ -73,8 +73,8 @@ def test_lifted_form_converges_back_to_the_condensed_optimum(name):
     assert sol.trace_final == pytest.approx(cond.trace_final, rel=1e-6)
     sig, _ = propagate(np.array(sol.poses), setup.ocp.noise, setup.ocp.intrinsics,
                        guard=COSINE_GUARD)
-    assert sol.extras["ocp_trace_final"] == pytest.approx(np.trace(sig[-1]), rel=1e-6)
-    assert sol.extras["constraint_violation"] < 1e-8
+    assert sol.run.ocp_trace_final == pytest.approx(np.trace(sig[-1]), rel=1e-6)
+    assert sol.run.constraint_violation < 1e-8
 
 
 def test_full_form_solves_the_lifted_nlp_and_reports_its_condensed_start():
@@ -83,8 +83,8 @@ def test_full_form_solves_the_lifted_nlp_and_reports_its_condensed_start():
     setup = build_setup(problem(8, form="full", **MODELS["correlated V_d0"]))
     sol = solve_ocp(setup, ocp_initial_guess(setup))
     assert sol.success, sol.status
-    assert sol.extras["covariance_form"].startswith("full (lifted")
-    assert sol.extras["condensed_start"]["status"] == "Solve_Succeeded"
+    assert sol.run.covariance_form.startswith("full (lifted")
+    assert sol.run.condensed_start.status == "Solve_Succeeded"
     cond = build_setup(problem(8, **MODELS["correlated V_d0"]))
     assert sol.trace_final == pytest.approx(solve_ocp(cond, ocp_initial_guess(cond)).trace_final,
                                             rel=1e-6)

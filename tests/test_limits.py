@@ -166,7 +166,7 @@ def test_default_problem_plan_meets_every_limit(default_enforced):
     assert sol.extras["motion_limits"]["ok"] and sol.extras["motion_limits"]["enforced"]
     # the interior-point method, which carries them, solves it (projected Newton's unconstrained
     # plan would break them: not run under auto)
-    assert sol.extras["solver"] == "interior" and "newton" not in [a.solver for a in sol.attempts]
+    assert sol.run.solver == "interior" and "newton" not in [a.solver for a in sol.attempts]
     first = newton_attempt(setup)
     assert first.status == "Motion_Limits_Violated" and first.objective < sol.objective
 
@@ -258,7 +258,7 @@ def test_a_plan_over_a_limit_is_not_a_success():
     prob = load_problem(DEFAULT)
     sol = run_method(build_setup(enforced(prob)), "gradient")
     assert not sol.success and sol.status == "Motion_Limits_Violated"
-    assert sol.extras["solver_status"] == "completed 50 iterations"
+    assert sol.run.solver_status == "completed 50 iterations"
     kinds = {v["kind"] for v in sol.extras["motion_limits"]["violations"]}
     assert "joint_acceleration" in kinds
     assert run_method(build_setup(prob), "gradient").success

@@ -66,13 +66,13 @@ def test_newton_reaches_ipopts_optimum(horizon):
     init = ocp_initial_guess(setup)
     # another solver (auto would run Newton)
     ipopt = solve_ocp(with_solver(setup, name="ipopt"), init)
-    assert ipopt.extras["solver"] == "ipopt" and "newton" not in ipopt.extras["hessian"]
+    assert ipopt.run.solver == "ipopt" and "newton" not in ipopt.run.hessian
     newton = solve_ocp(with_solver(setup, name="newton"), init)
     assert (newton.success and newton.status == "Solve_Succeeded"
-            and newton.extras["solver"] == "newton")
+            and newton.run.solver == "newton")
     assert [a.label for a in newton.attempts] == ["newton"]
     assert newton.trace_final == pytest.approx(ipopt.trace_final, rel=1e-6)
-    assert newton.extras["ocp_trace_final"] == pytest.approx(newton.trace_final, rel=1e-9)
+    assert newton.run.ocp_trace_final == pytest.approx(newton.trace_final, rel=1e-9)
     q = np.array(newton.q)
     np.testing.assert_array_equal(q[0], np.asarray(init.q)[0])
     np.testing.assert_array_equal(q[-1], np.asarray(init.q)[-1])
@@ -96,9 +96,9 @@ def test_newton_keeps_the_depth_bound_with_its_barrier_run_when_violated():
     attempts = [(a.label, a.status, a.kept) for a in sol.attempts]
     assert attempts == [("newton", "Depth_Bound_Violated", False),
                         ("newton, depth barrier", "Solve_Succeeded", True)]
-    assert sol.success and sol.extras["solver"] == "newton"
+    assert sol.success and sol.run.solver == "newton"
     ipopt = solve_ocp(with_solver(setup, name="ipopt", options={"mu_strategy": "monotone"}), init)
-    assert ipopt.success and ipopt.extras["solver"] == "ipopt"
+    assert ipopt.success and ipopt.run.solver == "ipopt"
     assert sol.trace_final == pytest.approx(ipopt.trace_final, rel=1e-6)
     assert min(setup.pose_of(q)[2] for q in np.asarray(sol.q)) >= setup.ocp.min_depth
     assert max(sol.terminal_error) <= 1e-9
@@ -170,7 +170,7 @@ def test_newton_warm_resolve_after_a_camera_move(short):
     setup = with_solver(short, name="auto")
     init = ocp_initial_guess(setup)
     first, warm = solve_ocp_warm(setup, init)
-    assert first.extras["solver"] == "newton" and not warm.has_duals
+    assert first.run.solver == "newton" and not warm.has_duals
     np.testing.assert_array_equal(warm.q, np.array(first.q))
     D = np.eye(4)
     D[:3, 3] = [0.002, -0.001, 0.001]
@@ -178,7 +178,7 @@ def test_newton_warm_resolve_after_a_camera_move(short):
     again, _ = solve_ocp_warm(moved, init, warm=warm)
     cold = solve_ocp(moved, ocp_initial_guess(moved))
     assert again.success and again.attempts[0].label == "newton, warm start"
-    assert again.extras["init"].startswith("warm start")
+    assert again.run.init.startswith("warm start")
     assert again.trace_final == pytest.approx(cold.trace_final, rel=1e-4)
     assert again.iterations < cold.iterations
 
@@ -192,9 +192,9 @@ def test_kept_start_names_the_solvers_that_ran_and_smoothness_counts():
     setup = build_setup(replace(prob, objective=replace(prob.objective, smoothness=50.0),
                                 solver=replace(prob.solver, name="ipopt")))
     sol = solve_ocp(setup, ocp_initial_guess(setup))
-    assert sol.success and sol.status != "Initial_Guess_Kept", sol.extras["hessian"]
-    assert sol.objective < sol.extras["initial_objective"]
-    assert not sol.extras["worse_than_initial_guess"]
+    assert sol.success and sol.status != "Initial_Guess_Kept", sol.run.hessian
+    assert sol.objective < sol.run.initial_objective
+    assert not sol.run.worse_than_initial_guess
 
 
 def test_newton_stops_when_it_stalls(short):
@@ -223,13 +223,13 @@ def test_newton_plans_non_diagonal_models_and_ipopt_agrees(name):
     assert resolve_form(newton.model, "auto") == "condensed"
     init = ocp_initial_guess(newton)
     sol = solve_ocp(newton, init)
-    assert sol.success and sol.extras["solver"] == "newton", (sol.status, sol.extras["hessian"])
+    assert sol.success and sol.run.solver == "newton", (sol.status, sol.run.hessian)
     sig, _ = propagate(np.array(sol.poses), newton.ocp.noise, newton.ocp.intrinsics,
                        guard=COSINE_GUARD)
     assert sol.trace_final == pytest.approx(np.trace(sig[-1]), rel=1e-9)
-    assert sol.extras["ocp_trace_final"] == pytest.approx(np.trace(sig[-1]), rel=1e-9)
+    assert sol.run.ocp_trace_final == pytest.approx(np.trace(sig[-1]), rel=1e-9)
     ipopt = solve_ocp(build_setup(problem(8, solver="ipopt", **MODELS[name])), init)
-    assert ipopt.success and ipopt.extras["solver"] == "ipopt"
+    assert ipopt.success and ipopt.run.solver == "ipopt"
     assert ipopt.trace_final == pytest.approx(sol.trace_final, rel=1e-6)
 
 
@@ -250,7 +250,7 @@ def test_second_start_never_ends_above_the_diagonal_models_plan():
         assert approx.model.scalar and not corr.model.scalar
         plan = solve_ocp(approx, ocp_initial_guess(approx))
         sol = solve_ocp(corr, ocp_initial_guess(corr))
-        assert sol.success and "second_start" in sol.extras
+        assert sol.success and sol.run.second_start is not None
         cam, noise = corr.ocp.intrinsics, corr.ocp.noise
         ref = np.trace(propagate(np.array(plan.poses), noise, cam, guard=COSINE_GUARD)[0][-1])
         own = np.trace(propagate(np.array(sol.poses), noise, cam, guard=COSINE_GUARD)[0][-1])

@@ -59,8 +59,8 @@ def test_solve_succeeds(solution):
     assert solution.method == "ocp"
     assert solution.horizon == T
     assert solution.iterations > 0
-    assert solution.extras["init"] == "baseline"
-    assert solution.extras["constraint_violation"] < 1e-8
+    assert solution.run.init == "baseline"
+    assert solution.run.constraint_violation < 1e-8
 
 
 def test_waypoints_are_forward_kinematics_of_joints(solution, setup):
@@ -122,7 +122,7 @@ def test_trace_equals_numpy_ekf(solution, setup):
 def test_ocp_objective_is_the_exact_ekf_trace(solution):
     """Free Joseph-form gains end at Kalman's: the OCP's own Tr(Sigma_T) is the exact one."""
     assert solution.objective == pytest.approx(solution.trace_final, rel=1e-6)
-    assert solution.extras["ocp_trace_final"] == pytest.approx(solution.trace_final, rel=1e-6)
+    assert solution.run.ocp_trace_final == pytest.approx(solution.trace_final, rel=1e-6)
 
 
 def test_beats_straight_line_baseline(solution, baseline, setup):

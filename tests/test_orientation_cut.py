@@ -196,7 +196,7 @@ def test_ocp_converges_where_the_straight_line_crosses_pi(sampler, c):
         R = (setup.T_cam_base @ setup.robot.frame_pose(qi))[:3, :3]
         np.testing.assert_allclose(Rotation.from_rotvec(x[3:]).as_matrix(), R, atol=1e-9)
     # planner = evaluation
-    assert sol.extras["ocp_trace_final"] == pytest.approx(sol.trace_final, rel=1e-6)
+    assert sol.run.ocp_trace_final == pytest.approx(sol.trace_final, rel=1e-6)
     goal = np.asarray(sol.to_dict()["goal"])  # the file's goal: principal, the setup's rotation
     assert np.linalg.norm(goal[3:]) <= np.pi
     np.testing.assert_allclose(Rotation.from_rotvec(goal[3:]).as_matrix(),

@@ -58,15 +58,15 @@ def test_replan_equals_a_cold_solve(problem, loop, k):
     that one may stop at another local optimum, as it does here: 1.8 times the trace)."""
     planner, _, plans = loop
     plan, mean, cov, camera = plans[k]
-    assert plan.success and plan.extras["replan"]["solver"] == "newton"
+    assert plan.success and plan.replan.solver == "newton"
     assert plan.horizon == T - 1 - k
     np.testing.assert_allclose(plan.poses[0], mean, atol=1e-9)  # starts at the tracker's mean
     cold = _cold_problem(problem, planner, mean, cov, camera, T - 1 - k)
     setup = build_setup(cold.with_solver(name="ipopt"))
-    guess = np.array(plan.extras["warm_start_q"])
+    guess = np.array(plan.run.warm_start_q)
     guess[0] = setup.q_start
     ipopt = solve_ocp(setup, InitialGuess(guess, "the re-plan's warm start"))
-    assert ipopt.success and ipopt.extras["solver"] == "ipopt"
+    assert ipopt.success and ipopt.run.solver == "ipopt"
     np.testing.assert_allclose(plan.positions, ipopt.positions, atol=1e-7)
     np.testing.assert_allclose(plan.orientations, ipopt.orientations, atol=1e-6)
     assert plan.objective == pytest.approx(ipopt.objective, rel=1e-7)
@@ -94,9 +94,9 @@ def test_shrinking_horizon_builds_nothing_new(loop):
     assert sorted(planner.builds) == sorted(builds)
     for p, *_ in plans:
         n = p.horizon
-        assert p.extras["replan"]["build_time_s"] == pytest.approx(planner.builds[n] - builds[n],
+        assert p.replan.build_time_s == pytest.approx(planner.builds[n] - builds[n],
                                                                    abs=1e-9)
-        assert p.extras["replan"]["build_time_s"] >= 0
+        assert p.replan.build_time_s >= 0
 
 
 def test_replan_rejects_bad_input(loop):

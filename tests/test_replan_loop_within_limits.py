@@ -31,10 +31,10 @@ def episode():
 
 def test_every_replan_succeeds_from_the_moving_robot(episode):
     planner, pieces, plans = episode
-    assert all(p.success for p in plans), [(p.extras["replan"]["step"], p.status) for p in plans
+    assert all(p.success for p in plans), [(p.replan.step, p.status) for p in plans
                                            if not p.success]
-    assert all(p.extras["replan"]["kept_previous"] is False for p in plans)
-    moving = [p for p in plans if np.abs(p.extras["start_state"]["velocity"]).max() > 1e-3]
+    assert all(p.replan.kept_previous is False for p in plans)
+    moving = [p for p in plans if np.abs(p.run.start_state.velocity).max() > 1e-3]
     assert len(moving) > len(plans) // 2  # most re-plans start while the robot moves, not from rest
 
 

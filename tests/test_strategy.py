@@ -25,6 +25,7 @@ from surestep_ocp.solvers import strategy
 from surestep_ocp.solvers.backends import Context, Outcome
 from surestep_ocp.solvers.iterate import InitialGuess, Iterate, PrimalDual
 from surestep_ocp.solvers.nlp_cache import LIFTED_FROM_CONDENSED
+from surestep_ocp.output.solution_records import SolveRecord
 from surestep_ocp.solvers.strategy import Attempt, Condition, Stop, default_strategy, run
 
 DEFAULT = Path(__file__).resolve().parents[1] / "problems" / "needle_regrasp_paper_pace.yaml"
@@ -84,9 +85,9 @@ def test_a_depth_violation_by_newton_goes_to_newton_on_the_barrier_problem():
     names = [(a.label, a.status) for a in sol.attempts]
     assert names == [("newton", "Depth_Bound_Violated"),
                      ("newton, depth barrier", "Solve_Succeeded")]
-    assert sol.extras["solver"] == "newton"
+    assert sol.run.solver == "newton"
     ipopt = solve_ocp(_ipopt_monotone(setup), init)
-    assert ipopt.extras["solver"] == "ipopt" and ipopt.success
+    assert ipopt.run.solver == "ipopt" and ipopt.success
     assert sol.trace_final == pytest.approx(ipopt.trace_final, rel=1e-6)
     depths = [setup.pose_of(q)[2] for q in np.asarray(sol.q)]
     assert min(depths) >= setup.ocp.min_depth
@@ -113,7 +114,7 @@ def test_a_failed_barrier_run_goes_to_ipopts_monotone_barrier(monkeypatch):
     assert names == [("newton", "Depth_Bound_Violated"),
                      ("newton, depth barrier", "Maximum_Iterations_Exceeded"),
                      ("surrogate, monotone barrier", "Solve_Succeeded")]
-    assert sol.extras["solver"] == "ipopt"
+    assert sol.run.solver == "ipopt"
     assert np.asarray(sol.poses)[:, 2].min() >= setup.ocp.min_depth - 1e-8
 
 
@@ -328,7 +329,7 @@ class FakeBackend:
         self.calls.append(SimpleNamespace(backend=self.name, start=start, warm=warm,
                                           hessian=hessian, options=options))
         ok = status in ("Solve_Succeeded", "Solved_To_Acceptable_Level")
-        sol = SimpleNamespace(status=status, success=ok, extras={"solver": self.name})
+        sol = SimpleNamespace(status=status, success=ok, run=SolveRecord(solver=self.name))
         # IPOPT ends with a primal-dual point, Newton with joints only
         return Outcome(sol, Iterate(np.full((2, 7), len(self.calls)),
                                     DUALS.dual if self.name == "ipopt" else None))

@@ -202,7 +202,7 @@ def test_structured_hessians_reach_the_exact_hessians_optimum():
         setup = build_setup(with_solver(prob, hessian=h, name="ipopt"))
         sols[h] = solve_ocp(setup, ocp_initial_guess(setup))
         assert sols[h].success, (h, sols[h].status)
-        assert sols[h].extras["constraint_violation"] <= 1e-6
+        assert sols[h].run.constraint_violation <= 1e-6
         assert np.max(np.abs(np.array(sols[h].poses[-1]) - setup.x_goal)) <= 1e-6
     # the planner's objective at its initial point (the straight line) is the baseline's exact-EKF
     # trace
@@ -210,13 +210,13 @@ def test_structured_hessians_reach_the_exact_hessians_optimum():
 
     base = solve_baseline(build_setup(prob)).trace_final
     for h in sols:
-        assert sols[h].extras["initial_trace"] == pytest.approx(base, rel=1e-9)
+        assert sols[h].run.initial_trace == pytest.approx(base, rel=1e-9)
     for h in ("auto", "surrogate", "gauss-newton"):
         assert sols[h].trace_final == pytest.approx(sols["exact"].trace_final, rel=1e-6)
         assert sols[h].iterations < sols["exact"].iterations
     for h in ("surrogate", "gauss-newton", "exact"):
-        assert sols[h].extras["hessian"] == h
-    assert sols["auto"].extras["hessian"].startswith("surrogate")
+        assert sols[h].run.hessian == h
+    assert sols["auto"].run.hessian.startswith("surrogate")
     attempts = sols["auto"].attempts
     assert sum(a.iterations for a in attempts) == sols["auto"].iterations
     assert attempts[0].iterations <= prob.solver.surrogate_max_iter
@@ -234,7 +234,7 @@ def test_warm_resolve_after_a_camera_move_reaches_the_cold_optimum(short):
     again, _ = solve_ocp_warm(moved, init, warm=warm)
     cold = solve_ocp(moved, ocp_initial_guess(moved))
     assert again.success, again.status
-    assert again.extras["init"].startswith("warm start")
+    assert again.run.init.startswith("warm start")
     assert again.trace_final == pytest.approx(cold.trace_final, rel=1e-4)
 
 
@@ -269,12 +269,12 @@ def test_an_optimum_worse_than_the_start_keeps_the_start():
     assert attempts[0].label == "surrogate"
     converged = [a.objective for a in attempts
                  if a.status in ("Solve_Succeeded", "Solved_To_Acceptable_Level")]
-    assert converged and min(converged) > sol.extras["initial_trace"]
+    assert converged and min(converged) > sol.run.initial_trace
     assert attempts[-1].label.startswith("none: the feasible initial guess") and attempts[-1].kept
     assert sum(a.kept for a in attempts) == 1
     assert (sol.status == "Initial_Guess_Kept" and sol.success
-            and not sol.extras["worse_than_initial_guess"])
-    assert sol.objective == sol.extras["initial_trace"]
+            and not sol.run.worse_than_initial_guess)
+    assert sol.objective == sol.run.initial_trace
     baseline = solve_baseline(setup)
     # the straight line, by its IK
     assert sol.trace_final == pytest.approx(baseline.trace_final, rel=1e-6)
@@ -325,8 +325,8 @@ def test_codegen_auto_falls_back_when_the_compile_fails(short, monkeypatch, tmp_
     odd = short.with_ocp(smoothness=0.0123)
     auto = setup_with_solver(odd, codegen="auto", hessian="surrogate")
     sol = solve_ocp(auto, ocp_initial_guess(auto))
-    assert (sol.success and sol.extras["compiled"] is False
-            and "failed" in sol.extras["codegen_note"])
+    assert (sol.success and sol.run.compiled is False
+            and "failed" in sol.run.codegen_note)
     forced = setup_with_solver(odd, codegen=True, hessian="surrogate")
     with pytest.raises(SurestepError, match="failed on the generated code"):
         solve_ocp(forced, ocp_initial_guess(forced))
@@ -370,7 +370,7 @@ def test_full_and_condensed_forms_agree(small):
     np.testing.assert_allclose(np.array(full.poses), np.array(cond.poses), atol=1e-4)
     # each form's own covariance equals the exact EKF's at its optimum
     for sol in (full, cond):
-        assert sol.extras["ocp_trace_final"] == pytest.approx(sol.trace_final, rel=1e-6)
+        assert sol.run.ocp_trace_final == pytest.approx(sol.trace_final, rel=1e-6)
 
 
 def test_diagonal_form_solves_and_matches_the_exact_ekf():
@@ -387,7 +387,7 @@ def test_diagonal_form_solves_and_matches_the_exact_ekf():
     diag = solve_ocp(setup, init, form="diagonal")
     assert diag.success and cond.success, (diag.status, cond.status)
     assert diag.trace_final == pytest.approx(cond.trace_final, rel=1e-6)
-    assert diag.extras["ocp_trace_final"] == pytest.approx(diag.trace_final, rel=1e-6)
+    assert diag.run.ocp_trace_final == pytest.approx(diag.trace_final, rel=1e-6)
 
 
 def test_isotropic_noise_with_a_full_sigma0_runs_scalar_recursions_on_its_eigenvalues():
@@ -409,7 +409,7 @@ def test_isotropic_noise_with_a_full_sigma0_runs_scalar_recursions_on_its_eigenv
     assert sol.success, sol.status
     sig, _ = propagate(np.array(sol.poses), setup.ocp.noise, setup.ocp.intrinsics,
                        guard=COSINE_GUARD)
-    assert sol.extras["ocp_trace_final"] == pytest.approx(np.trace(sig[-1]), rel=1e-9)
+    assert sol.run.ocp_trace_final == pytest.approx(np.trace(sig[-1]), rel=1e-9)
     assert sol.trace_final == pytest.approx(np.trace(sig[-1]), rel=1e-9)
     # a non-isotropic, non-diagonal model is not scalar, but structured (constant maps, mean noise):
     # auto keeps the condensed form, with the 6x6 matrix recursion (tests/test_lifted.py,

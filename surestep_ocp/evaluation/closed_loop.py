@@ -124,7 +124,7 @@ class ClosedLoop:
         except SurestepError as exc:  # e.g. an estimate the checks reject
             self.failures.append((t, i, str(exc)))
             return planner
-        took = sol.extras["replan"]["time_s"]
+        took = sol.replan.time_s
         self.times.append(took)
         if not sol.success:
             self.failures.append((t, i, sol.status))
@@ -132,9 +132,9 @@ class ClosedLoop:
         if self.deadline_s is not None and took > self.deadline_s:  # too late to run
             self.failures.append((t, i, f"late ({took * 1e3:.1f} ms)"))
             return planner
-        st = sol.extras["start_state"]
+        st = sol.run.start_state
         self.pieces[i].append((t, np.array(sol.q, float),
-                               (np.array(st["velocity"]), np.array(st["acceleration"]))))
+                               (np.array(st.velocity), np.array(st.acceleration))))
         self.planners[i] = trial
         return trial
 

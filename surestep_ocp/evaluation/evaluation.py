@@ -130,7 +130,7 @@ def evaluate_configuration(eval_path: str, seed: int, index: int, methods: tuple
                  "iterations": sol.iterations, "evaluated": True}
         if sol.status == "Initial_Guess_Kept":  # why: what every solver attempt ended with
             solve["kept_start"] = ("; ".join(f"{a.label}: {a.status}" for a in sol.attempts)
-                                   or sol.extras.get("solver", ""))
+                                   or sol.run.solver or "")
         try:
             # a closed loop runs within the limits: at the robot's pace already
             poses = (np.asarray(sol.poses, float) if policy is not None

@@ -123,9 +123,9 @@ class RolloutReplanner:
                 self.times.append(time.perf_counter() - t0)
                 self.failures.append((t, i, str(exc)))
                 continue
-            self.times.append(sol.extras["replan"]["time_s"])
+            self.times.append(sol.replan.time_s)
             if not sol.success:
-                self.failures.append((t, i, f"{sol.extras.get('solver')}: {sol.status}"))
+                self.failures.append((t, i, f"{sol.run.solver}: {sol.status}"))
                 continue
             out[i, t + 1:] = self.poses_in_step_frames(np.asarray(sol.q, float)[1:], t + 1)
         return out

@@ -34,11 +34,11 @@ def tracker_loop(setup: Setup, seed: int = 0, progress=None) -> dict:
         if progress:
             progress(k, plan)
         if plan.success:
-            start = plan.extras.get("start_state")
+            start = plan.run.start_state
             pieces.append((k, np.array(plan.q, float), None if start is None else
-                           (np.array(start["velocity"]), np.array(start["acceleration"]))))
+                           (np.array(start.velocity), np.array(start.acceleration))))
     tracker.move_to(planner.plan.poses[-1])
-    ms = np.array([p.extras["replan"]["time_s"] * 1e3 for p in plans])
+    ms = np.array([p.replan.time_s * 1e3 for p in plans])
     summary = {
         "seed": seed, "replans": len(plans), "failed": int(sum(not p.success for p in plans)),
         "replan_median_ms": float(np.median(ms)) if len(ms) else None,
@@ -54,9 +54,8 @@ def tracker_loop(setup: Setup, seed: int = 0, progress=None) -> dict:
 def write_tracker_loop(result: dict, out_dir: Path) -> str:
     """loop.md (a table per re-plan) and loop.json (the same, and the summary), each written whole;
     returns the table."""
-    rows = [(p.extras["replan"]["step"], p.horizon, p.status, p.iterations,
-             round(p.extras["replan"]["time_s"] * 1e3, 2),
-             "yes" if p.extras["replan"].get("kept_previous") else "no") for p in result["plans"]]
+    rows = [(p.replan.step, p.horizon, p.status, p.iterations, round(p.replan.time_s * 1e3, 2),
+             "yes" if p.replan.kept_previous else "no") for p in result["plans"]]
     head = "| step | steps left | status | iterations | ms | previous plan kept |"
     table = "\n".join([head, "|---|---|---|---|---|---|"]
                       + [f"| {' | '.join(str(v) for v in r)} |" for r in rows])

@@ -19,6 +19,15 @@ from ..problem.scene import ArmRecord
 from ..problem.setup import Setup
 from .attempt_record import AttemptRecord
 from .files import check_finite, check_replaceable
+from .solution_records import (
+    LimitsRecord,
+    Needle,
+    Placement,
+    ProblemRecord,
+    ReplanRecord,
+    SolveRecord,
+    Timing,
+)
 
 
 @dataclass
@@ -46,7 +55,11 @@ class Solution:
     objective: float
     # the solve strategy's attempts, in order
     attempts: list[AttemptRecord] = field(default_factory=list)
-    extras: dict[str, Any] = field(default_factory=dict)  # what is specific to a method or backend
+    run: SolveRecord = field(default_factory=SolveRecord)  # how the solve went
+    problem_record: ProblemRecord = field(default_factory=ProblemRecord)  # timing, limits, scene
+    replan: ReplanRecord | None = None  # a `Planner.replan` call's
+    # only what is specific to a method or backend (docs/solution_file.md)
+    extras: dict[str, Any] = field(default_factory=dict)
 
     # ----------------------------------------------------------- derived numbers
     @property
@@ -58,8 +71,8 @@ class Solution:
         """Distance [m] and angle [rad] between the plan's last waypoint and the goal
         (first camera frame)."""
         x, g = np.asarray(self.poses[-1]), np.asarray(self.goal)
-        if "camera_poses" in self.extras:  # poses are in their own step's camera frame
-            C = [np.asarray(c) for c in self.extras["camera_poses"]]
+        if self.problem_record.camera_poses:  # poses are in their own step's camera frame
+            C = [np.asarray(c) for c in self.problem_record.camera_poses]
             x = matrix_to_pose(np.linalg.inv(C[0]) @ C[-1] @ pose_to_matrix(x))
         return float(np.linalg.norm(x[:3] - g[:3])), np_angle(x[3:], g[3:])
 
@@ -100,13 +113,21 @@ class Solution:
     @property
     def times(self) -> np.ndarray:
         """(T+1,) time [s] of each waypoint from the start (`timing.step_s` per step)."""
-        return np.arange(self.horizon + 1) * float(self.extras.get("timing", {}).get("step_s",
-                                                                                     0.05))
+        timing = self.problem_record.timing
+        return np.arange(self.horizon + 1) * (0.05 if timing is None else float(timing.step_s))
 
     def to_dict(self) -> dict:
+        """The solution file's mapping: the typed records' fields and the extras as top-level keys
+        (a re-plan's record under `replan`), as before they were typed."""
         d = asdict(self)
+        for key in _RECORDS:
+            d.pop(key)
+        self.run.to_json(d)
         extras = d.pop("extras")
         d.update(extras)
+        self.problem_record.to_json(d)
+        if self.replan is not None:
+            d["replan"] = self.replan.to_json()
         return d
 
     def save(self, path: str | Path) -> Path:
@@ -118,11 +139,45 @@ class Solution:
 
     @classmethod
     def load(cls, path: str | Path) -> Solution:
-        d = json.loads(Path(path).read_text())
-        names = set(cls.__dataclass_fields__) - {"extras", "attempts"}
-        attempts = [AttemptRecord.from_dict(a) for a in d.get("attempts", [])]
-        return cls(**{k: d[k] for k in names}, attempts=attempts,
-                   extras={k: v for k, v in d.items() if k not in names and k != "attempts"})
+        return cls.from_dict(json.loads(Path(path).read_text()))
+
+    @classmethod
+    def from_dict(cls, d: dict) -> Solution:
+        """A solution from its file's mapping (`to_dict`'s). A recorded value whose shape is not
+        its record's (a file from before that value was recorded so) stays in `extras`, unread
+        but written back unchanged."""
+        d = dict(d)
+        names = set(cls.__dataclass_fields__) - {"extras", "attempts", *_RECORDS}
+        core = {k: d.pop(k) for k in names}
+        attempts = [AttemptRecord.from_dict(a) for a in d.pop("attempts", [])]
+        extras: dict[str, Any] = {}
+        run = _typed(SolveRecord, d, extras)
+        problem_record = _typed(ProblemRecord, d, extras)
+        replan = None
+        if "replan" in d:
+            try:
+                replan = ReplanRecord.from_json(d["replan"])
+                del d["replan"]
+            except (KeyError, TypeError, ValueError):
+                pass
+        return cls(**core, attempts=attempts, run=run, problem_record=problem_record,
+                   replan=replan, extras={**extras, **d})
+
+
+# the typed records of a Solution, written as top-level keys of its file
+_RECORDS = ("run", "problem_record", "replan")
+
+
+def _typed(record, d: dict, extras: dict):
+    """`record` (SolveRecord or ProblemRecord) from the keys of `d` named like its fields (removed
+    from `d`); a value that does not read as its field's goes to `extras` as it is."""
+    taken = {f: d.pop(f) for f in record.__dataclass_fields__ if f in d}
+    for k, v in list(taken.items()):
+        try:
+            record.from_json({k: v})
+        except (KeyError, TypeError, ValueError):
+            extras[k] = taken.pop(k)
+    return record.from_json(taken)
 
 
 def write_json_atomic(path: str | Path, obj: Any) -> Path:
@@ -218,10 +273,15 @@ def evaluate(
     iterations: int,
     objective: float,
     components: tuple[str, ...] | None = None,
+    run: SolveRecord | None = None,
     extras: dict | None = None,
     sigma: np.ndarray | None = None,
 ) -> Solution:
     """The single evaluation every method goes through: the EKF with all components along `poses`.
+
+    `run`: how the solve went (the solver's, its start, ...); `extras`: what only this method or
+    backend reports. The problem's record (timing, limits, other arms, camera moves, ECM) is the
+    setup's.
 
     `sigma`: the (T+1, 6, 6) covariances of that EKF along `poses` when the caller has them already
     (the re-planning loop propagates them in one compiled call, planner.py; a fixed camera only).
@@ -246,27 +306,19 @@ def evaluate(
              "base_pose": setup.robot.base_pose.tolist()}
     if scene.robot.grasp is not None:
         robot["needle"] = _needle(scene.robot)
-    ext = dict(extras or {})
     tm = ocp.timing  # the file's timing (noise's V_* are already divided by frames_per_step)
-    ext.setdefault("timing", {"step_s": tm.step_s, "tracker_hz": tm.tracker_hz,
-                              "frames_per_step": tm.frames})
-    # what `surestep export` honours (docs/motion_limits_and_export.md, "Export")
-    ext.setdefault("limits", recorded_limits(setup))
-    arms = []
-    for a in scene.other_arms:
-        arm = {"urdf": a.urdf, "frame": a.frame, "base_pose": a.base_pose.tolist(),
-               "q": [float(v) for v in a.joints]}
-        if a.grasp is not None:
-            arm["needle"] = _needle(a)
-        arms.append(arm)
-    if arms:
-        ext.setdefault("other_arms", arms)
-    if setup.camera_schedule:
-        ext.setdefault("camera_poses", [C.tolist() for C in setup.camera_schedule])
-    if setup.ecm is not None:
-        ext.setdefault("ecm", {"urdf": scene.ecm.urdf, "frame": scene.ecm.frame,
-                               "q": list(map(float, scene.ecm.joints)),
-                               "base_pose": setup.ecm.base_pose.tolist()})
+    arms = [Placement(a.urdf, a.frame, a.base_pose.tolist(), [float(v) for v in a.joints],
+                      None if a.grasp is None else Needle(**_needle(a)))
+            for a in scene.other_arms]
+    record = ProblemRecord(
+        timing=Timing(tm.step_s, tm.tracker_hz, tm.frames),
+        # what `surestep export` honours (docs/motion_limits_and_export.md, "Export")
+        limits=LimitsRecord.from_json(recorded_limits(setup)),
+        other_arms=arms or None,
+        camera_poses=[C.tolist() for C in setup.camera_schedule] or None,
+        ecm=None if setup.ecm is None else Placement(
+            scene.ecm.urdf, scene.ecm.frame, setup.ecm.base_pose.tolist(),
+            list(map(float, scene.ecm.joints))))
     return Solution(
         method=method,
         problem=ocp.source,
@@ -287,5 +339,7 @@ def evaluate(
         sigma=sig.tolist(),
         sigma_final=sig[-1].tolist(),
         objective=float(objective),
-        extras=ext,
+        run=run or SolveRecord(),
+        problem_record=record,
+        extras=dict(extras or {}),
     )

@@ -56,7 +56,7 @@ def replan_after_camera_moves(setup: Setup, out_dir: Path, progress=None) -> dic
     once = evaluate(setup, "ocp-once", np.array(first.poses), first.q, success=first.success,
                     status=first.status, solve_time_s=first.solve_time_s,
                     iterations=first.iterations, objective=first.objective,
-                    extras=first.extras)
+                    run=first.run, extras=first.extras)
     q_exec = np.array(once.q, dtype=float)
     plans: list[Solution] = []
     total_time, total_iter = once.solve_time_s, once.iterations
@@ -68,10 +68,10 @@ def replan_after_camera_moves(setup: Setup, out_dir: Path, progress=None) -> dic
         plan = planner.replan(mean, sigma, camera_pose=C[k], step=k - 1)
         plan.method = f"ocp-replan-{k}"
         if not plan.success:
-            raise SurestepError(f"re-plan at step {k}: {plan.extras.get('solver')} "
+            raise SurestepError(f"re-plan at step {k}: {plan.run.solver} "
                                 f"status {plan.status}")
         plans.append(plan)
-        total_time += plan.extras["replan"]["time_s"]
+        total_time += plan.replan.time_s
         total_iter += plan.iterations
         q_exec[k - 1 :] = np.array(plan.q)
     poses0 = np.array([setup.pose_of(q) for q in q_exec])  # first camera frame

@@ -40,6 +40,7 @@ from ..model.lie import angle_sq, np_angle, pose_mean, so3_exp
 from ..errors import SurestepError
 from ..problem.setup import Setup
 from ..output.solution import Solution, evaluate
+from ..output.solution_records import SolveRecord
 
 # Smooth guards of the two norms in the pose loss: sqrt(a^2 + eps^2) - eps equals |a|
 # up to eps/2 relative near 0 and differs from it by < eps everywhere; it is exactly 0 at 0
@@ -196,7 +197,6 @@ def solve_gradient(
         "trace_scale": float(spec.trace_scale),
         "preset": spec.preset or None,
         "components": list(components),
-        "init": "straight-line baseline" if init_poses is None else "init_poses",
         "loss_start": start,
         "loss_end": end,
         "final_step_m": float(np.linalg.norm(poses[T, :3] - poses[T - 1, :3])),
@@ -204,7 +204,6 @@ def solve_gradient(
         "max_change_vs_baseline_m": dpos,
         "max_change_vs_baseline_rad": dang,
         "barely_moved": bool(dpos < BARELY_MOVED_M and dang < BARELY_MOVED_RAD),
-        "build_time_s": build_s,
         "ik_time_s": ik_s,
         "reachability": info,
     }
@@ -212,6 +211,8 @@ def solve_gradient(
         setup, method, poses, qs,
         success=success, status=status, solve_time_s=solve_s, iterations=nit,
         objective=end["loss"], components=components, extras=extras,
+        run=SolveRecord(init="straight-line baseline" if init_poses is None else "init_poses",
+                        build_time_s=build_s),
     )
 
 

@@ -46,6 +46,7 @@ from ..model.lie import np_poses
 from ..model.joint_noise import joint_noise_curvature, joint_noise_expr
 from ..model.robot import CAMERA_PARAMETERS, Robot
 from ..output.solution import Solution, evaluate
+from ..output.solution_records import SolveRecord
 from ..problem.setup import Setup
 from .buffered import Buffered
 from .codegen import Deferred, compiled_or_interpreted
@@ -556,12 +557,13 @@ class NewtonSolver:
             setup, method, r.poses, list(r.q),
             success=r.success, status=r.status, solve_time_s=r.solve_time_s,
             iterations=r.iterations, objective=r.objective,
-            extras={"init": init.source, "solver": "newton", "covariance_form": "condensed",
-                    "exact_steps": r.exact_steps, "secant_steps": r.secant_steps,
-                    "build_time_s": self.build_time_s, "compiled": self.codegen,
-                    **({"codegen_note": self.codegen_note} if self.codegen_note else {}),
-                    "ocp_trace_final": r.trace, "initial_trace": r.initial_trace,
-                    "constraint_violation": r.violation},
+            run=SolveRecord(solver="newton", init=init.source, covariance_form="condensed",
+                            build_time_s=self.build_time_s, compiled=self.codegen,
+                            codegen_note=self.codegen_note or None,
+                            initial_trace=r.initial_trace, ocp_trace_final=r.trace,
+                            constraint_violation=r.violation),
+            # its end-game's exact-Hessian and secant-corrected steps
+            extras={"exact_steps": r.exact_steps, "secant_steps": r.secant_steps},
         )
 
 

@@ -16,6 +16,7 @@ import numpy as np
 
 from ..model.limits import enforce as enforce_limits
 from ..output.solution import Solution
+from ..output.solution_records import CondensedStart, SecondStart
 from ..problem.setup import Setup
 from ..problem.solver_config import resolve
 from .backends import Context
@@ -66,8 +67,9 @@ def solve_ocp_warm(setup: Setup, init: InitialGuess, solver_options: dict | None
         pre = solve_ocp_warm(setup, init, solver_options, method, "condensed")[0]
         # no stationary point to start the lifted NLP from: the same plan
         if pre.status == "Initial_Guess_Kept":
-            pre.extras["lifted"] = ("not run: the condensed solve kept its start, where the lifted "
-                                    "NLP does not converge (docs/general_models.md)")
+            pre.run = replace(pre.run, lifted=("not run: the condensed solve kept its start, where "
+                                               "the lifted NLP does not converge "
+                                               "(docs/general_models.md)"))
             return pre, None
         if pre.success:
             init = InitialGuess(np.array(pre.q), f"condensed solution ({init.source})")
@@ -81,7 +83,7 @@ def solve_ocp_warm(setup: Setup, init: InitialGuess, solver_options: dict | None
 
     # the planner's objective at the cold start (trace + smoothness)
     def start_objective(s_k: Solution) -> float:
-        return s_k.extras["initial_trace"] * (1 + smooth0)
+        return s_k.run.initial_trace * (1 + smooth0)
 
     if warm is None and ((finished and tried[pick][2].objective > start_objective(tried[pick][2]))
                          or ((costly or limited) and not finished and tried)):
@@ -92,9 +94,9 @@ def solve_ocp_warm(setup: Setup, init: InitialGuess, solver_options: dict | None
         nlps = [t.outcome.start_solution for t in ran if t.outcome.start_solution is not None]
         start = nlps[-1](init) if nlps else None  # the last NLP's start point and bounds
         if start is not None:
-            ran = sorted({s_k.extras["solver"] for _, _, s_k, _ in tried})
-            start.extras["solver"] = (f"none (the initial guess; {', '.join(ran)} did not "
-                                      "end below it)")
+            ran = sorted({s_k.run.solver for _, _, s_k, _ in tried})
+            start.run = replace(start.run, solver=(f"none (the initial guess; {', '.join(ran)} "
+                                                   "did not end below it)"))
             tried.append(("none: the feasible initial guess, below every converged point"
                           if finished
                           else "none: the feasible initial guess (no attempt converged)",
@@ -103,22 +105,19 @@ def solve_ocp_warm(setup: Setup, init: InitialGuess, solver_options: dict | None
     sol, last = tried[pick][2], tried[pick][3]
     sol.attempts = [record(label, hess, s_k, k == pick)
                     for k, (label, hess, s_k, _) in enumerate(tried)]
-    sol.extras["hessian"] = " + ".join(label for label, _, _, _ in tried)
-    sol.extras["initial_objective"] = start_objective(sol)
-    sol.extras["worse_than_initial_guess"] = bool(sol.objective > sol.extras["initial_objective"])
-    sol.extras["init"] = init.source if warm is None else f"warm start ({init.source})"
+    initial_objective = start_objective(sol)
+    sol.run = replace(sol.run, hessian=" + ".join(label for label, _, _, _ in tried),
+                      initial_objective=initial_objective,
+                      worse_than_initial_guess=bool(sol.objective > initial_objective),
+                      init=init.source if warm is None else f"warm start ({init.source})")
     sol.solve_time_s = sum(s_k.solve_time_s for _, _, s_k, _ in tried)
     sol.iterations = sum(s_k.iterations for _, _, s_k, _ in tried)
     # the condensed solve that started the lifted one: reported, and counted in time
     if pre is not None:
-        sol.extras["condensed_start"] = {"status": pre.status, "iterations": pre.iterations,
-                                         "solver": pre.extras.get("solver"),
-                                         "solve_time_s": pre.solve_time_s,
-                                         "objective": pre.objective}
-        sol.extras["initial_trace"] = pre.extras["initial_trace"]
-        sol.extras["initial_objective"] = pre.extras["initial_objective"]
-        sol.extras["worse_than_initial_guess"] = bool(
-            sol.objective > sol.extras["initial_objective"])
+        sol.run = replace(sol.run, condensed_start=CondensedStart(
+            pre.status, pre.iterations, pre.run.solver, pre.solve_time_s, pre.objective),
+            initial_trace=pre.run.initial_trace, initial_objective=pre.run.initial_objective,
+            worse_than_initial_guess=bool(sol.objective > pre.run.initial_objective))
         sol.solve_time_s += pre.solve_time_s
         sol.iterations += pre.iterations
     if (costly and resolved.form == "condensed" and warm is None and not limited
@@ -150,7 +149,7 @@ def _objective_at(setup: Setup, sol: Solution, other: Solution) -> float:
     sig, pred = setup.model.propagate(setup.poses_of(q), joint=setup.joint_noises(q))
     trace = float(np.trace(pred[-1] if setup.model.noise.objective == "predicted" else sig[-1]))
     smooth = setup.ocp.smoothness * float(np.sum(np.diff(np.asarray(other.q, float), axis=0) ** 2))
-    return trace + smooth * sol.extras["initial_trace"]
+    return trace + smooth * sol.run.initial_trace
 
 
 def _second_start(setup: Setup, cold: InitialGuess, sol: Solution, last, solver_options,
@@ -169,13 +168,11 @@ def _second_start(setup: Setup, cold: InitialGuess, sol: Solution, last, solver_
         spec = setup.ocp.solver
         approx = newton_solver(diag).solve(diag, cold, method, tol=spec.tol,
                                            max_iter=min(GATE_ITER, spec.max_iter))
-    gate = {"status": approx.status, "iterations": approx.iterations,
-            "solve_time_s": approx.solve_time_s}
     extra_time, extra_it = approx.solve_time_s, approx.iterations
     ahead = (approx.success and approx.status != "Initial_Guess_Kept"
              and _objective_at(setup, sol, approx) < sol.objective)
     # the diagonal plan itself scores below the first plan: worth a Newton run from it
-    gate["ahead"] = bool(ahead)
+    gate = SecondStart(approx.status, approx.iterations, approx.solve_time_s, bool(ahead))
     if ahead:
         spec = setup.ocp.solver
         # a short Newton run (the surrogate converges linearly on the 6x6 recursion, so a long run
@@ -184,8 +181,8 @@ def _second_start(setup: Setup, cold: InitialGuess, sol: Solution, last, solver_
         second = newton_solver(setup).solve(
             setup, InitialGuess(np.array(approx.q), "diagonal model's plan"), method, tol=spec.tol,
             max_iter=min(SECOND_START_ITER, spec.max_iter))
-        gate.update(newton_status=second.status, newton_iterations=second.iterations,
-                      newton_objective=second.objective)
+        gate = replace(gate, newton_status=second.status, newton_iterations=second.iterations,
+                       newton_objective=second.objective)
         extra_time += second.solve_time_s
         extra_it += second.iterations
         if (not second.success and second.status == "Maximum_Iterations_Exceeded"
@@ -196,23 +193,22 @@ def _second_start(setup: Setup, cold: InitialGuess, sol: Solution, last, solver_
             second, _ = tr.solve(
                 setup, InitialGuess(np.array(second.q), "Newton from the diagonal model's plan"),
                 method)
-            gate.update(ipopt_status=second.status, ipopt_iterations=second.iterations)
+            gate = replace(gate, ipopt_status=second.status, ipopt_iterations=second.iterations)
             extra_time += second.solve_time_s
             extra_it += second.iterations
         if second.success and (not sol.success or second.objective < sol.objective * (1 - 1e-9)):
-            for key in ("initial_trace", "initial_objective"):
-                second.extras[key] = sol.extras[key]
-            label = f"{second.extras['solver']} from the diagonal model's plan"
+            label = f"{second.run.solver} from the diagonal model's plan"
             second.attempts = [replace(a, kept=False) for a in sol.attempts] + [
                 record(label, "surrogate", second, True)]
-            second.extras["hessian"] = sol.extras["hessian"] + f" + {label}"
-            second.extras["init"] = sol.extras["init"]
-            second.extras["worse_than_initial_guess"] = bool(
-                second.objective > second.extras["initial_objective"])
+            second.run = replace(
+                second.run, initial_trace=sol.run.initial_trace,
+                initial_objective=sol.run.initial_objective,
+                hessian=sol.run.hessian + f" + {label}", init=sol.run.init,
+                worse_than_initial_guess=bool(second.objective > sol.run.initial_objective))
             second.solve_time_s, second.iterations = sol.solve_time_s, sol.iterations
             sol, last = second, (Iterate(np.array(second.q))
-                                 if second.extras["solver"] == "newton" else None)
-    sol.extras["second_start"] = gate
+                                 if second.run.solver == "newton" else None)
+    sol.run = replace(sol.run, second_start=gate)
     sol.solve_time_s += extra_time
     sol.iterations += extra_it
     return sol, last

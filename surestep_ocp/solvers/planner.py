@@ -41,6 +41,7 @@ from .strategy import run as run_strategy
 from ..problem.spec import Problem
 from ..problem.setup import Setup, build_setup
 from ..output.solution import Solution, evaluate
+from ..output.solution_records import ReplanAttempt, ReplanRecord, SolveRecord, StartState
 
 _UNVECH = unvech(np.arange(NV, dtype=float)).astype(int)  # (6, 6) positions of each entry in vech
 # a re-plan's first barrier parameter: its few iterations end well inside the rows, which leaves the
@@ -122,8 +123,8 @@ class Planner:
 
         Returns:
             A Solution starting at waypoint `step` (its `horizon` is the steps left);
-            `extras["replan"]` has the time of the whole call without builds (`time_s`) and the
-            solver that made it. A successful one becomes `plan` (and `step`); after a failure
+            `replan` (a ReplanRecord) has the time of the whole call without builds (`time_s`) and
+            the solver that made it. A successful one becomes `plan` (and `step`); after a failure
             (check `success`) the previous plan stays current.
         """
         t0, builds_before = time.perf_counter(), self.build_time_s
@@ -167,23 +168,22 @@ class Planner:
                 return evaluate(setup, method, run.poses, list(run.q), success=run.success,
                                 status=run.status, solve_time_s=run.solve_time_s,
                                 iterations=run.iterations, objective=run.objective,
-                                sigma=sig, extras={"solver": "newton", "init": start.source,
-                                                   "initial_trace": run.initial_trace,
-                                                   "compiled": built[0].codegen})
+                                sigma=sig, run=SolveRecord(solver="newton", init=start.source,
+                                                           initial_trace=run.initial_trace,
+                                                           compiled=built[0].codegen))
 
             ctx = Context(sub, resolved_solver(sub), "ocp-replan", {}, evaluate_newton=evaluate_run)
             tried = run_strategy(replan_strategy(moved), ctx, warm, None)
             if tried[-1].outcome.solution.success:
                 sol = tried[-1].outcome.solution
                 sol.attempts = records(tried, len(tried) - 1)
-                sol.extras["warm_start_q"] = warm.q
+                sol.run = replace(sol.run, warm_start_q=np.asarray(warm.q, float).tolist())
         if sol is None:
             # IPOPT's models, or Newton did not converge: the whole strategy from the previous plan
             sol = solve_ocp_warm(sub, warm, method="ocp-replan")[0]
-            sol.extras["warm_start_q"] = warm.q
+            sol.run = replace(sol.run, warm_start_q=np.asarray(warm.q, float).tolist())
         built_s = sum(self.builds.values()) - builds_before
-        sol.extras["replan"] = {"step": step, "time_s": time.perf_counter() - t0 - built_s,
-                                "solver": sol.extras.get("solver"), "build_time_s": built_s}
+        sol.replan = ReplanRecord(step, time.perf_counter() - t0 - built_s, sol.run.solver, built_s)
         if sol.success:  # else the previous plan stays current
             self.plan, self.step, self._q = sol, step, np.array(sol.q, float)
         return sol
@@ -202,7 +202,7 @@ class Planner:
         velocity, acceleration: the commanded motion stays twice continuously differentiable), with
         the camera registered to the tracker (the kinematics at those joints see the tool at the
         tracker's mean), to the goal where the camera sees it; the interior-point method from the
-        previous plan's rest. A failure keeps the previous plan (said in `extras["replan"]`)."""
+        previous plan's rest. A failure keeps the previous plan (said in `replan.kept_previous`)."""
         q0, v0, a0 = self.executed_state(step)
         world_tool = base.camera_pose @ pose_to_matrix(base.pose_of(q0))
         registered = base.seen_from(world_tool @ np.linalg.inv(pose_to_matrix(mean)))
@@ -254,16 +254,16 @@ class Planner:
             if run.success:
                 break
         sol = solver.newton.solution(sub, "ocp-replan", warm, run)
-        sol.extras.update(solver="interior",
-                          start_state={"velocity": v0.tolist(), "acceleration": a0.tolist()},
-                          warm_start_q=warm.q, reserve=reserve, extended_steps=extra)
+        sol.run = replace(sol.run, solver="interior",
+                          start_state=StartState(v0.tolist(), a0.tolist()),
+                          warm_start_q=np.asarray(warm.q, float).tolist())
+        sol.extras.update(reserve=reserve, extended_steps=extra)
         if not reachable:  # no plan tried (the goal's IK residual is in the log)
             sol.success, sol.status = False, "Goal_Unreachable"
             sol.extras["goal_ik_residual"] = {"m": float(res_m), "rad": float(res_rad)}
         built_s = self.build_time_s - builds_before
-        sol.extras["replan"] = {"step": step, "time_s": time.perf_counter() - t0 - built_s,
-                                "solver": "interior", "build_time_s": built_s,
-                                "kept_previous": not sol.success, "attempts": tried}
+        sol.replan = ReplanRecord(step, time.perf_counter() - t0 - built_s, "interior", built_s,
+                                  not sol.success, [ReplanAttempt(**a) for a in tried])
         if sol.success:
             self.plan, self.step, self._q, self._start = sol, step, np.array(sol.q, float), (v0, a0)
             self.horizon += extra
@@ -292,7 +292,8 @@ class Planner:
             return plan
         sol = solver.newton.solution(setup, plan.method, start, run)
         sol.solve_time_s += plan.solve_time_s
-        sol.extras.update(solver="interior", reserve=RESERVE, attempts_within_limits=plan.attempts)
+        sol.run = replace(sol.run, solver="interior")
+        sol.extras.update(reserve=RESERVE, attempts_within_limits=plan.attempts)
         enforce_limits(setup, sol)
         return sol if sol.success else plan
 

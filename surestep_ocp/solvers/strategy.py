@@ -193,11 +193,10 @@ def records(tried: list[Tried], pick: int) -> list[AttemptRecord]:
 def record(label: str, hessian: str | None, sol: Solution, kept: bool) -> AttemptRecord:
     """One attempt's record from its plan (the backend is the plan's `solver`; "none" for a kept
     start)."""
-    solver = str(sol.extras["solver"])
+    solver = str(sol.run.solver)
     return AttemptRecord(label, "none" if solver.startswith("none") else solver,
                          hessian if solver == "ipopt" else None, sol.status, sol.iterations,
-                         sol.solve_time_s, sol.objective, kept,
-                         bool(sol.extras.get("compiled", False)))
+                         sol.solve_time_s, sol.objective, kept, bool(sol.run.compiled))
 
 
 def run(strategy: tuple, ctx: Context, init: InitialGuess, warm: Iterate | None) -> list[Tried]:

@@ -55,6 +55,7 @@ from ..model.limits import MotionLimits
 from ..model.robot import CAMERA_PARAMETERS, Robot
 from ..problem.setup import Setup
 from ..output.solution import Solution, evaluate
+from ..output.solution_records import SolveRecord
 from .stages import assemble, entries, smoothness_matrix
 from .surrogate import interval_terms, pose_function, recursion_weights, scalar_trace
 
@@ -580,11 +581,11 @@ class Transcription:
         return evaluate(setup, method, setup.poses_of(q), list(q), success=True,
                         status="Initial_Guess_Kept", solve_time_s=0.0, iterations=0,
                         objective=trace_ref,
-                        extras={"init": init.source, "solver": "ipopt",
-                                "covariance_form": self.form, "build_time_s": self.build_time_s,
-                                "compiled": self.codegen,
-                                "ocp_trace_final": trace_ref, "initial_trace": trace_ref,
-                                "constraint_violation": violation})
+                        run=SolveRecord(solver="ipopt", init=init.source,
+                                        covariance_form=self.form,
+                                        build_time_s=self.build_time_s, compiled=self.codegen,
+                                        initial_trace=trace_ref, ocp_trace_final=trace_ref,
+                                        constraint_violation=violation))
 
     def solve(self, setup: Setup, init: InitialGuess, method: str = "ocp",
               warm: PrimalDual | None = None) -> tuple[Solution, PrimalDual]:
@@ -634,17 +635,17 @@ def ipopt_solution(tr, setup: Setup, method: str, init, warm, q: np.ndarray, res
         setup, method, poses, list(q),
         success=bool(stats["success"]), status=str(stats["return_status"]), solve_time_s=solve_s,
         iterations=int(stats["iter_count"]), objective=float(res["f"]) * trace_ref,
-        extras={
-            "init": init.source if warm is None else f"warm start ({init.source})",
-            "solver": "ipopt",
-            "covariance_form": form,
-            "build_time_s": tr.build_time_s,
-            "compiled": tr.codegen,  # derivatives compiled to C (solver.codegen)
-            **({"codegen_note": tr.codegen_note} if tr.codegen_note else {}),
-            "ocp_trace_final": ocp_trace,
-            "initial_trace": trace_ref,  # the planner's objective at the (cold) initial guess
-            "constraint_violation": violation,
-        },
+        run=SolveRecord(
+            solver="ipopt",
+            init=init.source if warm is None else f"warm start ({init.source})",
+            covariance_form=form,
+            build_time_s=tr.build_time_s,
+            compiled=tr.codegen,  # derivatives compiled to C (solver.codegen)
+            codegen_note=tr.codegen_note or None,
+            initial_trace=trace_ref,  # the planner's objective at the (cold) initial guess
+            ocp_trace_final=ocp_trace,
+            constraint_violation=violation,
+        ),
     )
     return sol, PrimalDual(np.asarray(res["x"]).ravel(), np.asarray(res["lam_x"]).ravel(),
                           np.asarray(res["lam_g"]).ravel(), scale, trace_ref)

@@ -3,6 +3,8 @@ becomes a failure (status `Motion_Limits_Violated`), its limit report recorded i
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from .report import plan_report
@@ -12,7 +14,7 @@ from .values import VIOLATED, MotionLimits, problem_limits
 def enforce(setup, sol, limits: MotionLimits | None = None) -> dict:
     """With `limits.enforce: true`: check the plan of `sol` (a Solution), record the report in
     `sol.extras["motion_limits"]`, and turn a successful solution that breaks a limit into a failure
-    with status `Motion_Limits_Violated` (the solver's own status kept as `extras["solver_status"]`;
+    with status `Motion_Limits_Violated` (the solver's own status kept as `sol.run.solver_status`;
     a failed solution keeps its status). Returns the report (an empty dict when the limits are not
     enforced)."""
     if not setup.ocp.limits.enforce:
@@ -26,7 +28,7 @@ def enforce(setup, sol, limits: MotionLimits | None = None) -> dict:
     sol.extras["motion_limits"] = rep
     # a failure keeps its own status (the report says what it breaks)
     if not rep["ok"] and sol.success:
-        sol.extras["solver_status"] = sol.status
+        sol.run = replace(sol.run, solver_status=sol.status)
         sol.success, sol.status = False, VIOLATED
     return rep
 

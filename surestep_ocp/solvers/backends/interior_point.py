@@ -4,6 +4,8 @@ system per iteration."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from ...model.limits import enforce as enforce_limits
@@ -58,7 +60,7 @@ class InteriorPointBackend:
             start = feasible_line(setup, solver)
             run = solver.run(setup, start, relax=True, **kw)
         sol = solver.newton.solution(setup, ctx.method, start, run)
-        sol.extras["solver"] = "interior"
+        sol.run = replace(sol.run, solver="interior")
         # the played curve checked densely, as every plan within the limits
         enforce_limits(setup, sol)
         return Outcome(sol, (Iterate(sol.joints, multipliers=run.multipliers) if sol.success
