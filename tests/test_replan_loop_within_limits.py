@@ -106,9 +106,9 @@ def test_a_correction_that_does_not_fit_is_bounded_work_and_keeps_the_previous_p
     mean = np.array(plan.poses[k], float)
     mean[:3] += 0.02 * np.array([1.0, -0.7, 0.4])
     sol = planner.replan(mean, 1e-6 * np.eye(6), step=k)
-    attempts = sol.extras["replan"]["attempts"]
+    attempts = sol.replan.attempts
     assert len(attempts) > 1  # the first did not fit
-    assert sum(a["iterations"] for a in attempts) <= budget + planner_module.REPLAN_ITERATIONS
+    assert sum(a.iterations for a in attempts) <= budget + planner_module.REPLAN_ITERATIONS
     if not sol.success:
         assert planner.plan is plan and planner.step == 0
-        assert sol.extras["replan"]["kept_previous"]
+        assert sol.replan.kept_previous
