@@ -23,6 +23,7 @@ import numpy as np
 from ..errors import SurestepError, shown
 from ..model.limits import MotionLimits, motion_limits
 from .files import MAX_SOLUTION_BYTES, input_file_problem
+from .solution import _jsonable
 
 # the paper's pace when a solution file records no timing (timing.step_s default)
 DEFAULT_STEP_S = 0.05
@@ -62,8 +63,6 @@ def load_solution(path) -> dict:
     """The solution JSON as a dict (`path`: its file, or a `Solution` as it would be saved); a
     missing or malformed one is a one-line error naming it."""
     if hasattr(path, "to_dict"):  # a Solution object: its dict as `Solution.save` writes it
-        from .solution import _jsonable
-
         p = solution_label(path)
         d = json.loads(json.dumps(path.to_dict(), default=_jsonable))
         return _checked(d, p)

@@ -28,6 +28,7 @@ import hashlib
 import json
 import os
 import shutil
+import struct
 import subprocess
 import sys
 import tempfile
@@ -38,6 +39,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import casadi as ca
+import numpy as np
 
 from ..errors import SurestepError
 
@@ -181,8 +183,6 @@ def elf_problem(lib: Path) -> str | None:
     end and the first access there kills the process (SIGBUS), so this is checked before
     loading. Off Linux a file that is not ELF is not checked (another object format).
     """
-    import struct
-
     try:
         data = lib.read_bytes()
     except OSError as exc:
@@ -226,8 +226,6 @@ def _differs(loaded: ca.Function, fn: ca.Function) -> str | None:
     name, its inputs' and outputs' sparsity, and its values at a fixed point (to 1e-6 of each
     output's largest: loose enough for another compiler's rounding; NaN where `fn` gives NaN).
     A library of another horizon or of other constants fails it."""
-    import numpy as np
-
     if loaded.name() != fn.name():
         return f"it holds the function '{loaded.name()}', not '{fn.name()}'"
     for kind, f_n, f_sp, n, sp in (
