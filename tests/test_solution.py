@@ -95,6 +95,40 @@ REPLAN = ReplanRecord(3, 0.004, "interior", 0.0, False,
                       [ReplanAttempt(0.1, 0, "Solve_Succeeded", 7, 2)])
 
 
+# a limit report as `surestep compare` wrote it with `limits.enforce: true` before it was typed
+LIMITS = {"joint_names": ["a", "b"], "velocity": [1.0, 2.0], "acceleration": [3.0, 4.0],
+          "tool_speed_m_s": 0.1, "tool_rotation_rad_s": 1.5, "rcm_min_distance_m": 0.045,
+          "sources": {"velocity": {"a": "problem file"}, "tool_speed": "override"}}
+OLD_REPORT = {
+    "step_s": 0.05, "duration_s": 0.1, "limits": LIMITS,
+    "peak_joint_velocity": [4.0, 0.5], "peak_joint_acceleration": [80.0, 10.0],
+    "velocity_ratio": [4.0, 0.25], "acceleration_ratio": [80.0 / 3, 2.5],
+    "peak_tool_speed_m_s": 0.2, "peak_tool_rotation_rad_s": 0.3, "min_rcm_distance_m": None,
+    "tool_speed_per_step_m_s": [0.2, 0.1], "tool_rotation_per_step_rad_s": [0.3, 0.1],
+    "violations": [{"kind": "joint_velocity", "step": 0, "joint": "a", "value": -4.0,
+                    "limit": 1.0},
+                   {"kind": "tool_speed", "step": 0, "value": 0.2, "limit": 0.1}],
+    "ok": False, "enforced": True,
+    "played_curve": {"curve": "quintic Hermite",
+                     "peak_ratios": {"joint_velocity": 5.1, "joint_acceleration": 90.0,
+                                     "tool_speed": None, "tool_rotation": None},
+                     "within": False}}
+REPORT = LimitsReport(
+    step_s=0.05, duration_s=0.1,
+    limits=MotionLimits(("a", "b"), np.array([1.0, 2.0]), np.array([3.0, 4.0]), 0.1, 1.5, 0.045,
+                        sources={"velocity": {"a": "problem file"}, "tool_speed": "override"}),
+    peak_joint_velocity=[4.0, 0.5], peak_joint_acceleration=[80.0, 10.0],
+    velocity_ratio=[4.0, 0.25], acceleration_ratio=[80.0 / 3, 2.5], peak_tool_speed_m_s=0.2,
+    peak_tool_rotation_rad_s=0.3, min_rcm_distance_m=None, tool_speed_per_step_m_s=[0.2, 0.1],
+    tool_rotation_per_step_rad_s=[0.3, 0.1],
+    violations=[Violation(kind="joint_velocity", step=0, joint="a", value=-4.0, limit=1.0),
+                Violation(kind="tool_speed", step=0, value=0.2, limit=0.1)],
+    ok=False, enforced=True,
+    played_curve=PlayedCurve("quintic Hermite", {"joint_velocity": 5.1, "joint_acceleration": 90.0,
+                                                 "tool_speed": None, "tool_rotation": None},
+                             False))
+
+
 def test_a_file_in_the_untyped_format_reads_into_the_typed_records(tmp_path):
     path = tmp_path / "old.json"
     path.write_text(json.dumps(OLD))
@@ -130,7 +164,9 @@ def test_unset_fields_write_no_key():
                                         ("replan", {"step": 3, "seconds": 0.1}),
                                         ("second_start", [1, 2]),
                                         ("motion_limits", {"step_s": 0.05, "ok": True}),
-                                        ("motion_limits", "not checked")])
+                                        ("motion_limits", "not checked"),
+                                        ("motion_limits", {**OLD_REPORT,
+                                                           "limits": {**LIMITS, "jerk": [1.0]}})])
 def test_a_value_of_another_shape_stays_an_extra(key, value):
     """A recorded value that does not read as its record (e.g. an older shape) is kept unread in
     `extras` and written back unchanged."""
@@ -148,40 +184,6 @@ def test_a_solved_plan_round_trips(tmp_path):
     back = Solution.load(sol.save(tmp_path / "ocp.json"))
     assert back.run == sol.run and back.problem_record == sol.problem_record
     assert back.attempts == sol.attempts and back.to_dict() == sol.to_dict()
-
-
-# a limit report as `surestep compare` wrote it with `limits.enforce: true` before it was typed
-LIMITS = {"joint_names": ["a", "b"], "velocity": [1.0, 2.0], "acceleration": [3.0, 4.0],
-          "tool_speed_m_s": 0.1, "tool_rotation_rad_s": 1.5, "rcm_min_distance_m": 0.045,
-          "sources": {"velocity": {"a": "problem file"}, "tool_speed": "override"}}
-OLD_REPORT = {
-    "step_s": 0.05, "duration_s": 0.1, "limits": LIMITS,
-    "peak_joint_velocity": [4.0, 0.5], "peak_joint_acceleration": [80.0, 10.0],
-    "velocity_ratio": [4.0, 0.25], "acceleration_ratio": [80.0 / 3, 2.5],
-    "peak_tool_speed_m_s": 0.2, "peak_tool_rotation_rad_s": 0.3, "min_rcm_distance_m": None,
-    "tool_speed_per_step_m_s": [0.2, 0.1], "tool_rotation_per_step_rad_s": [0.3, 0.1],
-    "violations": [{"kind": "joint_velocity", "step": 0, "joint": "a", "value": -4.0,
-                    "limit": 1.0},
-                   {"kind": "tool_speed", "step": 0, "value": 0.2, "limit": 0.1}],
-    "ok": False, "enforced": True,
-    "played_curve": {"curve": "quintic Hermite",
-                     "peak_ratios": {"joint_velocity": 5.1, "joint_acceleration": 90.0,
-                                     "tool_speed": None, "tool_rotation": None},
-                     "within": False}}
-REPORT = LimitsReport(
-    step_s=0.05, duration_s=0.1,
-    limits=MotionLimits(("a", "b"), np.array([1.0, 2.0]), np.array([3.0, 4.0]), 0.1, 1.5, 0.045,
-                        sources={"velocity": {"a": "problem file"}, "tool_speed": "override"}),
-    peak_joint_velocity=[4.0, 0.5], peak_joint_acceleration=[80.0, 10.0],
-    velocity_ratio=[4.0, 0.25], acceleration_ratio=[80.0 / 3, 2.5], peak_tool_speed_m_s=0.2,
-    peak_tool_rotation_rad_s=0.3, min_rcm_distance_m=None, tool_speed_per_step_m_s=[0.2, 0.1],
-    tool_rotation_per_step_rad_s=[0.3, 0.1],
-    violations=[Violation(kind="joint_velocity", step=0, joint="a", value=-4.0, limit=1.0),
-                Violation(kind="tool_speed", step=0, value=0.2, limit=0.1)],
-    ok=False, enforced=True,
-    played_curve=PlayedCurve("quintic Hermite", {"joint_velocity": 5.1, "joint_acceleration": 90.0,
-                                                 "tool_speed": None, "tool_rotation": None},
-                             False))
 
 
 @pytest.mark.parametrize("old, typed", [

@@ -95,11 +95,15 @@ class SkippedReport(JsonRecord):
 
 
 def _read_limits(d: dict) -> MotionLimits:
-    """The recorded limits; malformed ones are a ValueError like any record's."""
+    """The recorded limits; malformed ones, or other keys than `MotionLimits.to_dict` writes, are a
+    ValueError like any record's (nothing of the file dropped unread)."""
     try:
-        return MotionLimits.from_dict(d)
+        limits = MotionLimits.from_dict(d)
     except SurestepError as exc:
         raise ValueError(str(exc)) from None
+    if set(d) != set(limits.to_dict()):
+        raise ValueError(f"recorded limits: keys {sorted(d)}")
+    return limits
 
 
 def read_report(d: dict) -> LimitsReport | SkippedReport:
