@@ -37,15 +37,15 @@ def plan_row(setup, sol, step, export_lim=None):
     dq = np.abs(np.diff(q, axis=0))
     rot = max(dq[:, names.index(n)].max() for n in ROTARY)
     ins = dq[:, names.index("insertion")].max()
-    tool_mm = 1e3 * np.array(rep["tool_speed_per_step_m_s"]) * step
+    tool_mm = 1e3 * np.array(rep.tool_speed_per_step_m_s) * step
     qq, _ = h.within_position_limits(q, robot)
     t0 = time.perf_counter()
     traj = h.time_parametrise(qq, step, lim, robot=robot, tool_frame=robot.frame)
     return {
-        "ok": rep["ok"], "n_viol": len(rep["violations"]), "tool_max_mm": float(tool_mm.max()),
+        "ok": rep.ok, "n_viol": len(rep.violations), "tool_max_mm": float(tool_mm.max()),
         "tool_steps_mm": tool_mm, "rot_max": float(rot), "ins_max_mm": 1e3 * float(ins),
-        "vel_ratio": max(rep["velocity_ratio"]), "acc_ratio": max(rep["acceleration_ratio"]),
-        "tool_ratio": rep["peak_tool_speed_m_s"] / lim.tool_speed,
+        "vel_ratio": max(rep.velocity_ratio), "acc_ratio": max(rep.acceleration_ratio),
+        "tool_ratio": rep.peak_tool_speed_m_s / lim.tool_speed,
         "export_s": float(traj.duration), "planned_s": step * (len(q) - 1),
         "export_time": time.perf_counter() - t0,
     }

@@ -12,7 +12,7 @@ configurations (problems/evaluations/evaluation.yaml, seed 0), each at `--horizo
 `--step-s` with `limits.enforce: true`, by the `ocp` method (`run_method`, as
 `surestep solve --method ocp`). Per plan and tree: status, Tr(Sigma_T), the solver's own time
 (`solve_time_s`: every attempt, Newton's included; builds excluded; the median over the repeats),
-IPOPT's iterations, the limit check of the plan (`extras["motion_limits"]`) and the export's
+IPOPT's iterations, the limit check of the plan (`Solution.motion_limits`) and the export's
 (`time_parametrise`, timing auto: "planned" when the played curve at the planned times is within
 every limit by the export's own dense check, else toppra). Writes
 benchmarks/results/enforced_speed.md.
@@ -76,6 +76,8 @@ def worker(horizon: int, step_s: float, configs: int) -> None:
         name, prob = plans[k]
         setup = setups.setdefault(k, build_setup(prob))
         sol = run_method(setup, "ocp")
+        # before the typed report: a dict in the extras
+        rep = getattr(sol, "motion_limits", None) or sol.extras.get("motion_limits", {})
         row = {"name": name, "status": sol.status, "ok": bool(sol.success),
                "trace": sol.trace_final, "solve_s": sol.solve_time_s,
                # before typed records
@@ -83,7 +85,7 @@ def worker(horizon: int, step_s: float, configs: int) -> None:
                             (a["hessian"], a["status"], a["iterations"])
                             for a in getattr(sol, "attempts", None)
                             or sol.extras.get("attempts", [])],
-               "within": bool(sol.extras.get("motion_limits", {}).get("ok", False))}
+               "within": bool(rep.ok if hasattr(rep, "ok") else rep.get("ok", False))}
         if sol.success:
             q, _ = within_position_limits(np.array(sol.q, float), setup.robot)
             traj = time_parametrise(q, prob.timing.step_s, lm.problem_limits(setup),

@@ -47,18 +47,18 @@ def main() -> None:
         tool_ok = bool(dp.max() <= lim.tool_speed * (1 + 1e-6)
                        and dr.max() <= lim.tool_rotation * (1 + 1e-6))
         kinds = {}
-        for v in rep["violations"]:
-            kinds[v["kind"]] = kinds.get(v["kind"], 0) + 1
-        rows.append({"i": i, "violations": len(rep["violations"]), "kinds": kinds,
-                     "vel_ratio": max(rep["velocity_ratio"]),
-                     "acc_ratio": max(rep["acceleration_ratio"]),
-                     "tool_mm_s": 1e3 * rep["peak_tool_speed_m_s"],
-                     "rcm_mm": 1e3 * (rep["min_rcm_distance_m"] or 0), "duration": tr.duration,
+        for v in rep.violations:
+            kinds[v.kind] = kinds.get(v.kind, 0) + 1
+        rows.append({"i": i, "violations": len(rep.violations), "kinds": kinds,
+                     "vel_ratio": max(rep.velocity_ratio),
+                     "acc_ratio": max(rep.acceleration_ratio),
+                     "tool_mm_s": 1e3 * rep.peak_tool_speed_m_s,
+                     "rcm_mm": 1e3 * (rep.min_rcm_distance_m or 0), "duration": tr.duration,
                      "planned": step * (len(q) - 1), "scale": min(tr.scales.values()),
                      "export_s": t_export, "ok": bool(ok), "tool_ok": tool_ok,
                      "export_mm_s": 1e3 * dp.max(), "export_rad_s": dr.max(),
                      "tries_scaled": {k: v < 1 for k, v in tr.scales.items()}})
-        print(f"{i:3d} viol {len(rep['violations']):3d} v/lim {rows[-1]['vel_ratio']:6.2f} "
+        print(f"{i:3d} viol {len(rep.violations):3d} v/lim {rows[-1]['vel_ratio']:6.2f} "
               f"dur {tr.duration:6.2f} s tool {1e3 * dp.max():5.1f} mm/s {dr.max():.2f} rad/s "
               f"scale {rows[-1]['scale']:.3f} export {t_export:.2f} s ok {ok} {tool_ok}",
               flush=True)

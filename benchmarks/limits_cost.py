@@ -42,7 +42,7 @@ def main() -> None:
             lim = h.ocp(lim_setup, init)
             base = h.method(free_setup, "baseline")
             base_ok = h.plan_report(free_setup.robot, base.q, step, h.problem_limits(free_setup),
-                                    free_setup.robot.frame)["ok"]
+                                    free_setup.robot.frame).ok
             n_base_ok += base_ok
             n_free_ok += free.success
             t_free.append(free.solve_time_s)

@@ -125,7 +125,7 @@ def cmd_solve(args) -> int:
 
 def cmd_compare(args) -> int:
     from .comparison import run_comparison, write_comparison
-    from .model.limits import worst_violations
+    from .model.limits import LimitsReport, worst_violations
     from .solvers.methods import COMPARE_METHODS, counted_failures
 
     from .output.files import check_finite, check_output_dir, check_output_file
@@ -151,8 +151,9 @@ def cmd_compare(args) -> int:
     failed, reported = counted_failures(sols)  # the gradient plans cannot honour enforced limits
     for s in sols:
         if s.method in reported:
-            rep = s.extras.get("motion_limits", {})
-            print(f"over the limits: {s.method} ({len(rep.get('violations', []))} violations: "
+            rep = s.motion_limits  # a report: `enforce` made the status
+            count = len(rep.violations) if isinstance(rep, LimitsReport) else 0
+            print(f"over the limits: {s.method} ({count} violations: "
                   f"{worst_violations(rep)}; it does not plan within limits, reported only)",
                   file=sys.stderr)
     if failed:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -13,7 +14,15 @@ from .solvers.baseline import LENGTHENED, duration_note
 from .solvers.methods import COMPARE_METHODS, run_method
 from .evaluation.metrics import comparison_rows, markdown_table
 from .model.limits.enforcement import enforce
-from .model.limits.report import markdown_rows, plan_report, summary_row
+from .model.limits.report import (
+    UNREACHABLE,
+    LimitsReport,
+    PlayedCurve,
+    SkippedReport,
+    markdown_rows,
+    plan_report,
+    summary_row,
+)
 from .model.limits.values import problem_limits
 from .problem.paths import resolve_urdf
 from .output.export_timing import planned_curve
@@ -41,12 +50,11 @@ def run_comparison(setup: Setup, methods: tuple[str, ...] = COMPARE_METHODS,
 
 def attach_motion_limits(setup: Setup, sol: Solution) -> None:
     """Record the plan's motion-limit report (limits.plan_report, with the problem's `limits:`
-    overrides) in `sol.extras["motion_limits"]` (with `limits.enforce: true` also a failure over a
-    limit, `limits.enforce`), with the peaks of the curve the robot plays through the waypoints
+    overrides) as `sol.motion_limits` (with `limits.enforce: true` also a failure over a limit,
+    `limits.enforce`), with the peaks of the curve the robot plays through the waypoints
     (`played_curve`: what `surestep export` checks)."""
     if any(q is None for q in sol.q):
-        sol.extras["motion_limits"] = {"skipped": "a waypoint has no IK solution "
-                                                  "(see reachability)"}
+        sol.motion_limits = SkippedReport(UNREACHABLE)
         if setup.ocp.limits.enforce:
             enforce(setup, sol)
         return
@@ -54,10 +62,10 @@ def attach_motion_limits(setup: Setup, sol: Solution) -> None:
     if setup.ocp.limits.enforce:
         enforce(setup, sol, limits)
     else:
-        sol.extras["motion_limits"] = plan_report(setup.robot, q, step, limits,
-                                                  tool_frame=setup.robot.frame)
+        sol.motion_limits = plan_report(setup.robot, q, step, limits,
+                                        tool_frame=setup.robot.frame)
     played = planned_curve(q, step, limits, 1.0 / step, setup.robot, setup.robot.frame)[1]
-    sol.extras["motion_limits"]["played_curve"] = played
+    sol.motion_limits = replace(sol.motion_limits, played_curve=PlayedCurve(**played))
 
 
 def write_comparison(solutions: list[Solution], out_dir: Path, problem_path: str) -> str:
@@ -93,14 +101,14 @@ def _robot_urdf(solutions: list[Solution]):
 def limits_table(solutions: list[Solution]) -> str:
     """Markdown: each method's motion limits at the planned pace (docs/motion_limits_and_export.md;
     not enforced by the planners)."""
-    reps = [(s.method, s.extras.get("motion_limits")) for s in solutions]
-    rows = [summary_row(m, r) for m, r in reps if isinstance(r, dict) and "violations" in r]
+    reps = [(s.method, s.motion_limits) for s in solutions]
+    rows = [summary_row(m, r) for m, r in reps if isinstance(r, LimitsReport)]
     if not rows:
         return ""
-    step = next(r for _, r in reps if isinstance(r, dict) and "step_s" in r)["step_s"]
-    skipped = [m for m, r in reps if isinstance(r, dict) and "skipped" in r]
+    step = next(r for _, r in reps if isinstance(r, LimitsReport)).step_s
+    skipped = [m for m, r in reps if isinstance(r, SkippedReport)]
     note = f" (not checked: {', '.join(skipped)}, unreachable waypoints)" if skipped else ""
-    enforced = any(isinstance(r, dict) and r.get("enforced") for _, r in reps)
+    enforced = any(r is not None and r.enforced for _, r in reps)
     how = ("enforced (`limits.enforce: true`: the OCP's constraints and the baseline's time law; "
            "their plan over a limit is a failure, status Motion_Limits_Violated; the gradient "
            "variants' violations are reported)" if enforced else

@@ -81,7 +81,7 @@ def test_the_default_baseline_runs_within_every_limit_in_its_duration(tmp_path):
     assert sol.success and sol.status == "not optimised" and sol.horizon == 40
     law = sol.extras["time_law"]
     assert law["law"] == "minimum-jerk" and law["steps"] == law["problem_steps"] == 40
-    assert law["lengthened_by_s"] == 0 and sol.extras["motion_limits"]["violations"] == []
+    assert law["lengthened_by_s"] == 0 and sol.motion_limits.violations == []
     peaks = played_peaks(out, tmp_path)
     assert_within(peaks)
     assert peaks["acceleration"] > 0.2 and peaks["tool_speed"] > 0.5  # it moves: the check bites
@@ -149,9 +149,9 @@ def test_the_comparison_says_every_method_within_or_by_how_much(short, tmp_path)
     said = (f"baseline: {steps * 0.05:.3f} s ({steps} steps): the problem's 0.500 s (10 steps) "
             "lengthened by")
     assert said in res.stdout and "over the limits: baseline" not in res.stderr
-    rep = sols["gradient"].extras["motion_limits"]
-    worst = max(abs(v["value"]) / v["limit"] for v in rep["violations"]
-                if v["kind"] == "joint_acceleration")
+    rep = sols["gradient"].motion_limits
+    worst = max(abs(v.value) / v.limit for v in rep.violations
+                if v.kind == "joint_acceleration")
     line = next(x for x in res.stderr.splitlines() if x.startswith("over the limits: gradient"))
     assert f"joint_acceleration {worst:.2f}x the limit" in line, line
     assert (tmp_path / "out" / "motion.png").is_file() and (tmp_path / "out" / "path.png").is_file()
@@ -167,19 +167,19 @@ def test_the_default_comparison_is_within_or_says_by_how_much(tmp_path):
     over = 0
     for row in rows:
         m = row["method"]
-        rep = ss.Solution.load(tmp_path / "out" / f"{m}.json").extras["motion_limits"]
-        if rep["violations"]:
+        rep = ss.Solution.load(tmp_path / "out" / f"{m}.json").motion_limits
+        if rep.violations:
             over += 1
             line = next(x for x in res.stderr.splitlines()
                         if x.startswith(f"over the limits: {m} "))
             assert "x the limit" in line and "the played curve's peak" in line
-            assert all(f"{k} " in line for k in {v["kind"] for v in rep["violations"]})
+            assert all(f"{k} " in line for k in {v.kind for v in rep.violations})
         else:
             assert f"over the limits: {m} " not in res.stderr
-            assert rep["played_curve"]["within"], (m, rep["played_curve"])
+            assert rep.played_curve.within, (m, rep.played_curve)
     assert over >= 1 and {r["method"] for r in rows} >= {"baseline", "ocp"}
     base = ss.Solution.load(tmp_path / "out" / "baseline.json")
-    assert base.success and base.extras["motion_limits"]["violations"] == []
+    assert base.success and base.motion_limits.violations == []
 
 
 def test_baselines_without_enforced_limits_keep_the_constant_pace(default_problem):

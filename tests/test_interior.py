@@ -42,8 +42,8 @@ def test_interior_point_plan_is_within_every_limit(plans):
     setup, sol, _ = plans
     report = plan_report(setup.robot, sol.joints, setup.ocp.timing.step_s,
                          problem_limits(setup), setup.robot.frame)
-    assert report["ok"], report.get("violations")
-    assert sol.extras["motion_limits"]["ok"] and sol.extras["motion_limits"]["enforced"]
+    assert report.ok, report.violations
+    assert sol.motion_limits.ok and sol.motion_limits.enforced
 
 
 def test_interior_needs_enforced_limits():

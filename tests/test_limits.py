@@ -163,7 +163,7 @@ def test_default_problem_plan_meets_every_limit(default_enforced):
     assert max(curve) > 0.9
     # the finite differences are averages of the curve's values
     assert max(ratios) <= max(curve) + 1e-9
-    assert sol.extras["motion_limits"]["ok"] and sol.extras["motion_limits"]["enforced"]
+    assert sol.motion_limits.ok and sol.motion_limits.enforced
     # the interior-point method, which carries them, solves it (projected Newton's unconstrained
     # plan would break them: not run under auto)
     assert sol.run.solver == "interior" and "newton" not in [a.solver for a in sol.attempts]
@@ -259,7 +259,7 @@ def test_a_plan_over_a_limit_is_not_a_success():
     sol = run_method(build_setup(enforced(prob)), "gradient")
     assert not sol.success and sol.status == "Motion_Limits_Violated"
     assert sol.run.solver_status == "completed 50 iterations"
-    kinds = {v["kind"] for v in sol.extras["motion_limits"]["violations"]}
+    kinds = {v.kind for v in sol.motion_limits.violations}
     assert "joint_acceleration" in kinds
     assert run_method(build_setup(prob), "gradient").success
 

@@ -62,7 +62,7 @@ def test_acceptable_plan_meets_every_limit(enforced_default):
     setup, sol = enforced_default
     report = lm.plan_report(setup.robot, np.array(sol.q, float), setup.ocp.timing.step_s,
                             lm.problem_limits(setup), tool_frame=setup.robot.frame)
-    assert report["ok"], report["violations"][:3]
+    assert report.ok, report.violations[:3]
     q, _ = within_position_limits(np.array(sol.q, float), setup.robot)
     traj = time_parametrise(q, setup.ocp.timing.step_s, lm.problem_limits(setup),
                             robot=setup.robot, tool_frame=setup.robot.frame)

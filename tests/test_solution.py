@@ -1,14 +1,24 @@
-"""The Solution's typed records (how the solve went, the problem's record, a re-plan's) written to
-the solution file and read back: equal records, the file's keys those of the untyped format before
-them, and a file in that format read into the same records."""
+"""The Solution's typed records (how the solve went, the problem's record, a re-plan's, the
+motion-limit report) written to the solution file and read back: equal records, the file's keys
+those of the untyped format before them, and a file in that format read into the same records; the
+limit report's numbers against finite differences of a plan computed here."""
 
 from __future__ import annotations
 
 import json
 
+import numpy as np
 import pytest
 
 import surestep_ocp as ss
+from surestep_ocp.model.limits import (
+    LimitsReport,
+    MotionLimits,
+    PlayedCurve,
+    SkippedReport,
+    Violation,
+    plan_report,
+)
 from surestep_ocp.output.attempt_record import AttemptRecord
 from surestep_ocp.output.solution import Solution
 from surestep_ocp.output.solution_records import (
@@ -85,6 +95,40 @@ REPLAN = ReplanRecord(3, 0.004, "interior", 0.0, False,
                       [ReplanAttempt(0.1, 0, "Solve_Succeeded", 7, 2)])
 
 
+# a limit report as `surestep compare` wrote it with `limits.enforce: true` before it was typed
+LIMITS = {"joint_names": ["a", "b"], "velocity": [1.0, 2.0], "acceleration": [3.0, 4.0],
+          "tool_speed_m_s": 0.1, "tool_rotation_rad_s": 1.5, "rcm_min_distance_m": 0.045,
+          "sources": {"velocity": {"a": "problem file"}, "tool_speed": "override"}}
+OLD_REPORT = {
+    "step_s": 0.05, "duration_s": 0.1, "limits": LIMITS,
+    "peak_joint_velocity": [4.0, 0.5], "peak_joint_acceleration": [80.0, 10.0],
+    "velocity_ratio": [4.0, 0.25], "acceleration_ratio": [80.0 / 3, 2.5],
+    "peak_tool_speed_m_s": 0.2, "peak_tool_rotation_rad_s": 0.3, "min_rcm_distance_m": None,
+    "tool_speed_per_step_m_s": [0.2, 0.1], "tool_rotation_per_step_rad_s": [0.3, 0.1],
+    "violations": [{"kind": "joint_velocity", "step": 0, "joint": "a", "value": -4.0,
+                    "limit": 1.0},
+                   {"kind": "tool_speed", "step": 0, "value": 0.2, "limit": 0.1}],
+    "ok": False, "enforced": True,
+    "played_curve": {"curve": "quintic Hermite",
+                     "peak_ratios": {"joint_velocity": 5.1, "joint_acceleration": 90.0,
+                                     "tool_speed": None, "tool_rotation": None},
+                     "within": False}}
+REPORT = LimitsReport(
+    step_s=0.05, duration_s=0.1,
+    limits=MotionLimits(("a", "b"), np.array([1.0, 2.0]), np.array([3.0, 4.0]), 0.1, 1.5, 0.045,
+                        sources={"velocity": {"a": "problem file"}, "tool_speed": "override"}),
+    peak_joint_velocity=[4.0, 0.5], peak_joint_acceleration=[80.0, 10.0],
+    velocity_ratio=[4.0, 0.25], acceleration_ratio=[80.0 / 3, 2.5], peak_tool_speed_m_s=0.2,
+    peak_tool_rotation_rad_s=0.3, min_rcm_distance_m=None, tool_speed_per_step_m_s=[0.2, 0.1],
+    tool_rotation_per_step_rad_s=[0.3, 0.1],
+    violations=[Violation(kind="joint_velocity", step=0, joint="a", value=-4.0, limit=1.0),
+                Violation(kind="tool_speed", step=0, value=0.2, limit=0.1)],
+    ok=False, enforced=True,
+    played_curve=PlayedCurve("quintic Hermite", {"joint_velocity": 5.1, "joint_acceleration": 90.0,
+                                                 "tool_speed": None, "tool_rotation": None},
+                             False))
+
+
 def test_a_file_in_the_untyped_format_reads_into_the_typed_records(tmp_path):
     path = tmp_path / "old.json"
     path.write_text(json.dumps(OLD))
@@ -118,7 +162,11 @@ def test_unset_fields_write_no_key():
 
 @pytest.mark.parametrize("key, value", [("timing", {"step_s": 0.05}),
                                         ("replan", {"step": 3, "seconds": 0.1}),
-                                        ("second_start", [1, 2])])
+                                        ("second_start", [1, 2]),
+                                        ("motion_limits", {"step_s": 0.05, "ok": True}),
+                                        ("motion_limits", "not checked"),
+                                        ("motion_limits", {**OLD_REPORT,
+                                                           "limits": {**LIMITS, "jerk": [1.0]}})])
 def test_a_value_of_another_shape_stays_an_extra(key, value):
     """A recorded value that does not read as its record (e.g. an older shape) is kept unread in
     `extras` and written back unchanged."""
@@ -136,3 +184,49 @@ def test_a_solved_plan_round_trips(tmp_path):
     back = Solution.load(sol.save(tmp_path / "ocp.json"))
     assert back.run == sol.run and back.problem_record == sol.problem_record
     assert back.attempts == sol.attempts and back.to_dict() == sol.to_dict()
+
+
+@pytest.mark.parametrize("old, typed", [
+    (OLD_REPORT, REPORT),
+    # a report from before `duration_s` was recorded, not enforced, without a played curve
+    ({k: v for k, v in OLD_REPORT.items() if k not in ("duration_s", "enforced", "played_curve")},
+     LimitsReport(**{**REPORT.__dict__, "duration_s": None, "enforced": None,
+                     "played_curve": None})),
+    ({"skipped": "a waypoint has no IK solution (see reachability)"},
+     SkippedReport("a waypoint has no IK solution (see reachability)")),
+    ({"skipped": "a waypoint has no IK solution (see reachability)", "ok": False,
+      "enforced": True},
+     SkippedReport("a waypoint has no IK solution (see reachability)", False, True))])
+def test_an_untyped_limit_report_reads_into_the_typed_one(old, typed):
+    """The file's `motion_limits` as written when it was a dict of the extras: read into the typed
+    report, not left in the extras, written back as it was (the same keys in the same order)."""
+    d = {**CORE, "attempts": [], "motion_limits": old}
+    sol = Solution.from_dict(json.loads(json.dumps(d)))
+    assert sol.motion_limits == typed and sol.extras == {}
+    assert json.dumps(sol.to_dict()) == json.dumps(d)
+
+
+def test_a_plans_limit_report_round_trips_and_matches_finite_differences(default_setup, tmp_path):
+    """A plan's report against limits set here: its per-joint ratios and violations equal finite
+    differences of the joints computed here (at rest before and after), and the report reads back
+    from the solution file equal."""
+    sol = ss.solve(ss.load_problem("problems/needle_regrasp_paper_pace.yaml"), "baseline")
+    q, dt = sol.joints, 0.05
+    v = np.diff(q, axis=0) / dt
+    a = np.diff(np.vstack([np.zeros((1, q.shape[1])), v, np.zeros((1, q.shape[1]))]), axis=0) / dt
+    # limits below some joints' peaks: violations to count
+    vmax = 0.6 * np.abs(v).max(axis=0) + 1e-3
+    amax = 2.0 * np.abs(a).max(axis=0) + 1e-3
+    limits = MotionLimits(tuple(sol.joint_names), vmax, amax)
+    rep = plan_report(default_setup.robot, q, dt, limits, tool_frame=default_setup.robot.frame)
+    np.testing.assert_allclose(rep.velocity_ratio, np.abs(v).max(axis=0) / vmax, rtol=1e-12)
+    np.testing.assert_allclose(rep.acceleration_ratio, np.abs(a).max(axis=0) / amax, rtol=1e-12)
+    over = [(t, sol.joint_names[j]) for t, j in np.argwhere(np.abs(v) > vmax * (1 + 1e-6))]
+    assert over and [(x.step, x.joint) for x in rep.violations
+                     if x.kind == "joint_velocity"] == over
+    assert not any(x.kind == "joint_acceleration" for x in rep.violations) and not rep.ok
+    assert rep.duration_s == pytest.approx(dt * sol.horizon)
+    sol.motion_limits = rep
+    back = Solution.load(sol.save(tmp_path / "baseline.json"))
+    assert back.motion_limits == rep and "motion_limits" not in back.extras
+    assert back.to_dict() == sol.to_dict()

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..model.limits.report import rotation_angle
+from ..model.limits.report import LimitsReport, rotation_angle
 from ..model.robot import Robot
 from .solution import write_text_atomic
 from .plot_styles import style_of, styles_of
@@ -67,21 +67,20 @@ def _limit_lines(ax, lo, hi):
 
 def plot_plans(solutions: list, urdf: str | Path, path: Path) -> Path | None:
     """`motion.png` for `surestep compare`; uses each solution's `motion_limits` report
-    (limits.plan_report)."""
-    sols = [s for s in solutions if isinstance(s.extras.get("motion_limits"), dict)
-            and "velocity_ratio" in s.extras["motion_limits"]]
+    (limits.plan_report; a skipped report draws nothing of its plan)."""
+    sols = [s for s in solutions if isinstance(s.motion_limits, LimitsReport)]
     if not sols:
         return None
     plt = pyplot()
-    names = list(sols[0].extras["motion_limits"]["limits"]["joint_names"])
+    lim = sols[0].motion_limits.limits
+    names = list(lim.joint_names)
     lo, hi = _joint_limits(urdf, names)
-    vmax = np.asarray(sols[0].extras["motion_limits"]["limits"]["velocity"])
-    amax = np.asarray(sols[0].extras["motion_limits"]["limits"]["acceleration"])
+    vmax, amax = np.asarray(lim.velocity), np.asarray(lim.acceleration)
     fig, axes = _axes(plt, len(names))
     styles = styles_of([s.method for s in sols])
     for s in sols:
-        rep = s.extras["motion_limits"]
-        dt = rep["step_s"]
+        rep = s.motion_limits
+        dt = rep.step_s
         q = np.asarray(s.q, float)
         t = dt * np.arange(len(q))
         tm = dt * (np.arange(len(q) - 1) + 0.5)
@@ -97,13 +96,11 @@ def plot_plans(solutions: list, urdf: str | Path, path: Path) -> Path | None:
                                                   label=s.method))
             axes[j, 1].step(tm, v[:, j], **steps)
             axes[j, 2].plot(t, a[:, j], **st.line(ms=0.4 * st.size, lw=0.5 * st.width))
-        axes[-1, 0].step(tm, 1e3 * np.asarray(rep["tool_speed_per_step_m_s"]), **steps)
-        axes[-1, 1].step(tm, rep["tool_rotation_per_step_rad_s"], **steps)
-    lim = sols[0].extras["motion_limits"]["limits"]
-    _decorate(axes, names, lo, hi, vmax, amax, 1e3 * lim["tool_speed_m_s"],
-              lim["tool_rotation_rad_s"])
+        axes[-1, 0].step(tm, 1e3 * np.asarray(rep.tool_speed_per_step_m_s), **steps)
+        axes[-1, 1].step(tm, rep.tool_rotation_per_step_rad_s, **steps)
+    _decorate(axes, names, lo, hi, vmax, amax, 1e3 * lim.tool_speed, lim.tool_rotation)
     axes[0, 0].legend(fontsize=6, ncol=2)
-    fig.suptitle(f"plans at their planned pace ({sols[0].extras['motion_limits']['step_s']:g} s "
+    fig.suptitle(f"plans at their planned pace ({sols[0].motion_limits.step_s:g} s "
                  "per step): joints' positions, velocities and accelerations against their limits, "
                  "tool speed", fontsize=9)
     fig.tight_layout()

@@ -14,7 +14,7 @@ import numpy as np
 from ..errors import SurestepError, shown
 from ..model.belief import entropy
 from ..model.lie import matrix_to_pose, np_angle, np_exp_many, np_log_many, pose_to_matrix
-from ..model.limits import recorded_limits
+from ..model.limits import LimitsReport, SkippedReport, read_report, recorded_limits
 from ..problem.scene import ArmRecord
 from ..problem.setup import Setup
 from .attempt_record import AttemptRecord
@@ -58,6 +58,8 @@ class Solution:
     run: SolveRecord = field(default_factory=SolveRecord)  # how the solve went
     problem_record: ProblemRecord = field(default_factory=ProblemRecord)  # timing, limits, scene
     replan: ReplanRecord | None = None  # a `Planner.replan` call's
+    # the plan against its motion limits (`enforce`, `surestep compare`); None: not checked
+    motion_limits: LimitsReport | SkippedReport | None = None
     # only what is specific to a method or backend (docs/solution_file.md)
     extras: dict[str, Any] = field(default_factory=dict)
 
@@ -118,13 +120,16 @@ class Solution:
 
     def to_dict(self) -> dict:
         """The solution file's mapping: the typed records' fields and the extras as top-level keys
-        (a re-plan's record under `replan`), as before they were typed."""
+        (a re-plan's record under `replan`, the limit report under `motion_limits` after the
+        extras), as before they were typed."""
         d = asdict(self)
         for key in _RECORDS:
             d.pop(key)
         self.run.to_json(d)
         extras = d.pop("extras")
         d.update(extras)
+        if self.motion_limits is not None:
+            d["motion_limits"] = self.motion_limits.to_json()
         self.problem_record.to_json(d)
         if self.replan is not None:
             d["replan"] = self.replan.to_json()
@@ -153,19 +158,27 @@ class Solution:
         extras: dict[str, Any] = {}
         run = _typed(SolveRecord, d, extras)
         problem_record = _typed(ProblemRecord, d, extras)
-        replan = None
-        if "replan" in d:
-            try:
-                replan = ReplanRecord.from_json(d["replan"])
-                del d["replan"]
-            except (KeyError, TypeError, ValueError):
-                pass
+        replan = _read_key(ReplanRecord.from_json, d, "replan")
+        motion_limits = _read_key(read_report, d, "motion_limits")
         return cls(**core, attempts=attempts, run=run, problem_record=problem_record,
-                   replan=replan, extras={**extras, **d})
+                   replan=replan, motion_limits=motion_limits, extras={**extras, **d})
 
 
 # the typed records of a Solution, written as top-level keys of its file
-_RECORDS = ("run", "problem_record", "replan")
+_RECORDS = ("run", "problem_record", "replan", "motion_limits")
+
+
+def _read_key(read, d: dict, key: str):
+    """The record `read` makes of `d[key]` (the key then removed from `d`); None when there is no
+    such key or its value does not read (it stays in `d`, for the extras)."""
+    if key not in d:
+        return None
+    try:
+        record = read(d[key])
+    except (KeyError, TypeError, ValueError):
+        return None
+    del d[key]
+    return record
 
 
 def _typed(record, d: dict, extras: dict):

@@ -8,71 +8,26 @@ optional field left at None is no key), `from_json` takes its keys out of a file
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
+
+from ..json_records import JsonRecord, put_fields, take_fields
 
 
-def _put(obj, d: dict) -> dict:
-    """Write the fields of a record into `d` under their own names; an optional field (default
-    None) left at None is not written, a nested record is written as its mapping."""
-    for f in fields(obj):
-        v = getattr(obj, f.name)
-        if v is None and f.default is None:
-            continue
-        if hasattr(v, "to_json"):
-            v = v.to_json()
-        elif isinstance(v, list):
-            v = [x.to_json() if hasattr(x, "to_json") else x for x in v]
-        d[f.name] = v
-    return d
-
-
-def _take(cls, d: dict, nested: dict | None = None, whole: bool = False):
-    """A record of `cls` from the keys of `d` named like its fields (removed from `d`); `nested`
-    maps a field to the function reading its value. `whole`: `d` is the record's own mapping, a
-    key it does not know is a ValueError (so nothing of a file is dropped unread)."""
-    nested = nested or {}
-    kw = {}
-    for f in fields(cls):
-        if f.name in d:
-            v = d.pop(f.name)
-            kw[f.name] = v if v is None or f.name not in nested else nested[f.name](v)
-    if whole and d:
-        raise ValueError(f"{cls.__name__}: unknown keys {sorted(d)}")
-    return cls(**kw)
-
-
-class _Mapping:
-    """A record written as a mapping of its own (a value of the solution's mapping)."""
-
-    @staticmethod
-    def _readers() -> dict:
-        """Field name -> the function reading its value from the file (nested records)."""
-        return {}
-
-    def to_json(self) -> dict:
-        return _put(self, {})
-
-    @classmethod
-    def from_json(cls, d: dict):
-        """The record from its mapping; a key it does not know is a ValueError."""
-        return _take(cls, dict(d), cls._readers(), whole=True)
-
-
-class _TopLevel(_Mapping):
+class _TopLevel(JsonRecord):
     """A record whose fields are top-level keys of the solution's mapping."""
 
     def to_json(self, d: dict) -> dict:
         """Write the set fields into the solution's mapping `d`."""
-        return _put(self, d)
+        return put_fields(self, d)
 
     @classmethod
     def from_json(cls, d: dict):
         """The record from a solution's mapping; its keys are removed from `d`."""
-        return _take(cls, d, cls._readers())
+        return take_fields(cls, d, cls._readers())
 
 
 @dataclass(frozen=True)
-class CondensedStart(_Mapping):
+class CondensedStart(JsonRecord):
     """The condensed solve the lifted form started from (its time and iterations are counted in
     the plan's)."""
 
@@ -84,7 +39,7 @@ class CondensedStart(_Mapping):
 
 
 @dataclass(frozen=True)
-class SecondStart(_Mapping):
+class SecondStart(JsonRecord):
     """A 6x6-recursion model's second start from its diagonal model's plan (solvers/ocp.py,
     `_second_start`): that solve's end, whether it scored below the first plan, and the Newton (and
     IPOPT) runs from it when it did."""
@@ -101,7 +56,7 @@ class SecondStart(_Mapping):
 
 
 @dataclass(frozen=True)
-class StartState(_Mapping):
+class StartState(JsonRecord):
     """The executed curve's state where a re-plan within enforced limits starts (it moves)."""
 
     velocity: list[float]  # [rad/s, or m/s for prismatic joints]
@@ -143,7 +98,7 @@ class SolveRecord(_TopLevel):
 
 
 @dataclass(frozen=True)
-class Timing(_Mapping):
+class Timing(JsonRecord):
     """The problem's time (its `timing` section): what a waypoint step lasts and the tracker's
     rate."""
 
@@ -153,7 +108,7 @@ class Timing(_Mapping):
 
 
 @dataclass(frozen=True)
-class LimitsRecord(_Mapping):
+class LimitsRecord(JsonRecord):
     """The motion limits the plan was made with (`surestep export` honours them): `enforce`, and
     the resolved limits with their sources, or why there are none (`unavailable`)."""
 
@@ -169,7 +124,7 @@ class LimitsRecord(_Mapping):
 
 
 @dataclass(frozen=True)
-class Needle(_Mapping):
+class Needle(JsonRecord):
     """A grasped needle: its radius and its pose in the arm's frame."""
 
     radius: float  # [m]
@@ -177,7 +132,7 @@ class Needle(_Mapping):
 
 
 @dataclass(frozen=True)
-class Placement(_Mapping):
+class Placement(JsonRecord):
     """A robot of the scene besides the planned one (another arm, the ECM): its URDF, frame,
     base pose and fixed joints."""
 
@@ -211,7 +166,7 @@ class ProblemRecord(_TopLevel):
 
 
 @dataclass(frozen=True)
-class ReplanAttempt(_Mapping):
+class ReplanAttempt(JsonRecord):
     """One attempt of a re-plan within enforced limits (solvers/planner.py)."""
 
     reserve: float  # the fraction of each limit kept free for later corrections
@@ -222,7 +177,7 @@ class ReplanAttempt(_Mapping):
 
 
 @dataclass(frozen=True)
-class ReplanRecord(_Mapping):
+class ReplanRecord(JsonRecord):
     """A `Planner.replan` call (solution file key `replan`)."""
 
     step: int  # the waypoint the re-plan starts at

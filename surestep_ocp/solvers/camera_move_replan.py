@@ -57,6 +57,7 @@ def replan_after_camera_moves(setup: Setup, out_dir: Path, progress=None) -> dic
                     status=first.status, solve_time_s=first.solve_time_s,
                     iterations=first.iterations, objective=first.objective,
                     run=first.run, extras=first.extras)
+    once.motion_limits = first.motion_limits
     q_exec = np.array(once.q, dtype=float)
     plans: list[Solution] = []
     total_time, total_iter = once.solve_time_s, once.iterations

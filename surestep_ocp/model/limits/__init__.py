@@ -7,7 +7,8 @@ every method's plan that breaks one is not a success (`enforce`, status `Motion_
 
 - `values`: the limits themselves (defaults, `MotionLimits`, the URDF's velocities, overrides);
 - `curve`: the curve played at the planned pace (quintic Hermite) and the linear rows bounding it;
-- `report`: a plan measured against the limits (`plan_report`) and the compare table's rows;
+- `report`: a plan measured against the limits (`plan_report`, a `LimitsReport`) and the compare
+  table's rows;
 - `enforcement`: `enforce`, which turns a successful Solution over a limit into a failure.
 
 Every public name is importable from here too.
@@ -29,7 +30,19 @@ from .curve import (
     knot_derivatives,
 )
 from .enforcement import enforce
-from .report import markdown_rows, plan_report, rotation_angle, summary_row, worst_violations
+from .report import (
+    UNREACHABLE,
+    LimitsReport,
+    PlayedCurve,
+    SkippedReport,
+    Violation,
+    markdown_rows,
+    plan_report,
+    read_report,
+    rotation_angle,
+    summary_row,
+    worst_violations,
+)
 from .values import (
     DEFAULT_ACCEL_PER_VELOCITY,
     DEFAULT_ACCELERATION,
@@ -63,12 +76,13 @@ __all__ = [
     "CURVE_NAME", "CURVE_PIECES", "CURVE_ROWS", "DEFAULT_ACCELERATION",
     "DEFAULT_ACCEL_PER_VELOCITY", "INSERTION", "JAW", "PROBLEM_SOURCE", "RCM_FRAME",
     "RCM_MIN_DISTANCE_M", "RCM_ROOT", "REL_TOL", "TOOL_MARGIN", "TOOL_POINTS",
-    "TOOL_ROTATION_RAD_S", "TOOL_SPEED_M_S", "VIOLATED", "MotionLimits", "curve_coefficients",
+    "TOOL_ROTATION_RAD_S", "TOOL_SPEED_M_S", "UNREACHABLE", "VIOLATED", "LimitsReport",
+    "MotionLimits", "PlayedCurve", "SkippedReport", "Violation", "curve_coefficients",
     "curve_control_rows", "curve_limit_rows", "curve_point_weights", "tool_point_windows",
     "curve_position_rows", "derivative_power",
     "enforce", "evaluate_curve",
     "is_psm", "knot_derivatives", "markdown_rows", "motion_limits", "parse_overrides",
-    "plan_report", "problem_limits", "rcm_insertion_bound", "joint_bounds", "recorded_limits",
-    "rotation_angle",
+    "plan_report", "problem_limits", "read_report", "rcm_insertion_bound", "joint_bounds",
+    "recorded_limits", "rotation_angle",
     "summary_row", "urdf_velocity_limits", "worst_violations",
 ]
