@@ -53,9 +53,8 @@ REPLAN_MU = 3e-3
 REPLAN_ITERATIONS, REPLAN_ACCEPTABLE = 4, 1e-7
 # within the limits: the iterations (relaxed ones included) of all a re-plan's attempts together;
 # past them it fails and the previous plan runs on, so a frame's work is bounded (a correction that
-# does not fit took up to four attempts of 34 iterations, 150-300 ms, and then failed all the same).
-# 20 cost the closed loop 5 points of grasps in `true` mode (benchmarks/closed_loop.py); 40 about
-# 1-3 points on Type 1 hard and none on Types 2 and 4 (100 rollouts each; docs/realtime.md)
+# does not fit ran four attempts of up to 34 iterations each, then failed all the same); the value
+# trades the worst re-plan against the closed loop's grasps (docs/realtime.md)
 REPLAN_BUDGET = 40
 
 
