@@ -52,10 +52,8 @@ FEASIBLE = "Feasible_Point_Found"
 # many
 RELAXED_MAX = 30
 # the secant end-game (newton.py's SR1 correction of the surrogate Hessian, the tool rows' exact
-# curvature) starts once the average complementarity is this small and no row is relaxed (1e-8
-# before: configuration 47 then crawled for 200 iterations at 1.5e-8 with Gauss-Newton's curvature,
-# and 86 stalled 2e-4 above IPOPT; most iterations over benchmarks/realtime.py's 101 problems at
-# 1e-8, 3e-8, 5e-8, 1e-7: 248, 81, 117, 113; docs/realtime.md)
+# curvature) starts once the average complementarity is this small and no row is relaxed (tuned on
+# benchmarks/realtime.py's 101 problems: docs/realtime.md)
 SECANT_GAP = 3e-8
 MAX_SOC = 4  # second-order corrections per iteration (IPOPT's max_soc), over all its step lengths
 # `relax`: a start's rows below this (of their limit) get it as slack, the relaxation then shrinks

@@ -119,9 +119,8 @@ def default_strategy(ctx: Context, warm: Iterate | None, pinned: bool, lifted_st
         # Newton does not); IPOPT follows where it does not converge
         # (benchmarks/results/realtime.md)
         out.append(Attempt("interior point", "interior", start=Start.GIVEN))
-        # its infeasibility verdict (the relaxed rows stopped shrinking) stands: IPOPT took 36 s
-        # to agree on the one such configuration of 101 (benchmarks/realtime.py checks each
-        # verdict with IPOPT)
+        # its infeasibility verdict (the relaxed rows stopped shrinking) stands: IPOPT takes far
+        # longer to agree (benchmarks/realtime.py checks each verdict with IPOPT; docs/realtime.md)
         out.append(Stop(Condition(last_status_in=(INFEASIBLE,))))
     elif (r.name == "newton" or (r.name == "auto" and not limited)) and r.newton_fits and (
             warm is None or not warm.has_duals):  # Newton first where it applies
