@@ -66,7 +66,8 @@ SHORT_STEP = 0.2
 # while the dual error is above the tolerance, the barrier parameter falls no lower than this times
 # it, nor than its last value: a complementarity far below the dual error leaves rows with tiny
 # slacks and multipliers that the Newton direction ignores and then runs into, 1 % of a step at a
-# time (tuned on benchmarks/realtime.py's 101 problems: 1e-4 and 1e-6 took more iterations)
+# time (tuned on benchmarks/realtime.py's 101 problems). Not in a re-plan's few iterations
+# (`feasible_ok`): there it kept the plans off the optimum and cost the closed loop grasps.
 MU_PER_DUAL = 1e-5
 WINDOW = 4  # waypoints each curve piece depends on (t-1 .. t+2)
 
@@ -533,7 +534,7 @@ class InteriorNewton:
                 # the last step was cut short (the iterate off the central path): re-centre at the
                 # current gap
                 m = max(MU_FINAL / 10, gap)
-            if err_d > tol and not stalled:
+            if err_d > tol and not stalled and not feasible_ok:
                 m = max(m, min(m_last, MU_PER_DUAL * err_d))
             m_last = m
             dx, dc, dw = direction(m)
