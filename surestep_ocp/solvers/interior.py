@@ -11,7 +11,8 @@ tool's speeds at points of each step (nonlinear in a window of four waypoints).
 Each iteration solves the primal-dual Newton system reduced to the joints, `(H + sum_i (z_i / c_i)
 grad c_i grad c_i^T + sum_i z_i Hess(-c_i)) dx = -grad f + sum_i (mu / c_i) grad c_i`, whose matrix
 is banded (half-bandwidth four waypoints): a banded Cholesky, linear in T. Barrier parameter:
-Mehrotra's probe, re-centred after a short step; steps: fraction to the boundary for the rows (with
+Mehrotra's probe, re-centred after a short step; direction: with Mehrotra's corrector (the affine
+step's second-order complementarity term); steps: fraction to the boundary for the rows (with
 second-order corrections for the curved ones) and the multipliers, Armijo on the barrier function.
 It needs a start strictly within every row (the backend tries the straight line at several time
 laws, `backends/interior_point.py`). A re-plan may start in motion: the curve's first knot then has
@@ -55,6 +56,9 @@ RELAXED_MAX = 30
 # curvature) starts once the average complementarity is this small and no row is relaxed (tuned on
 # benchmarks/realtime.py's 101 problems: docs/realtime.md)
 SECANT_GAP = 3e-8
+# each correction must bring the rows nearer the boundary fraction by this factor (IPOPT's
+# kappa_soc), else the step is shortened
+KAPPA_SOC = 0.99
 MAX_SOC = 4  # second-order corrections per iteration (IPOPT's max_soc), over all its step lengths
 # `relax`: a start's rows below this (of their limit) get it as slack, the relaxation then shrinks
 RELAX_TO = 1e-2
@@ -250,10 +254,20 @@ class InteriorNewton:
         self.band_partner = np.minimum(np.arange(n)[None, :] + np.arange(self.bw)[:, None], n)
         self._jac_pattern(np.flatnonzero(self.bounds(None)[2]))
         self._held = None  # (free indices, held mask, band entries outside the free block)
-        # one scatter of every band entry: the surrogate's, the linear rows', the nodes', the
-        # windows'
-        self.band_index = np.concatenate([self.h_band, self.lin_band, self.node_band,
-                                          self.tool_band])
+        # every band entry as one sparse product with (the surrogate's blocks, the linear rows'
+        # weights, the nodes' depth blocks, the windows' blocks): sums over a fixed pattern
+        nbw = self.bw * n
+        nodes = (np.arange(T + 1)[:, None] * nq * nq + a * nq + b).ravel()
+        tool_cols = np.flatnonzero(self.tool_low)
+        parts = [(self.h_band, np.flatnonzero(self.h_low), np.ones(self.h_low.sum()),
+                  len(self.h_low)),
+                 (self.lin_band, self.lin_pair_row, self.lin_pair, self.n_lin),
+                 (self.node_band, nodes, np.ones(len(nodes)), (T + 1) * nq * nq),
+                 (self.tool_band, tool_cols, np.ones(len(tool_cols)), self.tool_low.size)]
+        self.band_scatter = sp.hstack([sp.csr_matrix((v, (r, c_)), shape=(nbw, size))
+                                       for r, c_, v, size in parts]).tocsr()
+        self.tool_scatter = sp.csr_matrix(
+            (np.ones(len(tool_cols)), (self.tool_band, tool_cols)), shape=(nbw, self.tool_low.size))
         self.build_time_s = time.perf_counter() - t0
 
     def _jac_pattern(self, idx: np.ndarray) -> None:
@@ -381,7 +395,9 @@ class InteriorNewton:
         rows (linear in the step), and for the curved ones (depths, tool speeds) by up to MAX_SOC
         second-order corrections before the step is shortened (IPOPT's), re-solving with what the
         linearisation missed. The barrier parameter follows Mehrotra's probe (the affine step's
-        complementarity, cubed), and re-centres after a step cut short."""
+        complementarity, cubed), and re-centres after a step cut short; the direction adds
+        Mehrotra's corrector unless it then does not descend the barrier function. Relaxed rows
+        (`relax`) lose their relaxation once every row holds strictly."""
         t0 = time.perf_counter()
         nw, T, nq, n = self.newton, self.T, self.nq, self.n
         sigma0 = setup.model.recursion_sigma0(setup.ocp.sigma0)
@@ -428,6 +444,7 @@ class InteriorNewton:
         it, shift, f_hist, last_step, stuck, relaxed_its = 0, 0.0, [], 1.0, 0, 0
         # the end-game's secant correction of the surrogate; the last point
         secant, previous = None, None
+        last_az, last_socs = 1.0, 0
         end_game = False  # the tool rows' exact curvature from then on (else Gauss-Newton's)
         while start_ok:
             _, f_val, G, HB, _ = nw.step(x, P)
@@ -458,7 +475,8 @@ class InteriorNewton:
                        <= acceptable_change * max(abs(f_val), 1e-12))
             if verbose:
                 print(f"interior {it:4d}  f {f_val:.10e}  mu {m:.1e}  dual {err_d:.2e}  "
-                      f"gap {gap:.2e}  relaxed {rho.max(initial=0):.1e}  step {last_step:.2e}",
+                      f"gap {gap:.2e}  relaxed {rho.max(initial=0):.1e}  step {last_step:.2e}  "
+                      f"dual step {last_az:.2e}  corrections {last_socs}",
                       flush=True)
             if gap <= MU_FINAL and (err_d <= tol or stalled) and not rho.any():
                 status = "Solve_Succeeded" if err_d <= tol else "Solved_To_Acceptable_Level"
@@ -474,7 +492,6 @@ class InteriorNewton:
             wl = sig[2 * nb:2 * nb + nl] + sig[2 * nb + nl:nd_]
             wd, zdn = np.zeros(T + 1), np.zeros(T + 1)
             wd[1:T], zdn[1:T] = sig[nd_:nd_ + T - 1], w[nd_:nd_ + T - 1]
-            a_, b_ = nw.node_pairs
             blocks = wd[:, None, None] * DZ[:, :, None] * DZ[:, None, :] - zdn[:, None, None] * D2Z
             st = sig[nd_ + T - 1:].reshape(self.n_pts, self.tool_k)  # (points, k)
             # the tool rows per point in (q(s), q'(s)): sum_k (w / c) grad g grad g^T and
@@ -485,18 +502,14 @@ class InteriorNewton:
             Hp = ((A * wv[:, :, None]).transpose(0, 2, 1) @ A
                   + (gy * st[:, :, None]).transpose(0, 2, 1) @ gy)
             JW = self._window_sum(Hp)
-            ab = np.bincount(self.band_index, weights=np.concatenate([
-                HB[self.h_low], wl[self.lin_pair_row] * self.lin_pair,
-                blocks[:, a_, b_].ravel(), JW.reshape(self.n_windows, -1)[self.tool_low]]),
-                minlength=self.bw * n).reshape(self.bw, n)
+            ab = (self.band_scatter @ np.concatenate([HB, wl, blocks.ravel(), JW.ravel()])
+                  ).reshape(self.bw, n)
             ab[0, idx] += sig[:nb] + sig[nb:2 * nb]
             factor = None
             if end_game:
                 # the tool rows' exact curvature where the matrix with it is positive definite as
                 # it is, else Gauss-Newton's: shifted, the exact one gave short, gradient-like steps
-                JH = self._window_sum(hy).reshape(self.n_windows, -1)[self.tool_low]
-                exact = ab + np.bincount(self.tool_band, weights=JH,
-                                         minlength=self.bw * n).reshape(self.bw, n)
+                exact = ab + (self.tool_scatter @ self._window_sum(hy).ravel()).reshape(self.bw, n)
                 factor = self._factor(exact, idx, 0.0, may_shift=False)
             if factor is None:
                 factor = self._factor(ab, idx, shift)
@@ -537,13 +550,18 @@ class InteriorNewton:
             if err_d > tol and not stalled and not feasible_ok:
                 m = max(m, min(m_last, MU_PER_DUAL * err_d))
             m_last = m
-            dx, dc, dw = direction(m)
+            bar_g = g - jac.T(m / s)  # the barrier function's gradient
+            # Mehrotra's corrector: the affine step's second-order complementarity term, unless the
+            # direction then does not descend the barrier function
+            dx, dc, dw = direction(m - dca * dwa)
+            if float(bar_g @ dx) >= 0.0:
+                dx, dc, dw = direction(m)
             tau = max(TAU_MIN, 1.0 - m)
             with np.errstate(divide="ignore", invalid="ignore"):
                 a_max = float(np.min(np.where(dc < 0, -tau * s / dc, np.inf), initial=1.0))
                 az = float(np.min(np.where(dw < 0, -tau * w / dw, np.inf), initial=1.0))
             value = f_val - m * float(np.sum(np.log(s)))
-            slope = min(float((g - jac.T(m / s)) @ dx), 0.0)
+            slope = min(float(bar_g @ dx), 0.0)
 
             def accept(a, x=x, dx=dx, dc=dc, m=m, value=value, slope=slope, c=c, s=s, rho=rho,
                        tau=tau, sig=sig):
@@ -552,18 +570,23 @@ class InteriorNewton:
                 shrinking with a), else None."""
                 d = a * dx
                 # the step, then its second-order corrections (at any length: a row with a tiny
-                # slack breaks under the linearisation's error at any length; MAX_SOC in all)
+                # slack breaks under the linearisation's error at any length; MAX_SOC in all, each
+                # while it brings the rows nearer the boundary fraction by KAPPA_SOC)
+                short = np.inf
                 while True:
                     f_t, c_t = self.constraints(x + d, P, lin_c, offsets, min_depth, idx, lo, hi,
                                                 keep)
                     s_t = c_t + (1.0 - a) * rho
-                    if np.all(s_t >= (1 - tau) * s):
+                    below = float(np.max(((1 - tau) * s - s_t) / s))  # <= 0: within the fraction
+                    if below <= 0.0:
                         if rho.any():
                             return x + d, c_t, a
                         v_t = f_t - m * float(np.sum(np.log(s_t)))
                         return (x + d, c_t, a) if v_t <= value + 1e-4 * a * slope else None
-                    if socs[0] == MAX_SOC or not np.all(s_t[:nd_] > 0):
+                    if (socs[0] == MAX_SOC or below > KAPPA_SOC * short
+                            or not np.all(s_t[:nd_] > 0)):
                         return None
+                    short = below
                     socs[0] += 1
                     e = np.zeros(nc)  # what the linearisation of the curved rows missed
                     e[nd_:] = c_t[nd_:] - (c[nd_:] + jac.dot(d)[nd_:])
@@ -582,8 +605,13 @@ class InteriorNewton:
                 break
             x, c = found[0], found[1]
             rho = (1.0 - found[2]) * rho if found[2] < 1.0 else np.zeros(nc)
+            if rho.any() and np.all(c > 0):
+                # every row holds strictly: the relaxation is done (else it would end only with a
+                # full step, after many short ones that shrink it geometrically)
+                rho = np.zeros(nc)
             s = c + rho
             w = w + min(1.0, az) * dw
+            last_az, last_socs = az, socs[0]
             # IPOPT's safeguard keeps w s within a band around mu
             w = np.clip(w, m / (1e10 * s), 1e10 * m / s)
             it += 1

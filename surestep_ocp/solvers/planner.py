@@ -20,6 +20,7 @@ plan instead (its NLPs are cached per horizon too, but built inside the solve).
 
 from __future__ import annotations
 
+import gc
 import time
 from dataclasses import replace
 
@@ -83,6 +84,7 @@ class Planner:
         self.replan_iterations = int(replan_iterations)
         # steps left -> seconds spent building its solver and evaluator
         self.builds: dict[int, float] = {}
+        # steps left -> its solvers (minus the steps left: the interior-point one within limits)
         self._solvers: dict[int, tuple] = {}
         resolved = resolved_solver(self.setup)
         self.fast = (resolved.newton_first and not setup.ocp.limits.enforce
@@ -104,6 +106,11 @@ class Planner:
         # the current plan's curve starts at rest, or in motion: (velocity, acceleration)
         self._start = None
         self._camera = (self.setup.camera_pose.tobytes(), self.setup)
+        # what is built so far (solvers, compiled functions, the first plan) leaves the cyclic
+        # collector's generations: a full collection within a re-plan would scan it all (24 ms in
+        # a 20 Hz loop, docs/realtime.md); reference counting still frees it
+        gc.collect()
+        gc.freeze()
 
     @property
     def build_time_s(self) -> float:
@@ -206,7 +213,8 @@ class Planner:
         previous plan's rest. A failure keeps the previous plan (said in `replan.kept_previous`)."""
         q0, v0, a0 = self.executed_state(step)
         world_tool = base.camera_pose @ pose_to_matrix(base.pose_of(q0))
-        registered = base.seen_from(world_tool @ np.linalg.inv(pose_to_matrix(mean)))
+        # (its start and goal poses are set on each attempt's setup below)
+        registered = replace(base, camera_pose=world_tool @ np.linalg.inv(pose_to_matrix(mean)))
         n = self.horizon - step
         # the goal's joints as the registered camera sees it: from the previous plan's (a small
         # move), then from the file's goal joints; no random restarts within a frame
@@ -237,7 +245,7 @@ class Planner:
                 break
             sub = replace(registered.with_ocp(horizon=n + extra, sigma0=cov), q_start=q0,
                           q_goal=q_goal)
-            sub.x_start, sub.x_goal = sub.pose_of(q0), sub.pose_of(q_goal)
+            sub.x_start, sub.x_goal = sub.poses_of(np.vstack([q0, q_goal]))
             warm = InitialGuess(np.vstack([tail, np.repeat(tail[-1:], extra, axis=0)]),
                                 "previous plan"
                                 + (f", {extra} steps at the goal added" if extra else ""))
@@ -274,10 +282,11 @@ class Planner:
         """The interior-point solver of a re-plan over `sub`'s horizon from a moving start, built on
         first use (its build time in `builds`, keyed by minus the horizon)."""
         t0, n = time.perf_counter(), sub.ocp.horizon
-        solver = interior_solver(sub, moving=True)
+        if -n not in self._solvers:  # a re-plan's structure is its horizon's (no cache key made)
+            self._solvers[-n] = interior_solver(sub, moving=True)
         if -n not in self.builds:
             self.builds[-n] = time.perf_counter() - t0
-        return solver
+        return self._solvers[-n]
 
     def _within_reserve(self, plan: Solution) -> Solution:
         """The first plan again within the limits less RESERVE (from the plan within the limits, the

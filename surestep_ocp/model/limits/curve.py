@@ -9,6 +9,7 @@ rows", derives and measures it.
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -70,10 +71,12 @@ def knot_derivatives(T: int, dt: float, moving: bool = False) -> tuple[np.ndarra
     return Dv, Da
 
 
+@functools.lru_cache(maxsize=256)
 def curve_coefficients(T: int, dt: float, moving: bool = False) -> np.ndarray:
     """(T, 6, m): for piece t, the power coefficients in s = (time - t dt) / dt of the curve, as a
     linear map of one joint's waypoints, then (`moving`) its start velocity and acceleration (the
-    same for every joint; `knot_derivatives`)."""
+    same for every joint; `knot_derivatives`). Cached (a re-plan evaluates its curve at every
+    frame), hence read-only."""
     Dv, Da = knot_derivatives(T, dt, moving)
     E = np.eye(T + 1, Dv.shape[1])
     out = np.zeros((T, 6, Dv.shape[1]))
@@ -82,6 +85,7 @@ def curve_coefficients(T: int, dt: float, moving: bool = False) -> np.ndarray:
                           E[t + 1], dt * Dv[t + 1], dt**2 * Da[t + 1]])
         out[t] = _QUINTIC @ data
     out[np.abs(out) < 1e-12 * np.abs(out).max()] = 0.0  # rounding of exact zeros
+    out.flags.writeable = False
     return out
 
 
@@ -235,14 +239,16 @@ def evaluate_curve(q: np.ndarray, dt: float, times: np.ndarray,
     T = len(q) - 1
     if start is not None:
         q = np.vstack([q, np.asarray(start[0], float)[None], np.asarray(start[1], float)[None]])
-    coef = np.einsum("tkm,mj->tkj", curve_coefficients(T, dt, start is not None), q)  # (T, 6, n)
     x = np.asarray(times, float) / dt
     piece = np.clip(np.floor(x).astype(int), 0, T - 1)
     s = x - piece
+    # the pieces the times fall in, each's coefficients once
+    used, which = np.unique(piece, return_inverse=True)
+    coef = np.einsum("tkm,mj->tkj", curve_coefficients(T, dt, start is not None)[used], q)
     out = []
     for order in range(3):
         D = derivative_power(order, dt) if order else np.eye(6)
-        c = np.einsum("ik,tkj->tij", D, coef)[piece]  # (N, 6 - order, n)
+        c = np.einsum("ik,tkj->tij", D, coef)[which.ravel()]  # (N, 6 - order, n)
         p = np.stack([s**k for k in range(6 - order)], axis=1)  # (N, 6 - order)
         out.append(np.einsum("nk,nkj->nj", p, c))
     return out[0], out[1], out[2]
