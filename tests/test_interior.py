@@ -187,3 +187,51 @@ def test_the_rows_jacobian_and_the_window_sums_match_their_definitions():
     for p in range(ip.n_pts):
         expect[ip.point_window[p]] += ip.tool_map[p].T @ H[p] @ ip.tool_map[p]
     np.testing.assert_allclose(ip._window_sum(H), expect, rtol=0, atol=1e-10 * np.abs(expect).max())
+
+
+def test_the_band_is_the_reduced_matrix_assembled_densely():
+    """The band that one sparse product fills (`band_scatter`: the surrogate's interval blocks, the
+    linear rows' weights, the depths' node blocks, the tool windows' blocks) equals the same matrix
+    assembled densely from its definition, `sum_t H_t + L^T diag(w) L + sum_t E_t^T B_t E_t +
+    sum_p K_p^T H_p K_p`, in LAPACK's lower band storage; `tool_scatter` alone gives the last
+    term."""
+    from surestep_ocp.solvers.nlp_cache import interior_solver
+
+    setup = build_setup(ss.load_problem("problems/needle_regrasp.yaml"))
+    ip = interior_solver(setup)
+    nw, n, nq, T, bw = ip.newton, ip.n, ip.nq, ip.T, ip.bw
+    rng = np.random.default_rng(5)
+
+    def sym(*shape):
+        A = rng.normal(size=shape)
+        return A + np.swapaxes(A, -1, -2)
+
+    HB = sym(T, 2 * nq, 2 * nq).ravel()
+    wl = rng.random(ip.n_lin)
+    blocks = sym(T + 1, nq, nq)
+    H = sym(ip.n_pts, 2 * nq, 2 * nq)
+    dense = np.zeros((n, n))
+    np.add.at(dense, (nw.h_rows, nw.h_cols), HB)
+    L = ip.lin_map.toarray()
+    dense += L.T @ (wl[:, None] * L)
+    for t in range(T + 1):
+        dense[t * nq:(t + 1) * nq, t * nq:(t + 1) * nq] += blocks[t]
+    tool = np.zeros((n, n))
+    for p in range(ip.n_pts):
+        K = np.zeros((2 * nq, n))
+        np.add.at(K.T, ip.tool_var[p], ip.tool_map[p].T)
+        tool += K.T @ H[p] @ K
+    dense += tool
+
+    def band(M):
+        out = np.zeros((bw, n))
+        for k in range(bw):
+            out[k, :n - k] = np.diagonal(M, -k)
+        return out
+
+    ab = (ip.band_scatter @ np.concatenate([HB, wl, blocks.ravel(), ip._window_sum(H).ravel()])
+          ).reshape(bw, n)
+    scale = np.abs(dense).max()
+    np.testing.assert_allclose(ab, band(dense), rtol=0, atol=1e-12 * scale)
+    np.testing.assert_allclose((ip.tool_scatter @ ip._window_sum(H).ravel()).reshape(bw, n),
+                               band(tool), rtol=0, atol=1e-12 * scale)

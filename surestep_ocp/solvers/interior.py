@@ -13,7 +13,8 @@ grad c_i grad c_i^T + sum_i z_i Hess(-c_i)) dx = -grad f + sum_i (mu / c_i) grad
 is banded (half-bandwidth four waypoints): a banded Cholesky, linear in T. Barrier parameter:
 Mehrotra's probe, re-centred after a short step; direction: with Mehrotra's corrector (the affine
 step's second-order complementarity term); steps: fraction to the boundary for the rows (with
-second-order corrections for the curved ones) and the multipliers, Armijo on the barrier function.
+second-order corrections for the curved ones) and the multipliers, Armijo on the barrier function
+against the decrease the model predicts (the barrier exact on the linearised rows).
 It needs a start strictly within every row (the backend tries the straight line at several time
 laws, `backends/interior_point.py`). A re-plan may start in motion: the curve's first knot then has
 the executed curve's velocity and acceleration (`curve.knot_derivatives(moving=True)`).
@@ -561,9 +562,9 @@ class InteriorNewton:
                 a_max = float(np.min(np.where(dc < 0, -tau * s / dc, np.inf), initial=1.0))
                 az = float(np.min(np.where(dw < 0, -tau * w / dw, np.inf), initial=1.0))
             value = f_val - m * float(np.sum(np.log(s)))
-            slope = min(float(bar_g @ dx), 0.0)
+            g_dx = float(g @ dx)
 
-            def accept(a, x=x, dx=dx, dc=dc, m=m, value=value, slope=slope, c=c, s=s, rho=rho,
+            def accept(a, x=x, dx=dx, dc=dc, m=m, value=value, g_dx=g_dx, c=c, s=s, rho=rho,
                        tau=tau, sig=sig):
                 """(point, rows, step) at step a if within the boundary fraction and Armijo's
                 decrease (while rows are relaxed: the boundary fraction alone, the relaxation
@@ -581,8 +582,12 @@ class InteriorNewton:
                     if below <= 0.0:
                         if rho.any():
                             return x + d, c_t, a
+                        # Armijo against the decrease the model predicts: the objective linear,
+                        # the barrier exact on the linearised slacks (its slope alone, for a row
+                        # leaving a tiny slack, asks a decrease the log never gives: steps of 1e-4)
                         v_t = f_t - m * float(np.sum(np.log(s_t)))
-                        return (x + d, c_t, a) if v_t <= value + 1e-4 * a * slope else None
+                        pred = a * g_dx - m * float(np.sum(np.log1p(a * dc / s)))
+                        return (x + d, c_t, a) if pred <= 0 and v_t <= value + 1e-4 * pred else None
                     if (socs[0] == MAX_SOC or below > KAPPA_SOC * short
                             or not np.all(s_t[:nd_] > 0)):
                         return None
