@@ -2,7 +2,7 @@
 cold and in a 20 Hz re-planning loop.
 
     OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/realtime.py [--configs 100] [--seed 0]
-        [--episodes 20] [--against main] [--repeats 1]
+        [--episodes 20] [--against main] [--repeats 1] [--output realtime.md]
 
 Cold: the default problem (problems/needle_regrasp.yaml: 40 steps of 50 ms, the limits enforced) and
 the first `--configs` configurations of problems/evaluations/evaluation.yaml at the same horizon,
@@ -14,13 +14,15 @@ IPOPT fallback); the separate IPOPT solve says whether it agrees. Where our Tr(S
 IPOPT's, the row IPOPT's plan breaks most (the interior point's rows, negative: beyond a limit).
 `--against REV`: the interior-point attempt alone of this checkout and of REV's
 surestep_ocp/solvers/interior.py (loaded beside it as a module), alternated per problem
-(`--repeats` timed solves each after a warm-up), for load-independent ratios.
+(`--repeats` timed solves each after a warm-up; the iterations and the rows' evaluations of
+each), for load-independent ratios.
 The 20 Hz loop: `--episodes` episodes of a `Planner` on the default problem (`solver.name:
 interior`) against a simulated tracker (seeds 0, 1, ...), a re-plan at every waypoint from the
 executed curve's state; per re-plan its time (builds apart) and whether it succeeded; per episode
 the executed motion (every plan from its start until the next one's, sampled every millisecond)
 checked against the limits by finite differences and Pinocchio's kinematics (violations: samples
-beyond a limit by more than the differencing error). Writes benchmarks/results/realtime.md; the last
+beyond a limit by more than the differencing error). Writes benchmarks/results/realtime.md (or
+`--output`); the last
 line is `realtime: cold_median_ms=... cold_worst_ms=... replan_median_ms=... replan_worst_ms=...
 infeasible=... violations=...`.
 """
@@ -177,10 +179,24 @@ def against(args) -> list[str]:
                                                    ours.moving, codegen=True)
         return built[id(ours)]
 
+    # each solve's evaluations of the rows (the start's and the line search's points)
+    from surestep_ocp.solvers.interior import InteriorNewton
+
+    evaluations = [0]
+    originals = {cls: cls.constraints for cls in (InteriorNewton, other.InteriorNewton)}
+
+    def counted(fn):
+        def constraints(self, *a, **k):
+            evaluations[0] += 1
+            return fn(self, *a, **k)
+        return constraints
+
+    for cls, fn in originals.items():
+        cls.constraints = counted(fn)
     strategy, solver = ocp_module.default_strategy, backend.interior_solver
     ocp_module.default_strategy = lambda *a, **k: (Attempt("interior point", "interior",
                                                            start=Start.GIVEN),)
-    rows, mine, theirs, its_mine, its_theirs = [], [], [], [], []
+    rows, mine, theirs, its_mine, its_theirs, ev_mine, ev_theirs = [], [], [], [], [], [], []
     try:
         for name, prob in cold_problems(args):
             setup = h.setup(h.with_solver(prob, name="interior"))
@@ -188,19 +204,26 @@ def against(args) -> list[str]:
             for k in range(2 * (args.repeats + 1)):
                 variant = ("this", "other")[k % 2]
                 backend.interior_solver = solver if variant == "this" else other_solver
+                before = evaluations[0]
                 a = h.ocp(setup).attempts[0]
                 if k >= 2:  # after a warm-up of each
-                    res[variant].append((a.solve_time_s * 1e3, a.iterations, a.status))
+                    res[variant].append((a.solve_time_s * 1e3, a.iterations, a.status,
+                                         evaluations[0] - before))
             t1, t0 = (float(np.median([r[0] for r in res[v]])) for v in ("this", "other"))
             mine.append(t1)
             theirs.append(t0)
             its_mine.append(res["this"][0][1])
             its_theirs.append(res["other"][0][1])
-            rows.append((name, f"{t0:.1f}", res["other"][0][1], res["other"][0][2], f"{t1:.1f}",
-                         res["this"][0][1], res["this"][0][2], f"{t1 / t0:.2f}"))
+            ev_mine.append(res["this"][0][3])
+            ev_theirs.append(res["other"][0][3])
+            rows.append((name, f"{t0:.1f}", res["other"][0][1], res["other"][0][3],
+                         res["other"][0][2], f"{t1:.1f}", res["this"][0][1], res["this"][0][3],
+                         res["this"][0][2], f"{t1 / t0:.2f}"))
             print("against", *rows[-1], flush=True)
     finally:
         ocp_module.default_strategy, backend.interior_solver = strategy, solver
+        for cls, fn in originals.items():
+            cls.constraints = fn
     a, b = h.stats(theirs), h.stats(mine)
     return [f"## The interior point against {args.against}'s", "",
             (f"`--against {args.against} --repeats {args.repeats}`: the interior-point attempt "
@@ -211,9 +234,12 @@ def against(args) -> list[str]:
              f"median of the per-problem ratios "
              f"{float(np.median(np.array(mine) / np.array(theirs))):.2f}), worst {a.worst:.1f} "
              f"against {b.worst:.1f} ms, iterations median {np.median(its_theirs):.0f} against "
-             f"{np.median(its_mine):.0f}, worst {max(its_theirs)} against {max(its_mine)}."), "",
-            *h.table(["problem", f"{args.against} ms", "its iterations", "its status",
-                      "this ms", "iterations", "status", "this / theirs"], rows), ""]
+             f"{np.median(its_mine):.0f}, worst {max(its_theirs)} against {max(its_mine)}, "
+             f"in all {sum(its_theirs)} against {sum(its_mine)}; the rows evaluated (the start's "
+             f"and the line searches' points) {sum(ev_theirs)} against {sum(ev_mine)}."), "",
+            *h.table(["problem", f"{args.against} ms", "its iterations", "its evaluations",
+                      "its status", "this ms", "iterations", "evaluations", "status",
+                      "this / theirs"], rows), ""]
 
 
 def main() -> None:
@@ -222,12 +248,15 @@ def main() -> None:
     ap.add_argument("--against", default=None,
                     help="a git revision whose interior.py to alternate with this checkout's")
     ap.add_argument("--repeats", type=int, default=1)
+    ap.add_argument("--output", default="realtime.md",
+                    help="a file name under benchmarks/results/, or a path")
     args = ap.parse_args()
     load = [os.getloadavg()[0]]  # the machine's load: absolute times depend on it
     lines = ["# Plans within the motion limits at tracker rate", "",
              (f"`OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/realtime.py "
               f"--configs {args.configs} --seed {args.seed} --episodes {args.episodes}"
-              f"{f' --against {args.against} --repeats {args.repeats}' if args.against else ''}` "
+              f"{f' --against {args.against} --repeats {args.repeats}' if args.against else ''}"
+              f"{f' --output {args.output}' if args.output != 'realtime.md' else ''}` "
               f"(one BLAS thread; builds cached, not counted)."), ""]
     block, figs = cold(args)
     if args.against:
@@ -246,7 +275,7 @@ def main() -> None:
         replan_worst_ms=f"{lp['replan_worst_ms']:.1f}",
         infeasible=lp["infeasible"], violations=lp["violations"]))
     text = "\n".join(lines + [last]) + "\n"
-    h.write_result("realtime.md", text)
+    h.write_result(args.output, text)
     print(text)
 
 
