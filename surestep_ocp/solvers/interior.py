@@ -610,9 +610,10 @@ class InteriorNewton:
                 break
             x, c = found[0], found[1]
             rho = (1.0 - found[2]) * rho if found[2] < 1.0 else np.zeros(nc)
-            if rho.any() and np.all(c > 0):
-                # every row holds strictly: the relaxation is done (else it would end only with a
-                # full step, after many short ones that shrink it geometrically)
+            if rho.any() and np.all(c >= (1.0 - TAU_MIN) * (c + rho)):
+                # every row holds, each with at least the boundary fraction of its slack: the
+                # relaxation is done (else it would end only with a full step, after many short ones
+                # that shrink it geometrically); a row barely inside would leave a slack near 0
                 rho = np.zeros(nc)
             s = c + rho
             w = w + min(1.0, az) * dw
