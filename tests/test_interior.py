@@ -235,3 +235,27 @@ def test_the_band_is_the_reduced_matrix_assembled_densely():
     np.testing.assert_allclose(ab, band(dense), rtol=0, atol=1e-12 * scale)
     np.testing.assert_allclose((ip.tool_scatter @ ip._window_sum(H).ravel()).reshape(bw, n),
                                band(tool), rtol=0, atol=1e-12 * scale)
+
+
+def test_a_one_step_plan_is_decided_at_once():
+    """With one step nothing is free: the start is the plan. Moving the default problem's distance
+    in 50 ms breaks the limit rows (infeasible, relaxed or not); staying put keeps them; either
+    verdict without iterations and without floating-point trouble (the relaxation once shrank
+    towards a slack of 0 and w / s overflowed)."""
+    from dataclasses import replace
+
+    from surestep_ocp.solvers.iterate import InitialGuess
+    from surestep_ocp.solvers.nlp_cache import interior_solver
+
+    base = build_setup(ss.load_problem("problems/needle_regrasp.yaml"))
+    one = base.with_ocp(horizon=1)
+    solver = interior_solver(one)
+    jump = InitialGuess(np.array([base.q_start, base.q_goal], float), "one step")
+    with np.errstate(all="raise"):
+        far = solver.run(one, jump, relax=True, feasible_ok=True)
+        stay_setup = replace(one, q_goal=np.array(base.q_start, float))
+        stay_setup.x_goal = stay_setup.pose_of(stay_setup.q_goal)
+        still = solver.run(stay_setup, InitialGuess(np.array([base.q_start] * 2, float), "still"))
+    assert far.status == "Infeasible_Problem_Detected" and far.iterations == 0
+    assert still.status == "Solve_Succeeded" and still.iterations == 0
+    np.testing.assert_allclose(still.q, [base.q_start] * 2)

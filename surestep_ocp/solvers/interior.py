@@ -442,6 +442,11 @@ class InteriorNewton:
         if warm is not None and len(warm) == nc:
             w = np.clip(w, m / (1e10 * s), 1e10 * m / s)
         status = "Maximum_Iterations_Exceeded" if start_ok else "Infeasible_Start"
+        if start_ok and nb == 0:
+            # nothing free (a one-step plan): the start is the plan, within every row or not (else
+            # the relaxation shrinks towards a slack of 0, and w / s overflows)
+            status = "Solve_Succeeded" if np.all(c > 0) else "Infeasible_Problem_Detected"
+            start_ok = False
         it, shift, f_hist, last_step, stuck, relaxed_its = 0, 0.0, [], 1.0, 0, 0
         # the end-game's secant correction of the surrogate; the last point
         secant, previous = None, None
