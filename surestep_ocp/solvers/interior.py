@@ -260,15 +260,16 @@ class InteriorNewton:
         nbw = self.bw * n
         nodes = (np.arange(T + 1)[:, None] * nq * nq + a * nq + b).ravel()
         tool_cols = np.flatnonzero(self.tool_low)
+        # the windows' part alone too: the end-game adds the tool rows' exact curvature with it
+        self.tool_scatter = sp.csr_matrix(
+            (np.ones(len(tool_cols)), (self.tool_band, tool_cols)), shape=(nbw, self.tool_low.size))
         parts = [(self.h_band, np.flatnonzero(self.h_low), np.ones(self.h_low.sum()),
                   len(self.h_low)),
                  (self.lin_band, self.lin_pair_row, self.lin_pair, self.n_lin),
-                 (self.node_band, nodes, np.ones(len(nodes)), (T + 1) * nq * nq),
-                 (self.tool_band, tool_cols, np.ones(len(tool_cols)), self.tool_low.size)]
+                 (self.node_band, nodes, np.ones(len(nodes)), (T + 1) * nq * nq)]
         self.band_scatter = sp.hstack([sp.csr_matrix((v, (r, c_)), shape=(nbw, size))
-                                       for r, c_, v, size in parts]).tocsr()
-        self.tool_scatter = sp.csr_matrix(
-            (np.ones(len(tool_cols)), (self.tool_band, tool_cols)), shape=(nbw, self.tool_low.size))
+                                       for r, c_, v, size in parts]
+                                      + [self.tool_scatter]).tocsr()
         self.build_time_s = time.perf_counter() - t0
 
     def _jac_pattern(self, idx: np.ndarray) -> None:
@@ -398,7 +399,8 @@ class InteriorNewton:
         linearisation missed. The barrier parameter follows Mehrotra's probe (the affine step's
         complementarity, cubed), and re-centres after a step cut short; the direction adds
         Mehrotra's corrector unless it then does not descend the barrier function. Relaxed rows
-        (`relax`) lose their relaxation once every row holds strictly."""
+        (`relax`) lose their relaxation once every row holds with the boundary fraction of its
+        slack; with nothing free (one step) the start is the plan or the problem is infeasible."""
         t0 = time.perf_counter()
         nw, T, nq, n = self.newton, self.T, self.nq, self.n
         sigma0 = setup.model.recursion_sigma0(setup.ocp.sigma0)

@@ -284,7 +284,6 @@ class Planner:
         t0, n = time.perf_counter(), sub.ocp.horizon
         if -n not in self._solvers:  # a re-plan's structure is its horizon's (no cache key made)
             self._solvers[-n] = interior_solver(sub, moving=True)
-        if -n not in self.builds:
             self.builds[-n] = time.perf_counter() - t0
         return self._solvers[-n]
 
