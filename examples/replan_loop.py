@@ -35,7 +35,8 @@ while k + 1 < planner.horizon:
     mean, covariance = tracker.move_to(planner.plan.poses[k - planner.step])  # 1/20 s later
     plan = planner.replan(mean, covariance, step=k)  # camera_pose=... when the endoscope moves
     times.append(plan.replan.time_s)
-    kept = " (previous plan kept)" if plan.replan.kept_previous else ""
+    kept = (" (previous plan kept)" if plan.replan.kept_previous
+            else " (registration held)" if plan.replan.registration_held else "")
     print(f"step {k:2d}: {plan.horizon:2d} steps left, {plan.status}, "
           f"{times[-1] * 1e3:5.1f} ms{kept}")
 tracker.move_to(planner.plan.poses[-1])

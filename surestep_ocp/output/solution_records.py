@@ -186,6 +186,9 @@ class ReplanRecord(JsonRecord):
     build_time_s: float  # solvers built during the call [s]
     kept_previous: bool | None = None  # within enforced limits: it failed, the previous plan stays
     attempts: list[ReplanAttempt] | None = None  # within enforced limits: its attempts
+    # within enforced limits: the tracker's estimate put the goal out of reach, so the camera
+    # registration of the plan before was used
+    registration_held: bool | None = None
 
     @staticmethod
     def _readers() -> dict:

@@ -106,6 +106,9 @@ class Planner:
         # the current plan's curve starts at rest, or in motion: (velocity, acceleration)
         self._start = None
         self._camera = (self.setup.camera_pose.tobytes(), self.setup)
+        # within the limits: the current plan's camera registration, as a correction of the given
+        # camera pose (the first plan's: none)
+        self._registration = np.eye(4)
         # what is built so far (solvers, compiled functions, the first plan) leaves the cyclic
         # collector's generations: a full collection within a re-plan would scan it all (24 ms in
         # a 20 Hz loop, docs/realtime.md); reference counting still frees it
@@ -210,20 +213,25 @@ class Planner:
         velocity, acceleration: the commanded motion stays twice continuously differentiable), with
         the camera registered to the tracker (the kinematics at those joints see the tool at the
         tracker's mean), to the goal where the camera sees it; the interior-point method from the
-        previous plan's rest. A failure keeps the previous plan (said in `replan.kept_previous`)."""
+        previous plan's rest. A registration that puts the goal out of reach is not used: the
+        current plan's holds (`replan.registration_held`, the tracker's IK residual in
+        `extras["goal_ik_residual"]`). A failure keeps the previous plan
+        (`replan.kept_previous`)."""
         q0, v0, a0 = self.executed_state(step)
         world_tool = base.camera_pose @ pose_to_matrix(base.pose_of(q0))
         # (its start and goal poses are set on each attempt's setup below)
         registered = replace(base, camera_pose=world_tool @ np.linalg.inv(pose_to_matrix(mean)))
         n = self.horizon - step
-        # the goal's joints as the registered camera sees it: from the previous plan's (a small
-        # move), then from the file's goal joints; no random restarts within a frame
-        q_goal, res_m, res_rad = registered.joints_for(base.x_goal, self._q[-1],
-                                                       raise_on_fail=False, restarts=0)
-        if res_m > 1e-6 or res_rad > 1e-5:
-            q_goal, res_m, res_rad = registered.joints_for(base.x_goal, base.q_goal,
-                                                           raise_on_fail=False, restarts=0)
+        q_goal, res_m, res_rad = self._goal_joints(registered, base)
         reachable = res_m <= 1e-6 and res_rad <= 1e-5
+        unreached = None  # the tracker's registration's goal IK residual, when it is held instead
+        if not reachable:
+            # the estimate puts the goal beyond the arm's reach: it is off by more than the
+            # workspace allows (the first frames' centimetres); the last registration holds
+            unreached = {"m": float(res_m), "rad": float(res_rad)}
+            registered = replace(base, camera_pose=base.camera_pose @ self._registration)
+            q_goal, res_m, res_rad = self._goal_joints(registered, base)
+            reachable = res_m <= 1e-6 and res_rad <= 1e-5
         tail = np.array(self._q[step - self.step:], float)
         # the goal's shift, eased in and out (no velocity or acceleration added at either end)
         s = np.linspace(0.0, 1.0, n + 1)
@@ -269,14 +277,30 @@ class Planner:
         sol.extras.update(reserve=reserve, extended_steps=extra)
         if not reachable:  # no plan tried (the goal's IK residual is in the log)
             sol.success, sol.status = False, "Goal_Unreachable"
-            sol.extras["goal_ik_residual"] = {"m": float(res_m), "rad": float(res_rad)}
+            sol.extras["goal_ik_residual"] = unreached or {"m": float(res_m), "rad": float(res_rad)}
+        elif unreached is not None:
+            sol.extras["goal_ik_residual"] = unreached
         built_s = self.build_time_s - builds_before
         sol.replan = ReplanRecord(step, time.perf_counter() - t0 - built_s, "interior", built_s,
-                                  not sol.success, [ReplanAttempt(**a) for a in tried])
+                                  not sol.success, [ReplanAttempt(**a) for a in tried],
+                                  registration_held=unreached is not None and reachable)
         if sol.success:
             self.plan, self.step, self._q, self._start = sol, step, np.array(sol.q, float), (v0, a0)
             self.horizon += extra
+            # the camera's correction from its given pose, held when a later estimate is unusable
+            self._registration = np.linalg.solve(base.camera_pose, registered.camera_pose)
         return sol
+
+    def _goal_joints(self, registered: Setup, base: Setup) -> tuple[np.ndarray, float, float]:
+        """(joints, IK residual [m], [rad]) of the goal as the `registered` camera sees it: from
+        the current plan's goal joints (a small move), then from the file's; no random restarts
+        within a frame."""
+        q_goal, res_m, res_rad = registered.joints_for(base.x_goal, self._q[-1],
+                                                       raise_on_fail=False, restarts=0)
+        if res_m > 1e-6 or res_rad > 1e-5:
+            q_goal, res_m, res_rad = registered.joints_for(base.x_goal, base.q_goal,
+                                                           raise_on_fail=False, restarts=0)
+        return q_goal, res_m, res_rad
 
     def _interior(self, sub: Setup):
         """The interior-point solver of a re-plan over `sub`'s horizon from a moving start, built on
