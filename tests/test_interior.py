@@ -229,11 +229,11 @@ def test_the_band_is_the_reduced_matrix_assembled_densely():
             out[k, :n - k] = np.diagonal(M, -k)
         return out
 
-    ab = (ip.band_scatter @ np.concatenate([HB, wl, blocks.ravel(), ip._window_sum(H).ravel()])
+    ab = (ip.band_scatter @ np.concatenate([HB, wl, blocks.ravel(), ip._window_terms(H)])
           ).reshape(bw, n)
     scale = np.abs(dense).max()
     np.testing.assert_allclose(ab, band(dense), rtol=0, atol=1e-12 * scale)
-    np.testing.assert_allclose((ip.tool_scatter @ ip._window_sum(H).ravel()).reshape(bw, n),
+    np.testing.assert_allclose((ip.tool_scatter @ ip._window_terms(H)).reshape(bw, n),
                                band(tool), rtol=0, atol=1e-12 * scale)
 
 

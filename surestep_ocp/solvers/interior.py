@@ -190,12 +190,14 @@ class InteriorNewton:
         # vec(R)') with c = (2 lam_0 pv, lam_1 vec(R)') held (their operation counts:
         # docs/realtime.md, "The method")
         vel = ca.vertcat(pv, Rd)
-        f_jac = ca.Function("tool_jac", [qa, qd], [vel, ca.densify(ca.jacobian(vel, y))])
+        # and the rows' own gradients (unscaled), (k, 2 nq)
+        grad = ca.densify(ca.jacobian(out, y))
+        f_jac = ca.Function("tool_jac", [qa, qd], [ca.densify(ca.jacobian(vel, y)), grad])
         c_vel = ca.SX.sym("c", vel.shape[0])
         h_res = ca.substitute(ca.hessian(ca.dot(c_vel, vel), y)[0], c_vel,
                               ca.vertcat(2 * lam[0] * pv, lam[1] * Rd))
         f_res = ca.Function("tool_res", [qa, qd, lam],
-                            [vel, ca.densify(ca.jacobian(vel, y)), ca.densify(h_res)])
+                            [ca.densify(ca.jacobian(vel, y)), grad, ca.densify(h_res)])
         L = self.lin_map.tocsc()
         L.sort_indices()
         lin_dm = ca.DM(ca.Sparsity(L.shape[0], n, L.indptr.tolist(), L.indices.tolist()), L.data)
@@ -259,7 +261,13 @@ class InteriorNewton:
         # weights, the nodes' depth blocks, the windows' blocks): sums over a fixed pattern
         nbw = self.bw * n
         nodes = (np.arange(T + 1)[:, None] * nq * nq + a * nq + b).ravel()
-        tool_cols = np.flatnonzero(self.tool_low)
+        # the windows' entries in `_window_terms`' order: each one's place in the (windows, W nq,
+        # W nq) blocks
+        nw_ = self.n_windows
+        place = (np.arange(self.tool_low.size).reshape(nw_, WINDOW, nq, WINDOW, nq)
+                 .transpose(0, 1, 3, 2, 4).ravel())
+        order = np.argsort(place)  # block entry -> its position in the terms
+        tool_cols = order[np.flatnonzero(self.tool_low)]
         # the windows' part alone too: the end-game adds the tool rows' exact curvature with it
         self.tool_scatter = sp.csr_matrix(
             (np.ones(len(tool_cols)), (self.tool_band, tool_cols)), shape=(nbw, self.tool_low.size))
@@ -354,33 +362,37 @@ class InteriorNewton:
     def lin_coef_dot(self, x: np.ndarray) -> np.ndarray:
         return self.lin_map @ x
 
-    def _tool_gradients(self, vel: np.ndarray, A: np.ndarray, tool_scale: np.ndarray
+    def _tool_gradients(self, A: np.ndarray, G: np.ndarray, tool_scale: np.ndarray
                         ) -> tuple[np.ndarray, np.ndarray]:
-        """The compiled velocities and their Jacobian (flat) -> (points, 12, 2 nq) Jacobian and
-        (points, k, 2 nq) scaled gradients of the tool rows' g in each point's (q(s), q'(s))."""
-        nq = self.nq
-        vel = vel.reshape(12, self.n_pts, order="F")
+        """The compiled velocities' Jacobian and the rows' gradients (flat) -> (points, 12, 2 nq)
+        Jacobian and (points, k, 2 nq) scaled gradients of the tool rows' g in each point's (q(s),
+        q'(s))."""
+        nq, k = self.nq, self.tool_k
         A = A.reshape(12, 2 * nq, self.n_pts, order="F").transpose(2, 0, 1)
-        gy = np.stack([2 * np.einsum("vp,pvy->py", vel[:3], A[:, :3]),
-                       np.einsum("vp,pvy->py", vel[3:], A[:, 3:])], axis=1)
-        return A, gy * tool_scale[None, :, None]
+        G = G.reshape(k, 2 * nq, self.n_pts, order="F").transpose(2, 0, 1)
+        return A, G * tool_scale[None, :, None]
 
     def _to_window(self, Y: np.ndarray) -> np.ndarray:
         """(points, r, 2 nq) derivatives in each point's (q(s), q'(s)) -> (points, r, W nq) in
         its window's waypoints."""
         return Y @ self.tool_map
 
-    def _window_sum(self, H: np.ndarray) -> np.ndarray:
-        """(points, 2 nq, 2 nq) Hessians in each point's (q(s), q'(s)) -> (windows, W nq, W nq)
-        in the windows' waypoints, summed over each window's points: sum_p K_p^T H_p K_p with
-        K_p = C_p kron I, i.e. sum_p,a,b (C_pa C_pb^T) kron H_p,ab, one product per window."""
+    def _window_terms(self, H: np.ndarray) -> np.ndarray:
+        """(points, 2 nq, 2 nq) Hessians in each point's (q(s), q'(s)) -> the windows' blocks
+        summed over each window's points, sum_p K_p^T H_p K_p with K_p = C_p kron I, i.e. sum_p,a,b
+        (C_pa C_pb^T) kron H_p,ab: one product per window, flat in its (window, m, n, i, j) order
+        (node m's joint i, node n's joint j), the order `tool_scatter` takes."""
         nq, nw, npts = self.nq, self.n_windows, self.n_pts
         V = np.zeros((nw * self.window_points, 4, nq * nq))
         V[self.point_flat] = (H.reshape(npts, 2, nq, 2, nq).transpose(0, 1, 3, 2, 4)
                               .reshape(npts, 4, nq * nq))
-        R = self.window_weights @ V.reshape(nw, -1, nq * nq)  # (windows, m n, i j)
-        return (R.reshape(nw, WINDOW, WINDOW, nq, nq).transpose(0, 1, 3, 2, 4)
-                .reshape(nw, self.bw, self.bw))
+        return (self.window_weights @ V.reshape(nw, -1, nq * nq)).ravel()
+
+    def _window_sum(self, H: np.ndarray) -> np.ndarray:
+        """`_window_terms` as (windows, W nq, W nq) matrices in the windows' waypoints."""
+        nq, nw = self.nq, self.n_windows
+        return (self._window_terms(H).reshape(nw, WINDOW, WINDOW, nq, nq)
+                .transpose(0, 1, 3, 2, 4).reshape(nw, self.bw, self.bw))
 
     # ---------------------------------------------------------------------------------------- solve
     def run(self, setup, init, v0=None, a0=None, tol: float = 1e-6, max_iter: int = 300,
@@ -462,11 +474,11 @@ class InteriorNewton:
             wt = w[nd_ + T - 1:]
             wk = wt.reshape(self.n_pts, self.tool_k).T * tool_scale[:, None]  # (k, points)
             if end_game:  # the exact curvature beyond Gauss-Newton's: Hess of w . g - GN's
-                vel, A, hy = self.tool_res(x, offsets, wk)
+                A, GT, hy = self.tool_res(x, offsets, wk)
                 hy = hy.reshape(2 * nq, 2 * nq, self.n_pts, order="F").transpose(2, 0, 1)
             else:
-                vel, A = self.tool_jacs(x, offsets)
-            A, gy = self._tool_gradients(vel, A, tool_scale)
+                A, GT = self.tool_jacs(x, offsets)
+            A, gy = self._tool_gradients(A, GT, tool_scale)
             # (points, k, W nq): the rows' gradients in the window
             tj = self._to_window(gy)
             g = np.bincount(nw.g_index, weights=G, minlength=n)  # grad f
@@ -509,15 +521,15 @@ class InteriorNewton:
             wv[:, :3], wv[:, 3:] = 2 * wk[0][:, None], wk[1][:, None]
             Hp = ((A * wv[:, :, None]).transpose(0, 2, 1) @ A
                   + (gy * st[:, :, None]).transpose(0, 2, 1) @ gy)
-            JW = self._window_sum(Hp)
-            ab = (self.band_scatter @ np.concatenate([HB, wl, blocks.ravel(), JW.ravel()])
+            JW = self._window_terms(Hp)
+            ab = (self.band_scatter @ np.concatenate([HB, wl, blocks.ravel(), JW])
                   ).reshape(self.bw, n)
             ab[0, idx] += sig[:nb] + sig[nb:2 * nb]
             factor = None
             if end_game:
                 # the tool rows' exact curvature where the matrix with it is positive definite as
                 # it is, else Gauss-Newton's: shifted, the exact one gave short, gradient-like steps
-                exact = ab + (self.tool_scatter @ self._window_sum(hy).ravel()).reshape(self.bw, n)
+                exact = ab + (self.tool_scatter @ self._window_terms(hy)).reshape(self.bw, n)
                 factor = self._factor(exact, idx, 0.0, may_shift=False)
             if factor is None:
                 factor = self._factor(ab, idx, shift)
@@ -531,9 +543,14 @@ class InteriorNewton:
                 secant = _SecantCorrection(n)  # the end-game: pairs from the next step on
             previous = (x, g)
 
+            relaxed = bool(rho.any())
+
             def direction(mu_t):
                 # (dx, dc, dw) for the barrier parameter mu_t; dc the rows' linearised change
-                dx = solve(-(g - jac.T(mu_t / s + sig * rho)))
+                if relaxed:
+                    dx = solve(jac.T(mu_t / s + sig * rho) - g)
+                else:  # (the affine probe's: -g alone)
+                    dx = solve(jac.T(mu_t / s) - g if np.any(mu_t) else -g)
                 if secant is not None and secant.w.size:
                     # the surrogate's missing curvature, learnt
                     corrected = secant.step(band_factor, fixed, dx)
@@ -558,11 +575,10 @@ class InteriorNewton:
             if err_d > tol and not stalled and not feasible_ok:
                 m = max(m, min(m_last, MU_PER_DUAL * err_d))
             m_last = m
-            bar_g = g - jac.T(m / s)  # the barrier function's gradient
             # Mehrotra's corrector: the affine step's second-order complementarity term, unless the
-            # direction then does not descend the barrier function
+            # direction then does not descend the barrier function (its slope g.dx - (mu / s).(J dx))
             dx, dc, dw = direction(m - dca * dwa)
-            if float(bar_g @ dx) >= 0.0:
+            if float(g @ dx) - m * float((dc + rho) @ (1.0 / s)) >= 0.0:
                 dx, dc, dw = direction(m)
             tau = max(TAU_MIN, 1.0 - m)
             with np.errstate(divide="ignore", invalid="ignore"):
@@ -641,17 +657,17 @@ class InteriorNewton:
         if self._held is None or self._held[0] is not idx:
             fixed = np.ones(n + 1, bool)
             fixed[idx] = False
-            self._held = (idx, fixed[:n], fixed[:n][None, :] | fixed[self.band_partner])
+            self._held = (idx, fixed[:n],
+                          np.flatnonzero(fixed[:n][None, :] | fixed[self.band_partner]))
         _, fixed, outside = self._held
-        ab[outside] = 0.0
+        np.put(ab, outside, 0.0)
         ab[0, fixed] = 1.0
-        free = ~fixed
         shift = shift / 4 if shift > 1e-14 else 0.0
-        scale = max(float(np.max(np.abs(ab[0, free]))) if free.any() else 0.0, 1e-12)
+        scale = max(float(np.max(np.abs(ab[0, idx]))) if len(idx) else 0.0, 1e-12)
         while shift <= 1e12 * scale:
             shifted = ab.copy()
             if shift:
-                shifted[0, free] += shift
+                shifted[0, idx] += shift
             factor, info = dpbtrf(shifted, lower=1, overwrite_ab=1)
             if info == 0:
                 def solve(rhs, factor=factor):
