@@ -281,6 +281,12 @@ class Robot:
             _IK_FUNCS[self._ik_key] = self._build_ik_funcs()
         return _IK_FUNCS[self._ik_key]
 
+    def use_ik_function(self, fn: ca.Function) -> None:
+        """IK from now on with `fn`, the same function as `_ik_funcs` (its compiled C: the solvers
+        that compile theirs compile it too), for every robot of this model."""
+        _IK_FUNCS[self._ik_key] = fn
+        self._ik_maps.clear()
+
     def _build_ik_funcs(self) -> ca.Function:
         q = ca.SX.sym("q", self.nq)
         Tw = ca.SX.sym("Tw", 4, 4)  # target pose of the tracked frame in the URDF root frame

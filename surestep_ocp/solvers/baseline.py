@@ -65,12 +65,14 @@ TIME_LAWS = (("minimum-jerk", minimum_jerk),
                 for r in (0.3, 0.2, 0.12)))
 
 
-def timed_line(setup, law=minimum_jerk, name: str = "minimum-jerk") -> InitialGuess:
+def timed_line(setup, law=minimum_jerk, name: str = "minimum-jerk",
+               guesses: np.ndarray | None = None) -> InitialGuess:
     """The straight line from start to goal (the baseline's) at the pace of a time law, by IK from
-    the joint line."""
+    `guesses` (T + 1 joint vectors; default the joint line)."""
     T = setup.ocp.horizon
     poses = straight_line(setup.x_start, setup.x_goal, T, law(T))
-    q = setup.joints_along(poses, setup.q_start, guesses=setup.joint_line(T))[0]
+    q = setup.joints_along(poses, setup.q_start,
+                           guesses=setup.joint_line(T) if guesses is None else guesses)[0]
     q[0], q[-1] = setup.q_start, setup.q_goal
     return InitialGuess(q, f"straight line at a {name} pace")
 

@@ -208,7 +208,14 @@ class InteriorNewton:
                "tool_res": ca.Function("tool_res", [Xm, Om, Lm], f_res.map(npts)(Qm, Dm, Lm))}
         self.codegen_note = None
         if codegen:
+            # with the robot's IK residual: the start's search and the re-plans' goals solve IK
+            # (once per robot model: then it is the compiled one)
+            ik = robot._ik_funcs
+            if ik.class_name() == "SXFunction":
+                fns["ik_residual"] = ik
             fns, self.codegen_note = compiled_or_interpreted(fns, codegen_required)
+            if self.codegen_note is None and "ik_residual" in fns:
+                robot.use_ik_function(fns["ik_residual"])
         self.tool_rows, self.tool_jacs = Buffered(fns["tool_rows"]), Buffered(fns["tool_jacs"])
         self.tool_res = Buffered(fns["tool_res"])
         # the band layout (lower storage, half-bandwidth WINDOW nodes)
@@ -349,6 +356,36 @@ class InteriorNewton:
                                               keep_lin + lin, keep_lin - lin,
                                               z_y[1:self.T] - min_depth, 1.0 - tool])
 
+    def _start_point(self, x, P, lin_c, offsets, min_depth, free, lo, hi, keep, relax
+                     ) -> tuple[np.ndarray, float, np.ndarray]:
+        """(point, objective, rows) a run starts from: `x` with its free joints pushed off their
+        bounds (IPOPT's bound_push) if that keeps every row, else `x` itself if that does, else
+        (`relax`) the pushed one."""
+        idx = np.flatnonzero(free)
+        push_lo = BOUND_PUSH * np.minimum(np.maximum(1.0, np.abs(lo)), hi - lo)
+        push_hi = BOUND_PUSH * np.minimum(np.maximum(1.0, np.abs(hi)), hi - lo)
+        inside = np.where(free, np.clip(x, lo + push_lo, hi - push_hi), x)
+        f_val, c = self.constraints(inside, P, lin_c, offsets, min_depth, idx, lo, hi, keep)
+        if np.all(c > 0):
+            return inside, f_val, c
+        # the pushed start breaks a row: the start itself if that is inside
+        f_in, c_in = self.constraints(x, P, lin_c, offsets, min_depth, idx, lo, hi, keep)
+        if np.all(c_in > 0) or not relax:
+            return x, f_in, c_in
+        return inside, f_val, c
+
+    def starts_inside(self, setup, init) -> bool:
+        """Whether `run` (without `relax`, at rest) can start from `init`: its start point
+        strictly within every row."""
+        sigma0 = setup.model.recursion_sigma0(setup.ocp.sigma0)
+        P = np.concatenate([setup.camera_parameter(), [1.0], sigma0])
+        lo, hi, free = self.bounds(setup.q_start)
+        c = self._start_point(np.asarray(init.q, float).ravel(), P, self._lin_const(None, None),
+                              self._tool_offsets(None, None), setup.ocp.min_depth, free, lo, hi,
+                              1.0, False)[2]
+        return bool(np.all(np.isfinite(c)) and np.all(c > 0)
+                    and np.allclose(np.asarray(init.q, float)[0], setup.q_start, atol=1e-12))
+
     def start_margin(self, setup, init, v0=None, a0=None) -> float:
         """The smallest row value at `init` (positive: strictly within every row)."""
         sigma0 = setup.model.recursion_sigma0(setup.ocp.sigma0)
@@ -429,20 +466,9 @@ class InteriorNewton:
         P[CAMERA_PARAMETERS] = trace_ref = float(nw.step(x, P)[0][0])
         m = MU_INIT if mu0 is None else mu0
         m_last = m  # the last iteration's barrier parameter
-        push_lo = BOUND_PUSH * np.minimum(np.maximum(1.0, np.abs(lo)), hi - lo)
-        push_hi = BOUND_PUSH * np.minimum(np.maximum(1.0, np.abs(hi)), hi - lo)
         nb, nl = len(idx), self.n_lin
         nd_ = 2 * nb + 2 * nl  # the direct rows (bounds, linear) come first, then the curved ones
-        inside = np.where(free, np.clip(x, lo + push_lo, hi - push_hi), x)
-        f_val, c = self.constraints(inside, P, lin_c, offsets, min_depth, idx, lo, hi, keep)
-        if not np.all(c > 0):  # the pushed start breaks a row: the start itself if that is inside
-            f_in, c_in = self.constraints(x, P, lin_c, offsets, min_depth, idx, lo, hi, keep)
-            if np.all(c_in > 0) or not relax:
-                f_val, c = f_in, c_in
-            else:
-                x = inside
-        else:
-            x = inside
+        x, f_val, c = self._start_point(x, P, lin_c, offsets, min_depth, free, lo, hi, keep, relax)
         # rows outside (or within RELAX_TO of) their boundary at the start are relaxed by rho, which
         # every step of length a shrinks by (1 - a): the Newton step aims at rho = 0 (an
         # infeasible-start interior point)
@@ -576,7 +602,7 @@ class InteriorNewton:
                 m = max(m, min(m_last, MU_PER_DUAL * err_d))
             m_last = m
             # Mehrotra's corrector: the affine step's second-order complementarity term, unless the
-            # direction then does not descend the barrier function (its slope g.dx - (mu / s).(J dx))
+            # direction then does not descend the barrier function (slope g.dx - (mu / s).(J dx))
             dx, dc, dw = direction(m - dca * dwa)
             if float(g @ dx) - m * float((dc + rho) @ (1.0 / s)) >= 0.0:
                 dx, dc, dw = direction(m)
