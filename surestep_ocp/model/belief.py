@@ -21,7 +21,7 @@ gradient variant, baseline, rollouts) uses these.
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
-from functools import cached_property
+from functools import cache, cached_property
 
 import casadi as ca
 import numpy as np
@@ -173,6 +173,7 @@ def paper_cosine(Q, o_star, guard: float, band: float):
     return side * f * ca.dot(v, ca.DM(o_star)) / (norm * float(np.linalg.norm(o_star)))
 
 
+@cache  # one Function for every model (a re-plan builds two models)
 def _identity_jacobians() -> ca.Function:
     x0, x1 = ca.SX.sym("x0", NM), ca.SX.sym("x1", NM)
     eye = ca.SX.eye(NX)
