@@ -71,8 +71,10 @@ SHORT_STEP = 0.2
 # while the dual error is above the tolerance, the barrier parameter falls no lower than this times
 # it, nor than its last value: a complementarity far below the dual error leaves rows with tiny
 # slacks and multipliers that the Newton direction ignores and then runs into, 1 % of a step at a
-# time (tuned on benchmarks/realtime.py's 101 problems). Not in a re-plan's few iterations
-# (`feasible_ok`): there it kept the plans off the optimum and cost the closed loop grasps.
+# time (tuned on benchmarks/realtime.py's 101 problems). In a re-plan's few iterations
+# (`feasible_ok`) only while rows are relaxed: after that it kept the plans off the optimum and cost
+# the closed loop grasps; while relaxed, without it, the slacks fell to ~1e-10 and a relaxation of
+# 1e-4 then shrank by half a step for 35 steps (docs/realtime.md)
 MU_PER_DUAL = 1e-5
 WINDOW = 4  # waypoints each curve piece depends on (t-1 .. t+2)
 
@@ -598,7 +600,7 @@ class InteriorNewton:
                 # the last step was cut short (the iterate off the central path): re-centre at the
                 # current gap
                 m = max(MU_FINAL / 10, gap)
-            if err_d > tol and not stalled and not feasible_ok:
+            if err_d > tol and not stalled and (not feasible_ok or rho.any()):
                 m = max(m, min(m_last, MU_PER_DUAL * err_d))
             m_last = m
             # Mehrotra's corrector: the affine step's second-order complementarity term, unless the
