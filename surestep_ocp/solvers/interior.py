@@ -494,9 +494,11 @@ class InteriorNewton:
         secant, previous = None, None
         last_az, last_socs = 1.0, 0
         end_game = False  # the tool rows' exact curvature from then on (else Gauss-Newton's)
+        at = None  # (point, trace, objective) of the last `step` evaluation
         while start_ok:
-            _, f_val, G, HB, _ = nw.step(x, P)
+            trace, f_val, G, HB, _ = nw.step(x, P)
             f_val = float(f_val[0])
+            at = (x, float(trace[0]), f_val)
             Z, DZ, D2Z = nw.depth(x, P)
             DZ, D2Z = DZ.reshape(T + 1, nq), D2Z.reshape(T + 1, nq, nq)
             wt = w[nd_ + T - 1:]
@@ -673,7 +675,8 @@ class InteriorNewton:
             w = np.clip(w, m / (1e10 * s), 1e10 * m / s)
             it += 1
             relaxed_its += bool(rho.any())
-        run = nw._end(setup, x, P, trace_ref, status, it, 0, t0)
+        run = nw._end(setup, x, P, trace_ref, status, it, 0, t0,
+                      values=at[1:] if at is not None and at[0] is x else None)
         return InteriorRun(**{k: getattr(run, k) for k in NewtonRun.__dataclass_fields__},
                            multipliers=w, relaxed_iterations=relaxed_its)
 

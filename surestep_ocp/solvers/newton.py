@@ -537,7 +537,9 @@ class NewtonSolver:
         return None
 
     def _end(self, setup, x, P, trace_ref, status, it, exact_steps, t0,
-             secant_steps=0) -> NewtonRun:
+             secant_steps=0, values: tuple[float, float] | None = None) -> NewtonRun:
+        """The run's result at `x`; `values`: (trace, objective) of `step` at `x` when the caller
+        has them (else computed here)."""
         T, nq = self.T, self.robot.nq
         q = x.reshape(T + 1, nq)
         mu = np.asarray(self.poses(q.T, setup.camera_parameter())).T  # means (p, Q)
@@ -546,7 +548,7 @@ class NewtonSolver:
         if status == "Solve_Succeeded" and (depth > 0 or terminal > 1e-9):
             status = "Depth_Bound_Violated" if depth > 0 else "Terminal_Pose_Not_Met"
         solve_s = time.perf_counter() - t0
-        trace, f_val = (float(v[0]) for v in self.step(x, P)[:2])
+        trace, f_val = values or (float(v[0]) for v in self.step(x, P)[:2])
         return NewtonRun(q, np_poses(mu), status, it, exact_steps, f_val * trace_ref,
                          trace * trace_ref, trace_ref, max(terminal, depth), solve_s, secant_steps)
 
