@@ -22,6 +22,7 @@ import pinocchio as pin
 from scipy.optimize import least_squares
 
 from ..errors import FrameNotFound, UnreachablePose, UnsupportedJoint
+from ..solvers.buffered import Buffered
 from .lie import np_log, np_quat_of_matrix, quat_mul, so3_exp, so3_log
 
 # the camera parameter of `Robot.camera_pose`: vec(T_cam_base[:3, :]), then its quaternion
@@ -318,9 +319,12 @@ class Robot:
             others are to be solved otherwise. `errors`: distance [m] and angle [rad] to the
             target of the converged ones.
         """
-        N = len(targets)
+        N, nq = len(targets), self.nq
         if N not in self._ik_maps:
-            self._ik_maps[N] = self._ik_funcs.map(N)
+            # (evaluated in place on NumPy arrays, dense: no DM conversions per iteration)
+            Qs, Ts = ca.MX.sym("Q", nq, N), ca.MX.sym("T", 4, 4 * N)
+            self._ik_maps[N] = Buffered(ca.Function(
+                "ik_batch", [Qs, Ts], [ca.densify(v) for v in self._ik_funcs.map(N)(Qs, Ts)]))
         f, movable = self._ik_maps[N], np.array(self.supporting_joints())
         lo, hi = self.lower[movable], self.upper[movable]
         Q = np.array(guesses, dtype=float)
@@ -329,8 +333,9 @@ class Robot:
                                                 axis=1)
         errors = np.full((N, 2), np.inf)
         for _ in range(iterations + 1):
-            E, J = (np.asarray(v) for v in f(Q.T, T))
-            E, J = E.T, J.reshape(len(E), N, self.nq).transpose(1, 0, 2)[:, :, movable]
+            E, J = f(Q.T, T)  # (6, N), (6, N nq), column-major
+            E = E.reshape(N, 6)
+            J = J.reshape(N, nq, 6).transpose(0, 2, 1)[:, :, movable]
             now = alive & ~done & (np.linalg.norm(E, axis=1) < 1e-13)
             errors[now] = np.stack([np.linalg.norm(E[now, :3], axis=1),
                                     np.linalg.norm(E[now, 3:], axis=1) / 0.05], 1)
@@ -394,7 +399,7 @@ class Robot:
         def jac(x):
             return np.asarray(f(full(x), target)[1])[:, movable]
 
-        rng = np.random.default_rng(seed)
+        rng = np.random.default_rng(seed) if restarts else None
         best = None
         for k in range(restarts + 1):  # q0 first, then seeded random starts
             x0 = np.clip(np.clip(base[movable], lo_f, hi_f) if k == 0 else rng.uniform(lo_f, hi_f),
