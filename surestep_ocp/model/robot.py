@@ -263,6 +263,17 @@ class Robot:
             maps[n] = self.camera_pose.map(n)
         return maps[n]
 
+    def camera_means(self, q: np.ndarray, camera: np.ndarray) -> np.ndarray:
+        """(N, 7) `camera_pose` at the rows of `q` (N, nq), evaluated in place (no DM
+        conversions: the re-planning loop calls it a few times a frame)."""
+        n = len(q)
+        calls = self.__dict__.setdefault("_camera_mean_calls", {})
+        if n not in calls:
+            Q, C = ca.MX.sym("q", self.nq, n), ca.MX.sym("camera", self.camera_pose.size1_in(1))
+            calls[n] = Buffered(ca.Function("camera_means", [Q, C],
+                                            [ca.densify(self.camera_poses(n)(Q, C))]))
+        return calls[n](np.asarray(q, float).T, camera)[0].reshape(n, 7).copy()
+
     def fk_function(self, frame: str | None = None) -> ca.Function:
         """CasADi Function `fk_<frame>(q) -> (p[3], R[3x3])` in the URDF root frame."""
         name = frame or self.frame

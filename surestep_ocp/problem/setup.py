@@ -16,7 +16,7 @@ from ..model.belief import BeliefModel
 from ..errors import FrameNotFound, ProblemError, UnreachablePose, UnsupportedJoint
 from ..model.joint_noise import joint_noises
 from ..model.lie import (continued, matrix_to_pose, np_exp_many, np_means, np_poses,
-                         np_quat_of_matrix, pose_to_matrix, quat_mul)
+                         np_quat_of_matrix, pose_to_matrix)
 from .spec import EndpointSpec, Problem
 from ..model.robot import Robot
 from .ocp_spec import EDITABLE, OcpSpec
@@ -120,7 +120,8 @@ class Setup:
         if key not in cache:
             Tcb = self.T_cam_base
             Qc = np_quat_of_matrix(Tcb[:3, :3])
-            if quat_mul(Qc, np.asarray(self.robot.fk_quaternion(self.q_start)).ravel())[0] < 0:
+            Qs = np.asarray(self.robot.fk_quaternion(self.q_start)).ravel()
+            if Qc[0] * Qs[0] - Qc[1:] @ Qs[1:] < 0:  # the real part of Qc Qs (Hamilton)
                 Qc = -Qc
             cache.clear()
             cache[key] = np.concatenate([Tcb[:3, :].ravel(order="F"), Qc])
@@ -130,8 +131,8 @@ class Setup:
         """(N, 7) camera-frame means `(p, Q)` at the joint vectors `q` (N, nq),
         `Robot.camera_pose`: the FK quaternion, continuous along the joints (its sign is the
         start's principal one at q_start)."""
-        q = np.atleast_2d(np.asarray(q, float))
-        return np.asarray(self.robot.camera_poses(len(q))(q.T, self.camera_parameter())).T
+        return self.robot.camera_means(np.atleast_2d(np.asarray(q, float)),
+                                       self.camera_parameter())
 
     def poses_of(self, q: np.ndarray) -> np.ndarray:
         """(N, 6) camera-frame poses `[p, r]` at the joint vectors `q` (N, nq): r the log of the
