@@ -14,9 +14,10 @@ Solved_To_Acceptable_Level); the same two when the interior-point method's end-g
 27: Solve_Succeeded in 27 iterations) and again when its direction took Mehrotra's corrector and
 its Armijo test the model's predicted decrease (21 iterations, joints moved by 3.0e-7 rad,
 Tr(Sigma_T) 5.6e-10 lower); and again when the tool rows' gradients came from the compiled
-functions and the corrector's descent test from the rows' change (rounding-level changes of the
-iterates: Solve_Succeeded in 21 iterations, joints moved by 1.1e-6 rad along the optimum's flat
-directions, Tr(Sigma_T) equal to 4e-11 relative)."""
+functions, their exact curvature from their Jacobian's expressions and the corrector's descent test
+from the rows' change (rounding-level changes of the iterates: Solve_Succeeded in 21 iterations,
+joints moved by 1.1e-6 rad along the optimum's flat directions, Tr(Sigma_T) equal to 4e-11
+relative)."""
 
 from __future__ import annotations
 

@@ -192,14 +192,14 @@ class InteriorNewton:
         # vec(R)') with c = (2 lam_0 pv, lam_1 vec(R)') held (their operation counts:
         # docs/realtime.md, "The method")
         vel = ca.vertcat(pv, Rd)
-        # and the rows' own gradients (unscaled), (k, 2 nq)
-        grad = ca.densify(ca.jacobian(out, y))
-        f_jac = ca.Function("tool_jac", [qa, qd], [ca.densify(ca.jacobian(vel, y)), grad])
+        jac_vel = ca.densify(ca.jacobian(vel, y))
+        # and the rows' own gradients (unscaled, (k, 2 nq)) from the same Jacobian's expressions
+        grad = ca.vertcat(2 * pv.T @ jac_vel[:3, :], Rd.T @ jac_vel[3:, :])
+        f_jac = ca.Function("tool_jac", [qa, qd], [jac_vel, grad])
         c_vel = ca.SX.sym("c", vel.shape[0])
-        h_res = ca.substitute(ca.hessian(ca.dot(c_vel, vel), y)[0], c_vel,
+        h_res = ca.substitute(ca.jacobian(jac_vel.T @ c_vel, y), c_vel,
                               ca.vertcat(2 * lam[0] * pv, lam[1] * Rd))
-        f_res = ca.Function("tool_res", [qa, qd, lam],
-                            [ca.densify(ca.jacobian(vel, y)), grad, ca.densify(h_res)])
+        f_res = ca.Function("tool_res", [qa, qd, lam], [jac_vel, grad, ca.densify(h_res)])
         L = self.lin_map.tocsc()
         L.sort_indices()
         lin_dm = ca.DM(ca.Sparsity(L.shape[0], n, L.indptr.tolist(), L.indices.tolist()), L.data)
