@@ -73,8 +73,8 @@ SHORT_STEP = 0.2
 # slacks and multipliers that the Newton direction ignores and then runs into, 1 % of a step at a
 # time (tuned on benchmarks/realtime.py's 101 problems). In a re-plan's few iterations
 # (`feasible_ok`) only while rows are relaxed: after that it kept the plans off the optimum and cost
-# the closed loop grasps; while relaxed, without it, the slacks fell to ~1e-10 and a relaxation of
-# 1e-4 then shrank by half a step for 35 steps (docs/realtime.md)
+# the closed loop grasps; while relaxed, without it, the slacks fell to ~1e-10 and the relaxation
+# (which only a full step removes) then shrank by about half a step for 17 steps (docs/realtime.md)
 MU_PER_DUAL = 1e-5
 WINDOW = 4  # waypoints each curve piece depends on (t-1 .. t+2)
 
