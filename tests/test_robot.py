@@ -241,3 +241,50 @@ def test_frame_not_found_lists_frames():
     robot = Robot(PSM_URDF)
     with pytest.raises(FrameNotFound):
         robot.fk_function("nope")
+
+
+def test_batched_ik_keeps_its_buffers_per_thread():
+    """The batched IK and the camera means are evaluated in place in buffers that each thread has
+    to itself (an in-process Dask cluster runs configurations in threads of one process): two
+    threads get distinct buffers, and IK run from several threads at once gives what it gives
+    alone, checked against Pinocchio's FK of the targets' joints."""
+    import threading
+    from concurrent.futures import ThreadPoolExecutor
+
+    from surestep_ocp.model.robot import _buffered
+
+    robot = Robot(PSM_URDF, frame="tool")
+    rng = np.random.default_rng(3)
+    lo, hi = robot.lower, robot.upper
+    truth = [np.clip(rng.uniform(lo, hi), lo, hi) for _ in range(8)]
+    targets = [robot.frame_pose(q) for q in truth]
+    seeds = [np.clip(q + 0.05 * rng.normal(size=q.shape), lo, hi) for q in truth]
+
+    def solve(k):
+        q, ok, _ = robot.newton_batch(np.stack([targets[k]] * 3), np.stack([seeds[k]] * 3))
+        return q, ok
+
+    alone = [solve(k) for k in range(8)]
+    with ThreadPoolExecutor(max_workers=4) as pool:
+        together = list(pool.map(solve, list(range(8)) * 6))
+    for k, (q, ok) in enumerate(together):
+        np.testing.assert_array_equal(q, alone[k % 8][0])
+        np.testing.assert_array_equal(ok, alone[k % 8][1])
+    # the solutions reach the targets (Pinocchio's FK, not the batch's own residual)
+    for k, (q, ok) in enumerate(alone):
+        for qi, oki in zip(q, ok):
+            if oki:
+                np.testing.assert_allclose(robot.frame_pose(qi), targets[k], atol=1e-9)
+    assert any(ok.all() for _, ok in alone)
+
+    def double():
+        x = ca.SX.sym("x")
+        return ca.Function("f", [x], [2 * x])
+
+    here = _buffered(("test", 1), double)
+    other = []
+    t = threading.Thread(target=lambda: other.append(_buffered(("test", 1), double)))
+    t.start()
+    t.join()
+    assert other[0] is not here
+    assert _buffered(("test", 1), None) is here  # this thread's, built once

@@ -12,6 +12,7 @@ stores them as `(cos, sin)`) are converted at the boundary by `to_pinocchio`.
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
@@ -42,8 +43,17 @@ class _Joint:
 
 
 _IK_FUNCS: dict[tuple, ca.Function] = {}  # (urdf, mtime, frame, offset) -> IK residual Function
-# same key -> {N: the Function mapped over N targets}
-_IK_MAPS: dict[tuple, dict[int, ca.Function]] = {}
+# per thread (their in-place buffers are not shared between threads, e.g. an in-process Dask
+# cluster's workers): the IK residual mapped over N targets, `camera_pose` over n joint vectors
+_BUFFERS = threading.local()
+
+
+def _buffered(key: tuple, build) -> Buffered:
+    """This thread's `Buffered` for `key`, built by `build()` on its first use here."""
+    cache = _BUFFERS.__dict__.setdefault("cache", {})
+    if key not in cache:
+        cache[key] = Buffered(build())
+    return cache[key]
 
 
 def _quat_of(R: np.ndarray) -> ca.DM:
@@ -131,7 +141,6 @@ class Robot:
         # docs/solve_speed.md, "Builds shared between set-ups")
         self._ik_key = (str(self.urdf.resolve()), self.urdf.stat().st_mtime_ns, frame,
                         self.offset.tobytes())
-        self._ik_maps = _IK_MAPS.setdefault(self._ik_key, {})
 
     # ------------------------------------------------------------------ model facts
     @property
@@ -266,13 +275,15 @@ class Robot:
     def camera_means(self, q: np.ndarray, camera: np.ndarray) -> np.ndarray:
         """(N, 7) `camera_pose` at the rows of `q` (N, nq), evaluated in place (no DM
         conversions: the re-planning loop calls it a few times a frame)."""
-        n = len(q)
-        calls = self.__dict__.setdefault("_camera_mean_calls", {})
-        if n not in calls:
+        n, maps = len(q), self.camera_poses
+
+        def means():
             Q, C = ca.MX.sym("q", self.nq, n), ca.MX.sym("camera", self.camera_pose.size1_in(1))
-            calls[n] = Buffered(ca.Function("camera_means", [Q, C],
-                                            [ca.densify(self.camera_poses(n)(Q, C))]))
-        return calls[n](np.asarray(q, float).T, camera)[0].reshape(n, 7).copy()
+            return ca.Function("camera_means", [Q, C], [ca.densify(maps(n)(Q, C))])
+
+        # (the same file, frame and offset: the same function, as for IK)
+        f = _buffered(("camera_means", self._ik_key, n), means)
+        return f(np.asarray(q, float).T, camera)[0].reshape(n, 7).copy()
 
     def fk_function(self, frame: str | None = None) -> ca.Function:
         """CasADi Function `fk_<frame>(q) -> (p[3], R[3x3])` in the URDF root frame."""
@@ -297,7 +308,7 @@ class Robot:
         """IK from now on with `fn`, the same function as `_ik_funcs` (its compiled C: the solvers
         that compile theirs compile it too), for every robot of this model."""
         _IK_FUNCS[self._ik_key] = fn
-        self._ik_maps.clear()
+        # the mapped ones are rebuilt on the new function (in every thread: the key names it)
 
     def _build_ik_funcs(self) -> ca.Function:
         q = ca.SX.sym("q", self.nq)
@@ -331,12 +342,16 @@ class Robot:
             target of the converged ones.
         """
         N, nq = len(targets), self.nq
-        if N not in self._ik_maps:
+        fn = self._ik_funcs
+
+        def batch():
             # (evaluated in place on NumPy arrays, dense: no DM conversions per iteration)
             Qs, Ts = ca.MX.sym("Q", nq, N), ca.MX.sym("T", 4, 4 * N)
-            self._ik_maps[N] = Buffered(ca.Function(
-                "ik_batch", [Qs, Ts], [ca.densify(v) for v in self._ik_funcs.map(N)(Qs, Ts)]))
-        f, movable = self._ik_maps[N], np.array(self.supporting_joints())
+            return ca.Function("ik_batch", [Qs, Ts],
+                               [ca.densify(v) for v in fn.map(N)(Qs, Ts)])
+
+        f = _buffered(("ik", self._ik_key, id(fn), N), batch)
+        movable = np.array(self.supporting_joints())
         lo, hi = self.lower[movable], self.upper[movable]
         Q = np.array(guesses, dtype=float)
         T = np.hstack(list(targets))
