@@ -80,3 +80,39 @@ def test_transcription_cache_keys_on_the_row_kind(monkeypatch):
     curve = nlp_cache.limits_key(limits)
     monkeypatch.setattr(lm, "CURVE_ROWS", "steps")
     assert nlp_cache.limits_key(limits) != curve
+
+
+def test_newton_solvers_are_kept_per_thread():
+    """The Newton and interior-point solvers evaluate in place in their own buffers, so each thread
+    has its own (an in-process Dask cluster's workers are threads): the same object within a
+    thread, another in a second thread; and Newton solves run in two threads at once give the plans
+    they give alone (checked joint by joint)."""
+    import threading
+    from concurrent.futures import ThreadPoolExecutor
+
+    import surestep_ocp as ss
+    from surestep_ocp.solvers.nlp_cache import interior_solver, newton_solver
+
+    setup = build_setup(load_problem(ROOT / "problems" / "needle_regrasp.yaml"))
+    here = (newton_solver(setup), interior_solver(setup))
+    assert (newton_solver(setup), interior_solver(setup)) == here
+    there = []
+    t = threading.Thread(target=lambda: there.append((newton_solver(setup),
+                                                      interior_solver(setup))))
+    t.start()
+    t.join()
+    assert there[0][0] is not here[0] and there[0][1] is not here[1]
+
+    paper = load_problem(ROOT / "problems" / "needle_regrasp_paper_pace.yaml").with_solver(
+        codegen=False)
+    goals = [paper.with_goal(position=[0.045 + 0.004 * k, 0.005, 0.115], axis_angle=[0.6, 0.1, 1.4])
+             for k in range(4)]
+
+    def plan(problem):
+        return np.array(ss.solve(problem, method="ocp").joints)
+
+    alone = [plan(p) for p in goals]
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        together = list(pool.map(plan, goals * 2))
+    for k, q in enumerate(together):
+        np.testing.assert_array_equal(q, alone[k % 4])

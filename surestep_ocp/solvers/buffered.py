@@ -8,7 +8,8 @@ import numpy as np
 
 
 class Buffered:
-    """A Function evaluated in place on NumPy arrays (CasADi's buffer interface)."""
+    """A Function evaluated in place on NumPy arrays (CasADi's buffer interface). Its buffers are
+    shared by every call, so one is used by one thread (its owners keep one per thread)."""
 
     def __init__(self, fn: ca.Function):
         self.fn = fn  # the buffer refers to it

@@ -3,10 +3,14 @@ with.
 
 A built NLP (and its compiled derivatives) is kept per structure: robot, belief model, horizon,
 form, smoothness, options, Hessian, codegen and the enforced motion limits (with the step time); a
-new start, goal, camera pose or Sigma_0 reuses it.
+new start, goal, camera pose or Sigma_0 reuses it. The Newton and interior-point solvers are kept
+per thread too: they evaluate in place in buffers of their own (`buffered.py`), which two threads
+(e.g. an in-process Dask cluster's workers) must not share.
 """
 
 from __future__ import annotations
+
+import threading
 
 from ..model import limits as limits_module
 from ..model.limits import problem_limits
@@ -150,7 +154,8 @@ def newton_solver(setup: Setup, background: bool = False) -> NewtonSolver:
     model, prob = setup.model, setup.ocp
     codegen = resolve_codegen(setup, "surrogate")
     key = (str(setup.robot.urdf), setup.robot.frame, setup.robot.offset.tobytes(), model.key(),
-           model.scalar, prob.horizon, prob.smoothness, codegen, prob.solver.codegen is True)
+           model.scalar, prob.horizon, prob.smoothness, codegen, prob.solver.codegen is True,
+           threading.get_ident())
     if key not in _NEWTON:
         _NEWTON[key] = NewtonSolver(setup.robot, model, prob.horizon, prob.smoothness, codegen,
                                     codegen_required=prob.solver.codegen is True,
@@ -169,7 +174,7 @@ def interior_solver(setup: Setup, moving: bool = False) -> InteriorNewton:
     codegen = resolve_codegen(setup, "surrogate")
     key = (str(setup.robot.urdf), setup.robot.frame, setup.robot.offset.tobytes(),
            setup.model.key(), setup.model.scalar, prob.horizon, prob.smoothness, codegen,
-           limits_key((dt, lim)), moving)
+           limits_key((dt, lim)), moving, threading.get_ident())
     if key not in _INTERIOR:
         _INTERIOR[key] = InteriorNewton(newton_solver(setup), setup.robot, dt, lim, moving, codegen,
                                         codegen_required=prob.solver.codegen is True)
