@@ -154,7 +154,7 @@ def test_the_rows_jacobian_and_the_window_sums_match_their_definitions():
     transpose is its adjoint; each window's curvature block equals the sum of K_p^T H_p K_p over
     its points (the Kronecker form)."""
     from surestep_ocp.solvers.backends.interior_point import feasible_line
-    from surestep_ocp.solvers.interior import _RowJacobian
+    from surestep_ocp.solvers.interior import WINDOW, _RowJacobian
     from surestep_ocp.solvers.nlp_cache import interior_solver
 
     setup = build_setup(ss.load_problem("problems/needle_regrasp.yaml"))
@@ -186,7 +186,11 @@ def test_the_rows_jacobian_and_the_window_sums_match_their_definitions():
     expect = np.zeros((ip.n_windows, ip.bw, ip.bw))
     for p in range(ip.n_pts):
         expect[ip.point_window[p]] += ip.tool_map[p].T @ H[p] @ ip.tool_map[p]
-    np.testing.assert_allclose(ip._window_sum(H), expect, rtol=0, atol=1e-10 * np.abs(expect).max())
+    # the terms are flat in (window, node m, node n, joint i, joint j) order
+    nq, nw = ip.nq, ip.n_windows
+    blocks = (ip._window_terms(H).reshape(nw, WINDOW, WINDOW, nq, nq).transpose(0, 1, 3, 2, 4)
+              .reshape(nw, ip.bw, ip.bw))
+    np.testing.assert_allclose(blocks, expect, rtol=0, atol=1e-10 * np.abs(expect).max())
 
 
 def test_the_band_is_the_reduced_matrix_assembled_densely():

@@ -379,8 +379,7 @@ class InteriorNewton:
     def starts_inside(self, setup, init) -> bool:
         """Whether `run` (without `relax`, at rest) can start from `init`: its start point
         strictly within every row."""
-        sigma0 = setup.model.recursion_sigma0(setup.ocp.sigma0)
-        P = np.concatenate([setup.camera_parameter(), [1.0], sigma0])
+        P = _parameters(setup)
         lo, hi, free = self.bounds(setup.q_start)
         c = self._start_point(np.asarray(init.q, float).ravel(), P, self._lin_const(None, None),
                               self._tool_offsets(None, None), setup.ocp.min_depth, free, lo, hi,
@@ -390,8 +389,7 @@ class InteriorNewton:
 
     def start_margin(self, setup, init, v0=None, a0=None) -> float:
         """The smallest row value at `init` (positive: strictly within every row)."""
-        sigma0 = setup.model.recursion_sigma0(setup.ocp.sigma0)
-        P = np.concatenate([setup.camera_parameter(), [1.0], sigma0])
+        P = _parameters(setup)
         lo, hi, free = self.bounds(setup.q_start)
         c = self.constraints(np.asarray(init.q, float).ravel(), P, self._lin_const(v0, a0),
                              self._tool_offsets(v0, a0), setup.ocp.min_depth,
@@ -427,12 +425,6 @@ class InteriorNewton:
                               .reshape(npts, 4, nq * nq))
         return (self.window_weights @ V.reshape(nw, -1, nq * nq)).ravel()
 
-    def _window_sum(self, H: np.ndarray) -> np.ndarray:
-        """`_window_terms` as (windows, W nq, W nq) matrices in the windows' waypoints."""
-        nq, nw = self.nq, self.n_windows
-        return (self._window_terms(H).reshape(nw, WINDOW, WINDOW, nq, nq)
-                .transpose(0, 1, 3, 2, 4).reshape(nw, self.bw, self.bw))
-
     # ---------------------------------------------------------------------------------------- solve
     def run(self, setup, init, v0=None, a0=None, tol: float = 1e-6, max_iter: int = 300,
             verbose: bool = False, warm: np.ndarray | None = None, mu0: float | None = None,
@@ -454,8 +446,7 @@ class InteriorNewton:
         slack; with nothing free (one step) the start is the plan or the problem is infeasible."""
         t0 = time.perf_counter()
         nw, T, nq, n = self.newton, self.T, self.nq, self.n
-        sigma0 = setup.model.recursion_sigma0(setup.ocp.sigma0)
-        P = np.concatenate([setup.camera_parameter(), [1.0], sigma0])
+        P = _parameters(setup)
         x = np.array(init.q, float).ravel()
         lo, hi, free = self.bounds(setup.q_start)
         idx = np.flatnonzero(free)
@@ -709,6 +700,13 @@ class InteriorNewton:
                 return None
             shift = max(1e-8 * scale, 10 * shift)
         return None
+
+
+def _parameters(setup) -> np.ndarray:
+    """The compiled functions' parameter vector of `setup`: the camera, the objective's scale (1
+    until a run sets its own) and Sigma_0 in the recursion's form."""
+    return np.concatenate([setup.camera_parameter(), [1.0],
+                           setup.model.recursion_sigma0(setup.ocp.sigma0)])
 
 
 class _RowJacobian:
