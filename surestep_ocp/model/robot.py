@@ -12,7 +12,6 @@ stores them as `(cos, sin)`) are converted at the boundary by `to_pinocchio`.
 
 from __future__ import annotations
 
-import threading
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
@@ -23,7 +22,7 @@ import pinocchio as pin
 from scipy.optimize import least_squares
 
 from ..errors import FrameNotFound, UnreachablePose, UnsupportedJoint
-from ..solvers.buffered import Buffered
+from ..solvers.buffered import thread_buffered
 from .lie import np_log, np_quat_of_matrix, quat_mul, so3_exp, so3_log
 
 # the camera parameter of `Robot.camera_pose`: vec(T_cam_base[:3, :]), then its quaternion
@@ -43,17 +42,6 @@ class _Joint:
 
 
 _IK_FUNCS: dict[tuple, ca.Function] = {}  # (urdf, mtime, frame, offset) -> IK residual Function
-# per thread (their in-place buffers are not shared between threads, e.g. an in-process Dask
-# cluster's workers): the IK residual mapped over N targets, `camera_pose` over n joint vectors
-_BUFFERS = threading.local()
-
-
-def _buffered(key: tuple, build) -> Buffered:
-    """This thread's `Buffered` for `key`, built by `build()` on its first use here."""
-    cache = _BUFFERS.__dict__.setdefault("cache", {})
-    if key not in cache:
-        cache[key] = Buffered(build())
-    return cache[key]
 
 
 def _quat_of(R: np.ndarray) -> ca.DM:
@@ -281,8 +269,8 @@ class Robot:
             Q, C = ca.MX.sym("q", self.nq, n), ca.MX.sym("camera", self.camera_pose.size1_in(1))
             return ca.Function("camera_means", [Q, C], [ca.densify(maps(n)(Q, C))])
 
-        # (the same file, frame and offset: the same function, as for IK)
-        f = _buffered(("camera_means", self._ik_key, n), means)
+        # per thread (in-place buffers); the same file, frame and offset: the same function
+        f = thread_buffered(("camera_means", self._ik_key, n), means)
         return f(np.asarray(q, float).T, camera)[0].reshape(n, 7).copy()
 
     def fk_function(self, frame: str | None = None) -> ca.Function:
@@ -350,7 +338,8 @@ class Robot:
             return ca.Function("ik_batch", [Qs, Ts],
                                [ca.densify(v) for v in fn.map(N)(Qs, Ts)])
 
-        f = _buffered(("ik", self._ik_key, id(fn), N), batch)
+        # per thread (in-place buffers; e.g. an in-process Dask cluster's workers are threads)
+        f = thread_buffered(("ik", fn, N), batch)
         movable = np.array(self.supporting_joints())
         lo, hi = self.lower[movable], self.upper[movable]
         Q = np.array(guesses, dtype=float)

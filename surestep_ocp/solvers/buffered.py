@@ -3,6 +3,8 @@ conversions on the hot paths (Newton's iterations, the lifted form's initial mul
 
 from __future__ import annotations
 
+import threading
+
 import casadi as ca
 import numpy as np
 
@@ -26,3 +28,16 @@ class Buffered:
             dst[:] = np.ravel(src, order="F")
         self.trigger()
         return self.res
+
+
+_PER_THREAD = threading.local()
+
+
+def thread_buffered(key: tuple, build) -> Buffered:
+    """This thread's `Buffered` of the Function `build()` makes, built on its first use here for
+    `key`, which must name that Function (e.g. hold the Function it is made from: Functions hash by
+    identity, and the key keeps them alive)."""
+    cache = _PER_THREAD.__dict__.setdefault("cache", {})
+    if key not in cache:
+        cache[key] = Buffered(build())
+    return cache[key]

@@ -31,7 +31,6 @@ recover (docs/general_models.md).
 
 from __future__ import annotations
 
-import threading
 import time
 
 import casadi as ca
@@ -42,7 +41,7 @@ from ..model.belief import DIAG, NM, NV, NX, BeliefModel, unvech, vech
 from ..model.robot import CAMERA_PARAMETERS, Robot
 from ..output.solution import Solution
 from ..problem.setup import Setup
-from .buffered import Buffered
+from .buffered import thread_buffered
 from .codegen import compiled_or_interpreted
 from .stages import assemble, entries, smoothness_matrix
 from .surrogate import (
@@ -160,8 +159,7 @@ class LiftedTranscription:
             self.codegen = self.codegen_note is None
         self.hess_lag, self.jac_g, self.grad_f = (staged["hess_lag"], staged["jac_g"],
                                                   staged["grad_f"])
-        # the buffered Jacobian of `multipliers` per thread, and its pattern, made on first use
-        self._jac_nz, self._adjoint = {}, None
+        self._adjoint = None  # the Jacobian's pattern for `multipliers`, made on first use
         # initial covariances: the Kalman recursion along the initial means (mapaccum of the same
         # stage)
         M, S0 = ca.MX.sym("mus", NM, T + 1), ca.MX.sym("sigma0", NV)
@@ -198,13 +196,10 @@ class LiftedTranscription:
         variable (exact at a KKT point of the condensed form, whose joints are the same)."""
         # the Jacobian's nonzeros through CasADi's buffer interface: a DM's conversion to scipy
         # cost about half of this function (docs/general_models.md, "The secant end-game")
-        # (per thread: its buffers are its own; the NLP is shared by the threads of a process)
-        tid = threading.get_ident()
-        if tid not in self._jac_nz:
-            self._jac_nz[tid] = Buffered(self.jac_g)
+        # (per thread: the NLP is shared by the threads of a process)
         if self._adjoint is None:
             self._adjoint = self._adjoint_pattern()
-        nz = self._jac_nz[tid](x, p)[1]
+        nz = thread_buffered(("jac_g", self.jac_g), lambda: self.jac_g)(x, p)[1]
         sel, indices, indptr, rows, col_of, cols = self._adjoint
         # J[:, cols]^T
         A = scipy.sparse.csr_matrix((nz[sel], indices, indptr), shape=(len(cols), self.ng))
