@@ -8,8 +8,9 @@ Cold: the default problem (problems/needle_regrasp.yaml: 40 steps of 50 ms, the 
 the first `--configs` configurations of problems/evaluations/evaluation.yaml at the same horizon,
 pace and limits, each solved by `solver.name: interior` (the interior-point method, IPOPT as its
 fallback) and by IPOPT (`solver.name: ipopt`, the reference and today's default) in the same run;
-the solve times (builds cached and not counted), the interior attempt's own status, iterations and
-time, and Tr(Sigma_T) of both. An infeasibility verdict ends `solver.name: interior`'s solve (no
+the solve times (builds cached and not counted; the interior point's start search counted, as
+IPOPT's set-up is), the interior attempt's own status, iterations and time, and Tr(Sigma_T) of
+both. An infeasibility verdict ends `solver.name: interior`'s solve (no
 IPOPT fallback); the separate IPOPT solve says whether it agrees. Where our Tr(Sigma_T) is above
 IPOPT's, the row IPOPT's plan breaks most (the interior point's rows, negative: beyond a limit).
 `--against REV`: the interior-point attempt alone of this checkout and of REV's
