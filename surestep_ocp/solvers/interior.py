@@ -29,6 +29,7 @@ import casadi as ca
 import numpy as np
 import scipy.sparse as sp
 from scipy.linalg.lapack import dpbtrf, dpbtrs
+from scipy.sparse import _sparsetools
 
 from ..model import limits as lm
 from ..model.limits import MotionLimits
@@ -290,30 +291,23 @@ class InteriorNewton:
         self.build_time_s = time.perf_counter() - t0
 
     def _jac_pattern(self, idx: np.ndarray) -> None:
-        """The rows' Jacobian as CSR in `constraints`' order for the free variables `idx`: its
-        constant entries (bounds, linear rows) and the slots of the depths' and tool rows'."""
-        T, nq, nb = self.T, self.nq, len(idx)
-        L = self.lin_map
-        eye = sp.csr_matrix((np.ones(nb), (np.arange(nb), idx)), shape=(nb, self.n))
+        """The curved rows' Jacobian (depths of the interior nodes, then tool rows) as CSR for the
+        free variables `idx`: the slots `_RowJacobian` fills at each iterate. The direct rows' (the
+        bounds' +-e_i, the linear rows' +-a_i) are the constant `lin_map` and `idx` themselves."""
+        T, nq = self.T, self.nq
         depth = sp.csr_matrix((np.ones((T - 1) * nq), (np.repeat(np.arange(T - 1), nq),
                                                         np.arange(nq, T * nq))),
                               shape=(T - 1, self.n))
         tool = (self.tool_var[:, None, :].repeat(self.tool_k, 1)
                 .reshape(self.n_pts * self.tool_k, -1))
-        nnz_pre = 2 * nb + 2 * L.nnz
-        indptr = np.concatenate([eye.indptr, nb + eye.indptr[1:], 2 * nb + L.indptr[1:],
-                                 2 * nb + L.nnz + L.indptr[1:], nnz_pre + depth.indptr[1:],
-                                 nnz_pre + depth.nnz + tool.shape[1] * np.arange(
-                                     1, tool.shape[0] + 1)])
+        indptr = np.concatenate([depth.indptr, depth.nnz + tool.shape[1] * np.arange(
+            1, tool.shape[0] + 1)])
         self.jac_idx = idx
-        self.jac = sp.csr_matrix((np.concatenate([eye.data, -eye.data, L.data, -L.data,
-                                                  np.zeros(depth.nnz + tool.size)]),
-                                  np.concatenate([eye.indices, eye.indices, L.indices, L.indices,
-                                                  depth.indices, tool.ravel()]), indptr),
-                                 shape=(len(indptr) - 1, self.n))
-        self.jac_T = self.jac.T  # the same entries (`_RowJacobian` writes them in place)
-        self.jac_depth = slice(nnz_pre, nnz_pre + depth.nnz)
-        self.jac_tool = slice(nnz_pre + depth.nnz, self.jac.nnz)
+        self.jac_curved = sp.csr_matrix((np.zeros(depth.nnz + tool.size),
+                                         np.concatenate([depth.indices, tool.ravel()]), indptr),
+                                        shape=(len(indptr) - 1, self.n))
+        self.jac_depth = slice(0, depth.nnz)
+        self.jac_tool = slice(depth.nnz, self.jac_curved.nnz)
 
     # ---------------------------------------------------------------------------- constraint values
     def _lin_const(self, v0: np.ndarray | None, a0: np.ndarray | None) -> np.ndarray:
@@ -396,9 +390,6 @@ class InteriorNewton:
                              np.flatnonzero(free), lo, hi)[1]
         return float(c.min())
 
-    def lin_coef_dot(self, x: np.ndarray) -> np.ndarray:
-        return self.lin_map @ x
-
     def _tool_gradients(self, A: np.ndarray, G: np.ndarray, tool_scale: np.ndarray
                         ) -> tuple[np.ndarray, np.ndarray]:
         """The compiled velocities' Jacobian and the rows' gradients (flat) -> (points, 12, 2 nq)
@@ -473,7 +464,7 @@ class InteriorNewton:
         # the multipliers
         w = (np.asarray(warm, float).copy() if warm is not None and len(warm) == nc else m / s)
         if warm is not None and len(warm) == nc:
-            w = np.clip(w, m / (1e10 * s), 1e10 * m / s)
+            w = np.clip(w, m / s * 1e-10, m / s * 1e10)
         status = "Maximum_Iterations_Exceeded" if start_ok else "Infeasible_Start"
         if start_ok and nb == 0:
             # nothing free (a one-step plan): the start is the plan, within every row or not (else
@@ -543,14 +534,15 @@ class InteriorNewton:
             Hp = ((A * wv[:, :, None]).transpose(0, 2, 1) @ A
                   + (gy * st[:, :, None]).transpose(0, 2, 1) @ gy)
             JW = self._window_terms(Hp)
-            ab = (self.band_scatter @ np.concatenate([HB, wl, blocks.ravel(), JW])
-                  ).reshape(self.bw, n)
+            ab = _csr_dot(self.band_scatter, np.concatenate([HB, wl, blocks.ravel(), JW])
+                          ).reshape(self.bw, n)
             ab[0, idx] += sig[:nb] + sig[nb:2 * nb]
             factor = None
             if end_game:
                 # the tool rows' exact curvature where the matrix with it is positive definite as
                 # it is, else Gauss-Newton's: shifted, the exact one gave short, gradient-like steps
-                exact = ab + (self.tool_scatter @ self._window_terms(hy)).reshape(self.bw, n)
+                exact = ab + _csr_dot(self.tool_scatter, self._window_terms(hy)
+                                      ).reshape(self.bw, n)
                 factor = self._factor(exact, idx, 0.0, may_shift=False)
             if factor is None:
                 factor = self._factor(ab, idx, shift)
@@ -582,9 +574,7 @@ class InteriorNewton:
 
             # Mehrotra's probe: the affine step (mu = 0) says how far the complementarity can fall
             _, dca, dwa = direction(0.0)
-            with np.errstate(divide="ignore", invalid="ignore"):
-                ap = float(np.min(np.where(dca < 0, -s / dca, np.inf), initial=1.0))
-                ad = float(np.min(np.where(dwa < 0, -w / dwa, np.inf), initial=1.0))
+            ap, ad = _to_boundary(s, dca, 1.0), _to_boundary(w, dwa, 1.0)
             gap_aff = float((s + ap * dca) @ (w + ad * dwa)) / nc
             if last_step >= SHORT_STEP:
                 # sigma = (gap_aff / gap)^3; the barrier parameter is never raised here
@@ -602,9 +592,7 @@ class InteriorNewton:
             if float(g @ dx) - m * float((dc + rho) @ (1.0 / s)) >= 0.0:
                 dx, dc, dw = direction(m)
             tau = max(TAU_MIN, 1.0 - m)
-            with np.errstate(divide="ignore", invalid="ignore"):
-                a_max = float(np.min(np.where(dc < 0, -tau * s / dc, np.inf), initial=1.0))
-                az = float(np.min(np.where(dw < 0, -tau * w / dw, np.inf), initial=1.0))
+            a_max, az = _to_boundary(s, dc, tau), _to_boundary(w, dw, tau)
             value = f_val - m * float(np.sum(np.log(s)))
             g_dx = float(g @ dx)
 
@@ -638,7 +626,7 @@ class InteriorNewton:
                     short = below
                     socs[0] += 1
                     e = np.zeros(nc)  # what the linearisation of the curved rows missed
-                    e[nd_:] = c_t[nd_:] - (c[nd_:] + jac.dot(d)[nd_:])
+                    e[nd_:] = c_t[nd_:] - (c[nd_:] + jac.curved_dot(d))
                     d = d + solve(-jac.T(sig * e))
 
             socs = [0]  # this iteration's second-order corrections
@@ -663,7 +651,7 @@ class InteriorNewton:
             w = w + min(1.0, az) * dw
             last_az, last_socs = az, socs[0]
             # IPOPT's safeguard keeps w s within a band around mu
-            w = np.clip(w, m / (1e10 * s), 1e10 * m / s)
+            w = np.clip(w, m / s * 1e-10, m / s * 1e10)
             it += 1
             relaxed_its += bool(rho.any())
         run = nw._end(setup, x, P, trace_ref, status, it, 0, t0,
@@ -712,20 +700,53 @@ def _parameters(setup) -> np.ndarray:
 class _RowJacobian:
     """The rows' Jacobian at one iterate, in the order of `InteriorNewton.constraints` (bounds
     +-e_i, linear rows +-a_i, depths grad z, tool rows -grad g): products with it and with its
-    transpose. Its entries are written into the solver's CSR matrix in place (valid until the next
-    iterate's)."""
+    transpose, each pair of direct rows by one product. The curved rows' entries are written into
+    the solver's CSR matrix in place (valid until the next iterate's)."""
 
     def __init__(self, ip: InteriorNewton, idx: np.ndarray, DZ: np.ndarray, tj: np.ndarray):
         if ip.jac_idx is not idx and not np.array_equal(ip.jac_idx, idx):
             ip._jac_pattern(idx)
-        self.J, self.JT = ip.jac, ip.jac_T
-        self.J.data[ip.jac_depth] = DZ[1:ip.T].ravel()
-        self.J.data[ip.jac_tool] = -tj.ravel()  # (points, k, W nq)
+        self.idx, self.n, self.L, self.C = idx, ip.n, ip.lin_map, ip.jac_curved
+        self.nb, self.nl = len(idx), ip.n_lin
+        self.C.data[ip.jac_depth] = DZ[1:ip.T].ravel()
+        self.C.data[ip.jac_tool] = -tj.ravel()  # (points, k, W nq)
 
     def T(self, v: np.ndarray) -> np.ndarray:
         """sum_i v_i grad c_i"""
-        return self.JT @ v
+        nb, nl = self.nb, self.nl
+        out = _csr_tdot(self.C, v[2 * nb + 2 * nl:], self.n)
+        _csr_tdot(self.L, v[2 * nb:2 * nb + nl] - v[2 * nb + nl:2 * nb + 2 * nl], self.n, out)
+        out[self.idx] += v[:nb] - v[nb:2 * nb]
+        return out
 
     def dot(self, dx: np.ndarray) -> np.ndarray:
         """grad c_i . dx for every row"""
-        return self.J @ dx
+        b, lin = dx[self.idx], _csr_dot(self.L, dx)
+        return np.concatenate([b, -b, lin, -lin, _csr_dot(self.C, dx)])
+
+    def curved_dot(self, dx: np.ndarray) -> np.ndarray:
+        """grad c_i . dx for the curved rows alone (depths, tool rows)"""
+        return _csr_dot(self.C, dx)
+
+
+def _to_boundary(v: np.ndarray, dv: np.ndarray, tau: float) -> float:
+    """The largest step a <= 1 with v + a dv >= (1 - tau) v for positive v: tau over the largest
+    relative decrease."""
+    fall = float(np.min(dv / v))
+    return 1.0 if fall >= 0.0 else min(1.0, -tau / fall)
+
+
+def _csr_dot(A: sp.csr_matrix, x: np.ndarray) -> np.ndarray:
+    """A @ x by SciPy's kernel without its dispatch, which costs twice the product at these
+    sizes (tens of microseconds, several times an iteration)."""
+    y = np.zeros(A.shape[0])
+    _sparsetools.csr_matvec(A.shape[0], A.shape[1], A.indptr, A.indices, A.data, x, y)
+    return y
+
+
+def _csr_tdot(A: sp.csr_matrix, v: np.ndarray, n: int, out: np.ndarray | None = None
+              ) -> np.ndarray:
+    """A^T @ v (added to `out` if given), A's CSR arrays read as its transpose's CSC."""
+    y = np.zeros(n) if out is None else out
+    _sparsetools.csc_matvec(n, A.shape[0], A.indptr, A.indices, A.data, v, y)
+    return y
