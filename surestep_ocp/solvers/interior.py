@@ -610,7 +610,7 @@ class InteriorNewton:
                     f_t, c_t = self.constraints(x + d, P, lin_c, offsets, min_depth, idx, lo, hi,
                                                 keep)
                     s_t = c_t + (1.0 - a) * rho
-                    below = float(np.max(((1 - tau) * s - s_t) / s))  # <= 0: within the fraction
+                    below = (1 - tau) - float(np.min(s_t / s))  # <= 0: within the fraction
                     if below <= 0.0:
                         if rho.any():
                             return x + d, c_t, a
@@ -625,9 +625,9 @@ class InteriorNewton:
                         return None
                     short = below
                     socs[0] += 1
-                    e = np.zeros(nc)  # what the linearisation of the curved rows missed
-                    e[nd_:] = c_t[nd_:] - (c[nd_:] + jac.curved_dot(d))
-                    d = d + solve(-jac.T(sig * e))
+                    # what the linearisation of the curved rows missed
+                    e = c_t[nd_:] - (c[nd_:] + jac.curved_dot(d))
+                    d = d + solve(-jac.curved_T(sig[nd_:] * e))
 
             socs = [0]  # this iteration's second-order corrections
             found = _backtrack(a_max, accept)
@@ -727,6 +727,10 @@ class _RowJacobian:
     def curved_dot(self, dx: np.ndarray) -> np.ndarray:
         """grad c_i . dx for the curved rows alone (depths, tool rows)"""
         return _csr_dot(self.C, dx)
+
+    def curved_T(self, v: np.ndarray) -> np.ndarray:
+        """sum_i v_i grad c_i over the curved rows alone"""
+        return _csr_tdot(self.C, v, self.n)
 
 
 def _to_boundary(v: np.ndarray, dv: np.ndarray, tau: float) -> float:
