@@ -7,11 +7,15 @@ millisecond, its velocities and accelerations taken by finite differences, the t
 Pinocchio's kinematics of the samples, and compared with the limit values of the problem.
 """
 
+import dataclasses
+
 import numpy as np
+import numpy_ekf as ref
 import pytest
 from scipy.spatial.transform import Rotation
 
 import surestep_ocp as ss
+from surestep_ocp.model.belief import COSINE_GUARD
 from surestep_ocp.model.limits import evaluate_curve, problem_limits
 from surestep_ocp.evaluation.tracker_loop import tracker_loop
 from surestep_ocp.model.limits.curve import TOOL_MARGIN
@@ -36,6 +40,23 @@ def test_every_replan_succeeds_from_the_moving_robot(episode):
     assert all(p.replan.kept_previous is False for p in plans)
     moving = [p for p in plans if np.abs(p.run.start_state.velocity).max() > 1e-3]
     assert len(moving) > len(plans) // 2  # most re-plans start while the robot moves, not from rest
+
+
+@pytest.mark.parametrize("k", [0, 20, -1])
+def test_replan_covariances_are_the_numpy_ekf(episode, k):
+    """A re-plan's covariances (the planner evaluates its plan with a compiled EKF over its
+    horizon) are a plain NumPy EKF's along its poses, from the tracker's covariance it was given
+    (as its solution records it)."""
+    _, _, plans = episode
+    plan = plans[k]
+    problem = ss.load_problem("problems/needle_regrasp.yaml")
+    given = np.asarray(plan.noise["Sigma0"], float)
+    sigma0 = given * np.eye(6) if given.ndim == 0 else given
+    noise = dataclasses.replace(problem.noise, Sigma0=sigma0)
+    sig, _ = ref.propagate(np.asarray(plan.poses), noise, problem.camera.intrinsics,
+                           ref.ALL_COMPONENTS, guard=COSINE_GUARD)
+    assert len(sig) == plan.horizon + 1
+    assert ref.rel_err(plan.covariances, sig) < 1e-9
 
 
 def test_executed_motion_keeps_every_limit(episode):

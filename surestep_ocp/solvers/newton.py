@@ -552,11 +552,12 @@ class NewtonSolver:
         return NewtonRun(q, np_poses(mu), status, it, exact_steps, f_val * trace_ref,
                          trace * trace_ref, trace_ref, max(terminal, depth), solve_s, secant_steps)
 
-    def solution(self, setup, method, init, r: NewtonRun) -> Solution:
+    def solution(self, setup, method, init, r: NewtonRun, sigma: np.ndarray | None = None
+                 ) -> Solution:
         """The Solution of a run: its plan evaluated by the exact EKF
-        (`output.solution.evaluate`)."""
+        (`output.solution.evaluate`; `sigma`: its covariances when the caller has them)."""
         return evaluate(
-            setup, method, r.poses, list(r.q),
+            setup, method, r.poses, list(r.q), sigma=sigma,
             success=r.success, status=r.status, solve_time_s=r.solve_time_s,
             iterations=r.iterations, objective=r.objective,
             run=SolveRecord(solver="newton", init=init.source, covariance_form="condensed",

@@ -257,7 +257,7 @@ class Planner:
             warm = InitialGuess(np.vstack([tail, np.repeat(tail[-1:], extra, axis=0)]),
                                 "previous plan"
                                 + (f", {extra} steps at the goal added" if extra else ""))
-            solver = self._interior(sub)
+            solver, propagation = self._interior(sub)
             run = solver.run(sub, warm, v0=v0, a0=a0, tol=spec.tol, mu0=REPLAN_MU, relax=True,
                              reserve=reserve,
                              max_iter=(min(self.replan_iterations, spec.max_iter, budget)
@@ -270,7 +270,9 @@ class Planner:
                           "relaxed_iterations": run.relaxed_iterations})
             if run.success:
                 break
-        sol = solver.newton.solution(sub, "ocp-replan", warm, run)
+        sigma = (None if propagation is None
+                 else np.asarray(propagation(run.poses.T, vech(cov))).T[:, _UNVECH])
+        sol = solver.newton.solution(sub, "ocp-replan", warm, run, sigma=sigma)
         sol.run = replace(sol.run, solver="interior",
                           start_state=StartState(v0.tolist(), a0.tolist()),
                           warm_start_q=np.asarray(warm.q, float).tolist())
@@ -302,12 +304,16 @@ class Planner:
                                                            raise_on_fail=False, restarts=0)
         return q_goal, res_m, res_rad
 
-    def _interior(self, sub: Setup):
-        """The interior-point solver of a re-plan over `sub`'s horizon from a moving start, built on
-        first use (its build time in `builds`, keyed by minus the horizon)."""
+    def _interior(self, sub: Setup) -> tuple:
+        """(interior-point solver, compiled EKF or None) of a re-plan over `sub`'s horizon from a
+        moving start, built on first use (its build time in `builds`, keyed by minus the horizon).
+        The EKF evaluates a plan in one call (`_propagation`); None for a model with joint-space
+        noise, which needs the joints (`evaluate`)."""
         t0, n = time.perf_counter(), sub.ocp.horizon
         if -n not in self._solvers:  # a re-plan's structure is its horizon's (no cache key made)
-            self._solvers[-n] = interior_solver(sub, moving=True)
+            self._solvers[-n] = (interior_solver(sub, moving=True),
+                                 None if self.setup.model.joint_noise
+                                 else _propagation(self.setup.eval_model, n))
             self.builds[-n] = time.perf_counter() - t0
         return self._solvers[-n]
 
