@@ -157,10 +157,14 @@ class Robot:
         return int(self.model.getFrameId(name))
 
     def supporting_joints(self, frame: str | None = None) -> list[int]:
-        """Indices (into `joint_names`) of the joints that move `frame`."""
-        fid = self.frame_index(frame or self.frame)
-        jid = int(self.model.frames[fid].parentJoint)
-        return sorted(i - 1 for i in self.model.supports[jid] if i > 0)
+        """Indices (into `joint_names`) of the joints that move `frame` (kept per frame: IK asks
+        at every call)."""
+        known = self.__dict__.setdefault("_supporting", {})
+        name = frame or self.frame
+        if name not in known:
+            jid = int(self.model.frames[self.frame_index(name)].parentJoint)
+            known[name] = tuple(sorted(i - 1 for i in self.model.supports[jid] if i > 0))
+        return list(known[name])
 
     # ------------------------------------------------------------------ numeric FK
     def to_pinocchio(self, q: np.ndarray) -> np.ndarray:
@@ -352,9 +356,10 @@ class Robot:
             E = E.reshape(N, 6)
             J = J.reshape(N, nq, 6).transpose(0, 2, 1)[:, :, movable]
             now = alive & ~done & (np.linalg.norm(E, axis=1) < 1e-13)
-            errors[now] = np.stack([np.linalg.norm(E[now, :3], axis=1),
-                                    np.linalg.norm(E[now, 3:], axis=1) / 0.05], 1)
-            done |= now
+            if now.any():
+                errors[now] = np.stack([np.linalg.norm(E[now, :3], axis=1),
+                                        np.linalg.norm(E[now, 3:], axis=1) / 0.05], 1)
+                done |= now
             active = alive & ~done
             if not active.any():
                 break
@@ -362,7 +367,10 @@ class Robot:
             try:  # square Jacobians (six movable joints): one batched solve
                 if J.shape[1] != J.shape[2]:
                     raise np.linalg.LinAlgError("not square")
-                Q[np.ix_(idx, movable)] -= np.linalg.solve(J[idx], E[idx][:, :, None])[:, :, 0]
+                if len(idx) == N:  # (every target still moving: no gather)
+                    Q[:, movable] -= np.linalg.solve(J, E[:, :, None])[:, :, 0]
+                else:
+                    Q[np.ix_(idx, movable)] -= np.linalg.solve(J[idx], E[idx][:, :, None])[:, :, 0]
             except np.linalg.LinAlgError:
                 # a singular one, or redundant/deficient arms: least squares each
                 for k in idx:
