@@ -34,6 +34,7 @@ from ..model.limits import enforce as enforce_limits
 from ..model.limits import evaluate_curve
 from .methods import ocp_initial_guess
 from .backends import Context
+from .buffered import Buffered
 from .iterate import InitialGuess
 from .nlp_cache import interior_solver, newton_solver
 from .ocp import resolved_solver, solve_ocp_warm
@@ -270,8 +271,9 @@ class Planner:
                           "relaxed_iterations": run.relaxed_iterations})
             if run.success:
                 break
-        sigma = (None if propagation is None
-                 else np.asarray(propagation(run.poses.T, vech(cov))).T[:, _UNVECH])
+        # (in place: the buffer's values are copied out by the indexing)
+        sigma = (None if propagation is None else
+                 propagation(run.poses.T, vech(cov))[0].reshape(-1, NV)[:, _UNVECH])
         sol = solver.newton.solution(sub, "ocp-replan", warm, run, sigma=sigma)
         sol.run = replace(sol.run, solver="interior",
                           start_state=StartState(v0.tolist(), a0.tolist()),
@@ -313,7 +315,7 @@ class Planner:
         if -n not in self._solvers:  # a re-plan's structure is its horizon's (no cache key made)
             self._solvers[-n] = (interior_solver(sub, moving=True),
                                  None if self.setup.model.joint_noise
-                                 else _propagation(self.setup.eval_model, n))
+                                 else Buffered(_propagation(self.setup.eval_model, n)))
             self.builds[-n] = time.perf_counter() - t0
         return self._solvers[-n]
 
