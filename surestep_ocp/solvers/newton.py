@@ -203,7 +203,6 @@ class NewtonSolver:
                 fns, self.codegen_note = compiled_or_interpreted(fns, codegen_required)
                 self.codegen = self.codegen_note is None
             self._install(fns)
-        self.poses = pose.map(T + 1)
         # scatter maps: interval t covers the joint vectors of nodes t, t+1 (positions t*nq ..
         # (t+2)*nq)
         n = self.n = nq * (T + 1)
@@ -542,7 +541,7 @@ class NewtonSolver:
         has them (else computed here)."""
         T, nq = self.T, self.robot.nq
         q = x.reshape(T + 1, nq)
-        mu = np.asarray(self.poses(q.T, setup.camera_parameter())).T  # means (p, Q)
+        mu = setup.means_of(q)  # means (p, Q), evaluated in place
         terminal = float(np.max(np.abs(mu[T] - setup.m_goal)))
         depth = float(max(0.0, setup.ocp.min_depth - mu[:, 2].min()))
         if status == "Solve_Succeeded" and (depth > 0 or terminal > 1e-9):
