@@ -251,7 +251,7 @@ def test_batched_ik_keeps_its_buffers_per_thread():
     import threading
     from concurrent.futures import ThreadPoolExecutor
 
-    from surestep_ocp.solvers.buffered import thread_buffered as _buffered
+    from surestep_ocp.buffered import thread_buffered as _buffered
 
     robot = Robot(PSM_URDF, frame="tool")
     rng = np.random.default_rng(3)

@@ -22,7 +22,7 @@ import pinocchio as pin
 from scipy.optimize import least_squares
 
 from ..errors import FrameNotFound, UnreachablePose, UnsupportedJoint
-from ..solvers.buffered import thread_buffered
+from ..buffered import thread_buffered
 from .lie import np_log, np_quat_of_matrix, quat_mul, so3_exp, so3_log
 
 # the camera parameter of `Robot.camera_pose`: vec(T_cam_base[:3, :]), then its quaternion

@@ -34,7 +34,7 @@ from scipy.sparse import _sparsetools
 from ..model import limits as lm
 from ..model.limits import MotionLimits
 from ..model.robot import CAMERA_PARAMETERS, Robot
-from .buffered import Buffered
+from ..buffered import Buffered
 from .codegen import compiled_or_interpreted
 from .newton import BOUND_PUSH, TAU_MIN, NewtonRun, NewtonSolver, _backtrack, _SecantCorrection
 

@@ -41,7 +41,7 @@ from ..model.belief import DIAG, NM, NV, NX, BeliefModel, unvech, vech
 from ..model.robot import CAMERA_PARAMETERS, Robot
 from ..output.solution import Solution
 from ..problem.setup import Setup
-from .buffered import thread_buffered
+from ..buffered import thread_buffered
 from .codegen import compiled_or_interpreted
 from .stages import assemble, entries, smoothness_matrix
 from .surrogate import (

@@ -48,7 +48,7 @@ from ..model.robot import CAMERA_PARAMETERS, Robot
 from ..output.solution import Solution, evaluate
 from ..output.solution_records import SolveRecord
 from ..problem.setup import Setup
-from .buffered import Buffered
+from ..buffered import Buffered
 from .codegen import Deferred, compiled_or_interpreted
 from .surrogate import interval_terms, pose_function, recursion_weights
 

@@ -34,7 +34,7 @@ from ..model.limits import enforce as enforce_limits
 from ..model.limits import evaluate_curve
 from .methods import ocp_initial_guess
 from .backends import Context
-from .buffered import Buffered
+from ..buffered import Buffered
 from .iterate import InitialGuess
 from .nlp_cache import interior_solver, newton_solver
 from .ocp import resolved_solver, solve_ocp_warm

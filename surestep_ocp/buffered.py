@@ -1,5 +1,7 @@
 """A CasADi Function called in place on NumPy arrays, through CasADi's buffer interface: no DM
-conversions on the hot paths (Newton's iterations, the lifted form's initial multipliers)."""
+conversions on the hot paths (the Newton and interior-point iterations, the robot's IK and camera
+means, a re-plan's EKF, the lifted form's initial multipliers). At the package's root: the model
+and the solvers both use it."""
 
 from __future__ import annotations
 
