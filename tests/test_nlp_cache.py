@@ -116,3 +116,33 @@ def test_newton_solvers_are_kept_per_thread():
         together = list(pool.map(plan, goals * 2))
     for k, q in enumerate(together):
         np.testing.assert_array_equal(q, alone[k % 4])
+
+
+def test_the_interior_solver_compiles_the_robots_ik_once(tmp_path, monkeypatch):
+    """Building an interior-point solver with codegen compiles its robot's IK residual (the start's
+    search and every re-plan's goal solve IK), once per robot model; the compiled IK's solutions are
+    the interpreted one's, checked by Pinocchio's FK."""
+    from surestep_ocp.model import robot as robot_module
+    from surestep_ocp.solvers import nlp_cache
+    from surestep_ocp.solvers.codegen import available
+
+    if not available():
+        pytest.skip("no C compiler")
+    monkeypatch.setattr(robot_module, "_IK_FUNCS", {})  # the robot model's IK not compiled yet
+    monkeypatch.setattr(nlp_cache, "_INTERIOR", {})
+    prob = load_problem(ROOT / "problems" / "needle_regrasp.yaml").with_solver(name="interior",
+                                                                               codegen=True)
+    setup = build_setup(prob)
+    robot = setup.robot
+    target = robot.frame_pose(setup.q_goal)
+    q_interpreted = robot.inverse_kinematics(target, setup.q_start)[0]
+    assert robot._ik_funcs.class_name() == "SXFunction"
+    solver = nlp_cache.interior_solver(setup)
+    assert solver.codegen_note is None
+    compiled = robot._ik_funcs
+    assert compiled.class_name() == "External"
+    nlp_cache.interior_solver(setup, moving=True)  # another structure: the same compiled IK
+    assert robot._ik_funcs is compiled
+    q_compiled = robot.inverse_kinematics(target, setup.q_start)[0]
+    np.testing.assert_allclose(q_compiled, q_interpreted, atol=1e-10)
+    np.testing.assert_allclose(robot.frame_pose(q_compiled), target, atol=1e-9)

@@ -296,11 +296,19 @@ class Robot:
             _IK_FUNCS[self._ik_key] = self._build_ik_funcs()
         return _IK_FUNCS[self._ik_key]
 
-    def use_ik_function(self, fn: ca.Function) -> None:
-        """IK from now on with `fn`, the same function as `_ik_funcs` (its compiled C: the solvers
-        that compile theirs compile it too), for every robot of this model."""
-        _IK_FUNCS[self._ik_key] = fn
-        # the mapped ones are rebuilt on the new function (in every thread: the key names it)
+    def compile_ik(self, compile_fns) -> str | None:
+        """IK from now on with the residual `compile_fns` makes of it (its compiled C), for every
+        robot of this model, once: `compile_fns({"ik_residual": f}) -> (functions, note)`, the
+        note None when it compiled (`codegen.compiled_or_interpreted`). Returns that note (None:
+        compiled, now or before)."""
+        fn = self._ik_funcs
+        if fn.class_name() != "SXFunction":
+            return None
+        fns, note = compile_fns({"ik_residual": fn})
+        if note is None:
+            _IK_FUNCS[self._ik_key] = fns["ik_residual"]
+            # the mapped ones are rebuilt on the new function (in every thread: the key names it)
+        return note
 
     def _build_ik_funcs(self) -> ca.Function:
         q = ca.SX.sym("q", self.nq)

@@ -211,14 +211,7 @@ class InteriorNewton:
                "tool_res": ca.Function("tool_res", [Xm, Om, Lm], f_res.map(npts)(Qm, Dm, Lm))}
         self.codegen_note = None
         if codegen:
-            # with the robot's IK residual: the start's search and the re-plans' goals solve IK
-            # (once per robot model: then it is the compiled one)
-            ik = robot._ik_funcs
-            if ik.class_name() == "SXFunction":
-                fns["ik_residual"] = ik
             fns, self.codegen_note = compiled_or_interpreted(fns, codegen_required)
-            if self.codegen_note is None and "ik_residual" in fns:
-                robot.use_ik_function(fns["ik_residual"])
         self.tool_rows, self.tool_jacs = Buffered(fns["tool_rows"]), Buffered(fns["tool_jacs"])
         self.tool_res = Buffered(fns["tool_res"])
         # the band layout (lower storage, half-bandwidth WINDOW nodes)

@@ -17,6 +17,7 @@ from ..model.limits import problem_limits
 from ..problem.setup import Setup
 from ..problem.solver_config import resolve_form
 from .codegen import available as compiler_available
+from .codegen import compiled_or_interpreted
 from .interior import InteriorNewton
 from .lifted import LiftedTranscription
 from .newton import NewtonSolver
@@ -176,8 +177,15 @@ def interior_solver(setup: Setup, moving: bool = False) -> InteriorNewton:
            setup.model.key(), setup.model.scalar, prob.horizon, prob.smoothness, codegen,
            limits_key((dt, lim)), moving, threading.get_ident())
     if key not in _INTERIOR:
-        _INTERIOR[key] = InteriorNewton(newton_solver(setup), setup.robot, dt, lim, moving, codegen,
-                                        codegen_required=prob.solver.codegen is True)
+        required = prob.solver.codegen is True
+        solver = InteriorNewton(newton_solver(setup), setup.robot, dt, lim, moving, codegen,
+                                codegen_required=required)
+        if codegen:
+            # the robot's IK compiled too (once per robot model): the start's search and every
+            # re-plan's goal solve IK
+            note = setup.robot.compile_ik(lambda fns: compiled_or_interpreted(fns, required))
+            solver.codegen_note = solver.codegen_note or note
+        _INTERIOR[key] = solver
     return _INTERIOR[key]
 
 
