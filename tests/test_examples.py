@@ -34,12 +34,30 @@ def test_example_runs(tmp_path, script, extra, wrote):
         assert "re-plan median" in run.stdout
 
 
-def test_readme_python_api_script_runs(tmp_path):
-    """The README's "Python API" script, copied as a user would (at T = 6), runs from another
-    folder."""
+def _readme_python_blocks() -> list[str]:
+    """The README's "Python API" code blocks, in order."""
     text = (ROOT / "README.md").read_text()
-    start = text.index("```python\n", text.index("### Python API")) + len("```python\n")
-    script = text[start:text.index("```", start)].replace("with_horizon(20)", "with_horizon(6)")
+    section = text[text.index("### Python API"):]
+    section = section[:section.index("\n## ")] if "\n## " in section else section
+    return [part.split("```", 1)[0] for part in section.split("```python\n")[1:]]
+
+
+def test_readme_python_api_starts_with_the_loop_within_the_limits():
+    """The README's first Python example is the 20 Hz re-planning loop on the default problem, whose
+    file enforces the motion limits (the loop itself runs in examples/replan_loop.py above)."""
+    import surestep_ocp as ss
+
+    first = _readme_python_blocks()[0]
+    assert 'ss.Planner(ss.load_problem("problems/needle_regrasp.yaml"))' in first
+    assert "planner.replan(mean, cov, step=k)" in first
+    assert ss.load_problem(ROOT / "problems" / "needle_regrasp.yaml").limits.enforce
+
+
+def test_readme_python_api_script_runs(tmp_path):
+    """The README's "Python API" script that changes and solves one problem, copied as a user would
+    (at T = 6), runs from another folder."""
+    script = next(b for b in _readme_python_blocks() if "with_horizon(20)" in b)
+    script = script.replace("with_horizon(20)", "with_horizon(6)")
     assert "with_horizon(6)" in script
     (tmp_path / "api.py").write_text(script)
     run = subprocess.run([sys.executable, "api.py"], check=False, cwd=tmp_path, capture_output=True,
