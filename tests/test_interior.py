@@ -263,3 +263,24 @@ def test_a_one_step_plan_is_decided_at_once():
     assert far.status == "Infeasible_Problem_Detected" and far.iterations == 0
     assert still.status == "Solve_Succeeded" and still.iterations == 0
     np.testing.assert_allclose(still.q, [base.q_start] * 2)
+
+
+def test_the_step_to_the_boundary_is_the_largest_that_keeps_the_fraction():
+    """`_to_boundary` (one division a vector) against its definition row by row: the largest a <= 1
+    with v + a dv >= (1 - tau) v for every positive v, checked at that step and just beyond it."""
+    from surestep_ocp.solvers.interior import _to_boundary
+
+    rng = np.random.default_rng(3)
+    for _ in range(200):
+        n = int(rng.integers(1, 50))
+        v = rng.uniform(1e-6, 2.0, n)
+        dv = rng.normal(size=n) * 10 ** rng.uniform(-3, 3, n)
+        tau = float(rng.choice([1.0, 0.99, 0.995]))
+        a = _to_boundary(v, dv, tau)
+        falling = dv < 0
+        expect = min([1.0] + [-tau * vi / di for vi, di in zip(v[falling], dv[falling])])
+        assert a == pytest.approx(expect, rel=1e-12)
+        assert np.all(v + a * dv >= (1 - tau) * v - 1e-12 * v)
+        if a < 1.0:  # a little further breaks a row
+            assert np.any(v + 1.001 * a * dv < (1 - tau) * v)
+    assert _to_boundary(np.ones(3), np.array([0.0, 1.0, 2.0]), 0.99) == 1.0  # nothing falls
