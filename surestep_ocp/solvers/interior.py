@@ -334,7 +334,7 @@ class InteriorNewton:
         """(objective, row values c >= 0) in the rows' order: the direct ones (joint bounds lower
         and upper, linear rows lower and upper: exact under linearisation), then the nonlinear ones
         (depths of the interior nodes, tool rows), which the method gives slacks."""
-        f_y, z_y = self.newton.fz(x, P)
+        f_y, z_y, _ = self.newton.fz(x, P)
         raw, lin = self.tool_rows(x, offsets)
         lin = lin + lin_c
         raw = raw.reshape(self.tool_k, self.n_pts, order="F")
@@ -440,7 +440,8 @@ class InteriorNewton:
         # the fraction of the velocity, acceleration and tool-speed limits the plan may use
         keep = 1.0 - reserve
         tool_scale = self.tool_scale / keep**2
-        P[CAMERA_PARAMETERS] = trace_ref = float(nw.step(x, P)[0][0])
+        # the objective's scale: the start's trace (by the rows' function: no derivatives)
+        P[CAMERA_PARAMETERS] = trace_ref = float(nw.fz(x, P)[2][0])
         m = MU_INIT if mu0 is None else mu0
         m_last = m  # the last iteration's barrier parameter
         nb, nl = len(idx), self.n_lin

@@ -186,7 +186,7 @@ class NewtonSolver:
         fns = {"newton_step": ca.Function("newton_step", [Q, P], [S_x, S_x + smooth, G, HB, depth]),
                "newton_f": ca.Function("newton_f", [Q, P], [S_x + smooth]),
                "newton_depth": ca.Function("newton_depth", [Q, P], [Z, DZ, D2Z]),
-               "newton_fz": ca.Function("newton_fz", [Q, P], [S_x + smooth, Z])}
+               "newton_fz": ca.Function("newton_fz", [Q, P], [S_x + smooth, Z, S_x])}
         self.nm, self.no = w_m.shape[0], w_o.shape[0]
         # S's curvature costs nc T Hessian-vector products: cheap for the scalar recursion, not for
         # the 6x6 one, where Newton keeps the surrogate throughout (docs/hessian_and_newton.md, "The
@@ -310,7 +310,8 @@ class NewtonSolver:
         start_ok = bool(np.all(x >= lo - 1e-12) and np.all(x <= hi + 1e-12)
                         and np.allclose(x[:nq], setup.q_start, atol=1e-12))
         # the objective is 1 (plus smoothness) at the start
-        P[CAMERA_PARAMETERS] = trace_ref = float(self.step(x, P)[0][0])
+        # the objective's scale: the start's trace (by `fz`: no derivatives)
+        P[CAMERA_PARAMETERS] = trace_ref = float(self.fz(x, P)[2][0])
         status, it, shift = ("Maximum_Iterations_Exceeded" if start_ok
                              else "Infeasible_Start"), 0, 0.0
         exact_steps, secant_steps, history = 0, 0, []
@@ -399,7 +400,7 @@ class NewtonSolver:
         idx, min_depth = np.flatnonzero(free), setup.ocp.min_depth
         start_ok = bool(np.all(x >= lo - 1e-12) and np.all(x <= hi + 1e-12)
                         and np.allclose(x[:nq], setup.q_start, atol=1e-12))
-        P[CAMERA_PARAMETERS] = trace_ref = float(self.step(x, P)[0][0])  # at `init`, as `run`
+        P[CAMERA_PARAMETERS] = trace_ref = float(self.fz(x, P)[2][0])  # at `init`, as `run`
         push_lo = BOUND_PUSH * np.minimum(np.maximum(1.0, np.abs(lo)), hi - lo)
         push_hi = BOUND_PUSH * np.minimum(np.maximum(1.0, np.abs(hi)), hi - lo)
         x = np.where(free, np.clip(x, lo + push_lo, hi - push_hi), x)
@@ -416,7 +417,7 @@ class NewtonSolver:
                               + np.sum(np.log(xh - y[idx]))), s_y
 
         def merit(y: np.ndarray, m: float) -> tuple[float, np.ndarray]:
-            f_y, z_y = self.fz(y, P)
+            f_y, z_y, _ = self.fz(y, P)
             return barrier_value(float(f_y[0]), z_y, y, m)
 
         a, b = self.node_pairs
@@ -547,7 +548,10 @@ class NewtonSolver:
         if status == "Solve_Succeeded" and (depth > 0 or terminal > 1e-9):
             status = "Depth_Bound_Violated" if depth > 0 else "Terminal_Pose_Not_Met"
         solve_s = time.perf_counter() - t0
-        trace, f_val = values or (float(v[0]) for v in self.step(x, P)[:2])
+        if values is None:  # (by `fz`: no derivatives)
+            f_y, _, s_y = self.fz(x, P)
+            values = (float(s_y[0]), float(f_y[0]))
+        trace, f_val = values
         return NewtonRun(q, np_poses(mu), status, it, exact_steps, f_val * trace_ref,
                          trace * trace_ref, trace_ref, max(terminal, depth), solve_s, secant_steps)
 
