@@ -36,7 +36,8 @@ from ..model.limits import MotionLimits
 from ..model.robot import CAMERA_PARAMETERS, Robot
 from ..buffered import Buffered
 from .codegen import compiled_or_interpreted
-from .newton import BOUND_PUSH, TAU_MIN, NewtonRun, NewtonSolver, _backtrack, _SecantCorrection
+from .newton import (BOUND_PUSH, TAU_MIN, NewtonRun, NewtonSolver, _backtrack, _SecantCorrection,
+                     parameters)
 
 MU_INIT = 0.1  # IPOPT's mu_init (the objective is 1 at the start)
 # The last barrier parameter (IPOPT's mu_min): the barrier's optimum is above the problem's by up to
@@ -366,7 +367,7 @@ class InteriorNewton:
     def starts_inside(self, setup, init) -> bool:
         """Whether `run` (without `relax`, at rest) can start from `init`: its start point
         strictly within every row."""
-        P = _parameters(setup)
+        P = parameters(setup)
         lo, hi, free = self.bounds(setup.q_start)
         c = self._start_point(np.asarray(init.q, float).ravel(), P, self._lin_const(None, None),
                               self._tool_offsets(None, None), setup.ocp.min_depth, free, lo, hi,
@@ -376,7 +377,7 @@ class InteriorNewton:
 
     def start_margin(self, setup, init, v0=None, a0=None) -> float:
         """The smallest row value at `init` (positive: strictly within every row)."""
-        P = _parameters(setup)
+        P = parameters(setup)
         lo, hi, free = self.bounds(setup.q_start)
         c = self.constraints(np.asarray(init.q, float).ravel(), P, self._lin_const(v0, a0),
                              self._tool_offsets(v0, a0), setup.ocp.min_depth,
@@ -430,7 +431,7 @@ class InteriorNewton:
         slack; with nothing free (one step) the start is the plan or the problem is infeasible."""
         t0 = time.perf_counter()
         nw, T, nq, n = self.newton, self.T, self.nq, self.n
-        P = _parameters(setup)
+        P = parameters(setup)
         x = np.array(init.q, float).ravel()
         lo, hi, free = self.bounds(setup.q_start)
         idx = np.flatnonzero(free)
@@ -470,11 +471,9 @@ class InteriorNewton:
         secant, previous = None, None
         last_az, last_socs = 1.0, 0
         end_game = False  # the tool rows' exact curvature from then on (else Gauss-Newton's)
-        at = None  # (point, trace, objective) of the last `step` evaluation
         while start_ok:
-            trace, f_val, G, HB, _ = nw.step(x, P)
+            _, f_val, G, HB, _ = nw.step(x, P)
             f_val = float(f_val[0])
-            at = (x, float(trace[0]), f_val)
             Z, DZ, D2Z = nw.depth(x, P)
             DZ, D2Z = DZ.reshape(T + 1, nq), D2Z.reshape(T + 1, nq, nq)
             wt = w[nd_ + T - 1:]
@@ -648,8 +647,7 @@ class InteriorNewton:
             w = np.clip(w, m / s * 1e-10, m / s * 1e10)
             it += 1
             relaxed_its += bool(rho.any())
-        run = nw._end(setup, x, P, trace_ref, status, it, 0, t0,
-                      values=at[1:] if at is not None and at[0] is x else None)
+        run = nw._end(setup, x, P, trace_ref, status, it, 0, t0)
         return InteriorRun(**{k: getattr(run, k) for k in NewtonRun.__dataclass_fields__},
                            multipliers=w, relaxed_iterations=relaxed_its)
 
@@ -682,13 +680,6 @@ class InteriorNewton:
                 return None
             shift = max(1e-8 * scale, 10 * shift)
         return None
-
-
-def _parameters(setup) -> np.ndarray:
-    """The compiled functions' parameter vector of `setup`: the camera, the objective's scale (1
-    until a run sets its own) and Sigma_0 in the recursion's form."""
-    return np.concatenate([setup.camera_parameter(), [1.0],
-                           setup.model.recursion_sigma0(setup.ocp.sigma0)])
 
 
 class _RowJacobian:

@@ -300,8 +300,7 @@ class NewtonSolver:
         a warm start on)."""
         t0 = time.perf_counter()
         T, nq, n, robot = self.T, self.robot.nq, self.n, self.robot
-        sigma0 = setup.model.recursion_sigma0(setup.ocp.sigma0)
-        P = np.concatenate([setup.camera_parameter(), [1.0], sigma0])
+        P = parameters(setup)
         x = np.array(init.q, float).ravel()  # node-major: x[t*nq + j]
         lo, hi = np.tile(robot.lower, T + 1), np.tile(robot.upper, T + 1)
         free = np.zeros((T + 1, nq), bool)
@@ -309,8 +308,8 @@ class NewtonSolver:
         free = free.ravel()
         start_ok = bool(np.all(x >= lo - 1e-12) and np.all(x <= hi + 1e-12)
                         and np.allclose(x[:nq], setup.q_start, atol=1e-12))
-        # the objective is 1 (plus smoothness) at the start
-        # the objective's scale: the start's trace (by `fz`: no derivatives)
+        # the objective is 1 (plus smoothness) at the start: its scale is the start's trace (by
+        # `fz`: no derivatives)
         P[CAMERA_PARAMETERS] = trace_ref = float(self.fz(x, P)[2][0])
         status, it, shift = ("Maximum_Iterations_Exceeded" if start_ok
                              else "Infeasible_Start"), 0, 0.0
@@ -390,8 +389,7 @@ class NewtonSolver:
         mu = tol / 10."""
         t0 = time.perf_counter()
         T, nq, n, robot = self.T, self.robot.nq, self.n, self.robot
-        sigma0 = setup.model.recursion_sigma0(setup.ocp.sigma0)
-        P = np.concatenate([setup.camera_parameter(), [1.0], sigma0])
+        P = parameters(setup)
         x = np.array(init.q, float).ravel()
         lo, hi = np.tile(robot.lower, T + 1), np.tile(robot.upper, T + 1)
         free = np.zeros((T + 1, nq), bool)
@@ -537,9 +535,8 @@ class NewtonSolver:
         return None
 
     def _end(self, setup, x, P, trace_ref, status, it, exact_steps, t0,
-             secant_steps=0, values: tuple[float, float] | None = None) -> NewtonRun:
-        """The run's result at `x`; `values`: (trace, objective) of `step` at `x` when the caller
-        has them (else computed here)."""
+             secant_steps=0) -> NewtonRun:
+        """The run's result at `x` (its trace and objective by `fz`: no derivatives)."""
         T, nq = self.T, self.robot.nq
         q = x.reshape(T + 1, nq)
         mu = setup.means_of(q)  # means (p, Q), evaluated in place
@@ -548,10 +545,8 @@ class NewtonSolver:
         if status == "Solve_Succeeded" and (depth > 0 or terminal > 1e-9):
             status = "Depth_Bound_Violated" if depth > 0 else "Terminal_Pose_Not_Met"
         solve_s = time.perf_counter() - t0
-        if values is None:  # (by `fz`: no derivatives)
-            f_y, _, s_y = self.fz(x, P)
-            values = (float(s_y[0]), float(f_y[0]))
-        trace, f_val = values
+        f_y, _, s_y = self.fz(x, P)
+        trace, f_val = float(s_y[0]), float(f_y[0])
         return NewtonRun(q, np_poses(mu), status, it, exact_steps, f_val * trace_ref,
                          trace * trace_ref, trace_ref, max(terminal, depth), solve_s, secant_steps)
 
@@ -571,6 +566,13 @@ class NewtonSolver:
             # its end-game's exact-Hessian and secant-corrected steps
             extras={"exact_steps": r.exact_steps, "secant_steps": r.secant_steps},
         )
+
+
+def parameters(setup: Setup) -> np.ndarray:
+    """The compiled functions' parameter vector of `setup`: the camera, the objective's scale (1
+    until a run sets its own) and Sigma_0 in the recursion's form."""
+    return np.concatenate([setup.camera_parameter(), [1.0],
+                           setup.model.recursion_sigma0(setup.ocp.sigma0)])
 
 
 @dataclass
