@@ -118,7 +118,7 @@ def test_newton_solvers_are_kept_per_thread():
         np.testing.assert_array_equal(q, alone[k % 4])
 
 
-def test_the_interior_solver_compiles_the_robots_ik_once(tmp_path, monkeypatch):
+def test_the_interior_solver_compiles_the_robots_ik_once(monkeypatch):
     """Building an interior-point solver with codegen compiles its robot's IK residual (the start's
     search and every re-plan's goal solve IK), once per robot model; the compiled IK's solutions are
     the interpreted one's, checked by Pinocchio's FK."""
