@@ -193,6 +193,78 @@ def test_the_rows_jacobian_and_the_window_sums_match_their_definitions():
     np.testing.assert_allclose(blocks, expect, rtol=0, atol=1e-10 * np.abs(expect).max())
 
 
+def test_the_tool_blocks_are_gauss_newtons_and_the_barriers_by_pinocchio():
+    """Each tool point's block of the reduced matrix (`_tool_blocks`, from the compiled Jacobians)
+    equals Gauss-Newton's curvature of wk . g plus sum_k st_k grad g_k
+    grad g_k^T, with the velocities (p', vec(R')) from Pinocchio's frame Jacobian and every
+    derivative by central differences; the gradients too."""
+    from surestep_ocp.solvers.backends.interior_point import feasible_line
+    from surestep_ocp.solvers.nlp_cache import interior_solver
+
+    setup = build_setup(ss.load_problem("problems/needle_regrasp.yaml"))
+    ip, robot = interior_solver(setup), setup.robot
+    x = np.asarray(feasible_line(setup, ip).q, float).ravel()
+    rng = np.random.default_rng(2)
+    wk, st = rng.uniform(0.1, 2.0, (ip.tool_k, ip.n_pts)), rng.uniform(0.1, 2.0, (ip.n_pts, 2))
+    A, gy = ip._tool_gradients(*ip.tool_jacs(x, ip._tool_offsets(None, None)), ip.tool_scale)
+    Hp = ip._tool_blocks(A, gy, wk, st)
+    nq = ip.nq
+
+    def velocities(y):
+        q, qd = y[:nq], y[nq:]
+        J = robot.frame_jacobian(q, robot.frame)
+        w = J[3:] @ qd
+        R = robot.frame_pose(q, robot.frame)[:3, :3]
+        Rd = np.array([[0, -w[2], w[1]], [w[2], 0, -w[0]], [-w[1], w[0], 0]]) @ R
+        return np.concatenate([J[:3] @ qd, Rd.ravel(order="F")])
+
+    def central(f, y, h=1e-6):
+        return np.stack([(f(y + h * e) - f(y - h * e)) / (2 * h) for e in np.eye(len(y))], axis=-1)
+
+    def rows(y):
+        v = velocities(y)
+        return ip.tool_scale * np.array([v[:3] @ v[:3], 0.5 * v[3:] @ v[3:]])
+
+    for p in (0, ip.n_pts // 3, ip.n_pts - 1):
+        y = ip.tool_map[p] @ x[ip.tool_var[p]]  # the point's (q(s), q'(s)), at rest
+        A, G = central(velocities, y), central(rows, y)
+        wv = np.concatenate([np.full(3, 2 * wk[0, p]), np.full(9, wk[1, p])])
+        expect = A.T @ (wv[:, None] * A) + G.T @ (st[p][:, None] * G)
+        np.testing.assert_allclose(gy[p], G, rtol=0, atol=1e-6 * np.abs(G).max())
+        np.testing.assert_allclose(Hp[p], expect, rtol=0, atol=1e-6 * np.abs(expect).max())
+
+
+def test_a_start_is_inside_when_its_rows_are():
+    """`starts_inside` (the linear rows looked at first) agrees with every row evaluated at the
+    start and at its pushed point: the line at a constant pace (its accelerations broken at the
+    ends), the line at a feasible time law, and that line with one waypoint moved past a joint
+    bound, by 0.05 rad (an acceleration row broken) and by 1e-9 rad (still inside)."""
+    from surestep_ocp.solvers.backends.interior_point import feasible_line
+    from surestep_ocp.solvers.baseline import timed_line
+    from surestep_ocp.solvers.iterate import InitialGuess
+    from surestep_ocp.solvers.nlp_cache import interior_solver
+
+    setup = build_setup(ss.load_problem("problems/needle_regrasp.yaml"))
+    ip = interior_solver(setup)
+    line = feasible_line(setup, ip)
+    q = np.asarray(line.q, float)
+    j = setup.robot.supporting_joints()[0]
+    moved = [q.copy() for _ in range(3)]
+    moved[0][5, j] = ip.joint_upper[j] + 0.1
+    moved[1][5, j] += 0.05
+    moved[2][5, j] += 1e-9
+    starts = [timed_line(setup, lambda T: np.linspace(0.0, 1.0, T + 1), "constant"), line,
+              *(InitialGuess(m, "moved") for m in moved)]
+    verdicts = []
+    for start in starts:
+        x = np.asarray(start.q, float).ravel()
+        expect = (ip.start_margin(setup, start) > 0
+                  or ip.start_margin(setup, InitialGuess(ip._pushed(x).reshape(q.shape), "")) > 0)
+        verdicts.append(ip.starts_inside(setup, start))
+        assert verdicts[-1] == expect
+    assert verdicts == [False, True, False, False, True]
+
+
 def test_the_band_is_the_reduced_matrix_assembled_densely():
     """The band that one sparse product fills (`band_scatter`: the surrogate's interval blocks, the
     linear rows' weights, the depths' node blocks, the tool windows' blocks) equals the same matrix

@@ -210,7 +210,7 @@ class BeliefModel:
         self.identity_maps = jacobians is None
         self.jacobians = jacobians or _identity_jacobians()
 
-    @property
+    @cached_property  # (the model's constants: asked on every re-plan)
     def diagonal(self) -> bool:
         """Whether every covariance stays diagonal along any path (exactly).
 
@@ -222,14 +222,14 @@ class BeliefModel:
         return (self.identity_maps and not self.joint_noise
                 and all(np.count_nonzero(M - np.diag(np.diag(M))) == 0 for M in mats))
 
-    @property
+    @cached_property
     def joint_noise(self) -> bool:
         """Whether the motion noise has the joint-space term `J diag(sigma_q^2 dq^2) J^T`
         (joint_noise.py): then every step also takes that matrix (vech, from the joints), and the
         covariance is not diagonal."""
         return self.noise.joint_sigma is not None and any(v > 0 for v in self.noise.joint_sigma)
 
-    @property
+    @cached_property
     def isotropic(self) -> bool:
         """Whether F = Q = H = R = I and every motion and observation base
         matrix is a multiple of I.

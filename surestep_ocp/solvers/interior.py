@@ -259,7 +259,8 @@ class InteriorNewton:
         a, b = newton.node_pairs
         self.node_band = np.concatenate([(a - b) * n + t * nq + b for t in range(T + 1)])
         self.band_partner = np.minimum(np.arange(n)[None, :] + np.arange(self.bw)[:, None], n)
-        self._jac_pattern(np.flatnonzero(self.bounds(None)[2]))
+        self._set_bounds()
+        self._jac_pattern(self.free_idx)
         self._held = None  # (free indices, held mask, band entries outside the free block)
         # every band entry as one sparse product with (the surrogate's blocks, the linear rows'
         # weights, the nodes' depth blocks, the windows' blocks): sums over a fixed pattern
@@ -323,12 +324,22 @@ class InteriorNewton:
 
     def bounds(self, q_start: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(lower, upper, free mask) of the node-major joints: the interior moving joints free
-        within the joint limits (the insertion above the RCM bound), the others held."""
+        within the joint limits (the insertion above the RCM bound), the others held; the same for
+        every start (`q_start` held as the first node's joints by `free`)."""
+        return self._bounds
+
+    def _set_bounds(self) -> None:
+        """`bounds`' arrays and the free joints' indices, once (read-only: every run shares them,
+        and the row Jacobian's pattern and the factor's held mask are kept while they are the
+        same object)."""
         T, nq = self.T, self.nq
         lo, hi = np.tile(self.joint_lower, T + 1), np.tile(self.joint_upper, T + 1)
         free = np.zeros((T + 1, nq), bool)
         free[1:T, self.mov] = True
-        return lo, hi, free.ravel()
+        self._bounds = (lo, hi, free.ravel())
+        self.free_idx = np.flatnonzero(free.ravel())
+        for a in (*self._bounds, self.free_idx):
+            a.flags.writeable = False
 
     def constraints(self, x, P, lin_c, offsets, min_depth, idx, lo, hi, keep: float = 1.0
                     ) -> tuple[float, np.ndarray]:
@@ -346,15 +357,13 @@ class InteriorNewton:
                                               keep_lin + lin, keep_lin - lin,
                                               z_y[1:self.T] - min_depth, 1.0 - tool])
 
-    def _start_point(self, x, P, lin_c, offsets, min_depth, free, lo, hi, keep, relax
+    def _start_point(self, x, P, lin_c, offsets, min_depth, lo, hi, keep, relax
                      ) -> tuple[np.ndarray, float, np.ndarray]:
         """(point, objective, rows) a run starts from: `x` with its free joints pushed off their
         bounds (IPOPT's bound_push) if that keeps every row, else `x` itself if that does, else
         (`relax`) the pushed one."""
-        idx = np.flatnonzero(free)
-        push_lo = BOUND_PUSH * np.minimum(np.maximum(1.0, np.abs(lo)), hi - lo)
-        push_hi = BOUND_PUSH * np.minimum(np.maximum(1.0, np.abs(hi)), hi - lo)
-        inside = np.where(free, np.clip(x, lo + push_lo, hi - push_hi), x)
+        idx = self.free_idx
+        inside = self._pushed(x)
         f_val, c = self.constraints(inside, P, lin_c, offsets, min_depth, idx, lo, hi, keep)
         if np.all(c > 0):
             return inside, f_val, c
@@ -364,24 +373,36 @@ class InteriorNewton:
             return x, f_in, c_in
         return inside, f_val, c
 
+    def _pushed(self, x: np.ndarray) -> np.ndarray:
+        """`x` with its free joints pushed off their bounds (IPOPT's bound_push)."""
+        lo, hi, free = self._bounds
+        push_lo = BOUND_PUSH * np.minimum(np.maximum(1.0, np.abs(lo)), hi - lo)
+        push_hi = BOUND_PUSH * np.minimum(np.maximum(1.0, np.abs(hi)), hi - lo)
+        return np.where(free, np.clip(x, lo + push_lo, hi - push_hi), x)
+
     def starts_inside(self, setup, init) -> bool:
         """Whether `run` (without `relax`, at rest) can start from `init`: its start point
-        strictly within every row."""
-        P = parameters(setup)
-        lo, hi, free = self.bounds(setup.q_start)
-        c = self._start_point(np.asarray(init.q, float).ravel(), P, self._lin_const(None, None),
-                              self._tool_offsets(None, None), setup.ocp.min_depth, free, lo, hi,
-                              1.0, False)[2]
-        return bool(np.all(np.isfinite(c)) and np.all(c > 0)
-                    and np.allclose(np.asarray(init.q, float)[0], setup.q_start, atol=1e-12))
+        strictly within every row. The linear rows are looked at first, alone (a start at a
+        constant pace breaks the accelerations at its ends: no need for the rest)."""
+        x = np.asarray(init.q, float).ravel()
+        if not np.allclose(x[:self.nq], setup.q_start, atol=1e-12):
+            return False
+        lin_c = self._lin_const(None, None)
+        if all(np.any(np.abs(_csr_dot(self.lin_map, z) + lin_c) >= 1.0)
+               for z in (self._pushed(x), x)):
+            return False  # (the rows keep_lin -+ lin > 0 with keep_lin = 1, `constraints`)
+        lo, hi, _ = self.bounds(setup.q_start)
+        c = self._start_point(x, parameters(setup), lin_c, self._tool_offsets(None, None),
+                              setup.ocp.min_depth, lo, hi, 1.0, False)[2]
+        return bool(np.all(np.isfinite(c)) and np.all(c > 0))
 
     def start_margin(self, setup, init, v0=None, a0=None) -> float:
         """The smallest row value at `init` (positive: strictly within every row)."""
         P = parameters(setup)
-        lo, hi, free = self.bounds(setup.q_start)
+        lo, hi, _ = self.bounds(setup.q_start)
         c = self.constraints(np.asarray(init.q, float).ravel(), P, self._lin_const(v0, a0),
                              self._tool_offsets(v0, a0), setup.ocp.min_depth,
-                             np.flatnonzero(free), lo, hi)[1]
+                             self.free_idx, lo, hi)[1]
         return float(c.min())
 
     def _tool_gradients(self, A: np.ndarray, G: np.ndarray, tool_scale: np.ndarray
@@ -390,9 +411,20 @@ class InteriorNewton:
         Jacobian and (points, k, 2 nq) scaled gradients of the tool rows' g in each point's (q(s),
         q'(s))."""
         nq, k = self.nq, self.tool_k
-        A = A.reshape(12, 2 * nq, self.n_pts, order="F").transpose(2, 0, 1)
+        A = A.reshape(-1, 2 * nq, self.n_pts, order="F").transpose(2, 0, 1)
         G = G.reshape(k, 2 * nq, self.n_pts, order="F").transpose(2, 0, 1)
         return A, G * tool_scale[None, :, None]
+
+    @staticmethod
+    def _tool_blocks(A: np.ndarray, gy: np.ndarray, wk: np.ndarray, st: np.ndarray
+                     ) -> np.ndarray:
+        """Each tool point's block of the reduced matrix in its (q(s), q'(s)), (points, 2 nq,
+        2 nq): Gauss-Newton's curvature of wk . g (the velocities' Jacobian A weighted by 2 wk_0,
+        wk_1) plus sum_k st_k gy_k gy_k^T (st: the rows' w / c)."""
+        wv = np.empty(A.shape[:2])
+        wv[:, :3], wv[:, 3:] = 2 * wk[0][:, None], wk[1][:, None]
+        return ((A * wv[:, :, None]).transpose(0, 2, 1) @ A
+                + (gy * st[:, :, None]).transpose(0, 2, 1) @ gy)
 
     def _to_window(self, Y: np.ndarray) -> np.ndarray:
         """(points, r, 2 nq) derivatives in each point's (q(s), q'(s)) -> (points, r, W nq) in
@@ -433,8 +465,8 @@ class InteriorNewton:
         nw, T, nq, n = self.newton, self.T, self.nq, self.n
         P = parameters(setup)
         x = np.array(init.q, float).ravel()
-        lo, hi, free = self.bounds(setup.q_start)
-        idx = np.flatnonzero(free)
+        lo, hi, _ = self.bounds(setup.q_start)
+        idx = self.free_idx
         min_depth = setup.ocp.min_depth
         lin_c = self._lin_const(v0, a0)
         offsets = self._tool_offsets(v0, a0)
@@ -447,7 +479,7 @@ class InteriorNewton:
         m_last = m  # the last iteration's barrier parameter
         nb, nl = len(idx), self.n_lin
         nd_ = 2 * nb + 2 * nl  # the direct rows (bounds, linear) come first, then the curved ones
-        x, f_val, c = self._start_point(x, P, lin_c, offsets, min_depth, free, lo, hi, keep, relax)
+        x, f_val, c = self._start_point(x, P, lin_c, offsets, min_depth, lo, hi, keep, relax)
         # rows outside (or within RELAX_TO of) their boundary at the start are relaxed by rho, which
         # every step of length a shrinks by (1 - a): the Newton step aims at rho = 0 (an
         # infeasible-start interior point)
@@ -518,15 +550,10 @@ class InteriorNewton:
             wd, zdn = np.zeros(T + 1), np.zeros(T + 1)
             wd[1:T], zdn[1:T] = sig[nd_:nd_ + T - 1], w[nd_:nd_ + T - 1]
             blocks = wd[:, None, None] * DZ[:, :, None] * DZ[:, None, :] - zdn[:, None, None] * D2Z
-            st = sig[nd_ + T - 1:].reshape(self.n_pts, self.tool_k)  # (points, k)
             # the tool rows per point in (q(s), q'(s)): sum_k (w / c) grad g grad g^T and
-            # Gauss-Newton's w Hess g (the velocities' Jacobians weighted), the end-game's rest of
-            # it; then per window
-            wv = np.empty((self.n_pts, 12))
-            wv[:, :3], wv[:, 3:] = 2 * wk[0][:, None], wk[1][:, None]
-            Hp = ((A * wv[:, :, None]).transpose(0, 2, 1) @ A
-                  + (gy * st[:, :, None]).transpose(0, 2, 1) @ gy)
-            JW = self._window_terms(Hp)
+            # Gauss-Newton's w Hess g (the end-game adds the rest of it); then per window
+            st = sig[nd_ + T - 1:].reshape(self.n_pts, self.tool_k)  # (points, k)
+            JW = self._window_terms(self._tool_blocks(A, gy, wk, st))
             ab = _csr_dot(self.band_scatter, np.concatenate([HB, wl, blocks.ravel(), JW])
                           ).reshape(self.bw, n)
             ab[0, idx] += sig[:nb] + sig[nb:2 * nb]
