@@ -338,7 +338,8 @@ class InteriorNewton:
         free[1:T, self.mov] = True
         self._bounds = (lo, hi, free.ravel())
         self.free_idx = np.flatnonzero(free.ravel())
-        for a in (*self._bounds, self.free_idx):
+        self._free_bounds = (lo[self.free_idx], hi[self.free_idx])
+        for a in (*self._bounds, self.free_idx, *self._free_bounds):
             a.flags.writeable = False
 
     def constraints(self, x, P, lin_c, offsets, min_depth, idx, lo, hi, keep: float = 1.0
@@ -349,13 +350,23 @@ class InteriorNewton:
         f_y, z_y, _ = self.newton.fz(x, P)
         raw, lin = self.tool_rows(x, offsets)
         lin = lin + lin_c
-        raw = raw.reshape(self.tool_k, self.n_pts, order="F")
-        tool = (self.tool_scale[:, None] / keep**2 * raw).ravel(order="F")
         # the reserve tightens the velocity and acceleration rows, not the joint bounds
         keep_lin = np.where(self.lin_position, 1.0, keep) if keep != 1.0 else 1.0
-        return float(f_y[0]), np.concatenate([x[idx] - lo[idx], hi[idx] - x[idx],
-                                              keep_lin + lin, keep_lin - lin,
-                                              z_y[1:self.T] - min_depth, 1.0 - tool])
+        # written in place, part by part (fewer temporaries: evaluated at every trial point)
+        nb, nl, T = len(idx), self.n_lin, self.T
+        c = np.empty(2 * nb + 2 * nl + T - 1 + raw.size)
+        xi = x[idx]
+        lo_i, hi_i = self._free_bounds if idx is self.free_idx else (lo[idx], hi[idx])
+        np.subtract(xi, lo_i, out=c[:nb])
+        np.subtract(hi_i, xi, out=c[nb:2 * nb])
+        np.add(keep_lin, lin, out=c[2 * nb:2 * nb + nl])
+        np.subtract(keep_lin, lin, out=c[2 * nb + nl:2 * nb + 2 * nl])
+        np.subtract(z_y[1:T], min_depth, out=c[2 * nb + 2 * nl:2 * nb + 2 * nl + T - 1])
+        # the tool rows, point-major (k per point), over their squared limits
+        tool = c[2 * nb + 2 * nl + T - 1:].reshape(self.n_pts, self.tool_k)
+        np.multiply(self.tool_scale / keep**2, raw.reshape(self.n_pts, self.tool_k), out=tool)
+        np.subtract(1.0, tool, out=tool)
+        return float(f_y[0]), c
 
     def _start_point(self, x, P, lin_c, offsets, min_depth, lo, hi, keep, relax
                      ) -> tuple[np.ndarray, float, np.ndarray]:
@@ -491,7 +502,8 @@ class InteriorNewton:
         # the multipliers
         w = (np.asarray(warm, float).copy() if warm is not None and len(warm) == nc else m / s)
         if warm is not None and len(warm) == nc:
-            w = np.clip(w, m / s * 1e-10, m / s * 1e10)
+            r = m / s
+            w = np.minimum(np.maximum(w, r * 1e-10), r * 1e10)
         status = "Maximum_Iterations_Exceeded" if start_ok else "Infeasible_Start"
         if start_ok and nb == 0:
             # nothing free (a one-step plan): the start is the plan, within every row or not (else
@@ -671,7 +683,8 @@ class InteriorNewton:
             w = w + min(1.0, az) * dw
             last_az, last_socs = az, socs[0]
             # IPOPT's safeguard keeps w s within a band around mu
-            w = np.clip(w, m / s * 1e-10, m / s * 1e10)
+            r = m / s
+            w = np.minimum(np.maximum(w, r * 1e-10), r * 1e10)
             it += 1
             relaxed_its += bool(rho.any())
         run = nw._end(setup, x, P, trace_ref, status, it, 0, t0)
