@@ -115,7 +115,12 @@ def cold(args) -> tuple[list[str], dict]:
 
 
 def loop(args) -> tuple[list[str], dict]:
-    """The 20 Hz loop's episodes: table lines and the figures."""
+    """The 20 Hz loop's episodes: table lines and the figures (nan with `--episodes 0`: the cold
+    solves alone)."""
+    if args.episodes <= 0:
+        return (["## The 20 Hz loop within the limits", "", "Not run (`--episodes 0`).", ""],
+                {"replan_median_ms": float("nan"), "replan_worst_ms": float("nan"),
+                 "infeasible": 0, "violations": 0})
     setup = h.setup(h.load_problem(h.DEFAULT_PROBLEM).with_solver(name="interior"))
     rows, times, failed, bad, late, held = [], [], 0, 0, [], 0
     for seed in range(args.episodes):

@@ -248,3 +248,18 @@ def test_the_elf_check_reads_the_headers(tmp_path):
         cut = tmp_path / f"cut{k}.so"
         cut.write_bytes(data[: len(data) * k // 16])
         assert codegen.elf_problem(cut) is not None, k
+
+
+@needs_cc
+def test_the_fast_flags_build_their_own_library_with_the_same_values(cache_env, monkeypatch):
+    """A function named in `fast` is compiled with FAST_FLAGS into a library of its own (the flags
+    are part of the cache key), and gives bitwise the values of the FLAGS build."""
+    monkeypatch.setenv("SURESTEP_CACHE", str(cache_env / "c"))
+    x = ca.SX.sym("x", 4)
+    fn = ca.Function("cache_probe_fast", [x], [ca.sin(x) * ca.sqrt(ca.sumsqr(x)) + x[0] / x])
+    plain, _ = codegen.compiled_or_interpreted({"f": fn}, True)
+    fast, _ = codegen.compiled_or_interpreted({"f": fn}, True, fast=("f",))
+    assert len(list((cache_env / "c").glob("cache_probe_fast_*.so"))) == 2
+    arg = [0.3, -1.7, 2.9, 1e-3]
+    assert (plain["f"](arg).full() == fast["f"](arg).full()).all()
+    assert abs(fast["f"](arg).full() - fn(arg).full()).max() <= 1e-14

@@ -45,6 +45,10 @@ from ..errors import SurestepError
 
 # -O1: faster code than CasADi's virtual machine and -O0 (docs/solve_speed.md, "The compile")
 FLAGS = ("-O1", "-fPIC", "-shared")
+# -O3 for small functions evaluated several times an iteration whose compile is short (the
+# interior point's tool rows and their Jacobians: about 0.85x and 0.9x the time at -O1, bitwise the
+# same values; docs/realtime.md); callers name them (`compiled_or_interpreted`'s `fast`)
+FAST_FLAGS = ("-O3", "-fPIC", "-shared")
 # the cache's size bound [MB] unless $SURESTEP_CACHE_MAX_MB says otherwise (0: unbounded)
 DEFAULT_MAX_MB = 1024
 # wall-clock seconds per megabyte of generated C at -O1 (the batch's compilers in parallel) before
@@ -92,12 +96,15 @@ def available() -> bool:
     return shutil.which(os.environ.get("CC", "gcc")) is not None
 
 
-def compiled_or_interpreted(fns: dict[str, ca.Function],
-                            required: bool) -> tuple[dict[str, ca.Function], str | None]:
-    """`fns` compiled; if compiling fails and it is not `required` (`solver.codegen: auto`), the
-    interpreted ones and a note saying why (`solver.codegen: true` keeps the error)."""
+def compiled_or_interpreted(fns: dict[str, ca.Function], required: bool,
+                            fast: tuple[str, ...] = ()
+                            ) -> tuple[dict[str, ca.Function], str | None]:
+    """`fns` compiled (those keyed in `fast` with FAST_FLAGS); if compiling fails and it is not
+    `required` (`solver.codegen: auto`), the interpreted ones and a note saying why
+    (`solver.codegen: true` keeps the error)."""
     try:
-        done = compiled_all(list(fns.values()))
+        done = compiled_all(list(fns.values()),
+                            [FAST_FLAGS if k in fast else FLAGS for k in fns])
         return {k: f for k, (f, _) in zip(fns, done)}, None
     except SurestepError as exc:
         if required:
@@ -270,6 +277,7 @@ class _Job:
     lib: Path
     fresh: bool = False
     seconds: float = 0.0
+    flags: tuple[str, ...] = FLAGS
 
 
 def compiled(fn: ca.Function) -> tuple[ca.Function, bool]:
@@ -283,14 +291,16 @@ def compiled(fn: ca.Function) -> tuple[ca.Function, bool]:
     return compiled_all([fn])[0]
 
 
-def compiled_all(fns: list[ca.Function]) -> list[tuple[ca.Function, bool]]:
-    """Each of `fns` compiled (as `compiled`): the cached ones loaded, the others compiled in
-    parallel (one compiler per core), announced on stderr with an estimate, then timed; the cache
-    pruned after a compile."""
+def compiled_all(fns: list[ca.Function], flags: list[tuple[str, ...]] | None = None
+                 ) -> list[tuple[ca.Function, bool]]:
+    """Each of `fns` compiled (as `compiled`; each with its `flags`, default FLAGS): the cached
+    ones loaded, the others compiled in parallel (one compiler per core), announced on stderr with
+    an estimate, then timed; the cache pruned after a compile."""
     cc = compiler()
     folder = cache_dir()
     with tempfile.TemporaryDirectory() as tmp:
-        jobs = [_job(fn, Path(tmp), folder) for fn in fns]
+        jobs = [_job(fn, Path(tmp), folder, fl)
+                for fn, fl in zip(fns, flags or [FLAGS] * len(fns))]
         # (a function given twice: compiled once)
         todo = list({j.lib: j for j in jobs if j.fresh}.values())
         if todo:
@@ -336,7 +346,7 @@ def _checked_load(job: _Job) -> tuple[ca.Function | None, str | None]:
     return (f, None) if problem is None else (None, problem)
 
 
-def _job(fn: ca.Function, tmp: Path, folder: Path) -> _Job:
+def _job(fn: ca.Function, tmp: Path, folder: Path, flags: tuple[str, ...] = FLAGS) -> _Job:
     """`fn`'s C source generated in its own folder under `tmp`, its library's name, and whether it
     is to be compiled (absent, or failing its checksum: said on stderr); a cached one's last use
     recorded."""
@@ -346,9 +356,9 @@ def _job(fn: ca.Function, tmp: Path, folder: Path) -> _Job:
     gen.add(fn)
     gen.generate(str(where) + os.sep)
     source = where / f"{name}.c"
-    key = hashlib.sha256(source.read_bytes() + " ".join(FLAGS).encode()
+    key = hashlib.sha256(source.read_bytes() + " ".join(flags).encode()
                          + ca.__version__.encode()).hexdigest()
-    job = _Job(fn, source, folder / f"{name}_{key[:20]}.so")
+    job = _Job(fn, source, folder / f"{name}_{key[:20]}.so", flags=flags)
     job.fresh = not job.lib.exists()
     if not job.fresh:
         problem = verified(job.lib)
@@ -407,7 +417,7 @@ def _compile(cc: str, todo: list[_Job], folder: Path, what: str | None = None) -
 
 def _timed_build(cc: str, job: _Job) -> None:
     t = time.perf_counter()
-    _build(cc, job.source, job.lib)
+    _build(cc, job.source, job.lib, job.flags)
     job.seconds = time.perf_counter() - t
 
 
@@ -546,7 +556,7 @@ def clear(folder: Path | None = None) -> int:
     return freed
 
 
-def _build(cc: str, source: Path, lib: Path) -> None:
+def _build(cc: str, source: Path, lib: Path, flags: tuple[str, ...] = FLAGS) -> None:
     """Compile `source` into `lib` with its checksum beside it (both written to temporary names,
     then renamed; compiled in the source's folder by relative name, so the library's bytes do not
     depend on the temp path)."""
@@ -557,7 +567,7 @@ def _build(cc: str, source: Path, lib: Path) -> None:
     check_part = check.with_name(f"{check.name}.{tag}.part")
     try:
         lib.parent.mkdir(parents=True, exist_ok=True)
-        run = subprocess.run([cc, *FLAGS, source.name, "-o", str(part.resolve())],
+        run = subprocess.run([cc, *flags, source.name, "-o", str(part.resolve())],
                              capture_output=True, text=True, check=False, cwd=source.parent)
         if run.returncode != 0:
             part.unlink(missing_ok=True)

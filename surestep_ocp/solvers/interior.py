@@ -212,7 +212,8 @@ class InteriorNewton:
                "tool_res": ca.Function("tool_res", [Xm, Om, Lm], f_res.map(npts)(Qm, Dm, Lm))}
         self.codegen_note = None
         if codegen:
-            fns, self.codegen_note = compiled_or_interpreted(fns, codegen_required)
+            fns, self.codegen_note = compiled_or_interpreted(fns, codegen_required,
+                                                             fast=("tool_rows", "tool_jacs"))
         self.tool_rows, self.tool_jacs = Buffered(fns["tool_rows"]), Buffered(fns["tool_jacs"])
         self.tool_res = Buffered(fns["tool_res"])
         # the band layout (lower storage, half-bandwidth WINDOW nodes)
