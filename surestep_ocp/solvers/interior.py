@@ -325,8 +325,8 @@ class InteriorNewton:
 
     def bounds(self, q_start: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(lower, upper, free mask) of the node-major joints: the interior moving joints free
-        within the joint limits (the insertion above the RCM bound), the others held; the same for
-        every start (`q_start` held as the first node's joints by `free`)."""
+        within the joint limits (the insertion above the RCM bound), the others held: the same
+        read-only arrays for every start (the first node is held at the start a run is given)."""
         return self._bounds
 
     def _set_bounds(self) -> None:
