@@ -175,18 +175,19 @@ class NewtonSolver:
         # S's own curvature in the coefficients (dense, 5T x 5T, negative semidefinite) and the
         # coefficients' Jacobians per interval: the exact Hessian is the surrogate's plus C^T
         # (d2S/dc2) C (the end-game)
-        # the means' smallest depth (the end phase's check)
-        depth = ca.mmin(pose.map(T + 1)(Q, Tc)[2, :])
-        # each node's depth with its gradient and Hessian in the node's joints (the barrier of
-        # `run_barrier`)
+        # each node's depth, alone (the means' smallest: the end phase's check; the rows at a trial
+        # point) and with its gradient and Hessian in the node's joints (the barrier of
+        # `run_barrier`): the same expression of z, so the same values
         z = pose(qa, Tcb)[2]
+        Z_only = ca.Function("node_z", [qa, Tcb], [z]).map(T + 1)(Q, Tc)
+        depth = ca.mmin(Z_only)
         node_depth = ca.Function("node_depth", [qa, Tcb], [z, ca.densify(ca.gradient(z, qa)),
                                                          ca.densify(ca.vec(ca.hessian(z, qa)[0]))])
         Z, DZ, D2Z = node_depth.map(T + 1)(Q, Tc)
         fns = {"newton_step": ca.Function("newton_step", [Q, P], [S_x, S_x + smooth, G, HB, depth]),
                "newton_f": ca.Function("newton_f", [Q, P], [S_x + smooth]),
                "newton_depth": ca.Function("newton_depth", [Q, P], [Z, DZ, D2Z]),
-               "newton_fz": ca.Function("newton_fz", [Q, P], [S_x + smooth, Z, S_x])}
+               "newton_fz": ca.Function("newton_fz", [Q, P], [S_x + smooth, Z_only, S_x])}
         self.nm, self.no = w_m.shape[0], w_o.shape[0]
         # S's curvature costs nc T Hessian-vector products: cheap for the scalar recursion, not for
         # the 6x6 one, where Newton keeps the surrogate throughout (docs/hessian_and_newton.md, "The
