@@ -50,15 +50,10 @@ def cold_problems(args) -> list:
 
 def worst_row(setup, q) -> float:
     """The smallest of the interior point's rows at the plan q (scaled; negative: beyond)."""
-    from surestep_ocp.solvers.newton import parameters
+    from surestep_ocp.solvers.iterate import InitialGuess
     from surestep_ocp.solvers.nlp_cache import interior_solver
 
-    solver = interior_solver(setup)
-    lo, hi, free = solver.bounds(setup.q_start)
-    return float(solver.constraints(np.asarray(q, float).ravel(), parameters(setup),
-                                    solver._lin_const(None, None),
-                                    solver._tool_offsets(None, None), setup.ocp.min_depth,
-                                    np.flatnonzero(free), lo, hi)[1].min())
+    return interior_solver(setup).start_margin(setup, InitialGuess(np.asarray(q, float), "plan"))
 
 
 def cold(args) -> tuple[list[str], dict]:

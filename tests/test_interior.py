@@ -162,12 +162,12 @@ def test_the_rows_jacobian_and_the_window_sums_match_their_definitions():
     x = np.asarray(feasible_line(setup, ip).q, float).ravel()
     P = np.concatenate([setup.camera_parameter(), [1.0],
                         setup.model.recursion_sigma0(setup.ocp.sigma0)])
-    lo, hi, free = ip.bounds(setup.q_start)
+    free = ip.bounds(setup.q_start)[2]
     idx = np.flatnonzero(free)
     offsets, lin_c = ip._tool_offsets(None, None), ip._lin_const(None, None)
 
     def rows(z):
-        return ip.constraints(z, P, lin_c, offsets, setup.ocp.min_depth, idx, lo, hi)[1]
+        return ip.constraints(z, P, lin_c, offsets, setup.ocp.min_depth)[1]
 
     DZ = np.array(ip.newton.depth(x, P)[1]).reshape(ip.T + 1, ip.nq)
     _, gy = ip._tool_gradients(*ip.tool_jacs(x, offsets), ip.tool_scale)

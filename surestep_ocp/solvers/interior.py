@@ -340,10 +340,13 @@ class InteriorNewton:
         self._bounds = (lo, hi, free.ravel())
         self.free_idx = np.flatnonzero(free.ravel())
         self._free_bounds = (lo[self.free_idx], hi[self.free_idx])
-        for a in (*self._bounds, self.free_idx, *self._free_bounds):
+        # the box a start's free joints are pushed into (`_pushed`)
+        self._push_box = (lo + BOUND_PUSH * np.minimum(np.maximum(1.0, np.abs(lo)), hi - lo),
+                          hi - BOUND_PUSH * np.minimum(np.maximum(1.0, np.abs(hi)), hi - lo))
+        for a in (*self._bounds, self.free_idx, *self._free_bounds, *self._push_box):
             a.flags.writeable = False
 
-    def constraints(self, x, P, lin_c, offsets, min_depth, idx, lo, hi, keep: float = 1.0
+    def constraints(self, x, P, lin_c, offsets, min_depth, keep: float = 1.0
                     ) -> tuple[float, np.ndarray]:
         """(objective, row values c >= 0) in the rows' order: the direct ones (joint bounds lower
         and upper, linear rows lower and upper: exact under linearisation), then the nonlinear ones
@@ -354,10 +357,10 @@ class InteriorNewton:
         # the reserve tightens the velocity and acceleration rows, not the joint bounds
         keep_lin = np.where(self.lin_position, 1.0, keep) if keep != 1.0 else 1.0
         # written in place, part by part (fewer temporaries: evaluated at every trial point)
-        nb, nl, T = len(idx), self.n_lin, self.T
+        nb, nl, T = len(self.free_idx), self.n_lin, self.T
         c = np.empty(2 * nb + 2 * nl + T - 1 + raw.size)
-        xi = x[idx]
-        lo_i, hi_i = self._free_bounds if idx is self.free_idx else (lo[idx], hi[idx])
+        xi = x[self.free_idx]
+        lo_i, hi_i = self._free_bounds
         np.subtract(xi, lo_i, out=c[:nb])
         np.subtract(hi_i, xi, out=c[nb:2 * nb])
         np.add(keep_lin, lin, out=c[2 * nb:2 * nb + nl])
@@ -369,28 +372,24 @@ class InteriorNewton:
         np.subtract(1.0, tool, out=tool)
         return float(f_y[0]), c
 
-    def _start_point(self, x, P, lin_c, offsets, min_depth, lo, hi, keep, relax
+    def _start_point(self, x, P, lin_c, offsets, min_depth, keep, relax
                      ) -> tuple[np.ndarray, float, np.ndarray]:
         """(point, objective, rows) a run starts from: `x` with its free joints pushed off their
         bounds (IPOPT's bound_push) if that keeps every row, else `x` itself if that does, else
         (`relax`) the pushed one."""
-        idx = self.free_idx
         inside = self._pushed(x)
-        f_val, c = self.constraints(inside, P, lin_c, offsets, min_depth, idx, lo, hi, keep)
+        f_val, c = self.constraints(inside, P, lin_c, offsets, min_depth, keep)
         if np.all(c > 0):
             return inside, f_val, c
         # the pushed start breaks a row: the start itself if that is inside
-        f_in, c_in = self.constraints(x, P, lin_c, offsets, min_depth, idx, lo, hi, keep)
+        f_in, c_in = self.constraints(x, P, lin_c, offsets, min_depth, keep)
         if np.all(c_in > 0) or not relax:
             return x, f_in, c_in
         return inside, f_val, c
 
     def _pushed(self, x: np.ndarray) -> np.ndarray:
         """`x` with its free joints pushed off their bounds (IPOPT's bound_push)."""
-        lo, hi, free = self._bounds
-        push_lo = BOUND_PUSH * np.minimum(np.maximum(1.0, np.abs(lo)), hi - lo)
-        push_hi = BOUND_PUSH * np.minimum(np.maximum(1.0, np.abs(hi)), hi - lo)
-        return np.where(free, np.clip(x, lo + push_lo, hi - push_hi), x)
+        return np.where(self._bounds[2], np.clip(x, *self._push_box), x)
 
     def starts_inside(self, setup, init) -> bool:
         """Whether `run` (without `relax`, at rest) can start from `init`: its start point
@@ -403,18 +402,15 @@ class InteriorNewton:
         if all(np.any(np.abs(_csr_dot(self.lin_map, z) + lin_c) >= 1.0)
                for z in (self._pushed(x), x)):
             return False  # (the rows keep_lin -+ lin > 0 with keep_lin = 1, `constraints`)
-        lo, hi, _ = self.bounds(setup.q_start)
         c = self._start_point(x, parameters(setup), lin_c, self._tool_offsets(None, None),
-                              setup.ocp.min_depth, lo, hi, 1.0, False)[2]
+                              setup.ocp.min_depth, 1.0, False)[2]
         return bool(np.all(np.isfinite(c)) and np.all(c > 0))
 
     def start_margin(self, setup, init, v0=None, a0=None) -> float:
         """The smallest row value at `init` (positive: strictly within every row)."""
-        P = parameters(setup)
-        lo, hi, _ = self.bounds(setup.q_start)
-        c = self.constraints(np.asarray(init.q, float).ravel(), P, self._lin_const(v0, a0),
-                             self._tool_offsets(v0, a0), setup.ocp.min_depth,
-                             self.free_idx, lo, hi)[1]
+        c = self.constraints(np.asarray(init.q, float).ravel(), parameters(setup),
+                             self._lin_const(v0, a0), self._tool_offsets(v0, a0),
+                             setup.ocp.min_depth)[1]
         return float(c.min())
 
     def _tool_gradients(self, A: np.ndarray, G: np.ndarray, tool_scale: np.ndarray
@@ -477,7 +473,6 @@ class InteriorNewton:
         nw, T, nq, n = self.newton, self.T, self.nq, self.n
         P = parameters(setup)
         x = np.array(init.q, float).ravel()
-        lo, hi, _ = self.bounds(setup.q_start)
         idx = self.free_idx
         min_depth = setup.ocp.min_depth
         lin_c = self._lin_const(v0, a0)
@@ -491,7 +486,7 @@ class InteriorNewton:
         m_last = m  # the last iteration's barrier parameter
         nb, nl = len(idx), self.n_lin
         nd_ = 2 * nb + 2 * nl  # the direct rows (bounds, linear) come first, then the curved ones
-        x, f_val, c = self._start_point(x, P, lin_c, offsets, min_depth, lo, hi, keep, relax)
+        x, f_val, c = self._start_point(x, P, lin_c, offsets, min_depth, keep, relax)
         # rows outside (or within RELAX_TO of) their boundary at the start are relaxed by rho, which
         # every step of length a shrinks by (1 - a): the Newton step aims at rho = 0 (an
         # infeasible-start interior point)
@@ -640,8 +635,7 @@ class InteriorNewton:
                 # while it brings the rows nearer the boundary fraction by KAPPA_SOC)
                 short = np.inf
                 while True:
-                    f_t, c_t = self.constraints(x + d, P, lin_c, offsets, min_depth, idx, lo, hi,
-                                                keep)
+                    f_t, c_t = self.constraints(x + d, P, lin_c, offsets, min_depth, keep)
                     s_t = c_t + (1.0 - a) * rho
                     below = (1 - tau) - float(np.min(s_t / s))  # <= 0: within the fraction
                     if below <= 0.0:
