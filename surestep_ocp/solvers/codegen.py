@@ -49,6 +49,10 @@ FLAGS = ("-O1", "-fPIC", "-shared")
 # interior point's tool rows and their Jacobians: about 0.85x and 0.9x the time at -O1, bitwise the
 # same values; docs/realtime.md); callers name them (`compiled_or_interpreted`'s `fast`)
 FAST_FLAGS = ("-O3", "-fPIC", "-shared")
+# options of the per-stage SX Functions the Newton and interior-point iterations map: CasADi's
+# structural common-subexpression elimination, which shares repeated nodes (the same values
+# bitwise, fewer instructions: the FK's sines and products its derivatives repeat; docs/realtime.md)
+SX_OPTIONS = {"cse": True}
 # the cache's size bound [MB] unless $SURESTEP_CACHE_MAX_MB says otherwise (0: unbounded)
 DEFAULT_MAX_MB = 1024
 # wall-clock seconds per megabyte of generated C at -O1 (the batch's compilers in parallel) before

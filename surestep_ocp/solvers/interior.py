@@ -35,7 +35,7 @@ from ..model import limits as lm
 from ..model.limits import MotionLimits
 from ..model.robot import CAMERA_PARAMETERS, Robot
 from ..buffered import Buffered
-from .codegen import compiled_or_interpreted
+from .codegen import SX_OPTIONS, compiled_or_interpreted
 from .newton import (BOUND_PUSH, TAU_MIN, NewtonRun, NewtonSolver, _backtrack, _SecantCorrection,
                      parameters)
 
@@ -188,7 +188,7 @@ class InteriorNewton:
         Y = ca.mtimes(Mq, Xm)
         Qm = ca.reshape(Y[:npts * nq], nq, npts) + Om[:nq, :]
         Dm = ca.reshape(Y[npts * nq:], nq, npts) + Om[nq:, :]
-        f_val = ca.Function("tool", [qa, qd], [out])
+        f_val = ca.Function("tool", [qa, qd], [out], SX_OPTIONS)
         # the velocities (pv, vec(R)') with their Jacobian in (q, q') for the Gauss-Newton
         # curvature; the end-game adds the rest of the exact curvature, the Hessian of c . (pv,
         # vec(R)') with c = (2 lam_0 pv, lam_1 vec(R)') held (their operation counts:
@@ -197,11 +197,12 @@ class InteriorNewton:
         jac_vel = ca.densify(ca.jacobian(vel, y))
         # and the rows' own gradients (unscaled, (k, 2 nq)) from the same Jacobian's expressions
         grad = ca.vertcat(2 * pv.T @ jac_vel[:3, :], Rd.T @ jac_vel[3:, :])
-        f_jac = ca.Function("tool_jac", [qa, qd], [jac_vel, grad])
+        f_jac = ca.Function("tool_jac", [qa, qd], [jac_vel, grad], SX_OPTIONS)
         c_vel = ca.SX.sym("c", vel.shape[0])
         h_res = ca.substitute(ca.jacobian(jac_vel.T @ c_vel, y), c_vel,
                               ca.vertcat(2 * lam[0] * pv, lam[1] * Rd))
-        f_res = ca.Function("tool_res", [qa, qd, lam], [jac_vel, grad, ca.densify(h_res)])
+        f_res = ca.Function("tool_res", [qa, qd, lam], [jac_vel, grad, ca.densify(h_res)],
+                            SX_OPTIONS)
         L = self.lin_map.tocsc()
         L.sort_indices()
         lin_dm = ca.DM(ca.Sparsity(L.shape[0], n, L.indptr.tolist(), L.indices.tolist()), L.data)

@@ -49,7 +49,7 @@ from ..output.solution import Solution, evaluate
 from ..output.solution_records import SolveRecord
 from ..problem.setup import Setup
 from ..buffered import Buffered
-from .codegen import Deferred, compiled_or_interpreted
+from .codegen import SX_OPTIONS, Deferred, compiled_or_interpreted
 from .surrogate import interval_terms, pose_function, recursion_weights
 
 # projected gradient (objective 1 at the start) below which Newton tries the exact Hessian
@@ -153,7 +153,7 @@ class NewtonSolver:
                  if model.joint_noise else None)
         _, coefficients, (wm, wo, wj), weighted = interval_terms(model, pose(qa, Tcb),
                                                                  pose(qb, Tcb), joint)
-        coef = ca.Function("coef", [qa, qb, Tcb], list(coefficients))
+        coef = ca.Function("coef", [qa, qb, Tcb], list(coefficients), SX_OPTIONS)
         surrogate = weighted + smoothness * ca.sumsqr(qb - qa)
         g = ca.gradient(surrogate, ca.vertcat(qa, qb))
         if joint is None:
@@ -165,7 +165,7 @@ class NewtonSolver:
             H = ca.hessian(means_only, ca.vertcat(qa, qb))[0] + joint_noise_curvature(
                 robot, model.noise.joint_sigma, qa, Tcb, wj)
         interval = ca.Function("interval", [qa, qb, wm, wo, wj, Tcb],
-                               [ca.densify(g), ca.densify(H)])
+                               [ca.densify(g), ca.densify(H)], SX_OPTIONS)
         # camera, trace_ref, sigma0
         Q, P = ca.MX.sym("Q", nq, T + 1), ca.MX.sym("P", CAMERA_PARAMETERS + 1 + NV)
         Tc, r, s0 = P[:CAMERA_PARAMETERS], P[CAMERA_PARAMETERS], P[CAMERA_PARAMETERS + 1:]
@@ -179,10 +179,11 @@ class NewtonSolver:
         # point) and with its gradient and Hessian in the node's joints (the barrier of
         # `run_barrier`): the same expression of z, so the same values
         z = pose(qa, Tcb)[2]
-        Z_only = ca.Function("node_z", [qa, Tcb], [z]).map(T + 1)(Q, Tc)
+        Z_only = ca.Function("node_z", [qa, Tcb], [z], SX_OPTIONS).map(T + 1)(Q, Tc)
         depth = ca.mmin(Z_only)
         node_depth = ca.Function("node_depth", [qa, Tcb], [z, ca.densify(ca.gradient(z, qa)),
-                                                         ca.densify(ca.vec(ca.hessian(z, qa)[0]))])
+                                                         ca.densify(ca.vec(ca.hessian(z, qa)[0]))],
+                                 SX_OPTIONS)
         Z, DZ, D2Z = node_depth.map(T + 1)(Q, Tc)
         fns = {"newton_step": ca.Function("newton_step", [Q, P], [S_x, S_x + smooth, G, HB, depth]),
                "newton_f": ca.Function("newton_f", [Q, P], [S_x + smooth]),

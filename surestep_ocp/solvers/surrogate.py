@@ -15,6 +15,7 @@ import numpy as np
 
 from ..model.belief import DIAG, NV, NX, BeliefModel, trace_vech, unvech, vech
 from ..model.robot import Robot
+from .codegen import SX_OPTIONS
 
 
 def pose_function(robot: Robot) -> ca.Function:
@@ -149,7 +150,7 @@ def recursion_weights(model: BeliefModel, T: int, sigma0, trace_ref) -> ca.Funct
     S = S / trace_ref
     grads = [ca.jacobian(S, ca.vec(c)).reshape(c.shape) if c.numel() else type(S).zeros(0, T)
              for c in (cm, co, cj)]
-    return ca.Function("weights", [cm, co, cj, sigma0, trace_ref], [S, *grads])
+    return ca.Function("weights", [cm, co, cj, sigma0, trace_ref], [S, *grads], SX_OPTIONS)
 
 
 def interval_terms(model: BeliefModel, a, b, joint=None):
