@@ -266,7 +266,7 @@ def test_a_start_is_inside_when_its_rows_are():
 
 
 def test_the_band_is_the_reduced_matrix_assembled_densely():
-    """The band that one sparse product fills (`band_scatter`: the surrogate's interval blocks, the
+    """The band that the parts' sparse products fill (`_band`: the surrogate's interval blocks, the
     linear rows' weights, the depths' node blocks, the tool windows' blocks) equals the same matrix
     assembled densely from its definition, `sum_t H_t + L^T diag(w) L + sum_t E_t^T B_t E_t +
     sum_p K_p^T H_p K_p`, in LAPACK's lower band storage; `tool_scatter` alone gives the last
@@ -305,8 +305,7 @@ def test_the_band_is_the_reduced_matrix_assembled_densely():
             out[k, :n - k] = np.diagonal(M, -k)
         return out
 
-    ab = (ip.band_scatter @ np.concatenate([HB, wl, blocks.ravel(), ip._window_terms(H)])
-          ).reshape(bw, n)
+    ab = ip._band(HB, wl, blocks.ravel(), ip._window_terms(H))
     scale = np.abs(dense).max()
     np.testing.assert_allclose(ab, band(dense), rtol=0, atol=1e-12 * scale)
     np.testing.assert_allclose((ip.tool_scatter @ ip._window_terms(H)).reshape(bw, n),

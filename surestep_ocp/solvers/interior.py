@@ -282,9 +282,10 @@ class InteriorNewton:
                   len(self.h_low)),
                  (self.lin_band, self.lin_pair_row, self.lin_pair, self.n_lin),
                  (self.node_band, nodes, np.ones(len(nodes)), (T + 1) * nq * nq)]
-        self.band_scatter = sp.hstack([sp.csr_matrix((v, (r, c_)), shape=(nbw, size))
-                                       for r, c_, v, size in parts]
-                                      + [self.tool_scatter]).tocsr()
+        # one matrix per part, their products summed into the band in turn: each entry's sum runs
+        # in the order of one product with them side by side (without concatenating the parts)
+        self.band_scatter = [sp.csr_matrix((v, (r, c_)), shape=(nbw, size))
+                             for r, c_, v, size in parts] + [self.tool_scatter]
         self.build_time_s = time.perf_counter() - t0
 
     def _jac_pattern(self, idx: np.ndarray) -> None:
@@ -435,6 +436,16 @@ class InteriorNewton:
         return ((A * wv[:, :, None]).transpose(0, 2, 1) @ A
                 + (gy * st[:, :, None]).transpose(0, 2, 1) @ gy)
 
+    def _band(self, HB: np.ndarray, wl: np.ndarray, blocks: np.ndarray, JW: np.ndarray
+              ) -> np.ndarray:
+        """The reduced matrix in LAPACK's lower band storage (bw, n) from its parts: the
+        surrogate's interval blocks, the linear rows' weights, the depths' node blocks (flat) and
+        the tool windows' terms (`_window_terms`), each part's sparse product added in turn."""
+        ab = np.zeros(self.bw * self.n)
+        for S, part in zip(self.band_scatter, (HB, wl, blocks, JW)):
+            _csr_dot(S, part, ab)
+        return ab.reshape(self.bw, self.n)
+
     def _to_window(self, Y: np.ndarray) -> np.ndarray:
         """(points, r, 2 nq) derivatives in each point's (q(s), q'(s)) -> (points, r, W nq) in
         its window's waypoints."""
@@ -563,8 +574,7 @@ class InteriorNewton:
             # Gauss-Newton's w Hess g (the end-game adds the rest of it); then per window
             st = sig[nd_ + T - 1:].reshape(self.n_pts, self.tool_k)  # (points, k)
             JW = self._window_terms(self._tool_blocks(A, gy, wk, st))
-            ab = _csr_dot(self.band_scatter, np.concatenate([HB, wl, blocks.ravel(), JW])
-                          ).reshape(self.bw, n)
+            ab = self._band(HB, wl, blocks.ravel(), JW)
             ab[0, idx] += sig[:nb] + sig[nb:2 * nb]
             factor = None
             if end_game:
@@ -761,10 +771,10 @@ def _to_boundary(v: np.ndarray, dv: np.ndarray, tau: float) -> float:
     return 1.0 if fall >= 0.0 else min(1.0, -tau / fall)
 
 
-def _csr_dot(A: sp.csr_matrix, x: np.ndarray) -> np.ndarray:
-    """A @ x by SciPy's kernel without its dispatch, which costs twice the product at these
-    sizes (tens of microseconds, several times an iteration)."""
-    y = np.zeros(A.shape[0])
+def _csr_dot(A: sp.csr_matrix, x: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+    """A @ x (added to `out` if given) by SciPy's kernel without its dispatch, which costs twice
+    the product at these sizes (tens of microseconds, several times an iteration)."""
+    y = np.zeros(A.shape[0]) if out is None else out
     _sparsetools.csr_matvec(A.shape[0], A.shape[1], A.indptr, A.indices, A.data, x, y)
     return y
 
