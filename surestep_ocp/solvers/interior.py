@@ -286,6 +286,17 @@ class InteriorNewton:
         # in the order of one product with them side by side (without concatenating the parts)
         self.band_scatter = [sp.csr_matrix((v, (r, c_)), shape=(nbw, size))
                              for r, c_, v, size in parts] + [self.tool_scatter]
+        # the entries outside the free block (a held joint's row or column) are left out: the
+        # factorisation sees the held joints as identity rows (`_factor`), so the band holds
+        # zeros there without clearing them at every iteration
+        inside = np.ones(nbw)
+        inside[self._held_entries(self.free_idx)[1]] = 0.0
+        keep = sp.diags(inside, format="csr")
+        self.band_scatter = [keep @ S for S in self.band_scatter]
+        for S in self.band_scatter:
+            S.eliminate_zeros()
+            S.sort_indices()
+        self.tool_scatter = self.band_scatter[-1]
         self.build_time_s = time.perf_counter() - t0
 
     def _jac_pattern(self, idx: np.ndarray) -> None:
@@ -703,16 +714,19 @@ class InteriorNewton:
         factor, the held mask) or None."""
         n = self.n
         if self._held is None or self._held[0] is not idx:
-            fixed = np.ones(n + 1, bool)
-            fixed[idx] = False
-            self._held = (idx, fixed[:n],
-                          np.flatnonzero(fixed[:n][None, :] | fixed[self.band_partner]))
+            self._held = (idx, *self._held_entries(idx))
         _, fixed, outside = self._held
-        np.put(ab, outside, 0.0)
+        if idx is not self.free_idx:
+            np.put(ab, outside, 0.0)  # (the band's parts leave out the held entries of free_idx)
         ab[0, fixed] = 1.0
         shift = shift / 4 if shift > 1e-14 else 0.0
-        scale = max(float(np.max(np.abs(ab[0, idx]))) if len(idx) else 0.0, 1e-12)
-        while shift <= 1e12 * scale:
+        # the diagonal's scale bounds the shift: needed only once one is applied
+        scale = None
+        while True:
+            if shift and scale is None:
+                scale = max(float(np.max(np.abs(ab[0, idx]))) if len(idx) else 0.0, 1e-12)
+            if shift > 1e12 * (scale or 0.0):
+                return None
             shifted = ab.copy()
             if shift:
                 shifted[0, idx] += shift
@@ -724,8 +738,15 @@ class InteriorNewton:
                 return solve, shift, factor, fixed
             if not may_shift:
                 return None
+            if scale is None:
+                scale = max(float(np.max(np.abs(ab[0, idx]))) if len(idx) else 0.0, 1e-12)
             shift = max(1e-8 * scale, 10 * shift)
-        return None
+
+    def _held_entries(self, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(held mask, flat band entries in a held joint's row or column) for free indices idx."""
+        fixed = np.ones(self.n + 1, bool)
+        fixed[idx] = False
+        return fixed[:self.n], np.flatnonzero(fixed[:self.n][None, :] | fixed[self.band_partner])
 
 
 class _RowJacobian:
@@ -752,8 +773,14 @@ class _RowJacobian:
 
     def dot(self, dx: np.ndarray) -> np.ndarray:
         """grad c_i . dx for every row"""
-        b, lin = dx[self.idx], _csr_dot(self.L, dx)
-        return np.concatenate([b, -b, lin, -lin, _csr_dot(self.C, dx)])
+        nb, nl = self.nb, self.nl
+        out = np.zeros(2 * nb + 2 * nl + self.C.shape[0])
+        np.take(dx, self.idx, out=out[:nb])
+        np.negative(out[:nb], out=out[nb:2 * nb])
+        lin = _csr_dot(self.L, dx, out[2 * nb:2 * nb + nl])
+        np.negative(lin, out=out[2 * nb + nl:2 * nb + 2 * nl])
+        _csr_dot(self.C, dx, out[2 * nb + 2 * nl:])
+        return out
 
     def curved_dot(self, dx: np.ndarray) -> np.ndarray:
         """grad c_i . dx for the curved rows alone (depths, tool rows)"""
