@@ -252,14 +252,28 @@ def test_the_elf_check_reads_the_headers(tmp_path):
 
 @needs_cc
 def test_the_fast_flags_build_their_own_library_with_the_same_values(cache_env, monkeypatch):
-    """A function named in `fast` is compiled with FAST_FLAGS into a library of its own (the flags
-    are part of the cache key), and gives bitwise the values of the FLAGS build."""
+    """A function named in `fast` (`vectorised`) is compiled with FAST_FLAGS (VECTOR_FLAGS) into a
+    library of its own (the flags are part of the cache key), and gives bitwise the values of the
+    FLAGS build."""
     monkeypatch.setenv("SURESTEP_CACHE", str(cache_env / "c"))
     x = ca.SX.sym("x", 4)
     fn = ca.Function("cache_probe_fast", [x], [ca.sin(x) * ca.sqrt(ca.sumsqr(x)) + x[0] / x])
     plain, _ = codegen.compiled_or_interpreted({"f": fn}, True)
     fast, _ = codegen.compiled_or_interpreted({"f": fn}, True, fast=("f",))
-    assert len(list((cache_env / "c").glob("cache_probe_fast_*.so"))) == 2
+    vector, _ = codegen.compiled_or_interpreted({"f": fn}, True, vectorised=("f",))
+    builds = 3 if codegen.VECTOR_FLAGS != codegen.FLAGS else 2
+    assert len(list((cache_env / "c").glob("cache_probe_fast_*.so"))) == builds
     arg = [0.3, -1.7, 2.9, 1e-3]
     assert (plain["f"](arg).full() == fast["f"](arg).full()).all()
+    assert (plain["f"](arg).full() == vector["f"](arg).full()).all()
     assert abs(fast["f"](arg).full() - fn(arg).full()).max() <= 1e-14
+
+
+def test_vector_instructions_only_where_the_cpu_has_them():
+    """AVX2 (without fused multiply-adds) is asked for only on an x86-64 CPU whose flags list it."""
+    avx2 = "processor\t: 0\nflags\t\t: fpu sse2 avx avx2 fma\n"
+    assert codegen._vector_flags(avx2, "x86_64") == ("-mavx2", "-ffp-contract=off")
+    assert codegen._vector_flags("flags\t\t: fpu sse2 avx\n", "x86_64") == ()
+    assert codegen._vector_flags("flags\t\t: fpu sse2 avx2x\n", "x86_64") == ()
+    assert codegen._vector_flags(avx2, "aarch64") == ()
+    assert codegen._vector_flags("", "x86_64") == ()

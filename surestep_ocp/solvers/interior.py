@@ -217,7 +217,8 @@ class InteriorNewton:
         self.codegen_note = None
         if codegen:
             fns, self.codegen_note = compiled_or_interpreted(fns, codegen_required,
-                                                             fast=("tool_rows", "tool_jacs"))
+                                                             fast=("tool_rows", "tool_jacs"),
+                                                             vectorised=("tool_res",))
         self.tool_rows, self.tool_jacs = Buffered(fns["tool_rows"]), Buffered(fns["tool_jacs"])
         self.tool_res = Buffered(fns["tool_res"])
         # the band layout (lower storage, half-bandwidth WINDOW nodes)
