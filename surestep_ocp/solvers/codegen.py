@@ -46,7 +46,6 @@ import numpy as np
 from ..errors import SurestepError
 
 
-
 def _vector_flags(cpuinfo: str | None = None, machine: str | None = None) -> tuple[str, ...]:
     """("-mavx2", "-ffp-contract=off") on an x86-64 CPU with AVX2, else (): GCC then vectorises
     the straight-line C of the tool functions; without fused multiply-adds (AVX2 alone has none,
@@ -63,16 +62,17 @@ def _vector_flags(cpuinfo: str | None = None, machine: str | None = None) -> tup
     return ("-mavx2", "-ffp-contract=off") if flags and "avx2" in flags.group(1).split() else ()
 
 
+_VECTOR = _vector_flags()
 # -O1: faster code than CasADi's virtual machine and -O0 (docs/solve_speed.md, "The compile")
 FLAGS = ("-O1", "-fPIC", "-shared")
 # the CPU's vector instructions where they keep every result bit (above); for functions a caller
 # names (`compiled_or_interpreted`'s `vectorised`: the interior point's end-game curvature, 0.89x
 # the time of the -O1 build at the same compile time)
-VECTOR_FLAGS = ("-O1", *_vector_flags(), "-fPIC", "-shared")
+VECTOR_FLAGS = ("-O1", *_VECTOR, "-fPIC", "-shared")
 # -O3 with them for small functions evaluated several times an iteration whose compile is short
 # (the interior point's tool rows and their Jacobians: about 0.81x and 0.82x the time at -O1,
 # bitwise the same values; docs/realtime.md); callers name them (`fast`)
-FAST_FLAGS = ("-O3", *_vector_flags(), "-fPIC", "-shared")
+FAST_FLAGS = ("-O3", *_VECTOR, "-fPIC", "-shared")
 # options of the per-stage SX Functions the Newton and interior-point iterations map: CasADi's
 # structural common-subexpression elimination, which shares repeated nodes (the same values
 # bitwise, fewer instructions: the FK's sines and products its derivatives repeat; docs/realtime.md)
