@@ -725,13 +725,12 @@ class InteriorNewton:
             np.put(ab, outside, 0.0)  # (the band's parts leave out the held entries of free_idx)
         ab[0, fixed] = 1.0
         shift = shift / 4 if shift > 1e-14 else 0.0
-        # the diagonal's scale bounds the shift: needed only once one is applied
-        scale = None
-        while True:
-            if shift and scale is None:
-                scale = max(float(np.max(np.abs(ab[0, idx]))) if len(idx) else 0.0, 1e-12)
-            if shift > 1e12 * (scale or 0.0):
-                return None
+
+        def diagonal_scale() -> float:  # bounds the shift: computed only once one is applied
+            return max(float(np.max(np.abs(ab[0, idx]))) if len(idx) else 0.0, 1e-12)
+
+        scale = diagonal_scale() if shift else None
+        while scale is None or shift <= 1e12 * scale:
             shifted = ab.copy()
             if shift:
                 shifted[0, idx] += shift
@@ -743,9 +742,9 @@ class InteriorNewton:
                 return solve, shift, factor, fixed
             if not may_shift:
                 return None
-            if scale is None:
-                scale = max(float(np.max(np.abs(ab[0, idx]))) if len(idx) else 0.0, 1e-12)
+            scale = diagonal_scale() if scale is None else scale
             shift = max(1e-8 * scale, 10 * shift)
+        return None
 
     def _held_entries(self, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(held mask, flat band entries in a held joint's row or column) for free indices idx."""
