@@ -71,6 +71,8 @@ def _summary(sol, base=None) -> str:
         lines.append(f"baseline    {base.trace_final:.4e}  "
                      f"(ratio baseline / {sol.method} = {ratio}{longer})")
     lines.append(f"terminal    {err_m:.2e} m, {err_rad:.2e} rad from the goal")
+    if "grasp" in sol.extras:
+        lines.append(f"grasp       {grasp_line(sol.extras['grasp'])}")
     if sol.run.codegen_note:
         lines.append("note        solver.codegen auto: "
                      f"{sol.run.codegen_note.splitlines()[0]}")
@@ -84,6 +86,19 @@ def _summary(sol, base=None) -> str:
     if unreachable:
         lines.append(f"reachable   {len(sol.q) - unreachable}/{len(sol.q)} waypoints (IK)")
     return "\n".join(lines)
+
+
+def grasp_line(rec: dict) -> str:
+    """A plan's grasp record (solvers/confidence.py) in one line."""
+    tol = rec["tolerance"]
+    text = (f"confidence {rec['predicted']:.4f} (within {tol['position'] * 1e3:g} mm and "
+            f"{tol['angle']:g} rad) at {rec['duration_s']:.2f} s")
+    if rec.get("confidence") is None:
+        return text
+    if rec["reached"]:
+        return text + f"; asked {rec['confidence']:g}: reached"
+    return text + (f"; asked {rec['confidence']:g}: not reached within timing.max_duration "
+                   f"{rec['max_duration_s']:g} s (the best plan found)")
 
 
 def _with_solver_flags(setup, args):

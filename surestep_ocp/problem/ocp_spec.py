@@ -15,7 +15,7 @@ import numpy as np
 
 from ..model.belief import NoiseParams
 from ..model.camera import Intrinsics
-from .spec import GradientSpec, LimitsSpec, Problem, SolverSpec, TimingSpec
+from .spec import GradientSpec, GraspSpec, LimitsSpec, Problem, SolverSpec, TimingSpec
 
 
 @dataclass(frozen=True)
@@ -32,12 +32,13 @@ class OcpSpec:
     gradient: GradientSpec
     limits: LimitsSpec
     timing: TimingSpec
+    grasp: GraspSpec = GraspSpec()  # the grasp's tolerance and confidence
 
     @classmethod
     def of(cls, problem: Problem) -> OcpSpec:
         return cls(str(problem.path), problem.horizon, problem.noise, problem.camera.intrinsics,
                    problem.objective.smoothness, problem.min_depth, problem.solver,
-                   problem.gradient, problem.limits, problem.timing)
+                   problem.gradient, problem.limits, problem.timing, problem.grasp)
 
     @property
     def sigma0(self) -> np.ndarray:
@@ -46,4 +47,5 @@ class OcpSpec:
 
 
 # the OcpSpec fields `Setup.with_ocp` changes (the problem's file and camera stay)
-EDITABLE = ("horizon", "noise", "smoothness", "min_depth", "solver", "gradient", "limits", "timing")
+EDITABLE = ("horizon", "noise", "smoothness", "min_depth", "solver", "gradient", "limits", "timing",
+            "grasp")

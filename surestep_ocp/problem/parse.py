@@ -38,6 +38,7 @@ from .spec import (
     CameraSpec,
     EndpointSpec,
     GradientSpec,
+    GraspSpec,
     LimitsSpec,
     ObjectiveSpec,
     Problem,
@@ -152,6 +153,12 @@ def parse_problem(tree: Any, path: Path) -> Problem:
     horizon = section("horizon", rd.integer, top.get("horizon"), "horizon", minimum=1,
                       maximum=MAX_HORIZON, required=True)
     timing = section("timing", _timing, rd, top.get("timing", {}))
+    grasp = section("goal", _grasp, rd, top.get("goal"), required=True)
+    if timing is not None and horizon is not None and timing.max_duration is not None \
+            and timing.max_duration < horizon * timing.step_s - 1e-9:
+        errors.append(rd.fail("timing.max_duration", f"must be at least the problem's duration "
+                              f"(horizon x timing.step_s = {horizon * timing.step_s:g} s), got "
+                              f"{timing.max_duration:g}"))
     # (a wrong timing: the noise read with one frame per step, so that its own
     # errors are still found)
     noise = section("noise", _noise, rd, top.get("noise", {}),
@@ -191,6 +198,7 @@ def parse_problem(tree: Any, path: Path) -> Problem:
         gradient=gradient,
         timing=timing,
         limits=limits,
+        grasp=grasp,
         source=tree,
     )
     # the solver choices against the noise model, when the file is read (the robot's
@@ -220,7 +228,7 @@ def _objective(rd: Reader, node: Any) -> tuple[ObjectiveSpec, str]:
 
 def _timing(rd: Reader, node: Any) -> TimingSpec:
     """`timing: {step_s, tracker_hz}`; a step must span a whole number (>= 1) of tracker frames."""
-    m = rd.mapping(node, "timing", {"step_s", "tracker_hz"})
+    m = rd.mapping(node, "timing", {"step_s", "tracker_hz", "max_duration"})
     d = TimingSpec()
     step = rd.number(m.get("step_s", d.step_s), "timing.step_s", positive=True, high=3600.0)
     hz = rd.number(m.get("tracker_hz", d.tracker_hz), "timing.tracker_hz", positive=True,
@@ -231,7 +239,10 @@ def _timing(rd: Reader, node: Any) -> TimingSpec:
                                 "frames per step; it must be a whole number from 1 to "
                                 f"{MAX_FRAMES_PER_STEP} (e.g. step_s 0.1 with tracker_hz 20: "
                                 "2 frames)")
-    return TimingSpec(step_s=step, tracker_hz=hz)
+    cap = m.get("max_duration")
+    cap = None if cap is None else rd.number(cap, "timing.max_duration", positive=True,
+                                             high=3600.0)
+    return TimingSpec(step_s=step, tracker_hz=hz, max_duration=cap)
 
 
 def _limits(rd: Reader, node: Any, robot: RobotSpec) -> LimitsSpec:
@@ -362,7 +373,8 @@ def _moves(rd: Reader, node: Any) -> tuple[CameraMove, ...]:
 
 
 def _endpoint(rd: Reader, node: Any, key: str, path: Path) -> EndpointSpec:
-    m = rd.mapping(node, key, {"joints", "pose", "relative"})
+    grasp = _GRASP_KEYS if key == "goal" else ()  # (read by _grasp)
+    m = rd.mapping(node, key, {"joints", "pose", "relative", *grasp})
     kind = rd.one_of(m, key, ["joints", "pose", "relative"])
     if kind == "joints":
         return EndpointSpec(joints=rd.vector(m["joints"], f"{key}.joints", limit=MAX_ANGLE),
@@ -373,6 +385,28 @@ def _endpoint(rd: Reader, node: Any, key: str, path: Path) -> EndpointSpec:
         pose = _pose6(rd, r["pose"], f"{key}.relative.pose")
         return EndpointSpec(relative=RelativeGoal(arm, pose), key=f"{key}.relative")
     return EndpointSpec(pose=_pose6(rd, m["pose"], f"{key}.pose"), key=f"{key}.pose")
+
+
+_GRASP_KEYS = ("tolerance", "confidence")
+
+
+def _grasp(rd: Reader, node: Any) -> GraspSpec:
+    """`goal.tolerance: {position, angle}` ([m], [rad]; default 5 mm, 0.2 rad) and
+    `goal.confidence` (in (0, 1); default none): the grasp's success and how sure to be of it."""
+    m = node if isinstance(node, Mapping) else {}  # (a goal that is no mapping: _endpoint's error)
+    d = GraspSpec()
+    tol = rd.mapping(m.get("tolerance", {}), "goal.tolerance", {"position", "angle"})
+    position = rd.number(tol.get("position", d.position), "goal.tolerance.position",
+                         positive=True, high=1.0)
+    angle = rd.number(tol.get("angle", d.angle), "goal.tolerance.angle", positive=True,
+                      high=np.pi)
+    confidence = m.get("confidence")
+    if confidence is not None:
+        confidence = rd.number(confidence, "goal.confidence")
+        if not 0.0 < confidence < 1.0:
+            raise rd.fail("goal.confidence", f"must be strictly between 0 and 1 (e.g. 0.95), got "
+                                             f"{confidence:g}")
+    return GraspSpec(position=position, angle=angle, confidence=confidence)
 
 
 def _pose6(rd: Reader, node: Any, key: str) -> np.ndarray:

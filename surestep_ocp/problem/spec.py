@@ -138,12 +138,33 @@ class TimingSpec:
 
     step_s: float = 0.05  # [s] duration of one step (waypoint t to t+1)
     tracker_hz: float = 20.0  # [Hz] tracker frame rate
+    # [s] the longest a motion may take, a dwell at the goal included (planning to a confidence,
+    # grasping when sure); None: twice the problem's duration (`max_steps`)
+    max_duration: float | None = None
+
+    def max_steps(self, horizon: int) -> int:
+        """The most steps a motion of nominal `horizon` steps may take (`max_duration`)."""
+        if self.max_duration is None:
+            return 2 * int(horizon)
+        return max(int(horizon), int(np.floor(self.max_duration / self.step_s + 1e-9)))
 
     @property
     def frames(self) -> int:
         """Tracker frames (observations) per step."""
         # int(): step_s may be a NumPy float, whose round() is not an int
         return int(round(self.step_s * self.tracker_hz))  # noqa: RUF046
+
+
+@dataclass(frozen=True)
+class GraspSpec:
+    """`goal.tolerance` and `goal.confidence` (problems/README.md, "Grasp confidence"): the grasp
+    succeeds when the tool is within `position` [m] and `angle` [rad] of the goal; with
+    `confidence` set, plans are made to reach that probability (`model.grasp`) and the closed
+    loop grasps once its belief does."""
+
+    position: float = 0.005  # [m]
+    angle: float = 0.2  # [rad]
+    confidence: float | None = None  # in (0, 1); None: plan for the horizon as given
 
 
 @dataclass(frozen=True)
@@ -190,6 +211,7 @@ class Problem(ArrayEquality):
     description: str = ""
     timing: TimingSpec = TimingSpec()
     limits: LimitsSpec = LimitsSpec()
+    grasp: GraspSpec = GraspSpec()
     source: Any = field(default=None, repr=False, compare=False)  # the YAML tree it was read from
 
     # Changed copies (the Python API). Each edits the tree the problem was read from and reads it

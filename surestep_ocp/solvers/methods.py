@@ -14,6 +14,7 @@ from dataclasses import replace
 import numpy as np
 
 from .baseline import solve_baseline, straight_line
+from .confidence import plan_to_confidence
 from .gradient import solve_gradient
 from ..model.belief import COMPONENTS
 from ..errors import SurestepError
@@ -135,6 +136,15 @@ def run_method(setup: Setup, name: str, cache: dict[str, Solution] | None = None
     """
     base, comps, _, _ = parse_method(name)
     s = method_setup(setup, name)
+    grasp = s.ocp.grasp
+    if grasp.confidence is not None and base not in ("baseline", "gradient",
+                                                     "gradient-no-pose-loss"):
+        # the horizon is the OCP's decision (solvers/confidence.py): each one solved without it
+        plain = replace(grasp, confidence=None)
+        sol = plan_to_confidence(s, lambda sub: run_method(sub.with_ocp(grasp=plain), name, cache,
+                                                           solver_options))
+        sol.method = name
+        return sol
     if base == "baseline":
         sol = solve_baseline(s)
     elif base in ("gradient", "gradient-no-pose-loss"):
