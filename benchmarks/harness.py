@@ -89,6 +89,7 @@ from surestep_ocp.evaluation.table2 import TYPES, success_table  # noqa: E402
 from surestep_ocp.evaluation.table2_figure import error_figure  # noqa: E402
 from surestep_ocp.evaluation.executed_motion import stitched, violations  # noqa: E402
 from surestep_ocp.evaluation.closed_loop import robot_pace  # noqa: E402
+from surestep_ocp.evaluation.sure_grasp import METHODS as SURE_METHODS, scenario_rows  # noqa: E402
 from surestep_ocp.evaluation.configs import GRASP_ANGLE_RAD, GRASP_POSITION_M  # noqa: E402
 from surestep_ocp.model import limits as _limits  # noqa: E402
 from surestep_ocp.model.belief import unvech, vech  # noqa: E402
@@ -126,7 +127,8 @@ __all__ = [
     "within_position_limits", "tool_speeds",
     "np_exp", "write_text_atomic", "time_optimal_law", "played_line",
     "TYPES", "success_table", "error_figure", "stitched", "violations", "robot_pace",
-    "GRASP_POSITION_M", "GRASP_ANGLE_RAD", "vech", "unvech", "np_means",
+    "GRASP_POSITION_M", "GRASP_ANGLE_RAD", "vech", "unvech", "np_means", "SURE_METHODS",
+    "scenario_rows",
 ]
 
 # --- the test set ---------------------------------------------------------------------------------

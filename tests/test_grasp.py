@@ -1,5 +1,5 @@
-"""The grasp confidence (issue 43): its probability against sampling, the problem's keys, planning to
-a confidence (the horizon searched), and the status when the cap cannot reach it.
+"""The grasp confidence (issue 43): its probability against sampling, the problem's keys, planning
+to a confidence (the horizon searched), and the status when the cap cannot reach it.
 
 References are independent of the code under test: Monte Carlo draws of the Gaussian error, and
 the plain NumPy EKF (tests/numpy_ekf.py) along a returned plan.

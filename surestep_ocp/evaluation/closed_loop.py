@@ -23,6 +23,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ..errors import SurestepError
+from ..model.lie import matrix_to_pose, pose_to_matrix
 from ..problem.spec import Problem
 from ..solvers.methods import closed_loop_unavailable
 from ..solvers.planner import MAX_LATE, Planner
@@ -103,6 +104,7 @@ class ClosedLoop:
             self.late, self.violations, self.checked = [0] * n, [0] * n, [False] * n
         # a rollout at its goal holds still: its target is where it is (finite, not used)
         targets, moving = np.array(mean, float), np.zeros(n, bool)
+        self.arriving = np.zeros(n, bool)  # whose step t -> t+1 ends its plan (`rollout` reads it)
         camera = self._camera(t)
         for i, planner in enumerate(self.planners):
             if t >= planner.horizon:
@@ -113,6 +115,7 @@ class ClosedLoop:
                 planner = self._replan(i, planner, t, mean[i], cov[i], camera)
             targets[i] = self._target(planner, t, mean[i])
             moving[i] = True
+            self.arriving[i] = t + 1 == planner.horizon
         return targets, moving
 
     def _replan(self, i: int, planner: Planner, t: int, mean, cov, camera) -> Planner:
@@ -140,12 +143,16 @@ class ClosedLoop:
 
     def _target(self, planner: Planner, t: int, mean: np.ndarray) -> np.ndarray:
         """The current plan's step t -> t+1 applied from the estimate: its displacement (turned by
-        the camera's moves since the plan was made) and its body-frame rotation."""
+        the camera's moves since the plan was made) and its body-frame rotation; the plan's last
+        step goes onto its goal (seen from the current camera)."""
         poses = np.asarray(planner.plan.poses, float)
         j = t - planner.step
         # the camera a plan was made in: the first camera for the first plan
         made_in = self.cameras[0] if planner.step == 0 else self._camera(planner.step)
-        turn = (np.linalg.inv(self._camera(t)) @ made_in)[:3, :3]
+        move = np.linalg.inv(self._camera(t)) @ made_in
+        if j + 2 == len(poses):
+            return matrix_to_pose(move @ pose_to_matrix(poses[-1]))
+        turn = move[:3, :3]
         R0, R1 = Rotation.from_rotvec(poses[j, 3:]), Rotation.from_rotvec(poses[j + 1, 3:])
         R = Rotation.from_rotvec(mean[3:]) * R0.inv() * R1
         return np.hstack([mean[:3] + turn @ (poses[j + 1, :3] - poses[j, :3]), R.as_rotvec()])

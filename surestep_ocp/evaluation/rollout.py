@@ -34,14 +34,15 @@ The noise models are the belief model's own CasADi Functions (`motion_noise`,
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import casadi as ca
 import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ..errors import SurestepError
-from ..model.belief import NM, NX, BeliefModel
+from ..model.belief import _TRIL, NM, NX, BeliefModel
+from .grasp_rule import GraspRule, Grasping
 from ..model.lie import np_means
 
 MODES = ("model", "true")
@@ -100,6 +101,11 @@ class Rollouts:
     true_path: np.ndarray | None = None  # (N, T+1, 6) when kept
     estimate_path: np.ndarray | None = None  # (N, T+1, 6) when kept
     detected: np.ndarray | None = None  # (N, T) whether step t -> t+1 had an observation
+    # with a grasp rule (`grasp_rule.py`): the steps each rollout ran until it grasped, its
+    # predicted success then, and whether the cap made it grasp
+    grasp_step: np.ndarray | None = None
+    predicted: np.ndarray | None = None
+    capped: np.ndarray | None = None
 
     @property
     def n(self) -> int:
@@ -136,9 +142,10 @@ class BatchedNoise:
     `(p, r)` (converted to the model's means, `lie.np_means`)."""
 
     def __init__(self, model: BeliefModel, n: int):
-        self.n = n
+        self.n, self.model = n, model
         self._W = model.motion_noise.map(n)
         self._V = model.observation_noise.map(n)
+        self._V_expected = None
 
     def _unstack(self, out) -> np.ndarray:
         # map() concatenates the N 6x6 outputs horizontally: (6, 6N) -> (N, 6, 6)
@@ -151,6 +158,17 @@ class BatchedNoise:
     def observation(self, x: np.ndarray) -> np.ndarray:
         """(N, 6, 6) V at the poses x ((N, 6))."""
         return self._unstack(self._V(np_means(x).T))
+
+    def expected_observation(self, x: np.ndarray, P: np.ndarray) -> np.ndarray:
+        """(N, 6, 6) V expected under the beliefs N(x, P) ((N, 6), (N, 6, 6)): the model's
+        `expected` form, V(x) + tr(J P J^T) per term (surestep_method.md, section 8), the noise
+        of the observation given what the tracker knows of the pose."""
+        if self._V_expected is None:
+            form = replace(self.model.noise, observation_noise="expected")
+            self._V_expected = BeliefModel(form, self.model.camera,
+                                           self.model.components).planning_noise.map(self.n)
+        rows, cols = np.array(_TRIL).T
+        return self._unstack(self._V_expected(np_means(x).T, np.asarray(P)[:, rows, cols].T))
 
 
 def sample_gaussian(cov: np.ndarray, z: np.ndarray) -> np.ndarray:
@@ -198,6 +216,8 @@ def rollout(
     changes: list | None = None,
     replan=None,
     policy=None,
+    grasp: GraspRule | None = None,
+    tracker_noise: str = "mean",
 ) -> Rollouts:
     """Execute a plan `n` times in closed loop with sampled motion and observation noise.
 
@@ -240,8 +260,17 @@ def rollout(
             covariance (N, 6, 6); it returns the (N, 6) targets of the step t -> t+1 and an (N,)
             mask of the rollouts still moving. A rollout whose plan has ended holds still (nothing
             moves, nothing is observed: its final values are those at its end). The rollouts run
-            `policy.steps` steps; `poses[0]` is the start. It draws nothing from `rng`.
+            `policy.steps` steps; `poses[0]` is the start. It draws nothing from `rng`. A policy
+            may say which rollouts' step t -> t+1 ends their plan (`policy.arriving`, (N,)).
+        grasp: when each rollout grasps (`grasp_rule.GraspRule`): with a confidence, at the first
+            step onto the goal whose predicted success reaches it, dwelling at the goal (under
+            observation) until then, or at the rule's cap; the rollouts' `grasp_step`,
+            `predicted` and `capped` say when and how sure. None: at the plan's end.
+        tracker_noise: the observation noise of the tracker's update: `mean` (V at the predicted
+            mean) or `expected` (V expected under the predicted belief, `BatchedNoise`).
     """
+    if tracker_noise not in ("mean", "expected"):
+        raise ValueError(f"unknown tracker_noise '{tracker_noise}'; allowed: mean, expected")
     if mode not in MODES:
         raise ValueError(f"unknown rollout mode '{mode}'; allowed: {', '.join(MODES)}")
     if not has_identity_maps(model):
@@ -273,6 +302,9 @@ def rollout(
                              else (None, None))
 
     steps = len(poses) - 1 if policy is None else int(policy.steps)
+    grasping = Grasping(grasp or GraspRule(), n, steps)
+    steps = grasping.cap
+    last = len(poses) - 1  # the plan's goal waypoint (a dwell targets it)
     detected = np.ones((n, steps), dtype=bool)
     # leaves rng's stream
     u_rng = rng.spawn(1)[0] if detection is not None and detection.falloff > 0 else None
@@ -297,7 +329,9 @@ def rollout(
                 if own.shape != current.shape or not np.all(np.isfinite(own[:, t + 1:])):
                     raise ValueError(f"replan at step {t} returned waypoints of shape {own.shape} "
                                      f"(expected {current.shape}, finite)")
-        moving = None
+        still = grasping.done.copy()  # grasped: they hold still
+        k = min(t + 1, last)
+        arriving = np.full(n, t + 1 >= last)
         if policy is not None:
             target, moving = policy(t, _pose(mu_p, mu_R), sigma.copy())
             target, moving = np.asarray(target, float), np.asarray(moving, bool)
@@ -306,17 +340,22 @@ def rollout(
                 raise ValueError(f"policy at step {t} returned targets of shape {target.shape} "
                                  f"and a mask of shape {moving.shape} (expected ({n}, {NX}), "
                                  f"finite, and ({n},))")
-            held = (true_p, true_R.as_quat(), mu_p, mu_R.as_quat(), sigma)
+            dwell = ~moving & ~still
+            if grasping.rule.confidence is None:  # at its plan's end a rollout holds still
+                still |= dwell
+            target[dwell] = goal
+            arriving = dwell | np.asarray(getattr(policy, "arriving", np.zeros(n, bool)), bool)
         elif own is None:
-            target = np.tile(poses[t + 1], (n, 1))
+            target = np.tile(poses[k], (n, 1))
         else:
-            target = own[:, t + 1].copy()
+            target = own[:, k].copy()
+        held = (true_p, true_R.as_quat(), mu_p, mu_R.as_quat(), sigma)
         z_w, z_v = rng.standard_normal((n, NX)), rng.standard_normal((n, NX))
         u_det = None if u_rng is None else u_rng.random(n)
         # command: from the estimate to the next waypoint; W of that step
         W = noise.motion(_pose(mu_p, mu_R), target)
         dp = target[:, :3] - mu_p
-        D = mu_R.inv() * (waypoints[t + 1] if own is None and policy is None
+        D = mu_R.inv() * (waypoints[k] if own is None and policy is None
                           else Rotation.from_rotvec(target[:, 3:]))
         w = sample_gaussian(W, z_w)
         true_p = true_p + dp + w[:, :3]
@@ -325,13 +364,15 @@ def rollout(
         pred_p, pred_R = mu_p + dp, mu_R * D
         pred = _pose(pred_p, pred_R)
         P = sigma + W
+        grasping.decide(t, arriving & ~still, P)
         if detection is not None:
             prob = detection.probability(model.camera, true_p)
             seen = prob >= 1.0 if u_det is None else u_det < prob
             detected[:, t] = seen
         else:
             seen = detected[:, t]
-        V_ekf = noise.observation(pred)
+        V_ekf = (noise.observation(pred) if tracker_noise == "mean"
+                 else noise.expected_observation(pred, P))
         if mode == "model":
             V_real = V_ekf
         else:  # V at an undetected true pose (e.g. behind the lens) is not used; keep it finite
@@ -349,8 +390,7 @@ def rollout(
         mu_p, mu_R = pred_p + dx[:, :3], Rotation.from_rotvec(dx[:, 3:]) * pred_R
         post = P - np.swapaxes(KT, 1, 2) @ P
         sigma = 0.5 * (post + np.swapaxes(post, 1, 2))
-        if moving is not None:  # the rollouts at their end hold still
-            still = ~moving
+        if still.any():  # the rollouts that grasped (or ended their plan) hold still
             detected[still, t] = False
             true_p, mu_p = np.where(still[:, None], held[0], true_p), np.where(still[:, None],
                                                                              held[2], mu_p)
@@ -360,6 +400,10 @@ def rollout(
         if keep_paths:
             paths_true.append(_pose(true_p, true_R))
             paths_est.append(_pose(mu_p, mu_R))
+        if grasping.rule.confidence is not None and grasping.done.all() and t + 1 < steps:
+            # every rollout has grasped: the paths end here
+            detected = detected[:, :t + 1]
+            break
 
     goal_R = Rotation.from_rotvec(goal[3:])
     return Rollouts(
@@ -374,6 +418,9 @@ def rollout(
         true_path=None if paths_true is None else np.stack(paths_true, axis=1),
         estimate_path=None if paths_est is None else np.stack(paths_est, axis=1),
         detected=detected,
+        grasp_step=grasping.step,
+        predicted=grasping.predicted,
+        capped=grasping.capped,
     )
 
 
