@@ -155,3 +155,12 @@ def test_a_confidence_the_cap_cannot_reach_is_a_status(tmp_path, capsys):
     rec = json.loads(out.read_text())["grasp"]
     assert rec["reached"] is False and rec["predicted"] < 0.999999
     assert rec["duration_s"] <= 1.1 + 1e-9 and rec["searched"]
+
+
+def test_the_planner_plans_to_the_confidence(hard_at_robot_pace):
+    from surestep_ocp.solvers.planner import Planner
+
+    planner = Planner(hard_at_robot_pace, prebuild=False)
+    assert planner.grasp["reached"] and planner.horizon == planner.plan.horizon
+    assert planner.horizon < hard_at_robot_pace.ocp.horizon and planner.plan.success
+    assert numpy_confidence(hard_at_robot_pace, planner.plan) > 0.94

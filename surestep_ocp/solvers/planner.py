@@ -32,6 +32,7 @@ from ..errors import SurestepError
 from ..model.lie import pose_mean, pose_to_matrix
 from ..model.limits import enforce as enforce_limits
 from ..model.limits import evaluate_curve
+from .confidence import at_horizon, plan_to_confidence
 from .methods import ocp_initial_guess
 from .backends import Context
 from ..buffered import Buffered
@@ -63,6 +64,10 @@ REPLAN_BUDGET = 40
 class Planner:
     """Plans a problem once, then re-plans from each new tracker estimate over the steps left.
 
+    With `goal.confidence` set, the horizon is the shortest whose plan reaches it (`grasp` holds
+    that plan's grasp record, else None); a closed loop then dwells at the goal until its own
+    belief is sure (evaluation/grasp_rule.py).
+
     Args:
         problem: a Problem (or a built Setup); its camera moves, if any, are ignored (give the
             camera pose to `replan`).
@@ -78,6 +83,13 @@ class Planner:
     def __init__(self, problem: Problem | Setup, prebuild: bool = True,
                  replan_iterations: int = REPLAN_ITERATIONS):
         setup = problem if isinstance(problem, Setup) else build_setup(problem)
+        # with `goal.confidence`: the horizon of the shortest plan that reaches it
+        # (solvers/confidence.py; its record in `grasp`), re-planned over as any other
+        self.grasp = None
+        if setup.ocp.grasp.confidence is not None:
+            chosen = plan_to_confidence(setup, first_plan)
+            self.grasp = chosen.extras["grasp"]
+            setup = at_horizon(without_confidence(setup), chosen.horizon)
         # planned for a fixed camera (`replan` takes its pose): without the schedule, the plans
         # stay in one camera frame and their solutions record no camera moves
         self.setup = replace(setup, camera_schedule=[])
@@ -99,9 +111,7 @@ class Planner:
         # every re-plan's structure
         for n in range(self.horizon, 0, -1) if self.limited and prebuild else ():
             self._interior(self.setup.with_ocp(horizon=n))
-        self.plan, _ = solve_ocp_warm(self.setup, ocp_initial_guess(self.setup))
-        if self.limited and self.plan.success:
-            self.plan = self._within_reserve(self.plan)
+        self.plan = first_plan(self.setup)
         self.step = 0  # the waypoint the current plan starts at
         self._q = np.array(self.plan.q, float)
         # the current plan's curve starts at rest, or in motion: (velocity, acceleration)
@@ -319,25 +329,6 @@ class Planner:
             self.builds[-n] = time.perf_counter() - t0
         return self._solvers[-n]
 
-    def _within_reserve(self, plan: Solution) -> Solution:
-        """The first plan again within the limits less RESERVE (from the plan within the limits, the
-        rows it breaks relaxed), so that the re-plans have room for corrections; the plan itself if
-        that fails."""
-        setup, spec = self.setup, self.setup.ocp.solver
-        solver = interior_solver(setup)
-        start = InitialGuess(np.array(plan.q, float), "the plan within the limits")
-        run = solver.run(setup, start, tol=spec.tol,
-                         max_iter=min(spec.surrogate_max_iter, spec.max_iter),
-                         mu0=REPLAN_MU, relax=True, reserve=RESERVE)
-        if not run.success:
-            return plan
-        sol = solver.newton.solution(setup, plan.method, start, run)
-        sol.solve_time_s += plan.solve_time_s
-        sol.run = replace(sol.run, solver="interior")
-        sol.extras.update(reserve=RESERVE, attempts_within_limits=plan.attempts)
-        enforce_limits(setup, sol)
-        return sol if sol.success else plan
-
     def _solver(self, n: int, background: bool = False) -> tuple:
         """(projected Newton solver, compiled EKF over n steps) for n steps left, built on first
         use; `background`: its C compiled in a background thread (loaded, and waited for if need be,
@@ -448,3 +439,37 @@ def _propagation(model: BeliefModel, n: int) -> ca.Function:
     for t in range(n):
         out.append(model.step(pose_mean(X[:, t]), pose_mean(X[:, t + 1]), out[-1]))
     return ca.Function("propagation", [X, s0], [ca.horzcat(*out)])
+
+
+def without_confidence(setup: Setup) -> Setup:
+    """The setup planning its horizon as given (no `goal.confidence`)."""
+    return setup.with_ocp(grasp=replace(setup.ocp.grasp, confidence=None))
+
+
+def first_plan(setup: Setup) -> Solution:
+    """A Planner's first plan of `setup` (its horizon as given): the OCP from the straight line,
+    within enforced limits again within the limits less RESERVE (`within_reserve`)."""
+    setup = without_confidence(setup)
+    plan, _ = solve_ocp_warm(setup, ocp_initial_guess(setup))
+    limited = setup.ocp.limits.enforce and resolved_solver(setup).interior_first
+    return within_reserve(setup, plan) if limited and plan.success else plan
+
+
+def within_reserve(setup: Setup, plan: Solution) -> Solution:
+    """The plan again within the limits less RESERVE (from the plan within the limits, the rows it
+    breaks relaxed), so that the re-plans have room for corrections; the plan itself if that
+    fails."""
+    spec = setup.ocp.solver
+    solver = interior_solver(setup)
+    start = InitialGuess(np.array(plan.q, float), "the plan within the limits")
+    run = solver.run(setup, start, tol=spec.tol,
+                     max_iter=min(spec.surrogate_max_iter, spec.max_iter),
+                     mu0=REPLAN_MU, relax=True, reserve=RESERVE)
+    if not run.success:
+        return plan
+    sol = solver.newton.solution(setup, plan.method, start, run)
+    sol.solve_time_s += plan.solve_time_s
+    sol.run = replace(sol.run, solver="interior")
+    sol.extras.update(reserve=RESERVE, attempts_within_limits=plan.attempts)
+    enforce_limits(setup, sol)
+    return sol if sol.success else plan
