@@ -121,7 +121,7 @@ def cmd_solve(args) -> int:
     _check_ocp_flags([method], args, "--method")
     prob, setup = _load(args.problem)
     setup = _with_solver_flags(setup, args)
-    if args.output:  # before the work: a bad output path must not cost a solve
+    if args.output is not None:  # before the work: a bad path (or '') must not cost a solve
         check_output_file(args.output, _inputs(prob, args.problem), "the solution")
     _long_work_note(setup)
     sol = run_method(setup, method)

@@ -48,7 +48,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import SurestepError
+from ..errors import SurestepError, shown
 from ..model.limits.values import problem_limits
 from .configs import ConfigurationSampler, load_evaluation
 from .evaluation_report import write_outputs
@@ -573,7 +573,11 @@ def _run_dask(todo, args, rest, client, finish) -> None:
 def cmd_evaluate(args) -> int:
     methods = DEFAULT_METHODS
     if args.methods:
-        methods = tuple(m for a in args.methods for m in a.split(",") if m)
+        methods = tuple(m for a in args.methods for m in a.split(","))
+        if not all(methods):  # '' or ',': no method named, not the baseline alone
+            raise SurestepError(f"--methods: an empty method name in "
+                                f"{shown(' '.join(args.methods))}; give methods space- or "
+                                "comma-separated")
     modes = MODES if args.rollout_mode == "both" else (args.rollout_mode,)
     out = args.output_dir or str(Path("out") / f"evaluate-{Path(args.evaluation).stem}")
     try:

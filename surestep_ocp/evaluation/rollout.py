@@ -18,7 +18,7 @@ Per step t -> t+1, for every rollout:
 4. EKF (its own model, F = Q = H = R = I): predicted mean `mu^- = mu_t (+) command`
    (which is the waypoint itself), `P = Sigma + W`, `S = P + V(mu^-)`,
    innovation `y = (p_z - p^-, log(R_z R^-^T))`, `mu+ = (p^- + K y_p, exp(K y_r) R^-)`,
-   `Sigma+ = sym(P - P S^-1 P)` (the same formula as `BeliefModel.step`).
+   `Sigma+ = sym(P S^-1 V)` (`= P - P S^-1 P` without its cancellation; as `BeliefModel.step`).
 
 Pose arithmetic: positions add; rotations compose, and the orientation part of every
 error (noise, innovation, estimate error) is the axis-angle vector of a *left*
@@ -388,7 +388,8 @@ def rollout(
         KT[~seen] = 0.0  # no observation: the EKF only predicts
         dx = np.einsum("nji,nj->ni", KT, y)  # K y
         mu_p, mu_R = pred_p + dx[:, :3], Rotation.from_rotvec(dx[:, 3:]) * pred_R
-        post = P - np.swapaxes(KT, 1, 2) @ P
+        # P - P S^-1 P as P S^-1 V: equal, without the cancellation that loses definiteness
+        post = np.where(seen[:, None, None], np.swapaxes(KT, 1, 2) @ V_ekf, P)
         sigma = 0.5 * (post + np.swapaxes(post, 1, 2))
         if still.any():  # the rollouts that grasped (or ended their plan) hold still
             detected[still, t] = False

@@ -65,6 +65,6 @@ class SimulatedTracker:
         KT = np.linalg.solve(P + V, P)  # K^T = S^-1 P
         dx = KT.T @ y
         self.mu_p, self.mu_R = pred_p + dx[:3], Rotation.from_rotvec(dx[3:]) * pred_R
-        post = P - KT.T @ P
+        post = KT.T @ V  # P - P S^-1 P as P S^-1 V: no cancellation (rollout.py)
         self.covariance = 0.5 * (post + post.T)
         return self.mean, self.covariance

@@ -82,13 +82,20 @@ def _named_apart_from_inputs(path: Path, inputs: Iterable[str | Path], what: str
     return name
 
 
+def _named_path(path: str | Path, what: str, kind: str) -> Path:
+    """`path` as a Path; an empty one is an error (`Path('')` would be the current folder)."""
+    if str(path).strip() == "":
+        raise SurestepError(f"{shown(repr(str(path)))}: an empty path; {what} must be a named {kind}")
+    return Path(path)
+
+
 def check_output_file(path: str | Path, inputs: Iterable[str | Path] = (),
                       what: str = "the output") -> Path:
     """Check, before any work, that `path` can be written whole and replaces nothing it must not.
 
     Creates the missing parent folders (so the check is the real one).
     """
-    path = Path(path)
+    path = _named_path(path, what, "file")
     name = _named_apart_from_inputs(path, inputs, what, "file")
     if path.exists() or path.is_symlink():
         try:
@@ -121,10 +128,8 @@ def check_output_dir(path: str | Path, inputs: Iterable[str | Path] = (),
                      what: str = "the output") -> Path:
     """Check, before any work, that `path` is (or can be created as) a writable
     directory; create it."""
-    path = Path(path)
+    path = _named_path(path, what, "directory")
     name = shown(str(path), 200)
-    if str(path) == "":
-        raise SurestepError(f"'': {what} directory must be named")
     if path.exists() and not path.is_dir():
         raise SurestepError(f"{name}: exists and is not a directory; {what} directory must be a "
                             "directory")
@@ -148,7 +153,7 @@ def check_new_dir(path: str | Path, inputs: Iterable[str | Path] = (),
     """Check, before any work, that `path` can become a new directory written whole
     (`write_dir_atomic`): missing or an empty directory, never replacing files; its parent is
     created and must be writable."""
-    path = Path(path)
+    path = _named_path(path, what, "directory")
     name = _named_apart_from_inputs(path, inputs, what, "directory")
     if path.is_symlink() or (path.exists() and not path.is_dir()):
         raise SurestepError(f"{name}: exists and is not a directory; {what} is a new directory")

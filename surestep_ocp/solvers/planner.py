@@ -28,6 +28,7 @@ import casadi as ca
 import numpy as np
 
 from ..model.belief import NV, NX, BeliefModel, unvech, vech
+from ..arguments import whole_number
 from ..errors import SurestepError
 from ..model.lie import pose_mean, pose_to_matrix
 from ..model.limits import enforce as enforce_limits
@@ -82,6 +83,7 @@ class Planner:
 
     def __init__(self, problem: Problem | Setup, prebuild: bool = True,
                  replan_iterations: int = REPLAN_ITERATIONS):
+        replan_iterations = whole_number(replan_iterations, "Planner: replan_iterations")
         setup = problem if isinstance(problem, Setup) else build_setup(problem)
         # with `goal.confidence`: the horizon of the shortest plan that reaches it
         # (solvers/confidence.py; its record in `grasp`), re-planned over as any other
@@ -94,7 +96,7 @@ class Planner:
         # stay in one camera frame and their solutions record no camera moves
         self.setup = replace(setup, camera_schedule=[])
         self.horizon = setup.ocp.horizon
-        self.replan_iterations = int(replan_iterations)
+        self.replan_iterations = replan_iterations
         # steps left -> seconds spent building its solver and evaluator
         self.builds: dict[int, float] = {}
         # steps left -> its solvers (minus the steps left: the interior-point one within limits)
