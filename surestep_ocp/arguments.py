@@ -14,7 +14,8 @@ from .errors import SurestepError, shown
 
 def whole_number(value, name: str, minimum: int = 0, maximum: int | None = None) -> int:
     """`value` as an int: a whole number (int, or a float with no fraction) within
-    [minimum, maximum]; a bool, a string, NaN, an infinity or a fraction is an error naming `name`."""
+    [minimum, maximum]; a bool, a string, NaN, an infinity or a fraction is an error naming
+    `name`."""
     allowed = (f"a whole number >= {minimum}" if maximum is None
                else f"a whole number from {minimum} to {maximum}")
     ok = (isinstance(value, numbers.Real) and not isinstance(value, bool)

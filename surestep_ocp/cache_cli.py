@@ -24,10 +24,13 @@ def info_text() -> str:
              "$XDG_CACHE_HOME/surestep_ocp" if env.get("XDG_CACHE_HOME", "").startswith("/")
              else "the default, ~/.cache/surestep_ocp")
     rate, basis = codegen._rate(folder)
+    orphans, live = codegen.partial_writes(folder)
     lines = [
         f"folder      {folder} ({where}){'' if folder.is_dir() else ' - not created yet'}",
         f"libraries   {len(libs)} ({_mb(sum(e.size for e in libs))} with their checksums; "
         f"{_mb(codegen.total_bytes(folder))} in all)",
+        f"partial     {len(orphans)} orphaned partial writes (a compile killed midway; removed by "
+        f"--prune and --clear), {len(live)} of a compile under way",
         "bound       " + ("none ($SURESTEP_CACHE_MAX_MB=0)" if bound is None else
                           f"{_mb(bound)}: the least recently used libraries are removed after a "
                           f"compile ($SURESTEP_CACHE_MAX_MB, default {codegen.DEFAULT_MAX_MB})"),
@@ -53,9 +56,8 @@ def cmd_cache(args) -> int:
         print(f"cleared     {folder} ({_mb(freed)} freed)")
         return 0
     if args.prune:
-        if args.max_mb is not None and not args.max_mb >= 0:
-            raise SurestepError(f"--max-mb must be >= 0, got {args.max_mb:g}")
-        limit = codegen.max_bytes() if args.max_mb is None else int(args.max_mb * 1e6)
+        limit = (codegen.max_bytes() if args.max_mb is None
+                 else codegen.megabytes(args.max_mb, "--max-mb"))
         removed = codegen.prune(limit, folder)
         left = codegen.entries(folder)
         print(f"pruned      {len(removed)} libraries ({_mb(sum(e.size for e in removed))}) from "
@@ -85,7 +87,7 @@ def register(sub) -> None:
     what.add_argument("--prune", action="store_true",
                       help="remove the least recently used libraries until the cache holds at most "
                            "--max-mb")
-    c.add_argument("--max-mb", type=float, metavar="MB",
+    c.add_argument("--max-mb", metavar="MB",
                    help="the size to prune to, in megabytes (with --prune; default: "
                         "$SURESTEP_CACHE_MAX_MB, else the default bound)")
     c.set_defaults(func=cmd_cache)

@@ -277,3 +277,121 @@ def test_vector_instructions_only_where_the_cpu_has_them():
     assert codegen._vector_flags("flags\t\t: fpu sse2 avx2x\n", "x86_64") == ()
     assert codegen._vector_flags(avx2, "aarch64") == ()
     assert codegen._vector_flags("", "x86_64") == ()
+
+
+# ------------------------------------------------------------ a hostile disk (issue 48)
+def _probe_fn(k: float = 3.0) -> ca.Function:
+    x = ca.SX.sym("x", 2)
+    return ca.Function("hostile_probe", [x], [ca.cos(x) * k])
+
+
+@needs_cc
+@pytest.mark.parametrize("where", ["a file", "/dev/null", "under a file"])
+def test_a_cache_that_cannot_be_written_falls_back_with_one_note(cache_env, monkeypatch, capsys,
+                                                                 where):
+    """`SURESTEP_CACHE` naming a file, /dev/null or a path under a file: `codegen: auto` gets the
+    interpreted functions and a note (the cleanup of the partial file raised NotADirectoryError
+    before); a second compile in the process does not try that folder again; `codegen: true`
+    keeps the error, one line."""
+    plain = cache_env / "plain"
+    plain.write_text("not a folder")
+    folder = {"a file": plain, "/dev/null": Path("/dev/null"), "under a file": plain / "c"}[where]
+    monkeypatch.setenv("SURESTEP_CACHE", str(folder))
+    monkeypatch.setattr(codegen, "_UNWRITABLE", {})
+    fns = {"f": _probe_fn()}
+    got, note = codegen.compiled_or_interpreted(fns, required=False)
+    assert got == fns and note.startswith("interpreted: solver.codegen: cannot write")
+    capsys.readouterr()
+    got, again = codegen.compiled_or_interpreted({"f": _probe_fn(4.0)}, required=False)
+    assert again == note and "compiling" not in capsys.readouterr().err
+    with pytest.raises(codegen.SurestepError, match="SURESTEP_CACHE to a writable directory"):
+        codegen.compiled_or_interpreted(fns, required=True)
+    assert plain.read_text() == "not a folder"
+
+
+def test_cache_reads_are_of_regular_files_within_a_bound(tmp_path):
+    """A FIFO (no writer: a blocking read never returns), a link to /dev/zero (endless) and a file
+    over the bound are refused at once; a regular file is read."""
+    fifo = tmp_path / "fifo"
+    os.mkfifo(fifo)
+    zero = tmp_path / "zero"
+    zero.symlink_to("/dev/zero")
+    big = tmp_path / "big"
+    big.write_bytes(b"x" * 101)
+    for path, why in ((fifo, "not a regular file"), (zero, "not a regular file"),
+                      (big, "larger than 100 bytes")):
+        with pytest.raises(OSError, match=why):
+            codegen.read_cache_file(path, 100)
+    assert codegen.read_cache_file(big, 101) == b"x" * 101
+
+
+_HOSTILE_SCRIPT = """
+import sys
+import casadi as ca
+from surestep_ocp.solvers import codegen
+x = ca.SX.sym("x", 2)
+f, fresh = codegen.compiled(ca.Function("hostile_probe", [x], [ca.cos(x) * 3.0]))
+print(fresh, list(map(float, f([1, 2]).nonzeros())))
+"""
+
+
+@needs_cc
+def test_fifos_and_devices_in_the_cache_never_hang(cache_env):
+    """A FIFO `timing.json`, a FIFO with the library's name and its checksum a link to /dev/zero:
+    `cache` and a compile return (they hung forever / read until memory ran out); the library is
+    rebuilt over the FIFO, said on stderr. (In a subprocess, so that a regression is a timeout.)"""
+    folder = cache_env / "c"
+    env = {**os.environ, "SURESTEP_CACHE": str(folder)}
+    first = subprocess.run([sys.executable, "-c", _HOSTILE_SCRIPT], capture_output=True, text=True,
+                           env=env, timeout=300, check=True)
+    (lib,) = folder.glob("hostile_probe_*.so")
+    lib.unlink()
+    os.mkfifo(lib)
+    check = lib.with_name(lib.name + ".sha256")
+    check.unlink()
+    check.symlink_to("/dev/zero")
+    (folder / "timing.json").unlink()
+    os.mkfifo(folder / "timing.json")
+    info = subprocess.run([sys.executable, "-m", "surestep_ocp.cli", "cache"], capture_output=True,
+                          text=True, env=env, timeout=120, check=False)
+    assert info.returncode == 0 and "first guess" in info.stdout, info.stderr
+    again = subprocess.run([sys.executable, "-c", _HOSTILE_SCRIPT], capture_output=True,
+                           text=True, env=env, timeout=300, check=False)
+    assert again.returncode == 0, again.stderr
+    assert again.stdout.split(" ", 1)[1] == first.stdout.split(" ", 1)[1]
+    assert "was not loaded: its checksum cannot be read (not a regular file)" in again.stderr
+    assert lib.is_file() and not check.is_symlink()
+
+
+def test_clear_and_prune_touch_only_the_caches_own_files(cache_env, monkeypatch, capsys):
+    """`--clear` removed any *.so or *.part (a user's mylib.so, a download.part); now only the
+    cache's naming scheme is touched. A compile killed midway leaves partial writes of a process
+    that is gone: `cache` counts them, `--prune` and `--clear` remove them, a live one is left."""
+    folder = cache_env / "mine"
+    monkeypatch.setenv("SURESTEP_CACHE", str(folder))
+    lib = _fake_library(folder, "newton_step", 1000, 100)
+    gone = 2**31 - 1  # above any pid_max: no such process
+    orphans = [folder / f"{lib.name}.{gone}.140539578177216.part",
+               folder / f"{lib.name}.sha256.{gone}.7.part", folder / f"timing.json.{gone}.part"]
+    live = folder / f"{lib.name}.{os.getpid()}.1.part"
+    others = [folder / "mylib.so", folder / "download.part", folder / "notes.txt",
+              folder / "x.so.sha256"]
+    for p in orphans + [live] + others:
+        p.write_bytes(b"y" * 10)
+    assert main(["cache"]) == 0
+    assert "partial     3 orphaned partial writes" in capsys.readouterr().out
+    assert main(["cache", "--prune", "--max-mb", "0"]) == 0
+    assert not any(p.exists() for p in orphans) and lib.exists() and live.exists()
+    assert main(["cache", "--clear"]) == 0
+    assert sorted(p.name for p in folder.iterdir()) == sorted(p.name for p in others + [live])
+
+
+@pytest.mark.parametrize("value", ["inf", "nan", "-1", "lots", "1e400"])
+def test_the_bound_is_a_finite_number(cache_env, monkeypatch, capsys, value):
+    """`SURESTEP_CACHE_MAX_MB=inf` and `--max-mb inf` were `internal error: OverflowError`; now
+    every non-finite or negative bound is one line naming the setting, exit 2."""
+    assert main(["cache", "--prune", "--max-mb", value]) == 2
+    assert "--max-mb must be a finite number of megabytes >= 0" in capsys.readouterr().err
+    monkeypatch.setenv("SURESTEP_CACHE_MAX_MB", value)
+    assert main(["cache", "--prune"]) == 2
+    assert "SURESTEP_CACHE_MAX_MB must be a finite number" in capsys.readouterr().err

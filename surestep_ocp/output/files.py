@@ -85,7 +85,8 @@ def _named_apart_from_inputs(path: Path, inputs: Iterable[str | Path], what: str
 def _named_path(path: str | Path, what: str, kind: str) -> Path:
     """`path` as a Path; an empty one is an error (`Path('')` would be the current folder)."""
     if str(path).strip() == "":
-        raise SurestepError(f"{shown(repr(str(path)))}: an empty path; {what} must be a named {kind}")
+        raise SurestepError(f"{shown(repr(str(path)))}: an empty path; {what} must be a named "
+                            f"{kind}")
     return Path(path)
 
 

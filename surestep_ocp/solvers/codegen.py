@@ -20,16 +20,28 @@ line after says how long it took. The cache is bounded: after a compile, when it
 `$SURESTEP_CACHE_MAX_MB` (default `DEFAULT_MAX_MB`) the least recently used libraries are removed
 until it holds at most that (a library's last use is the modification time of its checksum file,
 touched at each load).
+
+The cache never stops a solve: a folder that cannot be written (read-only, not a directory, a
+device, full) makes `compiled_or_interpreted` fall back to the interpreted functions with one note,
+and no later compile in the process tries that folder again. Cache files are read only when they
+are regular files and within a size bound (`read_cache_file`: no hang on a FIFO, no endless read of
+a link to /dev/zero). The cache's files are those named by its own scheme (`own_file`): libraries
+`<function>_<20 hex digits>.so`, their `.sha256`, `timing.json` and the partial writes of these
+(`<name>.<pid>[.<thread>].part`); `clear` and `prune` touch nothing else, and remove the partial
+writes whose process is gone (a compile killed midway).
 """
 
 from __future__ import annotations
 
+import errno
 import hashlib
 import json
+import math
 import os
 import platform
 import re
 import shutil
+import stat
 import struct
 import subprocess
 import sys
@@ -43,7 +55,7 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
-from ..errors import SurestepError
+from ..errors import SurestepError, shown
 
 
 def _vector_flags(cpuinfo: str | None = None, machine: str | None = None) -> tuple[str, ...]:
@@ -84,6 +96,13 @@ DEFAULT_MAX_MB = 1024
 # Newton functions (docs/solve_speed.md, "The compile")
 PRIOR_S_PER_MB = 5.0
 TIMING_FILE = "timing.json"
+# the largest cache files read [bytes]: a library, a checksum, the timing record
+LIBRARY_LIMIT, CHECKSUM_LIMIT, TIMING_LIMIT = 256 * 2**20, 4096, 65536
+_LIBRARY = r"[A-Za-z_][A-Za-z0-9_]*_[0-9a-f]{20}\.so"
+_OWN = re.compile(rf"(?:{_LIBRARY}(?:\.sha256)?|{re.escape(TIMING_FILE)})"
+                  r"(?:\.(?P<pid>[0-9]+)(?:\.[0-9]+)?\.part)?")
+# folders found unwritable in this process -> why (no compile tries them again)
+_UNWRITABLE: dict[str, str] = {}
 
 
 def cache_dir() -> Path:
@@ -101,13 +120,20 @@ def max_bytes() -> int | None:
     """The cache's size bound in bytes (`$SURESTEP_CACHE_MAX_MB`, default `DEFAULT_MAX_MB`; 0: None,
     unbounded)."""
     text = os.environ.get("SURESTEP_CACHE_MAX_MB", "").strip()
+    return megabytes(text or str(DEFAULT_MAX_MB), "SURESTEP_CACHE_MAX_MB")
+
+
+def megabytes(text, name: str) -> int | None:
+    """A cache bound given as a number of megabytes (text or number) in bytes, None for 0
+    (unbounded); anything but a finite number >= 0 (a word, NaN, inf, -1) is an error naming
+    `name`."""
     try:
-        mb = float(text) if text else DEFAULT_MAX_MB
-    except ValueError:
-        raise SurestepError("SURESTEP_CACHE_MAX_MB must be a number of megabytes, "
-                            f"got '{text[:40]}'") from None
-    if not mb >= 0:
-        raise SurestepError(f"SURESTEP_CACHE_MAX_MB must be >= 0 (0: unbounded), got {text[:40]}")
+        mb = float(text)
+    except (TypeError, ValueError):
+        mb = math.nan
+    if not (math.isfinite(mb) and mb >= 0):
+        raise SurestepError(f"{name} must be a finite number of megabytes >= 0 (0: unbounded), "
+                            f"got {shown(str(text), 40)}")
     return None if mb == 0 else int(mb * 1e6)
 
 
@@ -135,10 +161,17 @@ def compiled_or_interpreted(fns: dict[str, ca.Function], required: bool,
                             [FAST_FLAGS if k in fast else VECTOR_FLAGS if k in vectorised
                              else FLAGS for k in fns])
         return {k: f for k, (f, _) in zip(fns, done)}, None
-    except SurestepError as exc:
+    except (SurestepError, OSError) as exc:  # (OSError: a cache problem not foreseen below)
         if required:
             raise
-        return fns, f"interpreted: {exc}"
+        return fns, f"interpreted: {_said(exc)}"
+
+
+def _said(exc: BaseException) -> str:
+    """An error's text for the fall-back note (an OSError's as `strerror: file`)."""
+    if isinstance(exc, OSError) and not isinstance(exc, SurestepError) and exc.strerror:
+        return f"solver.codegen: the compile cache failed ({exc.strerror}: {exc.filename})"
+    return str(exc)
 
 
 _BACKGROUND = ThreadPoolExecutor(max_workers=1, thread_name_prefix="surestep-compile")
@@ -152,11 +185,12 @@ class Deferred:
 
     def __init__(self, fns: dict[str, ca.Function], required: bool):
         self.fns, self.required, self.future, self.error = fns, required, None, None
+        max_bytes()  # (a bad $SURESTEP_CACHE_MAX_MB is the user's error: exit 2, not a fall-back)
         self._tmp = tempfile.TemporaryDirectory()
         try:
             self.cc, self.folder = cc, folder = compiler(), cache_dir()
             self.jobs = [_job(fn, Path(self._tmp.name), folder) for fn in fns.values()]
-        except SurestepError as exc:
+        except (SurestepError, OSError) as exc:
             self.jobs, self.error = None, exc
             return
         todo = list({j.lib: j for j in self.jobs if j.fresh}.values())
@@ -171,16 +205,33 @@ class Deferred:
             if self.future is not None:
                 self.future.result()
             return dict(zip(self.fns, _load_all(self.jobs, self.cc, self.folder))), None
-        except SurestepError as exc:
+        except (SurestepError, OSError) as exc:
             if self.required:
                 raise
-            return self.fns, f"interpreted: {exc}"
+            return self.fns, f"interpreted: {_said(exc)}"
         finally:
             self._tmp.cleanup()
 
 
 def _digest(path: Path) -> str:
-    return hashlib.sha256(path.read_bytes()).hexdigest()
+    return hashlib.sha256(read_cache_file(path, LIBRARY_LIMIT)).hexdigest()
+
+
+def read_cache_file(path: Path, limit: int) -> bytes:
+    """The bytes of the cache file `path` if it is a regular file (a symbolic link to one is) of
+    at most `limit` bytes, else OSError saying why: a FIFO is never opened for a blocking read, a
+    device never read."""
+    if not stat.S_ISREG(os.stat(path).st_mode):
+        raise OSError(errno.EINVAL, "not a regular file", str(path))
+    fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0))
+    with os.fdopen(fd, "rb") as f:
+        st = os.fstat(fd)  # (the file opened, not one swapped in after the check)
+        if not stat.S_ISREG(st.st_mode):
+            raise OSError(errno.EINVAL, "not a regular file", str(path))
+        data = f.read(limit + 1)
+    if len(data) > limit:
+        raise OSError(errno.EFBIG, f"larger than {limit} bytes", str(path))
+    return data
 
 
 def _checksum_file(lib: Path) -> Path:
@@ -190,18 +241,18 @@ def _checksum_file(lib: Path) -> Path:
 def verified(lib: Path) -> str | None:
     """None if the cached library `lib` matches the SHA-256 stored beside it, else why not."""
     try:
-        stored = _checksum_file(lib).read_text().strip()
+        stored = read_cache_file(_checksum_file(lib), CHECKSUM_LIMIT).decode().strip()
     except FileNotFoundError:
         return "it has no checksum beside it"
     except (OSError, UnicodeDecodeError) as exc:
-        return f"its checksum cannot be read ({exc})"
+        return f"its checksum cannot be read ({getattr(exc, 'strerror', None) or exc})"
     try:
-        actual = _digest(lib)
+        data = read_cache_file(lib, LIBRARY_LIMIT)
     except OSError as exc:
         return f"it cannot be read ({exc.strerror or exc})"
-    if actual != stored:
+    if hashlib.sha256(data).hexdigest() != stored:
         return "its content does not match its checksum (corrupt or truncated)"
-    return elf_problem(lib)
+    return _elf_problem(data)
 
 
 # the ELF header after e_ident, a program header (with the index of p_offset and p_filesz) and
@@ -220,9 +271,14 @@ def elf_problem(lib: Path) -> str | None:
     loading. Off Linux a file that is not ELF is not checked (another object format).
     """
     try:
-        data = lib.read_bytes()
+        data = read_cache_file(lib, LIBRARY_LIMIT)
     except OSError as exc:
         return f"it cannot be read ({exc.strerror or exc})"
+    return _elf_problem(data)
+
+
+def _elf_problem(data: bytes) -> str | None:
+    """`elf_problem` of a library's bytes."""
     size = len(data)
     if data[:4] != b"\x7fELF":
         return "it is not an ELF shared library" if sys.platform.startswith("linux") else None
@@ -325,6 +381,7 @@ def compiled_all(fns: list[ca.Function], flags: list[tuple[str, ...]] | None = N
     """Each of `fns` compiled (as `compiled`; each with its `flags`, default FLAGS): the cached
     ones loaded, the others compiled in parallel (one compiler per core), announced on stderr with
     an estimate, then timed; the cache pruned after a compile."""
+    max_bytes()  # (a bad $SURESTEP_CACHE_MAX_MB is the user's error: exit 2, not a fall-back)
     cc = compiler()
     folder = cache_dir()
     with tempfile.TemporaryDirectory() as tmp:
@@ -388,7 +445,10 @@ def _job(fn: ca.Function, tmp: Path, folder: Path, flags: tuple[str, ...] = FLAG
     key = hashlib.sha256(source.read_bytes() + " ".join(flags).encode()
                          + ca.__version__.encode()).hexdigest()
     job = _Job(fn, source, folder / f"{name}_{key[:20]}.so", flags=flags)
-    job.fresh = not job.lib.exists()
+    try:
+        job.fresh = not job.lib.exists()
+    except OSError:  # (e.g. a folder that cannot be searched): compiled, its write then fails
+        job.fresh = True
     if not job.fresh:
         problem = verified(job.lib)
         if problem is not None:  # (no checksum: built by an older version; rebuilt without a note)
@@ -422,7 +482,10 @@ def _what(fns: list[ca.Function]) -> str:
 
 def _compile(cc: str, todo: list[_Job], folder: Path, what: str | None = None) -> None:
     """Compile `todo` (in parallel), announced with an estimate and timed on stderr; the measured
-    rate kept for the next estimate; the cache pruned to its bound."""
+    rate kept for the next estimate; the cache pruned to its bound. A folder found unwritable
+    before in this process is not tried again (the same error at once)."""
+    if str(folder) in _UNWRITABLE:
+        raise SurestepError(_UNWRITABLE[str(folder)])
     sizes = [j.source.stat().st_size for j in todo]
     workers = max(1, min(len(todo), os.cpu_count() or 1))
     rate, basis = _rate(folder)
@@ -457,7 +520,7 @@ def _duration(seconds: float) -> str:
 def _rate(folder: Path) -> tuple[float, str]:
     """Wall-clock seconds per MB of C: this cache's measurements, else `PRIOR_S_PER_MB`."""
     try:
-        record = json.loads((folder / TIMING_FILE).read_text())
+        record = json.loads(read_cache_file(folder / TIMING_FILE, TIMING_LIMIT))
         rate = float(record["s_per_mb"])
         if rate > 0 and rate < 1e4:
             return rate, f"{rate:.1f} s per MB of C measured here before"
@@ -471,7 +534,7 @@ def _record_rate(folder: Path, rate: float, size: int) -> None:
     old weight capped so that the machine's present speed dominates)."""
     path = folder / TIMING_FILE
     try:
-        old = json.loads(path.read_text())
+        old = json.loads(read_cache_file(path, TIMING_LIMIT))
         w_old, r_old = min(float(old["mb"]), 2.0), float(old["s_per_mb"])
     except (OSError, ValueError, KeyError, TypeError):
         w_old, r_old = 0.0, 0.0
@@ -484,7 +547,16 @@ def _record_rate(folder: Path, rate: float, size: int) -> None:
         part.write_text(json.dumps(record) + "\n")
         os.replace(part, path)
     except OSError:
-        part.unlink(missing_ok=True)
+        _unlink_quietly(part)
+
+
+def _unlink_quietly(path: Path) -> None:
+    """Remove `path` if it is there; an error doing so is not raised (a cleanup inside an error
+    path must not replace that error, e.g. under a folder that is not a directory)."""
+    try:
+        path.unlink(missing_ok=True)
+    except OSError:
+        pass
 
 
 # ------------------------------------------------------------ the cache as a whole (surestep cache)
@@ -499,15 +571,68 @@ class Entry:
     last_use: float
 
 
-def entries(folder: Path | None = None) -> list[Entry]:
-    """The cache's libraries, least recently used first."""
-    folder = cache_dir() if folder is None else folder
-    out = []
+def own_file(name: str) -> bool:
+    """Whether a file named `name` is one of the cache's (module docstring: its naming scheme)."""
+    return _OWN.fullmatch(name) is not None
+
+
+def _own(folder: Path) -> list[Path]:
+    """The cache's files in `folder` (none if it cannot be listed); never a directory."""
     try:
-        libs = list(folder.glob("*.so"))
+        names = [p for p in folder.iterdir() if own_file(p.name)]
     except OSError:
         return []
-    for lib in libs:
+    out = []
+    for p in names:
+        try:
+            if not stat.S_ISDIR(p.lstat().st_mode):
+                out.append(p)
+        except OSError:
+            pass
+    return out
+
+
+def partial_writes(folder: Path | None = None) -> tuple[list[Path], list[Path]]:
+    """The cache's partial writes: (orphaned ones, whose process is gone (a compile killed
+    midway), those of a live process)."""
+    folder = cache_dir() if folder is None else folder
+    orphans, live = [], []
+    for p in _own(folder):
+        pid = _OWN.fullmatch(p.name).group("pid")
+        if pid is not None:
+            (live if _alive(int(pid)) else orphans).append(p)
+    return orphans, live
+
+
+def _alive(pid: int) -> bool:
+    """Whether process `pid` exists (on this machine)."""
+    if pid == os.getpid():
+        return True
+    try:
+        os.kill(pid, 0)
+    except PermissionError:  # (another user's)
+        return True
+    except (ProcessLookupError, OverflowError, ValueError):
+        return False
+    return True
+
+
+def _size(path: Path) -> int:
+    """Bytes of `path` if it is a regular file (not following links), else 0."""
+    try:
+        st = path.lstat()
+    except OSError:
+        return 0
+    return st.st_size if stat.S_ISREG(st.st_mode) else 0
+
+
+def entries(folder: Path | None = None) -> list[Entry]:
+    """The cache's libraries (named by its scheme), least recently used first."""
+    folder = cache_dir() if folder is None else folder
+    out = []
+    for lib in _own(folder):
+        if not lib.name.endswith(".so"):
+            continue
         try:
             st = lib.stat()
         except OSError:
@@ -523,19 +648,10 @@ def entries(folder: Path | None = None) -> list[Entry]:
 
 
 def total_bytes(folder: Path | None = None) -> int:
-    """Bytes of every file in the cache (libraries, checksums, partial writes, the timing
-    record)."""
+    """Bytes of the cache's own files (libraries, checksums, partial writes, the timing record;
+    other files in its folder are not counted)."""
     folder = cache_dir() if folder is None else folder
-    total = 0
-    try:
-        for p in folder.iterdir():
-            try:
-                total += p.stat().st_size if p.is_file() else 0
-            except OSError:
-                pass
-    except OSError:
-        return 0
-    return total
+    return sum(_size(p) for p in _own(folder))
 
 
 def _remove(entry: Entry) -> bool:
@@ -547,9 +663,24 @@ def _remove(entry: Entry) -> bool:
         return False
 
 
+def _remove_files(paths: list[Path]) -> int:
+    """Remove `paths` (the cache's own files); the bytes freed."""
+    freed = 0
+    for p in paths:
+        size = _size(p)
+        try:
+            p.unlink()
+            freed += size
+        except OSError:
+            pass
+    return freed
+
+
 def prune(limit: int | None, folder: Path | None = None) -> list[Entry]:
-    """Remove the least recently used libraries until the cache's libraries take at most `limit`
-    bytes (None: nothing removed). Returns what was removed."""
+    """Remove the orphaned partial writes, then the least recently used libraries until the
+    cache's libraries take at most `limit` bytes (None: no library removed). Returns the libraries
+    removed."""
+    _remove_files(partial_writes(folder)[0])
     if limit is None:
         return []
     all_entries = entries(folder)
@@ -565,24 +696,12 @@ def prune(limit: int | None, folder: Path | None = None) -> list[Entry]:
 
 
 def clear(folder: Path | None = None) -> int:
-    """Remove every library, checksum, partial write and the timing record from the cache; the bytes
-    freed. Only the cache's own files are removed (a folder given as SURESTEP_CACHE may hold
-    others)."""
+    """Remove the cache's own files (`own_file`: libraries, checksums, the timing record, orphaned
+    partial writes; a live compile's are left to it); the bytes freed. Nothing else in its folder
+    is touched (a folder given as SURESTEP_CACHE may hold others)."""
     folder = cache_dir() if folder is None else folder
-    freed = 0
-    try:
-        files = [p for p in folder.iterdir() if p.is_file() and (
-            p.name.endswith((".so", ".so.sha256", ".part")) or p.name == TIMING_FILE)]
-    except OSError:
-        return 0
-    for p in files:
-        try:
-            size = p.stat().st_size
-            p.unlink()
-            freed += size
-        except OSError:
-            pass
-    return freed
+    live = set(partial_writes(folder)[1])
+    return _remove_files([p for p in _own(folder) if p not in live])
 
 
 def _build(cc: str, source: Path, lib: Path, flags: tuple[str, ...] = FLAGS) -> None:
@@ -599,16 +718,32 @@ def _build(cc: str, source: Path, lib: Path, flags: tuple[str, ...] = FLAGS) -> 
         run = subprocess.run([cc, *flags, source.name, "-o", str(part.resolve())],
                              capture_output=True, text=True, check=False, cwd=source.parent)
         if run.returncode != 0:
-            part.unlink(missing_ok=True)
+            _unlink_quietly(part)
+            unwritable = _unwritable(lib.parent)
+            if unwritable:
+                raise unwritable
             raise SurestepError(f"solver.codegen: {cc} failed on the generated code: "
                                 f"{' '.join(run.stderr.split())[-300:]}")
         check_part.write_text(_digest(part) + "\n")
         os.replace(check_part, check)
         os.replace(part, lib)
     except OSError as exc:
-        part.unlink(missing_ok=True)
-        check_part.unlink(missing_ok=True)
-        raise SurestepError("solver.codegen: cannot write the compiled code to "
-                            f"{lib.parent} ({exc.strerror or exc}); "
-                            "set SURESTEP_CACHE to a writable directory, "
-                            "or codegen: false") from None
+        _unlink_quietly(part)
+        _unlink_quietly(check_part)
+        why = (f"solver.codegen: cannot write the compiled code to {lib.parent} "
+               f"({exc.strerror or exc}); set SURESTEP_CACHE to a writable directory, "
+               "or codegen: false")
+        _UNWRITABLE[str(lib.parent)] = why
+        raise SurestepError(why) from None
+
+
+def _unwritable(folder: Path) -> OSError | None:
+    """Why no file can be created in `folder`, or None (the compiler's failure may be the
+    cache's: read-only, not a directory)."""
+    try:
+        fd, tmp = tempfile.mkstemp(dir=folder, prefix=".surestep-probe-")
+    except OSError as exc:
+        return exc
+    os.close(fd)
+    _unlink_quietly(Path(tmp))
+    return None
