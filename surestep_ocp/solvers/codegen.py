@@ -484,8 +484,7 @@ def _compile(cc: str, todo: list[_Job], folder: Path, what: str | None = None) -
     """Compile `todo` (in parallel), announced with an estimate and timed on stderr; the measured
     rate kept for the next estimate; the cache pruned to its bound. A folder found unwritable
     before in this process is not tried again (the same error at once)."""
-    if str(folder) in _UNWRITABLE:
-        raise SurestepError(_UNWRITABLE[str(folder)])
+    _check_writable(folder)
     sizes = [j.source.stat().st_size for j in todo]
     workers = max(1, min(len(todo), os.cpu_count() or 1))
     rate, basis = _rate(folder)
@@ -730,11 +729,30 @@ def _build(cc: str, source: Path, lib: Path, flags: tuple[str, ...] = FLAGS) -> 
     except OSError as exc:
         _unlink_quietly(part)
         _unlink_quietly(check_part)
-        why = (f"solver.codegen: cannot write the compiled code to {lib.parent} "
-               f"({exc.strerror or exc}); set SURESTEP_CACHE to a writable directory, "
-               "or codegen: false")
-        _UNWRITABLE[str(lib.parent)] = why
-        raise SurestepError(why) from None
+        raise _cannot_write(lib.parent, exc) from None
+
+
+def _cannot_write(folder: Path, exc: OSError) -> SurestepError:
+    """The error of a cache folder that cannot be written, remembered (`_UNWRITABLE`)."""
+    why = "not a directory" if isinstance(exc, FileExistsError) else exc.strerror or str(exc)
+    _UNWRITABLE[str(folder)] = text = (
+        f"solver.codegen: cannot write the compiled code to {folder} ({why}); set "
+        "SURESTEP_CACHE to a writable directory, or codegen: false")
+    return SurestepError(text)
+
+
+def _check_writable(folder: Path) -> None:
+    """Before announcing a compile: `folder` created if missing and a file created in it, else
+    the error (at once for a folder found unwritable before in this process)."""
+    if str(folder) in _UNWRITABLE:
+        raise SurestepError(_UNWRITABLE[str(folder)])
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise _cannot_write(folder, exc) from None
+    problem = _unwritable(folder)
+    if problem is not None:
+        raise _cannot_write(folder, problem)
 
 
 def _unwritable(folder: Path) -> OSError | None:
