@@ -401,6 +401,9 @@ def build_parser() -> argparse.ArgumentParser:
     from .cache_cli import register as register_cache
 
     register_cache(sub)
+    from .ros.commands import register as register_ros  # serve, sim-robot (DDS loaded on use)
+
+    register_ros(sub)
     return p
 
 

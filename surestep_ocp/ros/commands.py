@@ -1,0 +1,160 @@
+"""`surestep serve` and `surestep sim-robot`: their parsers and checks (no DDS imported here: the
+checks run, and bad input exits 2, before cyclonedds is loaded or anything is published)."""
+
+from __future__ import annotations
+
+import math
+import sys
+
+from ..errors import SurestepError
+from .names import (DEFAULT_ARM, DEFAULT_NAMESPACE, TRACKER_TOPIC, check_arm, check_topic,
+                    domain_id)
+
+MAX_SERVO_HZ = 2000.0
+
+
+def _positive(value: float, option: str, hi: float = math.inf) -> float:
+    if not (math.isfinite(value) and 0 < value <= hi):
+        raise SurestepError(f"{option}: {value:g} must be a positive number"
+                            + (f" up to {hi:g}" if math.isfinite(hi) else ""))
+    return value
+
+
+def _common(p) -> None:
+    p.add_argument("problem", help="problem YAML (problems/README.md) within enforced limits, "
+                                   "e.g. problems/needle_regrasp.yaml")
+    p.add_argument("--arm", default=DEFAULT_ARM, help="the dVRK arm (PSM1, PSM2, PSM3; "
+                                                      "default PSM1)")
+    p.add_argument("--tracker-topic", help="the tracker's geometry_msgs/PoseWithCovarianceStamped "
+                                           "in the camera frame (default /ARM/tracker/pose)")
+    p.add_argument("--domain-id", help="DDS domain (default: ROS_DOMAIN_ID, else 0); the "
+                                       "transport is CYCLONEDDS_URI's")
+
+
+def register(sub) -> None:
+    s = sub.add_parser("serve", help="a ROS 2 node (DDS, no ROS install needed) that re-plans at "
+                                     "the tracker's rate and streams servo_jp (docs/serve.md)")
+    _common(s)
+    s.add_argument("--servo-hz", type=float, default=200.0, help="servo_jp rate (default 200)")
+    s.add_argument("--namespace", default=DEFAULT_NAMESPACE,
+                   help="the node's own topics: plan, trace, planned_trace, confidence, status "
+                        "(default /surestep)")
+    s.add_argument("--continuous", action="store_true",
+                   help="keep serving (holding the goal) once it is reached, until stopped")
+    s.add_argument("--start", choices=("measured", "problem"), default="measured",
+                   help="plan from the arm's measured joints or require the arm at the "
+                        "problem's start (default measured)")
+    s.add_argument("--estimate-timeout", type=float, default=0.5,
+                   help="[s] hold when the tracker (or measured_js) is silent this long "
+                        "(default 0.5)")
+    s.add_argument("--tolerance", type=float, default=0.05,
+                   help="[rad] hold when a measured joint leaves the commanded curve by more "
+                        "(default 0.05)")
+    s.add_argument("--insertion-tolerance", type=float, default=0.005, help="[m] the same for "
+                                                                            "the insertion "
+                                                                            "(default 0.005)")
+    s.add_argument("--max-replan-failures", type=int, default=5,
+                   help="hold after this many re-plans in a row not played (default 5)")
+    s.add_argument("--replan-margin", type=float, default=0.02,
+                   help="[s] a re-plan starts at the first waypoint this long after the "
+                        "estimate's arrival (default 0.02)")
+    s.add_argument("--hold", type=float, default=0.5,
+                   help="[s] the goal held this long ends the run (default 0.5)")
+    s.add_argument("--wait", type=float, default=30.0,
+                   help="[s] wait this long for the arm's measured_js (default 30)")
+    s.add_argument("--joint-names", help="dvrk (default), dvrk-ros-model, or 6 names")
+    s.add_argument("--log", help="a JSON file of every re-plan's timing and the set-points' times")
+    s.set_defaults(func=cmd_serve)
+    r = sub.add_parser("sim-robot", help="a simulated PSM (measured_js follows servo_jp within the "
+                                         "limits) and tracker, over ROS 2 topics on DDS")
+    _common(r)
+    r.add_argument("--rate", type=float, default=200.0, help="measured_js rate (default 200)")
+    r.add_argument("--seed", type=int, default=0, help="the tracker's noise seed (default 0)")
+    r.add_argument("--tracker-latency", type=float, default=0.0,
+                   help="[s] each estimate published this long after its image (default 0)")
+    r.add_argument("--duration", type=float, default=0.0,
+                   help="[s] end after this long (default 0: until stopped)")
+    r.add_argument("--fault", action="append", metavar="KIND@T[+D]",
+                   help="inject a fault at T s after the first servo_jp, for D s (default: to the "
+                        "end): tracker-silent, nan, stuck (repeatable)")
+    r.set_defaults(func=cmd_sim_robot)
+
+
+def _names(args) -> tuple[str, str, int]:
+    arm = check_arm(args.arm)
+    tracker = check_topic(args.tracker_topic or TRACKER_TOPIC.format(arm=arm), "--tracker-topic")
+    return arm, tracker, domain_id(args.domain_id)
+
+
+def _need_dds() -> None:
+    try:
+        import cyclonedds  # noqa: F401
+    except ImportError:
+        raise SurestepError("surestep serve / sim-robot need Cyclone DDS: "
+                            "pip install 'surestep_ocp[ros]'") from None
+
+
+def _served_problem(path: str):
+    """The problem and its setup, if the node can re-plan it (within enforced limits, a PSM)."""
+    from ..problem.load import load_problem
+    from ..problem.setup import build_setup
+    from ..solvers.methods import closed_loop_unavailable
+    from ..output.joint_names import PSM_ARM
+
+    prob = load_problem(path)
+    setup = build_setup(prob)
+    why = closed_loop_unavailable(setup)
+    if why:
+        raise SurestepError(f"{path}: cannot be served: {why}")
+    names = [n for n in setup.robot.joint_names if n != "jaw"]
+    if tuple(names) != PSM_ARM:
+        raise SurestepError(f"{path}: cannot be served: the robot's joints ({', '.join(names)}) "
+                            "are not a dVRK PSM's")
+    return prob, setup
+
+
+def cmd_serve(args) -> int:
+    from ..output.joint_names import PSM_ARM, joint_naming
+    from .faults import FaultLimits
+
+    arm, tracker, domain = _names(args)
+    namespace = check_topic(args.namespace, "--namespace")
+    _positive(args.servo_hz, "--servo-hz", MAX_SERVO_HZ)
+    for v, o in ((args.estimate_timeout, "--estimate-timeout"), (args.tolerance, "--tolerance"),
+                 (args.insertion_tolerance, "--insertion-tolerance"),
+                 (args.replan_margin, "--replan-margin"), (args.hold, "--hold"),
+                 (args.wait, "--wait")):
+        _positive(v, o)
+    if args.max_replan_failures < 1:
+        raise SurestepError(f"--max-replan-failures: {args.max_replan_failures} must be at "
+                            "least 1")
+    naming = joint_naming(args.joint_names, list(PSM_ARM), ["jaw"])
+    prob, _ = _served_problem(args.problem)
+    _need_dds()
+    from .serve import Serve, ServeOptions
+
+    opts = ServeOptions(args.problem, arm, tracker, namespace, args.servo_hz, domain,
+                        args.continuous, args.start, args.wait, args.hold, args.replan_margin,
+                        args.joint_names, FaultLimits(args.estimate_timeout, args.tolerance,
+                                                      args.insertion_tolerance, 0.1,
+                                                      args.max_replan_failures), args.log)
+    code = Serve(opts, prob, naming).run()
+    sys.stdout.flush()
+    return code
+
+
+def cmd_sim_robot(args) -> int:
+    arm, tracker, domain = _names(args)
+    _positive(args.rate, "--rate", MAX_SERVO_HZ)
+    if not (math.isfinite(args.tracker_latency) and 0 <= args.tracker_latency < 1):
+        raise SurestepError(f"--tracker-latency: {args.tracker_latency:g} must be in [0, 1) s")
+    from .sim_faults import parse_faults
+
+    faults = parse_faults(args.fault or [])
+    prob, setup = _served_problem(args.problem)
+    _need_dds()
+    from .sim_robot import SimRobot
+
+    ecm = getattr(prob.camera, "ecm_joints", None)
+    return SimRobot(setup, ecm, arm, tracker, domain, args.rate, args.seed, args.tracker_latency,
+                    args.duration, faults).run()

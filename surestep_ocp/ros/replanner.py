@@ -1,0 +1,130 @@
+"""The node's re-planning thread: each tracker estimate, as it arrives, becomes a re-plan from the
+waypoint the robot reaches next, played from that waypoint on.
+
+An estimate arriving at time t_a (since waypoint 0) is of the tool when its image was taken (its
+stamp). The re-plan starts at the first waypoint k at or after t_a + margin (a waypoint still ahead
+when the re-plan is ready), from the played curve's state at k, with the estimate moved along the
+commanded motion from the stamp's joints (the arm's measured ones) to k (estimate.moved). It runs
+on a copy of the Planner (as closed_loop does); kept and played from k only if it succeeded and was
+ready before k, else the plan before runs on and the failure is counted (faults.Watchdog).
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+import threading
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import SurestepError
+from .estimate import from_message, moved
+
+
+@dataclass
+class ReplanLog:
+    """One re-plan: arrival and ready times [s since waypoint 0], its waypoint, its own time [s],
+    and when its first set-point was published (filled in by the servo loop)."""
+
+    arrival: float
+    ready: float
+    step: int
+    replan_s: float
+    ok: bool
+    why: str = ""
+    first_command: float | None = None
+
+
+@dataclass
+class Shared:
+    """What the re-planning thread and the servo loop share (each field written by one side)."""
+
+    t0: float = 0.0  # monotonic time of waypoint 0
+    t0_wall_ns: int = 0
+    last_estimate: float = 0.0  # monotonic
+    estimate: tuple | None = None  # (mean, covariance) of the last finite estimate
+    fault: str | None = None  # set by the thread: a non-finite estimate
+    holding: threading.Event = field(default_factory=threading.Event)
+    stop: threading.Event = field(default_factory=threading.Event)
+    logs: list = field(default_factory=list)
+    estimates: int = 0
+    skipped: int = 0  # estimates superseded by a newer one before their re-plan started
+
+
+class Replanner(threading.Thread):
+    """Waits for tracker estimates (`wait`, a callable returning the new samples), re-plans, hands
+    each kept plan to `on_plan(step, solution)` and each failure to `on_fail(why)`."""
+
+    def __init__(self, planner, played, shared: Shared, wait, measured_at, camera_pose,
+                 margin_s: float, servo_period: float, on_plan, on_fail, on_estimate,
+                 stale_s: float = 0.5):
+        super().__init__(name="surestep-replanner", daemon=True)
+        self.planner, self.played, self.shared = planner, played, shared
+        self.wait, self.measured_at, self.camera_pose = wait, measured_at, camera_pose
+        self.margin_s, self.servo_period = margin_s, servo_period
+        self.on_plan, self.on_fail, self.on_estimate = on_plan, on_fail, on_estimate
+        self.stale_s = stale_s
+        self.busy = threading.Event()
+
+    def run(self) -> None:
+        sh = self.shared
+        while not sh.stop.is_set():
+            samples = self.wait()
+            if not samples or sh.stop.is_set():
+                continue
+            arrival = time.monotonic()
+            sh.estimates += len(samples)
+            sh.skipped += len(samples) - 1
+            msg = samples[-1]
+            mean, cov, finite = from_message(msg)
+            sh.last_estimate = arrival
+            if not finite:
+                sh.fault = "tracker estimate not finite"
+                continue
+            sh.estimate = (mean, cov)
+            self.on_estimate(mean, cov)
+            if sh.holding.is_set():
+                continue
+            self.busy.set()
+            try:
+                self._replan(msg, mean, cov, arrival - sh.t0)
+            finally:
+                self.busy.clear()
+
+    def _replan(self, msg, mean, cov, t_a: float) -> None:
+        pl, dt = self.planner, self.played.dt
+        k = max(int(math.ceil((t_a + self.margin_s) / dt - 1e-9)), pl.step)
+        if k >= pl.horizon:
+            return  # the last step to the goal: played as planned
+        stamp = msg.header.stamp
+        t_s = (int(stamp.sec) * 10**9 + int(stamp.nanosec) - self.shared.t0_wall_ns) * 1e-9
+        if t_s < -dt or t_a - t_s > self.stale_s:
+            return  # an image from before the motion started, or older than the fault limit
+        q_cmd_s = self.played.sample(min(max(t_s, 0.0), t_a))[0]
+        q_s = self.measured_at(t_s, q_cmd_s)
+        q_k = self.played.sample(k * dt)[0]
+        setup = pl.setup
+        mean_k = moved(mean, setup.pose_of(q_s), setup.pose_of(q_k))
+        trial = copy.copy(pl)
+        t_start = time.monotonic()
+        try:
+            sol = trial.replan(mean_k, cov, camera_pose=self.camera_pose(), step=k)
+            ok, why = bool(sol.success), str(sol.status)
+        except SurestepError as exc:
+            sol, ok, why = None, False, str(exc)
+        ready = time.monotonic() - self.shared.t0
+        took = time.monotonic() - t_start
+        if ok and ready > k * dt - 0.5 * self.servo_period:
+            ok, why = False, (f"late: ready {1e3 * (ready - k * dt):+.1f} ms from waypoint {k} "
+                              "(less than half a servo period before it)")
+        self.shared.logs.append(ReplanLog(t_a, ready, k, took, ok, "" if ok else why))
+        if ok:
+            self.planner = trial
+            st = sol.run.start_state
+            start = None if st is None else (np.array(st.velocity), np.array(st.acceleration))
+            self.played.add(k, sol.q, start)
+            self.on_plan(k, sol, start)
+        else:
+            self.on_fail(why)

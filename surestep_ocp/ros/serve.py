@@ -1,0 +1,167 @@
+"""`surestep serve`: the node's life, from the arm's first measured joints to the goal held.
+
+1. Waits for the arm's measured joints (and the jaw's), plans from them (`Planner`, within the
+   limits; the problem's start is replaced by where the arm is, `--start measured`). Nothing is
+   published before this first plan exists: a problem that cannot be planned is exit 2.
+2. The servo loop (node.py) plays the plan; each tracker estimate re-plans (replanner.py).
+3. Once the last plan's goal time has passed and the arm has stayed within the tolerance of the
+   goal set-point for `hold_s`, one line `serve: ...` on stdout and exit 0 (`--continuous`: it
+   keeps holding and serving until stopped).
+A fault holds (stderr, status topic); SIGINT / SIGTERM hold, flush and exit (0, or 1 after a
+fault).
+"""
+
+from __future__ import annotations
+
+import math
+import signal
+import sys
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .faults import FaultLimits
+from .node import (Endpoints, Measured, Topics, say)
+
+
+@dataclass
+class ServeOptions:
+    problem: str
+    arm: str = "PSM1"
+    tracker_topic: str = "/PSM1/tracker/pose"
+    namespace: str = "/surestep"
+    servo_hz: float = 200.0
+    domain: int = 0
+    continuous: bool = False
+    start: str = "measured"
+    wait_s: float = 30.0
+    hold_s: float = 0.5
+    replan_margin_s: float = 0.02
+    joint_names: str | None = None
+    faults: FaultLimits = field(default_factory=FaultLimits)
+    log: str | None = None
+
+
+class Stop(Exception):
+    """SIGINT / SIGTERM before the loop runs."""
+
+
+class Serve:
+    """One node run (module docstring); `run()` returns the exit code."""
+
+    def __init__(self, opts: ServeOptions, problem, naming):
+        self.opts, self.problem, self.naming = opts, problem, naming
+        self.topics = Topics.of(opts.arm, opts.tracker_topic, opts.namespace)
+        self.signal: str | None = None
+        self.fault_hold = False
+
+    # -- before the loop ------------------------------------------------------------------------
+    def _on_signal(self, signum, _frame) -> None:
+        self.signal = signal.Signals(signum).name
+        if not getattr(self, "looping", False):
+            raise Stop()
+
+    def prepare(self):
+        """Endpoints, the arm's joints, the first plan; a SurestepError (exit 2) if no plan."""
+        from ..errors import SurestepError
+        from ..solvers.planner import Planner
+
+        self.ep = Endpoints(self.opts.domain, self.topics)
+        arm = [n for n in self._urdf_names() if n != "jaw"]
+        aliases = {v: k for k, v in self.naming.names.items()}
+        aliases.update({f"outer_{n}": n for n in arm})
+        self.measured = Measured(arm, aliases)
+        self.jaw = Measured(["jaw"], {})
+        q0 = self._wait_for_arm(arm)
+        problem = self.problem.with_start(joints=q0.tolist()) if q0 is not None else self.problem
+        say(f"serve: planning from {'the arm' if q0 is not None else 'the problem'}'s joints "
+            f"{np.round(q0 if q0 is not None else [], 4).tolist()}")
+        planner = Planner(problem)
+        if not planner.plan.success:
+            raise SurestepError(f"{self.opts.problem}: no plan from the arm's joints "
+                                f"({planner.plan.status}); nothing published")
+        say(f"serve: first plan {planner.plan.status}, {planner.horizon} steps "
+            f"(build {planner.build_time_s:.1f} s)")
+        self.planner = planner
+        return planner
+
+    def _urdf_names(self) -> list[str]:
+        from ..problem.setup import build_setup
+
+        self.setup = build_setup(self.problem)
+        return list(self.setup.robot.joint_names)
+
+    def _wait_for_arm(self, arm) -> np.ndarray | None:
+        """The arm's measured joints (and jaw's, if it publishes them) for the start."""
+        from ..errors import SurestepError
+        from .dds import Bus
+
+        say(f"serve: waiting for {self.topics.measured} (domain {self.opts.domain})")
+        deadline = time.monotonic() + self.opts.wait_s
+        while self.measured.latest is None:
+            if time.monotonic() > deadline:
+                raise SurestepError(f"--wait: no {self.topics.measured} within "
+                                    f"{self.opts.wait_s:g} s; nothing published")
+            self.measured.update(Bus.take(self.ep.measured), 0)
+            time.sleep(0.02)
+        time.sleep(0.1)
+        self.jaw.update(Bus.take(self.ep.jaw_measured), 0)
+        start = np.array(self.setup.q_start, float)
+        q = start.copy()
+        q[:len(arm)] = self.measured.latest
+        if self.jaw.latest is not None and len(q) > len(arm):
+            q[len(arm)] = self.jaw.latest[0]
+        if self.opts.start == "problem":
+            off = np.abs(q - start).max()
+            if off > self.opts.faults.tolerance_m:
+                raise SurestepError(f"--start problem: the arm is {off:.4g} from the problem's "
+                                    "start joints; nothing published")
+            return None
+        return q
+
+    # -- the loop -------------------------------------------------------------------------------
+    def run(self) -> int:
+        for s in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(s, self._on_signal)
+        from .loop import ServoLoop
+
+        try:
+            self.prepare()
+        except Stop:
+            say(f"serve: stopped ({self.signal}) before the first plan; nothing published")
+            return 0
+        self.looping = True
+        return ServoLoop(self).run()
+
+
+def summary_line(loop) -> str:
+    """The one line `serve: ...` of a finished run."""
+    logs = [g for g in loop.shared.logs]
+    kept = [g for g in logs if g.ok]
+    ready = np.array([(g.ready - g.arrival) * 1e3 for g in kept])
+    first = np.array([(g.first_command - g.arrival) * 1e3 for g in kept
+                      if g.first_command is not None])
+    gaps = np.diff(np.array(loop.sent_at)) * 1e3 if len(loop.sent_at) > 1 else np.zeros(1)
+    span = loop.sent_at[-1] - loop.sent_at[0] if len(loop.sent_at) > 1 else math.nan
+    rate = (len(loop.sent_at) - 1) / span if span > 0 else math.nan
+
+    def stat(a):
+        return f"{np.median(a):.1f}/{a.max():.1f}" if len(a) else "-"
+
+    err = loop.goal_error()
+    return (f"serve: {loop.outcome}; {len(logs)} re-plans ({len(logs) - len(kept)} not played), "
+            f"ready median/worst {stat(ready)} ms, first new set-point {stat(first)} ms after "
+            f"the estimate; servo {rate:.1f} Hz, {len(loop.sent_at)} set-points, longest gap "
+            f"{gaps.max():.1f} ms; {loop.shared.estimates} estimates"
+            + (f"; last estimate {err[0] * 1e3:.2f} mm, {err[1]:.3f} rad from the goal, "
+               f"P(grasp) {err[2]:.3f}" if err else ""))
+
+
+def stderr_flush() -> None:
+    for f in (sys.stdout, sys.stderr):
+        try:
+            f.flush()
+        except (OSError, ValueError):
+            pass
+

@@ -1,0 +1,152 @@
+"""`surestep sim-robot`: a simulated PSM and tracker on the dVRK's ROS 2 topics, so that
+`surestep serve` runs its whole loop without a robot.
+
+The arm: `/ARM/measured_js` and `/ARM/jaw/measured_js` at `rate`, starting at the problem's start
+joints and following the last `servo_jp` / `jaw/servo_jp` set-point within the joint velocity
+limits and the joint bounds (each tick moves at most v_max / rate towards it). `/ECM/measured_js`:
+the problem's ECM joints (still). The tracker (`SimulatedTracker`, the evaluation's motion and
+observation noise and EKF): at the problem's tracker rate the tool moves as the arm's kinematics did
+since the last frame (camera-frame displacement, body-frame rotation, as closed_loop commands it),
+with the model's motion noise, and is observed; the detector (`rollout.Detection`) misses a tool
+outside the image region; a missed frame is not published (the simulated EKF still updates with
+it: an approximation). Each estimate is stamped with its image's time and published `latency` s
+later on the tracker topic (geometry_msgs/PoseWithCovarianceStamped, camera frame).
+"""
+
+from __future__ import annotations
+
+import signal
+import sys
+import time
+from collections import deque
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from . import messages as m
+from .dds import Bus
+from .estimate import quaternion
+from .sim_faults import active
+
+
+class SimRobot:
+    def __init__(self, setup, ecm_joints, arm, tracker_topic, domain, rate, seed, latency, duration,
+                 faults):
+        from ..evaluation.rollout import Detection
+        from ..evaluation.tracker import SimulatedTracker
+        from ..model.limits import problem_limits
+
+        self.setup, self.rate, self.latency, self.duration = setup, rate, latency, duration
+        self.faults, self.ecm_joints = faults, ecm_joints
+        names = list(setup.robot.joint_names)
+        self.names = names
+        self.arm_idx = [i for i, n in enumerate(names) if n != "jaw"]
+        self.jaw_idx = [i for i, n in enumerate(names) if n == "jaw"]
+        self.q = np.array(setup.q_start, float)
+        self.target = self.q.copy()
+        lim = problem_limits(setup)
+        self.vmax = np.array(lim.velocity, float)
+        self.lower, self.upper = np.array(setup.robot.lower), np.array(setup.robot.upper)
+        self.tracker = SimulatedTracker(setup.eval_model, setup.pose_of(self.q), rng=seed)
+        self.detection, self.rng = Detection(), np.random.default_rng(seed + 1)
+        self.frame_dt = setup.ocp.timing.step_s
+        bus = self.bus = Bus(domain)
+        self.w_meas = bus.writer(f"/{arm}/measured_js", m.JointState)
+        self.w_jaw = bus.writer(f"/{arm}/jaw/measured_js", m.JointState)
+        self.w_ecm = bus.writer("/ECM/measured_js", m.JointState)
+        self.w_pose = bus.writer(tracker_topic, m.PoseWithCovarianceStamped)
+        self.r_servo = bus.reader(f"/{arm}/servo_jp", m.JointState, depth=50)
+        self.r_jaw = bus.reader(f"/{arm}/jaw/servo_jp", m.JointState, depth=50)
+        self.pending: deque = deque()  # (publish at, message)
+        self.first_servo: float | None = None
+        self.stop: str | None = None
+        self.counts = {"measured": 0, "estimates": 0, "missed": 0, "servo": 0}
+
+    def _on_signal(self, signum, _frame) -> None:
+        self.stop = signal.Signals(signum).name
+
+    def run(self) -> int:
+        for s in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(s, self._on_signal)
+        print(f"sim-robot: {self.w_meas.topic.name[2:]} at {self.rate:g} Hz, tracker "
+              f"{self.w_pose.topic.name[2:]} at {1 / self.frame_dt:g} Hz", file=sys.stderr,
+              flush=True)
+        t0, n = time.monotonic(), 0
+        next_frame, x_prev = t0, self.setup.pose_of(self.q)
+        while self.stop is None:
+            now = time.monotonic()
+            if self.duration and now - t0 > self.duration:
+                break
+            fault_t = None if self.first_servo is None else now - self.first_servo
+            self._follow(fault_t)
+            self._publish_joints(n)
+            if now >= next_frame:
+                x_prev = self._frame(x_prev, fault_t)
+                next_frame += self.frame_dt
+            while self.pending and self.pending[0][0] <= now:
+                self.w_pose.write(self.pending.popleft()[1])
+            n += 1
+            time.sleep(max(0.0, t0 + n / self.rate - time.monotonic()))
+        self.bus.flush()
+        c = self.counts
+        print(f"sim-robot: stopped ({self.stop or 'duration'}); {c['servo']} servo_jp received, "
+              f"{c['measured']} measured_js and {c['estimates']} estimates sent, {c['missed']} "
+              "frames missed by the detector", flush=True)
+        return 0
+
+    def _follow(self, fault_t) -> None:
+        for msg in Bus.take(self.r_servo, 200):
+            if len(msg.position) == len(self.arm_idx) and np.all(np.isfinite(msg.position)):
+                self.target[self.arm_idx] = msg.position
+                self.counts["servo"] += 1
+                if self.first_servo is None:
+                    self.first_servo = time.monotonic()
+        for msg in Bus.take(self.r_jaw, 200):
+            if len(msg.position) == len(self.jaw_idx) and np.all(np.isfinite(msg.position)):
+                self.target[self.jaw_idx] = msg.position
+        if active(self.faults, "stuck", fault_t):
+            return
+        step = np.clip(self.target - self.q, -self.vmax / self.rate, self.vmax / self.rate)
+        self.q = np.clip(self.q + step, self.lower, self.upper)
+
+    def _publish_joints(self, n: int) -> None:
+        stamp = m.Header(stamp=m.stamp(time.time_ns()))
+        arm = [self.names[i] for i in self.arm_idx]
+        self.w_meas.write(m.JointState(header=stamp, name=arm,
+                                       position=self.q[self.arm_idx].tolist()))
+        if self.jaw_idx:
+            self.w_jaw.write(m.JointState(header=stamp, name=["jaw"],
+                                          position=self.q[self.jaw_idx].tolist()))
+        self.counts["measured"] += 1
+        if self.setup.ecm is not None and n % max(1, round(self.rate / 10)) == 0:
+            ecm = self.ecm_joints
+            if ecm is not None:
+                self.w_ecm.write(m.JointState(header=stamp, name=list(
+                    self.setup.ecm.joint_names), position=list(map(float, ecm))))
+
+    def _frame(self, x_prev, fault_t):
+        """One tracker frame: the tool moved as the arm did since the last one; observed."""
+        stamp_ns = time.time_ns()
+        x_now = self.setup.pose_of(self.q)
+        tr = self.tracker
+        R = Rotation.from_rotvec(tr.mean[3:]) * Rotation.from_rotvec(x_prev[3:]).inv() \
+            * Rotation.from_rotvec(x_now[3:])
+        mean, cov = tr.move_to(np.hstack([tr.mean[:3] + x_now[:3] - x_prev[:3], R.as_rotvec()]))
+        seen = self.rng.random() < self.detection.probability(
+            self.setup.eval_model.camera, tr.true_pose[None, :3])[0]
+        if active(self.faults, "tracker-silent", fault_t):
+            return x_now
+        if not seen:
+            self.counts["missed"] += 1
+            return x_now
+        if active(self.faults, "nan", fault_t):
+            mean = np.full(6, np.nan)
+        q = quaternion(mean[3:]) if np.all(np.isfinite(mean)) else np.full(4, np.nan)
+        msg = m.PoseWithCovarianceStamped(
+            header=m.Header(stamp=m.stamp(stamp_ns), frame_id="camera"),
+            pose=m.PoseWithCovariance(pose=m.Pose(m.Point(*map(float, mean[:3])),
+                                                  m.Quaternion(*map(float, q))),
+                                      covariance=[float(c) for c in np.ravel(cov)]))
+        self.pending.append((time.monotonic() + self.latency, msg))
+        self.counts["estimates"] += 1
+        return x_now
