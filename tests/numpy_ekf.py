@@ -74,11 +74,25 @@ def observation_noise(
 
 
 def ekf_step(sigma, W, V, F=I6, Q=I6, H=I6, R=I6):
-    """Standard EKF covariance step: (posterior, predicted)."""
+    """EKF covariance step: (posterior, predicted), the posterior in a form that cannot lose
+    definiteness to cancellation: the information form `(P^-1 + H^T M^-1 H)^-1` (M = R V R^T)
+    where P and M are invertible, else the Joseph form `(I - K H) P (I - K H)^T + K M K^T`."""
     P = F @ sigma @ F.T + Q @ W @ Q.T
-    S = H @ P @ H.T + R @ V @ R.T
-    K = P @ H.T @ np.linalg.inv(S)
-    return (np.eye(len(P)) - K @ H) @ P, P
+    M = R @ V @ R.T
+    post = information_posterior(P, M, H)
+    if post is None:
+        S = H @ P @ H.T + M
+        K = P @ H.T @ np.linalg.inv(S)
+        A = np.eye(len(P)) - K @ H
+        post = A @ P @ A.T + K @ M @ K.T
+    return 0.5 * (post + post.T), P
+
+
+def information_posterior(P, M, H=I6):
+    """`(P^-1 + H^T M^-1 H)^-1`, or None when P or M is not invertible to working precision."""
+    if max(np.linalg.cond(P), np.linalg.cond(M)) > 1e12:
+        return None
+    return np.linalg.inv(np.linalg.inv(P) + H.T @ np.linalg.inv(M) @ H)
 
 
 def propagate(

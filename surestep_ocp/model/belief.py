@@ -15,7 +15,10 @@ gradient variant, baseline, rollouts) uses these.
 
     predict:  P  = F Sigma F^T + Q (W(x_t, x_t+1) + W_q) Q^T
               (W_q: the optional joint-space term, joint_noise.py)
-    update:   S  = H P H^T + R V(x_t+1) R^T,  K = P H^T S^-1,  Sigma+ = sym((I - K H) P)
+    update:   S  = H P H^T + R V(x_t+1) R^T,  K = P H^T S^-1,  Sigma+ = sym((I - K H) P),
+              evaluated without its cancellation (`posterior`): the product form
+              sym(P S^-1 R V R^T) for H = I (and as such for a constant invertible H), the
+              Joseph form otherwise
 """
 
 from __future__ import annotations
@@ -173,6 +176,29 @@ def paper_cosine(Q, o_star, guard: float, band: float):
     return side * f * ca.dot(v, ca.DM(o_star)) / (norm * float(np.linalg.norm(o_star)))
 
 
+def posterior(P, H, M, H_inv: np.ndarray | None):
+    """The EKF's posterior covariance `(I - K H) P` (CasADi, symmetrised) without the
+    cancellation of `P - K H P`, which loses definiteness when the observation is far better than
+    the prior (V = 1e-30 against P = 1e6 gave Sigma = 0).
+
+    With `H_inv` (H constant and invertible; I for the identity maps) the observation is that of
+    the state itself with noise `M' = H^-1 M H^-T` (`M = R V R^T`), and the posterior the product
+    form `P (P + M')^-1 M'`: equal to `P - P S^-1 P` exactly, it only multiplies, so it is as
+    accurate as P and M themselves. Otherwise (H depends on the means) the Joseph form
+    `A P A^T + K M K^T`, `A = I - K H`: a sum of two positive semidefinite terms, definite for any
+    H, accurate while A is not all rounding (K H not I to working precision).
+    """
+    if H_inv is not None:
+        if not np.array_equal(H_inv, np.eye(NX)):
+            M = ca.DM(H_inv) @ M @ ca.DM(H_inv).T
+        post = ca.solve(P + M, P).T @ M  # ((P + M')^-1 P)^T M' = P (P + M')^-1 M'
+    else:
+        KT = ca.solve(H @ P @ H.T + M, H @ P)  # K^T = S^-1 H P (S symmetric)
+        A = ca.SX.eye(NX) - KT.T @ H if isinstance(P, ca.SX) else ca.MX.eye(NX) - KT.T @ H
+        post = A @ P @ A.T + KT.T @ M @ KT
+    return 0.5 * (post + post.T)
+
+
 @cache  # one Function for every model (a re-plan builds two models)
 def _identity_jacobians() -> ca.Function:
     x0, x1 = ca.SX.sym("x0", NM), ca.SX.sym("x1", NM)
@@ -258,6 +284,15 @@ class BeliefModel:
         if any(ca.depends_on(M, ca.vertcat(x0, x1)) for M in out):
             return None
         return tuple(np.asarray(ca.evalf(M)) for M in out)
+
+    @cached_property
+    def observation_inverse(self) -> np.ndarray | None:
+        """H^-1 when H is constant and invertible (condition number below 1e8; I for identity
+        maps): the update in product form (`posterior`); None: the Joseph form."""
+        maps = self.constant_maps
+        if maps is None or np.linalg.cond(maps[2]) > 1e8:
+            return None
+        return np.eye(NX) if np.array_equal(maps[2], np.eye(NX)) else np.linalg.inv(maps[2])
 
     @property
     def structured(self) -> bool:
@@ -408,19 +443,23 @@ class BeliefModel:
 
     def innovation_expr(self, x0, x1, p):
         """(S, H) of the update at x1 given the predicted covariance vech `p`."""
+        S, H, _ = self.observation_expr(x0, x1, p)
+        return S, H
+
+    def observation_expr(self, x0, x1, p):
+        """(S, H, M) of the update at x1 given the predicted covariance vech `p`: the innovation
+        covariance `S = H P H^T + M`, `M = R V R^T` the observation noise as observed."""
         _, _, H, R = self.jacobians(x0, x1)
-        P = unvech(p)
-        return H @ P @ H.T + R @ self.planning_noise(x1, p) @ R.T, H
+        M = R @ self.planning_noise(x1, p) @ R.T
+        return H @ unvech(p) @ H.T + M, H, M
 
     def step_expr(self, x0, x1, s, w=None):
         """vech(Sigma_t+1|t+1) from vech(Sigma_t|t) for the step x0 -> x1 (`w`:
         see `predict_expr`)."""
         p = self.predict_expr(x0, x1, s, w)
         P = unvech(p)
-        S, H = self.innovation_expr(x0, x1, p)
-        KT = ca.solve(S, H @ P)  # K^T = S^-1 H P (S symmetric)
-        post = P - KT.T @ H @ P
-        return vech(0.5 * (post + post.T))
+        _, H, M = self.observation_expr(x0, x1, p)
+        return vech(posterior(P, H, M, self.observation_inverse))
 
     @shared_function
     def predict(self) -> ca.Function:

@@ -1,0 +1,135 @@
+"""Fail safe when the disk, the cache and the numbers are hostile (issue 48): each defect the
+hostile round found, checked against an independent reference or the documented refusal."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+import numpy_ekf
+import pytest
+
+from surestep_ocp.cli import main
+from surestep_ocp.errors import SurestepError
+from surestep_ocp.evaluation.rollout import rollout
+from surestep_ocp.evaluation.tracker import SimulatedTracker
+from surestep_ocp.model.belief import BeliefModel
+from surestep_ocp.solvers.baseline import straight_line
+
+# the issue's repro: motion noise 1e6, observation noise 1e-30 (and the other extremes)
+SCALES = [(1e6, 1e-30), (1e-30, 1e6), (1e6, 1e6), (1e-30, 1e-30)]
+
+
+def _extreme(setup, w: float, v: float) -> BeliefModel:
+    """The setup's model with every motion base matrix w I and every observation one v I."""
+    eye = np.eye(6)
+    noise = replace(setup.model.noise, W_p0=w * eye, W_o0=w * eye, V_d0=v * eye, V_f0=v * eye,
+                    V_o0=v * eye)
+    return BeliefModel(noise, setup.model.camera)
+
+
+def _reference(setup, model, poses):
+    """Posterior covariances along `poses` by the NumPy EKF's information form."""
+    n = model.noise
+    return numpy_ekf.propagate(poses, n, setup.model.camera, guard=n.cosine_guard**2)[0]
+
+
+def _close(a, b, rtol=1e-9) -> bool:
+    """Every matrix of `a` within rtol of `b`'s, relative to that matrix's own largest entry."""
+    scale = np.max(np.abs(b), axis=(-2, -1), keepdims=True)
+    return bool(np.all(np.abs(a - b) <= rtol * scale))
+
+
+@pytest.mark.parametrize("w,v", SCALES)
+def test_belief_update_keeps_its_accuracy_at_extreme_scales(default_setup, w, v):
+    """The CasADi EKF (`propagate`) against the information form: Tr(Sigma_T) was 0.0 exactly at
+    (1e6, 1e-30) (`P - K H P` cancelled); now every posterior matches to 1e-9 and is definite."""
+    model = _extreme(default_setup, w, v)
+    poses = straight_line(default_setup.x_start, default_setup.x_goal, 8)
+    sig = model.propagate(poses)[0]
+    ref = _reference(default_setup, model, poses)
+    assert _close(sig, ref)
+    assert np.all(np.linalg.eigvalsh(sig[1:]) > 0)
+
+
+@pytest.mark.parametrize("w,v", SCALES[:2])
+def test_rollout_and_tracker_updates_keep_their_accuracy(default_setup, w, v):
+    """The rollouts' and the simulated tracker's EKF (their own NumPy code) against the information
+    form along the same path: both subtracted `P S^-1 P` from P."""
+    model = _extreme(default_setup, w, v)
+    poses = straight_line(default_setup.x_start, default_setup.x_goal, 5)
+    ref = _reference(default_setup, model, poses)
+    ro = rollout(model, poses, n=3, rng=0, mode="model")
+    # each rollout's W is taken from its own (noisy) estimate: the reference's, within 1 %
+    assert _close(ro.sigma_final, np.broadcast_to(ref[-1], ro.sigma_final.shape), rtol=1e-2)
+    assert np.all(np.linalg.eigvalsh(ro.sigma_final) > 0)
+    tracker = SimulatedTracker(model, poses[0], rng=1)
+    P = model.noise.Sigma0 + numpy_ekf.motion_noise(poses[0], poses[1], model.noise)
+    V = numpy_ekf.observation_noise(poses[1], model.noise, model.camera,
+                                    guard=model.noise.cosine_guard**2, band=model.noise.cut_band)
+    _, cov = tracker.move_to(poses[1])
+    # the tracker's V is taken at its own (noisy) mean: the reference at the waypoint is close
+    expected = numpy_ekf.information_posterior(P, V)
+    assert np.all(np.linalg.eigvalsh(cov) > 0)
+    assert _close(cov, expected, rtol=0.5)
+
+
+@pytest.mark.parametrize("value", [math.nan, math.inf, "3", -1, 2.5, True, None])
+def test_planner_refuses_a_bad_replan_iterations(value):
+    """`Planner(replan_iterations=...)`: NaN was a raw ValueError, inf an OverflowError, "3"
+    accepted and -1 silently unbounded; now one SurestepError naming the argument, before any
+    setup is built."""
+    from surestep_ocp.solvers.planner import Planner
+
+    with pytest.raises(SurestepError, match="replan_iterations must be a whole number >= 0"):
+        Planner(None, replan_iterations=value)
+
+
+def test_empty_output_path_and_method_list_are_refused(tmp_path, capsys, monkeypatch):
+    """`solve -o ''` exited 0 writing nothing; `evaluate --methods ''` (or ',') ran the baseline
+    alone: both exit 2 with one line naming the option."""
+    monkeypatch.chdir(tmp_path)
+    from conftest import DEFAULT_PROBLEM
+
+    assert main(["solve", str(DEFAULT_PROBLEM), "--method", "baseline", "-o", ""]) == 2
+    assert "an empty path" in capsys.readouterr().err
+    assert not any(tmp_path.iterdir())
+    evaluation = DEFAULT_PROBLEM.parent / "evaluations"
+    spec = next(evaluation.glob("*.yaml"))
+    for methods in ("", ",", "baseline,"):
+        assert main(["evaluate", str(spec), "--methods", methods, "--output-dir",
+                     str(tmp_path / "e"), "--quiet"]) == 2
+        assert "--methods: an empty method name" in capsys.readouterr().err
+    assert not (tmp_path / "e").exists()
+
+
+def _with_jacobians(model: BeliefModel, H) -> BeliefModel:
+    """`model` with F = Q = R = I and observation Jacobian `H(m1)` (CasADi, 6x6)."""
+    import casadi as ca
+
+    x0, x1 = ca.SX.sym("m0", 7), ca.SX.sym("m1", 7)
+    eye = ca.SX.eye(6)
+    jac = ca.Function("jacobians", [x0, x1], [eye, eye, H(x1), eye])
+    return BeliefModel(model.noise, model.camera, jacobians=jac)
+
+
+H_CONSTANT = np.diag([2.0, 0.5, 1.5, 1.0, 3.0, 0.7]) + 0.3 * np.eye(6, k=1)
+
+
+@pytest.mark.parametrize("w,v", SCALES[:2])
+def test_general_observation_maps_stay_definite(default_setup, w, v):
+    """A constant invertible H: the product form on the transformed noise, as accurate as the
+    information form; an H that depends on the mean: the Joseph form, definite (accurate at
+    ordinary scales, test_belief.py)."""
+    import casadi as ca
+
+    base = _extreme(default_setup, w, v)
+    poses = straight_line(default_setup.x_start, default_setup.x_goal, 6)
+    model = _with_jacobians(base, lambda x1: ca.SX(ca.DM(H_CONSTANT)))
+    ref = numpy_ekf.propagate(poses, base.noise, base.camera, guard=base.noise.cosine_guard**2,
+                              jacobians=lambda a, b: (np.eye(6),) * 2 + (H_CONSTANT, np.eye(6)))[0]
+    assert _close(model.propagate(poses)[0], ref)
+    varying = _with_jacobians(base, lambda x1: ca.SX(ca.DM(H_CONSTANT)) * (1 + x1[2]))
+    assert varying.observation_inverse is None
+    assert np.all(np.linalg.eigvalsh(varying.propagate(poses)[0][1:]) > 0)
