@@ -20,9 +20,11 @@ LOOPBACK_XML = """<CycloneDDS><Domain Id="any">
 
 def loopback_env(tmp: Path, domain: int, trace: bool = False) -> dict:
     """The environment of a process confined to loopback DDS on `domain` (CYCLONEDDS_URI, and
-    ROS_DOMAIN_ID); `trace`: Cyclone's configuration trace in tmp/cyclone.log."""
-    tracing = (f"<Tracing><Verbosity>config</Verbosity><OutputFile>{tmp}/cyclone.log</OutputFile>"
-               "</Tracing>" if trace else "")
+    ROS_DOMAIN_ID); `trace`: Cyclone's configuration trace of each process in
+    tmp/cyclone-PID.log."""
+    out = f"{tmp}/cyclone-${{CYCLONEDDS_PID}}.log"
+    tracing = (f"<Tracing><Verbosity>config</Verbosity><OutputFile>{out}</OutputFile></Tracing>"
+               if trace else "")
     path = tmp / "cyclonedds.xml"
     path.write_text(LOOPBACK_XML.format(tracing=tracing))
     return {**os.environ, "CYCLONEDDS_URI": path.as_uri(), "ROS_DOMAIN_ID": str(domain),

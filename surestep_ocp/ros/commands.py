@@ -55,9 +55,13 @@ def register(sub) -> None:
                                                                             "(default 0.005)")
     s.add_argument("--max-replan-failures", type=int, default=5,
                    help="hold after this many re-plans in a row not played (default 5)")
-    s.add_argument("--replan-margin", type=float, default=0.02,
-                   help="[s] a re-plan starts at the first waypoint this long after the "
-                        "estimate's arrival (default 0.02)")
+    s.add_argument("--replan-budget", type=float, default=0.02,
+                   help="[s] each waypoint this long after a tracker frame's arrival (the "
+                        "waypoints are phase-locked to the frames): a re-plan's time to be played "
+                        "at once (default 0.02)")
+    s.add_argument("--replan-margin", type=float, default=0.005,
+                   help="[s] a re-plan starts at the first waypoint at least this long after the "
+                        "estimate's arrival (default 0.005)")
     s.add_argument("--hold", type=float, default=0.5,
                    help="[s] the goal held this long ends the run (default 0.5)")
     s.add_argument("--wait", type=float, default=30.0,
@@ -123,6 +127,7 @@ def cmd_serve(args) -> int:
     for v, o in ((args.estimate_timeout, "--estimate-timeout"), (args.tolerance, "--tolerance"),
                  (args.insertion_tolerance, "--insertion-tolerance"),
                  (args.replan_margin, "--replan-margin"), (args.hold, "--hold"),
+                 (args.replan_budget, "--replan-budget"),
                  (args.wait, "--wait")):
         _positive(v, o)
     if args.max_replan_failures < 1:
@@ -133,11 +138,11 @@ def cmd_serve(args) -> int:
     _need_dds()
     from .serve import Serve, ServeOptions
 
+    faults = FaultLimits(args.estimate_timeout, args.tolerance, args.insertion_tolerance, 0.1,
+                         args.max_replan_failures)
     opts = ServeOptions(args.problem, arm, tracker, namespace, args.servo_hz, domain,
                         args.continuous, args.start, args.wait, args.hold, args.replan_margin,
-                        args.joint_names, FaultLimits(args.estimate_timeout, args.tolerance,
-                                                      args.insertion_tolerance, 0.1,
-                                                      args.max_replan_failures), args.log)
+                        args.replan_budget, args.joint_names, faults, args.log)
     code = Serve(opts, prob, naming).run()
     sys.stdout.flush()
     return code

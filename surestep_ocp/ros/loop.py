@@ -81,14 +81,35 @@ class ServoLoop:
             self.status(f"hold: {reason}", force=True)
 
     # -- the loop -------------------------------------------------------------------------------
+    def _first_frame(self):
+        """(samples, arrival) of the first tracker frame after the plan is ready (older ones
+        dropped), or None after `wait_s`."""
+        Bus.take(self.ep.tracker, 1000)
+        deadline = time.monotonic() + self.opts.wait_s
+        while time.monotonic() < deadline and not self.serve.signal:
+            samples = self.ep.wait_tracker(0.1)
+            if samples:
+                return samples, time.monotonic()
+        return None
+
     def run(self) -> int:
         sh = self.shared
-        sh.t0_wall_ns, sh.t0 = time.time_ns(), time.monotonic()
-        sh.last_estimate = sh.t0
-        self.measured_arrived0 = sh.t0
+        say(f"serve: waiting for the tracker on {self.ep.topics.tracker}")
+        first = self._first_frame()
+        if first is None:
+            say(f"serve: no estimate on {self.ep.topics.tracker} within {self.opts.wait_s:g} s"
+                + (f" ({self.serve.signal})" if self.serve.signal else "")
+                + "; nothing published")
+            return 0 if self.serve.signal else 1
+        # waypoint 0 `replan_budget_s` after this frame's arrival: the waypoints are phase-locked
+        # to the tracker's frames (one per step), each re-plan has that long before its waypoint
+        sh.t0 = first[1] + self.opts.replan_budget_s
+        sh.t0_wall_ns = time.time_ns() + round((sh.t0 - time.monotonic()) * 1e9)
+        sh.last_estimate = first[1]
         self.replanner = build_replanner(self.serve.planner, self.played, sh, self.ep,
                                          self.serve.measured, self._camera_pose, self.opts,
-                                         self.on_plan, self.on_fail, self.on_estimate)
+                                         self.on_plan, self.on_fail, self.on_estimate,
+                                         (first[0], first[1]))
         self._plan_msg(0, np.asarray(self.serve.planner.plan.q, float), None)
         self.replanner.start()
         code = self._ticks()

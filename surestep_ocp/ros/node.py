@@ -162,7 +162,7 @@ def make_watchdog(limits: FaultLimits, setup) -> Watchdog:
 
 
 def build_replanner(planner, played, shared: Shared, ep: Endpoints, measured: Measured,
-                    camera_pose, opts, on_plan, on_fail, on_estimate) -> Replanner:
+                    camera_pose, opts, on_plan, on_fail, on_estimate, first) -> Replanner:
     """The re-planning thread over the node's endpoints."""
     arm_n = len(measured.names)
 
@@ -176,4 +176,4 @@ def build_replanner(planner, played, shared: Shared, ep: Endpoints, measured: Me
 
     return Replanner(planner, played, shared, ep.wait_tracker, measured_at, camera_pose,
                      opts.replan_margin_s, 1.0 / opts.servo_hz, on_plan, on_fail, on_estimate,
-                     opts.faults.estimate_timeout_s)
+                     opts.faults.estimate_timeout_s, first)

@@ -2,11 +2,12 @@
 waypoint the robot reaches next, played from that waypoint on.
 
 An estimate arriving at time t_a (since waypoint 0) is of the tool when its image was taken (its
-stamp). The re-plan starts at the first waypoint k at or after t_a + margin (a waypoint still ahead
-when the re-plan is ready), from the played curve's state at k, with the estimate moved along the
-commanded motion from the stamp's joints (the arm's measured ones) to k (estimate.moved). It runs
-on a copy of the Planner (as closed_loop does); kept and played from k only if it succeeded and was
-ready before k, else the plan before runs on and the failure is counted (faults.Watchdog).
+stamp). The re-plan starts at the first waypoint k at or after t_a + margin (the waypoints are
+phase-locked to the tracker's frames, `--replan-budget` after each arrival: loop.py), from the
+played curve's state at k, with the estimate moved along the commanded motion from the stamp's
+joints (the arm's measured ones) to k (estimate.moved). It runs on a copy of the Planner (as
+closed_loop does); kept and played from k only if it succeeded and was ready before k, else the
+plan before runs on and the failure is counted (faults.Watchdog).
 """
 
 from __future__ import annotations
@@ -59,22 +60,25 @@ class Replanner(threading.Thread):
 
     def __init__(self, planner, played, shared: Shared, wait, measured_at, camera_pose,
                  margin_s: float, servo_period: float, on_plan, on_fail, on_estimate,
-                 stale_s: float = 0.5):
+                 stale_s: float = 0.5, first=None):
         super().__init__(name="surestep-replanner", daemon=True)
         self.planner, self.played, self.shared = planner, played, shared
         self.wait, self.measured_at, self.camera_pose = wait, measured_at, camera_pose
         self.margin_s, self.servo_period = margin_s, servo_period
         self.on_plan, self.on_fail, self.on_estimate = on_plan, on_fail, on_estimate
-        self.stale_s = stale_s
+        self.stale_s, self.first = stale_s, first  # first: (samples, arrival) taken already
         self.busy = threading.Event()
 
     def run(self) -> None:
         sh = self.shared
         while not sh.stop.is_set():
-            samples = self.wait()
+            if self.first is not None:
+                (samples, arrival), self.first = self.first, None
+            else:
+                samples = self.wait()
+                arrival = time.monotonic()
             if not samples or sh.stop.is_set():
                 continue
-            arrival = time.monotonic()
             sh.estimates += len(samples)
             sh.skipped += len(samples) - 1
             msg = samples[-1]

@@ -37,7 +37,8 @@ class ServeOptions:
     start: str = "measured"
     wait_s: float = 30.0
     hold_s: float = 0.5
-    replan_margin_s: float = 0.02
+    replan_margin_s: float = 0.005
+    replan_budget_s: float = 0.02
     joint_names: str | None = None
     faults: FaultLimits = field(default_factory=FaultLimits)
     log: str | None = None
