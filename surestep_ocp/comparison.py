@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import replace
 from pathlib import Path
 
@@ -75,13 +76,13 @@ def write_comparison(solutions: list[Solution], out_dir: Path, problem_path: str
     out_dir.mkdir(parents=True, exist_ok=True)
     for s in solutions:
         s.save(out_dir / f"{s.method}.json")
-    rows = comparison_rows(solutions)
-    table = markdown_table(rows)
+    rows = finite_or_null(comparison_rows(solutions))
+    table = markdown_table([{k: "" if v is None else v for k, v in r.items()} for r in rows])
     write_json_atomic(out_dir / "comparison.json", {"problem": problem_path, "methods": rows})
     text = (f"# Comparison on `{problem_path}`\n\n"
             "Every method evaluated by the same EKF (all observation components) along its own "
             "waypoints; `rel.` is relative to the straight-line baseline with the paper's scaling "
-            f"(lower is better).\n\n{table}\n")
+            f"(lower is better). {NULL_NOTE}\n\n{table}\n")
     limits_text = limits_table(solutions)
     if limits_text:
         text += f"\n{limits_text}\n"
@@ -91,6 +92,21 @@ def write_comparison(solutions: list[Solution], out_dir: Path, problem_path: str
     if urdf is not None:
         plot_plans(solutions, urdf, out_dir / "motion.png")
     return table + (f"\n\n{limits_text}" if limits_text else "")
+
+
+# a figure with no finite value: a singular Sigma_T (no observation noise) has entropy -inf, and
+# its `rel.` or one of mixed signs has none
+NULL_NOTE = ("A figure with no finite value (the entropy of a singular Σ_T, a `rel.` of it or of "
+             "mixed signs) is an empty cell here and `null` in comparison.json.")
+
+
+def finite_or_null(rows: list[dict]) -> list[dict]:
+    """`rows` with every NaN or infinite number as None (JSON `null`, NULL_NOTE): comparison.json
+    holds no NaN or Infinity, which JSON does not have."""
+    def clean(v):
+        return None if isinstance(v, float) and not math.isfinite(v) else v
+
+    return [{k: clean(v) for k, v in r.items()} for r in rows]
 
 
 def _robot_urdf(solutions: list[Solution]):

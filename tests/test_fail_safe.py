@@ -133,3 +133,55 @@ def test_general_observation_maps_stay_definite(default_setup, w, v):
     varying = _with_jacobians(base, lambda x1: ca.SX(ca.DM(H_CONSTANT)) * (1 + x1[2]))
     assert varying.observation_inverse is None
     assert np.all(np.linalg.eigvalsh(varying.propagate(poses)[0][1:]) > 0)
+
+
+def _problem_file(tmp_path, tree: dict, **noise) -> str:
+    """The default problem with other noise constants, as a file."""
+    import copy
+
+    import yaml
+
+    tree = copy.deepcopy(tree)
+    tree["noise"].update(noise)
+    path = tmp_path / "hostile.yaml"
+    path.write_text(yaml.safe_dump(tree))
+    return str(path)
+
+
+def test_the_issues_repro_is_solved_and_the_gradient_reports_abnormal(tmp_path,
+                                                                      default_problem_tree):
+    """W = 1e6, V = 1e-30 at the paper pace: Tr(Sigma_T) was 0.0 exactly (now the information
+    form's 8.46e-31 to 1e-9), and the gradient variant stopping ABNORMAL after 21 of 50 iterations
+    said success (now a failure with scipy's message)."""
+    import surestep_ocp as ss
+    from surestep_ocp.problem.setup import build_setup
+
+    path = _problem_file(tmp_path, default_problem_tree, W_p0=1e6, W_o0=1e6, V_d0=1e-30,
+                         V_f0=1e-30, V_o0=1e-30)
+    problem = ss.load_problem(path)
+    base = ss.solve(problem, "baseline")
+    setup = build_setup(problem)
+    ref = _reference(setup, setup.eval_model, np.asarray(base.poses))
+    assert base.trace_final == pytest.approx(np.trace(ref[-1]), rel=1e-9)
+    assert base.trace_final == pytest.approx(8.46e-31, rel=1e-3)
+    grad = ss.solve(problem, "gradient")
+    assert "ABNORMAL" in grad.status and not grad.success
+
+
+def test_compare_writes_no_nan_or_infinity(tmp_path, default_problem_tree, capsys):
+    """Without observation noise Sigma_T is singular: its entropy is -inf and the entropy's `rel.`
+    NaN, which comparison.json held as -Infinity / NaN (not JSON); now `null`, documented in
+    comparison.md, an empty cell in the table."""
+    import json
+
+    path = _problem_file(tmp_path, default_problem_tree, V_d0=0.0, V_f0=0.0, V_o0=0.0)
+    out = tmp_path / "cmp"
+    assert main(["compare", path, "--methods", "baseline", "--output-dir", str(out)]) == 0
+
+    def refuse(word):
+        raise AssertionError(f"comparison.json holds {word}")
+
+    rows = json.loads((out / "comparison.json").read_text(), parse_constant=refuse)["methods"]
+    assert rows[0]["trace_final"] == 0.0
+    assert rows[0]["entropy_final"] is None and rows[0]["entropy_rel"] is None
+    assert "`null` in comparison.json" in (out / "comparison.md").read_text()

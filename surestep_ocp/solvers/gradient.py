@@ -232,13 +232,14 @@ def _run_scipy(fun, d0: np.ndarray, spec) -> dict:
                            "memory": spec.memory}}
     nit, code = int(res.nit), int(res.status)
     # scipy's status: 0 converged, 1 iteration/evaluation limit (the normal stop here),
-    # 2 stopped otherwise (e.g. ABNORMAL line search: no further decrease found).
+    # 2 stopped otherwise (e.g. ABNORMAL line search: no further decrease found): not a success,
+    # whatever the loss (it said success with the iterations left undone before issue 48)
     if code == 1 and nit >= spec.iterations:
         status = f"completed {nit} iterations"
     else:
         status = f"stopped after {nit} of {spec.iterations} iterations: {res.message}"
     return {"x": res.x, "iterations": nit, "evaluations": int(res.nfev), "error": None,
-            "ok": code in (0, 1, 2), "status": status,
+            "ok": code in (0, 1), "status": status,
             "extras": {"optimiser": "scipy L-BFGS-B", "scipy_message": str(res.message),
                        "scipy_status": code, "iterations_requested": spec.iterations,
                        "memory": spec.memory}}
