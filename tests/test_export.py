@@ -212,9 +212,9 @@ def test_json_export_within_limits_through_every_waypoint(plans, tmp_path, which
     check_tool(c)
     sol = json.loads(Path(plans[which]).read_text())
     check_waypoints(c, sol, c["waypoint_times"])
-    assert (tmp_path / "traj_motion.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert (tmp_path / "traj.json_motion.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     # no temp files left
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["traj.json", "traj_motion.png"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["traj.json", "traj.json_motion.png"]
 
 
 def test_csv_and_ros2_carry_the_same_trajectory(plans, tmp_path):

@@ -196,3 +196,72 @@ def test_a_solution_object_is_checked_too(baseline, tmp_path):
                                     lambda d: d["limits"]["velocity"].__setitem__(0, 1e-300)),
                              tmp_path))
     assert np.isfinite(np.array(load_solution(_saved(baseline, tmp_path))["q"])).all()
+
+
+# ------------------------------------------------------------ a hostile disk and user (issue 48)
+def _export(tmp_path, capsys, sol, out, fmt, *extra):
+    src = tmp_path / "plan.json"
+    src.write_text(json.dumps(sol))
+    capsys.readouterr()
+    code = main(["export", str(src), "--format", fmt, "--output", str(out), *extra])
+    return code, capsys.readouterr().err.strip().splitlines()
+
+
+def test_two_exports_never_share_a_figure(baseline, tmp_path, capsys):
+    """`bag.1` and `bag.2` both wrote `bag_motion.png` (the second replaced the first's plot): the
+    figure is named after the whole output name."""
+    for name in ("traj.1", "traj.2"):
+        assert _export(tmp_path, capsys, baseline, tmp_path / name, "csv")[0] == 0
+    names = sorted(p.name for p in tmp_path.iterdir())
+    assert names == ["plan.json", "traj.1", "traj.1_motion.png", "traj.2", "traj.2_motion.png"]
+
+
+def test_a_rate_too_low_for_the_plan_is_refused(baseline, tmp_path, capsys):
+    """A rosbag2 at --rate 0.5 held one set-point step for the whole 20-step motion, at 1e-6 the
+    goal 1,000,000 s later: fewer set-points than planned steps is one line, exit 2, no bag."""
+    for rate in ("0.5", "1e-6"):
+        code, err = _export(tmp_path, capsys, baseline, tmp_path / "bag", "rosbag2", "--no-plot",
+                            "--rate", rate)
+        assert code == 2 and len(err) == 1 and "fewer than its 20 planned steps" in err[0], err
+        assert not (tmp_path / "bag").exists()
+
+
+def test_a_full_disk_is_a_clean_error_and_leaves_nothing(baseline, tmp_path, capsys, monkeypatch):
+    """The bag's storage failing (sqlite3's `database or disk is full`) was `internal error:
+    OperationalError`; now one line naming the bag, exit 2, and neither the bag nor its figure."""
+    import sqlite3
+
+    from rosbags.rosbag2 import Writer
+
+    def full(*args, **kwargs):
+        raise sqlite3.OperationalError("database or disk is full")
+
+    monkeypatch.setattr(Writer, "write", full)
+    out = tmp_path / "bag"
+    code, err = _export(tmp_path, capsys, baseline, out, "rosbag2")
+    assert code == 2 and err == [f"surestep: {out}: cannot write the bag (database or disk is "
+                                 "full)"], err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["plan.json"]
+
+
+@pytest.mark.parametrize("fmt", ["csv", "rosbag2"])
+def test_an_interrupted_export_leaves_all_its_files_or_none(baseline, tmp_path, capsys,
+                                                           monkeypatch, fmt):
+    """Ctrl-C while the figure is drawn (after the data was written) left the data without its
+    figure: now nothing of the export is left."""
+    from surestep_ocp.output import export
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(export, "plot_trajectory", interrupted)
+    code, _ = _export(tmp_path, capsys, baseline, tmp_path / "out", fmt)
+    assert code == 130
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["plan.json"]
+
+
+def test_an_empty_output_path_is_refused(baseline, tmp_path, capsys, monkeypatch):
+    """`-o ''` exited 0 and wrote nothing; now exit 2 naming it."""
+    monkeypatch.chdir(tmp_path)
+    code, err = _export(tmp_path, capsys, baseline, "", "csv")
+    assert code == 2 and err == ["surestep: '': an empty path; the export must be a named file"]

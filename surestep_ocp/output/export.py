@@ -4,7 +4,9 @@ time-stamped joint trajectory.
 The command: the solution read (`export_load.py`), its waypoints timed within its motion limits
 (`export_timing.py`: the planned curve at the planned times when within them, else toppra's
 retiming) and written (`export_writers.py`; the bag: `export_rosbag.py`) with the joints named for
-the consumer (`joint_names.py`), and `<stem>_motion.png` beside it (`plots_motion.py`).
+the consumer (`joint_names.py`), and `<name>_motion.png` beside it (`plots_motion.py`; named after
+the whole output name, so `bag.1` and `bag.2` never share one). The files of one export are written
+all or none (`files.written_together`).
 `time_parametrise` and `within_position_limits` stay importable from here (the benchmarks import
 them, in older trees too).
 """
@@ -19,16 +21,17 @@ import numpy as np
 
 from ..errors import SurestepError, shown
 from ..model.limits import JAW, parse_overrides
-from .export_rosbag import DEFAULT_ARM, check_arm
+from .export_rosbag import DEFAULT_ARM, check_arm, check_setpoint_rate
 from .export_load import limits_of, load_solution, solution_label, step_of, within_position_limits
 from .export_timing import DEFAULT_RATE_HZ, TIMINGS, Trajectory, time_parametrise
-from .export_writers import FORMATS, jaw_path, timing_text, write
+from .export_writers import FORMATS, channels, jaw_path, timing_text, write
 from .joint_names import PRESETS, joint_naming
 from .plots_motion import plot_trajectory
 from ..model.robot import Robot
 from ..problem.paths import resolve_urdf
 from ..quiet import quiet_fd
-from .files import MAX_URDF_BYTES, check_new_dir, check_output_file, input_file_problem
+from .files import (MAX_URDF_BYTES, check_new_dir, check_output_file, input_file_problem,
+                    named_path, written_together)
 
 if TYPE_CHECKING:
     from .solution import Solution
@@ -65,10 +68,10 @@ def export_solution(solution: str | Path | Solution, fmt: str, output: str | Pat
     for flag, x in (("--tool-speed", tool_speed), ("--tool-rotation-speed", tool_rotation)):
         if x is not None and not (math.isfinite(x) and x > 0):
             raise SurestepError(f"{flag} must be a positive number, got {x:g}")
-    output = Path(output)
+    output = named_path(output, "the export", "directory" if fmt == "rosbag2" else "file")
     targets = (([] if fmt == "rosbag2" else [output])
                + ([jaw_path(output)] if fmt == "ros2" else [])
-               + ([output.with_name(f"{output.stem}_motion.png")] if plot else []))
+               + ([motion_png(output)] if plot else []))
     if fmt == "rosbag2":  # a new (or empty) directory, written whole
         check_new_dir(output, inputs=[*inputs, urdf], what="the bag")
     for path in targets:
@@ -94,17 +97,34 @@ def export_solution(solution: str | Path | Solution, fmt: str, output: str | Pat
                             f"of {urdf}")
     q, clipped = within_position_limits(np.array(sol["q"], float), robot)
     traj = time_parametrise(q, step, limits, rate_hz, robot=robot, tool_frame=frame, timing=timing)
+    if fmt == "rosbag2":
+        check_setpoint_rate(traj, rate_hz, len(q) - 1)
     meta = {"source": label, "method": sol.get("method"), "problem": sol.get("problem"),
             "robot": {"urdf": sol["robot"].get("urdf"), "frame": sol["robot"].get("frame")},
             "step_s_source": step_source,
             "limits_enforced_in_plan": (sol.get("limits") or {}).get("enforce"),
             "waypoints_clipped_by": clipped, "joint_naming": naming.to_dict()}
-    files = write(traj, fmt, output, meta, naming,
-                  **({"rate_hz": rate_hz, "arm": arm} if fmt == "rosbag2" else {}))
-    if plot:
-        files.append(plot_trajectory(traj, sol, urdf,
-                                     output.with_name(f"{output.stem}_motion.png")))
-    return traj, files
+    bag = {"rate_hz": rate_hz, "arm": arm} if fmt == "rosbag2" else {}
+    return traj, _write_all(traj, fmt, output, meta, naming, bag, (sol, urdf) if plot else None)
+
+
+def motion_png(output: Path) -> Path:
+    """The export's figure beside it: `<output's whole name>_motion.png`."""
+    return output.with_name(f"{output.name}_motion.png")
+
+
+def _write_all(traj: Trajectory, fmt: str, output: Path, meta: dict, naming, bag: dict,
+               plot: tuple | None) -> list[Path]:
+    """The export's files (and its figure when `plot` is (solution, urdf)) written all or none;
+    the paths written."""
+    jaw = fmt == "ros2" and bool(channels(traj)[1])
+    targets = ([output] + ([jaw_path(output)] if jaw else [])
+               + ([motion_png(output)] if plot else []))
+    with written_together(targets, "the export") as staged:
+        write(traj, fmt, staged[output], meta, naming, **bag)
+        if plot:
+            plot_trajectory(traj, plot[0], plot[1], staged[motion_png(output)])
+    return targets
 
 
 def check_urdf_file(urdf: Path, name: str) -> None:
@@ -198,6 +218,6 @@ def register(sub) -> None:
                    help="auto: the planned curve at the planned times when it is within every "
                         "limit (a plan made with limits.enforce: true), else retimed by toppra; "
                         "planned: that curve or an error; toppra: always retimed (default: auto)")
-    e.add_argument("--no-plot", action="store_true", help="do not write <stem>_motion.png beside "
+    e.add_argument("--no-plot", action="store_true", help="do not write <name>_motion.png beside "
                    "the output")
     e.set_defaults(func=cmd_export)

@@ -17,6 +17,7 @@ written whole or not at all.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import re
@@ -53,6 +54,18 @@ def check_arm(arm: str) -> str:
     return arm
 
 
+def check_setpoint_rate(traj: Trajectory, rate_hz: float, steps: int) -> None:
+    """Refuse a rate too low to represent the plan: fewer set-point intervals over the motion than
+    its planned steps (at --rate 0.5 one set-point stood for a whole 1 s motion of 20 steps)."""
+    ticks = int(math.ceil(traj.duration * rate_hz - 1e-6))
+    if ticks < steps:
+        need = steps / traj.duration if traj.duration > 0 else math.inf
+        raise SurestepError(f"--rate {rate_hz:g} Hz: the bag's servo_jp stream would hold {ticks} "
+                            f"set-point step{'' if ticks == 1 else 's'} over the "
+                            f"{traj.duration:.6g} s motion, fewer than its {steps} planned steps; "
+                            f"give --rate at least {need:.6g} Hz")
+
+
 def setpoint_rows(traj: Trajectory, rate_hz: float) -> tuple[np.ndarray, np.ndarray]:
     """The set-points' ticks (k = 0..K, at k / rate_hz s) and the sample row of each: the
     exported sample at the tick, the last one from the trajectory's end on (K: the first
@@ -67,6 +80,21 @@ def setpoint_rows(traj: Trajectory, rate_hz: float) -> tuple[np.ndarray, np.ndar
         raise SurestepError(f"internal: the exported samples miss a {rate_hz:g} Hz tick")
     rows[~inside] = len(traj.times) - 1
     return ticks, rows
+
+
+@contextlib.contextmanager
+def _bag_errors(output: Path):
+    """The storage's failures (sqlite3's `database or disk is full`, an OSError, rosbags' own) as
+    one line naming the bag (they were `internal error: OperationalError`)."""
+    import sqlite3
+
+    from rosbags.rosbag2 import WriterError
+
+    try:
+        yield
+    except (sqlite3.Error, OSError, WriterError) as exc:
+        why = getattr(exc, "strerror", None) or str(exc) or type(exc).__name__
+        raise SurestepError(f"{shown(str(output), 200)}: cannot write the bag ({why})") from None
 
 
 def _stamp(ns: int) -> tuple[int, int]:
@@ -115,7 +143,7 @@ def write_bag(traj: Trajectory, output: Path, meta: dict, naming: JointNaming | 
               "surestep.servo_jp_rate_hz": repr(float(rate_hz)),
               "surestep.arm": arm, "surestep.topics": json.dumps(top),
               "surestep.joint_names": json.dumps(naming.to_dict() if naming else None)}
-    with write_dir_atomic(output, "the bag") as path:
+    with write_dir_atomic(output, "the bag") as path, _bag_errors(output):
         with Writer(path, version=BAG_VERSION) as w:
             for key, value in custom.items():
                 w.set_custom_data(key, value)

@@ -18,8 +18,10 @@ import contextlib
 import math
 import os
 import shutil
+import signal
 import stat
 import tempfile
+import threading
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import Any
@@ -82,7 +84,7 @@ def _named_apart_from_inputs(path: Path, inputs: Iterable[str | Path], what: str
     return name
 
 
-def _named_path(path: str | Path, what: str, kind: str) -> Path:
+def named_path(path: str | Path, what: str, kind: str) -> Path:
     """`path` as a Path; an empty one is an error (`Path('')` would be the current folder)."""
     if str(path).strip() == "":
         raise SurestepError(f"{shown(repr(str(path)))}: an empty path; {what} must be a named "
@@ -96,7 +98,7 @@ def check_output_file(path: str | Path, inputs: Iterable[str | Path] = (),
 
     Creates the missing parent folders (so the check is the real one).
     """
-    path = _named_path(path, what, "file")
+    path = named_path(path, what, "file")
     name = _named_apart_from_inputs(path, inputs, what, "file")
     if path.exists() or path.is_symlink():
         try:
@@ -129,7 +131,7 @@ def check_output_dir(path: str | Path, inputs: Iterable[str | Path] = (),
                      what: str = "the output") -> Path:
     """Check, before any work, that `path` is (or can be created as) a writable
     directory; create it."""
-    path = _named_path(path, what, "directory")
+    path = named_path(path, what, "directory")
     name = shown(str(path), 200)
     if path.exists() and not path.is_dir():
         raise SurestepError(f"{name}: exists and is not a directory; {what} directory must be a "
@@ -154,7 +156,7 @@ def check_new_dir(path: str | Path, inputs: Iterable[str | Path] = (),
     """Check, before any work, that `path` can become a new directory written whole
     (`write_dir_atomic`): missing or an empty directory, never replacing files; its parent is
     created and must be writable."""
-    path = _named_path(path, what, "directory")
+    path = named_path(path, what, "directory")
     name = _named_apart_from_inputs(path, inputs, what, "directory")
     if path.is_symlink() or (path.exists() and not path.is_dir()):
         raise SurestepError(f"{name}: exists and is not a directory; {what} is a new directory")
@@ -189,6 +191,59 @@ def write_dir_atomic(path: Path, what: str = "the output") -> Iterator[Path]:
                                 f"({exc.strerror or exc}; a new or empty directory only)") from None
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
+
+
+@contextlib.contextmanager
+def written_together(targets: list[Path], what: str = "the output") -> Iterator[dict[Path, Path]]:
+    """Several outputs (files or directories side by side) written all or none: yields, for each
+    target, where to write it (under its own name in one fresh folder beside them); when the block
+    ends without an error each is renamed onto its target, SIGINT and SIGTERM held meanwhile (an
+    interrupt lands before any rename or after the last); on any error or interrupt the folder is
+    removed and no target touched. Errors naming a staged path name its target."""
+    targets = [Path(t) for t in targets]
+    parent = targets[0].parent
+    if any(t.parent != parent for t in targets):
+        raise ValueError("written_together: the targets must share their folder")
+    try:
+        tmp = Path(tempfile.mkdtemp(dir=parent, prefix=f".{targets[0].name}.tmp-"))
+    except OSError as exc:
+        raise SurestepError(f"{shown(str(targets[0]), 200)}: cannot write {what} there "
+                            f"({exc.strerror or exc})") from None
+    staged = {t: tmp / t.name for t in targets}
+    try:
+        try:
+            yield staged
+        except SurestepError as exc:
+            text = " ".join(map(str, exc.args))
+            for t, s in staged.items():
+                text = text.replace(str(s), str(t))
+            exc.args = (text,)
+            raise
+        with _signals_held():
+            for t, s in staged.items():
+                if s.exists():
+                    if not s.is_dir():
+                        check_replaceable(t)
+                    os.replace(s, t)  # (a directory onto a missing or empty one: check_new_dir)
+    except OSError as exc:
+        raise SurestepError(f"{shown(str(targets[0]), 200)}: cannot write {what} "
+                            f"({exc.strerror or exc})") from None
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+@contextlib.contextmanager
+def _signals_held() -> Iterator[None]:
+    """SIGINT and SIGTERM held back (delivered when the block ends); in the main thread only."""
+    held = {signal.SIGINT, signal.SIGTERM}
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    old = signal.pthread_sigmask(signal.SIG_BLOCK, held)
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, old)
 
 
 def check_replaceable(path: Path) -> None:

@@ -3,7 +3,7 @@ tool's speed over time.
 
 `plot_plans` (written by `surestep compare` as `motion.png`): every method's plan at its planned
 pace (waypoint t at t * step_s), each method in its `plot_styles` look. `plot_trajectory`
-(written by `surestep export` as `<stem>_motion.png`): the exported trajectory, its waypoints
+(written by `surestep export` as `<name>_motion.png`): the exported trajectory, its waypoints
 marked. Both: one row per joint, its position against the position limits (dashed), its velocity
 and its acceleration against theirs (a plan's acceleration is the change of its step velocity at
 each waypoint, at rest before the first and after the last, as `model/limits/report.py` checks it);
@@ -147,7 +147,7 @@ def tool_speeds(urdf: str | Path, frame: str, times: np.ndarray,
 
 
 def plot_trajectory(traj, sol: dict, urdf: str | Path, path: Path) -> Path:
-    """`<stem>_motion.png` for `surestep export`: the exported trajectory against its limits."""
+    """`<name>_motion.png` for `surestep export`: the exported trajectory against its limits."""
     plt = pyplot()
     names = traj.joint_names
     lo, hi = _joint_limits(urdf, names)
