@@ -1,7 +1,7 @@
 """Time to a sure grasp in the simulated Table II: every method grasps on evidence, not on a clock.
 
     OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/closed_loop.py [--rollouts 200] [--seed 0]
-        [--confidence 0.95] [--tracker-noise mean|expected] [--problems FILE ...]
+        [--confidence 0.95] [--tracker-noise auto|mean|expected|iterated] [--problems FILE ...]
 
 Each scenario (default: the Table II types, problems/type*.yaml; any problem file through
 `--problems`, nothing is tuned per file) runs at the robot's pace with `goal.confidence` asked
@@ -99,7 +99,8 @@ def main() -> None:
     ap = h.parser(__doc__, seed=0, output="closed_loop.md")
     ap.add_argument("--rollouts", type=int, default=200)
     ap.add_argument("--confidence", type=float, default=0.95)
-    ap.add_argument("--tracker-noise", choices=("mean", "expected"), default="mean")
+    ap.add_argument("--tracker-noise", choices=("auto", "mean", "expected", "iterated"),
+                    default="auto")
     ap.add_argument("--problems", nargs="+", default=None)
     ap.add_argument("--figure", default=str(h.ROOT / "docs" / "time_to_grasp.png"))
     args = ap.parse_args()

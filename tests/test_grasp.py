@@ -123,7 +123,8 @@ def hard_at_robot_pace():
 def numpy_confidence(setup, sol) -> float:
     """The plan's Sigma_T|T-1 by the NumPy EKF, its grasp probability by sampling."""
     noise = setup.ocp.noise
-    _, pred = propagate(np.asarray(sol.poses, float), noise, setup.ocp.intrinsics)
+    _, pred = propagate(np.asarray(sol.poses, float), noise, setup.ocp.intrinsics,
+                        guard=noise.cosine_guard ** 2)
     return sampled(pred[-1], 0.005, 0.2, n=300_000)
 
 
@@ -158,9 +159,48 @@ def test_a_confidence_the_cap_cannot_reach_is_a_status(tmp_path, capsys):
 
 
 def test_the_planner_plans_to_the_confidence(hard_at_robot_pace):
+    """A nominal 1 s in dim light is too short for 0.95: the Planner lengthens it to the shortest
+    horizon that reaches it (and never shortens the problem's own)."""
     from surestep_ocp.solvers.planner import Planner
 
-    planner = Planner(hard_at_robot_pace, prebuild=False)
+    short = hard_at_robot_pace.with_ocp(horizon=20)
+    planner = Planner(short, prebuild=False)
     assert planner.grasp["reached"] and planner.horizon == planner.plan.horizon
-    assert planner.horizon < hard_at_robot_pace.ocp.horizon and planner.plan.success
-    assert numpy_confidence(hard_at_robot_pace, planner.plan) > 0.94
+    assert 20 < planner.horizon <= 40 and planner.plan.success
+    assert numpy_confidence(short, planner.plan) > 0.94
+    assert Planner(hard_at_robot_pace, prebuild=False).horizon == 40
+
+
+def test_a_plan_counts_only_the_observations_the_detector_delivers():
+    """The confidence with a detector equals the NumPy EKF's that skips the updates at waypoints
+    outside the detectable region (rollout.Detection's hard edge)."""
+    from surestep_ocp.model.detection import Detection
+    from surestep_ocp.solvers.confidence import predicted_at_grasp
+
+    p = load_problem(REPO / "problems" / "type1_medium.yaml")
+    seen = build_setup(p.with_sections(detection={"margin": 0.25}))
+    assert seen.ocp.detection == Detection(margin=0.25)
+    sol = run_method(build_setup(p), "baseline")
+    poses = np.asarray(sol.poses, float)
+    ok = Detection(margin=0.25).probability(seen.eval_model.camera, poses[:, :3]) > 0
+    assert 0 < ok.sum() < len(ok)  # some waypoints seen, some not
+    noise, cam = seen.ocp.noise, seen.ocp.intrinsics
+    from numpy_ekf import ekf_step, motion_noise, observation_noise
+    sig = np.asarray(noise.Sigma0, float)
+    for t in range(len(poses) - 1):
+        post, P = ekf_step(sig, motion_noise(poses[t], poses[t + 1], noise),
+                           observation_noise(poses[t + 1], noise, cam,
+                                             formula=noise.orientation_formula,
+                                             guard=noise.cosine_guard ** 2, band=noise.cut_band))
+        sig = post if ok[t + 1] else P
+    np.testing.assert_allclose(predicted_at_grasp(seen, sol), P, rtol=1e-6, atol=1e-14)
+    everywhere = predicted_at_grasp(build_setup(p), sol)
+    assert np.trace(everywhere) < np.trace(P)  # the missed observations cost confidence
+
+
+def test_a_detection_section_is_checked():
+    p = load_problem(REPO / "problems" / "type1_medium.yaml")
+    assert p.detection is None
+    with pytest.raises(Exception, match="detection.max_depth"):
+        p.with_sections(detection={"min_depth": 0.3, "max_depth": 0.2})
+    assert p.with_sections(detection={"enabled": False}).detection is None

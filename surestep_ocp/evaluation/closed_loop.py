@@ -26,7 +26,8 @@ from ..errors import SurestepError
 from ..model.lie import matrix_to_pose, pose_to_matrix
 from ..problem.spec import Problem
 from ..solvers.methods import closed_loop_unavailable
-from ..solvers.planner import MAX_LATE, Planner
+from ..solvers.confidence import at_horizon
+from ..solvers.planner import MAX_LATE, Planner, without_confidence
 from .executed_motion import stitched, violations
 
 
@@ -47,7 +48,8 @@ class ClosedLoop:
 
     Args:
         setup: the problem within enforced limits (`robot_pace`), solved by the interior point
-            (`solver.name` auto or interior); its camera schedule, if any, is the rollouts'.
+            (`solver.name` auto or interior); its camera schedule, if any, is the rollouts'; with
+            `goal.confidence`, over the Planner's horizon (the shortest that reaches it).
         planner: a Planner of `setup` (default: made here; its first plan is every rollout's).
         keep_pieces: keep each rollout's executed pieces (start step, joints, start state) in
             `pieces` after its check (by default freed).
@@ -69,6 +71,8 @@ class ClosedLoop:
         self.planner = Planner(setup) if planner is None else planner
         if not self.planner.plan.success:
             raise SurestepError(f"ocp-mpc: the first plan failed ({self.planner.plan.status})")
+        if self.planner.horizon != setup.ocp.horizon:  # planned to `goal.confidence`
+            setup = at_horizon(without_confidence(setup), self.planner.horizon)
         self.setup = setup
         self.dt = setup.ocp.timing.step_s
         self.cameras = setup.camera_poses()

@@ -22,7 +22,7 @@ import numpy as np
 from ..errors import SurestepError
 from ..model.lie import matrix_to_pose
 from ..problem.load import load_problem, read_yaml
-from ..problem.parse import MAX_HORIZON, _gradient, _limits
+from ..problem.parse import MAX_HORIZON, _gradient, _limits, read_detection
 from ..problem.paths import find_shipped, resolve_path
 from ..problem.spec import EndpointSpec, Problem
 from ..model.robot import Robot
@@ -113,25 +113,7 @@ def load_evaluation(path: str | Path) -> EvaluationSpec:
     # replaces the base problem's limits section (a problem file's `limits:`, checked as there)
     if "limits" in top:
         base = replace(base, limits=_limits(rd, top["limits"], base.robot))
-    det = rd.mapping(top.get("detection", {}), "detection",
-                     {"enabled", "margin", "min_depth", "max_depth", "falloff"})
-    detection = None
-    if rd.boolean(det.get("enabled", True), "detection.enabled"):
-        d0 = Detection()
-        detection = Detection(
-            margin=rd.number(det.get("margin", d0.margin), "detection.margin", nonneg=True),
-            min_depth=rd.number(det.get("min_depth", d0.min_depth), "detection.min_depth",
-                                nonneg=True),
-            max_depth=rd.number(det.get("max_depth", d0.max_depth), "detection.max_depth",
-                                positive=True),
-            falloff=rd.number(det.get("falloff", d0.falloff), "detection.falloff", nonneg=True))
-        if detection.max_depth <= detection.min_depth:
-            raise rd.fail("detection.max_depth",
-                          f"must exceed detection.min_depth ({detection.min_depth:g} m)")
-        if detection.margin + detection.falloff >= 0.5:
-            raise rd.fail("detection.falloff",
-                          f"margin + falloff must be < 0.5 (fractions of the image size), "
-                                               f"got {detection.margin:g} + {detection.falloff:g}")
+    detection = read_detection(rd, top.get("detection"))
     grasp = rd.mapping(top.get("grasp", {}), "grasp", {"position", "angle"})
     execution = rd.mapping(top.get("execution", {}), "execution", {"pace"})
     pace = rd.string(execution.get("pace", "planned"), "execution.pace", PACES)

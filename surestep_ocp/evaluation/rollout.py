@@ -42,6 +42,7 @@ from scipy.spatial.transform import Rotation
 
 from ..errors import SurestepError
 from ..model.belief import _TRIL, NM, NX, BeliefModel
+from ..model.detection import Detection  # noqa: F401 (re-exported: its home before)
 from .grasp_rule import GraspRule, Grasping
 from ..model.lie import np_means
 
@@ -49,41 +50,6 @@ MODES = ("model", "true")
 METRICS = ("pos_err_mean", "pos_err_std", "ori_err_mean", "ori_err_std", "trace_noisy", "trace_ml",
            "entropy_noisy", "entropy_ml")
 _ENTROPY_CONST = 0.5 * NX * (1 + np.log(2 * np.pi))
-
-
-@dataclass(frozen=True)
-class Detection:
-    """When the detector sees the tool (the true pose): the rest of the time the EKF only predicts.
-
-    margin: fraction of the image width / height at each border where nothing is detected
-    (the tool's features must be in the image, not only its tracked point); min_depth [m]:
-    closer to the lens (or behind it) nothing is detected; max_depth [m]: nor beyond it (out
-    of focus, too small); falloff: fraction of the image size over which the detection
-    probability rises linearly from 0 at that border to 1 inside (0: detected with certainty
-    everywhere inside). A detector reports a pose it sees: a measurement that itself falls
-    outside that region (the sampled noise put it there) is no detection either (gating).
-    """
-
-    margin: float = 0.02
-    min_depth: float = 0.02
-    max_depth: float = 0.30
-    falloff: float = 0.0
-
-    def probability(self, camera, p: np.ndarray) -> np.ndarray:
-        """(N,) detection probability of true positions p (N, 3) in the camera frame."""
-        z = p[:, 2]
-        ok = (z > self.min_depth) & (z < self.max_depth)
-        zs = np.where(ok, z, 1.0)
-        u = (camera.fx * p[:, 0] / zs + camera.cx) / camera.width
-        v = (camera.fy * p[:, 1] / zs + camera.cy) / camera.height
-        # distance to the detectable region's border, in image fractions (negative outside)
-        inside = np.minimum.reduce([u - self.margin, 1 - self.margin - u, v - self.margin,
-                                    1 - self.margin - v])
-        if self.falloff > 0:
-            prob = np.clip(inside / self.falloff, 0.0, 1.0)
-        else:
-            prob = (inside >= 0).astype(float)
-        return np.where(ok, prob, 0.0)
 
 
 @dataclass
@@ -203,6 +169,18 @@ def _gain(P: np.ndarray, S: np.ndarray) -> np.ndarray:
         return np.linalg.pinv(S, hermitian=True) @ P
 
 
+def _update(P, V, y, seen) -> tuple[np.ndarray, np.ndarray]:
+    """(K^T, K y) of the update with observation noise V (stacks); no observation: no update."""
+    KT = _gain(P, P + V)  # K^T = S^-1 P (S, P symmetric); K = P S^-1
+    KT[~seen] = 0.0  # no observation: the EKF only predicts
+    return KT, np.einsum("nji,nj->ni", KT, y)  # K y
+
+
+# the iterated tracker's re-linearisations of V per update
+ITERATIONS = 2
+TRACKER_NOISES = ("mean", "expected", "iterated", "auto")
+
+
 def rollout(
     model: BeliefModel,
     poses: np.ndarray,
@@ -267,12 +245,19 @@ def rollout(
             observation) until then, or at the rule's cap; the rollouts' `grasp_step`,
             `predicted` and `capped` say when and how sure. None: at the plan's end.
         tracker_noise: the observation noise of the tracker's update: `mean` (V at the predicted
-            mean) or `expected` (V expected under the predicted belief, `BatchedNoise`).
+            mean), `expected` (V expected under the predicted belief, `BatchedNoise`) or
+            `iterated` (V expected under the updated belief, the update repeated ITERATIONS times
+            from the prediction: the noise where the measurement says the tool is); `auto`: each
+            mode's world's own (`mean` in `model` mode, whose noise is V at the predicted mean;
+            `expected` in `true` mode, whose noise is V at the unknown true pose).
     """
-    if tracker_noise not in ("mean", "expected"):
-        raise ValueError(f"unknown tracker_noise '{tracker_noise}'; allowed: mean, expected")
+    if tracker_noise not in TRACKER_NOISES:
+        raise ValueError(f"unknown tracker_noise '{tracker_noise}'; allowed: "
+                         f"{', '.join(TRACKER_NOISES)}")
     if mode not in MODES:
         raise ValueError(f"unknown rollout mode '{mode}'; allowed: {', '.join(MODES)}")
+    if tracker_noise == "auto":
+        tracker_noise = "mean" if mode == "model" else "expected"
     if not has_identity_maps(model):
         raise ValueError("rollouts support belief models with identity motion and observation "
                          "maps only")
@@ -371,10 +356,10 @@ def rollout(
             detected[:, t] = seen
         else:
             seen = detected[:, t]
-        V_ekf = (noise.observation(pred) if tracker_noise == "mean"
-                 else noise.expected_observation(pred, P))
+        V_pred = noise.observation(pred)
+        V_ekf = V_pred if tracker_noise == "mean" else noise.expected_observation(pred, P)
         if mode == "model":
-            V_real = V_ekf
+            V_real = V_pred
         else:  # V at an undetected true pose (e.g. behind the lens) is not used; keep it finite
             V_real = noise.observation(np.where(seen[:, None], _pose(true_p, true_R), pred))
         v = sample_gaussian(V_real, z_v)
@@ -384,9 +369,14 @@ def rollout(
             seen = seen & (detection.probability(model.camera, z_p) > 0)
             detected[:, t] = seen
         y = np.hstack([z_p - pred_p, (z_R * pred_R.inv()).as_rotvec()])
-        KT = _gain(P, P + V_ekf)  # K^T = S^-1 P (S, P symmetric); K = P S^-1
-        KT[~seen] = 0.0  # no observation: the EKF only predicts
-        dx = np.einsum("nji,nj->ni", KT, y)  # K y
+        KT, dx = _update(P, V_ekf, y, seen)
+        for _ in range(ITERATIONS if tracker_noise == "iterated" else 0):
+            # V expected under the updated belief, then the update again from the prediction
+            upd = P - np.swapaxes(KT, 1, 2) @ P
+            V_ekf = noise.expected_observation(
+                _pose(pred_p + dx[:, :3], Rotation.from_rotvec(dx[:, 3:]) * pred_R),
+                0.5 * (upd + np.swapaxes(upd, 1, 2)))
+            KT, dx = _update(P, V_ekf, y, seen)
         mu_p, mu_R = pred_p + dx[:, :3], Rotation.from_rotvec(dx[:, 3:]) * pred_R
         # P - P S^-1 P as P S^-1 V: equal, without the cancellation that loses definiteness
         post = np.where(seen[:, None, None], np.swapaxes(KT, 1, 2) @ V_ekf, P)

@@ -65,7 +65,7 @@ def cell(ro, rule: GraspRule, dt: float) -> dict:
 
 
 def scenario_rows(problem, k: int, rollouts: int, seed: int, confidence: float = 0.95,
-                  detection: Detection | None = Detection(), tracker_noise: str = "expected",
+                  detection: Detection | None = Detection(), tracker_noise: str = "auto",
                   methods=METHODS) -> dict:
     """Every method's cells (per mode) for one scenario (module docstring); `ocp-mpc` also has its
     re-plans' summary per mode (failures by cause) and its executed samples beyond a limit."""
@@ -86,8 +86,9 @@ def scenario_rows(problem, k: int, rollouts: int, seed: int, confidence: float =
             out["baseline_steps"] = sol.horizon
         else:
             poses = np.asarray(plan.poses, float)
-        if name == "ocp-mpc":
-            policy = ClosedLoop(at_horizon(plain, plan.horizon))
+        if name == "ocp-mpc":  # the Planner's own plan to the confidence (within its reserve)
+            policy = ClosedLoop(asked)
+            out["mpc_steps"] = policy.planner.horizon
             poses = poses[[0, -1]]
         row = {"replans": {}, "violations": 0}
         for mi, mode in enumerate(MODES):

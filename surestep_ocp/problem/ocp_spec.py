@@ -15,6 +15,7 @@ import numpy as np
 
 from ..model.belief import NoiseParams
 from ..model.camera import Intrinsics
+from ..model.detection import Detection
 from .spec import GradientSpec, GraspSpec, LimitsSpec, Problem, SolverSpec, TimingSpec
 
 
@@ -33,12 +34,14 @@ class OcpSpec:
     limits: LimitsSpec
     timing: TimingSpec
     grasp: GraspSpec = GraspSpec()  # the grasp's tolerance and confidence
+    detection: Detection | None = None  # where the tracker sees the tool (None: everywhere)
 
     @classmethod
     def of(cls, problem: Problem) -> OcpSpec:
         return cls(str(problem.path), problem.horizon, problem.noise, problem.camera.intrinsics,
                    problem.objective.smoothness, problem.min_depth, problem.solver,
-                   problem.gradient, problem.limits, problem.timing, problem.grasp)
+                   problem.gradient, problem.limits, problem.timing, problem.grasp,
+                   problem.detection)
 
     @property
     def sigma0(self) -> np.ndarray:
@@ -48,4 +51,4 @@ class OcpSpec:
 
 # the OcpSpec fields `Setup.with_ocp` changes (the problem's file and camera stay)
 EDITABLE = ("horizon", "noise", "smoothness", "min_depth", "solver", "gradient", "limits", "timing",
-            "grasp")
+            "grasp", "detection")

@@ -26,6 +26,7 @@ from ..model.belief import (
     NoiseParams,
 )
 from ..model.camera import Intrinsics
+from ..model.detection import Detection
 from ..model.lie import np_exp, rpy_matrix
 from ..model.limits.values import urdf_velocity_limits
 from .ipopt_options import check_ipopt_options
@@ -58,7 +59,7 @@ MAX_FRAMES_PER_STEP = 10_000
 
 
 _TOP = {"name", "description", "robot", "camera", "start", "goal", "horizon", "noise",
-        "constraints", "objective", "solver", "gradient", "timing", "limits"}
+        "constraints", "objective", "solver", "gradient", "timing", "limits", "detection"}
 _REQUIRED_TOP = {"robot", "camera", "start", "goal", "horizon"}
 
 
@@ -153,6 +154,7 @@ def parse_problem(tree: Any, path: Path) -> Problem:
     horizon = section("horizon", rd.integer, top.get("horizon"), "horizon", minimum=1,
                       maximum=MAX_HORIZON, required=True)
     timing = section("timing", _timing, rd, top.get("timing", {}))
+    detection = section("detection", read_detection, rd, top.get("detection"), enabled=False)
     grasp = section("goal", _grasp, rd, top.get("goal"), required=True)
     if timing is not None and horizon is not None and timing.max_duration is not None \
             and timing.max_duration < horizon * timing.step_s - 1e-9:
@@ -199,6 +201,7 @@ def parse_problem(tree: Any, path: Path) -> Problem:
         timing=timing,
         limits=limits,
         grasp=grasp,
+        detection=detection,
         source=tree,
     )
     # the solver choices against the noise model, when the file is read (the robot's
@@ -385,6 +388,31 @@ def _endpoint(rd: Reader, node: Any, key: str, path: Path) -> EndpointSpec:
         pose = _pose6(rd, r["pose"], f"{key}.relative.pose")
         return EndpointSpec(relative=RelativeGoal(arm, pose), key=f"{key}.relative")
     return EndpointSpec(pose=_pose6(rd, m["pose"], f"{key}.pose"), key=f"{key}.pose")
+
+
+def read_detection(rd: Reader, node: Any, enabled: bool = True) -> Detection | None:
+    """`detection: {enabled, margin, min_depth, max_depth, falloff}` (`model.detection.Detection`;
+    None when disabled; absent: `enabled`'s default with the detector's defaults)."""
+    det = rd.mapping({} if node is None else node, "detection",
+                     {"enabled", "margin", "min_depth", "max_depth", "falloff"})
+    if not rd.boolean(det.get("enabled", enabled or node is not None), "detection.enabled"):
+        return None
+    d0 = Detection()
+    detection = Detection(
+        margin=rd.number(det.get("margin", d0.margin), "detection.margin", nonneg=True),
+        min_depth=rd.number(det.get("min_depth", d0.min_depth), "detection.min_depth",
+                            nonneg=True),
+        max_depth=rd.number(det.get("max_depth", d0.max_depth), "detection.max_depth",
+                            positive=True),
+        falloff=rd.number(det.get("falloff", d0.falloff), "detection.falloff", nonneg=True))
+    if detection.max_depth <= detection.min_depth:
+        raise rd.fail("detection.max_depth",
+                      f"must exceed detection.min_depth ({detection.min_depth:g} m)")
+    if detection.margin + detection.falloff >= 0.5:
+        raise rd.fail("detection.falloff", f"margin + falloff must be < 0.5 (fractions of the "
+                                           f"image size), got {detection.margin:g} + "
+                                           f"{detection.falloff:g}")
+    return detection
 
 
 _GRASP_KEYS = ("tolerance", "confidence")

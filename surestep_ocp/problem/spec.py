@@ -18,6 +18,7 @@ from ..equality import ArrayEquality
 from ..errors import ProblemError
 from ..model.belief import NoiseParams
 from ..model.camera import Intrinsics
+from ..model.detection import Detection
 
 
 @dataclass(frozen=True, eq=False)
@@ -212,6 +213,7 @@ class Problem(ArrayEquality):
     timing: TimingSpec = TimingSpec()
     limits: LimitsSpec = LimitsSpec()
     grasp: GraspSpec = GraspSpec()
+    detection: Detection | None = None  # where the tracker sees the tool (None: everywhere)
     source: Any = field(default=None, repr=False, compare=False)  # the YAML tree it was read from
 
     # Changed copies (the Python API). Each edits the tree the problem was read from and reads it

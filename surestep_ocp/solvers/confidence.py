@@ -46,19 +46,30 @@ def last_move(setup: Setup) -> int:
 
 
 def predicted_at_grasp(setup: Setup, sol: Solution) -> np.ndarray:
-    """(6, 6) Sigma_T|T-1 of a plan of `setup` (the covariance of the error at the grasp)."""
+    """(6, 6) Sigma_T|T-1 of a plan of `setup` (the covariance of the error at the grasp). With a
+    detector (`setup.ocp.detection`) a waypoint's observation counts with its detection
+    probability (the expected covariance, p Sigma_t|t + (1 - p) Sigma_t|t-1): none where the
+    detector cannot see the tool."""
     poses, sigma = np.asarray(sol.poses, float), sol.covariances
     T = len(poses) - 1
-    model = setup.eval_model
-    x0, x1 = np_means(poses[T - 1:])
-    s = vech(sigma[T - 1])
+    model, detection = setup.eval_model, setup.ocp.detection
+    means = np_means(poses)
+    first = 0 if detection is not None else T - 1  # (all observed: the plan's own Sigma_T-1|T-1)
+    s = vech(sigma[first])
     changes = setup.camera_changes()
-    if changes is not None and T - 1 < len(changes) and changes[T - 1] is not None:
-        x0, s = model.camera_change(x0, s, changes[T - 1])
-    w = np.zeros(len(s))
+    w = np.zeros((T, len(s)))
     if model.joint_noise:
-        w = np.asarray(setup.joint_noises(np.asarray(sol.q, float)), float)[T - 1]
-    return unvech(np.asarray(model.step_pair(x0, x1, s, w)[1], float).ravel())
+        w = np.asarray(setup.joint_noises(np.asarray(sol.q, float)), float)
+    seen = (np.ones(T + 1) if detection is None
+            else detection.probability(model.camera, poses[:, :3]))
+    for t in range(first, T):
+        x0 = means[t]
+        if changes is not None and t < len(changes) and changes[t] is not None:
+            x0, s = model.camera_change(x0, s, changes[t])
+        post, pred = (np.asarray(v, float).ravel() for v in model.step_pair(x0, means[t + 1], s,
+                                                                            w[t]))
+        s = seen[t + 1] * post + (1 - seen[t + 1]) * pred
+    return unvech(pred)
 
 
 def plan_confidence(setup: Setup, sol: Solution) -> float:
