@@ -9,7 +9,7 @@ OUT    ?= out
 LOCK   := requirements/run.txt requirements/test.txt
 LATEST := .venv-latest
 
-.PHONY: run test install browser compiler clean package-check lock test-latest docs
+.PHONY: run test install browser compiler clean package-check lock test-latest docs demo
 
 # .venv from the lock (the test lock holds the run one's pins), then the package itself without dependencies.
 $(STAMP): pyproject.toml $(LOCK)
@@ -42,6 +42,15 @@ browser:
 	@command -v chromium >/dev/null 2>&1 || (command -v apt-get >/dev/null 2>&1 && \
 	  (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null) \
 	  || echo "chromium not installed: browser tests will be skipped")
+
+# The re-planning ROS 2 node (`surestep serve`) against a simulated PSM and tracker (`surestep sim-robot`), two
+# processes over DDS confined to loopback (no multicast; the ros extra, in the test lock): ends once the goal is held.
+DEMO_DDS = $(abspath $(OUT))/cyclonedds.xml
+demo: $(STAMP)
+	$(PY) -m surestep_ocp.ros.loopback $(DEMO_DDS) >/dev/null
+	export CYCLONEDDS_URI=file://$(DEMO_DDS) OPENBLAS_NUM_THREADS=1; \
+	$(VENV)/bin/surestep sim-robot $(PROBLEM) & sim=$$!; \
+	$(VENV)/bin/surestep serve $(PROBLEM); code=$$?; kill -TERM $$sim; wait $$sim; exit $$code
 
 # A C compiler for the compiled OCP derivatives (solver.codegen: auto uses it when present; the tests
 # check the compiled path against the interpreted one), installed when missing.

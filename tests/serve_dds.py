@@ -8,26 +8,15 @@ import os
 import time
 from pathlib import Path
 
-LOOPBACK_XML = """<CycloneDDS><Domain Id="any">
-  <General><Interfaces><NetworkInterface name="lo"/></Interfaces>
-    <AllowMulticast>false</AllowMulticast></General>
-  <Discovery><ParticipantIndex>auto</ParticipantIndex><MaxAutoParticipantIndex>20</MaxAutoParticipantIndex>
-    <Peers><Peer address="127.0.0.1"/></Peers></Discovery>
-  {tracing}
-</Domain></CycloneDDS>
-"""
-
-
 def loopback_env(tmp: Path, domain: int, trace: bool = False) -> dict:
     """The environment of a process confined to loopback DDS on `domain` (CYCLONEDDS_URI, and
     ROS_DOMAIN_ID); `trace`: Cyclone's configuration trace of each process in
     tmp/cyclone-PID.log."""
-    out = f"{tmp}/cyclone-${{CYCLONEDDS_PID}}.log"
-    tracing = (f"<Tracing><Verbosity>config</Verbosity><OutputFile>{out}</OutputFile></Tracing>"
-               if trace else "")
-    path = tmp / "cyclonedds.xml"
-    path.write_text(LOOPBACK_XML.format(tracing=tracing))
-    return {**os.environ, "CYCLONEDDS_URI": path.as_uri(), "ROS_DOMAIN_ID": str(domain),
+    from surestep_ocp.ros.loopback import write_loopback_config
+
+    uri = write_loopback_config(tmp / "cyclonedds.xml",
+                                f"{tmp}/cyclone-${{CYCLONEDDS_PID}}.log" if trace else None)
+    return {**os.environ, "CYCLONEDDS_URI": uri, "ROS_DOMAIN_ID": str(domain),
             "OPENBLAS_NUM_THREADS": "1", "PYTHONUNBUFFERED": "1"}
 
 

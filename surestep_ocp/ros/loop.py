@@ -57,9 +57,9 @@ class ServoLoop:
         self._plan_msg(step, np.asarray(sol.q, float), start)
         self.ep.planned_trace.write(m.Float64(float(sol.trace_final)))
 
-    def on_fail(self, why: str) -> None:
+    def on_fail(self, why: str, late: bool = False) -> None:
         say(f"serve: re-plan not played: {why}")
-        if self.watchdog.replan_failed(why, time.monotonic()):
+        if not late and self.watchdog.replan_failed(why, time.monotonic()):
             self._hold(self.watchdog.reason)
 
     def on_estimate(self, mean, cov) -> None:
@@ -252,5 +252,7 @@ class ServoLoop:
                 "hold_at": None if self.watchdog.at is None else self.watchdog.at - self.shared.t0,
                 "estimates": self.shared.estimates, "period": self.period, "dt": self.dt,
                 "last_estimate": self.shared.last_estimate - self.shared.t0,
+                "fault_seen": (None if self.shared.fault_at is None
+                               else self.shared.fault_at - self.shared.t0),
                 "t0_wall": self.shared.t0_wall_ns * 1e-9}
         write_json_atomic(self.opts.log, data)

@@ -2,12 +2,16 @@
 waypoint the robot reaches next, played from that waypoint on.
 
 An estimate arriving at time t_a (since waypoint 0) is of the tool when its image was taken (its
-stamp). The re-plan starts at the first waypoint k at or after t_a + margin (the waypoints are
-phase-locked to the tracker's frames, `--replan-budget` after each arrival: loop.py), from the
+stamp). The re-plan starts at the first waypoint k at or after t_a + lead (the waypoints are
+phase-locked to the tracker's frames, `--replan-budget` after each arrival: loop.py), where the
+lead is the recent re-plans' median time (at least `--replan-margin`): where most re-plans would be
+late (a loaded machine) they aim at the waypoint after; a late one costs a frame, aiming later
+always costs one. From the
 played curve's state at k, with the estimate moved along the commanded motion from the stamp's
 joints (the arm's measured ones) to k (estimate.moved). It runs on a copy of the Planner (as
 closed_loop does); kept and played from k only if it succeeded and was ready before k, else the
-plan before runs on and the failure is counted (faults.Watchdog).
+plan before runs on (a failed one is counted by faults.Watchdog, a late one is not: the plan it
+would have replaced is within the limits all the same).
 """
 
 from __future__ import annotations
@@ -16,12 +20,16 @@ import copy
 import math
 import threading
 import time
+from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from ..errors import SurestepError
 from .estimate import from_message, moved
+
+
+LEAD_WINDOW = 10  # re-plans whose times set the lead
 
 
 @dataclass
@@ -47,6 +55,7 @@ class Shared:
     last_estimate: float = 0.0  # monotonic
     estimate: tuple | None = None  # (mean, covariance) of the last finite estimate
     fault: str | None = None  # set by the thread: a non-finite estimate
+    fault_at: float | None = None  # monotonic: its arrival
     holding: threading.Event = field(default_factory=threading.Event)
     stop: threading.Event = field(default_factory=threading.Event)
     logs: list = field(default_factory=list)
@@ -67,6 +76,7 @@ class Replanner(threading.Thread):
         self.margin_s, self.servo_period = margin_s, servo_period
         self.on_plan, self.on_fail, self.on_estimate = on_plan, on_fail, on_estimate
         self.stale_s, self.first = stale_s, first  # first: (samples, arrival) taken already
+        self.recent: deque = deque(maxlen=LEAD_WINDOW)  # the last re-plans' arrival-to-ready [s]
         self.busy = threading.Event()
 
     def run(self) -> None:
@@ -85,7 +95,8 @@ class Replanner(threading.Thread):
             mean, cov, finite = from_message(msg)
             sh.last_estimate = arrival
             if not finite:
-                sh.fault = "tracker estimate not finite"
+                if sh.fault is None:
+                    sh.fault, sh.fault_at = "tracker estimate not finite", arrival
                 continue
             sh.estimate = (mean, cov)
             self.on_estimate(mean, cov)
@@ -97,9 +108,15 @@ class Replanner(threading.Thread):
             finally:
                 self.busy.clear()
 
+    def lead(self) -> float:
+        """[s] the least time from an estimate's arrival to the waypoint its re-plan starts at."""
+        if len(self.recent) < LEAD_WINDOW // 2:
+            return self.margin_s
+        return max(self.margin_s, float(np.median(self.recent)) + 0.5 * self.servo_period)
+
     def _replan(self, msg, mean, cov, t_a: float) -> None:
         pl, dt = self.planner, self.played.dt
-        k = max(int(math.ceil((t_a + self.margin_s) / dt - 1e-9)), pl.step)
+        k = max(int(math.ceil((t_a + self.lead()) / dt - 1e-9)), pl.step)
         if k >= pl.horizon:
             return  # the last step to the goal: played as planned
         stamp = msg.header.stamp
@@ -120,9 +137,12 @@ class Replanner(threading.Thread):
             sol, ok, why = None, False, str(exc)
         ready = time.monotonic() - self.shared.t0
         took = time.monotonic() - t_start
+        self.recent.append(ready - t_a)
+        late = False
         if ok and ready > k * dt - 0.5 * self.servo_period:
-            ok, why = False, (f"late: ready {1e3 * (ready - k * dt):+.1f} ms from waypoint {k} "
-                              "(less than half a servo period before it)")
+            ok, late = False, True
+            why = (f"late: ready {1e3 * (ready - k * dt):+.1f} ms from waypoint {k} (less than "
+                   "half a servo period before it)")
         self.shared.logs.append(ReplanLog(t_a, ready, k, took, ok, "" if ok else why))
         if ok:
             self.planner = trial
@@ -131,4 +151,4 @@ class Replanner(threading.Thread):
             self.played.add(k, sol.q, start)
             self.on_plan(k, sol, start)
         else:
-            self.on_fail(why)
+            self.on_fail(why, late)

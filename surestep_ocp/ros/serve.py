@@ -44,7 +44,7 @@ class ServeOptions:
     log: str | None = None
 
 
-class Stop(Exception):
+class Stop(BaseException):
     """SIGINT / SIGTERM before the loop runs."""
 
 

@@ -28,6 +28,8 @@ from .dds import Bus
 from .estimate import quaternion
 from .sim_faults import active
 
+SERVO_SILENT_S = 0.1  # [s] servo_jp this long silent: said on stderr (the arm holds regardless)
+
 
 class SimRobot:
     def __init__(self, setup, ecm_joints, arm, tracker_topic, domain, rate, seed, latency, duration,
@@ -59,6 +61,7 @@ class SimRobot:
         self.r_jaw = bus.reader(f"/{arm}/jaw/servo_jp", m.JointState, depth=50)
         self.pending: deque = deque()  # (publish at, message)
         self.first_servo: float | None = None
+        self.last_servo, self.silent_said = 0.0, False
         self.stop: str | None = None
         self.counts = {"measured": 0, "estimates": 0, "missed": 0, "servo": 0}
 
@@ -79,6 +82,7 @@ class SimRobot:
                 break
             fault_t = None if self.first_servo is None else now - self.first_servo
             self._follow(fault_t)
+            self._servo_silence(now)
             self._publish_joints(n)
             if now >= next_frame:
                 x_prev = self._frame(x_prev, fault_t)
@@ -94,13 +98,24 @@ class SimRobot:
               "frames missed by the detector", flush=True)
         return 0
 
+    def _servo_silence(self, now: float) -> None:
+        """Say once when servo_jp stops (the arm holds its last set-point, as the dVRK does)."""
+        if self.first_servo is None or self.silent_said:
+            return
+        if now - self.last_servo > SERVO_SILENT_S:
+            self.silent_said = True
+            print(f"sim-robot: servo_jp silent for {now - self.last_servo:.3f} s: holding the last "
+                  f"set-point ({now - self.first_servo:.3f} s after the first)", file=sys.stderr,
+                  flush=True)
+
     def _follow(self, fault_t) -> None:
         for msg in Bus.take(self.r_servo, 200):
             if len(msg.position) == len(self.arm_idx) and np.all(np.isfinite(msg.position)):
                 self.target[self.arm_idx] = msg.position
                 self.counts["servo"] += 1
+                self.last_servo = time.monotonic()
                 if self.first_servo is None:
-                    self.first_servo = time.monotonic()
+                    self.first_servo = self.last_servo
         for msg in Bus.take(self.r_jaw, 200):
             if len(msg.position) == len(self.jaw_idx) and np.all(np.isfinite(msg.position)):
                 self.target[self.jaw_idx] = msg.position

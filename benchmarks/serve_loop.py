@@ -1,0 +1,228 @@
+"""`surestep serve` against `surestep sim-robot` over loopback DDS (two processes each run, the
+loopback-only Cyclone configuration of surestep_ocp/ros/loopback.py): episodes to the goal, then
+(--faults) one run per injected fault.
+
+Per episode: the goal reached (exit 0, `serve: goal reached`), executed set-points beyond a limit
+(bounds; divided differences of the set-points at their stamps against the velocity and
+acceleration limits: tests/test_serve.py's check), the servo stream (rate from the stamps and from
+the send times, gaps longer than two periods), the latency from a tracker estimate's arrival to the
+re-plan being ready and to the first set-point of the new plan, the re-plans not played. Per fault:
+the hold's reason and its delay (tracker silent: from the timeout passing; NaN: from the estimate's
+arrival; stuck: from the arm stopping; node killed: the simulated arm's own hold). Its last line:
+`serve-loop: key=value ...`.
+
+    OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/serve_loop.py [--episodes 20] [--faults]
+        [--budget 0.02] [--output benchmarks/results/serve_loop.md]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "tests"))
+from serve_dds import Recorder, loopback_env  # noqa: E402
+
+PROBLEM = str(ROOT / "problems" / "needle_regrasp.yaml")
+CLI = [sys.executable, "-m", "surestep_ocp.cli"]
+
+
+def run(tmp: Path, domain: int, serve_args, sim_args, kill_after=None, timeout=240.0):
+    """One node + simulated robot run; the recorder's servo_jp samples decoded, the node's log."""
+    from surestep_ocp.ros import messages as m
+
+    env = loopback_env(tmp, domain)
+    os.environ["CYCLONEDDS_URI"] = env["CYCLONEDDS_URI"]
+    rec = Recorder(domain, {"/PSM1/servo_jp": m.JointState, "/PSM1/jaw/servo_jp": m.JointState,
+                            "/PSM1/measured_js": m.JointState, "/surestep/status": m.String})
+    sim = subprocess.Popen(CLI + ["sim-robot", PROBLEM] + sim_args, env=env,
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    serve = subprocess.Popen(CLI + ["serve", PROBLEM, "--log", str(tmp / "log.json")] + serve_args,
+                             env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    t_end, first = time.time() + timeout, None
+    while serve.poll() is None and time.time() < t_end:
+        rec.poll()
+        if first is None and rec.samples["/PSM1/servo_jp"]:
+            first = time.time()
+        if kill_after is not None and first and time.time() - first > kill_after:
+            serve.kill()
+            break
+        if any(b"hold:" in raw for _, raw in rec.samples["/surestep/status"]):
+            time.sleep(0.3)
+            serve.send_signal(signal.SIGTERM)
+            break
+        time.sleep(0.005)
+    out, err = serve.communicate(timeout=60)
+    time.sleep(0.3)
+    rec.poll()
+    sim.send_signal(signal.SIGTERM)
+    sim_out, sim_err = sim.communicate(timeout=30)
+    del os.environ["CYCLONEDDS_URI"]
+    log = json.loads((tmp / "log.json").read_text()) if (tmp / "log.json").exists() else None
+    return {"code": serve.returncode, "out": out, "err": err, "sim_err": sim_err, "log": log,
+            "servo": rec.decoded("/PSM1/servo_jp", "sensor_msgs/msg/JointState"),
+            "jaw": rec.decoded("/PSM1/jaw/servo_jp", "sensor_msgs/msg/JointState"),
+            "measured": rec.decoded("/PSM1/measured_js", "sensor_msgs/msg/JointState")}
+
+
+def _stamp(msg) -> float:
+    return msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+
+
+def first_off_curve(r, tol=np.array([0.05, 0.05, 0.005, 0.05, 0.05, 0.05]), window=0.1):
+    """[wall s] the first measured_js farther than the tolerance from every set-point stamped in
+    the window before it (the node's criterion, from the recorded messages), or None."""
+    ts = np.array([_stamp(m) for _, m in r["servo"]])
+    qs = np.array([m.position for _, m in r["servo"]])
+    for _, m in r["measured"]:
+        t = _stamp(m)
+        near = (ts <= t) & (ts >= t - window)
+        if near.any() and np.min(np.max(np.abs(qs[near] - m.position) / tol, axis=1)) > 1:
+            return t
+    return None
+
+
+def beyond_limits(servo, jaw, lim, lower, upper) -> int:
+    """Set-points beyond a bound, or whose divided differences exceed a velocity or acceleration
+    limit (to 1e-6 relative; 1e-3 for the second ones, the stamps' nanosecond rounding)."""
+    t = np.array([m.header.stamp.sec + m.header.stamp.nanosec * 1e-9 for _, m in servo])
+    q = np.array([np.r_[s.position, j.position] for (_, s), (_, j) in zip(servo, jaw)])
+    bad = np.any((q < lower - 1e-6) | (q > upper + 1e-6), axis=1).sum()
+    v = np.diff(q, axis=0) / np.diff(t)[:, None]
+    bad += np.any(np.abs(v) > lim.velocity * (1 + 1e-6) + 1e-9, axis=1).sum()
+    a = 2 * np.diff(v, axis=0) / (t[2:] - t[:-2])[:, None]
+    bad += np.any(np.abs(a) > lim.acceleration * (1 + 1e-3) + 1e-6, axis=1).sum()
+    return int(bad)
+
+
+def episode_row(r, lim, lower, upper, hz: float) -> dict:
+    log = r["log"]
+    kept = [g for g in log["replans"] if g["ok"]]
+    sent = np.array(log["sent_at"])
+    gaps = np.diff(sent)
+    t = np.array([_stamp(m) for _, m in r["servo"]])
+    return {"reached": r["code"] == 0 and r["out"].startswith("serve: goal reached"),
+            "beyond": beyond_limits(r["servo"], r["jaw"], lim, lower, upper),
+            "rate_stamps": (len(t) - 1) / (t[-1] - t[0]),
+            "rate_sent": (len(sent) - 1) / (sent[-1] - sent[0]),
+            "gaps_over_2": int(np.sum(gaps > 2 / hz)), "longest_gap_ms": float(gaps.max() * 1e3),
+            "ready_ms": [(g["ready"] - g["arrival"]) * 1e3 for g in kept],
+            "first_ms": [(g["first_command"] - g["arrival"]) * 1e3 for g in kept
+                         if g["first_command"] is not None],
+            "replan_ms": [g["replan_s"] * 1e3 for g in log["replans"]],
+            "not_played": len(log["replans"]) - len(kept), "replans": len(log["replans"])}
+
+
+def fault_row(kind: str, r) -> dict:
+    log = r["log"] or {}
+    hold, at = log.get("hold"), log.get("hold_at")
+    if kind == "tracker-silent" and at is not None:
+        delay = at - (log["last_estimate"] + 0.3)
+    elif kind == "nan" and at is not None and log.get("fault_seen") is not None:
+        delay = at - log["fault_seen"]
+    elif kind == "stuck" and at is not None and first_off_curve(r) is not None:
+        delay = log["t0_wall"] + at - first_off_curve(r)  # from the arm's error passing tolerance
+    else:
+        delay = None
+    if kind == "killed":
+        said = [ln for ln in r["sim_err"].splitlines() if "servo_jp silent" in ln]
+        return {"kind": kind, "hold": said[0].split("sim-robot: ")[1] if said else None,
+                "delay_ms": None, "code": r["code"]}
+    return {"kind": kind, "hold": hold, "delay_ms": None if delay is None else delay * 1e3,
+            "code": r["code"]}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--episodes", type=int, default=20)
+    ap.add_argument("--faults", action="store_true")
+    ap.add_argument("--budget", type=float, default=0.02)
+    ap.add_argument("--servo-hz", type=float, default=200.0)
+    ap.add_argument("--output")
+    args = ap.parse_args()
+    from surestep_ocp.model.limits import joint_bounds, problem_limits
+    from surestep_ocp.problem.load import load_problem
+    from surestep_ocp.problem.setup import build_setup
+
+    setup = build_setup(load_problem(PROBLEM))
+    lim = problem_limits(setup)
+    lower, upper = joint_bounds(setup.robot, lim.rcm_min_distance)
+    base = 100 + os.getpid() % 50
+    serve_args = ["--replan-budget", str(args.budget), "--servo-hz", str(args.servo_hz)]
+    rows, faults = [], []
+    for i in range(args.episodes):
+        with tempfile.TemporaryDirectory() as tmp:
+            r = run(Path(tmp), base + i % 50, serve_args, ["--seed", str(i)])
+        rows.append(episode_row(r, lim, lower, upper, args.servo_hz))
+        e = rows[-1]
+        print(f"episode {i}: reached {e['reached']}, beyond {e['beyond']}, rate "
+              f"{e['rate_stamps']:.1f}/{e['rate_sent']:.1f} Hz, gaps>2T {e['gaps_over_2']}, "
+              f"first {np.median(e['first_ms']):.1f} ms, not played {e['not_played']}",
+              flush=True)
+    if args.faults:
+        silent = ["--fault", "tracker-silent@0.6"]
+        specs = [("tracker-silent", ["--estimate-timeout", "0.3"], silent, None),
+                 ("nan", [], ["--fault", "nan@0.6"], None),
+                 ("stuck", [], ["--fault", "stuck@0.6"], None), ("killed", [], [], 0.6)]
+        for j, (kind, sa, sim_a, kill) in enumerate(specs):
+            with tempfile.TemporaryDirectory() as tmp:
+                r = run(Path(tmp), base + (args.episodes + j) % 50, serve_args + sa, sim_a, kill)
+            faults.append(fault_row(kind, r))
+            print(f"fault {kind}: {faults[-1]}", flush=True)
+    report(rows, faults, args)
+
+
+def report(rows, faults, args) -> None:
+    allv = lambda k: np.concatenate([np.asarray(r[k], float) for r in rows])  # noqa: E731
+    first, ready, rp = allv("first_ms"), allv("ready_ms"), allv("replan_ms")
+    first = first if len(first) else np.array([np.nan])
+    ready = ready if len(ready) else np.array([np.nan])
+    rs = np.array([r["rate_stamps"] for r in rows])
+    rsent = np.array([r["rate_sent"] for r in rows])
+    summary = {
+        "episodes": len(rows), "reached": sum(r["reached"] for r in rows),
+        "beyond_limits": sum(r["beyond"] for r in rows),
+        "rate_min_hz": round(float(min(rs.min(), rsent.min())), 1),
+        "rate_err_pct_max": round(float(np.abs(np.r_[rs, rsent] / args.servo_hz - 1).max() * 100),
+                                  2),
+        "gaps_over_2_periods": sum(r["gaps_over_2"] for r in rows),
+        "longest_gap_ms": round(max(r["longest_gap_ms"] for r in rows), 1),
+        "first_cmd_median_ms": round(float(np.median(first)), 1),
+        "first_cmd_worst_ms": round(float(first.max()), 1),
+        "ready_median_ms": round(float(np.median(ready)), 1),
+        "ready_worst_ms": round(float(ready.max()), 1),
+        "replan_median_ms": round(float(np.median(rp)), 1),
+        "replans": sum(r["replans"] for r in rows),
+        "not_played": sum(r["not_played"] for r in rows), "budget_s": args.budget}
+    lines = [f"# serve loop over loopback DDS\n\n`OPENBLAS_NUM_THREADS=1 .venv/bin/python "
+             f"benchmarks/serve_loop.py --episodes {args.episodes}"
+             f"{' --faults' if args.faults else ''} --budget {args.budget}`\n",
+             "| key | value |", "|---|---|"] + [f"| {k} | {v} |" for k, v in summary.items()]
+    if faults:
+        lines += ["", "| fault | hold (reason) | delay [ms] | exit |", "|---|---|---|---|"]
+        lines += [f"| {f['kind']} | {f['hold']} | "
+                  f"{'-' if f['delay_ms'] is None else round(f['delay_ms'], 1)} | {f['code']} |"
+                  for f in faults]
+    text = "\n".join(lines) + "\n"
+    print(text)
+    if args.output:
+        Path(args.output).write_text(text)
+    fault_part = " ".join(
+        f"{f['kind']}_ms={'-' if f['delay_ms'] is None else round(f['delay_ms'], 1)}"
+        for f in faults)
+    print("serve-loop: " + " ".join(f"{k}={v}" for k, v in summary.items())
+          + (" " + fault_part if fault_part else ""))
+
+
+if __name__ == "__main__":
+    main()
