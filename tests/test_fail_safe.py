@@ -185,3 +185,28 @@ def test_compare_writes_no_nan_or_infinity(tmp_path, default_problem_tree, capsy
     assert rows[0]["trace_final"] == 0.0
     assert rows[0]["entropy_final"] is None and rows[0]["entropy_rel"] is None
     assert "`null` in comparison.json" in (out / "comparison.md").read_text()
+
+
+@pytest.mark.parametrize("side", [0, 1])
+def test_a_start_joint_at_its_limit_gives_no_warnings(tmp_path, side):
+    """A start joint exactly at its limit (the PSM's wrist pitch, needle_regrasp within the
+    limits): the curve's position row at the start is 0 whatever the free joints, its relaxation
+    shrank towards 0 forever and the interior point printed about a dozen RuntimeWarnings (w / s
+    overflowing, 1 / s dividing by zero); now that row has a fixed slack, no warning, a plan."""
+    import warnings
+
+    import yaml
+
+    import surestep_ocp as ss
+    from conftest import PROBLEMS_DIR
+
+    tree = yaml.safe_load((PROBLEMS_DIR / "needle_regrasp.yaml").read_text())
+    tree["start"]["joints"][4] = (-1.39626, 1.39626)[side]  # robots/psm.urdf's wrist pitch limits
+    tree["robot"]["urdf"] = str(PROBLEMS_DIR.parent / tree["robot"]["urdf"])
+    path = tmp_path / "at_limit.yaml"
+    path.write_text(yaml.safe_dump(tree))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        sol = ss.solve(ss.load_problem(path), "ocp")
+    assert [str(w.message) for w in caught] == []
+    assert sol.status == "Solve_Succeeded" and sol.q[0][4] == tree["start"]["joints"][4]

@@ -387,7 +387,20 @@ class InteriorNewton:
         tool = c[2 * nb + 2 * nl + T - 1:].reshape(self.n_pts, self.tool_k)
         np.multiply(self.tool_scale / keep**2, raw.reshape(self.n_pts, self.tool_k), out=tool)
         np.subtract(1.0, tool, out=tool)
+        self._fixed_slacks(c, nb)
         return float(f_y[0]), c
+
+    def _fixed_slacks(self, c: np.ndarray, nb: int) -> None:
+        """Linear rows that no free joint moves (the curve at the start: constant in a run) and
+        that hold with equality, to rounding (a start joint exactly at its limit), given the
+        fixed slack RELAX_TO in `c`: no step can open a slack of 0, so the relaxation shrank
+        towards it forever and its multiplier overflowed (RuntimeWarnings from w / s, 1 / s)."""
+        cached = getattr(self, "_constant_rows", None)
+        if cached is None or cached[0] is not self.free_idx:
+            moved = self.lin_map[:, self.free_idx].getnnz(axis=1)
+            cached = self._constant_rows = (self.free_idx, np.flatnonzero(moved == 0))
+        for rows in (2 * nb + cached[1], 2 * nb + self.n_lin + cached[1]):
+            c[rows[np.abs(c[rows]) <= 1e-12]] = RELAX_TO
 
     def _start_point(self, x, P, lin_c, offsets, min_depth, keep, relax
                      ) -> tuple[np.ndarray, float, np.ndarray]:
