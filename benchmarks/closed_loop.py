@@ -66,25 +66,30 @@ def tables(res: dict, args) -> list[str]:
                          f"{c['true']['time_median_s']:.2f} / {c['true']['time_p90_s']:.2f}",
                          f"{c['true']['capped']:.0%}",
                          f"{c['model']['nees_median']:.1f} / {c['true']['nees_median']:.1f}"])
-    plans = [[label, r["plan"]["steps"], f"{r['plan']['predicted']:.3f}",
+    plans = [[label, r["plan"]["shortest"], r["plan"]["steps"], f"{r['plan']['predicted']:.3f}",
               "yes" if r["plan"]["reached"] else "no", r["baseline_steps"], r["cap_steps"]]
              for label, r in res.items()]
     rp = [[label] + [f"{sum(s[k] for s in r['ocp-mpc']['replans'].values())}"
-                     for k in ("replans", "failed")]
+                     for k in ("replans", "failed", "held")]
           + [", ".join(f"{c}: {n}" for c, n in sum_causes(r).items()) or "none",
+             " / ".join(f"{r['ocp-mpc'][mode]['missed_after_failure']}, "
+                        f"{r['ocp-mpc'][mode]['missed_after_hold']}" for mode in h.ROLLOUT_MODES),
              f"{r['ocp-mpc']['violations']}"] for label, r in res.items()]
     return [f"Rollouts: {args.rollouts} per scenario, method and mode; confidence "
             f"{args.confidence}; tracker noise `{args.tracker_noise}`.", "",
             *h.table(head, rows), "", PAPER, "",
             "The plans (robot's pace, 0.05 s a step): the OCP's shortest horizon reaching the "
-            "confidence (its own prediction; `no`: not reached within the cap, the most confident "
-            "plan), the baseline's fewest steps within the limits, the cap:", "",
-            *h.table(["scenario", "OCP steps", "OCP predicted", "reached", "baseline steps",
-                      "cap steps"], plans), "",
-            "`ocp-mpc`'s re-plans (both modes): a failed one keeps the previous plan, by cause:",
-            "",
-            *h.table(["scenario", "re-plans", "failed", "causes", "executed samples beyond a "
-                      "limit"], rp)]
+            "confidence with the detector's observations (its prediction; `no`: not reached "
+            "within the cap, the most confident plan), the horizon planned (not below the "
+            "problem's), the baseline's fewest steps within the limits, the cap:", "",
+            *h.table(["scenario", "shortest", "planned", "predicted", "reached",
+                      "baseline steps", "cap steps"], plans), "",
+            "`ocp-mpc`'s re-plans (both modes): a failed one keeps the previous plan (by cause), "
+            "a held one the previous camera registration (its goal out of reach); missed grasps "
+            "of rollouts that had a failed / held re-plan (model; true):", "",
+            *h.table(["scenario", "re-plans", "failed", "held", "causes of failures",
+                      "misses after a failure, after a hold (model / true)",
+                      "executed samples beyond a limit"], rp)]
 
 
 def sum_causes(r: dict) -> dict:

@@ -59,8 +59,9 @@ class ClosedLoop:
             ones (longer than a step, `timing.step_s`) are counted all the same (`late_replans`).
 
     After a rollout call: `times` (each re-plan's time without builds [s]), `failures` ((step,
-    rollout, status) of each re-plan that kept the previous plan), `late` (steps each rollout's goal
-    moved later), `violations` (executed samples beyond a limit, per rollout).
+    rollout, status) of each re-plan that kept the previous plan), `held` ((step, rollout) of each
+    re-plan that kept the previous camera registration), `late` (steps each rollout's goal moved
+    later), `violations` (executed samples beyond a limit, per rollout).
     """
 
     def __init__(self, setup, planner: Planner | None = None, keep_pieces: bool = False,
@@ -97,6 +98,8 @@ class ClosedLoop:
         self.checked: list[bool] = []
         self.times: list[float] = []
         self.failures: list[tuple[int, int, str]] = []
+        # (step, rollout) of the re-plans that held the registration
+        self.held: list[tuple[int, int]] = []
         self.late: list[int] = []
         self.violations: list[int] = []
 
@@ -139,6 +142,8 @@ class ClosedLoop:
         if self.deadline_s is not None and took > self.deadline_s:  # too late to run
             self.failures.append((t, i, f"late ({took * 1e3:.1f} ms)"))
             return planner
+        if sol.replan is not None and sol.replan.registration_held:
+            self.held.append((t, i))
         st = sol.run.start_state
         self.pieces[i].append((t, np.array(sol.q, float),
                                (np.array(st.velocity), np.array(st.acceleration))))
@@ -186,7 +191,9 @@ class ClosedLoop:
         a limit, over the last rollout call."""
         self.finish()
         ms = np.asarray(self.times) * 1e3
-        return {"replans": len(ms), "failed": len(self.failures),
+        return {"replans": len(ms), "failed": len(self.failures), "held": len(self.held),
+                "rollouts_failed": sorted({i for _, i, _ in self.failures}),
+                "rollouts_held": sorted({i for _, i in self.held}),
                 "late_replans": int(np.sum(ms > self.dt * 1e3)),
                 "median_ms": float(np.median(ms)) if len(ms) else None,
                 "p90_ms": float(np.percentile(ms, 90)) if len(ms) else None,

@@ -8,8 +8,8 @@ goal under observation until then, or at the cap (`grasp_rule.py`):
 
 - `baseline`: the straight line as fast as the limits allow (the fewest steps a time law within
   them fits, none before the last camera move), then the dwell;
-- `ocp-robot-pace`: the OCP planned once to the confidence (the shortest horizon whose plan reaches
-  it, `solvers/confidence.py`), run open loop, then the dwell;
+- `ocp-robot-pace`: the `Planner`'s first plan to the confidence (the shortest horizon whose plan
+  reaches it, not below the problem's, `solvers/confidence.py`), run open loop, then the dwell;
 - `ocp-mpc`: that plan re-planned at every frame by every rollout from its own belief within the
   limits (`closed_loop.ClosedLoop`), then the dwell.
 
@@ -38,10 +38,11 @@ METHODS = ("baseline", "ocp-robot-pace", "ocp-mpc")
 
 
 def scenario_setups(problem, confidence: float):
-    """(setup asking `confidence` at the robot's pace, the same without it)."""
+    """(setup asking `confidence` at the robot's pace, the same without it); the planner knows the
+    detector (the problem's `detection:`, else the evaluation's default one)."""
     fast = robot_pace(problem)
-    asked = build_setup(fast.with_sections(goal={**fast.source["goal"],
-                                                 "confidence": confidence}))
+    asked = build_setup(fast.with_sections(goal={**fast.source["goal"], "confidence": confidence},
+                                           detection=fast.source.get("detection", {})))
     plain = asked.with_ocp(grasp=type(asked.ocp.grasp)(asked.ocp.grasp.position,
                                                        asked.ocp.grasp.angle))
     return asked, plain
@@ -73,10 +74,10 @@ def scenario_rows(problem, k: int, rollouts: int, seed: int, confidence: float =
     rule = GraspRule.of(asked)
     dt = float(asked.ocp.timing.step_s)
     changes = asked.camera_changes()
-    plan = run_method(asked, "ocp")  # to the confidence (or the most confident within the cap)
-    rec = plan.extras["grasp"]
-    out = {"plan": {"steps": plan.horizon, "predicted": rec["predicted"],
-                    "reached": rec["reached"], "status": plan.status},
+    loop = ClosedLoop(asked)  # its Planner's plan to the confidence, within the limits' reserve
+    rec = loop.planner.grasp
+    out = {"plan": {"steps": loop.planner.horizon, "shortest": round(rec["duration_s"] / dt),
+                    "predicted": rec["predicted"], "reached": rec["reached"]},
            "cap_steps": rule.max_steps}
     for name in methods:
         policy = None
@@ -84,11 +85,10 @@ def scenario_rows(problem, k: int, rollouts: int, seed: int, confidence: float =
             sol = fastest_baseline(plain)
             poses = np.asarray(sol.poses, float)
             out["baseline_steps"] = sol.horizon
-        else:
-            poses = np.asarray(plan.poses, float)
-        if name == "ocp-mpc":  # the Planner's own plan to the confidence (within its reserve)
-            policy = ClosedLoop(asked)
-            out["mpc_steps"] = policy.planner.horizon
+        else:  # the first plan, each waypoint in its step's camera frame
+            poses = loop.setup.in_step_frames(np.asarray(loop.first_plan.poses, float))
+        if name == "ocp-mpc":
+            policy = loop
             poses = poses[[0, -1]]
         row = {"replans": {}, "violations": 0}
         for mi, mode in enumerate(MODES):
@@ -102,6 +102,10 @@ def scenario_rows(problem, k: int, rollouts: int, seed: int, confidence: float =
             row[mode] = cell(ro, rule, dt)
             if policy is not None:
                 s = policy.summary()
+                missed = [i for i, ok in enumerate(row[mode]["hit"]) if not ok]
+                # the misses of rollouts that kept a plan or a registration (counted, said)
+                row[mode]["missed_after_failure"] = len(set(missed) & set(s["rollouts_failed"]))
+                row[mode]["missed_after_hold"] = len(set(missed) & set(s["rollouts_held"]))
                 s["wall_s"] = time.perf_counter() - t0
                 s["causes"] = dict(Counter(why.split(":")[0][:60] for _, _, why in
                                            policy.failures))
