@@ -25,3 +25,12 @@ def whole_number(value, name: str, minimum: int = 0, maximum: int | None = None)
         kind = "" if isinstance(value, numbers.Real) else f" ({type(value).__name__})"
         raise SurestepError(f"{name} must be {allowed}, got {shown(value)}{kind}")
     return int(value)
+
+
+def real_number(value, name: str) -> float:
+    """`value` as a float: a real number (an int or a float; not a bool, a string or None), which
+    the callee's own range check then bounds; else an error naming `name`."""
+    if not isinstance(value, numbers.Real) or isinstance(value, bool):
+        raise SurestepError(f"{name} must be a number, got {shown(value)} "
+                            f"({type(value).__name__})")
+    return float(value)

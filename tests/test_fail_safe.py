@@ -210,3 +210,16 @@ def test_a_start_joint_at_its_limit_gives_no_warnings(tmp_path, side):
         sol = ss.solve(ss.load_problem(path), "ocp")
     assert [str(w.message) for w in caught] == []
     assert sol.status == "Solve_Succeeded" and sol.q[0][4] == tree["start"]["joints"][4]
+
+
+@pytest.mark.parametrize("key,value", [("rate_hz", "100"), ("rate_hz", None), ("rate_hz", True),
+                                       ("step_s", "0.05"), ("tool_speed", [0.1])])
+def test_exports_numeric_arguments_are_checked(default_problem, tmp_path, key, value):
+    """`ss.export(..., rate_hz="100")` was an internal TypeError from math.isfinite: every numeric
+    argument is a number or one SurestepError naming it, and nothing is written."""
+    import surestep_ocp as ss
+
+    sol = ss.solve(default_problem, "baseline")
+    with pytest.raises(SurestepError, match=f"export: {key} must be a number"):
+        ss.export(sol, "csv", tmp_path / "out.csv", **{key: value})
+    assert not any(tmp_path.iterdir())

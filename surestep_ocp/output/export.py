@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ..arguments import real_number
 from ..errors import SurestepError, shown
 from ..model.limits import JAW, parse_overrides
 from .export_rosbag import DEFAULT_ARM, check_arm, check_setpoint_rate
@@ -52,6 +53,11 @@ def export_solution(solution: str | Path | Solution, fmt: str, output: str | Pat
     default PSM1). Returns the trajectory and the files written."""
     if fmt not in FORMATS:
         raise SurestepError(f"unknown format '{fmt}'; allowed: {', '.join(FORMATS)}")
+    rate_hz = real_number(rate_hz, "export: rate_hz")
+    step_s, tool_speed, tool_rotation = (
+        None if v is None else real_number(v, f"export: {k}")
+        for k, v in (("step_s", step_s), ("tool_speed", tool_speed),
+                     ("tool_rotation", tool_rotation)))
     if arm is not None and fmt != "rosbag2":
         raise SurestepError("--arm names the bag's topics: it applies to --format rosbag2 only, "
                             f"not {fmt}")
