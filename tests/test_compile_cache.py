@@ -395,3 +395,6 @@ def test_the_bound_is_a_finite_number(cache_env, monkeypatch, capsys, value):
     monkeypatch.setenv("SURESTEP_CACHE_MAX_MB", value)
     assert main(["cache", "--prune"]) == 2
     assert "SURESTEP_CACHE_MAX_MB must be a finite number" in capsys.readouterr().err
+    # a solve's compile: the user's error (exit 2), not a fall-back to interpreted code
+    with pytest.raises(codegen.SurestepError, match="SURESTEP_CACHE_MAX_MB must be a finite"):
+        codegen.compiled_or_interpreted({"f": _probe_fn()}, required=False)

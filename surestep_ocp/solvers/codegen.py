@@ -155,7 +155,9 @@ def compiled_or_interpreted(fns: dict[str, ca.Function], required: bool,
                             ) -> tuple[dict[str, ca.Function], str | None]:
     """`fns` compiled (those keyed in `fast` with FAST_FLAGS, in `vectorised` with VECTOR_FLAGS);
     if compiling fails and it is not `required` (`solver.codegen: auto`), the interpreted ones and
-    a note saying why (`solver.codegen: true` keeps the error)."""
+    a note saying why (`solver.codegen: true` keeps the error). A bad `$SURESTEP_CACHE_MAX_MB` is
+    the user's error either way (exit 2), not a reason to fall back."""
+    max_bytes()
     try:
         done = compiled_all(list(fns.values()),
                             [FAST_FLAGS if k in fast else VECTOR_FLAGS if k in vectorised
