@@ -372,7 +372,8 @@ def rollout(
         KT, dx = _update(P, V_ekf, y, seen)
         for _ in range(ITERATIONS if tracker_noise == "iterated" else 0):
             # V expected under the updated belief, then the update again from the prediction
-            upd = P - np.swapaxes(KT, 1, 2) @ P
+            # P - P S^-1 P without its cancellation (unseen: P)
+            upd = np.where(seen[:, None, None], np.swapaxes(KT, 1, 2) @ V_ekf, P)
             V_ekf = noise.expected_observation(
                 _pose(pred_p + dx[:, :3], Rotation.from_rotvec(dx[:, 3:]) * pred_R),
                 0.5 * (upd + np.swapaxes(upd, 1, 2)))
