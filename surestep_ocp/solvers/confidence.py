@@ -2,14 +2,17 @@
 
 A plan's confidence is `model.grasp.grasp_probability` of its Sigma_T|T-1, the covariance of the
 tool's error at the grasp: the last command moves the estimate onto the goal, so the error is the
-estimate's before the last measurement (the plan's own maximum-likelihood belief, every
-observation component). With `goal.confidence` set, the OCP of each horizon T still minimises its
-objective (Tr(Sigma_T)); the horizon is the decision: the smallest T from the first one after the
-last camera move up to `timing.max_duration` whose plan reaches the confidence, found by bisection
-(more time never removes a plan: the longer horizon can dwell at the goal under observation, so the
-reached confidence grows with T; failed solves count as not reached). Where the cap does not reach
-it, the best plan found is returned with the status `Confidence_Not_Reached`, and its confidence
-and time are in its `grasp` record.
+estimate's before the last measurement (along the plan's waypoints, every observation component,
+the observation noise expected under the belief, only the observations the problem's detector
+delivers: `predicted_at_grasp`).
+
+With `goal.confidence` set, the OCP of each horizon T still minimises its objective (Tr(Sigma_T));
+the horizon is the decision: the smallest T from the first one after the last camera move up to
+`timing.max_duration` whose plan reaches the confidence, found by bisection (more time never
+removes a plan: the longer horizon can dwell at the goal under observation, so the reached
+confidence grows with T; failed solves count as not reached). Where the cap does not reach it, the
+best plan found is returned with the status `Confidence_Not_Reached`, and its confidence and time
+are in its `grasp` record.
 """
 
 from __future__ import annotations
@@ -18,7 +21,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from ..model.belief import unvech, vech
+from ..model.belief import BeliefModel, unvech, vech
 from ..model.grasp import grasp_probability
 from ..model.lie import np_means
 from ..output.solution import Solution
@@ -45,24 +48,33 @@ def last_move(setup: Setup) -> int:
     return moved[-1] if moved else 0
 
 
+def confidence_model(setup: Setup) -> BeliefModel:
+    """The belief a plan's confidence is computed with: every observation component and the noise
+    expected under the belief (V + tr(J P J^T) per term, surestep_method.md section 8), the noise
+    a tracker meets off the plan's waypoints. The paper's V at the mean is near zero at the ideal
+    pose and made confidences the rollouts did not reach (docs/grasp_confidence.md)."""
+    m = setup.eval_model
+    return BeliefModel(replace(m.noise, observation_noise="expected"), m.camera, m.components,
+                       None if m.identity_maps else m.jacobians)
+
+
 def predicted_at_grasp(setup: Setup, sol: Solution) -> np.ndarray:
-    """(6, 6) Sigma_T|T-1 of a plan of `setup` (the covariance of the error at the grasp). With a
-    detector (`setup.ocp.detection`) a waypoint's observation counts with its detection
-    probability (the expected covariance, p Sigma_t|t + (1 - p) Sigma_t|t-1): none where the
-    detector cannot see the tool."""
+    """(6, 6) Sigma_T|T-1 of a plan of `setup` (the covariance of the error at the grasp) along its
+    waypoints, by `confidence_model`. With a detector (`setup.ocp.detection`) a waypoint's
+    observation counts with its detection probability (the expected covariance,
+    p Sigma_t|t + (1 - p) Sigma_t|t-1): none where the detector cannot see the tool."""
     poses, sigma = np.asarray(sol.poses, float), sol.covariances
     T = len(poses) - 1
-    model, detection = setup.eval_model, setup.ocp.detection
+    model, detection = confidence_model(setup), setup.ocp.detection
     means = np_means(poses)
-    first = 0 if detection is not None else T - 1  # (all observed: the plan's own Sigma_T-1|T-1)
-    s = vech(sigma[first])
+    s = vech(sigma[0])
     changes = setup.camera_changes()
     w = np.zeros((T, len(s)))
     if model.joint_noise:
         w = np.asarray(setup.joint_noises(np.asarray(sol.q, float)), float)
     seen = (np.ones(T + 1) if detection is None
             else detection.probability(model.camera, poses[:, :3]))
-    for t in range(first, T):
+    for t in range(T):
         x0 = means[t]
         if changes is not None and t < len(changes) and changes[t] is not None:
             x0, s = model.camera_change(x0, s, changes[t])
