@@ -3,7 +3,7 @@
 every message taken off the wire as bytes and decoded by rosbags' ROS 2 Humble type store, checked
 against the problem (joint names, bounds, velocity and acceleration limits) and for its stamps and
 rate; bad input (exit 2, one line, before anything is published); a silent tracker (hold, with its
-reason, exit 1 when stopped); a signal before the first plan (exit 0)."""
+reason, exit 1 when stopped; the dvrk-ros-model names); a signal before the first plan (exit 0)."""
 
 import json
 import os
@@ -226,7 +226,8 @@ def test_tracker_silent_holds_with_its_reason(tmp_path):
     def held(rec, serve):
         return any(b"hold: tracker silent" in raw for _, raw in rec.samples["/surestep/status"])
 
-    r = _run(tmp_path, ["--estimate-timeout", "0.3"], ["--fault", "tracker-silent@0.6"], held)
+    r = _run(tmp_path, ["--estimate-timeout", "0.3", "--joint-names", "dvrk-ros-model"],
+             ["--fault", "tracker-silent@0.6"], held)
     assert r["code"] == 1, r["err"][-2000:]  # stopped after a fault: non-zero
     assert "hold: tracker silent" in r["err"] and "Traceback" not in r["err"]
     log = r["log"]
@@ -234,6 +235,10 @@ def test_tracker_silent_holds_with_its_reason(tmp_path):
     # held within 100 ms of the limit passing (one servo period plus scheduling)
     assert log["hold_at"] - (log["last_estimate"] + 0.3) < 0.1
     servo = r["rec"].decoded("/PSM1/servo_jp", "sensor_msgs/msg/JointState")
+    # the dvrk-ros-model preset's names (its arm reads measured_js by either preset's names)
+    assert servo and all(list(msg.name) == [f"outer_{n}" for n in ARM] for _, msg in servo)
+    plans = r["rec"].decoded("/surestep/plan", "trajectory_msgs/msg/JointTrajectory")
+    assert plans and list(plans[0][1].joint_names) == [f"outer_{n}" for n in ARM] + ["jaw"]
     t = _stamps(servo) - log["t0_wall"]
     assert t.max() <= log["hold_at"] + 1 / SERVO_HZ + 1e-6  # no motion after the hold
     status = [s.data for _, s in r["rec"].decoded("/surestep/status", "std_msgs/msg/String")]
