@@ -67,8 +67,8 @@ def tables(res: dict, args) -> list[str]:
                          f"{c['true']['capped']:.0%}",
                          f"{c['model']['nees_median']:.1f} / {c['true']['nees_median']:.1f}"])
     plans = [[label, r["plan"]["shortest"], r["plan"]["steps"], f"{r['plan']['predicted']:.3f}",
-              "yes" if r["plan"]["reached"] else "no", r["baseline_steps"], r["cap_steps"]]
-             for label, r in res.items()]
+              "yes" if r["plan"]["reached"] else f"no; {needed(r['plan'], r['cap_steps'])}",
+              r["baseline_steps"], r["cap_steps"]] for label, r in res.items()]
     rp = [[label] + [f"{sum(s[k] for s in r['ocp-mpc']['replans'].values())}"
                      for k in ("replans", "failed", "held")]
           + [", ".join(f"{c}: {n}" for c, n in sum_causes(r).items()) or "none",
@@ -90,6 +90,13 @@ def tables(res: dict, args) -> list[str]:
             *h.table(["scenario", "re-plans", "failed", "held", "causes of failures",
                       "misses after a failure, after a hold (model / true)",
                       "executed samples beyond a limit"], rp)]
+
+
+def needed(plan: dict, cap: int) -> str:
+    """What a confidence the cap does not allow would need (the search with twice the cap)."""
+    if plan.get("needed_steps") is None:
+        return (f"not within {2 * cap} steps either (best {plan.get('needed_predicted', 0):.3f})")
+    return f"needs {plan['needed_steps']} steps ({plan['needed_steps'] * 0.05:.2f} s at 0.05 s)"
 
 
 def sum_causes(r: dict) -> dict:

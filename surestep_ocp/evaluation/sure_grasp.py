@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import time
 from collections import Counter
+from dataclasses import replace
 
 import numpy as np
 
@@ -30,6 +31,7 @@ from ..model.grasp import nees, within
 from ..problem.setup import build_setup
 from ..solvers.confidence import at_horizon, last_move
 from ..solvers.methods import run_method
+from ..solvers.planner import Planner
 from .closed_loop import ClosedLoop, robot_pace
 from .grasp_rule import GraspRule
 from .rollout import MODES, Detection, rollout
@@ -79,6 +81,12 @@ def scenario_rows(problem, k: int, rollouts: int, seed: int, confidence: float =
     out = {"plan": {"steps": loop.planner.horizon, "shortest": round(rec["duration_s"] / dt),
                     "predicted": rec["predicted"], "reached": rec["reached"]},
            "cap_steps": rule.max_steps}
+    if not rec["reached"]:  # the time it would need: the search with a cap twice as long
+        longer = Planner(asked.with_ocp(timing=replace(
+            asked.ocp.timing, max_duration=2 * rule.max_steps * dt)), prebuild=False).grasp
+        out["plan"]["needed_steps"] = (round(longer["duration_s"] / dt) if longer["reached"]
+                                       else None)
+        out["plan"]["needed_predicted"] = longer["predicted"]
     for name in methods:
         policy = None
         if name == "baseline":
