@@ -152,7 +152,7 @@ def main() -> None:
     out = "\n".join(["# Time to a sure grasp in the simulated Table II", "", cmd, "",
                      *tables(res, args), "", "![success against time to grasp]"
                      "(../../docs/time_to_grasp.png)", "", last, ""])
-    h.write_result(args.output, out)
+    h.write_result(str(args.output), out)
     print(out)
 
 

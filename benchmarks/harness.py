@@ -43,7 +43,9 @@ The studies (benchmarks/README.md: each one's command and result files):
 - replan_budget.py: the re-plan's iteration budget within the limits.
 - scenarios.py: `surestep compare` on every scenario file.
 - baseline_timing.py: the baseline within enforced limits: kept or lengthened, against toppra.
-- closed_loop.py: the simulated Table II with the closed loop (`ocp-mpc`) beside the open loop.
+- closed_loop.py: time to a sure grasp in the simulated Table II (every method grasps when its
+  tracker's belief reaches the confidence, or at the cap).
+- tracker_calibration.py: the tracker's predicted against measured success per noise form.
 - grasp_ceiling.py: the grasp success each type's best plan predicts from its own final belief.
 - plan_steps.py, large_rollout_errors.py, worst_rollout.py: where the evaluation's large rollout
   errors come from.
@@ -90,6 +92,9 @@ from surestep_ocp.evaluation.table2_figure import error_figure  # noqa: E402
 from surestep_ocp.evaluation.executed_motion import stitched, violations  # noqa: E402
 from surestep_ocp.evaluation.closed_loop import robot_pace  # noqa: E402
 from surestep_ocp.evaluation.sure_grasp import METHODS as SURE_METHODS, scenario_rows  # noqa: E402
+from surestep_ocp.evaluation.grasp_rule import GraspRule  # noqa: E402
+from surestep_ocp.model.detection import Detection  # noqa: E402
+from surestep_ocp.model.grasp import nees, within  # noqa: E402
 from surestep_ocp.evaluation.configs import GRASP_ANGLE_RAD, GRASP_POSITION_M  # noqa: E402
 from surestep_ocp.model import limits as _limits  # noqa: E402
 from surestep_ocp.model.belief import unvech, vech  # noqa: E402
@@ -128,7 +133,7 @@ __all__ = [
     "np_exp", "write_text_atomic", "time_optimal_law", "played_line",
     "TYPES", "success_table", "error_figure", "stitched", "violations", "robot_pace",
     "GRASP_POSITION_M", "GRASP_ANGLE_RAD", "vech", "unvech", "np_means", "SURE_METHODS",
-    "scenario_rows",
+    "scenario_rows", "GraspRule", "Detection", "nees", "within",
 ]
 
 # --- the test set ---------------------------------------------------------------------------------
