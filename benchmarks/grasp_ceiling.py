@@ -33,8 +33,8 @@ def predicted(setup, sol, samples: int, rng) -> tuple[float, float]:
     s = setup.eval_model.predict(means[0], means[1], h.vech(sigma[T - 1]))
     prior = h.unvech(np.asarray(s, float).ravel())
     e = rng.multivariate_normal(np.zeros(6), prior, size=samples, method="cholesky")
-    ok = ((np.linalg.norm(e[:, :3], axis=1) < h.GRASP_POSITION_M)
-          & (np.linalg.norm(e[:, 3:], axis=1) < h.GRASP_ANGLE_RAD))
+    ok = h.within(np.linalg.norm(e[:, :3], axis=1), np.linalg.norm(e[:, 3:], axis=1),
+                  h.GRASP_POSITION_M, h.GRASP_ANGLE_RAD)
     return float(np.trace(sigma[T])), float(ok.mean())
 
 

@@ -48,6 +48,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..model.grasp import within
 from ..errors import SurestepError, shown
 from ..model.limits.values import problem_limits
 from .configs import ConfigurationSampler, load_evaluation
@@ -150,7 +151,7 @@ def evaluate_configuration(eval_path: str, seed: int, index: int, methods: tuple
                 rec["metrics"][mode][name] = met
                 rec["pos_errors"][mode][name] = ro.pos_err.tolist()
                 rec["ori_errors"][mode][name] = ro.ori_err.tolist()
-                ok = (ro.pos_err <= spec.grasp_position) & (ro.ori_err <= spec.grasp_angle)
+                ok = within(ro.pos_err, ro.ori_err, spec.grasp_position, spec.grasp_angle)
                 rec["success"][mode][name] = float(np.mean(ok))
                 rec["detected"][mode][name] = (float(np.mean(ro.detected))
                                                if ro.detected is not None else 1.0)

@@ -30,6 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import SurestepError
+from ..model.grasp import within
 from ..model.lie import matrix_to_pose
 from ..output.solution import write_text_atomic
 from ..problem.load import load_problem
@@ -132,7 +133,7 @@ class RolloutReplanner:
 
 
 def _record(ro, grasp) -> dict:
-    hit = (ro.pos_err <= grasp[0]) & (ro.ori_err <= grasp[1])
+    hit = within(ro.pos_err, ro.ori_err, *grasp)
     return {"share": float(np.mean(hit)), "median_mm": float(np.median(ro.pos_err) * 1e3),
             "p90_mm": float(np.percentile(ro.pos_err, 90) * 1e3),
             "max_mm": float(np.max(ro.pos_err) * 1e3)}
