@@ -183,7 +183,7 @@ class ServoLoop:
             self._hold(wd.reason)
 
     def _send(self, n: int, t: float, now: float) -> None:
-        q, v, piece = self.played.sample(t)
+        q, v, piece = self.played.sample(t, commit=True)
         ns = self.shared.t0_wall_ns + round(t * 1e9)
         self.ep.servo.write(joint_message(ns, [self.names[i] for i in self.arm_idx],
                                           q[self.arm_idx], v[self.arm_idx]))

@@ -25,14 +25,20 @@ class PlayedCurve:
         self.dt = float(dt)
         self._lock = threading.Lock()
         self._pieces = [(0, np.array(q, float), start)]
+        self._sampled = -np.inf  # the latest time `sample` was asked for with `commit`
 
-    def add(self, step: int, q, start) -> None:
-        """A plan from waypoint `step` (it replaces any piece starting there or later)."""
+    def add(self, step: int, q, start) -> bool:
+        """A plan from waypoint `step` (it replaces any piece starting there or later); False
+        (not added) when a time after that waypoint was sampled already: the switch would not be
+        at the waypoint. (A sample at the waypoint itself is the same from either plan.)"""
         piece = (int(step), np.array(q, float),
                  None if start is None else (np.asarray(start[0], float),
                                              np.asarray(start[1], float)))
         with self._lock:
+            if self._sampled > piece[0] * self.dt + 1e-9:
+                return False
             self._pieces = [p for p in self._pieces if p[0] < piece[0]] + [piece]
+            return True
 
     def pieces(self) -> list:
         with self._lock:
@@ -40,7 +46,11 @@ class PlayedCurve:
 
     def piece_at(self, t: float) -> tuple:
         """The piece playing at time t (the last one started at or before it)."""
-        pieces = self.pieces()
+        with self._lock:
+            return self._piece_at(t)
+
+    def _piece_at(self, t: float) -> tuple:
+        pieces = self._pieces
         for p in reversed(pieces):
             if p[0] * self.dt <= t + 1e-9:
                 return p
@@ -52,10 +62,15 @@ class PlayedCurve:
         step, q, _ = self.pieces()[-1]
         return (step + len(q) - 1) * self.dt
 
-    def sample(self, t: float) -> tuple[np.ndarray, np.ndarray, int]:
+    def sample(self, t: float, commit: bool = False) -> tuple[np.ndarray, np.ndarray, int]:
         """(position, velocity, the playing piece's start waypoint) at time t; after the goal, the
-        goal at rest."""
-        step, q, start = self.piece_at(t)
+        goal at rest. `commit`: the sample is sent (no plan is added before t from now on)."""
+        if commit:
+            with self._lock:
+                self._sampled = max(self._sampled, t)
+                step, q, start = self._piece_at(t)
+        else:
+            step, q, start = self.piece_at(t)
         tau = t - step * self.dt
         if tau >= (len(q) - 1) * self.dt:
             return q[-1].copy(), np.zeros(q.shape[1]), step

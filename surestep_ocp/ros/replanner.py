@@ -9,7 +9,8 @@ late (a loaded machine) they aim at the waypoint after; a late one costs a frame
 always costs one. From the
 played curve's state at k, with the estimate moved along the commanded motion from the stamp's
 joints (the arm's measured ones) to k (estimate.moved). It runs on a copy of the Planner (as
-closed_loop does); kept and played from k only if it succeeded and was ready before k, else the
+closed_loop does); kept and played from k only if it succeeded and no set-point after k was sent
+(played.PlayedCurve.add), else the
 plan before runs on (a failed one is counted by faults.Watchdog, a late one is not: the plan it
 would have replaced is within the limits all the same).
 """
@@ -112,7 +113,7 @@ class Replanner(threading.Thread):
         """[s] the least time from an estimate's arrival to the waypoint its re-plan starts at."""
         if len(self.recent) < LEAD_WINDOW // 2:
             return self.margin_s
-        return max(self.margin_s, float(np.median(self.recent)) + 0.5 * self.servo_period)
+        return max(self.margin_s, float(np.median(self.recent)) - 0.5 * self.servo_period)
 
     def _replan(self, msg, mean, cov, t_a: float) -> None:
         pl, dt = self.planner, self.played.dt
@@ -139,16 +140,16 @@ class Replanner(threading.Thread):
         took = time.monotonic() - t_start
         self.recent.append(ready - t_a)
         late = False
-        if ok and ready > k * dt - 0.5 * self.servo_period:
-            ok, late = False, True
-            why = (f"late: ready {1e3 * (ready - k * dt):+.1f} ms from waypoint {k} (less than "
-                   "half a servo period before it)")
+        if ok:
+            st = sol.run.start_state
+            start = None if st is None else (np.array(st.velocity), np.array(st.acceleration))
+            if not self.played.add(k, sol.q, start):  # a set-point after waypoint k was sent
+                ok, late = False, True
+                why = (f"late: ready {1e3 * (ready - k * dt):+.1f} ms from waypoint {k}, a "
+                       "set-point after it sent already")
         self.shared.logs.append(ReplanLog(t_a, ready, k, took, ok, "" if ok else why))
         if ok:
             self.planner = trial
-            st = sol.run.start_state
-            start = None if st is None else (np.array(st.velocity), np.array(st.acceleration))
-            self.played.add(k, sol.q, start)
             self.on_plan(k, sol, start)
         else:
             self.on_fail(why, late)
