@@ -116,3 +116,23 @@ def test_domain_ids():
     for bad in ("233", "-1", "x", "1.5", ""):
         with pytest.raises(SurestepError, match="--domain-id"):
             check_domain(bad)
+
+
+def test_the_core_and_the_cli_without_cyclonedds():
+    """Without the ros extra: the package and every other command load; serve says what to
+    install (exit 2, one line)."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    problem = str(Path(__file__).resolve().parents[1] / "problems" / "needle_regrasp.yaml")
+    code = ("import sys; sys.modules['cyclonedds'] = None\n"
+            "import surestep_ocp\n"
+            "from surestep_ocp.cli import main\n"
+            "assert main(['validate', sys.argv[1]]) == 0\n"
+            "sys.exit(main(['serve', sys.argv[1]]))\n")
+    r = subprocess.run([sys.executable, "-c", code, problem], capture_output=True, text=True,
+                       timeout=120)
+    assert r.returncode == 2, r.stderr
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and "pip install 'surestep_ocp[ros]'" in lines[0]
