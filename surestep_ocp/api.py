@@ -67,7 +67,7 @@ def export(solution: Solution | str | Path, format: str, output: str | Path, *,
         tool_speed, tool_rotation_speed: the tool's limits [m/s], [rad/s]
             (default: the recorded ones).
         arm: the bag's arm name in its topics (rosbag2 only; default PSM1).
-        plot: also write `<stem>_motion.png` beside the output (the command
+        plot: also write `<output name>_motion.png` beside the output (the command
             line's default; here off).
 
     Returns:

@@ -187,6 +187,19 @@ def test_compare_writes_no_nan_or_infinity(tmp_path, default_problem_tree, capsy
     assert "`null` in comparison.json" in (out / "comparison.md").read_text()
 
 
+def test_the_ocp_plans_without_observation_noise(tmp_path, default_problem_tree, capsys):
+    """Every observation noise 0: the posterior is 0 along any plan; the OCP's Newton path took
+    the start's trace (0, an empty output) as its scale and ended in an internal IndexError."""
+    import json
+
+    path = _problem_file(tmp_path, default_problem_tree, V_d0=0.0, V_f0=0.0, V_o0=0.0)
+    out = tmp_path / "ocp.json"
+    assert main(["solve", path, "--method", "ocp", "--output", str(out)]) == 0
+    sol = json.loads(out.read_text())
+    assert sol["success"] and sol["trace"][-1] == 0.0
+    assert "internal error" not in capsys.readouterr().err
+
+
 @pytest.mark.parametrize("side", [0, 1])
 def test_a_start_joint_at_its_limit_gives_no_warnings(tmp_path, side):
     """A start joint exactly at its limit (the PSM's wrist pitch, needle_regrasp within the

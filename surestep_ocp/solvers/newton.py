@@ -188,7 +188,8 @@ class NewtonSolver:
         fns = {"newton_step": ca.Function("newton_step", [Q, P], [S_x, S_x + smooth, G, HB, depth]),
                "newton_f": ca.Function("newton_f", [Q, P], [S_x + smooth]),
                "newton_depth": ca.Function("newton_depth", [Q, P], [Z, DZ, D2Z]),
-               "newton_fz": ca.Function("newton_fz", [Q, P], [S_x + smooth, Z_only, S_x])}
+               "newton_fz": ca.Function("newton_fz", [Q, P], [S_x + smooth, Z_only,
+                                                               ca.densify(S_x)])}
         self.nm, self.no = w_m.shape[0], w_o.shape[0]
         # S's curvature costs nc T Hessian-vector products: cheap for the scalar recursion, not for
         # the 6x6 one, where Newton keeps the surrogate throughout (docs/hessian_and_newton.md, "The
@@ -312,7 +313,7 @@ class NewtonSolver:
                         and np.allclose(x[:nq], setup.q_start, atol=1e-12))
         # the objective is 1 (plus smoothness) at the start: its scale is the start's trace (by
         # `fz`: no derivatives)
-        P[CAMERA_PARAMETERS] = trace_ref = float(self.fz(x, P)[2][0])
+        P[CAMERA_PARAMETERS] = trace_ref = _scale(float(self.fz(x, P)[2][0]))
         status, it, shift = ("Maximum_Iterations_Exceeded" if start_ok
                              else "Infeasible_Start"), 0, 0.0
         exact_steps, secant_steps, history = 0, 0, []
@@ -400,7 +401,7 @@ class NewtonSolver:
         idx, min_depth = np.flatnonzero(free), setup.ocp.min_depth
         start_ok = bool(np.all(x >= lo - 1e-12) and np.all(x <= hi + 1e-12)
                         and np.allclose(x[:nq], setup.q_start, atol=1e-12))
-        P[CAMERA_PARAMETERS] = trace_ref = float(self.fz(x, P)[2][0])  # at `init`, as `run`
+        P[CAMERA_PARAMETERS] = trace_ref = _scale(float(self.fz(x, P)[2][0]))  # as `run`
         push_lo = BOUND_PUSH * np.minimum(np.maximum(1.0, np.abs(lo)), hi - lo)
         push_hi = BOUND_PUSH * np.minimum(np.maximum(1.0, np.abs(hi)), hi - lo)
         x = np.where(free, np.clip(x, lo + push_lo, hi - push_hi), x)
@@ -596,3 +597,9 @@ class NewtonRun:
     @property
     def success(self) -> bool:
         return self.status == "Solve_Succeeded"
+
+
+def _scale(trace: float) -> float:
+    """The objective's scale: the start's trace, or 1 where that is 0 (every observation noise 0:
+    the posterior is 0 along any plan, and only the smoothness term is left)."""
+    return trace if trace > 0 else 1.0
