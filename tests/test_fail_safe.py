@@ -135,6 +135,32 @@ def test_general_observation_maps_stay_definite(default_setup, w, v):
     assert np.all(np.linalg.eigvalsh(varying.propagate(poses)[0][1:]) > 0)
 
 
+@pytest.mark.parametrize("w,v", SCALES)
+@pytest.mark.parametrize("H", [None, H_CONSTANT], ids=["identity", "constant-H"])
+def test_the_surrogates_kalman_stage_keeps_its_accuracy(default_setup, w, v, H):
+    """`surrogate.kalman_stage` (the structured surrogate's and the lifted form's step) against the
+    information form along six steps: it computed `P - K H P` (0 or indefinite at (1e6, 1e-30))."""
+    import casadi as ca
+
+    from surestep_ocp.model.belief import unvech, vech
+    from surestep_ocp.solvers.surrogate import kalman_stage
+
+    base = _extreme(default_setup, w, v)
+    model = base if H is None else _with_jacobians(base, lambda x1: ca.SX(ca.DM(H)))
+    Wm, Vm = model.motion_matrices(), model.observation_matrices()
+    stage = kalman_stage(model)
+    rng = np.random.default_rng(0)
+    sig = ref = np.asarray(model.noise.Sigma0, float)
+    for _ in range(6):
+        c = rng.uniform(0.1, 2.0, len(Wm) + len(Vm))
+        W = sum(ck * Mk for ck, Mk in zip(c, Wm))
+        V = model.noise.V_min + sum(ck * Mk for ck, Mk in zip(c[len(Wm):], Vm))
+        ref = numpy_ekf.ekf_step(ref, W, V, H=np.eye(6) if H is None else H)[0]
+        sig = unvech(np.asarray(stage(vech(sig), c)[0]).ravel())
+        assert _close(sig, ref)
+        assert np.all(np.linalg.eigvalsh(sig) > 0)
+
+
 def _problem_file(tmp_path, tree: dict, **noise) -> str:
     """The default problem with other noise constants, as a file."""
     import copy

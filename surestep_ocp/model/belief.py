@@ -176,7 +176,7 @@ def paper_cosine(Q, o_star, guard: float, band: float):
     return side * f * ca.dot(v, ca.DM(o_star)) / (norm * float(np.linalg.norm(o_star)))
 
 
-def posterior(P, H, M, H_inv: np.ndarray | None):
+def posterior(P, H, M, H_inv: np.ndarray | None, solve=ca.solve):
     """The EKF's posterior covariance `(I - K H) P` (CasADi, symmetrised) without the
     cancellation of `P - K H P`, which loses definiteness when the observation is far better than
     the prior (V = 1e-30 against P = 1e6 gave Sigma = 0).
@@ -186,14 +186,15 @@ def posterior(P, H, M, H_inv: np.ndarray | None):
     form `P (P + M')^-1 M'`: equal to `P - P S^-1 P` exactly, it only multiplies, so it is as
     accurate as P and M themselves. Otherwise (H depends on the means) the Joseph form
     `A P A^T + K M K^T`, `A = I - K H`: a sum of two positive semidefinite terms, definite for any
-    H, accurate while A is not all rounding (K H not I to working precision).
+    H, accurate while A is not all rounding (K H not I to working precision). `solve(S, B)`:
+    `S^-1 B` for the symmetric positive definite S (`surrogate.spd_solve` on SX is shorter).
     """
     if H_inv is not None:
         if not np.array_equal(H_inv, np.eye(NX)):
             M = ca.DM(H_inv) @ M @ ca.DM(H_inv).T
-        post = ca.solve(P + M, P).T @ M  # ((P + M')^-1 P)^T M' = P (P + M')^-1 M'
+        post = solve(P + M, P).T @ M  # ((P + M')^-1 P)^T M' = P (P + M')^-1 M'
     else:
-        KT = ca.solve(H @ P @ H.T + M, H @ P)  # K^T = S^-1 H P (S symmetric)
+        KT = solve(H @ P @ H.T + M, H @ P)  # K^T = S^-1 H P (S symmetric)
         A = ca.SX.eye(NX) - KT.T @ H if isinstance(P, ca.SX) else ca.MX.eye(NX) - KT.T @ H
         post = A @ P @ A.T + KT.T @ M @ KT
     return 0.5 * (post + post.T)

@@ -13,7 +13,7 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
-from ..model.belief import DIAG, NV, NX, BeliefModel, trace_vech, unvech, vech
+from ..model.belief import DIAG, NV, NX, BeliefModel, posterior, trace_vech, unvech, vech
 from ..model.robot import Robot
 from .codegen import SX_OPTIONS
 
@@ -64,8 +64,8 @@ def spd_solve(S, B):
 def _stage_symbols(model: BeliefModel):
     """Symbols `sigma` (vech), `c` (motion coefficients, observation ones, then the vech of the
     joint-space motion noise if the model has it), the prediction `P = F Sigma F^T + Q W Q^T`, the
-    gain `K = P H^T (H P H^T + R V R^T)^-1` with `W = sum_k c_k W_k (+ W_q)`,
-    `V = V_min + sum_k c_k V_k`, and the constant maps."""
+    observation noise `M = R V R^T`, the gain `K = P H^T (H P H^T + M)^-1` with
+    `W = sum_k c_k W_k (+ W_q)`, `V = V_min + sum_k c_k V_k`, and the constant maps."""
     F, Q, H, R = (ca.DM(M) for M in model.constant_maps)
     Wm, Vm = model.motion_matrices(), model.observation_matrices()
     s, c = ca.SX.sym("sigma", NV), ca.SX.sym("c", len(Wm) + len(Vm) + joint_size(model))
@@ -74,8 +74,9 @@ def _stage_symbols(model: BeliefModel):
         W = W + unvech(c[len(Wm) + len(Vm):])
     V = ca.DM(model.noise.V_min) + sum(c[len(Wm) + k] * ca.DM(M) for k, M in enumerate(Vm))
     P = F @ unvech(s) @ F.T + Q @ W @ Q.T
-    K = spd_solve(H @ P @ H.T + R @ V @ R.T, H @ P).T
-    return s, c, P, K, (F, Q, H, R), (Wm, Vm)
+    M = R @ V @ R.T
+    K = spd_solve(H @ P @ H.T + M, H @ P).T
+    return s, c, P, M, K, (F, Q, H, R), (Wm, Vm)
 
 
 def joint_size(model: BeliefModel) -> int:
@@ -93,11 +94,12 @@ def _unit_vech(v: int) -> np.ndarray:
 
 def kalman_stage(model: BeliefModel) -> ca.Function:
     """One step of the matrix Kalman recursion with the model's constant maps (F, Q, H, R), as a
-    function of the noise coefficients: `(sigma, c) -> (sigma+, sigma_pred)` (vech),
-    `Sigma+ = P - K H P` (symmetrised)."""
-    s, c, P, K, (_, _, H, _), _ = _stage_symbols(model)
-    post = P - K @ H @ P
-    return ca.Function("kalman_stage", [s, c], [vech(0.5 * (post + post.T)), vech(P)],
+    function of the noise coefficients: `(sigma, c) -> (sigma+, sigma_pred)` (vech), `Sigma+` the
+    model's own update without cancellation (`belief.posterior`: `P - K H P` lost definiteness at
+    extreme noise scales)."""
+    s, c, P, M, _, (_, _, H, _), _ = _stage_symbols(model)
+    post = posterior(P, H, M, model.observation_inverse, solve=spd_solve)
+    return ca.Function("kalman_stage", [s, c], [vech(post), vech(P)],
                        ["sigma", "c"], ["sigma_next", "sigma_pred"])
 
 
@@ -107,7 +109,7 @@ def kalman_stage_jacobian(model: BeliefModel) -> ca.Function:
     with `A = I - K H` (the gain's own variation drops out, it is optimal): each column a congruence
     of one base matrix, in far fewer instructions than AD through the symbolic 6x6 solve
     (docs/general_models.md)."""
-    s, c, _, K, (F, Q, H, R), (Wm, Vm) = _stage_symbols(model)
+    s, c, _, _, K, (F, Q, H, R), (Wm, Vm) = _stage_symbols(model)
     A = ca.DM.eye(NX) - K @ H
     B, AQ, KR = A @ F, A @ Q, K @ R
     cols = []
