@@ -167,3 +167,44 @@ def test_an_estimate_that_puts_the_goal_out_of_reach_holds_the_registration():
     again = planner.replan(np.array(sol.poses[1], float), 1e-4 * np.eye(6), step=2)
     assert again.success and again.replan.registration_held is False
     assert "goal_ik_residual" not in again.extras
+
+
+def test_restart_plans_a_new_motion_from_rest_to_a_new_goal():
+    """After re-plans in motion, `restart` (a fault cleared, or a new goal) plans from rest at the
+    joints given: the plan starts there at rest, ends at the new goal pose (Pinocchio's kinematics
+    of its last joints), keeps every limit (the divided-difference check), and re-plans go on from
+    it; bad joints or an unreachable goal are one error each, the Planner unchanged."""
+    import pinocchio as pin
+
+    problem = ss.load_problem("problems/needle_regrasp.yaml").with_solver(name="interior")
+    planner = ss.Planner(problem, prebuild=False)
+    for k in (1, 2):
+        assert planner.replan(np.array(planner.plan.poses[1], float), 1e-6 * np.eye(6),
+                              step=k).success
+    setup = planner.setup
+    rest = np.array(planner.plan.q[10], float)
+    goal = setup.pose_of(np.array(planner.plan.q[-12], float))
+    current = planner.plan
+    for bad, why in (((rest + 10.0), "outside their bounds"), (rest[:3], "finite numbers")):
+        with pytest.raises(ss.SurestepError, match=why):
+            planner.restart(bad)
+    far = goal.copy()
+    far[:3] += [0.0, 0.0, 1.0]
+    with pytest.raises(ss.SurestepError, match="not reachable"):
+        planner.restart(rest, goal=far)
+    assert planner.plan is current
+
+    plan = planner.restart(rest, goal=goal)
+    assert plan.success and planner.plan is plan and planner.step == 0
+    q = np.array(plan.q, float)
+    np.testing.assert_allclose(q[0], rest, atol=1e-12)
+    # the new goal, by Pinocchio's forward kinematics in the camera frame
+    model = pin.buildModelFromUrdf(str(problem.robot.urdf))
+    data = model.createData()
+    pin.framesForwardKinematics(model, data, q[-1])
+    tool = (np.linalg.inv(setup.camera_pose) @ problem.robot.base_pose
+            @ data.oMf[model.getFrameId("tool")].homogeneous)
+    np.testing.assert_allclose(tool[:3, 3], goal[:3], atol=1e-6)
+    assert_within_limits(setup, _stitched([(0, q, None)], setup.ocp.timing.step_s))
+    nxt = planner.replan(np.array(plan.poses[1], float), 1e-6 * np.eye(6), step=1)
+    assert nxt.success and np.abs(np.array(nxt.q)[-1] - q[-1]).max() < 1e-6

@@ -88,13 +88,9 @@ class Planner:
                  replan_iterations: int = REPLAN_ITERATIONS):
         replan_iterations = whole_number(replan_iterations, "Planner: replan_iterations")
         setup = problem if isinstance(problem, Setup) else build_setup(problem)
-        # with `goal.confidence`: the horizon of the shortest plan that reaches it
-        # (solvers/confidence.py; its record in `grasp`), re-planned over as any other
-        self.grasp = None
-        if setup.ocp.grasp.confidence is not None:
-            chosen = plan_to_confidence(setup, first_plan)
-            self.grasp = chosen.extras["grasp"]
-            setup = at_horizon(without_confidence(setup), max(chosen.horizon, setup.ocp.horizon))
+        # the problem as asked (its confidence, its own horizon): `restart` plans it again
+        self._asked = setup
+        setup = self._horizon_for(setup)
         # planned for a fixed camera (`replan` takes its pose): without the schedule, the plans
         # stay in one camera frame and their solutions record no camera moves
         self.setup = replace(setup, camera_schedule=[])
@@ -116,20 +112,87 @@ class Planner:
         # every re-plan's structure
         for n in range(self.horizon, 0, -1) if self.limited and prebuild else ():
             self._interior(self.setup.with_ocp(horizon=n))
-        self.plan = first_plan(self.setup)
-        self.step = 0  # the waypoint the current plan starts at
-        self._q = np.array(self.plan.q, float)
-        # the current plan's curve starts at rest, or in motion: (velocity, acceleration)
-        self._start = None
         self._camera = (self.setup.camera_pose.tobytes(), self.setup)
-        # within the limits: the current plan's camera registration, as a correction of the given
-        # camera pose (the first plan's: none)
-        self._registration = np.eye(4)
+        self._begin(first_plan(self.setup))
         # what is built so far (solvers, compiled functions, the first plan) leaves the cyclic
         # collector's generations: a full collection within a re-plan would scan it all (24 ms in
         # a 20 Hz loop, docs/realtime.md); reference counting still frees it
         gc.collect()
         gc.freeze()
+
+    def _horizon_for(self, setup: Setup) -> Setup:
+        """`setup` over the Planner's horizon: with `goal.confidence`, the shortest whose plan
+        reaches it (solvers/confidence.py; its record in `grasp`) but not below the problem's
+        own; else the problem's."""
+        self.grasp = None
+        if setup.ocp.grasp.confidence is None:
+            return setup
+        chosen = plan_to_confidence(setup, first_plan)
+        self.grasp = chosen.extras["grasp"]
+        return at_horizon(without_confidence(setup), max(chosen.horizon, setup.ocp.horizon))
+
+    def _begin(self, plan: Solution) -> None:
+        """`plan` (from rest, waypoint 0) as the current plan of a new motion."""
+        self.plan = plan
+        self.step = 0  # the waypoint the current plan starts at
+        self._q = np.array(plan.q, float)
+        # the current plan's curve starts at rest, or in motion: (velocity, acceleration)
+        self._start = None
+        # within the limits: the current plan's camera registration, as a correction of the given
+        # camera pose (the first plan's: none)
+        self._registration = np.eye(4)
+
+    def restart(self, joints, goal=None) -> Solution:
+        """A new motion from rest at `joints` (the arm held still: after a fault cleared, or for a
+        new goal), planned as the first plan was, from waypoint 0, in the camera as last given,
+        with no registration yet (the next `replan` registers).
+
+        Args:
+            joints: the arm's joints at rest [rad, m], within their bounds.
+            goal: a new goal pose `[px, py, pz, rx, ry, rz]` in the camera frame (position [m],
+                axis-angle [rad]); default: the same goal joints.
+
+        Returns:
+            The new plan (also `plan`); with `goal.confidence` its horizon is searched again (the
+            solvers already built are kept). A plan that fails raises (the old motion is over
+            either way): SurestepError carrying its status, the Planner unchanged.
+        """
+        base = self._camera[1]
+        q = _real(joints, "joints")
+        lo, hi = base.robot.lower, base.robot.upper
+        if q.shape != lo.shape or not np.all(np.isfinite(q)):
+            raise SurestepError(f"restart: joints must be {lo.size} finite numbers, got shape "
+                                f"{q.shape}")
+        if np.any(q < lo) or np.any(q > hi):
+            bad = [i for i in range(q.size) if not lo[i] <= q[i] <= hi[i]]
+            raise SurestepError(f"restart: joint(s) {bad} outside their bounds "
+                                f"{[[float(lo[i]), float(hi[i])] for i in bad]}: {q[bad].tolist()}")
+        asked = replace(self._asked, camera_pose=base.camera_pose, q_start=q)
+        if goal is not None:
+            x = _real(goal, "goal")
+            if x.shape != (NX,) or not np.all(np.isfinite(x)):
+                raise SurestepError("restart: goal must be 6 finite numbers [px, py, pz, rx, ry, "
+                                    f"rz], got shape {x.shape}")
+            if x[2] < base.ocp.min_depth:
+                raise SurestepError(f"restart: goal's depth {x[2]:.4g} m is below the minimum "
+                                    f"depth {base.ocp.min_depth:g} m (constraints.min_depth)")
+            q_goal, res_m, res_rad = asked.joints_for(x, base.q_goal, raise_on_fail=False)
+            if res_m > 1e-6 or res_rad > 1e-5:
+                raise SurestepError(f"restart: goal {np.round(x, 4).tolist()} is not reachable "
+                                    f"within the joint bounds (IK residual {res_m * 1e3:.3f} mm, "
+                                    f"{res_rad:.4f} rad)")
+            asked = replace(asked, q_goal=q_goal)
+        asked.x_start, asked.x_goal = asked.pose_of(asked.q_start), asked.pose_of(asked.q_goal)
+        grasp = self.grasp
+        setup = replace(self._horizon_for(asked), camera_schedule=[])
+        plan = first_plan(setup)
+        if not plan.success:
+            self.grasp = grasp
+            raise SurestepError(f"restart: no plan from the joints given ({plan.status})")
+        self._asked, self.setup, self.horizon = asked, setup, setup.ocp.horizon
+        self._camera = (setup.camera_pose.tobytes(), setup)
+        self._begin(plan)
+        return plan
 
     @property
     def build_time_s(self) -> float:
