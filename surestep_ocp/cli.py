@@ -1,4 +1,4 @@
-"""Command line: `surestep solve|compare|replan|evaluate|sweep|validate|show|export|cache`.
+"""Command line: `surestep solve|compare|replan|evaluate|sweep|validate|show|export|cache|check`.
 
 User errors (bad problem files, unknown methods, unreachable poses) print one line
 and exit 2; a solver that fails prints its status and exits 1.
@@ -71,6 +71,7 @@ def _summary(sol, base=None) -> str:
         lines.append(f"baseline    {base.trace_final:.4e}  "
                      f"(ratio baseline / {sol.method} = {ratio}{longer})")
     lines.append(f"terminal    {err_m:.2e} m, {err_rad:.2e} rad from the goal")
+    lines += certificate_lines(sol)
     if "grasp" in sol.extras:
         lines.append(f"grasp       {grasp_line(sol.extras['grasp'])}")
     if sol.run.codegen_note:
@@ -86,6 +87,21 @@ def _summary(sol, base=None) -> str:
     if unreachable:
         lines.append(f"reachable   {len(sol.q) - unreachable}/{len(sol.q)} waypoints (IK)")
     return "\n".join(lines)
+
+
+def certificate_lines(sol) -> list[str]:
+    """The plan's certificate (docs/certificate.md) and, where it differs, the backend's own
+    status."""
+    c = sol.certificate
+    if c is None:
+        return []
+    lines = [f"certificate {c.level}: stationarity {c.stationarity:.1e}, complementarity "
+             f"{c.complementarity:.1e} (tol {c.tolerances.stationarity:g}, acceptable "
+             f"{c.tolerances.acceptable:g}), Tr(Sigma_T) by a NumPy EKF {c.trace:.4e}"]
+    lines += [f"            not met: {line}" for line in c.failures()]
+    if sol.backend_status is not None and sol.backend_status != sol.status:
+        lines.append(f"backend     {sol.backend_status}")
+    return lines
 
 
 def grasp_line(rec: dict) -> str:
@@ -399,11 +415,13 @@ def build_parser() -> argparse.ArgumentParser:
 
     register_sweep(sub)
     from .cache_cli import register as register_cache
+    from .check_cli import register as register_check
 
     register_cache(sub)
     from .ros.commands import register as register_ros  # serve, sim-robot (DDS loaded on use)
 
     register_ros(sub)
+    register_check(sub)
     return p
 
 

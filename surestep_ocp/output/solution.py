@@ -18,6 +18,7 @@ from ..model.limits import LimitsReport, SkippedReport, read_report, recorded_li
 from ..problem.scene import ArmRecord
 from ..problem.setup import Setup
 from .attempt_record import AttemptRecord
+from .certificate import Certificate
 from .files import check_finite, check_replaceable
 from .solution_records import (
     LimitsRecord,
@@ -36,7 +37,11 @@ class Solution:
 
     method: str
     problem: str
+    # the one meaning of success: an OCP plan's certificate is met (docs/certificate.md); the
+    # baseline's and the gradient variants' own (a completed plan, not an optimum)
     success: bool
+    # the outcome: the backend's status, or `Not_Certified` when it claimed a success that the
+    # certificate does not confirm (then `backend_status` holds the claim)
     status: str
     solve_time_s: float
     iterations: int
@@ -62,6 +67,10 @@ class Solution:
     motion_limits: LimitsReport | SkippedReport | None = None
     # only what is specific to a method or backend (docs/solution_file.md)
     extras: dict[str, Any] = field(default_factory=dict)
+    # the plan's optimality certificate (solvers/certificate.py); None: not computed
+    certificate: Certificate | None = None
+    backend_status: str | None = None  # the backend's own status, before the certificate
+    backend_success: bool | None = None  # the backend's own success, before the certificate
 
     # ----------------------------------------------------------- derived numbers
     @property
@@ -133,6 +142,11 @@ class Solution:
         self.problem_record.to_json(d)
         if self.replan is not None:
             d["replan"] = self.replan.to_json()
+        for key in ("backend_status", "backend_success"):
+            if d[key] is None:
+                del d[key]
+        if self.certificate is not None:
+            d["certificate"] = self.certificate.to_json()
         return d
 
     def save(self, path: str | Path) -> Path:
@@ -153,19 +167,23 @@ class Solution:
         but written back unchanged."""
         d = dict(d)
         names = set(cls.__dataclass_fields__) - {"extras", "attempts", *_RECORDS}
-        core = {k: d.pop(k) for k in names}
+        core = {k: d.pop(k) for k in names if k not in _OPTIONAL or k in d}
         attempts = [AttemptRecord.from_dict(a) for a in d.pop("attempts", [])]
         extras: dict[str, Any] = {}
         run = _typed(SolveRecord, d, extras)
         problem_record = _typed(ProblemRecord, d, extras)
         replan = _read_key(ReplanRecord.from_json, d, "replan")
         motion_limits = _read_key(read_report, d, "motion_limits")
+        certificate = _read_key(Certificate.from_json, d, "certificate")
         return cls(**core, attempts=attempts, run=run, problem_record=problem_record,
-                   replan=replan, motion_limits=motion_limits, extras={**extras, **d})
+                   replan=replan, motion_limits=motion_limits, certificate=certificate,
+                   extras={**extras, **d})
 
 
 # the typed records of a Solution, written as top-level keys of its file
-_RECORDS = ("run", "problem_record", "replan", "motion_limits")
+_RECORDS = ("run", "problem_record", "replan", "motion_limits", "certificate")
+# fields a file written before them does not hold
+_OPTIONAL = ("backend_status", "backend_success")
 
 
 def _read_key(read, d: dict, key: str):

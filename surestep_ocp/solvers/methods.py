@@ -14,6 +14,7 @@ from dataclasses import replace
 import numpy as np
 
 from .baseline import solve_baseline, straight_line
+from .certificate import judge
 from .confidence import plan_to_confidence
 from .gradient import solve_gradient
 from ..model.belief import COMPONENTS
@@ -158,7 +159,10 @@ def run_method(setup: Setup, name: str, cache: dict[str, Solution] | None = None
         grad = ((cache or {}).get("gradient" + suffix)
                 or run_method(setup, "gradient" + suffix, cache))
         sol = solve_ocp(s, ocp_initial_guess(s, "gradient", grad), solver_options)
+    sol.method = name
+    # one meaning of success: the certificate (docs/certificate.md); the Planner's own plan
+    # (ocp-mpc) is certified, its success left to the Planner
+    judge(s, sol, gate=base not in CLOSED_LOOP_METHODS)
     # limits.enforce: true: a plan over a limit is not a success, whichever method made it
     enforce_limits(s, sol)
-    sol.method = name
     return sol
