@@ -109,7 +109,8 @@ from surestep_ocp.problem.setup import build_setup  # noqa: E402
 from surestep_ocp.solvers import nlp_cache as _nlp_cache  # noqa: E402
 from surestep_ocp.solvers.baseline import _timed, solve_baseline, time_optimal_law  # noqa: E402
 from surestep_ocp.solvers.gradient import solve_gradient  # noqa: E402
-from surestep_ocp.solvers.methods import ocp_initial_guess, run_method  # noqa: E402
+from surestep_ocp.solvers.methods import method_setup, ocp_initial_guess, run_method  # noqa: E402,F401
+from surestep_ocp.solvers.certificate import certify  # noqa: E402,F401 (benchmarks/certificate.py)
 from surestep_ocp.solvers.iterate import InitialGuess  # noqa: E402
 from surestep_ocp.solvers.nlp_cache import cached_transcriptions, newton_solver  # noqa: E402
 from surestep_ocp.solvers.ocp import _objective_at, diagonal_model_setup, solve_ocp, solve_ocp_warm  # noqa: E402

@@ -203,20 +203,25 @@ class _Rows:
         return self.A @ x + self.a, self.A, r.T.ravel(), Jt
 
 
-def certify(setup: Setup, sol: Solution) -> Certificate | None:
+def certify(setup: Setup, sol: Solution, fd_step: float | None = None) -> Certificate | None:
     """The certificate of `sol`'s plan for `setup`'s OCP (the method's own setup); None where a
-    waypoint has no joints (a pose-space plan not reachable)."""
+    waypoint has no joints (a pose-space plan not reachable). `fd_step` [rad, m]: the objective's
+    gradient by central differences of the NumPy EKF instead (an independent check, slow)."""
     if any(q is None for q in sol.q) or len(sol.q) != setup.ocp.horizon + 1:
         return None
+    fn = _functions(setup)  # built once per structure: not in the certificate's time
+    rows_at = _limit_rows(setup, sol) if setup.ocp.limits.enforce else None
     t0 = time.perf_counter()
     q = np.asarray(sol.q, float)
     T, nq, robot = setup.ocp.horizon, setup.robot.nq, setup.robot
     tol = tolerances(setup)
     ref = sol.run.initial_trace if sol.run.initial_trace else max(sol.trace_final, 1e-300)
-    f, trace, g, M, J = (np.asarray(v) for v in _functions(setup)(
+    f, trace, g, M, J = (np.asarray(v) for v in fn(
         q.T, setup.camera_parameter(), vech(setup.ocp.sigma0), ref))
     M, trace = M.T, float(trace.item())
     g = g.T.ravel()  # node-major
+    if fd_step is not None:
+        g = _fd_gradient(setup, q, ref, fd_step)
     mov = robot.supporting_joints()
     held = np.setdiff1d(np.arange(nq), mov)
     lo, hi = np.array(robot.lower, float), np.array(robot.upper, float)
@@ -256,7 +261,7 @@ def certify(setup: Setup, sol: Solution) -> Certificate | None:
             slack.append(s)
     limit_violation = None
     if limited:
-        lin, A, tool, Jt = _limit_rows(setup, sol)(q)
+        lin, A, tool, Jt = rows_at(q)
         limit_violation = float(max(0.0, np.max(np.abs(lin) - 1, initial=0.0),
                                     np.max(tool - 1, initial=0.0)))
         for v, grad in ((lin - 1, A), (-lin - 1, -A), (tool - 1, Jt)):
@@ -294,6 +299,26 @@ def certify(setup: Setup, sol: Solution) -> Certificate | None:
         trace=trace_np, trace_error=float(trace_error), tolerances=tol, level="infeasible",
         time_s=0.0)
     return replace(cert, level=level_of(cert), time_s=time.perf_counter() - t0)
+
+
+def _fd_gradient(setup: Setup, q: np.ndarray, ref: float, step: float) -> np.ndarray:
+    """The gradient of f by central differences, f by the NumPy EKF along the means of q (the
+    moving joints of q_1..q_T; zeros elsewhere)."""
+    def f(x: np.ndarray) -> float:
+        qx = x.reshape(q.shape)
+        dq = np.diff(qx, axis=0)
+        return (numpy_trace(setup, setup.means_of(qx), qx) / ref
+                + setup.ocp.smoothness * float(np.sum(dq * dq)))
+
+    x, g = q.ravel().copy(), np.zeros(q.size)
+    nq = q.shape[1]
+    for t in range(1, len(q)):
+        for j in setup.robot.supporting_joints():
+            i = t * nq + j
+            e = np.zeros_like(x)
+            e[i] = step
+            g[i] = (f(x + e) - f(x - e)) / (2 * step)
+    return g
 
 
 _ROWS: dict[tuple, _Rows] = {}

@@ -1,0 +1,146 @@
+"""The optimality certificate (solvers/certificate.py) against an independent check, per backend and
+belief-model family; how often a backend's own success was not certified; what it costs.
+
+For N evaluation configurations (problems/evaluations/evaluation.yaml, T = 20; the `limits` family
+at T = 40 with the default limits enforced at 0.05 s per step) and each family (paper, full V_d0,
+correlated V_d0, joint-space motion noise, the paper's model lifted, limits) and backend
+(`solver.name` newton, interior, ipopt; the gradient variant): the plan's certificate, and the same
+certificate with the objective's gradient taken by central differences of a NumPy EKF (step 1e-6)
+instead of CasADi's reverse mode: agreement is the same verdict (certified or not). A backend that
+does not apply to a family (newton within enforced limits, ...) is `n/a`.
+
+    OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/certificate.py [--instances 100]
+        [--families ...] [--backends ...]
+
+Writes benchmarks/results/certificate.md; the last line is
+`certificate: instances=N disagreements=... uncertified_successes=... cost_median=...`.
+"""
+
+from __future__ import annotations
+
+import harness as h  # first: one BLAS thread
+
+import argparse  # noqa: E402
+from dataclasses import replace  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+from general_models import JOINT_SIGMA, correlated_depth, full_depth  # noqa: E402
+
+FAMILIES = {
+    "paper": {},
+    "full": {"noise": {"V_d0": full_depth()}},
+    "correlated": {"noise": {"V_d0": correlated_depth()}},
+    "joint-space": {"noise": {"joint_sigma": JOINT_SIGMA}},
+    "lifted": {"covariance": "full"},
+    "limits": {"limits": True},
+}
+BACKENDS = ("newton", "interior", "ipopt", "gradient")
+FD_STEP = 1e-6
+
+
+def family_problem(problem, family: str, backend: str):
+    """The configuration's problem in `family`, solved by `backend`."""
+    spec = FAMILIES[family]
+    p = replace(problem, noise=replace(problem.noise, **spec.get("noise", {})))
+    solver = replace(p.solver, covariance=spec.get("covariance", p.solver.covariance),
+                     name=backend if backend != "gradient" else p.solver.name)
+    p = replace(p, solver=solver)
+    if spec.get("limits"):
+        p = replace(p, horizon=40, limits=h.limits_spec(True), timing=h.timing_spec(0.05))
+    return p
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--instances", type=int, default=100)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--families", nargs="*", choices=list(FAMILIES), default=list(FAMILIES))
+    ap.add_argument("--backends", nargs="*", choices=BACKENDS, default=list(BACKENDS))
+    ap.add_argument("--output", default=str(h.RESULTS / "certificate.md"))
+    args = ap.parse_args()
+    sampler = h.sampler()
+    res = {(f, b): {"n": 0, "claimed": 0, "certified": 0, "false": 0, "agree": 0, "na": None,
+                    "cost": [], "t_cert": [], "t_solve": [], "levels": {}, "status": {}}
+           for f in args.families for b in args.backends}
+    for c, base in h.configurations(sampler, args.instances, args.seed):
+        line = [f"{c:3d}"]
+        for f in args.families:
+            for b in args.backends:
+                r = res[f, b]
+                if r["na"]:
+                    continue
+                name = "gradient" if b == "gradient" else "ocp"
+                try:
+                    setup = h.setup(family_problem(base, f, b))
+                    sol = h.method(setup, name)
+                except h.SurestepError as exc:
+                    r["na"] = str(exc)[:120]
+                    continue
+                cert = sol.certificate
+                fd = h.certify(h.method_setup(setup, name), sol, fd_step=FD_STEP)
+                r["n"] += 1
+                r["claimed"] += bool(sol.backend_success)
+                ok = cert is not None and cert.certified
+                r["certified"] += ok
+                r["false"] += bool(sol.backend_success) and not ok
+                r["agree"] += ok == (fd is not None and fd.certified)
+                level = "none" if cert is None else cert.level
+                r["levels"][level] = r["levels"].get(level, 0) + 1
+                key = sol.backend_status if not ok and sol.backend_success else None
+                if key:
+                    r["status"][key] = r["status"].get(key, 0) + 1
+                if cert is not None and sol.solve_time_s > 0:
+                    r["cost"].append(cert.time_s / sol.solve_time_s)
+                    r["t_cert"].append(cert.time_s)
+                    r["t_solve"].append(sol.solve_time_s)
+                line.append(f"{f}/{b}: {sol.backend_status} -> {level}")
+        print(" | ".join(line), flush=True)
+    header = ["family", "backend", "plans", "backend success", "certified", "success not certified",
+              "their backend status", "agrees with FD", "levels", "certificate ms (median)",
+              "solve ms (median)", "cost / solve (median)"]
+    rows = []
+    for (f, b), r in res.items():
+        if r["na"] and not r["n"]:
+            rows.append(h.row(f, b, "n/a", r["na"], "", "", "", "", "", "", "", ""))
+            continue
+        rows.append(h.row(
+            f, b, r["n"], r["claimed"], r["certified"], r["false"],
+            ", ".join(f"{k} {v}" for k, v in sorted(r["status"].items())) or "-",
+            f"{r['agree']}/{r['n']}",
+            ", ".join(f"{k} {v}" for k, v in sorted(r["levels"].items())),
+            f"{h.median(r['t_cert']) * 1e3:.2f}" if r["t_cert"] else "-",
+            f"{h.median(r['t_solve']) * 1e3:.1f}" if r["t_solve"] else "-",
+            f"{h.median(r['cost']) * 100:.1f} %" if r["cost"] else "-"))
+    ocp = [x for (f, b), r in res.items() if b != "gradient" for x in r["cost"]]
+    n_all = sum(r["n"] for r in res.values())
+    disagree = sum(r["n"] - r["agree"] for r in res.values())
+    false = sum(r["false"] for (f, b), r in res.items() if b != "gradient")
+    text = "\n".join([
+        "# The optimality certificate against finite differences; uncertified successes",
+        "",
+        f"`OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/certificate.py --instances "
+        f"{args.instances}` (seed {args.seed}; T = 20, limits T = 40 at 0.05 s per step). "
+        "`backend success`: the backend's own claim (`sol.backend_success`, the old `success`); "
+        "`success not certified`: of those, the certificate is neither optimal nor acceptable (the "
+        "gradient variant claims a completed run, not an optimum: its column is informational); "
+        "`agrees with FD`: the same verdict with the objective's gradient by central differences "
+        "of a NumPy EKF. Cost: the certificate's time over the plan's solve time (builds "
+        "excluded).",
+        "",
+        *h.table(header, rows),
+        "",
+        f"Certificate cost over a cold OCP solve: median {h.median(ocp) * 100:.1f} %, p90 "
+        f"{np.percentile(ocp, 90) * 100:.1f} % ({len(ocp)} OCP plans).",
+    ])
+    h.write_result(args.output, text + "\n")
+    print(text)
+    print(f"certificate_cost: median={h.median(ocp) * 100:.2f}% of a cold OCP solve "
+          f"(p90 {np.percentile(ocp, 90) * 100:.2f}%)")
+    print(h.last_line("certificate", h.key_values(
+        instances=args.instances, plans=n_all, disagreements=disagree,
+        uncertified_successes=false, cost_median=round(h.median(ocp), 4))))
+
+
+if __name__ == "__main__":
+    main()
