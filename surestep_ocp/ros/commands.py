@@ -40,7 +40,9 @@ def register(sub) -> None:
                    help="the node's own topics: plan, trace, planned_trace, confidence, status "
                         "(default /surestep)")
     s.add_argument("--continuous", action="store_true",
-                   help="keep serving (holding the goal) once it is reached, until stopped")
+                   help="keep serving once the goal is reached: hold it, and plan to each new "
+                        "goal (geometry_msgs/PoseStamped, camera frame) on NAMESPACE/goal, "
+                        "until stopped")
     s.add_argument("--start", choices=("measured", "problem"), default="measured",
                    help="plan from the arm's measured joints or require the arm at the "
                         "problem's start (default measured)")
@@ -62,6 +64,12 @@ def register(sub) -> None:
     s.add_argument("--replan-margin", type=float, default=0.005,
                    help="[s] a re-plan starts at the first waypoint at least this long after the "
                         "estimate's arrival (default 0.005)")
+    s.add_argument("--no-resume", action="store_true",
+                   help="a fault hold lasts until the node is stopped (default: resume once its "
+                        "cause has cleared, docs/serve.md)")
+    s.add_argument("--resume-after", type=float, default=0.3,
+                   help="[s] resume after a fault hold once the estimates are finite and the arm "
+                        "at rest at the held set-point this long (default 0.3)")
     s.add_argument("--hold", type=float, default=0.5,
                    help="[s] the goal held this long ends the run (default 0.5)")
     s.add_argument("--wait", type=float, default=30.0,
@@ -127,7 +135,7 @@ def cmd_serve(args) -> int:
     for v, o in ((args.estimate_timeout, "--estimate-timeout"), (args.tolerance, "--tolerance"),
                  (args.insertion_tolerance, "--insertion-tolerance"),
                  (args.replan_margin, "--replan-margin"), (args.hold, "--hold"),
-                 (args.replan_budget, "--replan-budget"),
+                 (args.replan_budget, "--replan-budget"), (args.resume_after, "--resume-after"),
                  (args.wait, "--wait")):
         _positive(v, o)
     if args.max_replan_failures < 1:
@@ -142,7 +150,8 @@ def cmd_serve(args) -> int:
                          args.max_replan_failures)
     opts = ServeOptions(args.problem, arm, tracker, namespace, args.servo_hz, domain,
                         args.continuous, args.start, args.wait, args.hold, args.replan_margin,
-                        args.replan_budget, args.joint_names, faults, args.log)
+                        args.replan_budget, args.joint_names, faults, args.log,
+                        not args.no_resume, args.resume_after)
     code = Serve(opts, prob, naming).run()
     sys.stdout.flush()
     return code
@@ -153,6 +162,11 @@ def cmd_sim_robot(args) -> int:
     _positive(args.rate, "--rate", MAX_SERVO_HZ)
     if not (math.isfinite(args.tracker_latency) and 0 <= args.tracker_latency < 1):
         raise SurestepError(f"--tracker-latency: {args.tracker_latency:g} must be in [0, 1) s")
+    if not (math.isfinite(args.duration) and args.duration >= 0):
+        raise SurestepError(f"--duration: {args.duration:g} must be a finite number of seconds "
+                            ">= 0 (0: until stopped)")
+    if not 0 <= args.seed < 2**63:
+        raise SurestepError(f"--seed: {args.seed} must be a whole number in [0, 2^63)")
     from .sim_faults import parse_faults
 
     faults = parse_faults(args.fault or [])

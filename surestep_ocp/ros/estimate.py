@@ -30,6 +30,17 @@ def from_message(msg) -> tuple[np.ndarray, np.ndarray, bool]:
     return np.hstack([pos, Rotation.from_quat(quat).as_rotvec()]), cov, True
 
 
+def goal_from_message(msg) -> np.ndarray | None:
+    """A PoseStamped's pose as `[p, axis-angle]` (the camera frame), or None when not finite or
+    its quaternion is zero."""
+    p, o = msg.pose.position, msg.pose.orientation
+    pos, quat = np.array([p.x, p.y, p.z], float), np.array([o.x, o.y, o.z, o.w], float)
+    if not (np.all(np.isfinite(pos)) and np.all(np.isfinite(quat))
+            and np.linalg.norm(quat) > 1e-6):
+        return None
+    return np.hstack([pos, Rotation.from_quat(quat).as_rotvec()])
+
+
 def quaternion(rotvec) -> np.ndarray:
     """(x, y, z, w) of an axis-angle rotation."""
     return Rotation.from_rotvec(np.asarray(rotvec, float)).as_quat()

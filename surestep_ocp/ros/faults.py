@@ -46,8 +46,10 @@ class Watchdog:
         return False
 
     def clear(self) -> None:
+        """All well again (a resume): no fault, no failures, no set-points in the window."""
         self.reason = self.at = None
         self.failures = 0
+        self._commands.clear()
 
     def commanded(self, now: float, q) -> None:
         self._commands.append((now, np.asarray(q, float)))

@@ -1,18 +1,28 @@
-"""The servo loop of `surestep serve` (node.py's docstring): ticks, set-points, faults, the goal.
+"""The servo loop of `surestep serve` (node.py's docstring): ticks, set-points, faults, the goal,
+and restarts: a new motion from rest (`Planner.restart`, planned on the re-planning thread) when a
+fault hold's cause has cleared (resume) or, with `--continuous`, for a new goal once the current
+one is held. A restart begins a new epoch: waypoint 0 moves to a later servo tick, phase-locked to
+the tracker's frames again; the servo clock (the stamps) runs on.
 """
 
 from __future__ import annotations
 
+import math
 import time
+from collections import deque
 
 import numpy as np
 
 from . import messages as m
 from .dds import Bus
+from .estimate import goal_from_message
 from .node import (STATUS_PERIOD_S, build_replanner, joint_message, make_watchdog, plan_message,
                    say, ticks_of)
 from .played import PlayedCurve
 from .replanner import Shared
+
+REST_FRACTION = 0.1  # at rest: each joint's spread over the window, in its tolerances
+RETRY_S = 1.0  # a failed resume is tried again after this
 
 
 class ServoLoop:
@@ -39,6 +49,20 @@ class ServoLoop:
         self._last_status = ""
         self._status_at = -1.0
         self._first_seen: set[int] = {0}
+        self.n = 0  # the servo tick (from the current waypoint 0)
+        self.origin = 0.0  # monotonic: the first waypoint 0 (the log's times are from it)
+        self.origin_wall_ns = 0
+        self.last_q = np.array(planner.plan.q[0], float)  # the last set-point sent (all joints)
+        self.held_since = None
+        self.at_goal = False  # --continuous: the goal reached and held
+        self.pending_goal = None  # --continuous: the next goal [p, axis-angle], camera frame
+        self.restarting = None  # the restart asked for and not applied yet
+        self.holds: list[dict] = []  # each fault hold: when, why, when it cleared and resumed
+        self._rest: deque = deque()  # (time, measured arm joints) while holding
+        self._retry_at = 0.0
+        self._said_ignored = False
+        self.hold_status = ""
+        self.epoch_at = 0.0  # monotonic: the last restart applied
 
     # -- publishing -----------------------------------------------------------------------------
     def status(self, text: str, force: bool = False) -> None:
@@ -74,10 +98,21 @@ class ServoLoop:
             pass
 
     def _hold(self, reason: str) -> None:
-        if not self.shared.holding.is_set():
-            self.shared.holding.set()
+        sh = self.shared
+        if not sh.holding.is_set():
+            sh.holding.set()
             self.serve.fault_hold = True
-            say(f"serve: hold: {reason}")
+            now = time.monotonic()
+            self.holds.append({"at": now - self.origin, "reason": reason,
+                               "sent_before": len(self.sent_at),
+                               "fault_seen": None if sh.fault_at is None
+                               else sh.fault_at - self.origin,
+                               "last_estimate": sh.last_estimate - self.origin,
+                               "cleared": None, "resumed": None, "first_command": None})
+            self._rest.clear()
+            self.hold_status = f"hold: {reason}"
+            say(f"serve: hold: {reason}"
+                + ("" if self.opts.resume else "; --no-resume: held until stopped"))
             self.status(f"hold: {reason}", force=True)
 
     # -- the loop -------------------------------------------------------------------------------
@@ -105,7 +140,8 @@ class ServoLoop:
         # to the tracker's frames (one per step), each re-plan has that long before its waypoint
         sh.t0 = first[1] + self.opts.replan_budget_s
         sh.t0_wall_ns = time.time_ns() + round((sh.t0 - time.monotonic()) * 1e9)
-        sh.last_estimate = first[1]
+        self.origin, self.origin_wall_ns = sh.t0, sh.t0_wall_ns
+        sh.last_estimate = sh.last_finite = first[1]
         self.replanner = build_replanner(self.serve.planner, self.played, sh, self.ep,
                                          self.serve.measured, self._camera_pose, self.opts,
                                          self.on_plan, self.on_fail, self.on_estimate,
@@ -120,16 +156,17 @@ class ServoLoop:
         return self.camera
 
     def _ticks(self) -> int:
-        sh, n, held_since = self.shared, 0, None
+        sh, self.n = self.shared, 0
         while True:
-            target = sh.t0 + n * self.period
-            delay = target - time.monotonic()
+            delay = sh.t0 + self.n * self.period - time.monotonic()
             if delay > 0:
                 time.sleep(delay)
             now = time.monotonic()
-            late = ticks_of(now - sh.t0, self.period)
-            n = max(n, late)  # a tick found a period late or more is skipped, not sent late
-            t = n * self.period
+            if sh.restart_result is not None:
+                self._apply_restart(now)
+            # a tick found a period late or more is skipped, not sent late
+            self.n = max(self.n, ticks_of(now - sh.t0, self.period))
+            t = self.n * self.period
             self._read(now)
             if self.serve.signal:
                 self.outcome = f"stopped ({self.serve.signal})"
@@ -138,31 +175,188 @@ class ServoLoop:
             if not sh.holding.is_set():
                 self._check(now, moving)
             if not sh.holding.is_set():
-                self._send(n, t, now)
-                held_since = self._goal_check(t, now, held_since)
-                if held_since is not None and now - held_since >= self.opts.hold_s:
+                self._send(t, now)
+                self.held_since = self._goal_check(t, now, self.held_since)
+                if self.held_since is not None and now - self.held_since >= self.opts.hold_s:
                     if not self.opts.continuous:
                         self.outcome = self._reached(t)
                         self.status("goal reached", force=True)
                         return 0
-                    self.status("goal reached; holding (--continuous)")
+                    self._at_goal(t, now)
                 else:
                     k = min(int(t / self.dt), round(self.played.end_time / self.dt))
-                    self.status(f"moving: waypoint {k} of {round(self.played.end_time / self.dt)}")
+                    self.status(f"moving: waypoint {max(k, 0)} of "
+                                f"{round(self.played.end_time / self.dt)}")
             else:
-                self.status(f"hold: {self.watchdog.reason}")
-            n += 1
+                self._while_holding(now)
+                if self.restarting is None:
+                    self.status(self.hold_status or f"hold: {self.watchdog.reason}")
+            self.n += 1
+
+    # -- restarts: resume after a fault, a new goal -----------------------------------------------
+    def _at_goal(self, t: float, now: float) -> None:
+        """--continuous, the goal held: a new goal (if one came) is planned from here."""
+        if not self.at_goal:
+            self.at_goal = True
+            say(f"serve: {self._reached(t)}; --continuous: holding it, new goals on "
+                f"{self.ep.topics.goal}")
+        if self.pending_goal is not None and self.restarting is None:
+            goal, self.pending_goal = self.pending_goal, None
+            self._request(goal, "a new goal", now)
+        if self.restarting is None:
+            self.status("goal reached; holding (--continuous)")
+
+    def _while_holding(self, now: float) -> None:
+        """A fault hold: once its cause has cleared (`_cleared`), a restart from the held
+        set-point (to the pending goal, if any)."""
+        if not self.opts.resume:
+            return
+        q = self.serve.measured.latest
+        if q is not None:
+            self._rest.append((now, q))
+        while self._rest and self._rest[0][0] < now - self.opts.resume_after_s - self.period:
+            self._rest.popleft()
+        if self.restarting is not None or now < self._retry_at:
+            return
+        why = self._cleared(now)
+        if why is None:
+            return
+        self.holds[-1]["cleared"] = now - self.origin
+        goal, self.pending_goal = self.pending_goal, None
+        say(f"serve: fault cleared ({why}): planning a new motion from rest at the held "
+            "set-point" + (" to the new goal" if goal is not None else ""))
+        self.status(f"resuming: {why}", force=True)
+        self._request(goal, "resume", now)
+
+    def _cleared(self, now: float) -> str | None:
+        """Why resuming is safe now, or None: for `resume_after_s`, finite tracker estimates
+        arriving (none silent for the timeout), and the arm's (`_arm_settled`)."""
+        sh, lim, win = self.shared, self.opts.faults.estimate_timeout_s, self.opts.resume_after_s
+        if sh.finite_since is None or now - sh.last_finite > lim or now - sh.finite_since < win:
+            return None
+        arm = self._arm_settled(now)
+        return None if arm is None else f"estimates finite for {now - sh.finite_since:.2f} s, {arm}"
+
+    def _arm_settled(self, now: float) -> str | None:
+        """The arm's measured joints arriving and, for `resume_after_s`, at rest (each joint's
+        spread within REST_FRACTION of its tolerance) within the tolerance of the held set-point
+        (a stuck arm: only once it has followed it again)."""
+        win, meas = self.opts.resume_after_s, self.serve.measured
+        if meas.latest is None or now - meas.arrived > self.opts.faults.estimate_timeout_s:
+            return None
+        if not self._rest or self._rest[0][0] > now - win + self.period:
+            return None
+        qs = np.array([q for _, q in self._rest])
+        tol = self.watchdog._tol
+        off = np.max(np.abs(qs - self.last_q[self.arm_idx]) / tol)
+        spread = np.max((qs.max(axis=0) - qs.min(axis=0)) / tol)
+        if off > 1.0 or spread > REST_FRACTION:
+            return None
+        return f"the arm at rest {off:.2f} tolerance from the held set-point"
+
+    def _request(self, goal, why: str, now: float) -> None:
+        self.restarting = {"holds": len(self.holds), "from_hold": self.shared.holding.is_set(),
+                           "at": now}
+        self.shared.restart_request = (self.last_q.copy(), goal, why)
+
+    def _apply_restart(self, now: float) -> None:
+        """The re-planning thread's restart: a new epoch, or a refusal (a goal), or a retry."""
+        sh = self.shared
+        (sol, err, took, (_, goal, why)), sh.restart_result = sh.restart_result, None
+        req, self.restarting = self.restarting, None
+        try:
+            if sol is None:
+                if goal is not None:
+                    self.refuse(err)
+                else:
+                    say(f"serve: resume failed: {err}; holding, tried again in {RETRY_S:g} s")
+                    self.hold_status = f"hold: {self.watchdog.reason} (resume failed: {err})"
+                    self.status(self.hold_status, force=True)
+                    self._retry_at = now + RETRY_S
+                return
+            # still safe: no new hold; a resume's arm still at rest there, no NaN since
+            back = req["from_hold"] and (self._arm_settled(now) is None
+                                         or sh.finite_since is None)
+            if len(self.holds) != req["holds"] or back:
+                say("serve: new plan dropped: " + (f"hold: {self.watchdog.reason}"
+                                                   if not req["from_hold"] else
+                                                   "the fault is back"))
+                if goal is not None and self.pending_goal is None:
+                    self.pending_goal = goal
+                return
+            self._new_epoch(sol, now)
+            if req["from_hold"]:
+                h = self.holds[-1]
+                h["resumed"] = now - self.origin
+                self.serve.fault_hold = False
+                self.watchdog.clear()
+                sh.fault = None
+                sh.holding.clear()
+            say(f"serve: {'resumed' if why == 'resume' else 'new goal'}: a new motion from rest, "
+                f"{self.replanner.planner.horizon} steps (planned in {took:.2f} s), waypoint 0 at "
+                f"{sh.t0 - self.origin:.2f} s")
+        finally:
+            sh.applied.set()
+
+    def _new_epoch(self, sol, now: float) -> None:
+        """The restart's plan from waypoint 0 at a later servo tick (the stamps' clock runs on),
+        `replan_budget_s` after a tracker frame's arrival (the phase lock) and after now."""
+        sh, dt, P = self.shared, self.dt, self.period
+        lock = sh.last_estimate + self.opts.replan_budget_s
+        target = lock + max(0, math.ceil((now + 2 * P - lock) / dt)) * dt
+        m_ticks = max(1, math.ceil((target - sh.t0) / P - 1e-9))
+        sh.t0 += m_ticks * P
+        sh.t0_wall_ns += round(m_ticks * P * 1e9)
+        sh.epoch += 1
+        self.epoch_at = now
+        q = np.asarray(sol.q, float)
+        self.played.reset(q)
+        self.setup = self.replanner.planner.setup
+        self.n = ticks_of(now - sh.t0, P) + 1
+        self._first_seen = {0}
+        self.held_since, self.at_goal = None, False
+        self._plan_msg(0, q, None)
+        self.ep.planned_trace.write(m.Float64(float(sol.trace_final)))
+        self.status(f"moving: waypoint 0 of {len(q) - 1}", force=True)
+
+    def refuse(self, why: str) -> None:
+        """A goal not taken: one line on stderr and the status topic; the node holds where it
+        is (the goal it holds, or its fault hold)."""
+        say(f"serve: goal refused: {why}")
+        self.status(f"goal refused: {why}", force=True)
+
+    def _on_goal(self, msg) -> None:
+        x = goal_from_message(msg)
+        if x is None:
+            return self.refuse("not finite (a position and a non-zero quaternion)")
+        if not self.opts.continuous:
+            if not self._said_ignored:
+                self._said_ignored = True
+                say(f"serve: a goal on {self.ep.topics.goal} is taken with --continuous only; "
+                    "ignored")
+            return None
+        if self.shared.holding.is_set() and not self.opts.resume:
+            return self.refuse(f"holding on a fault ({self.watchdog.reason}) with --no-resume")
+        self.pending_goal = x
+        when = ("now" if self.at_goal else "once the fault clears" if self.shared.holding.is_set()
+                else "once the current goal is reached and held")
+        say(f"serve: new goal {np.round(x, 4).tolist()} received: planned {when}")
+        return None
 
     def _reached(self, t: float) -> str:
         end = round(self.played.end_time / self.dt)
         late = self.replanner.planner.horizon - self.setup.ocp.horizon
-        return (f"goal reached and held {self.opts.hold_s:g} s at {t:.2f} s (waypoint {end}, "
-                f"{late} steps later than planned)")
+        resumed = sum(h["resumed"] is not None for h in self.holds)
+        return (f"goal reached and held {self.opts.hold_s:g} s at "
+                f"{t + self.shared.t0 - self.origin:.2f} s (waypoint {end}, {late} steps later "
+                "than planned" + (f", {resumed} fault hold(s) resumed" if resumed else "") + ")")
 
     def _read(self, now: float) -> None:
-        sh = self.shared
-        self.serve.measured.update(Bus.take(self.ep.measured), sh.t0_wall_ns)
-        self.serve.jaw.update(Bus.take(self.ep.jaw_measured), sh.t0_wall_ns)
+        self.serve.measured.update(Bus.take(self.ep.measured))
+        self.serve.jaw.update(Bus.take(self.ep.jaw_measured))
+        goals = Bus.take(self.ep.goal)
+        if goals:
+            self._on_goal(goals[-1])
         ecm = Bus.take(self.ep.ecm)
         if ecm and self.setup.ecm is not None:
             q = np.array(ecm[-1].position, float)
@@ -176,14 +370,17 @@ class ServoLoop:
         if sh.fault:
             wd.trip(sh.fault, now)
         if moving:
-            wd.check_silence(now, sh.last_estimate, max(self.serve.measured.arrived, sh.t0))
+            # from a restart's start on (the re-planning thread reads no estimate while planning)
+            wd.check_silence(now, max(sh.last_estimate, self.epoch_at),
+                             max(self.serve.measured.arrived, sh.t0))
         if self.serve.measured.latest is not None:
             wd.check_tracking(now, self.serve.measured.latest)
         if wd.reason:
             self._hold(wd.reason)
 
-    def _send(self, n: int, t: float, now: float) -> None:
+    def _send(self, t: float, now: float) -> None:
         q, v, piece = self.played.sample(t, commit=True)
+        self.last_q = q
         ns = self.shared.t0_wall_ns + round(t * 1e9)
         self.ep.servo.write(joint_message(ns, [self.names[i] for i in self.arm_idx],
                                           q[self.arm_idx], v[self.arm_idx]))
@@ -192,10 +389,13 @@ class ServoLoop:
                                                   q[self.jaw_idx], v[self.jaw_idx]))
         self.sent_at.append(time.monotonic())
         self.watchdog.commanded(now, q[self.arm_idx])
+        if self.holds and self.holds[-1]["resumed"] is not None \
+                and self.holds[-1]["first_command"] is None:
+            self.holds[-1]["first_command"] = self.sent_at[-1] - self.origin
         if piece not in self._first_seen:
             self._first_seen.add(piece)
             for g in reversed(self.shared.logs):
-                if g.ok and g.step == piece:
+                if g.ok and g.step == piece and g.epoch == self.shared.epoch:
                     g.first_command = self.sent_at[-1] - self.shared.t0
                     break
 
@@ -246,13 +446,14 @@ class ServoLoop:
 
         from ..output.solution import write_json_atomic
 
+        first = self.holds[0] if self.holds else {}
         data = {"replans": [asdict(g) for g in self.shared.logs],
-                "sent_at": [t - self.shared.t0 for t in self.sent_at],
-                "outcome": self.outcome, "hold": self.watchdog.reason,
-                "hold_at": None if self.watchdog.at is None else self.watchdog.at - self.shared.t0,
+                "sent_at": [t - self.origin for t in self.sent_at],
+                "outcome": self.outcome, "hold": first.get("reason"),
+                "hold_at": first.get("at"), "holds": self.holds,
                 "estimates": self.shared.estimates, "period": self.period, "dt": self.dt,
-                "last_estimate": self.shared.last_estimate - self.shared.t0,
-                "fault_seen": (None if self.shared.fault_at is None
-                               else self.shared.fault_at - self.shared.t0),
-                "t0_wall": self.shared.t0_wall_ns * 1e-9}
+                "last_estimate": first.get("last_estimate",
+                                           self.shared.last_estimate - self.origin),
+                "fault_seen": first.get("fault_seen"),
+                "t0_wall": self.origin_wall_ns * 1e-9}
         write_json_atomic(self.opts.log, data)

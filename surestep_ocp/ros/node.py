@@ -41,13 +41,14 @@ class Topics:
     planned_trace: str
     confidence: str
     status: str
+    goal: str
 
     @classmethod
     def of(cls, arm: str, tracker: str, namespace: str) -> "Topics":
         ns = namespace.rstrip("/")
         return cls(f"/{arm}/measured_js", f"/{arm}/jaw/measured_js", "/ECM/measured_js", tracker,
                    f"/{arm}/servo_jp", f"/{arm}/jaw/servo_jp", f"{ns}/plan", f"{ns}/trace",
-                   f"{ns}/planned_trace", f"{ns}/confidence", f"{ns}/status")
+                   f"{ns}/planned_trace", f"{ns}/confidence", f"{ns}/status", f"{ns}/goal")
 
 
 def say(text: str) -> None:
@@ -64,6 +65,7 @@ class Endpoints:
         self.jaw_measured = bus.reader(topics.jaw_measured, m.JointState, depth=50)
         self.ecm = bus.reader(topics.ecm_measured, m.JointState, depth=5)
         self.tracker = bus.reader(topics.tracker, m.PoseWithCovarianceStamped, depth=10)
+        self.goal = bus.reader(topics.goal, m.PoseStamped, depth=5)
         self.servo = bus.writer(topics.servo, m.JointState)
         self.jaw_servo = bus.writer(topics.jaw_servo, m.JointState)
         self.plan = bus.writer(topics.plan, m.JointTrajectory)
@@ -91,17 +93,17 @@ class Measured:
 
     def __init__(self, names: list[str], aliases: dict[str, str]):
         self.names, self.aliases = names, aliases
-        self.history: deque = deque(maxlen=400)  # (stamp [s since waypoint 0], q)
+        self.history: deque = deque(maxlen=400)  # (stamp [ns since the epoch], q)
         self.latest: np.ndarray | None = None
         self.arrived = 0.0  # monotonic
 
-    def update(self, msgs, t0_wall_ns: int) -> None:
+    def update(self, msgs) -> None:
         for msg in msgs:
             q = self.order(msg)
             if q is None:
                 continue
             self.latest, self.arrived = q, time.monotonic()
-            self.history.append(((m.stamp_ns(msg.header.stamp) - t0_wall_ns) * 1e-9, q))
+            self.history.append((m.stamp_ns(msg.header.stamp), q))
 
     def order(self, msg) -> np.ndarray | None:
         """The message's positions in `names` order (by name when it names them all, else by
@@ -116,13 +118,13 @@ class Measured:
             return None
         return q if np.all(np.isfinite(q)) else None
 
-    def at(self, t: float) -> np.ndarray | None:
-        """The joints at stamp time t, linearly between the two samples around it (None without
-        a sample within 50 ms)."""
+    def at(self, t: float, t0_wall_ns: int = 0) -> np.ndarray | None:
+        """The joints at stamp time t [s after t0_wall_ns], linearly between the two samples
+        around it (None without a sample within 50 ms)."""
         hist = list(self.history)
         if not hist:
             return None
-        ts = np.array([h[0] for h in hist])
+        ts = np.array([(h[0] - t0_wall_ns) * 1e-9 for h in hist])
         i = int(np.searchsorted(ts, t))
         if i == 0 or i == len(hist):
             j = min(i, len(hist) - 1)
@@ -167,7 +169,7 @@ def build_replanner(planner, played, shared: Shared, ep: Endpoints, measured: Me
     arm_n = len(measured.names)
 
     def measured_at(t_s, q_cmd):
-        q = measured.at(t_s)
+        q = measured.at(t_s, shared.t0_wall_ns)
         if q is None:
             return q_cmd
         out = np.array(q_cmd, float)

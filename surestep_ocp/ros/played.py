@@ -40,6 +40,13 @@ class PlayedCurve:
             self._pieces = [p for p in self._pieces if p[0] < piece[0]] + [piece]
             return True
 
+    def reset(self, q) -> None:
+        """A new motion from rest (`Planner.restart`): `q` alone, from waypoint 0 of a new time
+        origin (the caller's), nothing sampled on it yet."""
+        with self._lock:
+            self._pieces = [(0, np.array(q, float), None)]
+            self._sampled = -np.inf
+
     def pieces(self) -> list:
         with self._lock:
             return list(self._pieces)

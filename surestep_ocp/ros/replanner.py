@@ -45,6 +45,7 @@ class ReplanLog:
     ok: bool
     why: str = ""
     first_command: float | None = None
+    epoch: int = 0  # the motion it belongs to (a restart begins a new one: loop.py)
 
 
 @dataclass
@@ -62,6 +63,16 @@ class Shared:
     logs: list = field(default_factory=list)
     estimates: int = 0
     skipped: int = 0  # estimates superseded by a newer one before their re-plan started
+    # finite estimates arriving again (a resume's condition): the first arrival of the current
+    # run of finite ones without a gap over the timeout (None after a non-finite one), the last
+    finite_since: float | None = None
+    last_finite: float = 0.0
+    epoch: int = 0  # the current motion (its waypoint 0 at t0)
+    # a restart (a new motion from rest, loop.py): (joints, goal or None, why) asked by the servo
+    # loop; (solution or None, error, seconds, the request) back; `applied` once the loop took it
+    restart_request: tuple | None = None
+    restart_result: tuple | None = None
+    applied: threading.Event = field(default_factory=threading.Event)
 
 
 class Replanner(threading.Thread):
@@ -83,6 +94,9 @@ class Replanner(threading.Thread):
     def run(self) -> None:
         sh = self.shared
         while not sh.stop.is_set():
+            if sh.restart_request is not None:
+                self._restart()
+                continue
             if self.first is not None:
                 (samples, arrival), self.first = self.first, None
             else:
@@ -94,11 +108,16 @@ class Replanner(threading.Thread):
             sh.skipped += len(samples) - 1
             msg = samples[-1]
             mean, cov, finite = from_message(msg)
+            gap = arrival - sh.last_finite
             sh.last_estimate = arrival
             if not finite:
+                sh.finite_since = None
                 if sh.fault is None:
                     sh.fault, sh.fault_at = "tracker estimate not finite", arrival
                 continue
+            if sh.finite_since is None or gap > self.stale_s:
+                sh.finite_since = arrival
+            sh.last_finite = arrival
             sh.estimate = (mean, cov)
             self.on_estimate(mean, cov)
             if sh.holding.is_set():
@@ -108,6 +127,23 @@ class Replanner(threading.Thread):
                 self._replan(msg, mean, cov, arrival - sh.t0)
             finally:
                 self.busy.clear()
+
+    def _restart(self) -> None:
+        """`Planner.restart` for the servo loop's request; waits until the loop applied it (the
+        new motion's waypoint 0 and epoch are the loop's to set)."""
+        sh = self.shared
+        req, sh.restart_request = sh.restart_request, None
+        q, goal, _ = req
+        t = time.monotonic()
+        try:
+            sol, err = self.planner.restart(q, goal), None  # unchanged when it raises
+        except SurestepError as exc:
+            sol, err = None, str(exc).removeprefix("restart: ")
+        sh.applied.clear()
+        sh.restart_result = (sol, err, time.monotonic() - t, req)
+        while not sh.applied.wait(0.05) and not sh.stop.is_set():
+            pass
+        self.recent.clear()
 
     def lead(self) -> float:
         """[s] the least time from an estimate's arrival to the waypoint its re-plan starts at."""
@@ -147,7 +183,8 @@ class Replanner(threading.Thread):
                 ok, late = False, True
                 why = (f"late: ready {1e3 * (ready - k * dt):+.1f} ms from waypoint {k}, a "
                        "set-point after it sent already")
-        self.shared.logs.append(ReplanLog(t_a, ready, k, took, ok, "" if ok else why))
+        self.shared.logs.append(ReplanLog(t_a, ready, k, took, ok, "" if ok else why,
+                                          epoch=self.shared.epoch))
         if ok:
             self.planner = trial
             self.on_plan(k, sol, start)

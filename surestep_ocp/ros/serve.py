@@ -45,6 +45,8 @@ class ServeOptions:
     joint_names: str | None = None
     faults: FaultLimits = field(default_factory=FaultLimits)
     log: str | None = None
+    resume: bool = True
+    resume_after_s: float = 0.3
 
 
 class Stop(BaseException):
@@ -108,10 +110,10 @@ class Serve:
             if time.monotonic() > deadline:
                 raise SurestepError(f"--wait: no {self.topics.measured} within "
                                     f"{self.opts.wait_s:g} s; nothing published")
-            self.measured.update(Bus.take(self.ep.measured), 0)
+            self.measured.update(Bus.take(self.ep.measured))
             time.sleep(0.02)
         time.sleep(0.1)
-        self.jaw.update(Bus.take(self.ep.jaw_measured), 0)
+        self.jaw.update(Bus.take(self.ep.jaw_measured))
         start = np.array(self.setup.q_start, float)
         q = start.copy()
         q[:len(arm)] = self.measured.latest
@@ -165,8 +167,13 @@ def summary_line(loop) -> str:
     first = np.array([(g.first_command - g.arrival) * 1e3 for g in kept
                       if g.first_command is not None])
     gaps = np.diff(np.array(loop.sent_at)) * 1e3 if len(loop.sent_at) > 1 else np.zeros(1)
+    # the fault holds' own gaps are not the stream's
+    held = [h["sent_before"] - 1 for h in loop.holds if 0 < h["sent_before"] < len(loop.sent_at)]
+    held = np.array(held, int)
+    gaps = np.delete(gaps, held) if len(gaps) > len(held) else np.zeros(1)
     span = loop.sent_at[-1] - loop.sent_at[0] if len(loop.sent_at) > 1 else math.nan
-    rate = (len(loop.sent_at) - 1) / span if span > 0 else math.nan
+    span -= (np.sum(np.diff(loop.sent_at)[held]) if len(held) else 0.0)  # the holds' time
+    rate = (len(loop.sent_at) - 1 - len(held)) / span if span > 0 else math.nan
 
     def stat(a):
         return f"{np.median(a):.1f}/{a.max():.1f}" if len(a) else "-"
@@ -175,7 +182,10 @@ def summary_line(loop) -> str:
     return (f"serve: {loop.outcome}; {len(logs)} re-plans ({len(logs) - len(kept)} not played), "
             f"ready median/worst {stat(ready)} ms, first new set-point {stat(first)} ms after "
             f"the estimate; servo {rate:.1f} Hz, {len(loop.sent_at)} set-points, longest gap "
-            f"{gaps.max():.1f} ms; {loop.shared.estimates} estimates"
+            f"{gaps.max():.1f} ms" + (" outside holds" if loop.holds else "")
+            + (f"; {len(loop.holds)} fault hold(s), "
+               f"{sum(h['resumed'] is not None for h in loop.holds)} resumed" if loop.holds else "")
+            + f"; {loop.shared.estimates} estimates"
             + (f"; last estimate {err[0] * 1e3:.2f} mm, {err[1]:.3f} rad from the goal, "
                f"P(grasp) {err[2]:.3f}" if err else ""))
 

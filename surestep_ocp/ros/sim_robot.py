@@ -63,6 +63,7 @@ class SimRobot:
         self.first_servo: float | None = None
         self.last_servo, self.silent_said = 0.0, False
         self.stop: str | None = None
+        self._fault_on: dict = {}
         self.counts = {"measured": 0, "estimates": 0, "missed": 0, "servo": 0}
 
     def _on_signal(self, signum, _frame) -> None:
@@ -81,6 +82,7 @@ class SimRobot:
             if self.duration and now - t0 > self.duration:
                 break
             fault_t = None if self.first_servo is None else now - self.first_servo
+            self._say_faults(fault_t)
             self._follow(fault_t)
             self._servo_silence(now)
             self._publish_joints(n)
@@ -97,6 +99,16 @@ class SimRobot:
               f"{c['measured']} measured_js and {c['estimates']} estimates sent, {c['missed']} "
               "frames missed by the detector", flush=True)
         return 0
+
+    def _say_faults(self, fault_t) -> None:
+        """Each injected fault's start and end on stderr (with the wall time, for the
+        benchmark's delays)."""
+        for f in self.faults:
+            on = f.active(f.kind, fault_t)
+            if on != self._fault_on.get(f, False):
+                self._fault_on[f] = on
+                print(f"sim-robot: fault {f.kind} {'on' if on else 'off'} at {fault_t:.3f} s "
+                      f"(wall {time.time():.6f})", file=sys.stderr, flush=True)
 
     def _servo_silence(self, now: float) -> None:
         """Say once when servo_jp stops (the arm holds its last set-point, as the dVRK does)."""
