@@ -109,12 +109,31 @@ def _more_errors(section: str, node: Any, read, args: tuple, kwargs: dict,
             read(*args[:where], copy, *args[where + 1:], **kwargs)
             break
         except ProblemError as again:
-            if any(r == again.key or r.startswith((again.key or "") + ".") for r in removed) or any(
+            if _consequence(again.key, removed, section, node) or any(
                     again.key == e.key for e in [first, *found]):
-                break  # the removed key reported missing, or the same error again
+                break  # caused by a removed key, or the same error again
             found.append(again)
             exc = again
     return found
+
+
+def _consequence(key: str | None, removed: list[str], section: str, node: Any) -> bool:
+    """Whether an error at `key` is caused by removing the keys `removed` from `node` (the
+    section's tree): the key itself or an ancestor of one (reported missing, or `give exactly one
+    of`), or a sibling of one that `node` does not have, which the removed key stood for
+    (`pose.matrix` removed: `pose.position` missing)."""
+    key = key or ""
+    if any(r == key or r.startswith(key + ".") for r in removed):
+        return True
+    parent = key.rsplit(".", 1)[0]
+    if not any(r.rsplit(".", 1)[0] == parent for r in removed):
+        return False
+    path = _key_path(key, section)
+    for name in path:
+        if not isinstance(node, Mapping) or name not in node:
+            return True
+        node = node[name]
+    return False
 
 
 def copy_tree(node: Any) -> Any:
@@ -216,9 +235,13 @@ def _top(rd: Reader, tree: Any, errors: list[ProblemError]) -> dict:
     `errors` (not a mapping at all: raised, nothing else can be read)."""
     if not isinstance(tree, Mapping):
         rd.mapping(tree, "", _TOP)  # raises, naming what is expected
-    errors += [rd.fail(str(k), f"unknown key; allowed keys here: {', '.join(sorted(_TOP))}")
-               for k in sorted(set(tree) - _TOP, key=str)]
-    errors += [rd.fail(k, "missing required key") for k in sorted(_REQUIRED_TOP - set(tree))]
+    unknown = sorted(set(tree) - _TOP, key=str)
+    missing = sorted(_REQUIRED_TOP - set(tree))
+    # (a misspelt required key is one error, naming the key it stands for)
+    lacking = f"; missing here: {', '.join(missing)}" if missing else ""
+    errors += [rd.fail(str(k), f"unknown key; allowed keys here: {', '.join(sorted(_TOP))}"
+                       + (lacking if i == 0 else "")) for i, k in enumerate(unknown)]
+    errors += [] if unknown else [rd.fail(k, "missing required key") for k in missing]
     return {k: v for k, v in tree.items() if k in _TOP}
 
 
@@ -583,8 +606,22 @@ def _ipopt_options(rd: Reader, opts: dict) -> dict:
         else:
             out[name] = value
     problem = check_ipopt_options(out)
-    if problem:
+    if problem:  # the option IPOPT refuses alone, named (else the set as a whole)
+        for name, value in out.items():
+            alone = check_ipopt_options({name: value})
+            if alone:
+                raise rd.fail(f"solver.options.{name}", _ipopt_reason(name, value, alone))
         raise rd.fail("solver.options", problem)
     return out
+
+
+def _ipopt_reason(name: str, value: Any, reason: str) -> str:
+    """IPOPT's refusal of one option; a value of the wrong type says the type the option takes."""
+    if "type mismatch" not in reason:
+        return reason.replace("refused them", "refused it", 1)
+    takes = [kind for kind, sample in (("a string", "x"), ("a number", 1.5))
+             if "type mismatch" not in (check_ipopt_options({name: sample}) or "")]
+    given = f"'{shown(value)}'" if isinstance(value, str) else shown(value)
+    return f"IPOPT refused {given}: the option takes {' or '.join(takes) or 'another type'}"
 
 

@@ -34,10 +34,11 @@ class Reader:
             raise self.fail(key or "<top>", f"expected a mapping with keys {sorted(allowed)}, "
                                             f"got {_kind(node)}")
         unknown = sorted(set(node) - allowed, key=str)
-        if unknown:
-            raise self.fail(_join(key, str(unknown[0])), "unknown key; allowed keys "
-                            f"here: {', '.join(sorted(allowed))}")
         missing = sorted(required - set(node))
+        if unknown:  # (a misspelt required key is one error, naming the key it stands for)
+            lacking = f"; missing here: {', '.join(missing)}" if missing else ""
+            raise self.fail(_join(key, str(unknown[0])), "unknown key; allowed keys "
+                            f"here: {', '.join(sorted(allowed))}{lacking}")
         if missing:
             raise self.fail(_join(key, missing[0]), "missing required key")
         return dict(node)
