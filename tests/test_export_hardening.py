@@ -265,3 +265,16 @@ def test_an_empty_output_path_is_refused(baseline, tmp_path, capsys, monkeypatch
     monkeypatch.chdir(tmp_path)
     code, err = _export(tmp_path, capsys, baseline, "", "csv")
     assert code == 2 and err == ["surestep: '': an empty path; the export must be a named file"]
+
+
+@pytest.mark.parametrize("output", [".", "..", "/", "sub/.."])
+@pytest.mark.parametrize("fmt", ["csv", "ros2", "rosbag2"])
+def test_an_output_with_no_name_at_its_end_is_refused(baseline, tmp_path, capsys, monkeypatch,
+                                                      output, fmt):
+    """`-o .` was an internal ValueError (its figure is named after the output's name, which `.`
+    has not); now exit 2 naming it, nothing written."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "sub").mkdir()
+    code, err = _export(tmp_path, capsys, baseline, output, fmt)
+    assert code == 2 and len(err) == 1 and err[0].startswith(f"surestep: {output}: no name")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["plan.json", "sub"]

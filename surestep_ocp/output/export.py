@@ -75,6 +75,9 @@ def export_solution(solution: str | Path | Solution, fmt: str, output: str | Pat
         if x is not None and not (math.isfinite(x) and x > 0):
             raise SurestepError(f"{flag} must be a positive number, got {x:g}")
     output = named_path(output, "the export", "directory" if fmt == "rosbag2" else "file")
+    if output.name in ("", ".", ".."):  # (its side files are named after it)
+        raise SurestepError(f"{shown(str(output), 200)}: no name at its end; the export must be "
+                            f"a named {'directory' if fmt == 'rosbag2' else 'file'}")
     targets = (([] if fmt == "rosbag2" else [output])
                + ([jaw_path(output)] if fmt == "ros2" else [])
                + ([motion_png(output)] if plot else []))
