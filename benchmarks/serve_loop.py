@@ -8,8 +8,11 @@ acceleration limits: tests/test_serve.py's check), the servo stream (rate from t
 the send times, gaps longer than two periods), the latency from a tracker estimate's arrival to the
 re-plan being ready and to the first set-point of the new plan, the re-plans not played. Per fault:
 the hold's reason and its delay (tracker silent: from the timeout passing; NaN: from the estimate's
-arrival; stuck: from the arm stopping; node killed: the simulated arm's own hold). Its last line:
-`serve-loop: key=value ...`.
+arrival; stuck: from the arm's error passing the tolerance; node killed: the simulated arm's own
+hold), then, the fault cleared (sim-robot's `fault ... off`), the time to resume (to the first
+set-point of the new motion; the node's `--resume-after` 0.3 s window and the restart included),
+the goal reached after it, and the set-points beyond a limit (each stretch between holds checked
+alone: the hold itself is a stop). Its last line: `serve-loop: key=value ...`.
 
     OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/serve_loop.py [--episodes 20] [--faults]
         [--budget 0.02] [--output benchmarks/results/serve_loop.md]
@@ -37,7 +40,8 @@ PROBLEM = str(ROOT / "problems" / "needle_regrasp.yaml")
 CLI = [sys.executable, "-m", "surestep_ocp.cli"]
 
 
-def run(tmp: Path, domain: int, serve_args, sim_args, kill_after=None, timeout=240.0):
+def run(tmp: Path, domain: int, serve_args, sim_args, kill_after=None, timeout=240.0,
+        stop_on_hold=True):
     """One node + simulated robot run; the recorder's servo_jp samples decoded, the node's log."""
     from surestep_ocp.ros import messages as m
 
@@ -57,7 +61,7 @@ def run(tmp: Path, domain: int, serve_args, sim_args, kill_after=None, timeout=2
         if kill_after is not None and first and time.time() - first > kill_after:
             serve.kill()
             break
-        if any(b"hold:" in raw for _, raw in rec.samples["/surestep/status"]):
+        if stop_on_hold and any(b"hold:" in raw for _, raw in rec.samples["/surestep/status"]):
             time.sleep(0.3)
             serve.send_signal(signal.SIGTERM)
             break
@@ -92,10 +96,18 @@ def first_off_curve(r, tol=np.array([0.05, 0.05, 0.005, 0.05, 0.05, 0.05]), wind
     return None
 
 
-def beyond_limits(servo, jaw, lim, lower, upper) -> int:
+def beyond_limits(servo, jaw, lim, lower, upper, hold_gap: float = 0.1) -> int:
     """Set-points beyond a bound, or whose divided differences exceed a velocity or acceleration
-    limit (to 1e-6 relative; 1e-3 for the second ones, the stamps' nanosecond rounding)."""
+    limit (to 1e-6 relative; 1e-3 for the second ones, the stamps' nanosecond rounding); each
+    stretch between fault holds (stamps more than `hold_gap` s apart) alone."""
     t = np.array([m.header.stamp.sec + m.header.stamp.nanosec * 1e-9 for _, m in servo])
+    cut = np.flatnonzero(np.diff(t) > hold_gap)
+    if len(cut):
+        bounds = np.r_[0, cut + 1, len(t)]
+        return sum(beyond_limits(servo[a:b], jaw[a:b], lim, lower, upper, np.inf)
+                   for a, b in zip(bounds[:-1], bounds[1:]))
+    if len(t) < 3:
+        return 0
     q = np.array([np.r_[s.position, j.position] for (_, s), (_, j) in zip(servo, jaw)])
     bad = np.any((q < lower - 1e-6) | (q > upper + 1e-6), axis=1).sum()
     v = np.diff(q, axis=0) / np.diff(t)[:, None]
@@ -123,7 +135,13 @@ def episode_row(r, lim, lower, upper, hz: float) -> dict:
             "not_played": len(log["replans"]) - len(kept), "replans": len(log["replans"])}
 
 
-def fault_row(kind: str, r) -> dict:
+def fault_off(r) -> float | None:
+    """[wall s] when sim-robot ended the injected fault, or None."""
+    said = [ln for ln in r["sim_err"].splitlines() if " off at " in ln and "fault" in ln]
+    return float(said[0].split("(wall ")[1].rstrip(")")) if said else None
+
+
+def fault_row(kind: str, r, lim=None, lower=None, upper=None) -> dict:
     log = r["log"] or {}
     hold, at = log.get("hold"), log.get("hold_at")
     if kind == "tracker-silent" and at is not None:
@@ -138,8 +156,18 @@ def fault_row(kind: str, r) -> dict:
         said = [ln for ln in r["sim_err"].splitlines() if "servo_jp silent" in ln]
         return {"kind": kind, "hold": said[0].split("sim-robot: ")[1] if said else None,
                 "delay_ms": None, "code": r["code"]}
-    return {"kind": kind, "hold": hold, "delay_ms": None if delay is None else delay * 1e3,
-            "code": r["code"]}
+    row = {"kind": kind, "hold": hold, "delay_ms": None if delay is None else delay * 1e3,
+           "code": r["code"], "resume_ms": None, "cleared_ms": None, "restart_ms": None,
+           "reached": r["code"] == 0 and r["out"].startswith("serve: goal reached"),
+           "beyond": None if lim is None else beyond_limits(r["servo"], r["jaw"], lim, lower,
+                                                            upper)}
+    h = (log.get("holds") or [None])[0]
+    off = fault_off(r)
+    if h and h.get("first_command") is not None and off is not None:
+        row["resume_ms"] = (log["t0_wall"] + h["first_command"] - off) * 1e3
+        row["cleared_ms"] = (log["t0_wall"] + h["cleared"] - off) * 1e3
+        row["restart_ms"] = h["restart_s"] * 1e3
+    return row
 
 
 def main() -> None:
@@ -170,25 +198,27 @@ def main() -> None:
               f"first {np.median(e['first_ms']):.1f} ms, not played {e['not_played']}",
               flush=True)
     if args.faults:
-        silent = ["--fault", "tracker-silent@0.6"]
+        # each fault clears after D s: hold, then resume, then the goal
+        silent = ["--fault", "tracker-silent@0.6+0.5"]
         specs = [("tracker-silent", ["--estimate-timeout", "0.3"], silent, None),
-                 ("nan", [], ["--fault", "nan@0.6"], None),
-                 ("stuck", [], ["--fault", "stuck@0.6"], None), ("killed", [], [], 0.6)]
+                 ("nan", [], ["--fault", "nan@0.6+0.3"], None),
+                 ("stuck", [], ["--fault", "stuck@0.6+0.5"], None), ("killed", [], [], 0.6)]
         for j, (kind, sa, sim_a, kill) in enumerate(specs):
             with tempfile.TemporaryDirectory() as tmp:
-                r = run(Path(tmp), base + (args.episodes + j) % 50, serve_args + sa, sim_a, kill)
-            faults.append(fault_row(kind, r))
+                r = run(Path(tmp), base + (args.episodes + j) % 50, serve_args + sa, sim_a, kill,
+                        stop_on_hold=kill is not None)
+            faults.append(fault_row(kind, r, lim, lower, upper))
             print(f"fault {kind}: {faults[-1]}", flush=True)
     report(rows, faults, args)
 
 
 def report(rows, faults, args) -> None:
-    allv = lambda k: np.concatenate([np.asarray(r[k], float) for r in rows])  # noqa: E731
+    allv = lambda k: np.concatenate([np.asarray(r[k], float) for r in rows] or [[]])  # noqa: E731
     first, ready, rp = allv("first_ms"), allv("ready_ms"), allv("replan_ms")
     first = first if len(first) else np.array([np.nan])
     ready = ready if len(ready) else np.array([np.nan])
-    rs = np.array([r["rate_stamps"] for r in rows])
-    rsent = np.array([r["rate_sent"] for r in rows])
+    rs = np.array([r["rate_stamps"] for r in rows] or [np.nan])
+    rsent = np.array([r["rate_sent"] for r in rows] or [np.nan])
     summary = {
         "episodes": len(rows), "reached": sum(r["reached"] for r in rows),
         "beyond_limits": sum(r["beyond"] for r in rows),
@@ -196,12 +226,12 @@ def report(rows, faults, args) -> None:
         "rate_err_pct_max": round(float(np.abs(np.r_[rs, rsent] / args.servo_hz - 1).max() * 100),
                                   2),
         "gaps_over_2_periods": sum(r["gaps_over_2"] for r in rows),
-        "longest_gap_ms": round(max(r["longest_gap_ms"] for r in rows), 1),
+        "longest_gap_ms": round(max([r["longest_gap_ms"] for r in rows] or [np.nan]), 1),
         "first_cmd_median_ms": round(float(np.median(first)), 1),
         "first_cmd_worst_ms": round(float(first.max()), 1),
         "ready_median_ms": round(float(np.median(ready)), 1),
         "ready_worst_ms": round(float(ready.max()), 1),
-        "replan_median_ms": round(float(np.median(rp)), 1),
+        "replan_median_ms": round(float(np.median(rp)), 1) if len(rp) else None,
         "replans": sum(r["replans"] for r in rows),
         "not_played": sum(r["not_played"] for r in rows), "budget_s": args.budget}
     lines = [f"# serve loop over loopback DDS\n\n`OPENBLAS_NUM_THREADS=1 .venv/bin/python "
@@ -209,9 +239,15 @@ def report(rows, faults, args) -> None:
              f"{' --faults' if args.faults else ''} --budget {args.budget}`\n",
              "| key | value |", "|---|---|"] + [f"| {k} | {v} |" for k, v in summary.items()]
     if faults:
-        lines += ["", "| fault | hold (reason) | delay [ms] | exit |", "|---|---|---|---|"]
-        lines += [f"| {f['kind']} | {f['hold']} | "
-                  f"{'-' if f['delay_ms'] is None else round(f['delay_ms'], 1)} | {f['code']} |"
+        def ms(x):
+            return "-" if x is None else round(x, 1)
+
+        lines += ["", "| fault | hold (reason) | hold delay [ms] | cleared [ms] | restart [ms] | "
+                  "resumed [ms] | goal reached | beyond a limit | exit |",
+                  "|---|---|---|---|---|---|---|---|---|"]
+        lines += [f"| {f['kind']} | {f['hold']} | {ms(f['delay_ms'])} | {ms(f['cleared_ms'])} | "
+                  f"{ms(f['restart_ms'])} | {ms(f['resume_ms'])} | {f['reached']} | "
+                  f"{'-' if f['beyond'] is None else f['beyond']} | {f['code']} |"
                   for f in faults]
     text = "\n".join(lines) + "\n"
     print(text)
@@ -219,6 +255,7 @@ def report(rows, faults, args) -> None:
         Path(args.output).write_text(text)
     fault_part = " ".join(
         f"{f['kind']}_ms={'-' if f['delay_ms'] is None else round(f['delay_ms'], 1)}"
+        f"/resume_ms={'-' if f['resume_ms'] is None else round(f['resume_ms'], 1)}"
         for f in faults)
     print("serve-loop: " + " ".join(f"{k}={v}" for k, v in summary.items())
           + (" " + fault_part if fault_part else ""))

@@ -4,9 +4,16 @@ that takes every sample's bytes off the wire for an independent decoder (rosbags
 
 from __future__ import annotations
 
+import json
 import os
+import signal
+import subprocess
+import sys
 import time
 from pathlib import Path
+
+SURESTEP = [sys.executable, "-m", "surestep_ocp.cli"]
+
 
 def loopback_env(tmp: Path, domain: int, trace: bool = False) -> dict:
     """The environment of a process confined to loopback DDS on `domain` (CYCLONEDDS_URI, and
@@ -60,3 +67,49 @@ class Recorder:
 
         ts = get_typestore(Stores.ROS2_HUMBLE)
         return [(t, ts.deserialize_cdr(b, ros_type)) for t, b in self.samples[name]]
+
+
+def topics() -> dict:
+    """The topics the serve tests record, with the package's DDS types."""
+    from surestep_ocp.ros import messages as m
+
+    return {"/PSM1/servo_jp": m.JointState, "/PSM1/jaw/servo_jp": m.JointState,
+            "/PSM1/measured_js": m.JointState, "/PSM1/tracker/pose": m.PoseWithCovarianceStamped,
+            "/surestep/plan": m.JointTrajectory, "/surestep/status": m.String,
+            "/surestep/trace": m.Float64, "/surestep/planned_trace": m.Float64,
+            "/surestep/confidence": m.Float64, "/surestep/goal": m.PoseStamped}
+
+
+def run_pair(tmp: Path, problem: str, serve_args: list, sim_args: list, until,
+             timeout_s: float = 240.0) -> dict:
+    """sim-robot and serve in their own processes, a recorder here; `until(rec, serve, domain)`
+    True ends the wait (then serve gets SIGTERM if it still runs). Returns the outputs, the
+    recorder and the node's --log."""
+    domain = free_domain()
+    env = loopback_env(tmp, domain, trace=True)
+    os.environ["CYCLONEDDS_URI"] = env["CYCLONEDDS_URI"]  # the recorder's participant too
+    rec = Recorder(domain, topics())
+    sim = subprocess.Popen(SURESTEP + ["sim-robot", problem] + sim_args, env=env, cwd=tmp,
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    serve = subprocess.Popen(SURESTEP + ["serve", problem, "--log", str(tmp / "log.json")]
+                             + serve_args, env=env, cwd=tmp, stdout=subprocess.PIPE,
+                             stderr=subprocess.PIPE, text=True)
+    deadline = time.time() + timeout_s
+    try:
+        while serve.poll() is None and time.time() < deadline and not until(rec, serve, domain):
+            rec.poll()
+            time.sleep(0.01)
+        if serve.poll() is None:
+            serve.send_signal(signal.SIGTERM)
+        out, err = serve.communicate(timeout=30)
+        rec.poll()
+    finally:
+        for p in (serve, sim):
+            if p.poll() is None:
+                p.send_signal(signal.SIGTERM)
+        sim_out, sim_err = sim.communicate(timeout=30)
+        del os.environ["CYCLONEDDS_URI"]
+    log = json.loads((tmp / "log.json").read_text()) if (tmp / "log.json").exists() else None
+    return {"code": serve.returncode, "out": out, "err": err, "sim_code": sim.returncode,
+            "sim_out": sim_out, "sim_err": sim_err, "rec": rec, "log": log,
+            "cyclone_logs": [f.read_text(errors="replace") for f in tmp.glob("cyclone-*.log")]}

@@ -5,13 +5,11 @@ against the problem (joint names, bounds, velocity and acceleration limits) and 
 rate; bad input (exit 2, one line, before anything is published); a silent tracker (hold, with its
 reason, exit 1 when stopped; the dvrk-ros-model names); a signal before the first plan (exit 0)."""
 
-import json
 import os
 import select
 import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -19,7 +17,7 @@ import pytest
 
 pytest.importorskip("cyclonedds")
 
-from serve_dds import Recorder, free_domain, loopback_env  # noqa: E402
+from serve_dds import Recorder, free_domain, loopback_env, run_pair, topics  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 PROBLEM = str(ROOT / "problems" / "needle_regrasp.yaml")
@@ -28,52 +26,13 @@ ARM = ["yaw", "pitch", "insertion", "roll", "wrist_pitch", "wrist_yaw"]  # the d
 SERVO_HZ = 200.0
 
 
-def _topics():
-    from surestep_ocp.ros import messages as m
-
-    return {"/PSM1/servo_jp": m.JointState, "/PSM1/jaw/servo_jp": m.JointState,
-            "/PSM1/measured_js": m.JointState, "/PSM1/tracker/pose": m.PoseWithCovarianceStamped,
-            "/surestep/plan": m.JointTrajectory, "/surestep/status": m.String,
-            "/surestep/trace": m.Float64, "/surestep/planned_trace": m.Float64,
-            "/surestep/confidence": m.Float64}
-
-
 def _run(tmp: Path, serve_args: list, sim_args: list, until, timeout_s: float = 240.0):
-    """sim-robot and serve in their own processes, a recorder here; `until(rec, serve)` True ends
-    the wait (then serve gets SIGTERM if it still runs). Returns the outputs and the recorder."""
-    domain = free_domain()
-    env = loopback_env(tmp, domain, trace=True)
-    os.environ["CYCLONEDDS_URI"] = env["CYCLONEDDS_URI"]  # the recorder's participant too
-    rec = Recorder(domain, _topics())
-    sim = subprocess.Popen(SURESTEP + ["sim-robot", PROBLEM] + sim_args, env=env, cwd=tmp,
-                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    serve = subprocess.Popen(SURESTEP + ["serve", PROBLEM, "--log", str(tmp / "log.json")]
-                             + serve_args, env=env, cwd=tmp, stdout=subprocess.PIPE,
-                             stderr=subprocess.PIPE, text=True)
-    deadline = time.time() + timeout_s
-    try:
-        while serve.poll() is None and time.time() < deadline and not until(rec, serve):
-            rec.poll()
-            time.sleep(0.01)
-        if serve.poll() is None:
-            serve.send_signal(signal.SIGTERM)
-        out, err = serve.communicate(timeout=30)
-        rec.poll()
-    finally:
-        for p in (serve, sim):
-            if p.poll() is None:
-                p.send_signal(signal.SIGTERM)
-        sim_out, sim_err = sim.communicate(timeout=30)
-    del os.environ["CYCLONEDDS_URI"]
-    log = json.loads((tmp / "log.json").read_text()) if (tmp / "log.json").exists() else None
-    return {"code": serve.returncode, "out": out, "err": err, "sim_code": sim.returncode,
-            "sim_out": sim_out, "sim_err": sim_err, "rec": rec, "log": log,
-            "cyclone_logs": [f.read_text(errors="replace") for f in tmp.glob("cyclone-*.log")]}
+    return run_pair(tmp, PROBLEM, serve_args, sim_args, until, timeout_s)
 
 
 @pytest.fixture(scope="module")
 def episode(tmp_path_factory):
-    return _run(tmp_path_factory.mktemp("episode"), [], [], until=lambda rec, serve: False)
+    return _run(tmp_path_factory.mktemp("episode"), [], [], until=lambda rec, serve, domain: False)
 
 
 @pytest.fixture(scope="module")
@@ -188,6 +147,7 @@ def test_bad_input_exits_2_naming_the_option(tmp_path, capsys, monkeypatch):
              (["serve", PROBLEM, "--domain-id", "233"], "--domain-id"),
              (["serve", PROBLEM, "--domain-id", "-1"], "--domain-id"),
              (["serve", PROBLEM, "--servo-hz", "0"], "--servo-hz"),
+             (["serve", PROBLEM, "--resume-after", "-1"], "--resume-after"),
              (["sim-robot", PROBLEM, "--fault", "melt@1"], "--fault"),
              (["serve", str(ROOT / "problems" / "needle_regrasp_paper_pace.yaml")],
               "cannot be served")]
@@ -206,7 +166,7 @@ def test_signal_before_the_first_plan_exits_0(tmp_path):
     domain = free_domain()
     env = loopback_env(tmp_path, domain)
     os.environ["CYCLONEDDS_URI"] = env["CYCLONEDDS_URI"]
-    rec = Recorder(domain, _topics())
+    rec = Recorder(domain, topics())
     p = subprocess.Popen(SURESTEP + ["serve", PROBLEM], env=env, stdout=subprocess.PIPE,
                          stderr=subprocess.PIPE, text=True)
     # until it says it waits for the arm (its signal handlers are in place by then)
@@ -223,7 +183,7 @@ def test_signal_before_the_first_plan_exits_0(tmp_path):
 
 
 def test_tracker_silent_holds_with_its_reason(tmp_path):
-    def held(rec, serve):
+    def held(rec, serve, domain):
         return any(b"hold: tracker silent" in raw for _, raw in rec.samples["/surestep/status"])
 
     r = _run(tmp_path, ["--estimate-timeout", "0.3", "--joint-names", "dvrk-ros-model"],

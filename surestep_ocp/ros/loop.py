@@ -287,7 +287,7 @@ class ServoLoop:
             self._new_epoch(sol, now)
             if req["from_hold"]:
                 h = self.holds[-1]
-                h["resumed"] = now - self.origin
+                h["resumed"], h["restart_s"] = now - self.origin, took
                 self.serve.fault_hold = False
                 self.watchdog.clear()
                 sh.fault = None
