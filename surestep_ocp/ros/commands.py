@@ -89,6 +89,9 @@ def register(sub) -> None:
     r.add_argument("--fault", action="append", metavar="KIND@T[+D]",
                    help="inject a fault at T s after the first servo_jp, for D s (default: to the "
                         "end): tracker-silent, nan, stuck (repeatable)")
+    r.add_argument("--meshcat", nargs="?", type=float, const=10.0, default=None, metavar="HZ",
+                   help="a Meshcat view (a server on 127.0.0.1; its URL on stderr) of the arm and "
+                        "the tracker's belief, updated HZ times a second (default 10)")
     r.set_defaults(func=cmd_sim_robot)
 
 
@@ -160,6 +163,12 @@ def cmd_serve(args) -> int:
 def cmd_sim_robot(args) -> int:
     arm, tracker, domain = _names(args)
     _positive(args.rate, "--rate", MAX_SERVO_HZ)
+    if args.meshcat is not None:
+        _positive(args.meshcat, "--meshcat", 60.0)
+        try:
+            import meshcat  # noqa: F401
+        except ImportError:
+            raise SurestepError("--meshcat: the view needs meshcat (pip install meshcat)") from None
     if not (math.isfinite(args.tracker_latency) and 0 <= args.tracker_latency < 1):
         raise SurestepError(f"--tracker-latency: {args.tracker_latency:g} must be in [0, 1) s")
     if not (math.isfinite(args.duration) and args.duration >= 0):
@@ -176,4 +185,4 @@ def cmd_sim_robot(args) -> int:
 
     ecm = getattr(prob.camera, "ecm_joints", None)
     return SimRobot(setup, ecm, arm, tracker, domain, args.rate, args.seed, args.tracker_latency,
-                    args.duration, faults).run()
+                    args.duration, faults, args.meshcat or 0.0).run()

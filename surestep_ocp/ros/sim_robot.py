@@ -11,12 +11,15 @@ with the model's motion noise, and is observed; the detector (`rollout.Detection
 outside the image region; a missed frame is not published (the simulated EKF still updates with
 it: an approximation). Each estimate is stamped with its image's time and published `latency` s
 later on the tracker topic (geometry_msgs/PoseWithCovarianceStamped, camera frame).
+`meshcat_hz`: a Meshcat view (viz/live.py, its own server on 127.0.0.1) of the arm and the
+tracker's belief, updated from a thread at that rate.
 """
 
 from __future__ import annotations
 
 import signal
 import sys
+import threading
 import time
 from collections import deque
 
@@ -33,7 +36,7 @@ SERVO_SILENT_S = 0.1  # [s] servo_jp this long silent: said on stderr (the arm h
 
 class SimRobot:
     def __init__(self, setup, ecm_joints, arm, tracker_topic, domain, rate, seed, latency, duration,
-                 faults):
+                 faults, meshcat_hz: float = 0.0):
         from ..evaluation.rollout import Detection
         from ..evaluation.tracker import SimulatedTracker
         from ..model.limits import problem_limits
@@ -64,6 +67,7 @@ class SimRobot:
         self.last_servo, self.silent_said = 0.0, False
         self.stop: str | None = None
         self._fault_on: dict = {}
+        self.meshcat_hz, self.view = meshcat_hz, None
         self.counts = {"measured": 0, "estimates": 0, "missed": 0, "servo": 0}
 
     def _on_signal(self, signum, _frame) -> None:
@@ -75,6 +79,8 @@ class SimRobot:
         print(f"sim-robot: {self.w_meas.topic.name[2:]} at {self.rate:g} Hz, tracker "
               f"{self.w_pose.topic.name[2:]} at {1 / self.frame_dt:g} Hz", file=sys.stderr,
               flush=True)
+        if self.meshcat_hz:
+            self._start_view()
         t0, n = time.monotonic(), 0
         next_frame, x_prev = t0, self.setup.pose_of(self.q)
         while self.stop is None:
@@ -97,8 +103,29 @@ class SimRobot:
         c = self.counts
         print(f"sim-robot: stopped ({self.stop or 'duration'}); {c['servo']} servo_jp received, "
               f"{c['measured']} measured_js and {c['estimates']} estimates sent, {c['missed']} "
-              "frames missed by the detector", flush=True)
+              "frames missed by the detector"
+              + (f", {self.view.updates} Meshcat updates sent" if self.view else ""), flush=True)
         return 0
+
+    def _start_view(self) -> None:
+        """The Meshcat view (its server on 127.0.0.1) and the thread that updates it."""
+        from ..solvers.methods import run_method
+        from ..viz import server
+        from ..viz.live import LiveView
+
+        vis = server.visualizer()
+        self.view = LiveView(run_method(self.setup, "baseline").to_dict(), vis)
+        print(f"sim-robot: Meshcat view at {vis.url()} (the arm and the tracker's belief at "
+              f"{self.meshcat_hz:g} Hz)", file=sys.stderr, flush=True)
+
+        def loop():
+            period = 1.0 / self.meshcat_hz
+            while self.stop is None:
+                tr = self.tracker
+                self.view.update(self.q.copy(), tr.mean.copy(), tr.covariance.copy())
+                time.sleep(period)
+
+        threading.Thread(target=loop, name="meshcat-view", daemon=True).start()
 
     def _say_faults(self, fault_t) -> None:
         """Each injected fault's start and end on stderr (with the wall time, for the
