@@ -30,6 +30,7 @@ from .output.export_timing import planned_curve
 from .output.plots_compare import write_figures
 from .output.plots_motion import plot_plans
 from .problem.setup import Setup
+from .output.files import written_together
 from .output.solution import Solution, write_json_atomic, write_text_atomic
 
 
@@ -71,9 +72,17 @@ def attach_motion_limits(setup: Setup, sol: Solution) -> None:
 
 def write_comparison(solutions: list[Solution], out_dir: Path, problem_path: str) -> str:
     """Write `<method>.json`, `comparison.md`, `comparison.json`, `trace.png`, `path.png`,
-    `motion.png`; return the tables (the comparison, then the motion limits at the planned pace)."""
+    `motion.png`, all or none (`files.written_together`: Ctrl-C while they were written left some);
+    return the tables (the comparison, then the motion limits at the planned pace)."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
+    names = [f"{s.method}.json" for s in solutions] + ["comparison.json", "comparison.md",
+                                                         "trace.png", "path.png", "motion.png"]
+    with written_together([out_dir / n for n in names], "the comparison") as staged:
+        return _write_comparison(solutions, staged[out_dir / names[0]].parent, problem_path)
+
+
+def _write_comparison(solutions: list[Solution], out_dir: Path, problem_path: str) -> str:
     for s in solutions:
         s.save(out_dir / f"{s.method}.json")
     rows = finite_or_null(comparison_rows(solutions))

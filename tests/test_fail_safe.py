@@ -262,3 +262,24 @@ def test_exports_numeric_arguments_are_checked(default_problem, tmp_path, key, v
     with pytest.raises(SurestepError, match=f"export: {key} must be a number"):
         ss.export(sol, "csv", tmp_path / "out.csv", **{key: value})
     assert not any(tmp_path.iterdir())
+
+
+def test_compare_writes_its_files_all_or_none(default_setup, tmp_path, monkeypatch):
+    """Ctrl-C while `compare` wrote its folder left some of its files (found by the hostile
+    round: baseline.json, comparison.json, comparison.md without the figures); now none."""
+    from surestep_ocp import comparison
+
+    sols = comparison.run_comparison(default_setup, ("baseline",))
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(comparison, "plot_plans", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        comparison.write_comparison(sols, tmp_path / "c", "p.yaml")
+    assert list((tmp_path / "c").iterdir()) == []
+    monkeypatch.undo()
+    comparison.write_comparison(sols, tmp_path / "c", "p.yaml")
+    assert {p.name for p in (tmp_path / "c").iterdir()} == {
+        "baseline.json", "comparison.json", "comparison.md", "trace.png", "path.png",
+        "motion.png"}
