@@ -128,11 +128,24 @@ def episode_row(r, lim, lower, upper, hz: float) -> dict:
             "rate_stamps": (len(t) - 1) / (t[-1] - t[0]),
             "rate_sent": (len(sent) - 1) / (sent[-1] - sent[0]),
             "gaps_over_2": int(np.sum(gaps > 2 / hz)), "longest_gap_ms": float(gaps.max() * 1e3),
+            "gaps_in_replan": gaps_in_replan(sent, log["replans"], 2 / hz),
+            "busy": sum(g["ready"] - g["arrival"] for g in log["replans"]) / (sent[-1] - sent[0]),
             "ready_ms": [(g["ready"] - g["arrival"]) * 1e3 for g in kept],
             "first_ms": [(g["first_command"] - g["arrival"]) * 1e3 for g in kept
                          if g["first_command"] is not None],
             "replan_ms": [g["replan_s"] * 1e3 for g in log["replans"]],
             "not_played": len(log["replans"]) - len(kept), "replans": len(log["replans"])}
+
+
+def gaps_in_replan(sent, replans, longer) -> int:
+    """Gaps longer than `longer` s between set-points sent that overlap a re-plan's run (its
+    estimate's arrival to its ready time): the re-planning thread holding the interpreter."""
+    runs = [(g["arrival"], g["ready"]) for g in replans if g.get("epoch", 0) == 0]
+    n = 0
+    for a, b in zip(sent[:-1], sent[1:]):
+        if b - a > longer and any(lo < b and hi > a for lo, hi in runs):
+            n += 1
+    return n
 
 
 def fault_off(r) -> float | None:
@@ -155,7 +168,8 @@ def fault_row(kind: str, r, lim=None, lower=None, upper=None) -> dict:
     if kind == "killed":
         said = [ln for ln in r["sim_err"].splitlines() if "servo_jp silent" in ln]
         return {"kind": kind, "hold": said[0].split("sim-robot: ")[1] if said else None,
-                "delay_ms": None, "code": r["code"]}
+                "delay_ms": None, "code": r["code"], "resume_ms": None, "cleared_ms": None,
+                "restart_ms": None, "reached": False, "beyond": None}
     row = {"kind": kind, "hold": hold, "delay_ms": None if delay is None else delay * 1e3,
            "code": r["code"], "resume_ms": None, "cleared_ms": None, "restart_ms": None,
            "reached": r["code"] == 0 and r["out"].startswith("serve: goal reached"),
@@ -202,7 +216,7 @@ def main() -> None:
         silent = ["--fault", "tracker-silent@0.6+0.5"]
         specs = [("tracker-silent", ["--estimate-timeout", "0.3"], silent, None),
                  ("nan", [], ["--fault", "nan@0.6+0.3"], None),
-                 ("stuck", [], ["--fault", "stuck@0.6+0.5"], None), ("killed", [], [], 0.6)]
+                 ("stuck", [], ["--fault", "stuck@0.6+1"], None), ("killed", [], [], 0.6)]
         for j, (kind, sa, sim_a, kill) in enumerate(specs):
             with tempfile.TemporaryDirectory() as tmp:
                 r = run(Path(tmp), base + (args.episodes + j) % 50, serve_args + sa, sim_a, kill,
@@ -226,6 +240,9 @@ def report(rows, faults, args) -> None:
         "rate_err_pct_max": round(float(np.abs(np.r_[rs, rsent] / args.servo_hz - 1).max() * 100),
                                   2),
         "gaps_over_2_periods": sum(r["gaps_over_2"] for r in rows),
+        "gaps_during_a_replan": sum(r["gaps_in_replan"] for r in rows),
+        "replan_time_share_pct": (round(100 * float(np.mean([r["busy"] for r in rows])), 1)
+                                  if rows else None),
         "longest_gap_ms": round(max([r["longest_gap_ms"] for r in rows] or [np.nan]), 1),
         "first_cmd_median_ms": round(float(np.median(first)), 1),
         "first_cmd_worst_ms": round(float(first.max()), 1),
