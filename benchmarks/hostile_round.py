@@ -85,6 +85,9 @@ def run(what: str, argv: list[str], expect=(0,), env: dict | None = None, cwd: P
 
     def limits():
         os.setsid()
+        # (a background shell starts its jobs with SIGINT ignored, and Python keeps it so: Ctrl-C
+        # would not be tried)
+        signal.signal(signal.SIGINT, signal.SIG_DFL)
         if fsize is not None:
             resource.setrlimit(resource.RLIMIT_FSIZE, (fsize, fsize))
 

@@ -162,8 +162,8 @@ def test_a_non_finite_solution_is_not_written(tmp_path, default_setup):
     (lambda t: t["robot"].update(frame="universe"), "robot.frame", "not moved by any joint"),
     (lambda t: t["robot"].update(urdf="problems/needle_regrasp_paper_pace.yaml"), "robot.urdf",
      "URDF"),
-    (lambda t: t["solver"].update(options={"no_such_option": 1}), "solver.options",
-     "no_such_option"),
+    (lambda t: t["solver"].update(options={"no_such_option": 1}),
+     "solver.options.no_such_option", "No such IPOPT option"),
     (lambda t: t["robot"].update(frame="a\nb" * 500), "robot.frame", "not in the model"),
 ])
 def test_bad_values_are_one_line_named_errors(tmp_path, capfd, edit, key, words):
@@ -184,7 +184,8 @@ def test_unknown_ipopt_option_is_refused_for_every_solver(tmp_path, capsys, no_w
     path = write(tmp_path, lambda t: t["solver"].update(options={"no_such_option": 1}))
     for solver in ("auto", "ipopt", "newton"):
         code, _, err = run(capsys, "solve", path, "--solver", solver)
-        one_line_error(code, err, "solver.options", "No such IPOPT option: no_such_option")
+        one_line_error(code, err, "solver.options.no_such_option",
+                       "No such IPOPT option: no_such_option")
     path = write(tmp_path, lambda t: t["solver"].update(options={"mu_strategy": "sideways"}))
     code, _, err = run(capsys, "solve", path)
     one_line_error(code, err, "not a valid setting", "mu_strategy")

@@ -230,7 +230,7 @@ def test_a_wrong_option_value_is_one_line_naming_the_option(solution_file, tmp_p
                                                                    and not action.choices):
                 continue
             option = max(action.option_strings, key=len)
-            for value in ("zz", "nan", "inf", "", "-1e400"):
+            for value in ("zz", "nan", "inf", ""):
                 argv = list(bases[name])
                 if option in argv:
                     argv[argv.index(option) + 1] = value

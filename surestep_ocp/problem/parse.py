@@ -8,6 +8,7 @@ Every error is a one-line `ProblemError` naming the file, the key path and what 
 
 from __future__ import annotations
 
+import difflib
 import re
 from collections.abc import Mapping
 from dataclasses import replace
@@ -237,11 +238,11 @@ def _top(rd: Reader, tree: Any, errors: list[ProblemError]) -> dict:
         rd.mapping(tree, "", _TOP)  # raises, naming what is expected
     unknown = sorted(set(tree) - _TOP, key=str)
     missing = sorted(_REQUIRED_TOP - set(tree))
-    # (a misspelt required key is one error, naming the key it stands for)
-    lacking = f"; missing here: {', '.join(missing)}" if missing else ""
+    # a misspelt required key is one error, naming the key it stands for
+    meant = {k: next(iter(difflib.get_close_matches(str(k), missing, 1)), None) for k in unknown}
     errors += [rd.fail(str(k), f"unknown key; allowed keys here: {', '.join(sorted(_TOP))}"
-                       + (lacking if i == 0 else "")) for i, k in enumerate(unknown)]
-    errors += [] if unknown else [rd.fail(k, "missing required key") for k in missing]
+                       + (f"; missing here: {meant[k]}" if meant[k] else "")) for k in unknown]
+    errors += [rd.fail(k, "missing required key") for k in missing if k not in meant.values()]
     return {k: v for k, v in tree.items() if k in _TOP}
 
 
