@@ -160,9 +160,11 @@ def test_goals_refused_and_reached(run):
     assert np.allclose(servo[-1][1].position, plans[-1].points[-1].positions[:6], atol=1e-9)
     restart = [p for p in plans if np.allclose(p.points[0].positions[:6], held[0], atol=1e-12)
                and not np.any(p.points[0].velocities)]
-    assert restart  # from rest at the goal it held before
+    # the first from rest at the goal it held before (a re-plan from the new waypoint 0, also at
+    # rest there, may follow: registered to the tracker)
+    assert restart
     setup = build_setup(load_problem(PROBLEM))
-    x = setup.pose_of(np.array(restart[-1].points[-1].positions))
+    x = setup.pose_of(np.array(restart[0].points[-1].positions))
     assert np.abs(x[:3] - NEW[:3]).max() < 1e-6
     # the tracker's last estimate (the sim's tool, its drift included) at the new goal
     est = run["rec"].decoded("/PSM1/tracker/pose", "geometry_msgs/msg/PoseWithCovarianceStamped")
