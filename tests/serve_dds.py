@@ -27,9 +27,29 @@ def loopback_env(tmp: Path, domain: int, trace: bool = False) -> dict:
             "OPENBLAS_NUM_THREADS": "1", "PYTHONUNBUFFERED": "1"}
 
 
+_HELD: list = []  # the open lock files of the domains this process holds (released at its exit)
+
+
 def free_domain() -> int:
-    """A domain id unlikely to be in use by another test run on this machine (1..200)."""
-    return 1 + (os.getpid() * 7 + int(time.time())) % 200
+    """A domain id (1..200) no other process of this machine holds: each is reserved by an exclusive
+    lock on its own file, held until this process exits (pytest-xdist's workers run DDS pairs at
+    the same time; a domain shared by two pairs mixes their messages)."""
+    import fcntl
+    import random
+    import tempfile
+
+    folder = Path(tempfile.gettempdir()) / "surestep-dds-domains"
+    folder.mkdir(exist_ok=True)
+    for domain in random.Random(os.getpid()).sample(range(1, 201), 200):
+        f = open(folder / f"{domain}.lock", "w")
+        try:
+            fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            f.close()
+            continue
+        _HELD.append(f)
+        return domain
+    raise RuntimeError("no free DDS domain id: 200 held by other processes")
 
 
 class Recorder:
