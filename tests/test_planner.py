@@ -103,7 +103,16 @@ def test_replan_rejects_bad_input(loop):
     planner = loop[0]
     with pytest.raises(ss.SurestepError, match="covariance must be positive definite"):
         planner.replan(planner.plan.poses[1], -np.eye(6))
-    with pytest.raises(ss.SurestepError, match="mean must be 6 finite numbers"):
+    with pytest.raises(ss.SurestepError, match=r"mean must be 6 finite numbers.*got shape \(5,\)"):
         planner.replan([0.0] * 5, np.eye(6))
+    # a non-finite value is said as such (not as a shape)
+    nan_mean = np.array(planner.plan.poses[1], float)
+    nan_mean[0] = np.nan
+    with pytest.raises(ss.SurestepError, match=r"6 finite numbers.*got \[nan"):
+        planner.replan(nan_mean, np.eye(6))
+    with pytest.raises(ss.SurestepError, match="finite 6x6 matrix, got non-finite entries"):
+        planner.replan(planner.plan.poses[1], np.full((6, 6), np.inf))
+    with pytest.raises(ss.SurestepError, match="finite 4x4 matrix, got non-finite entries"):
+        planner.replan(planner.plan.poses[1], np.eye(6) * 1e-4, camera_pose=np.full((4, 4), np.nan))
     with pytest.raises(ss.SurestepError, match="step 99"):
         planner.replan(planner.plan.poses[1], np.eye(6) * 1e-4, step=99)

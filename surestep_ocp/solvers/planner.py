@@ -419,7 +419,8 @@ class Planner:
             C = _real(camera_pose, "camera_pose")
             if C.shape != (4, 4) or not np.all(np.isfinite(C)):
                 raise SurestepError("replan: camera_pose must be a finite 4x4 matrix, "
-                                    f"got shape {C.shape}")
+                                    + (f"got shape {C.shape}" if C.shape != (4, 4)
+                                       else "got non-finite entries"))
             R = C[:3, :3]
             if (np.abs(R.T @ R - np.eye(3)).max() > RIGID_TOL or np.linalg.det(R) <= 0
                     or np.abs(C[3] - [0, 0, 0, 1]).max() > RIGID_TOL
@@ -477,7 +478,8 @@ def _estimate(mean, covariance, min_depth: float) -> tuple[np.ndarray, np.ndarra
     mean, cov = _real(mean, "mean"), _real(covariance, "covariance")
     if mean.shape != (NX,) or not np.all(np.isfinite(mean)):
         raise SurestepError("replan: mean must be 6 finite numbers [px, py, pz, rx, ry, rz], "
-                            f"got shape {mean.shape}")
+                            + (f"got shape {mean.shape}" if mean.shape != (NX,)
+                               else f"got {mean.tolist()}"))
     if np.abs(mean[:3]).max() > MAX_POSITION:
         raise SurestepError(f"replan: mean's position must be within {MAX_POSITION:g} m, "
                             f"got {mean[:3].tolist()}")
@@ -487,7 +489,8 @@ def _estimate(mean, covariance, min_depth: float) -> tuple[np.ndarray, np.ndarra
                             "at the camera")
     if cov.shape != (NX, NX) or not np.all(np.isfinite(cov)):
         raise SurestepError("replan: covariance must be a finite 6x6 matrix, "
-                            f"got shape {cov.shape}")
+                            + (f"got shape {cov.shape}" if cov.shape != (NX, NX)
+                               else "got non-finite entries"))
     if np.abs(cov).max() > MAX_COVARIANCE:
         raise SurestepError(f"replan: covariance entries must be at most {MAX_COVARIANCE:g}, got "
                             f"{np.abs(cov).max():.3g}")
