@@ -12,6 +12,8 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
+
 SURESTEP = [sys.executable, "-m", "surestep_ocp.cli"]
 
 
@@ -133,3 +135,27 @@ def run_pair(tmp: Path, problem: str, serve_args: list, sim_args: list, until,
     return {"code": serve.returncode, "out": out, "err": err, "sim_code": sim.returncode,
             "sim_out": sim_out, "sim_err": sim_err, "rec": rec, "log": log,
             "cyclone_logs": [f.read_text(errors="replace") for f in tmp.glob("cyclone-*.log")]}
+
+
+def stamps(msgs) -> np.ndarray:
+    """The header stamps [s] of decoded messages ((arrival, message) pairs)."""
+    return np.array([m.header.stamp.sec + m.header.stamp.nanosec * 1e-9 for _, m in msgs])
+
+
+def set_points(rec: Recorder, arm: str = "PSM1") -> tuple:
+    """(stamps, joints with the jaw last, servo and jaw messages) of the recorded set-points."""
+    servo = rec.decoded(f"/{arm}/servo_jp", "sensor_msgs/msg/JointState")
+    jaw = rec.decoded(f"/{arm}/jaw/servo_jp", "sensor_msgs/msg/JointState")
+    q = np.array([np.r_[s.position, j.position] for (_, s), (_, j) in zip(servo, jaw)])
+    return stamps(servo), q, servo, jaw
+
+
+def assert_stretch_within_limits(lim, t: np.ndarray, q: np.ndarray, tol: float = 1e-6) -> None:
+    """Divided differences of set-points sampled from one played curve: a first one is a mean of
+    the velocity, a second one (times 2) a value of the acceleration in between, so each is within
+    its limit where the curve is."""
+    v = np.diff(q, axis=0) / np.diff(t)[:, None]
+    assert np.all(np.abs(v) <= lim.velocity * (1 + tol) + 1e-9), np.abs(v / lim.velocity).max()
+    a = 2 * np.diff(v, axis=0) / (t[2:] - t[:-2])[:, None]
+    assert np.all(np.abs(a) <= lim.acceleration * (1 + 1e-3) + 1e-6), \
+        np.abs(a / lim.acceleration).max()

@@ -17,7 +17,8 @@ import pytest
 
 pytest.importorskip("cyclonedds")
 
-from serve_dds import Recorder, free_domain, loopback_env, run_pair, topics  # noqa: E402
+from serve_dds import (Recorder, assert_stretch_within_limits, free_domain, loopback_env,  # noqa: E402
+                       run_pair, set_points, stamps, topics)
 
 ROOT = Path(__file__).resolve().parents[1]
 PROBLEM = str(ROOT / "problems" / "needle_regrasp.yaml")
@@ -90,13 +91,9 @@ def test_messages_decode_with_their_ros2_names(episode):
     assert est and all(e.header.frame_id == "camera" for _, e in est)
 
 
-def _stamps(msgs) -> np.ndarray:
-    return np.array([m.header.stamp.sec + m.header.stamp.nanosec * 1e-9 for _, m in msgs])
-
-
 def test_servo_stamps_and_rate(episode):
     servo = episode["rec"].decoded("/PSM1/servo_jp", "sensor_msgs/msg/JointState")
-    t = _stamps(servo)
+    t = stamps(servo)
     assert np.all(np.diff(t) > 0)  # monotonic
     ticks = (t - t[0]) * SERVO_HZ  # each a tick of the servo clock (to the ns rounding)
     assert np.abs(ticks - np.round(ticks)).max() < 1e-3
@@ -104,7 +101,7 @@ def test_servo_stamps_and_rate(episode):
     assert 0.9 * SERVO_HZ <= rate <= SERVO_HZ * 1.001, rate  # skipped ticks only (generous)
     arrivals = np.array([a for a, _ in servo])
     assert (arrivals[-1] - arrivals[0]) / (t[-1] - t[0]) == pytest.approx(1.0, abs=0.2)
-    measured = _stamps(episode["rec"].decoded("/PSM1/measured_js", "sensor_msgs/msg/JointState"))
+    measured = stamps(episode["rec"].decoded("/PSM1/measured_js", "sensor_msgs/msg/JointState"))
     assert np.all(np.diff(measured) >= 0)
 
 
@@ -117,17 +114,10 @@ def test_executed_samples_within_the_problems_limits(episode, setup):
     lim = problem_limits(setup)
     lower, upper = joint_bounds(setup.robot, lim.rcm_min_distance)
     rec = episode["rec"]
-    servo = rec.decoded("/PSM1/servo_jp", "sensor_msgs/msg/JointState")
-    jaw = rec.decoded("/PSM1/jaw/servo_jp", "sensor_msgs/msg/JointState")
-    t = _stamps(servo)
-    q = np.array([np.r_[s.position, j.position] for (_, s), (_, j) in zip(servo, jaw)])
+    t, q, servo, jaw = set_points(rec)
     tol = 1e-6
     assert np.all(q >= lower - tol) and np.all(q <= upper + tol)
-    v = np.diff(q, axis=0) / np.diff(t)[:, None]
-    assert np.all(np.abs(v) <= lim.velocity * (1 + tol) + 1e-9), np.abs(v / lim.velocity).max()
-    a = 2 * np.diff(v, axis=0) / (t[2:] - t[:-2])[:, None]
-    assert np.all(np.abs(a) <= lim.acceleration * (1 + 1e-3) + 1e-6), \
-        np.abs(a / lim.acceleration).max()
+    assert_stretch_within_limits(lim, t, q, tol)
     published_v = np.array([np.r_[s.velocity, j.velocity] for (_, s), (_, j) in zip(servo, jaw)])
     assert np.all(np.abs(published_v) <= lim.velocity * (1 + tol))
     # it moved, and ended at rest where the last plan ends
@@ -199,7 +189,7 @@ def test_tracker_silent_holds_with_its_reason(tmp_path):
     assert servo and all(list(msg.name) == [f"outer_{n}" for n in ARM] for _, msg in servo)
     plans = r["rec"].decoded("/surestep/plan", "trajectory_msgs/msg/JointTrajectory")
     assert plans and list(plans[0][1].joint_names) == [f"outer_{n}" for n in ARM] + ["jaw"]
-    t = _stamps(servo) - log["t0_wall"]
+    t = stamps(servo) - log["t0_wall"]
     assert t.max() <= log["hold_at"] + 1 / SERVO_HZ + 1e-6  # no motion after the hold
     status = [s.data for _, s in r["rec"].decoded("/surestep/status", "std_msgs/msg/String")]
     assert status[-1].startswith("stopped")

@@ -12,7 +12,7 @@ import pytest
 
 pytest.importorskip("cyclonedds")
 
-from serve_dds import run_pair  # noqa: E402
+from serve_dds import assert_stretch_within_limits, run_pair, set_points, stamps  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 PROBLEM = str(ROOT / "problems" / "needle_regrasp.yaml")
@@ -74,10 +74,6 @@ def run(tmp_path_factory):
     return r
 
 
-def _stamps(msgs):
-    return np.array([m.header.stamp.sec + m.header.stamp.nanosec * 1e-9 for _, m in msgs])
-
-
 def test_sigterm_in_the_loop_exits_0(run):
     assert run["script"].stage == 2, run["err"][-3000:]
     assert run["code"] == 0, run["err"][-3000:]
@@ -98,7 +94,7 @@ def test_the_hold_resumes_once_the_tracker_is_back(run):
     assert "serve: resumed: a new motion from rest" in run["err"]
     # nothing sent while holding: no stamp between the hold and the resume
     servo = run["rec"].decoded("/PSM1/servo_jp", "sensor_msgs/msg/JointState")
-    t = _stamps(servo) - log["t0_wall"]
+    t = stamps(servo) - log["t0_wall"]
     assert not np.any((t > h["at"] + 1 / HZ + 1e-6) & (t < h["resumed"] - 1e-3))
     assert np.any(t >= h["resumed"] - 1e-3)
     status = [s.data for _, s in run["rec"].decoded("/surestep/status", "std_msgs/msg/String")]
@@ -118,22 +114,15 @@ def test_set_points_on_one_clock_within_the_limits(run):
     setup = build_setup(load_problem(PROBLEM))
     lim = problem_limits(setup)
     lower, upper = joint_bounds(setup.robot, lim.rcm_min_distance)
-    rec = run["rec"]
-    servo = rec.decoded("/PSM1/servo_jp", "sensor_msgs/msg/JointState")
-    jaw = rec.decoded("/PSM1/jaw/servo_jp", "sensor_msgs/msg/JointState")
-    t = _stamps(servo)
+    t, q, _, _ = set_points(run["rec"])
     assert np.all(np.diff(t) > 0)
     ticks = (t - t[0]) * HZ
     assert np.abs(ticks - np.round(ticks)).max() < 1e-3
-    q = np.array([np.r_[s.position, j.position] for (_, s), (_, j) in zip(servo, jaw)])
     assert np.all(q >= lower - 1e-6) and np.all(q <= upper + 1e-6)
     cut = np.flatnonzero(np.diff(t) > 0.1)  # the hold
     assert len(cut) == 1
     for a, b in ((0, cut[0] + 1), (cut[0] + 1, len(t))):
-        v = np.diff(q[a:b], axis=0) / np.diff(t[a:b])[:, None]
-        assert np.all(np.abs(v) <= lim.velocity * (1 + 1e-6) + 1e-9)
-        acc = 2 * np.diff(v, axis=0) / (t[a + 2:b] - t[a:b - 2])[:, None]
-        assert np.all(np.abs(acc) <= lim.acceleration * (1 + 1e-3) + 1e-6)
+        assert_stretch_within_limits(lim, t[a:b], q[a:b])
 
 
 def test_goals_refused_and_reached(run):
