@@ -90,7 +90,7 @@ class Planner:
         setup = problem if isinstance(problem, Setup) else build_setup(problem)
         # the problem as asked (its confidence, its own horizon): `restart` plans it again
         self._asked = setup
-        setup = self._horizon_for(setup)
+        setup, self.grasp = _horizon_for(setup)
         # planned for a fixed camera (`replan` takes its pose): without the schedule, the plans
         # stay in one camera frame and their solutions record no camera moves
         self.setup = replace(setup, camera_schedule=[])
@@ -119,17 +119,6 @@ class Planner:
         # a 20 Hz loop, docs/realtime.md); reference counting still frees it
         gc.collect()
         gc.freeze()
-
-    def _horizon_for(self, setup: Setup) -> Setup:
-        """`setup` over the Planner's horizon: with `goal.confidence`, the shortest whose plan
-        reaches it (solvers/confidence.py; its record in `grasp`) but not below the problem's
-        own; else the problem's."""
-        self.grasp = None
-        if setup.ocp.grasp.confidence is None:
-            return setup
-        chosen = plan_to_confidence(setup, first_plan)
-        self.grasp = chosen.extras["grasp"]
-        return at_horizon(without_confidence(setup), max(chosen.horizon, setup.ocp.horizon))
 
     def _begin(self, plan: Solution) -> None:
         """`plan` (from rest, waypoint 0) as the current plan of a new motion."""
@@ -183,13 +172,12 @@ class Planner:
                                     f"{res_rad:.4f} rad)")
             asked = replace(asked, q_goal=q_goal)
         asked.x_start, asked.x_goal = asked.pose_of(asked.q_start), asked.pose_of(asked.q_goal)
-        grasp = self.grasp
-        setup = replace(self._horizon_for(asked), camera_schedule=[])
+        setup, grasp = _horizon_for(asked)
+        setup = replace(setup, camera_schedule=[])
         plan = first_plan(setup)
         if not plan.success:
-            self.grasp = grasp
             raise SurestepError(f"restart: no plan from the joints given ({plan.status})")
-        self._asked, self.setup, self.horizon = asked, setup, setup.ocp.horizon
+        self._asked, self.setup, self.horizon, self.grasp = asked, setup, setup.ocp.horizon, grasp
         self._camera = (setup.camera_pose.tobytes(), setup)
         self._begin(plan)
         return plan
@@ -510,6 +498,17 @@ def _propagation(model: BeliefModel, n: int) -> ca.Function:
     for t in range(n):
         out.append(model.step(pose_mean(X[:, t]), pose_mean(X[:, t + 1]), out[-1]))
     return ca.Function("propagation", [X, s0], [ca.horzcat(*out)])
+
+
+def _horizon_for(setup: Setup) -> tuple[Setup, dict | None]:
+    """(`setup` over a Planner's horizon, the grasp record): with `goal.confidence`, the shortest
+    horizon whose plan reaches it (solvers/confidence.py) but not below the problem's own, and
+    that plan's record; else the problem's horizon and None."""
+    if setup.ocp.grasp.confidence is None:
+        return setup, None
+    chosen = plan_to_confidence(setup, first_plan)
+    return (at_horizon(without_confidence(setup), max(chosen.horizon, setup.ocp.horizon)),
+            chosen.extras["grasp"])
 
 
 def without_confidence(setup: Setup) -> Setup:
