@@ -1,9 +1,9 @@
 """The stored plans that pin the solvers' behaviour across refactors (issue 26's invariant).
 
 Cases: every compare method on the default problem and the scenario files, the OCP on the first 100
-evaluation configurations at T = 20 and 40 (what `benchmarks/worst_case.py` solves), and a short
-re-planning loop. Each case is solved through the public API (`ss.solve`, `ss.Planner`), so the
-stored arrays do not depend on internal names.
+evaluation configurations at T = 20 and 40 (the worst-case study's set, docs/findings.md), and a
+short re-planning loop. Each case is solved through the public API (`ss.solve`, `ss.Planner`), so
+the stored arrays do not depend on internal names.
 
     .venv/bin/python tests/stored_plans.py   # regenerate tests/data/stored_plans.npz (only on
                                               # purpose: it is the reference that

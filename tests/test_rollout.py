@@ -316,7 +316,7 @@ def test_replan_hook_is_called_at_each_move_with_the_rollouts_own_belief(moving)
 
 
 # The rollouts against an independent one-rollout NumPy replay (tests/numpy_rollout.py), and the
-# mechanism of the evaluation's worst rollout (issue 16, benchmarks/results/worst_rollout.md): a
+# mechanism of the evaluation's worst rollout (issue 16, docs/findings.md, "the worst rollout"): a
 # large planned rotation's motion noise `angle^2 W_o0`, W_o0 a multiple of the 6x6 identity, throws
 # the tool's *position* out of the view.
 

@@ -59,8 +59,8 @@ LIFTED_FROM_CONDENSED = {
 # linear tail: the objective (1 at the start) changes by at most 1e-9 in 3 consecutive iterations
 # with the complementarity at 1e-9 (the barrier at its end) and the constraints within
 # acceptable_constr_viol_tol (1e-6): IPOPT's status is then Solved_To_Acceptable_Level, a success,
-# with the same plans. Measured with benchmarks/enforced_speed.py: docs/motion_limits_and_export.md,
-# "The enforced solve's speed", and benchmarks/results/enforced_speed.md.
+# with the same plans. Measured at 33c5856: docs/motion_limits_and_export.md, "The enforced solve's
+# speed", and docs/findings.md.
 ENFORCED_OPTIONS = {
     "ipopt.mumps_permuting_scaling": 0,
     "ipopt.acceptable_tol": 1e-3,

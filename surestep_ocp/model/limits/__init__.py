@@ -69,7 +69,8 @@ from .values import (
 
 # The OCP's limit rows: "curve" (the played curve's, `curve.py`) or "steps" (finite differences,
 # before). A switch read here when an NLP is built (solvers/nlp_cache.py, transcription.py);
-# tests and benchmarks/curve_rows.py set it here.
+# tests set it here (the two measured against each other: docs/findings.md, "rows on the played
+# curve").
 CURVE_ROWS = "curve"
 
 __all__ = [
