@@ -17,8 +17,8 @@ horizon and cached) are reported separately and are not in the solve times.
 
 `--limits`: the OCP with `limits.enforce: true` (the default limits,
 docs/motion_limits_and_export.md, "Motion limits"), at `--step-s` seconds per step (default 0.05)
-with one observation per waypoint (`tracker_hz = 1 / step_s`, the paper's belief model at any pace,
-as benchmarks/limits_cost.py); the gradient variant does not honour limits (its plan is only
+with one observation per waypoint (`tracker_hz = 1 / step_s`, the paper's belief model at any
+pace); the gradient variant does not honour limits (its plan is only
 checked, and fails them). Writes solve_speed_limits*.md.
 
 By default the problem's `solver.codegen` (auto: the OCP's derivatives are compiled to C
