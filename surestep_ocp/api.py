@@ -27,7 +27,7 @@ if TYPE_CHECKING:
 def solve(problem: Problem, method: str = "ocp") -> Solution:
     """Plan `problem` with a method: `baseline`, `gradient`, `gradient-no-pose-loss`, `ocp`,
     `ocp-from-gradient` (optionally `-no-depth`, `-no-fov`, `-no-orientation`, then `-expected`,
-    then `-predicted`; README, "Quick start").
+    then `-predicted`; docs/method.md, "The methods").
 
     The OCP's solver settings are the problem's (`problem.with_solver(name="ipopt")`). Check
     `sol.success`: a solver failure returns a Solution with its `status`. Raises

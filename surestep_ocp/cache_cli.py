@@ -1,7 +1,7 @@
 """`surestep cache [--info | --clear | --prune [--max-mb N]]`: the compile cache of the OCP's
 derivatives.
 
-Where it is and how it is bounded: `solvers/codegen.py` (README, "The compile cache").
+Where it is and how it is bounded: `solvers/codegen.py` (docs/cli.md, "The compile cache").
 """
 
 from __future__ import annotations

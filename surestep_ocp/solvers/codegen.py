@@ -2,7 +2,8 @@
 
 Where: `$SURESTEP_CACHE` when set, else `$XDG_CACHE_HOME/surestep_ocp` (`~/.cache/surestep_ocp` when
 `XDG_CACHE_HOME` is unset or not an absolute path, as the XDG base directory specification says).
-`surestep cache --info` shows it, `surestep cache --clear` empties it (README, "The compile cache").
+`surestep cache --info` shows it, `surestep cache --clear` empties it (docs/cli.md, "The compile
+cache").
 
 A library's name carries a hash of its C source, the compiler flags and the CasADi version, so a
 change in the problem's structure (robot, horizon, noise constants) compiles anew and an unchanged
