@@ -8,6 +8,15 @@ bounds (the RCM distance on the insertion with enforced limits), `z(q_t) >= min_
 reverse mode; the multipliers are estimated by bounded least squares on the active rows; the trace
 is recomputed by a NumPy EKF written here (Joseph form, no CasADi recursion). `certify` computes the
 record, `judge` gives a Solution its meaning of success (docs/certificate.md).
+
+What it costs (docs/certificate.md, "What it costs"): everything a structure (robot, belief model,
+horizon, smoothness, enforced limits) fixes is built once per process and kept here; the one
+CasADi Function (objective, its gradient, the means and their Jacobians, the noise maps the NumPy
+EKF takes) is evaluated in place (`buffered.py`), interpreted at first and compiled to C (or loaded
+from the compile cache, `codegen.py`) at the structure's `COMPILE_AFTER`-th certificate in the
+process, as `solver.codegen` allows; the multipliers' bounded least squares runs only when an
+inequality row is active, as a non-negative least squares on the rows the equality multipliers
+leave; the limit rows and their gradients are NumPy arrays over all rows at once.
 """
 
 from __future__ import annotations
@@ -17,23 +26,31 @@ from dataclasses import replace
 
 import casadi as ca
 import numpy as np
-from scipy.optimize import lsq_linear
+from scipy.optimize import lsq_linear, nnls
 
+from ..buffered import thread_buffered
 from ..model import limits as lm
-from ..model.belief import DIAG, NV, NX, unvech, vech
+from ..model.belief import DIAG, NV, NX, unvech_many, vech
 from ..model.joint_noise import joint_noise_function
 from ..model.limits import problem_limits
 from ..model.robot import CAMERA_PARAMETERS
 from ..output.certificate import Certificate, Tolerances, level_of
 from ..output.solution import Solution
 from ..problem.setup import Setup
+from .codegen import available as compiler_available
+from .codegen import compiled_or_interpreted
 
 FEASIBILITY = 1e-6  # IPOPT's acceptable_constr_viol_tol (nlp_cache.solver_options)
 ACCEPTABLE = 1e-3  # IPOPT's acceptable_tol where the problem stops at that level (ENFORCED_OPTIONS)
 TRACE_RTOL = 1e-6  # two EKF passes in double precision agree far better
 ACTIVE = 1e-4  # an inequality row within this of its bound (its own units) is active
 S_MAX = 100.0  # IPOPT's s_max of the dual scale
-_FUNCTIONS: dict[tuple, ca.Function] = {}
+# the certificates of one structure in a process before its Function is compiled (or loaded from
+# the compile cache): a one-off plan (`surestep solve`) stays interpreted (a compile takes about
+# 1 s, a cached load about 20 ms, one interpreted evaluation 0.5-1.5 ms); a process that plans the
+# structure again (compare, evaluate, a benchmark, a re-planning loop) evaluates it compiled
+COMPILE_AFTER = 2
+_OFF_DIAGONAL = ~np.eye(NX, dtype=bool)
 
 
 def tolerances(setup: Setup) -> Tolerances:
@@ -44,24 +61,53 @@ def tolerances(setup: Setup) -> Tolerances:
     return Tolerances(FEASIBILITY, tol, max(acceptable, tol), tol, TRACE_RTOL)
 
 
-def _functions(setup: Setup) -> ca.Function:
-    """`(Q, camera, sigma0, trace_ref) -> (f, trace, grad f, means, mean Jacobians)`, per
-    structure."""
+class _Function:
+    """A certificate's Function of one structure: interpreted at first, compiled to C (or loaded
+    from the compile cache) at its `COMPILE_AFTER`-th use in the process where the problem's
+    `solver.codegen` allows (auto with a C compiler, or true; a compile that fails leaves it
+    interpreted, `note` says why: the certificate never stops a solve)."""
+
+    def __init__(self, fn: ca.Function, **facts):
+        self.fn, self.facts = fn, facts
+        self.uses, self.settled, self.compiled, self.note = 0, False, False, None
+
+    def current(self, codegen, built: list[float]) -> ca.Function:
+        """The Function to evaluate now (`built[0]` += the seconds a compile or load took)."""
+        self.uses += 1
+        if not self.settled and self.uses >= COMPILE_AFTER:
+            self.settled = True
+            if codegen is True or (codegen == "auto" and compiler_available()):
+                t0 = time.perf_counter()
+                name = self.fn.name()
+                fns, self.note = compiled_or_interpreted({name: self.fn}, required=False)
+                self.fn, self.compiled = fns[name], self.note is None
+                built[0] += time.perf_counter() - t0
+        return self.fn
+
+
+_FUNCTIONS: dict[tuple, _Function] = {}
+
+
+def _function(setup: Setup, built: list[float]) -> _Function:
+    """The certificate's Function of this setup's structure, `(Q, camera, sigma0, trace_ref) ->
+    (f, trace, grad f, means, mean Jacobians, W, V, F, Q, H, R, W_q)` (built once per process)."""
     robot, model, T = setup.robot, setup.model, setup.ocp.horizon
     key = (str(robot.urdf), robot.frame, robot.offset.tobytes(), model.key(), T,
            setup.ocp.smoothness)
     if key in _FUNCTIONS:
         return _FUNCTIONS[key]
+    t0 = time.perf_counter()
     nq = robot.nq
     Q = ca.MX.sym("Q", nq, T + 1)
     cam, s0, ref = ca.MX.sym("camera", CAMERA_PARAMETERS), ca.MX.sym("sigma0", NV), ca.MX.sym("r")
     M = robot.camera_pose.map(T + 1)(Q, cam)
+    a, b = M[:, :T], M[:, 1:]
     if model.joint_noise:
         w = joint_noise_function(robot, model.noise.joint_sigma).map(T)(Q[:, :T], Q[:, 1:], cam)
     else:
         w = ca.MX.zeros(NV, T)
     roll = model.step_pair.mapaccum("certificate_roll", T, [2], [0])
-    post, prior = roll(M[:, :T], M[:, 1:], s0, w)
+    post, prior = roll(a, b, s0, w)
     last = (prior if model.noise.objective == "predicted" else post)[:, T - 1]
     trace = sum(last[i] for i in DIAG)
     f = trace / ref + setup.ocp.smoothness * ca.sumsqr(Q[:, 1:] - Q[:, :T])
@@ -70,53 +116,88 @@ def _functions(setup: Setup) -> ca.Function:
     jac = ca.Function("mean_jacobian", [q1, c1],
                       [ca.densify(ca.jacobian(robot.camera_pose(q1, c1), q1))])
     J = jac.map(T + 1)(Q, cam)  # 7 x nq (T+1)
+    # what the NumPy EKF takes: the model's noise (and, not identity, its maps) at the means
+    has_v = model.noise.observation_noise == "mean"
+    none = ca.MX.zeros(1, 1)
+    W = model.motion_noise.map(T)(a, b)
+    V = model.observation_noise.map(T)(b) if has_v else none
+    maps = list(model.jacobians.map(T)(a, b)) if not model.identity_maps else [none] * 4
     fn = ca.Function("certificate", [Q, cam, s0, ref],
-                     [f, trace, ca.reshape(ca.gradient(f, ca.vec(Q)), nq, T + 1), M, J])
-    _FUNCTIONS[key] = fn
-    return fn
+                     [ca.densify(v) for v in
+                      (f, trace, ca.gradient(f, ca.vec(Q)), M, J, W, V, *maps,
+                       w if model.joint_noise else none)])
+    _FUNCTIONS[key] = _Function(fn, has_v=has_v, has_maps=not model.identity_maps,
+                                has_joint=model.joint_noise)
+    built[0] += time.perf_counter() - t0
+    return _FUNCTIONS[key]
 
 
-def numpy_trace(setup: Setup, means: np.ndarray, q: np.ndarray) -> float:
+def numpy_trace(setup: Setup, means: np.ndarray, q: np.ndarray, noises=None) -> float:
     """Tr(Sigma_T) of the planning model by a plain NumPy EKF (Joseph form) along the means, with
     the model's noise maps evaluated at the waypoints (all at once where they do not depend on
-    the prediction)."""
+    the prediction). `noises`: those maps' values, `(W, V, maps)` as `_noises` gives them."""
+    model = setup.model
+    T = len(means) - 1
+    W, V, maps = _noises(setup, means, q) if noises is None else noises
+    predicted = model.noise.objective == "predicted"
+    S = np.asarray(setup.ocp.sigma0, float)
+    if (V is not None and maps is None and not S[_OFF_DIAGONAL].any()
+            and not W[:, _OFF_DIAGONAL].any() and not V[:, _OFF_DIAGONAL].any()):
+        # every covariance stays diagonal: six scalar Kalman filters, in plain floats
+        s = np.diag(S).tolist()
+        w = np.diagonal(W, axis1=1, axis2=2).tolist()
+        v = np.diagonal(V, axis1=1, axis2=2).tolist()
+        total = 0.0
+        for i in range(NX):
+            si = s[i]
+            for t in range(T):
+                p = si + w[t][i]
+                vt = v[t][i]
+                k = p / (p + vt)
+                si = (1 - k) * (1 - k) * p + k * k * vt  # Joseph form
+            total += p if predicted else si
+        return float(total)
+    eye = np.eye(NX)
+    P = S
+    for t in range(T):
+        if maps is None:
+            P = S + W[t]
+        else:
+            F, Qm = maps[0][t], maps[1][t]
+            P = F @ S @ F.T + Qm @ W[t] @ Qm.T
+        P = 0.5 * (P + P.T)
+        Vt = V[t] if V is not None else np.asarray(model.planning_noise(means[t + 1], vech(P)))
+        if maps is None:
+            Mo = Vt
+            K = np.linalg.solve(P + Mo, P).T
+            IKH = eye - K
+        else:
+            H, R = maps[2][t], maps[3][t]
+            Mo = R @ Vt @ R.T
+            K = np.linalg.solve(H @ P @ H.T + Mo, H @ P).T
+            IKH = eye - K @ H
+        S = IKH @ P @ IKH.T + K @ Mo @ K.T
+        S = 0.5 * (S + S.T)
+    return float(np.trace(P if predicted else S))
+
+
+def _noises(setup: Setup, means: np.ndarray, q: np.ndarray):
+    """(W (T, 6, 6) with the joint-space term, V (T, 6, 6) or None where it depends on the
+    prediction, (F, Q, H, R) each (T, 6, 6) or None for identity maps) at the means, each map
+    evaluated on its own (the finite-difference check's path; `certify` takes them from its
+    Function)."""
     model = setup.model
     T = len(means) - 1
     a, b = means[:-1].T, means[1:].T
     W = _blocks(_mapped(model, "motion_noise", T)(a, b), T)
     joint = setup.joint_noises(q)
     if joint is not None:
-        W = W + np.array([unvech(w) for w in joint])
-    if model.identity_maps:
-        F = Qm = H = R = np.broadcast_to(np.eye(NX), (T, NX, NX))
-    else:
-        F, Qm, H, R = (_blocks(m, T) for m in _mapped(model, "jacobians", T)(a, b))
+        W = W + unvech_many(joint)
+    maps = (None if model.identity_maps
+            else tuple(_blocks(m, T) for m in _mapped(model, "jacobians", T)(a, b)))
     V = (_blocks(_mapped(model, "observation_noise", T)(b), T)
          if model.noise.observation_noise == "mean" else None)
-    S = P = np.asarray(setup.ocp.sigma0, float)
-    if V is not None and model.identity_maps and all(_diagonal(X) for X in (S, W, V)):
-        # every covariance stays diagonal: six scalar Kalman filters, elementwise
-        s, w, v = np.diag(S), np.diagonal(W, axis1=1, axis2=2), np.diagonal(V, axis1=1, axis2=2)
-        for t in range(T):
-            p = s + w[t]
-            k = p / (p + v[t])
-            s = (1 - k) ** 2 * p + k**2 * v[t]  # Joseph form
-        return float(np.sum(p if model.noise.objective == "predicted" else s))
-    for t in range(T):
-        P = F[t] @ S @ F[t].T + Qm[t] @ W[t] @ Qm[t].T
-        P = 0.5 * (P + P.T)
-        Vt = V[t] if V is not None else np.asarray(model.planning_noise(means[t + 1], vech(P)))
-        Mo = R[t] @ Vt @ R[t].T
-        K = np.linalg.solve(H[t] @ P @ H[t].T + Mo, H[t] @ P).T
-        IKH = np.eye(NX) - K @ H[t]
-        S = IKH @ P @ IKH.T + K @ Mo @ K.T
-        S = 0.5 * (S + S.T)
-    return float(np.trace(P if model.noise.objective == "predicted" else S))
-
-
-def _diagonal(X: np.ndarray) -> bool:
-    """Every matrix of X (6x6 or a stack of them) is diagonal."""
-    return not np.any(X * (1 - np.eye(NX)))
+    return W, V, maps
 
 
 _MAPS: dict[tuple, ca.Function] = {}
@@ -166,125 +247,173 @@ class _Rows:
         for i, (row, j) in enumerate(zip(R, J)):
             A[i, np.arange(T + 1) * nq + j] = row[:T + 1]
         keep = np.any(np.abs(A) > 1e-12 * np.abs(A).max(), axis=1)
+        # each row touches one joint: its coefficients over the nodes and that joint (A x by one
+        # product and sum, not a dense matrix product)
         self.A, self.a = A[keep], a[keep]
+        self.coef, self.joint = R[keep][:, :T + 1], J[keep]
         windows, weights, consts = lm.tool_point_windows(T, dt, moving)
         self.windows, self.weights = np.array(windows), weights
         self.offsets = np.zeros((len(windows), 2 * nq))
         if moving:
             self.offsets = np.hstack([np.outer(consts[:, 0], v0) + np.outer(consts[:, 1], a0),
                                       np.outer(consts[:, 2], v0) + np.outer(consts[:, 3], a0)])
-        qa, qd = ca.SX.sym("qa", nq), ca.SX.sym("qd", nq)
-        Ta = robot.fk_expr(qa, robot.frame)
-        k = 1 - lm.TOOL_MARGIN
-        rate = ca.vertcat(ca.sumsqr(ca.jtimes(Ta[:3, 3], qa, qd)) / (k * lim.tool_speed) ** 2,
-                          0.5 * ca.sumsqr(ca.jtimes(ca.vec(Ta[:3, :3]), qa, qd))
-                          / (k * lim.tool_rotation) ** 2)
-        z = ca.vertcat(qa, qd)
-        self.rate = ca.Function("tool_rate", [z], [rate, ca.jacobian(rate, z)]).map(len(windows))
-        self.nq = nq
+        # each point's weights on every node (a repeated end node has its weight in one slot)
+        npts = len(windows)
+        self.node_q = np.zeros((npts, T + 1))
+        self.node_v = np.zeros((npts, T + 1))
+        for slot in range(4):
+            np.add.at(self.node_q, (np.arange(npts), self.windows[:, slot]), weights[:, slot])
+            np.add.at(self.node_v, (np.arange(npts), self.windows[:, slot]), weights[:, 4 + slot])
+        self.rate = _tool_rate(robot, lim, npts)
+        self.nq, self.T = nq, T
 
-    def values(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """(linear rows A x + a, their Jacobian, tool rows, their Jacobian) at the joints q."""
-        nq, x = self.nq, q.ravel()
+    def values(self, q: np.ndarray, codegen, built: list[float]
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(the linear rows A x + a, the tool rows (2 per point), the tool rates' Jacobians over
+        each point's position and velocity (points x 2 x 2 nq)) at the joints q."""
+        lin = np.einsum("it,ti->i", self.coef, q[:, self.joint]) + self.a
         Wq = q[self.windows]  # points x 4 x nq
         z = np.hstack([np.einsum("pw,pwj->pj", self.weights[:, :4], Wq),
                        np.einsum("pw,pwj->pj", self.weights[:, 4:], Wq)]) + self.offsets
-        r, Jz = (np.asarray(v) for v in self.rate(z.T))
+        fn = self.rate.current(codegen, built)
+        r, Jz = thread_buffered(("tool_rate", fn), lambda: fn)(z.T)
         npts = len(self.windows)
-        Jt = np.zeros((npts * 2, x.size))
-        for p, nodes in enumerate(self.windows):
-            for slot, m in enumerate(nodes):
-                cq, cv = self.weights[p, slot], self.weights[p, 4 + slot]
-                if cq == 0 and cv == 0:
-                    continue
-                Jp = Jz[:, 2 * nq * p:2 * nq * (p + 1)]
-                block = Jp[:, :nq] * cq + Jp[:, nq:] * cv
-                Jt[2 * p:2 * p + 2, m * nq:(m + 1) * nq] += block
-        return self.A @ x + self.a, self.A, r.T.ravel(), Jt
+        # (column-major: r 2 x points, Jz 2 x points 2 nq)
+        return lin, r.copy(), Jz.reshape(npts, 2 * self.nq, 2).transpose(0, 2, 1).copy()
+
+    def tool_gradients(self, rows: np.ndarray, Jz: np.ndarray) -> np.ndarray:
+        """The gradients over the node-major joints of the tool rows `rows` (row 2 p + k: point p's
+        rate k): d row / d q_m = node_q[p, m] dz_q + node_v[p, m] dz_v."""
+        nq, p, k = self.nq, rows // 2, rows % 2
+        Jq, Jv = Jz[p, k, :nq], Jz[p, k, nq:]  # rows x nq each
+        G = (self.node_q[p][:, :, None] * Jq[:, None, :]
+             + self.node_v[p][:, :, None] * Jv[:, None, :])
+        return G.reshape(len(rows), (self.T + 1) * nq)
+
+
+class _Layout:
+    """What a structure fixes for the certificate: the free joints (the moving joints of q_1..q_T,
+    node-major), the bounds and where the terminal rows act."""
+
+    def __init__(self, setup: Setup):
+        robot, T = setup.robot, setup.ocp.horizon
+        nq = robot.nq
+        self.mov = np.array(robot.supporting_joints(), int)
+        self.held = np.setdiff1d(np.arange(nq), self.mov)
+        lo, hi = np.array(robot.lower, float), np.array(robot.upper, float)
+        if setup.ocp.limits.enforce:
+            lo, hi = lm.joint_bounds(robot, problem_limits(setup).rcm_min_distance)
+        self.lo, self.hi = lo, hi
+        free = np.zeros((T + 1, nq), bool)
+        free[1:, self.mov] = True
+        self.free = free.ravel()
+        self.idx = np.flatnonzero(self.free)  # free -> node-major position
+        self.lo_x, self.hi_x = np.tile(lo, T + 1)[self.idx], np.tile(hi, T + 1)[self.idx]
+        self.terminal = len(self.idx) - len(self.mov)  # the last node's free joints start here
+
+
+_LAYOUTS: dict[tuple, _Layout] = {}
+
+
+def _layout(setup: Setup, built: list[float]) -> _Layout:
+    robot = setup.robot
+    rcm = (problem_limits(setup).rcm_min_distance if setup.ocp.limits.enforce else None)
+    key = (str(robot.urdf), robot.frame, robot.offset.tobytes(), setup.ocp.horizon, rcm)
+    if key not in _LAYOUTS:
+        t0 = time.perf_counter()
+        _LAYOUTS[key] = _Layout(setup)
+        built[0] += time.perf_counter() - t0
+    return _LAYOUTS[key]
 
 
 def certify(setup: Setup, sol: Solution, fd_step: float | None = None) -> Certificate | None:
     """The certificate of `sol`'s plan for `setup`'s OCP (the method's own setup); None where a
     waypoint has no joints (a pose-space plan not reachable). `fd_step` [rad, m]: the objective's
     gradient by central differences of the NumPy EKF instead (an independent check, slow)."""
+    t0 = time.perf_counter()
     if any(q is None for q in sol.q) or len(sol.q) != setup.ocp.horizon + 1:
         return None
-    fn = _functions(setup)  # built once per structure: not in the certificate's time
-    rows_at = _limit_rows(setup, sol) if setup.ocp.limits.enforce else None
-    t0 = time.perf_counter()
+    # built once per structure, their time not the certificate's: the Function (compiled at its
+    # COMPILE_AFTER-th use), the layout, the rows
+    built = [0.0]
+    holder = _function(setup, built)
+    fn = holder.current(setup.ocp.solver.codegen, built)
+    lay = _layout(setup, built)
+    limited = setup.ocp.limits.enforce
+    rows_at = _limit_rows(setup, sol, built) if limited else None
+    evaluate = thread_buffered(("certificate", fn), lambda: fn)  # (in the time: a new one too)
     q = np.asarray(sol.q, float)
-    T, nq, robot = setup.ocp.horizon, setup.robot.nq, setup.robot
+    T, nq = setup.ocp.horizon, setup.robot.nq
     tol = tolerances(setup)
     ref = sol.run.initial_trace if sol.run.initial_trace else max(sol.trace_final, 1e-300)
-    f, trace, g, M, J = (np.asarray(v) for v in fn(
-        q.T, setup.camera_parameter(), vech(setup.ocp.sigma0), ref))
-    M, trace = M.T, float(trace.item())
-    g = g.T.ravel()  # node-major
-    if fd_step is not None:
-        g = _fd_gradient(setup, q, ref, fd_step)
-    mov = robot.supporting_joints()
-    held = np.setdiff1d(np.arange(nq), mov)
-    lo, hi = np.array(robot.lower, float), np.array(robot.upper, float)
-    limited = setup.ocp.limits.enforce
-    if limited:
-        lo, hi = lm.joint_bounds(robot, problem_limits(setup).rcm_min_distance)
+    out = evaluate(q.T, setup.camera_parameter(), vech(setup.ocp.sigma0), ref)
+    trace = float(out[1][0])
+    g = out[2] if fd_step is None else _fd_gradient(setup, q, ref, fd_step)  # node-major
+    M = out[3].reshape(T + 1, 7)
+    J = out[4].reshape(T + 1, nq, 7)  # J[t, j]: d mean_t / d q_t,j
     # primal measures
     goal = setup.m_goal
     term_p = float(np.linalg.norm(M[T, :3] - goal[:3]))
     term_a = _quat_angle(M[T, 3:], goal[3:])
+    held = lay.held
     moved = max(float(np.max(np.abs(q[0] - setup.q_start))),
                 float(np.max(np.abs(q[:, held] - setup.q_start[held]), initial=0.0)))
-    qm = q[1:, mov]
-    beyond = float(np.max(np.maximum(lo[mov] - qm, 0) + np.maximum(qm - hi[mov], 0)))
-    depth = float(max(0.0, setup.ocp.min_depth - M[1:T, 2].min())) if T > 1 else 0.0
-    # the inequality rows c(x) <= 0 near their bound, with their gradients (node-major x)
-    n = nq * (T + 1)
-    free = np.zeros((T + 1, nq), bool)
-    free[1:, mov] = True
-    free = free.ravel()
-    x = q.ravel()
-    lo_x, hi_x = np.tile(lo, T + 1), np.tile(hi, T + 1)
-    idx = np.flatnonzero(free)
-    at_lo = idx[x[idx] - lo_x[idx] <= ACTIVE]
-    at_hi = idx[hi_x[idx] - x[idx] <= ACTIVE]
-    rows = np.zeros((len(at_lo) + len(at_hi), n))
-    rows[np.arange(len(at_lo)), at_lo] = -1.0
-    rows[len(at_lo) + np.arange(len(at_hi)), at_hi] = 1.0
-    rows = list(rows)
-    slack = [*(x[at_lo] - lo_x[at_lo]), *(hi_x[at_hi] - x[at_hi])]
-    for t in range(1, T):
-        s = M[t, 2] - setup.ocp.min_depth
-        if s <= ACTIVE:
-            e = np.zeros(n)
-            e[t * nq:(t + 1) * nq] = -J[2, t * nq:(t + 1) * nq]
-            rows.append(e)
-            slack.append(s)
+    qm = q[1:, lay.mov]
+    lo, hi = lay.lo[lay.mov], lay.hi[lay.mov]
+    beyond = float(np.max(np.maximum(lo - qm, 0) + np.maximum(qm - hi, 0)))
+    depth_slack = M[1:T, 2] - setup.ocp.min_depth
+    depth = float(max(0.0, -depth_slack.min())) if T > 1 else 0.0
+    # the inequality rows c(x) <= 0 near their bound: their gradients over the free joints
+    xf = q.ravel()[lay.idx]
+    at_lo = np.flatnonzero(xf - lay.lo_x <= ACTIVE)
+    at_hi = np.flatnonzero(lay.hi_x - xf <= ACTIVE)
+    nf = len(lay.idx)
+    cols, slack = [], []
+    if len(at_lo) or len(at_hi):
+        C = np.zeros((nf, len(at_lo) + len(at_hi)))
+        C[at_lo, np.arange(len(at_lo))] = -1.0
+        C[at_hi, len(at_lo) + np.arange(len(at_hi))] = 1.0
+        cols.append(C)
+        slack += [xf[at_lo] - lay.lo_x[at_lo], lay.hi_x[at_hi] - xf[at_hi]]
+    near = np.flatnonzero(depth_slack <= ACTIVE) + 1  # the waypoints at the depth bound
+    if len(near):
+        C = np.zeros((len(near), T + 1, nq))
+        C[np.arange(len(near)), near] = -J[near, :, 2]
+        cols.append(C.reshape(len(near), -1)[:, lay.idx].T)
+        slack.append(depth_slack[near - 1])
     limit_violation = None
     if limited:
-        lin, A, tool, Jt = rows_at(q)
+        rows, lin, tool, Jz = rows_at(q)
         limit_violation = float(max(0.0, np.max(np.abs(lin) - 1, initial=0.0),
                                     np.max(tool - 1, initial=0.0)))
-        for v, grad in ((lin - 1, A), (-lin - 1, -A), (tool - 1, Jt)):
-            for i in np.flatnonzero(-v <= ACTIVE):
-                rows.append(grad[i])
-                slack.append(-v[i])
+        up, down = np.flatnonzero(1 - lin <= ACTIVE), np.flatnonzero(1 + lin <= ACTIVE)
+        fast = np.flatnonzero(1 - tool <= ACTIVE)
+        if len(up) or len(down) or len(fast):
+            cols.append(np.vstack([rows.A[up], -rows.A[down],
+                                   rows.tool_gradients(fast, Jz)])[:, lay.idx].T)
+            slack += [1 - lin[up], 1 + lin[down], 1 - tool[fast]]
     # stationarity on the free joints: grad f + J_E^T lam + J_A^T nu = 0, nu >= 0
-    E = np.zeros((7, n))
-    E[:, T * nq:] = J[:, T * nq:]
-    cols = [E] + ([np.array(rows)] if rows else [])
-    B = np.vstack(cols)[:, free].T  # free x (7 + active)
-    ub = np.full(B.shape[1], np.inf)
-    lb = np.concatenate([np.full(7, -np.inf), np.zeros(len(rows))])
-    gf = g[free]
-    if rows:
-        mult = lsq_linear(B, -gf, bounds=(lb, ub), method="bvls", tol=1e-14).x
-    else:
-        mult = np.linalg.lstsq(B, -gf, rcond=None)[0]
-    r = gf + B @ mult
+    gf = g[lay.idx]
+    B_E = J[T, lay.mov, :]  # the terminal rows act on the last node's free joints only
+    if cols:
+        B_A = np.hstack(cols)
+        lam, nu, r = _multipliers(gf, B_A, B_E, lay.terminal)
+        mult = np.concatenate([lam, nu])
+        compl = float(np.max(np.abs(nu * np.maximum(np.concatenate(slack), 0.0)), initial=0.0))
+    else:  # no inequality active: the equality multipliers alone, by least squares
+        r = gf.copy()
+        lam = np.linalg.lstsq(B_E, -gf[lay.terminal:], rcond=None)[0]
+        r[lay.terminal:] += B_E @ lam
+        mult, compl = lam, 0.0
     s_d = max(S_MAX, float(np.mean(np.abs(mult)))) / S_MAX if mult.size else 1.0
-    compl = float(np.max(np.abs(mult[7:] * np.maximum(np.array(slack), 0.0)), initial=0.0))
     # the trace by the NumPy EKF, against the planner's report and this function's
-    trace_np = numpy_trace(setup, M, q)
+    W = _out_blocks(out[5], T)
+    if holder.facts["has_joint"]:
+        W = W + unvech_many(out[11].reshape(T, NV))
+    V = _out_blocks(out[6], T) if holder.facts["has_v"] else None
+    maps = (tuple(_out_blocks(out[k], T) for k in (7, 8, 9, 10)) if holder.facts["has_maps"]
+            else None)
+    trace_np = numpy_trace(setup, M, q, (W, V, maps))
     reported = [trace]
     if sol.run.ocp_trace_final is not None:
         reported.append(float(sol.run.ocp_trace_final))
@@ -295,10 +424,47 @@ def certify(setup: Setup, sol: Solution, fd_step: float | None = None) -> Certif
         bound_violation=max(beyond, moved), depth_violation=depth,
         limit_violation=limit_violation,
         stationarity=float(np.max(np.abs(r), initial=0.0)) / s_d,
-        complementarity=compl / s_d, dual_scale=s_d, active_rows=len(rows),
+        complementarity=compl / s_d, dual_scale=s_d, active_rows=len(mult) - 7,
         trace=trace_np, trace_error=float(trace_error), tolerances=tol, level="infeasible",
         time_s=0.0)
-    return replace(cert, level=level_of(cert), time_s=time.perf_counter() - t0)
+    return replace(cert, level=level_of(cert), time_s=time.perf_counter() - t0 - built[0])
+
+
+def _out_blocks(v: np.ndarray, T: int) -> np.ndarray:
+    """(T, 6, 6) from the flat (column-major) values of a 6 x 6T output."""
+    return v.reshape(T, NX, NX).transpose(0, 2, 1)
+
+
+def _multipliers(g: np.ndarray, B_A: np.ndarray, B_E: np.ndarray, start: int
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(lam, nu >= 0, residual g + B_E lam + B_A nu) minimising the residual's 2-norm, where the
+    equality rows' gradients `B_E` (the last node's free joints x 7) act on the free joints from
+    `start` on: nu by non-negative least squares on what the equality rows' span leaves (projected
+    out), over the free joints an active row touches (the others' residual is g's whatever nu),
+    then lam by least squares: the minimum of the bounded least squares over (lam, nu) together,
+    whose residual is unique."""
+    U, sv, _ = np.linalg.svd(B_E, full_matrices=False)
+    U = U[:, sv > (sv[0] if sv.size else 0.0) * max(B_E.shape) * np.finfo(float).eps]
+
+    def project(X):
+        X = X.copy()
+        X[start:] -= U @ (U.T @ X[start:])
+        return X
+
+    A, y = project(B_A), -project(g)
+    touched = np.flatnonzero(np.any(A != 0, axis=1))
+    try:
+        nu = nnls(A[touched], y[touched], maxiter=50 * A.shape[1])[0]
+    except RuntimeError:  # (not converged: the bounded least squares over both at once)
+        lb = np.concatenate([np.full(B_E.shape[1], -np.inf), np.zeros(B_A.shape[1])])
+        full = np.hstack([np.vstack([np.zeros((start, B_E.shape[1])), B_E]), B_A])
+        x = lsq_linear(full, -g, bounds=(lb, np.inf), method="bvls", tol=1e-14).x
+        lam, nu = x[:B_E.shape[1]], x[B_E.shape[1]:]
+        return lam, nu, g + full @ x
+    r = g + B_A @ nu
+    lam = np.linalg.lstsq(B_E, -r[start:], rcond=None)[0]
+    r[start:] += B_E @ lam
+    return lam, nu, r
 
 
 def _fd_gradient(setup: Setup, q: np.ndarray, ref: float, step: float) -> np.ndarray:
@@ -322,19 +488,47 @@ def _fd_gradient(setup: Setup, q: np.ndarray, ref: float, step: float) -> np.nda
 
 
 _ROWS: dict[tuple, _Rows] = {}
+_RATES: dict[tuple, _Function] = {}
 
 
-def _limit_rows(setup: Setup, sol: Solution):
-    """The limit rows' values at q (cached per structure; a moving start's built each time)."""
+def _tool_rate(robot, lim, npts: int) -> _Function:
+    """`z (2 nq x points) -> (rates 2 x points, their Jacobians 2 x 2 nq points)`: the tool's
+    squared speed and rotation rate over their limits at each point's joints and velocities
+    (shared by a structure's rows and its moving starts')."""
+    key = (str(robot.urdf), robot.frame, robot.offset.tobytes(), float(lim.tool_speed),
+           float(lim.tool_rotation), lm.TOOL_MARGIN, npts)
+    if key not in _RATES:
+        nq = robot.nq
+        qa, qd = ca.SX.sym("qa", nq), ca.SX.sym("qd", nq)
+        Ta = robot.fk_expr(qa, robot.frame)
+        k = 1 - lm.TOOL_MARGIN
+        rate = ca.vertcat(ca.sumsqr(ca.jtimes(Ta[:3, 3], qa, qd)) / (k * lim.tool_speed) ** 2,
+                          0.5 * ca.sumsqr(ca.jtimes(ca.vec(Ta[:3, :3]), qa, qd))
+                          / (k * lim.tool_rotation) ** 2)
+        z = ca.vertcat(qa, qd)
+        one = ca.Function("tool_rate", [z], [rate, ca.densify(ca.jacobian(rate, z))])
+        _RATES[key] = _Function(one.map("certificate_tool_rate", "serial", npts, [], []))
+    return _RATES[key]
+
+
+def _limit_rows(setup: Setup, sol: Solution, built: list[float]):
+    """The limit rows' values at q: `(rows, linear rows, tool rows, tool Jacobians)` (cached per
+    structure; a moving start's built each time; `built[0]` += the seconds building took)."""
+    t0 = time.perf_counter()
     state = sol.run.start_state
     if state is not None:
-        return _Rows(setup, state).values
-    lim = problem_limits(setup)
-    key = (str(setup.robot.urdf), setup.robot.frame, setup.ocp.horizon,
-           float(setup.ocp.timing.step_s), repr(lim.to_dict()))
-    if key not in _ROWS:
-        _ROWS[key] = _Rows(setup)
-    return _ROWS[key].values
+        rows = _Rows(setup, state)
+        built[0] += time.perf_counter() - t0
+    else:
+        lim = problem_limits(setup)
+        key = (str(setup.robot.urdf), setup.robot.frame, setup.ocp.horizon,
+               float(setup.ocp.timing.step_s), repr(lim.to_dict()))
+        if key not in _ROWS:
+            _ROWS[key] = _Rows(setup)
+            built[0] += time.perf_counter() - t0
+        rows = _ROWS[key]
+    codegen = setup.ocp.solver.codegen
+    return lambda q: (rows, *rows.values(q, codegen, built))
 
 
 def claims_optimum(method: str) -> bool:
