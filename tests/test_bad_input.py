@@ -63,12 +63,18 @@ def write(tmp_path: Path, edit=None, name: str = "p.yaml", text: str | None = No
 @pytest.fixture()
 def no_work(monkeypatch):
     """`run_method` that fails the test: the command must stop before any solve."""
-    import surestep_ocp.solvers.methods as methods
+    import importlib
 
     def forbidden(*args, **kwargs):
         raise AssertionError("the work started before the bad input was refused")
 
-    monkeypatch.setattr(methods, "run_method", forbidden)
+    # every module that binds it on import, imported first: one first imported while it is
+    # patched would keep the forbidden function for the rest of the session
+    modules = [importlib.import_module(f"surestep_ocp.{name}") for name in (
+        "solvers.methods", "comparison", "evaluation.evaluation", "evaluation.table2",
+        "evaluation.sure_grasp", "solvers.camera_move_replan")]
+    for module in modules:
+        monkeypatch.setattr(module, "run_method", forbidden)
 
 
 # ------------------------------------------------------------------ outputs
