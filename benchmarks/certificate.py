@@ -9,11 +9,19 @@ certificate with the objective's gradient taken by central differences of a NumP
 instead of CasADi's reverse mode: agreement is the same verdict (certified or not). A backend that
 does not apply to a family (newton within enforced limits, ...) is `n/a`.
 
+The cost: the certificate's time (`Certificate.time_s`, the per-structure builds and compiles
+excluded) over the plan's cold solve time. `--against REV` also loads REV's
+surestep_ocp/solvers/certificate.py (`git show`, beside this one in the package) and certifies
+every plan with both, interleaved (which one first alternates per configuration), so the cost
+before and after is measured on the same plans in the same process; their verdicts are compared.
+
     OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/certificate.py [--instances 100]
-        [--families ...] [--backends ...]
+        [--families ...] [--backends ...] [--against REV]
 
 Writes benchmarks/results/certificate.md; the last line is
-`certificate: instances=N disagreements=... uncertified_successes=... cost_median=...`.
+`certificate: instances=N disagreements=... uncertified_successes=... cost_median=...
+cost_worst=...` (and `against=REV against_cost_median=... against_cost_worst=...
+interleaved_cost_median=... interleaved_cost_worst=... verdicts_differ=...`).
 """
 
 from __future__ import annotations
@@ -21,9 +29,10 @@ from __future__ import annotations
 import harness as h  # first: one BLAS thread
 
 import argparse  # noqa: E402
+import importlib.util  # noqa: E402
+import subprocess  # noqa: E402
+import sys  # noqa: E402
 from dataclasses import replace  # noqa: E402
-
-import numpy as np  # noqa: E402
 
 from general_models import JOINT_SIGMA, correlated_depth, full_depth  # noqa: E402
 
@@ -51,17 +60,37 @@ def family_problem(problem, family: str, backend: str):
     return p
 
 
+def certificate_at(rev: str):
+    """REV's certificate module (surestep_ocp/solvers/certificate.py at REV), loaded beside this
+    revision's in the same package (its relative imports resolve to this checkout's modules)."""
+    path = "surestep_ocp/solvers/certificate.py"
+    source = subprocess.run(["git", "show", f"{rev}:{path}"], cwd=h.ROOT, capture_output=True,
+                            text=True, check=True).stdout
+    package = h.certify.__module__.rpartition(".")[0]
+    name = f"{package}._certificate_at_{rev.replace('^', '_').replace('~', '_')}"
+    spec = importlib.util.spec_from_loader(name, loader=None, origin=f"{rev}:{path}")
+    module = importlib.util.module_from_spec(spec)
+    module.__package__ = package
+    sys.modules[name] = module
+    exec(compile(source, f"{rev}:{path}", "exec"), module.__dict__)
+    return module
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--instances", type=int, default=100)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--families", nargs="*", choices=list(FAMILIES), default=list(FAMILIES))
     ap.add_argument("--backends", nargs="*", choices=BACKENDS, default=list(BACKENDS))
+    ap.add_argument("--against", metavar="REV",
+                    help="also time REV's certificate on the same plans, interleaved")
     ap.add_argument("--output", default=str(h.RESULTS / "certificate.md"))
     args = ap.parse_args()
     sampler = h.sampler()
+    before = certificate_at(args.against) if args.against else None
     res = {(f, b): {"n": 0, "claimed": 0, "certified": 0, "false": 0, "agree": 0, "na": None,
-                    "cost": [], "t_cert": [], "t_solve": [], "levels": {}, "status": {}}
+                    "cost": [], "t_cert": [], "t_solve": [], "levels": {}, "status": {},
+                    "t_now": [], "t_before": [], "cost_now": [], "cost_before": [], "same": 0}
            for f in args.families for b in args.backends}
     for c, base in h.configurations(sampler, args.instances, args.seed):
         line = [f"{c:3d}"]
@@ -78,7 +107,18 @@ def main() -> None:
                     r["na"] = str(exc)[:120]
                     continue
                 cert = sol.certificate
-                fd = h.certify(h.method_setup(setup, name), sol, fd_step=FD_STEP)
+                ms = h.method_setup(setup, name)
+                fd = h.certify(ms, sol, fd_step=FD_STEP)
+                if before is not None and cert is not None:
+                    # both on the same plan, which one first alternating per configuration
+                    order = (before.certify, h.certify)[::1 if c % 2 else -1]
+                    got = {fn: fn(ms, sol) for fn in order}
+                    old, now = got[before.certify], got[h.certify]
+                    r["t_before"].append(old.time_s)
+                    r["t_now"].append(now.time_s)
+                    r["cost_before"].append(old.time_s / sol.solve_time_s)
+                    r["cost_now"].append(now.time_s / sol.solve_time_s)
+                    r["same"] += old.level == now.level
                 r["n"] += 1
                 r["claimed"] += bool(sol.backend_success)
                 ok = cert is not None and cert.certified
@@ -116,11 +156,48 @@ def main() -> None:
     n_all = sum(r["n"] for r in res.values())
     disagree = sum(r["n"] - r["agree"] for r in res.values())
     false = sum(r["false"] for (f, b), r in res.items() if b != "gradient")
+    summary = [f"Certificate cost over a cold OCP solve (as run, in `run_method`): median "
+               f"{h.median(ocp) * 100:.1f} %, p90 {h.percentile(ocp, 90) * 100:.1f} %, worst "
+               f"{max(ocp) * 100:.1f} % ({len(ocp)} OCP plans; a structure's first certificate in "
+               "the process is interpreted, the later ones compiled)."]
+    keys = dict(instances=args.instances, plans=n_all, disagreements=disagree,
+                uncertified_successes=false, cost_median=round(h.median(ocp), 4),
+                cost_worst=round(max(ocp), 4))
+    against = []
+    if before is not None:
+        now = [x for (f, b), r in res.items() if b != "gradient" for x in r["cost_now"]]
+        old = [x for (f, b), r in res.items() if b != "gradient" for x in r["cost_before"]]
+        timed = sum(len(r["t_now"]) for r in res.values())
+        same = sum(r["same"] for r in res.values())
+        against = [
+            "", f"## Against {args.against}, interleaved on the same plans", "",
+            f"Each plan certified again by {args.against}'s `certify` and by this revision's, "
+            "which one first alternating per configuration (both after their builds).", "",
+            *h.table(["family", "backend", "plans", f"{args.against} ms (median)",
+                      "this ms (median)", "speed-up (median of ratios)",
+                      f"{args.against} cost / solve (median, worst)",
+                      "this cost / solve (median, worst)", "same level"],
+                     [(f, b, len(r["t_now"]), f"{h.median(r['t_before']) * 1e3:.2f}",
+                       f"{h.median(r['t_now']) * 1e3:.3f}",
+                       f"{h.median_ratio(r['t_before'], r['t_now']):.1f}x",
+                       f"{h.median(r['cost_before']) * 100:.1f} %, "
+                       f"{max(r['cost_before']) * 100:.1f} %",
+                       f"{h.median(r['cost_now']) * 100:.2f} %, {max(r['cost_now']) * 100:.2f} %",
+                       f"{r['same']}/{len(r['t_now'])}")
+                      for (f, b), r in res.items() if r["t_now"]]), "",
+            f"Over the {len(now)} OCP plans: {args.against} median {h.median(old) * 100:.1f} %, "
+            f"worst {max(old) * 100:.1f} %; this revision median {h.median(now) * 100:.2f} %, "
+            f"worst {max(now) * 100:.2f} % of a cold solve. Same level on {same}/{timed} plans."]
+        keys.update(against=args.against, against_cost_median=round(h.median(old), 4),
+                    against_cost_worst=round(max(old), 4),
+                    interleaved_cost_median=round(h.median(now), 4),
+                    interleaved_cost_worst=round(max(now), 4), verdicts_differ=timed - same)
     text = "\n".join([
         "# The optimality certificate against finite differences; uncertified successes",
         "",
         f"`OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/certificate.py --instances "
-        f"{args.instances}` (seed {args.seed}; T = 20, limits T = 40 at 0.05 s per step). "
+        f"{args.instances}{' --against ' + args.against if args.against else ''}` (seed "
+        f"{args.seed}; T = 20, limits T = 40 at 0.05 s per step). "
         "`backend success`: the backend's own claim (`sol.backend_success`, the old `success`); "
         "`success not certified`: of those, the certificate is neither optimal nor acceptable (the "
         "gradient variant claims a completed run, not an optimum: its column is informational); "
@@ -130,16 +207,14 @@ def main() -> None:
         "",
         *h.table(header, rows),
         "",
-        f"Certificate cost over a cold OCP solve: median {h.median(ocp) * 100:.1f} %, p90 "
-        f"{np.percentile(ocp, 90) * 100:.1f} % ({len(ocp)} OCP plans).",
+        *summary,
+        *against,
     ])
     h.write_result(args.output, text + "\n")
     print(text)
-    print(f"certificate_cost: median={h.median(ocp) * 100:.2f}% of a cold OCP solve "
-          f"(p90 {np.percentile(ocp, 90) * 100:.2f}%)")
-    print(h.last_line("certificate", h.key_values(
-        instances=args.instances, plans=n_all, disagreements=disagree,
-        uncertified_successes=false, cost_median=round(h.median(ocp), 4))))
+    print(f"certificate_cost: median={h.median(ocp) * 100:.2f}% worst={max(ocp) * 100:.2f}% of a "
+          f"cold OCP solve (p90 {h.percentile(ocp, 90) * 100:.2f}%)")
+    print(h.last_line("certificate", h.key_values(**keys)))
 
 
 if __name__ == "__main__":

@@ -21,17 +21,20 @@ leave; the limit rows and their gradients are NumPy arrays over all rows at once
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import replace
 
 import casadi as ca
 import numpy as np
 from scipy.optimize import lsq_linear, nnls
+from scipy.sparse import csr_matrix
 
 from ..buffered import thread_buffered
 from ..model import limits as lm
 from ..model.belief import DIAG, NV, NX, unvech_many, vech
 from ..model.joint_noise import joint_noise_function
+from ..model.lie import np_means
 from ..model.limits import problem_limits
 from ..model.robot import CAMERA_PARAMETERS
 from ..output.certificate import Certificate, Tolerances, level_of
@@ -216,12 +219,36 @@ def _blocks(M, T: int) -> np.ndarray:
     return np.asarray(M, float).reshape(NX, T, NX).transpose(1, 0, 2)
 
 
-def _quat_angle(a: np.ndarray, b: np.ndarray) -> float:
+def _quat_angle(a, b) -> float:
     """The angle [rad] between two unit quaternions `(w, x, y, z)` (either sign), from the
-    relative rotation's vector part (accurate for small angles, unlike arccos)."""
-    a, b = a / np.linalg.norm(a), b / np.linalg.norm(b)
-    vec = a[0] * b[1:] - b[0] * a[1:] - np.cross(a[1:], b[1:])
-    return float(2 * np.arctan2(np.linalg.norm(vec), abs(float(a @ b))))
+    relative rotation's vector part (accurate for small angles, unlike arccos); in plain floats."""
+    aw, ax, ay, az = (float(v) for v in a)
+    bw, bx, by, bz = (float(v) for v in b)
+    na, nb = math.sqrt(aw * aw + ax * ax + ay * ay + az * az), math.sqrt(
+        bw * bw + bx * bx + by * by + bz * bz)
+    aw, ax, ay, az = aw / na, ax / na, ay / na, az / na
+    bw, bx, by, bz = bw / nb, bx / nb, by / nb, bz / nb
+    # a_w b_v - b_w a_v - a_v x b_v
+    vx = aw * bx - bw * ax - (ay * bz - az * by)
+    vy = aw * by - bw * ay - (az * bx - ax * bz)
+    vz = aw * bz - bw * az - (ax * by - ay * bx)
+    dot = aw * bw + ax * bx + ay * by + az * bz
+    return 2 * math.atan2(math.sqrt(vx * vx + vy * vy + vz * vz), abs(dot))
+
+
+_GOALS: dict[bytes, np.ndarray] = {}
+
+
+def _goal_mean(setup: Setup) -> np.ndarray:
+    """The goal's mean `(p, Q)` up to the quaternion's sign (`Setup.m_goal` on its sheet; the
+    terminal measures do not depend on it), kept per goal pose."""
+    x = np.asarray(setup.x_goal, float)
+    key = x.tobytes()
+    if key not in _GOALS:
+        if len(_GOALS) > 4096:
+            _GOALS.clear()
+        _GOALS[key] = np_means(x)[0]
+    return _GOALS[key]
 
 
 class _Rows:
@@ -230,7 +257,7 @@ class _Rows:
 
     def __init__(self, setup: Setup, start_state=None):
         robot, T, dt = setup.robot, setup.ocp.horizon, float(setup.ocp.timing.step_s)
-        lim = problem_limits(setup)
+        lim = _limits(setup)
         nq, mov = robot.nq, robot.supporting_joints()
         moving = start_state is not None
         rows, joints = lm.curve_limit_rows(T, dt, lim, mov, moving)
@@ -247,10 +274,8 @@ class _Rows:
         for i, (row, j) in enumerate(zip(R, J)):
             A[i, np.arange(T + 1) * nq + j] = row[:T + 1]
         keep = np.any(np.abs(A) > 1e-12 * np.abs(A).max(), axis=1)
-        # each row touches one joint: its coefficients over the nodes and that joint (A x by one
-        # product and sum, not a dense matrix product)
-        self.A, self.a = A[keep], a[keep]
-        self.coef, self.joint = R[keep][:, :T + 1], J[keep]
+        self.A, self.a = A[keep], a[keep]  # (dense: the active rows' gradients are its rows)
+        self.sparse = csr_matrix(self.A)  # (each row touches one joint at a few nodes)
         windows, weights, consts = lm.tool_point_windows(T, dt, moving)
         self.windows, self.weights = np.array(windows), weights
         self.offsets = np.zeros((len(windows), 2 * nq))
@@ -271,7 +296,7 @@ class _Rows:
                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(the linear rows A x + a, the tool rows (2 per point), the tool rates' Jacobians over
         each point's position and velocity (points x 2 x 2 nq)) at the joints q."""
-        lin = np.einsum("it,ti->i", self.coef, q[:, self.joint]) + self.a
+        lin = self.sparse @ q.ravel() + self.a
         Wq = q[self.windows]  # points x 4 x nq
         z = np.hstack([np.einsum("pw,pwj->pj", self.weights[:, :4], Wq),
                        np.einsum("pw,pwj->pj", self.weights[:, 4:], Wq)]) + self.offsets
@@ -302,7 +327,7 @@ class _Layout:
         self.held = np.setdiff1d(np.arange(nq), self.mov)
         lo, hi = np.array(robot.lower, float), np.array(robot.upper, float)
         if setup.ocp.limits.enforce:
-            lo, hi = lm.joint_bounds(robot, problem_limits(setup).rcm_min_distance)
+            lo, hi = lm.joint_bounds(robot, _limits(setup).rcm_min_distance)
         self.lo, self.hi = lo, hi
         free = np.zeros((T + 1, nq), bool)
         free[1:, self.mov] = True
@@ -315,10 +340,21 @@ class _Layout:
 _LAYOUTS: dict[tuple, _Layout] = {}
 
 
+_LIMITS: dict[tuple, object] = {}
+
+
+def _limits(setup: Setup):
+    """The problem's motion limits (`problem_limits`), kept per robot and `limits:` section."""
+    key = (str(setup.robot.urdf), tuple(setup.robot.joint_names), setup.ocp.limits)
+    if key not in _LIMITS:
+        _LIMITS[key] = problem_limits(setup)
+    return _LIMITS[key]
+
+
 def _layout(setup: Setup, built: list[float]) -> _Layout:
     robot = setup.robot
-    rcm = (problem_limits(setup).rcm_min_distance if setup.ocp.limits.enforce else None)
-    key = (str(robot.urdf), robot.frame, robot.offset.tobytes(), setup.ocp.horizon, rcm)
+    key = (str(robot.urdf), robot.frame, robot.offset.tobytes(), setup.ocp.horizon,
+           setup.ocp.limits if setup.ocp.limits.enforce else None)
     if key not in _LAYOUTS:
         t0 = time.perf_counter()
         _LAYOUTS[key] = _Layout(setup)
@@ -352,7 +388,7 @@ def certify(setup: Setup, sol: Solution, fd_step: float | None = None) -> Certif
     M = out[3].reshape(T + 1, 7)
     J = out[4].reshape(T + 1, nq, 7)  # J[t, j]: d mean_t / d q_t,j
     # primal measures
-    goal = setup.m_goal
+    goal = _goal_mean(setup)
     term_p = float(np.linalg.norm(M[T, :3] - goal[:3]))
     term_a = _quat_angle(M[T, 3:], goal[3:])
     held = lay.held
@@ -520,9 +556,8 @@ def _limit_rows(setup: Setup, sol: Solution, built: list[float]):
         rows = _Rows(setup, state)
         built[0] += time.perf_counter() - t0
     else:
-        lim = problem_limits(setup)
-        key = (str(setup.robot.urdf), setup.robot.frame, setup.ocp.horizon,
-               float(setup.ocp.timing.step_s), repr(lim.to_dict()))
+        key = (str(setup.robot.urdf), setup.robot.frame, setup.robot.offset.tobytes(),
+               setup.ocp.horizon, float(setup.ocp.timing.step_s), setup.ocp.limits)
         if key not in _ROWS:
             _ROWS[key] = _Rows(setup)
             built[0] += time.perf_counter() - t0
