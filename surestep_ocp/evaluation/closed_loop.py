@@ -58,7 +58,8 @@ class ClosedLoop:
             discarded for its time, so the rollouts do not depend on the machine's speed; the late
             ones (longer than a step, `timing.step_s`) are counted all the same (`late_replans`).
 
-    After a rollout call: `times` (each re-plan's time without builds [s]), `failures` ((step,
+    After a rollout call: `times` (each re-plan's time without builds [s], its preparation between
+    frames included), `feedback` (the real-time iterations' feedback times [s]), `failures` ((step,
     rollout, status) of each re-plan that kept the previous plan), `held` ((step, rollout) of each
     re-plan that kept the previous camera registration), `late` (steps each rollout's goal moved
     later), `violations` (executed samples beyond a limit, per rollout).
@@ -97,6 +98,7 @@ class ClosedLoop:
         self.pieces: list[list] = []
         self.checked: list[bool] = []
         self.times: list[float] = []
+        self.feedback: list[float] = []  # real-time iterations' feedback times [s]
         self.failures: list[tuple[int, int, str]] = []
         # (step, rollout) of the re-plans that held the registration
         self.held: list[tuple[int, int]] = []
@@ -108,6 +110,7 @@ class ClosedLoop:
         if self.planners is None:
             self.planners = [copy.copy(self.planner) for _ in range(n)]
             self.pieces = [[(0, np.array(self.planner.plan.q, float), None)] for _ in range(n)]
+            self._prepared_s = [0.0] * n  # each rollout's last preparation [s]
             self.late, self.violations, self.checked = [0] * n, [0] * n, [False] * n
         # a rollout at its goal holds still: its target is where it is (finite, not used)
         targets, moving = np.array(mean, float), np.zeros(n, bool)
@@ -121,6 +124,9 @@ class ClosedLoop:
             if t > 0:
                 planner = self._replan(i, planner, t, mean[i], cov[i], camera)
             targets[i] = self._target(planner, t, mean[i])
+            if t + 1 < planner.horizon:
+                # between frames: the next re-plan's real-time iteration (its time in `times`)
+                self._prepared_s[i] = planner.prepare(t + 1)
             moving[i] = True
             self.arriving[i] = t + 1 == planner.horizon
         return targets, moving
@@ -135,7 +141,10 @@ class ClosedLoop:
             self.failures.append((t, i, str(exc)))
             return planner
         took = sol.replan.time_s
-        self.times.append(took)
+        # the frame's work: the call, and its preparation between frames
+        self.times.append(took + (self._prepared_s[i] if sol.replan.prepared_ahead else 0.0))
+        if sol.replan.feedback_s is not None:
+            self.feedback.append(sol.replan.feedback_s)
         if not sol.success:
             self.failures.append((t, i, sol.status))
             return planner
@@ -201,4 +210,5 @@ class ClosedLoop:
                 "late_median": float(np.median(self.late)) if self.late else 0.0,
                 "late_worst": int(max(self.late)) if self.late else 0,
                 "violations": int(sum(self.violations)), "build_s": self.planner.build_time_s,
-                "failures": self.failures[:5], "times_ms": ms.tolist()}
+                "failures": self.failures[:5], "times_ms": ms.tolist(),
+                "feedback_ms": (np.asarray(self.feedback) * 1e3).tolist()}

@@ -33,6 +33,8 @@ def tracker_loop(setup: Setup, seed: int = 0, progress=None) -> dict:
         plans.append(plan)
         if progress:
             progress(k, plan)
+        if k + 1 < planner.horizon:
+            planner.prepare(k + 1)  # between frames: the next re-plan's real-time iteration
         if plan.success:
             start = plan.run.start_state
             pieces.append((k, np.array(plan.q, float), None if start is None else

@@ -189,6 +189,12 @@ class ReplanRecord(JsonRecord):
     # within enforced limits: the tracker's estimate put the goal out of reach, so the camera
     # registration of the plan before was used
     registration_held: bool | None = None
+    # within enforced limits, a real-time iteration (`Planner(rti=True)`): "feedback" (the
+    # prepared iterate with the measured goal) or "full: <why>" (a full re-plan instead)
+    rti: str | None = None
+    feedback_s: float | None = None  # from the call until the plan's joints were known [s]
+    prepare_s: float | None = None  # its preparation [s], builds apart
+    prepared_ahead: bool | None = None  # prepared before the call (`Planner.prepare`), not in it
 
     @staticmethod
     def _readers() -> dict:

@@ -390,6 +390,12 @@ class InteriorNewton:
         self._fixed_slacks(c, nb)
         return float(f_y[0]), c
 
+    def rows(self, x, P, v0, a0, min_depth) -> np.ndarray:
+        """The row values (>= 0 within every limit) at `x` from a start moving at `v0`, `a0`
+        (None: at rest), as `constraints` orders them."""
+        return self.constraints(x, P, self._lin_const(v0, a0), self._tool_offsets(v0, a0),
+                                min_depth)[1]
+
     def _fixed_slacks(self, c: np.ndarray, nb: int) -> None:
         """Linear rows that no free joint moves (the curve at the start: constant in a run) and
         that hold with equality, to rounding (a start joint exactly at its limit), given the

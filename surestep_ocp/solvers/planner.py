@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import gc
 import time
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import casadi as ca
 import numpy as np
@@ -37,7 +37,10 @@ from .confidence import at_horizon, plan_to_confidence
 from .methods import ocp_initial_guess
 from .backends import Context
 from ..buffered import Buffered
+from .interior import FEASIBLE, InteriorRun
 from .iterate import InitialGuess
+from .newton import NewtonRun, parameters
+from ..model.robot import CAMERA_PARAMETERS
 from .nlp_cache import interior_solver, newton_solver
 from .ocp import resolved_solver, solve_ocp_warm
 from .strategy import records, replan_strategy
@@ -55,6 +58,8 @@ REPLAN_MU = 3e-3
 # plan: the next frame improves it) and the objective change (relative, over 3 iterations) at which
 # it stops early
 REPLAN_ITERATIONS, REPLAN_ACCEPTABLE = 4, 1e-7
+# a real-time iteration's preparation: its iterations (relaxed ones apart, as REPLAN_BUDGET counts)
+RTI_ITERATIONS = 1
 # within the limits: the iterations (relaxed ones included) of all a re-plan's attempts together;
 # past them it fails and the previous plan runs on, so a frame's work is bounded (a correction that
 # does not fit ran four attempts of up to 34 iterations each, then failed all the same); the value
@@ -79,14 +84,20 @@ class Planner:
             others' C compiled in a background thread while the loop runs, each loaded when first
             needed (else each built when first needed); their build times, waits included, are in
             `builds`, never in a plan's time (the IPOPT path builds its NLPs inside the solve).
-        replan_iterations: within enforced limits, a re-plan's iteration budget: its last iterate
-            keeps every limit and reaches the goal (status `Feasible_Point_Found` when it is not
-            yet optimal), and the next frame's re-plan continues from it.
+        replan_iterations: within enforced limits, a full re-plan's iteration budget: its last
+            iterate keeps every limit and reaches the goal (status `Feasible_Point_Found` when it
+            is not yet optimal), and the next frame's re-plan continues from it.
+        rti: within enforced limits, re-plan by real-time iterations (`prepare`, then the
+            feedback in `replan`; a full re-plan where the prepared iterate does not fit the
+            measurement); False: every re-plan a full one.
     """
 
     def __init__(self, problem: Problem | Setup, prebuild: bool = True,
-                 replan_iterations: int = REPLAN_ITERATIONS):
+                 replan_iterations: int = REPLAN_ITERATIONS, rti: bool = True):
         replan_iterations = whole_number(replan_iterations, "Planner: replan_iterations")
+        if not isinstance(rti, (bool, np.bool_)):
+            raise SurestepError(f"Planner: rti must be True or False, got {rti!r}")
+        self.rti = bool(rti)
         setup = problem if isinstance(problem, Setup) else build_setup(problem)
         # the problem as asked (its confidence, its own horizon): `restart` plans it again
         self._asked = setup
@@ -130,6 +141,10 @@ class Planner:
         # within the limits: the current plan's camera registration, as a correction of the given
         # camera pose (the first plan's: none)
         self._registration = np.eye(4)
+        # within the limits: the real-time iteration prepared for the next re-plan (`prepare`),
+        # and the last estimate's covariance (the prediction a preparation plans with)
+        self._prepared: _Prepared | None = None
+        self._cov = self.setup.ocp.sigma0
 
     def restart(self, joints, goal=None) -> Solution:
         """A new motion from rest at `joints` (the arm held still: after a fault cleared, or for a
@@ -207,10 +222,7 @@ class Planner:
         """
         t0, builds_before = time.perf_counter(), self.build_time_s
         step = self.step + 1 if step is None else _step(step)
-        if not self.step <= step < self.horizon:
-            raise SurestepError(f"replan: step {step} is not in [{self.step}, {self.horizon - 1}] "
-                                f"(the current plan starts at waypoint {self.step}; "
-                                f"the goal is waypoint {self.horizon})")
+        self._check_step(step)
         mean, cov = _estimate(mean, covariance, self.setup.ocp.min_depth)
         camera = self._camera
         base, moved = self._seen_from(camera_pose)
@@ -274,21 +286,74 @@ class Planner:
                                  start=self._start)
         return p[0], v[0], a[0]
 
+    def prepare(self, step: int | None = None) -> float:
+        """The real-time iteration's preparation of the re-plan at waypoint `step` (default: the
+        next one), done before the tracker's estimate arrives (acados' RTI preparation phase):
+        one interior-point iteration from the current plan shifted to the executed curve's state
+        there, with the current camera registration and the last estimate's covariance (the
+        predicted measurement). `replan` at that step then only registers the estimate, shifts
+        the prepared plan's goal to it and checks every row (the feedback phase), or re-plans in
+        full where that fails (said in `replan.rti`). Returns its seconds (builds apart); 0.0
+        where re-plans are not real-time iterations (no enforced limits, or `rti=False`)."""
+        if not (self.limited and self.rti):
+            return 0.0
+        step = self.step + 1 if step is None else _step(step)
+        self._check_step(step)
+        self._prepared = self._prepare(step, self._camera)
+        return self._prepared.time_s
+
+    def _check_step(self, step: int) -> None:
+        if not self.step <= step < self.horizon:
+            raise SurestepError(f"replan: step {step} is not in [{self.step}, {self.horizon - 1}] "
+                                f"(the current plan starts at waypoint {self.step}; "
+                                f"the goal is waypoint {self.horizon})")
+
+    def _prepare(self, step: int, camera: tuple) -> _Prepared:
+        """`prepare` for waypoint `step` as seen from `camera` (bytes, setup)."""
+        t0, builds_before = time.perf_counter(), self.build_time_s
+        base = camera[1]
+        q0, v0, a0 = self.executed_state(step)
+        registered = replace(base, camera_pose=base.camera_pose @ self._registration)
+        q = np.array(self._q[step - self.step:], float)
+        q[0] = q0
+        sub = replace(registered.with_ocp(horizon=len(q) - 1, sigma0=self._cov), q_start=q0,
+                      q_goal=q[-1])
+        sub.x_start, sub.x_goal = sub.poses_of(q[[0, -1]])
+        warm = InitialGuess(q, "previous plan (real-time iteration)")
+        spec = self.setup.ocp.solver
+        solver = self._interior(sub)[0]
+        run = solver.run(
+            sub, warm, v0=v0, a0=a0, tol=spec.tol, mu0=REPLAN_MU, relax=True, reserve=RESERVE,
+            max_iter=min(RTI_ITERATIONS, spec.max_iter), feasible_ok=True,
+            acceptable_change=REPLAN_ACCEPTABLE, relaxed_max=REPLAN_BUDGET)
+        P = parameters(sub)
+        P[CAMERA_PARAMETERS] = run.initial_trace
+        built = self.build_time_s - builds_before
+        return _Prepared(self.plan, step, camera[0], q0, v0, a0, warm, run, solver, P,
+                         time.perf_counter() - t0 - built)
+
     def _replan_within_limits(self, mean, cov, base: Setup, step: int, t0: float,
                               builds_before: float) -> Solution:
         """A re-plan within the enforced limits: from the executed curve's state at `step` (joints,
         velocity, acceleration: the commanded motion stays twice continuously differentiable), with
         the camera registered to the tracker (the kinematics at those joints see the tool at the
-        tracker's mean), to the goal where the camera sees it; the interior-point method from the
-        previous plan's rest. A registration that puts the goal out of reach is not used: the
-        current plan's holds (`replan.registration_held`, the tracker's IK residual in
-        `extras["goal_ik_residual"]`). A failure keeps the previous plan
+        tracker's mean), to the goal where the camera sees it. A registration that puts the goal
+        out of reach is not used: the current plan's holds (`replan.registration_held`, the
+        tracker's IK residual in `extras["goal_ik_residual"]`). With `rti`, the prepared iterate
+        with its goal moved (`_feedback`), else (or where that breaks a row) the interior-point
+        method from the previous plan (`_full`). A failure keeps the previous plan
         (`replan.kept_previous`)."""
-        q0, v0, a0 = self.executed_state(step)
+        prep, self._prepared = self._prepared, None
+        ahead = (prep is not None and prep.plan is self.plan and prep.step == step
+                 and prep.camera == self._camera[0])
+        if self.rti and not ahead:
+            prep = self._prepare(step, self._camera)
+        # the feedback phase's clock: from the call, its preparation apart when made in it
+        t_feedback = t0 + (0.0 if ahead or prep is None else
+                           prep.time_s + self.build_time_s - builds_before)
+        q0 = self.executed_state(step)[0] if prep is None else prep.q0
         world_tool = base.camera_pose @ pose_to_matrix(base.pose_of(q0))
-        # (its start and goal poses are set on each attempt's setup below)
         registered = replace(base, camera_pose=world_tool @ np.linalg.inv(pose_to_matrix(mean)))
-        n = self.horizon - step
         q_goal, res_m, res_rad = self._goal_joints(registered, base)
         reachable = res_m <= 1e-6 and res_rad <= 1e-5
         unreached = None  # the tracker's registration's goal IK residual, when it is held instead
@@ -299,11 +364,95 @@ class Planner:
             registered = replace(base, camera_pose=base.camera_pose @ self._registration)
             q_goal, res_m, res_rad = self._goal_joints(registered, base)
             reachable = res_m <= 1e-6 and res_rad <= 1e-5
-        tail = np.array(self._q[step - self.step:], float)
-        # the goal's shift, eased in and out (no velocity or acceleration added at either end)
-        s = np.linspace(0.0, 1.0, n + 1)
-        tail += (10 * s**3 - 15 * s**4 + 6 * s**5)[:, None] * (q_goal - tail[-1])[None]
-        tail[0] = q0
+        sol, rti, start = None, None, None
+        if self.rti:
+            if reachable and prep.run.success:
+                sol, start = self._feedback(prep, registered, q_goal, cov, t_feedback)
+                rti = "feedback" if sol is not None else "full: a row broken"
+            else:
+                rti = "full: " + ("goal unreachable" if not reachable
+                                  else f"preparation {prep.run.status}")
+        if sol is None:
+            sol = self._full(cov, registered, q_goal, reachable, step, start)
+            if not reachable:  # no plan tried (the goal's IK residual is in the log)
+                sol.success, sol.status = False, "Goal_Unreachable"
+                sol.extras["goal_ik_residual"] = unreached or {"m": float(res_m),
+                                                               "rad": float(res_rad)}
+        if unreached is not None and reachable:
+            sol.extras["goal_ik_residual"] = unreached
+        built_s = self.build_time_s - builds_before
+        feedback_s = sol.extras.pop("feedback_s", None)
+        sol.replan = ReplanRecord(
+            step, time.perf_counter() - t0 - built_s, "interior", built_s, not sol.success,
+            sol.extras.pop("attempts_tried", None), registration_held=unreached is not None
+            and reachable, rti=rti, feedback_s=feedback_s,
+            prepare_s=None if prep is None else prep.time_s,
+            prepared_ahead=None if prep is None else ahead)
+        if sol.success:
+            self.plan, self.step, self._q = sol, step, np.array(sol.q, float)
+            self._start = tuple(np.array(v, float) for v in (sol.run.start_state.velocity,
+                                                              sol.run.start_state.acceleration))
+            self.horizon += sol.extras["extended_steps"]
+            # the camera's correction from its given pose, held when a later estimate is unusable
+            self._registration = np.linalg.solve(base.camera_pose, registered.camera_pose)
+            self._cov = cov
+        return sol
+
+    def _feedback(self, prep: _Prepared, registered: Setup, q_goal: np.ndarray, cov,
+                  t0: float) -> tuple[Solution | None, np.ndarray]:
+        """The real-time iteration's feedback: the prepared iterate with its goal moved to
+        `q_goal` (the shift eased in, no velocity or acceleration added at either end), if that
+        keeps every row (the limits themselves: the reserve is room for such corrections): (its
+        Solution, with `extras["feedback_s"]` from `t0` until its joints were known, or None;
+        the moved iterate)."""
+        x = np.array(prep.run.q, float)
+        s = np.linspace(0.0, 1.0, len(x))
+        x += (10 * s**3 - 15 * s**4 + 6 * s**5)[:, None] * (q_goal - x[-1])[None]
+        # every row at the moved iterate, seen from the registered camera (the rows do not
+        # depend on the covariance)
+        P = prep.parameters.copy()
+        P[:CAMERA_PARAMETERS] = replace(registered, q_start=prep.q0).camera_parameter()
+        if not np.all(prep.solver.rows(x.ravel(), P, prep.v0, prep.a0, self.setup.ocp.min_depth)
+                      > 0.0):
+            return None, x
+        feedback_s = time.perf_counter() - t0
+        # the plan's Solution: no longer in the measurement's path
+        sub = replace(registered.with_ocp(horizon=len(x) - 1, sigma0=cov), q_start=prep.q0,
+                      q_goal=q_goal)
+        sub.x_start, sub.x_goal = sub.poses_of(np.vstack([prep.q0, q_goal]))
+        solver, propagation = self._interior(sub)
+        run = prep.run
+        P = parameters(sub)
+        P[CAMERA_PARAMETERS] = run.initial_trace  # the objective's scale: the preparation's
+        end = solver.newton._end(sub, x.ravel(), P, run.initial_trace, FEASIBLE, run.iterations,
+                                 0, t0)
+        run = InteriorRun(**{k: getattr(end, k) for k in NewtonRun.__dataclass_fields__},
+                          relaxed_iterations=run.relaxed_iterations)
+        sol = self._solution(sub, propagation, solver, prep.warm, run, cov, prep.v0, prep.a0)
+        sol.extras.update(reserve=RESERVE, extended_steps=0, feedback_s=feedback_s,
+                          attempts_tried=[ReplanAttempt(
+                              reserve=RESERVE, steps_added=0, status=prep.run.status,
+                              iterations=prep.run.iterations,
+                              relaxed_iterations=prep.run.relaxed_iterations)])
+        return sol, x
+
+    def _full(self, cov, registered: Setup, q_goal: np.ndarray, reachable: bool,
+              step: int, start: np.ndarray | None = None) -> Solution:
+        """A full re-plan: the interior-point method from `start` (the real-time iteration's
+        moved iterate, when one broke a row), else from the previous plan with its goal shifted
+        to `q_goal`, within the limits less RESERVE, else the limits themselves, else EXTEND
+        steps later (`ATTEMPTS`), within REPLAN_BUDGET iterations in all; no iteration where the
+        goal is not `reachable`."""
+        q0, v0, a0 = self.executed_state(step)
+        n = self.horizon - step
+        if start is None:
+            tail = np.array(self._q[step - self.step:], float)
+            # the goal's shift, eased in and out (no velocity or acceleration added at either end)
+            s = np.linspace(0.0, 1.0, n + 1)
+            tail += (10 * s**3 - 15 * s**4 + 6 * s**5)[:, None] * (q_goal - tail[-1])[None]
+            tail[0] = q0
+        else:
+            tail = start
         spec = self.setup.ocp.solver
         # within the limits less RESERVE (room for the next corrections), else within the limits
         # themselves, else (the correction too large for the time left) EXTEND steps later; from the
@@ -332,11 +481,18 @@ class Planner:
                              feasible_ok=True, acceptable_change=REPLAN_ACCEPTABLE,
                              relaxed_max=budget)
             budget -= run.iterations
-            tried.append({"reserve": reserve, "steps_added": extra, "status": run.status,
-                          "iterations": run.iterations,
-                          "relaxed_iterations": run.relaxed_iterations})
+            tried.append(ReplanAttempt(reserve=reserve, steps_added=extra, status=run.status,
+                                       iterations=run.iterations,
+                                       relaxed_iterations=run.relaxed_iterations))
             if run.success:
                 break
+        sol = self._solution(sub, propagation, solver, warm, run, cov, v0, a0)
+        sol.extras.update(reserve=reserve, extended_steps=extra, attempts_tried=tried)
+        return sol
+
+    def _solution(self, sub: Setup, propagation, solver, warm: InitialGuess, run, cov, v0,
+                  a0) -> Solution:
+        """A re-plan's Solution from its run: evaluated by the compiled EKF where there is one."""
         # (in place: the buffer's values are copied out by the indexing)
         sigma = (None if propagation is None else
                  propagation(run.poses.T, vech(cov))[0].reshape(-1, NV)[:, _UNVECH])
@@ -344,21 +500,6 @@ class Planner:
         sol.run = replace(sol.run, solver="interior",
                           start_state=StartState(v0.tolist(), a0.tolist()),
                           warm_start_q=np.asarray(warm.q, float).tolist())
-        sol.extras.update(reserve=reserve, extended_steps=extra)
-        if not reachable:  # no plan tried (the goal's IK residual is in the log)
-            sol.success, sol.status = False, "Goal_Unreachable"
-            sol.extras["goal_ik_residual"] = unreached or {"m": float(res_m), "rad": float(res_rad)}
-        elif unreached is not None:
-            sol.extras["goal_ik_residual"] = unreached
-        built_s = self.build_time_s - builds_before
-        sol.replan = ReplanRecord(step, time.perf_counter() - t0 - built_s, "interior", built_s,
-                                  not sol.success, [ReplanAttempt(**a) for a in tried],
-                                  registration_held=unreached is not None and reachable)
-        if sol.success:
-            self.plan, self.step, self._q, self._start = sol, step, np.array(sol.q, float), (v0, a0)
-            self.horizon += extra
-            # the camera's correction from its given pose, held when a later estimate is unusable
-            self._registration = np.linalg.solve(base.camera_pose, registered.camera_pose)
         return sol
 
     def _goal_joints(self, registered: Setup, base: Setup) -> tuple[np.ndarray, float, float]:
@@ -434,6 +575,24 @@ ATTEMPTS = ((RESERVE, 0), (0.0, 0), (RESERVE, EXTEND), (0.0, 2 * EXTEND))
 RIGID_TOL = 1e-6  # a camera pose's rotation is orthonormal to this
 MAX_POSITION = 100.0  # [m] as the problem files' positions (problem/parse.py)
 MAX_COVARIANCE = 1e6  # as the problem files' covariances: an entry at most this [m^2, m rad, rad^2]
+
+
+@dataclass
+class _Prepared:
+    """A real-time iteration's preparation (`Planner.prepare`): valid for the re-plan of `plan`
+    at waypoint `step` seen from the camera `camera` (its pose's bytes)."""
+
+    plan: Solution
+    step: int
+    camera: bytes
+    q0: np.ndarray  # the executed curve's state at `step`: joints, velocities, accelerations
+    v0: np.ndarray
+    a0: np.ndarray
+    warm: InitialGuess  # the shifted plan it iterated from
+    run: InteriorRun  # its iteration
+    solver: object  # the interior-point solver of its structure
+    parameters: np.ndarray  # its compiled functions' parameters (its objective's scale set)
+    time_s: float  # its time without builds
 
 
 def _real(value, name: str) -> np.ndarray:
