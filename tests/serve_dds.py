@@ -1,6 +1,7 @@
 """Shared by the serve tests and benchmarks/serve_loop.py: a Cyclone configuration confined to the
-loopback interface (no multicast, the peer listed as 127.0.0.1), a free domain id, and a recorder
-that takes every sample's bytes off the wire for an independent decoder (rosbags)."""
+loopback interface (no multicast, the peer listed as 127.0.0.1), a free domain id, a recorder
+that takes every sample's bytes off the wire for an independent decoder (rosbags), and the checks
+the tests share (set-points within the limits, the node's servo process ended)."""
 
 from __future__ import annotations
 
@@ -159,3 +160,21 @@ def assert_stretch_within_limits(lim, t: np.ndarray, q: np.ndarray, tol: float =
     a = 2 * np.diff(v, axis=0) / (t[2:] - t[:-2])[:, None]
     assert np.all(np.abs(a) <= lim.acceleration * (1 + 1e-3) + 1e-6), \
         np.abs(a / lim.acceleration).max()
+
+
+def alive(pid: int) -> bool:
+    """The process runs (not ended, not a zombie)."""
+    try:
+        return "State:\tZ" not in Path(f"/proc/{pid}/status").read_text()
+    except OSError:
+        return False
+
+
+def assert_servo_process_ended(log) -> None:
+    """The node's servo process (its pid and exit code in the node's --log) ended, exit 0 (its
+    files close a moment before it ends: waited for, a while)."""
+    servo = log["servo"]
+    end = time.monotonic() + 10
+    while alive(servo["pid"]) and time.monotonic() < end:
+        time.sleep(0.02)
+    assert not alive(servo["pid"]) and servo["exit"] == 0, servo

@@ -3,7 +3,8 @@
 every message taken off the wire as bytes and decoded by rosbags' ROS 2 Humble type store, checked
 against the problem (joint names, bounds, velocity and acceleration limits) and for its stamps and
 rate; bad input (exit 2, one line, before anything is published); a silent tracker (hold, with its
-reason, exit 1 when stopped; the dvrk-ros-model names); a signal before the first plan (exit 0)."""
+reason, exit 1 when stopped; the dvrk-ros-model names); a signal before the first plan (exit 0).
+The node is two processes (the servo stream in its own): each run's servo process ended with it."""
 
 import os
 import select
@@ -17,8 +18,9 @@ import pytest
 
 pytest.importorskip("cyclonedds")
 
-from serve_dds import (Recorder, assert_stretch_within_limits, free_domain, loopback_env,  # noqa: E402
-                       run_pair, set_points, stamps, topics)
+from serve_dds import (Recorder, alive, assert_servo_process_ended,  # noqa: E402
+                       assert_stretch_within_limits, free_domain, loopback_env, run_pair,
+                       set_points, stamps, topics)
 
 ROOT = Path(__file__).resolve().parents[1]
 PROBLEM = str(ROOT / "problems" / "needle_regrasp.yaml")
@@ -52,6 +54,7 @@ def test_episode_reaches_the_goal(episode):
     assert episode["sim_code"] == 0
     assert episode["log"]["outcome"].startswith("goal reached")
     assert sum(r["ok"] for r in episode["log"]["replans"]) >= 10  # re-planned along the way
+    assert_servo_process_ended(episode["log"])
 
 
 def test_only_loopback(episode):
@@ -138,6 +141,8 @@ def test_bad_input_exits_2_naming_the_option(tmp_path, capsys, monkeypatch):
              (["serve", PROBLEM, "--domain-id", "-1"], "--domain-id"),
              (["serve", PROBLEM, "--servo-hz", "0"], "--servo-hz"),
              (["serve", PROBLEM, "--resume-after", "-1"], "--resume-after"),
+             (["serve", PROBLEM, "--replan-budget", "soon"], "--replan-budget"),
+             (["serve", PROBLEM, "--replan-budget", "0"], "--replan-budget"),
              (["sim-robot", PROBLEM, "--fault", "melt@1"], "--fault"),
              (["serve", str(ROOT / "problems" / "needle_regrasp_paper_pace.yaml")],
               "cannot be served")]
@@ -159,15 +164,19 @@ def test_signal_before_the_first_plan_exits_0(tmp_path):
     rec = Recorder(domain, topics())
     p = subprocess.Popen(SURESTEP + ["serve", PROBLEM], env=env, stdout=subprocess.PIPE,
                          stderr=subprocess.PIPE, text=True)
-    # until it says it waits for the arm (its signal handlers are in place by then)
+    # until it says it waits for the arm (its signal handlers are in place by then, and its
+    # servo process started)
     ready, _, _ = select.select([p.stderr], [], [], 60)
     first = p.stderr.readline() if ready else ""
+    children = Path(f"/proc/{p.pid}/task/{p.pid}/children").read_text().split()
     p.send_signal(signal.SIGINT)
     out, err = p.communicate(timeout=30)
     rec.poll()
     del os.environ["CYCLONEDDS_URI"]
     assert "waiting for /PSM1/measured_js" in first, first
     assert p.returncode == 0 and "Traceback" not in err, err
+    assert len(children) == 1  # the servo process, ended with the node (no orphan)
+    assert not alive(int(children[0]))
     assert "nothing published" in err
     assert not any(rec.samples[t] for t in ("/PSM1/servo_jp", "/surestep/status"))
 

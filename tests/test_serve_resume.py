@@ -12,7 +12,8 @@ import pytest
 
 pytest.importorskip("cyclonedds")
 
-from serve_dds import assert_stretch_within_limits, run_pair, set_points, stamps  # noqa: E402
+from serve_dds import (assert_servo_process_ended, assert_stretch_within_limits,  # noqa: E402
+                       run_pair, set_points, stamps)
 
 ROOT = Path(__file__).resolve().parents[1]
 PROBLEM = str(ROOT / "problems" / "needle_regrasp.yaml")
@@ -80,6 +81,7 @@ def test_sigterm_in_the_loop_exits_0(run):
     assert "Traceback" not in run["err"] + run["sim_err"]
     lines = run["out"].strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("serve: stopped (SIGTERM)"), lines
+    assert_servo_process_ended(run["log"])  # held, flushed, exit 0: no orphan
     status = [s.data for _, s in run["rec"].decoded("/surestep/status", "std_msgs/msg/String")]
     assert status[-1].startswith("stopped")
 

@@ -57,10 +57,11 @@ def register(sub) -> None:
                                                                             "(default 0.005)")
     s.add_argument("--max-replan-failures", type=int, default=5,
                    help="hold after this many re-plans in a row not played (default 5)")
-    s.add_argument("--replan-budget", type=float, default=0.02,
+    s.add_argument("--replan-budget", default="auto",
                    help="[s] each waypoint this long after a tracker frame's arrival (the "
                         "waypoints are phase-locked to the frames): a re-plan's time to be played "
-                        "at once (default 0.02)")
+                        "at once; auto (the default): the re-plans' time measured on the "
+                        "tracker's first frames, before the motion starts (docs/serve.md)")
     s.add_argument("--replan-margin", type=float, default=0.005,
                    help="[s] a re-plan starts at the first waypoint at least this long after the "
                         "estimate's arrival (default 0.005)")
@@ -128,6 +129,18 @@ def _served_problem(path: str):
     return prob, setup
 
 
+def _budget(text: str) -> float | None:
+    """--replan-budget: seconds, or None for auto."""
+    if str(text).strip().lower() == "auto":
+        return None
+    try:
+        value = float(text)
+    except ValueError:
+        raise SurestepError(f"--replan-budget: {text!r} must be auto or a number of seconds "
+                            "(e.g. 0.015)") from None
+    return _positive(value, "--replan-budget", 1.0)
+
+
 def cmd_serve(args) -> int:
     from ..output.joint_names import PSM_ARM, joint_naming
     from .faults import FaultLimits
@@ -138,12 +151,13 @@ def cmd_serve(args) -> int:
     for v, o in ((args.estimate_timeout, "--estimate-timeout"), (args.tolerance, "--tolerance"),
                  (args.insertion_tolerance, "--insertion-tolerance"),
                  (args.replan_margin, "--replan-margin"), (args.hold, "--hold"),
-                 (args.replan_budget, "--replan-budget"), (args.resume_after, "--resume-after"),
+                 (args.resume_after, "--resume-after"),
                  (args.wait, "--wait")):
         _positive(v, o)
     if args.max_replan_failures < 1:
         raise SurestepError(f"--max-replan-failures: {args.max_replan_failures} must be at "
                             "least 1")
+    budget = _budget(args.replan_budget)
     naming = joint_naming(args.joint_names, list(PSM_ARM), ["jaw"])
     prob, _ = _served_problem(args.problem)
     _need_dds()
@@ -153,7 +167,7 @@ def cmd_serve(args) -> int:
                          args.max_replan_failures)
     opts = ServeOptions(args.problem, arm, tracker, namespace, args.servo_hz, domain,
                         args.continuous, args.start, args.wait, args.hold, args.replan_margin,
-                        args.replan_budget, args.joint_names, faults, args.log,
+                        budget, args.joint_names, faults, args.log,
                         not args.no_resume, args.resume_after)
     code = Serve(opts, prob, naming).run()
     sys.stdout.flush()

@@ -19,6 +19,11 @@ from cyclonedds.util import duration
 
 from .names import dds_topic
 
+try:  # the binding's own write of serialized bytes (DataWriter.write: serialize, pad, this)
+    from cyclonedds._clayer import ddspy_write as _ddspy_write
+except ImportError:  # pragma: no cover (another binding version: DataWriter.write)
+    _ddspy_write = None
+
 _XCDR1 = Policy.DataRepresentation(use_cdrv0_representation=True)
 WRITER_QOS = Qos(Policy.Reliability.Reliable(duration(milliseconds=100)),
                  Policy.History.KeepLast(10), Policy.Durability.Volatile, _XCDR1)
@@ -56,6 +61,23 @@ class Bus:
         """The samples received since the last take (valid ones only), oldest first."""
         return [s for s in reader.take(n) if not hasattr(s, "sample_info") or
                 s.sample_info.valid_data]
+
+    @staticmethod
+    def serialized(writer: DataWriter, sample) -> tuple:
+        """`sample` serialized for `writer` ahead of time: `write_serialized` then writes it
+        without serializing it (the servo process's tick: its set-points are made before the tick
+        is due, only written at it)."""
+        data = sample.serialize(use_version_2=getattr(writer, "_use_version_2", False))
+        return sample, data.ljust((len(data) + 3) & ~3, b"\0")  # 4-byte aligned, as write pads
+
+    @staticmethod
+    def write_serialized(writer: DataWriter, prepared: tuple) -> None:
+        sample, data = prepared
+        if _ddspy_write is None or not hasattr(writer, "_ref"):
+            writer.write(sample)
+            return
+        if _ddspy_write(writer._ref, data) < 0:
+            writer.write(sample)  # raises the binding's own DDSException
 
     def flush(self, timeout_s: float = 0.2) -> None:
         """Wait (at most `timeout_s` per writer) until every matched reader acknowledged the samples

@@ -1,8 +1,11 @@
-"""The servo loop of `surestep serve` (node.py's docstring): ticks, set-points, faults, the goal,
-and restarts: a new motion from rest (`Planner.restart`, planned on the re-planning thread) when a
-fault hold's cause has cleared (resume) or, with `--continuous`, for a new goal once the current
-one is held. A restart begins a new epoch: waypoint 0 moves to a later servo tick, phase-locked to
-the tracker's frames again; the servo clock (the stamps) runs on.
+"""The node's loop in the planner process of `surestep serve` (node.py's docstring): the servo
+process's reports (each set-point it sent), faults, the goal, and restarts: a new motion from rest
+(`Planner.restart`, planned on the re-planning thread) when a fault hold's cause has cleared
+(resume) or, with `--continuous`, for a new goal once the current one is held. A restart begins a
+new epoch: waypoint 0 moves to a later servo tick, phase-locked to the tracker's frames again; the
+servo clock (the stamps) runs on. The set-points themselves are the servo process's (servo.py):
+this loop tells it each epoch, each hold and when to stop, and learns from its reports what was
+sent.
 """
 
 from __future__ import annotations
@@ -16,18 +19,24 @@ import numpy as np
 from . import messages as m
 from .dds import Bus
 from .estimate import goal_from_message
-from .node import (STATUS_PERIOD_S, build_replanner, joint_message, make_watchdog, plan_message,
-                   say, ticks_of)
+from .node import STATUS_PERIOD_S, build_replanner, make_watchdog, plan_message, say
 from .played import PlayedCurve
 from .replanner import Shared
 
 REST_FRACTION = 0.1  # at rest: each joint's spread over the window, in its tolerances
 RETRY_S = 1.0  # a failed resume is tried again after this
+# --replan-budget auto: re-plans timed on this many tracker frames before the motion starts (not
+# played), the budget their second longest time from the frame's arrival plus BUDGET_MARGIN_S (the
+# hand-over to the servo process and its tick), within [--replan-margin, BUDGET_MAX_STEPS steps]
+PROBE_FRAMES = 5
+BUDGET_MARGIN_S = 0.0015
+BUDGET_MAX_STEPS = 0.8
+BUDGET_FALLBACK_S = 0.02  # no probe re-plan succeeded
 
 
 class ServoLoop:
-    """Plays `serve.planner`'s plans at the servo rate until the goal is held, a signal, or (after a
-    fault) a signal; `run()` returns the exit code."""
+    """Has `serve.planner`'s plans played by the servo process (`serve.servo`) until the goal is
+    held, a signal, or (after a fault) a signal; `run()` returns the exit code."""
 
     def __init__(self, serve):
         self.serve, self.opts, self.ep = serve, serve.opts, serve.ep
@@ -41,6 +50,7 @@ class ServoLoop:
         self.jaw_idx = [i for i, n in enumerate(names) if n == "jaw"]
         self.names = serve.naming.of(names)
         self.shared = Shared()
+        self.servo = serve.servo
         self.watchdog = make_watchdog(self.opts.faults, self.setup)
         self.sent_at: list[float] = []  # monotonic time of each set-point sent
         self.outcome = "running"
@@ -49,10 +59,11 @@ class ServoLoop:
         self._last_status = ""
         self._status_at = -1.0
         self._first_seen: set[int] = {0}
-        self.n = 0  # the servo tick (from the current waypoint 0)
+        self.t_sent = -math.inf  # the last set-point's time from the current waypoint 0 [s]
         self.origin = 0.0  # monotonic: the first waypoint 0 (the log's times are from it)
         self.origin_wall_ns = 0
         self.last_q = np.array(planner.plan.q[0], float)  # the last set-point sent (all joints)
+        self.dropped = 0  # set-point reports the servo process could not send back
         self.held_since = None
         self.at_goal = False  # --continuous: the goal reached and held
         self.pending_goal = None  # --continuous: the next goal [p, axis-angle], camera frame
@@ -63,6 +74,8 @@ class ServoLoop:
         self._said_ignored = False
         self.hold_status = ""
         self.epoch_at = 0.0  # monotonic: the last restart applied
+        self.budget = self.opts.replan_budget_s  # [s] (auto: set by _probe)
+        self.probes: list = []  # auto: the probe re-plans' times [s]
 
     # -- publishing -----------------------------------------------------------------------------
     def status(self, text: str, force: bool = False) -> None:
@@ -101,9 +114,12 @@ class ServoLoop:
         sh = self.shared
         if not sh.holding.is_set():
             sh.holding.set()
+            self.servo.send(("hold", reason))
             self.serve.fault_hold = True
             now = time.monotonic()
-            self.holds.append({"at": now - self.origin, "reason": reason,
+            # "at": when the servo process held (its report; until then, when decided here)
+            self.holds.append({"at": now - self.origin, "decided": now - self.origin,
+                               "reason": reason,
                                "sent_before": len(self.sent_at),
                                "fault_seen": None if sh.fault_at is None
                                else sh.fault_at - self.origin,
@@ -136,46 +152,106 @@ class ServoLoop:
                 + (f" ({self.serve.signal})" if self.serve.signal else "")
                 + "; nothing published")
             return 0 if self.serve.signal else 1
-        # waypoint 0 `replan_budget_s` after this frame's arrival: the waypoints are phase-locked
-        # to the tracker's frames (one per step), each re-plan has that long before its waypoint
-        sh.t0 = first[1] + self.opts.replan_budget_s
+        # waypoint 0 `budget` after a frame's arrival: the waypoints are phase-locked to the
+        # tracker's frames (one per step), each re-plan has that long before its waypoint
+        if self.opts.replan_budget_s is None:
+            probed = self._probe(first)
+            if probed is None:
+                say("serve: the tracker stopped before the motion started"
+                    + (f" ({self.serve.signal})" if self.serve.signal else "")
+                    + "; nothing published")
+                return 0 if self.serve.signal else 1
+            first, lock, self.budget, self.probes = probed
+        else:
+            lock, self.budget = first[1], self.opts.replan_budget_s
+        sh.t0 = lock + self.budget
+        while sh.t0 < time.monotonic() + 2 * self.period:
+            sh.t0 += self.dt
         sh.t0_wall_ns = time.time_ns() + round((sh.t0 - time.monotonic()) * 1e9)
         self.origin, self.origin_wall_ns = sh.t0, sh.t0_wall_ns
         sh.last_estimate = sh.last_finite = first[1]
         self.replanner = build_replanner(self.serve.planner, self.played, sh, self.ep,
                                          self.serve.measured, self._camera_pose, self.opts,
                                          self.on_plan, self.on_fail, self.on_estimate,
-                                         (first[0], first[1]))
-        self._plan_msg(0, np.asarray(self.serve.planner.plan.q, float), None)
+                                         (first[0], first[1]), self.servo)
+        q = np.asarray(self.serve.planner.plan.q, float)
+        self.servo.send(("curve", self.dt, [self.names[i] for i in self.arm_idx],
+                         [self.names[i] for i in self.jaw_idx], self.arm_idx, self.jaw_idx))
+        self.servo.send(("epoch", sh.epoch, sh.t0, sh.t0_wall_ns, q, 0))
+        self._plan_msg(0, q, None)
         self.replanner.start()
-        code = self._ticks()
-        self._finish()
+        try:
+            code = self._loop()
+        finally:
+            self._finish()
         return code
 
     def _camera_pose(self):
         return self.camera
 
-    def _ticks(self) -> int:
-        sh, self.n = self.shared, 0
+    def _probe(self, first):
+        """--replan-budget auto: re-plans (on copies of the Planner, not played) of the first
+        PROBE_FRAMES tracker frames from the start, the arm at rest there, timed from each frame's
+        arrival. Returns (the last frame, the frames' phase lock [monotonic s], the budget [s], the
+        probes' times [s]), or None when the tracker stops or a signal comes."""
+        import copy
+
+        from ..errors import SurestepError
+        from .estimate import from_message
+
+        planner, frame = self.serve.planner, first
+        took, arrivals = [], [first[1]]
+        for _ in range(PROBE_FRAMES):
+            mean, cov, finite = from_message(frame[0][-1])
+            if finite:
+                try:
+                    sol = copy.copy(planner).replan(mean, cov, step=0)
+                    if sol.success:
+                        took.append(time.monotonic() - frame[1])
+                except SurestepError:
+                    pass
+            frame = self._first_frame()
+            if frame is None or self.serve.signal:
+                return None
+            arrivals.append(frame[1])
+        if took:
+            ranked = sorted(took)
+            budget = (ranked[-2] if len(ranked) >= 3 else ranked[-1]) + BUDGET_MARGIN_S
+            budget = min(max(budget, self.opts.replan_margin_s), BUDGET_MAX_STEPS * self.dt)
+        else:
+            budget = BUDGET_FALLBACK_S
+        # the frames' phase: each arrival's offset from the last one's, modulo a step, median
+        offsets = [(a - frame[1] + self.dt / 2) % self.dt - self.dt / 2 for a in arrivals]
+        lock = frame[1] + float(np.median(offsets))
+        say(f"serve: re-plan budget {budget * 1e3:.1f} ms (auto: {len(took)} re-plans on the "
+            f"tracker's first frames took {', '.join(f'{t * 1e3:.1f}' for t in took)} ms)")
+        return frame, lock, budget, took
+
+    def _loop(self) -> int:
+        """Wakes on the servo process's reports (one per set-point) or every servo period."""
+        sh = self.shared
         while True:
-            delay = sh.t0 + self.n * self.period - time.monotonic()
-            if delay > 0:
-                time.sleep(delay)
+            reports = self.servo.take(self.period)
             now = time.monotonic()
+            for r in reports:
+                self._on_report(r)
             if sh.restart_result is not None:
                 self._apply_restart(now)
-            # a tick found a period late or more is skipped, not sent late
-            self.n = max(self.n, ticks_of(now - sh.t0, self.period))
-            t = self.n * self.period
             self._read(now)
             if self.serve.signal:
                 self.outcome = f"stopped ({self.serve.signal})"
                 return 1 if self.serve.fault_hold else 0
+            if self.servo.gone:
+                code = self.servo.proc.poll()
+                self.outcome = f"stopped: the servo process ended (exit {code})"
+                say(f"serve: {self.outcome}; nothing more is sent")
+                return 1
+            t = now - sh.t0  # the servo clock's time from waypoint 0
             moving = t < self.played.end_time
             if not sh.holding.is_set():
                 self._check(now, moving)
             if not sh.holding.is_set():
-                self._send(t, now)
+                t = self.t_sent
                 self.held_since = self._goal_check(t, now, self.held_since)
                 if self.held_since is not None and now - self.held_since >= self.opts.hold_s:
                     if not self.opts.continuous:
@@ -184,14 +260,29 @@ class ServoLoop:
                         return 0
                     self._at_goal(t, now)
                 else:
-                    k = min(int(t / self.dt), round(self.played.end_time / self.dt))
+                    k = min(int(max(t, 0.0) / self.dt), round(self.played.end_time / self.dt))
                     self.status(f"moving: waypoint {max(k, 0)} of "
                                 f"{round(self.played.end_time / self.dt)}")
             else:
                 self._while_holding(now)
                 if self.restarting is None:
                     self.status(self.hold_status or f"hold: {self.watchdog.reason}")
-            self.n += 1
+            self.servo.beat()
+
+    def _on_report(self, r) -> None:
+        kind = r[0]
+        if kind == "sent":
+            self._on_sent(r)
+        elif kind == "held":
+            _, why, sent = r
+            if self.holds and self.holds[-1]["resumed"] is None:
+                h = self.holds[-1]
+                h["at"] = time.monotonic() - self.origin
+                h["sent_before"] = sent
+            if not self.shared.holding.is_set() and not why.startswith("SIG"):
+                self._hold(why)  # the servo process held on its own (the planner silent)
+        elif kind == "signal":
+            self.serve.signal = self.serve.signal or f"{r[1]} to the servo process"
 
     # -- restarts: resume after a fault, a new goal -----------------------------------------------
     def _at_goal(self, t: float, now: float) -> None:
@@ -302,7 +393,7 @@ class ServoLoop:
         """The restart's plan from waypoint 0 at a later servo tick (the stamps' clock runs on),
         `replan_budget_s` after a tracker frame's arrival (the phase lock) and after now."""
         sh, dt, P = self.shared, self.dt, self.period
-        lock = sh.last_estimate + self.opts.replan_budget_s
+        lock = sh.last_estimate + self.budget
         target = lock + max(0, math.ceil((now + 2 * P - lock) / dt)) * dt
         m_ticks = max(1, math.ceil((target - sh.t0) / P - 1e-9))
         sh.t0 += m_ticks * P
@@ -311,8 +402,9 @@ class ServoLoop:
         self.epoch_at = now
         q = np.asarray(sol.q, float)
         self.played.reset(q)
+        self.servo.send(("epoch", sh.epoch, sh.t0, sh.t0_wall_ns, q, None))
         self.setup = self.replanner.planner.setup
-        self.n = ticks_of(now - sh.t0, P) + 1
+        self.t_sent = -math.inf
         self._first_seen = {0}
         self.held_since, self.at_goal = None, False
         self._plan_msg(0, q, None)
@@ -378,25 +470,26 @@ class ServoLoop:
         if wd.reason:
             self._hold(wd.reason)
 
-    def _send(self, t: float, now: float) -> None:
-        q, v, piece = self.played.sample(t, commit=True)
+    def _on_sent(self, r) -> None:
+        """A set-point the servo process sent: the log, the watchdog, the first set-point of each
+        plan."""
+        _, epoch, _n, t, at, piece, q, dropped = r
+        self.dropped = dropped
+        q = np.asarray(q, float)
         self.last_q = q
-        ns = self.shared.t0_wall_ns + round(t * 1e9)
-        self.ep.servo.write(joint_message(ns, [self.names[i] for i in self.arm_idx],
-                                          q[self.arm_idx], v[self.arm_idx]))
-        if self.jaw_idx:
-            self.ep.jaw_servo.write(joint_message(ns, [self.names[i] for i in self.jaw_idx],
-                                                  q[self.jaw_idx], v[self.jaw_idx]))
-        self.sent_at.append(time.monotonic())
-        self.watchdog.commanded(now, q[self.arm_idx])
+        self.sent_at.append(at)
+        if epoch != self.shared.epoch:
+            return  # the motion before a restart (sent before the new epoch reached it)
+        self.t_sent = t
+        self.watchdog.commanded(at, q[self.arm_idx])
         if self.holds and self.holds[-1]["resumed"] is not None \
                 and self.holds[-1]["first_command"] is None:
-            self.holds[-1]["first_command"] = self.sent_at[-1] - self.origin
+            self.holds[-1]["first_command"] = at - self.origin
         if piece not in self._first_seen:
             self._first_seen.add(piece)
             for g in reversed(self.shared.logs):
                 if g.ok and g.step == piece and g.epoch == self.shared.epoch:
-                    g.first_command = self.sent_at[-1] - self.shared.t0
+                    g.first_command = at - self.shared.t0
                     break
 
     def _goal_check(self, t: float, now: float, held_since):
@@ -433,6 +526,11 @@ class ServoLoop:
 
         sh = self.shared
         sh.stop.set()
+        self.servo.send(("hold", self.outcome))
+        self.serve.close_servo()
+        for r in self.servo.take(0.0):  # the last set-points' reports (no new hold now)
+            if r[0] == "sent":
+                self._on_sent(r)
         self.status(f"stopped: {self.outcome}" if self.outcome.startswith("stopped")
                     else self.outcome, force=True)
         self.replanner.join(timeout=2.0)
@@ -455,5 +553,8 @@ class ServoLoop:
                 "last_estimate": first.get("last_estimate",
                                            self.shared.last_estimate - self.origin),
                 "fault_seen": first.get("fault_seen"),
-                "t0_wall": self.origin_wall_ns * 1e-9}
+                "t0_wall": self.origin_wall_ns * 1e-9, "budget": self.budget,
+                "probes": self.probes,
+                "servo": {"pid": self.servo.proc.pid, "exit": self.serve.servo_code,
+                          "reports_dropped": self.dropped}}
         write_json_atomic(self.opts.log, data)

@@ -1,16 +1,18 @@
-"""`surestep serve`'s node: the DDS endpoints, the servo loop and the fail-safe.
+"""`surestep serve`'s node: the DDS endpoints, the node's loop and the fail-safe.
 
-The main thread is the servo loop: every 1/servo_hz s it reads the arm's (and the ECM's) measured
-joints, checks the faults (faults.Watchdog), and publishes `/ARM/servo_jp` and `/ARM/jaw/servo_jp`
-sampled from the played curve (played.PlayedCurve) at the tick's time, stamped with that time; a
-tick found late by more than a period is skipped, not sent late. The re-planning thread
-(replanner.Replanner) waits for the tracker and adds plans to the curve. On a fault the loop holds:
-no more set-points (the arm keeps its last one), the reason on stderr and on the status topic.
+The node is two processes. The servo process (servo.py, its own DDS participant) publishes
+`/ARM/servo_jp` and `/ARM/jaw/servo_jp` every 1/servo_hz s, sampled from the played curve
+(played.PlayedCurve) at the tick's time and stamped with it; a tick found late by more than a
+period is skipped, not sent late. This one, the planner process, has the other topics: its main
+thread (loop.py) takes the servo process's report of each set-point sent, reads the arm's (and the
+ECM's) measured joints and checks the faults (faults.Watchdog); the re-planning thread
+(replanner.Replanner) waits for the tracker and hands each new plan's piece to the servo process.
+On a fault the node holds: the servo process sends no more set-points (the arm keeps its last
+one), the reason on stderr and on the status topic.
 """
 
 from __future__ import annotations
 
-import math
 import sys
 import time
 from collections import deque
@@ -66,8 +68,6 @@ class Endpoints:
         self.ecm = bus.reader(topics.ecm_measured, m.JointState, depth=5)
         self.tracker = bus.reader(topics.tracker, m.PoseWithCovarianceStamped, depth=10)
         self.goal = bus.reader(topics.goal, m.PoseStamped, depth=5)
-        self.servo = bus.writer(topics.servo, m.JointState)
-        self.jaw_servo = bus.writer(topics.jaw_servo, m.JointState)
         self.plan = bus.writer(topics.plan, m.JointTrajectory)
         self.trace = bus.writer(topics.trace, m.Float64)
         self.planned_trace = bus.writer(topics.planned_trace, m.Float64)
@@ -150,11 +150,6 @@ def plan_message(stamp_ns: int, names, q, v, a, dt: float) -> m.JointTrajectory:
                              joint_names=list(names), points=pts)
 
 
-def ticks_of(t_now: float, period: float) -> int:
-    """The servo tick at (or just before) time t_now since waypoint 0."""
-    return int(math.floor(t_now / period + 1e-9))
-
-
 def make_watchdog(limits: FaultLimits, setup) -> Watchdog:
     """A watchdog over the arm joints (the plan's joints less the jaw): prismatic ones in m."""
     names = list(setup.robot.joint_names)
@@ -164,7 +159,8 @@ def make_watchdog(limits: FaultLimits, setup) -> Watchdog:
 
 
 def build_replanner(planner, played, shared: Shared, ep: Endpoints, measured: Measured,
-                    camera_pose, opts, on_plan, on_fail, on_estimate, first) -> Replanner:
+                    camera_pose, opts, on_plan, on_fail, on_estimate, first,
+                    servo) -> Replanner:
     """The re-planning thread over the node's endpoints."""
     arm_n = len(measured.names)
 
@@ -178,4 +174,4 @@ def build_replanner(planner, played, shared: Shared, ep: Endpoints, measured: Me
 
     return Replanner(planner, played, shared, ep.wait_tracker, measured_at, camera_pose,
                      opts.replan_margin_s, 1.0 / opts.servo_hz, on_plan, on_fail, on_estimate,
-                     opts.faults.estimate_timeout_s, first)
+                     opts.faults.estimate_timeout_s, first, servo)

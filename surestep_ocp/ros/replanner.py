@@ -9,10 +9,12 @@ late (a loaded machine) they aim at the waypoint after; a late one costs a frame
 always costs one. From the
 played curve's state at k, with the estimate moved along the commanded motion from the stamp's
 joints (the arm's measured ones) to k (estimate.moved). It runs on a copy of the Planner (as
-closed_loop does); kept and played from k only if it succeeded and no set-point after k was sent
-(played.PlayedCurve.add), else the
-plan before runs on (a failed one is counted by faults.Watchdog, a late one is not: the plan it
-would have replaced is within the limits all the same).
+closed_loop does); a plan that succeeded is handed to the servo process (servo.py), which plays it
+from k only if no set-point after k was sent yet (played.PlayedCurve.add, decided where the
+set-points are sent), else the plan before runs on (a failed one is counted by faults.Watchdog, a
+late one is not: the plan it would have replaced is within the limits all the same). The trace
+and the confidence of the estimate are published after the hand-over: nothing but the re-plan
+stands between an estimate's arrival and its plan reaching the servo process.
 """
 
 from __future__ import annotations
@@ -36,7 +38,10 @@ LEAD_WINDOW = 10  # re-plans whose times set the lead
 @dataclass
 class ReplanLog:
     """One re-plan: arrival and ready times [s since waypoint 0], its waypoint, its own time [s],
-    and when its first set-point was published (filled in by the servo loop)."""
+    and when its first set-point was published (filled in by the node's loop from the servo
+    process's report). The stages between: `image` the estimate's stamp, `start` the re-plan's
+    start (the estimate decoded and moved to waypoint `step`), `ready` the plan solved,
+    `received` when the servo process had it, `handed` when its answer was back here."""
 
     arrival: float
     ready: float
@@ -46,6 +51,10 @@ class ReplanLog:
     why: str = ""
     first_command: float | None = None
     epoch: int = 0  # the motion it belongs to (a restart begins a new one: loop.py)
+    image: float | None = None
+    start: float | None = None
+    received: float | None = None
+    handed: float | None = None
 
 
 @dataclass
@@ -81,13 +90,14 @@ class Replanner(threading.Thread):
 
     def __init__(self, planner, played, shared: Shared, wait, measured_at, camera_pose,
                  margin_s: float, servo_period: float, on_plan, on_fail, on_estimate,
-                 stale_s: float = 0.5, first=None):
+                 stale_s: float = 0.5, first=None, servo=None):
         super().__init__(name="surestep-replanner", daemon=True)
         self.planner, self.played, self.shared = planner, played, shared
         self.wait, self.measured_at, self.camera_pose = wait, measured_at, camera_pose
         self.margin_s, self.servo_period = margin_s, servo_period
         self.on_plan, self.on_fail, self.on_estimate = on_plan, on_fail, on_estimate
         self.stale_s, self.first = stale_s, first  # first: (samples, arrival) taken already
+        self.servo = servo  # servo.ServoProcess (None: the played curve here is the one played)
         self.recent: deque = deque(maxlen=LEAD_WINDOW)  # the last re-plans' arrival-to-ready [s]
         self.busy = threading.Event()
 
@@ -119,14 +129,13 @@ class Replanner(threading.Thread):
                 sh.finite_since = arrival
             sh.last_finite = arrival
             sh.estimate = (mean, cov)
-            self.on_estimate(mean, cov)
-            if sh.holding.is_set():
-                continue
-            self.busy.set()
-            try:
-                self._replan(msg, mean, cov, arrival - sh.t0)
-            finally:
-                self.busy.clear()
+            if not sh.holding.is_set():
+                self.busy.set()
+                try:
+                    self._replan(msg, mean, cov, arrival - sh.t0)
+                finally:
+                    self.busy.clear()
+            self.on_estimate(mean, cov)  # after the hand-over: not in the latency
 
     def _restart(self) -> None:
         """`Planner.restart` for the servo loop's request; waits until the loop applied it (the
@@ -144,6 +153,20 @@ class Replanner(threading.Thread):
         while not sh.applied.wait(0.05) and not sh.stop.is_set():
             pass
         self.recent.clear()
+
+    def _hand_over(self, k: int, q, start, log: ReplanLog) -> bool:
+        """The plan from waypoint k to the servo process (kept there if no set-point after k was
+        sent), and to the played curve here if kept."""
+        if self.servo is None:
+            return self.played.add(k, q, start)
+        answer = self.servo.add(self.shared.epoch, k, q, start, self.shared.stop)
+        log.handed = time.monotonic() - self.shared.t0
+        if answer is None:  # the servo process is gone (the node's loop says so) or stopping
+            return False
+        log.received = answer[4] - self.shared.t0
+        if answer[2]:
+            self.played.add(k, q, start)  # never refused: nothing is sampled on this copy
+        return bool(answer[2])
 
     def lead(self) -> float:
         """[s] the least time from an estimate's arrival to the waypoint its re-plan starts at."""
@@ -172,19 +195,23 @@ class Replanner(threading.Thread):
             ok, why = bool(sol.success), str(sol.status)
         except SurestepError as exc:
             sol, ok, why = None, False, str(exc)
-        ready = time.monotonic() - self.shared.t0
+        t0 = self.shared.t0
+        ready = time.monotonic() - t0
         took = time.monotonic() - t_start
-        self.recent.append(ready - t_a)
         late = False
+        log = ReplanLog(t_a, ready, k, took, ok, epoch=self.shared.epoch, image=t_s,
+                        start=t_start - t0)
         if ok:
             st = sol.run.start_state
             start = None if st is None else (np.array(st.velocity), np.array(st.acceleration))
-            if not self.played.add(k, sol.q, start):  # a set-point after waypoint k was sent
-                ok, late = False, True
+            if not self._hand_over(k, np.asarray(sol.q, float), start, log):
+                ok, late = False, True  # a set-point after waypoint k was sent
                 why = (f"late: ready {1e3 * (ready - k * dt):+.1f} ms from waypoint {k}, a "
                        "set-point after it sent already")
-        self.shared.logs.append(ReplanLog(t_a, ready, k, took, ok, "" if ok else why,
-                                          epoch=self.shared.epoch))
+        log.ok, log.why = ok, "" if ok else why
+        # the lead: from the arrival to the plan at the servo process
+        self.recent.append((ready if log.received is None else log.received) - t_a)
+        self.shared.logs.append(log)
         if ok:
             self.planner = trial
             self.on_plan(k, sol, start)

@@ -3,12 +3,15 @@
 1. Waits for the arm's measured joints (and the jaw's), plans from them (`Planner`, within the
    limits; the problem's start is replaced by where the arm is, `--start measured`). Nothing is
    published before this first plan exists: a problem that cannot be planned is exit 2.
-2. The servo loop (node.py) plays the plan; each tracker estimate re-plans (replanner.py).
+2. The servo process (servo.py, started first, its own DDS participant) plays the plan; each
+   tracker estimate re-plans (replanner.py) in this, the planner process, whose loop (loop.py)
+   watches the faults and tells the servo process each new plan, each hold and when to stop.
 3. Once the last plan's goal time has passed and the arm has stayed within the tolerance of the
    goal set-point for `hold_s`, one line `serve: ...` on stdout and exit 0 (`--continuous`: it
    keeps holding and serving until stopped).
 A fault holds (stderr, status topic); SIGINT / SIGTERM hold, flush and exit (0, or 1 after a
-fault).
+fault), the servo process stopped and waited for (it also ends, holding, when this process is
+gone).
 """
 
 from __future__ import annotations
@@ -24,8 +27,7 @@ import numpy as np
 from .faults import FaultLimits
 from .node import (Endpoints, Measured, Topics, say)
 
-
-SWITCH_INTERVAL_S = 0.0005
+SERVO_START_S = 30.0  # [s] the servo process's start-up (Python, numpy, Cyclone) at most
 
 
 @dataclass
@@ -41,7 +43,7 @@ class ServeOptions:
     wait_s: float = 30.0
     hold_s: float = 0.5
     replan_margin_s: float = 0.005
-    replan_budget_s: float = 0.02
+    replan_budget_s: float | None = None  # None: auto (loop.ServoLoop._probe)
     joint_names: str | None = None
     faults: FaultLimits = field(default_factory=FaultLimits)
     log: str | None = None
@@ -61,6 +63,7 @@ class Serve:
         self.topics = Topics.of(opts.arm, opts.tracker_topic, opts.namespace)
         self.signal: str | None = None
         self.fault_hold = False
+        self.servo = None  # servo.ServoProcess
 
     # -- before the loop ------------------------------------------------------------------------
     def _on_signal(self, signum, _frame) -> None:
@@ -131,18 +134,38 @@ class Serve:
     def run(self) -> int:
         for s in (signal.SIGINT, signal.SIGTERM):
             signal.signal(s, self._on_signal)
-        # the re-planning thread gives the interpreter back to the servo loop within this (the
-        # default 5 ms would delay a tick by up to a servo period)
-        sys.setswitchinterval(SWITCH_INTERVAL_S)
         from .loop import ServoLoop
 
         try:
-            self.prepare()
-        except Stop:
-            say(f"serve: stopped ({self.signal}) before the first plan; nothing published")
-            return 0
-        self.looping = True
-        return ServoLoop(self).run()
+            try:
+                self.start_servo()  # its start-up alongside the first plan's
+                self.prepare()
+                if not self.servo.wait_ready(SERVO_START_S):
+                    say(f"serve: the servo process did not start within {SERVO_START_S:g} s "
+                        f"(exit {self.servo.proc.poll()}); nothing published")
+                    return 1
+            except Stop:
+                say(f"serve: stopped ({self.signal}) before the first plan; nothing published")
+                return 0
+            self.looping = True
+            return ServoLoop(self).run()
+        finally:
+            self.looping = True  # a signal now: the stop under way
+            self.close_servo()
+
+    def start_servo(self) -> None:
+        from .servo import ServoProcess
+
+        self.servo = ServoProcess({"domain": self.opts.domain, "servo_topic": self.topics.servo,
+                                   "jaw_topic": self.topics.jaw_servo,
+                                   "period": 1.0 / self.opts.servo_hz,
+                                   "parent_timeout_s": self.opts.faults.estimate_timeout_s})
+
+    def close_servo(self) -> None:
+        """The servo process stopped (it holds, flushes its writers and exits) and waited for."""
+        servo, self.servo_code = self.servo, getattr(self, "servo_code", None)
+        if servo is not None and self.servo_code is None:
+            self.servo_code = servo.close()
 
 
 def warm_up(planner) -> None:
@@ -183,9 +206,10 @@ def summary_line(loop) -> str:
         return f"{np.median(a):.1f}/{a.max():.1f}" if len(a) else "-"
 
     err = loop.goal_error()
+    budget = "-" if loop.budget is None else f"{loop.budget * 1e3:.1f}"
     return (f"serve: {loop.outcome}; {len(logs)} re-plans ({len(logs) - len(kept)} not played), "
             f"ready median/worst {stat(ready)} ms, first new set-point {stat(first)} ms after "
-            f"the estimate; servo {rate:.1f} Hz, {len(loop.sent_at)} set-points, longest gap "
+            f"the estimate (budget {budget} ms); servo {rate:.1f} Hz, {len(loop.sent_at)} set-points, longest gap "
             f"{gaps.max():.1f} ms" + (" outside holds" if loop.holds else "")
             + (f"; {len(loop.holds)} fault hold(s), "
                f"{sum(h['resumed'] is not None for h in loop.holds)} resumed" if loop.holds else "")
