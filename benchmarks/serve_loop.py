@@ -14,8 +14,14 @@ set-point of the new motion; the node's `--resume-after` 0.3 s window and the re
 the goal reached after it, and the set-points beyond a limit (each stretch between holds checked
 alone: the hold itself is a stop). Its last line: `serve-loop: key=value ...`.
 
+Where the latency goes (the node's --log, each re-plan played): from the estimate's arrival to the
+re-plan's start (decoded, moved to its waypoint), the re-plan, its hand-over to the servo process
+(received there), the slack until its waypoint (the budget's rest), and from the waypoint's time to
+its set-point written (the servo process's tick). `--load N` runs N busy processes (pure Python
+loops, with the benchmark's CPU affinity and niceness) for the whole run: a loaded core.
+
     OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/serve_loop.py [--episodes 20] [--faults]
-        [--budget 0.02] [--output benchmarks/results/serve_loop.md]
+        [--budget auto|S] [--load N] [--output benchmarks/results/serve_loop.md]
 """
 
 from __future__ import annotations
@@ -53,20 +59,23 @@ def run(tmp: Path, domain: int, serve_args, sim_args, kill_after=None, timeout=2
                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     serve = subprocess.Popen(CLI + ["serve", PROBLEM, "--log", str(tmp / "log.json")] + serve_args,
                              env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    t_end, first = time.time() + timeout, None
+    t_end, first, killed_at = time.time() + timeout, None, None
     while serve.poll() is None and time.time() < t_end:
         rec.poll()
         if first is None and rec.samples["/PSM1/servo_jp"]:
             first = time.time()
         if kill_after is not None and first and time.time() - first > kill_after:
             serve.kill()
+            killed_at = time.time()
             break
         if stop_on_hold and any(b"hold:" in raw for _, raw in rec.samples["/surestep/status"]):
             time.sleep(0.3)
             serve.send_signal(signal.SIGTERM)
             break
         time.sleep(0.005)
+    # serve's stdout and stderr are its servo process's too: they end when both have
     out, err = serve.communicate(timeout=60)
+    ended_ms = None if killed_at is None else (time.time() - killed_at) * 1e3
     time.sleep(0.3)
     rec.poll()
     sim.send_signal(signal.SIGTERM)
@@ -74,6 +83,7 @@ def run(tmp: Path, domain: int, serve_args, sim_args, kill_after=None, timeout=2
     del os.environ["CYCLONEDDS_URI"]
     log = json.loads((tmp / "log.json").read_text()) if (tmp / "log.json").exists() else None
     return {"code": serve.returncode, "out": out, "err": err, "sim_err": sim_err, "log": log,
+            "servo_ended_ms": ended_ms,
             "servo": rec.decoded("/PSM1/servo_jp", "sensor_msgs/msg/JointState"),
             "jaw": rec.decoded("/PSM1/jaw/servo_jp", "sensor_msgs/msg/JointState"),
             "measured": rec.decoded("/PSM1/measured_js", "sensor_msgs/msg/JointState")}
@@ -117,6 +127,24 @@ def beyond_limits(servo, jaw, lim, lower, upper, hold_gap: float = 0.1) -> int:
     return int(bad)
 
 
+def stages(log) -> dict:
+    """[ms] each played re-plan's stages (module docstring), lists."""
+    dt = log["dt"]
+    out = {"arrival_to_start": [], "replan": [], "handover": [], "slack": [], "tick": [],
+           "image_to_arrival": []}
+    for g in log["replans"]:
+        if not g["ok"] or g.get("received") is None or g.get("first_command") is None:
+            continue
+        out["arrival_to_start"].append((g["start"] - g["arrival"]) * 1e3)
+        out["replan"].append((g["ready"] - g["start"]) * 1e3)
+        out["handover"].append((g["received"] - g["ready"]) * 1e3)
+        out["slack"].append((g["step"] * dt - g["received"]) * 1e3)
+        out["tick"].append((g["first_command"] - g["step"] * dt) * 1e3)
+        if g.get("image") is not None:
+            out["image_to_arrival"].append((g["arrival"] - g["image"]) * 1e3)
+    return out
+
+
 def episode_row(r, lim, lower, upper, hz: float) -> dict:
     log = r["log"]
     kept = [g for g in log["replans"] if g["ok"]]
@@ -134,7 +162,9 @@ def episode_row(r, lim, lower, upper, hz: float) -> dict:
             "first_ms": [(g["first_command"] - g["arrival"]) * 1e3 for g in kept
                          if g["first_command"] is not None],
             "replan_ms": [g["replan_s"] * 1e3 for g in log["replans"]],
-            "not_played": len(log["replans"]) - len(kept), "replans": len(log["replans"])}
+            "not_played": len(log["replans"]) - len(kept), "replans": len(log["replans"]),
+            "budget_ms": log["budget"] * 1e3, "stages": stages(log),
+            "servo_exit": log["servo"]["exit"]}
 
 
 def gaps_in_replan(sent, replans, longer) -> int:
@@ -169,7 +199,8 @@ def fault_row(kind: str, r, lim=None, lower=None, upper=None) -> dict:
         said = [ln for ln in r["sim_err"].splitlines() if "servo_jp silent" in ln]
         return {"kind": kind, "hold": said[0].split("sim-robot: ")[1] if said else None,
                 "delay_ms": None, "code": r["code"], "resume_ms": None, "cleared_ms": None,
-                "restart_ms": None, "reached": False, "beyond": None}
+                "restart_ms": None, "reached": False, "beyond": None,
+                "servo_ended_ms": r["servo_ended_ms"]}
     row = {"kind": kind, "hold": hold, "delay_ms": None if delay is None else delay * 1e3,
            "code": r["code"], "resume_ms": None, "cleared_ms": None, "restart_ms": None,
            "reached": r["code"] == 0 and r["out"].startswith("serve: goal reached"),
@@ -188,7 +219,8 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--episodes", type=int, default=20)
     ap.add_argument("--faults", action="store_true")
-    ap.add_argument("--budget", type=float, default=0.02)
+    ap.add_argument("--budget", default="auto")
+    ap.add_argument("--load", type=int, default=0, help="busy processes for the whole run")
     ap.add_argument("--servo-hz", type=float, default=200.0)
     ap.add_argument("--output")
     args = ap.parse_args()
@@ -202,6 +234,18 @@ def main() -> None:
     base = 100 + os.getpid() % 50
     serve_args = ["--replan-budget", str(args.budget), "--servo-hz", str(args.servo_hz)]
     rows, faults = [], []
+    hogs = [subprocess.Popen([sys.executable, "-c", "while True: pass"])
+            for _ in range(args.load)]
+    try:
+        _runs(args, base, serve_args, rows, faults, lim, lower, upper)
+    finally:
+        for h in hogs:
+            h.kill()
+            h.wait()
+    report(rows, faults, args)
+
+
+def _runs(args, base, serve_args, rows, faults, lim, lower, upper) -> None:
     for i in range(args.episodes):
         with tempfile.TemporaryDirectory() as tmp:
             r = run(Path(tmp), base + i % 50, serve_args, ["--seed", str(i)])
@@ -209,8 +253,8 @@ def main() -> None:
         e = rows[-1]
         print(f"episode {i}: reached {e['reached']}, beyond {e['beyond']}, rate "
               f"{e['rate_stamps']:.1f}/{e['rate_sent']:.1f} Hz, gaps>2T {e['gaps_over_2']}, "
-              f"first {np.median(e['first_ms']):.1f} ms, not played {e['not_played']}",
-              flush=True)
+              f"first {np.median(e['first_ms']):.1f} ms (budget {e['budget_ms']:.1f}), "
+              f"not played {e['not_played']}", flush=True)
     if args.faults:
         # each fault clears after D s: hold, then resume, then the goal
         silent = ["--fault", "tracker-silent@0.6+0.5"]
@@ -223,7 +267,6 @@ def main() -> None:
                         stop_on_hold=kill is not None)
             faults.append(fault_row(kind, r, lim, lower, upper))
             print(f"fault {kind}: {faults[-1]}", flush=True)
-    report(rows, faults, args)
 
 
 def report(rows, faults, args) -> None:
@@ -249,11 +292,22 @@ def report(rows, faults, args) -> None:
         "ready_median_ms": round(float(np.median(ready)), 1),
         "ready_worst_ms": round(float(ready.max()), 1),
         "replan_median_ms": round(float(np.median(rp)), 1) if len(rp) else None,
+        "first_cmd_p90_ms": round(float(np.percentile(first, 90)), 1),
         "replans": sum(r["replans"] for r in rows),
-        "not_played": sum(r["not_played"] for r in rows), "budget_s": args.budget}
+        "not_played": sum(r["not_played"] for r in rows), "budget": args.budget,
+        "budget_ms_median": round(float(np.median([r["budget_ms"] for r in rows])), 1)
+        if rows else None,
+        "budget_ms_range": (f"{min(r['budget_ms'] for r in rows):.1f}-"
+                            f"{max(r['budget_ms'] for r in rows):.1f}") if rows else None,
+        "servo_exit_nonzero": sum(r["servo_exit"] != 0 for r in rows), "load": args.load}
+    for k in ("image_to_arrival", "arrival_to_start", "replan", "handover", "slack", "tick"):
+        a = np.concatenate([np.asarray(r["stages"][k], float) for r in rows] or [[]])
+        summary[f"{k}_ms_median"] = round(float(np.median(a)), 2) if len(a) else None
+        summary[f"{k}_ms_p90"] = round(float(np.percentile(a, 90)), 2) if len(a) else None
     lines = [f"# serve loop over loopback DDS\n\n`OPENBLAS_NUM_THREADS=1 .venv/bin/python "
              f"benchmarks/serve_loop.py --episodes {args.episodes}"
-             f"{' --faults' if args.faults else ''} --budget {args.budget}`\n",
+             f"{' --faults' if args.faults else ''} --budget {args.budget}"
+             f"{f' --load {args.load}' if args.load else ''}`\n",
              "| key | value |", "|---|---|"] + [f"| {k} | {v} |" for k, v in summary.items()]
     if faults:
         def ms(x):

@@ -7,14 +7,17 @@ The estimate is of the tool when the image was taken (its stamp); the re-plan st
 waypoint k. The tool's motion between is the kinematics' (its pose at the joints at the stamp to
 its pose at the joints at k, in the camera frame), so the camera registration the planner makes
 from the moved estimate at k is the one the stamp's estimate and joints give.
+
+Both run between an estimate's arrival and its re-plan, so they are plain NumPy on unit
+quaternions (x, y, z, w): tens of microseconds, against some hundreds through scipy's Rotation.
 """
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from scipy.spatial.transform import Rotation
-
-from ..model.lie import pose_to_matrix
 
 
 def from_message(msg) -> tuple[np.ndarray, np.ndarray, bool]:
@@ -27,7 +30,7 @@ def from_message(msg) -> tuple[np.ndarray, np.ndarray, bool]:
                   and np.all(np.isfinite(pos)) and np.linalg.norm(quat) > 1e-6)
     if not finite:
         return np.full(6, np.nan), cov, False
-    return np.hstack([pos, Rotation.from_quat(quat).as_rotvec()]), cov, True
+    return np.hstack([pos, _rotvec(quat)]), cov, True
 
 
 def goal_from_message(msg) -> np.ndarray | None:
@@ -49,6 +52,50 @@ def quaternion(rotvec) -> np.ndarray:
 def moved(mean, pose_then, pose_at_k) -> np.ndarray:
     """The estimate `mean` (tool at `pose_then`, the kinematics' pose at the image's time) moved to
     the kinematics' `pose_at_k`: T_mean inv(T_then) T_k, as `[p, axis-angle]`."""
-    T = pose_to_matrix(np.asarray(mean, float)) @ np.linalg.solve(
-        pose_to_matrix(np.asarray(pose_then, float)), pose_to_matrix(np.asarray(pose_at_k, float)))
-    return np.hstack([T[:3, 3], Rotation.from_matrix(T[:3, :3]).as_rotvec()])
+    mean, then, at_k = (np.asarray(x, float).tolist() for x in (mean, pose_then, pose_at_k))
+    rel = _qmul(_quat(mean[3:]), _qconj(_quat(then[3:])))  # R_mean R_then^T
+    d = _rotate(rel, [at_k[i] - then[i] for i in range(3)])
+    return np.array([mean[0] + d[0], mean[1] + d[1], mean[2] + d[2],
+                     *_rotvec(_qmul(rel, _quat(at_k[3:])))])
+
+
+# unit quaternions (x, y, z, w) as tuples of floats: a few of these cost microseconds
+def _quat(rotvec) -> tuple:
+    """Of an axis-angle rotation."""
+    x, y, z = (float(c) for c in rotvec)
+    angle = math.sqrt(x * x + y * y + z * z)
+    f = 0.5 if angle < 1e-12 else math.sin(0.5 * angle) / angle
+    return (f * x, f * y, f * z, math.cos(0.5 * angle))
+
+
+def _rotvec(q) -> tuple:
+    """Axis-angle (angle in [0, pi]) of a quaternion, not necessarily unit."""
+    x, y, z, w = (float(c) for c in q)
+    if w < 0:
+        x, y, z, w = -x, -y, -z, -w
+    n = math.sqrt(x * x + y * y + z * z + w * w)
+    x, y, z, w = x / n, y / n, z / n, w / n
+    s = math.sqrt(x * x + y * y + z * z)
+    f = 2.0 if s < 1e-12 else 2.0 * math.atan2(s, w) / s
+    return (f * x, f * y, f * z)
+
+
+def _qmul(a, b) -> tuple:
+    """The product a b: the rotation b, then a."""
+    ax, ay, az, aw = a
+    bx, by, bz, bw = b
+    return (aw * bx + bw * ax + ay * bz - az * by, aw * by + bw * ay + az * bx - ax * bz,
+            aw * bz + bw * az + ax * by - ay * bx, aw * bw - ax * bx - ay * by - az * bz)
+
+
+def _qconj(q) -> tuple:
+    return (-q[0], -q[1], -q[2], q[3])
+
+
+def _rotate(q, v) -> tuple:
+    """The vector v rotated by the unit quaternion q."""
+    x, y, z, w = q
+    vx, vy, vz = v
+    tx, ty, tz = 2 * (y * vz - z * vy), 2 * (z * vx - x * vz), 2 * (x * vy - y * vx)
+    return (vx + w * tx + y * tz - z * ty, vy + w * ty + z * tx - x * tz,
+            vz + w * tz + x * ty - y * tx)

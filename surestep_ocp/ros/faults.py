@@ -61,9 +61,9 @@ class Watchdog:
         if not self._commands:
             return False
         m = np.asarray(measured, float)
-        err = [np.max(np.abs(m - q) / self._tol) for _, q in self._commands]
+        err = np.max(np.abs(np.array([q for _, q in self._commands]) - m) / self._tol, axis=1)
         worst = int(np.argmax(np.abs(m - self._commands[-1][1]) / self._tol))
-        if min(err) > 1.0:
+        if err.min() > 1.0:
             off = m[worst] - self._commands[-1][1][worst]
             return self.trip(f"measured joints left the commanded curve (joint {worst} off by "
                              f"{off:+.4g}, tolerance {self._tol[worst]:g})", now)

@@ -32,6 +32,10 @@ PROBE_FRAMES = 5
 BUDGET_MARGIN_S = 0.0015
 BUDGET_MAX_STEPS = 0.8
 BUDGET_FALLBACK_S = 0.02  # no probe re-plan succeeded
+# the node's loop: every MONITOR_PERIOD_S (the servo process's reports, the arm's joints, the
+# faults), deferred while a re-plan runs (the interpreter is the re-plan's), by at most DEFER_S
+MONITOR_PERIOD_S = 0.01
+DEFER_S = 0.02
 
 
 class ServoLoop:
@@ -190,24 +194,36 @@ class ServoLoop:
         return self.camera
 
     def _probe(self, first):
-        """--replan-budget auto: re-plans (on copies of the Planner, not played) of the first
-        PROBE_FRAMES tracker frames from the start, the arm at rest there, timed from each frame's
-        arrival. Returns (the last frame, the frames' phase lock [monotonic s], the budget [s], the
-        probes' times [s]), or None when the tracker stops or a signal comes."""
+        """--replan-budget auto: the first PROBE_FRAMES tracker frames' re-plans as the loop makes
+        them (not played; the arm at rest at the start): each on a copy of the Planner prepared
+        for waypoint 1 between frames (`Planner.prepare`, the real-time iteration), the estimate
+        moved along the first plan to waypoint 1, timed from the frame's arrival. Returns (the
+        last frame, the frames' phase lock [monotonic s], the budget [s], the probes' times [s]),
+        or None when the tracker stops or a signal comes."""
         import copy
 
         from ..errors import SurestepError
-        from .estimate import from_message
+        from .estimate import from_message, moved
 
         planner, frame = self.serve.planner, first
         took, arrivals = [], [first[1]]
+        setup = planner.setup
+        q = np.asarray(planner.plan.q, float)
+        here, there = setup.pose_of(q[0]), setup.pose_of(q[1])
+        trial = None
         for _ in range(PROBE_FRAMES):
             mean, cov, finite = from_message(frame[0][-1])
-            if finite:
+            if finite and trial is not None:
                 try:
-                    sol = copy.copy(planner).replan(mean, cov, step=0)
+                    sol = trial.replan(moved(mean, here, there), cov, step=1)
                     if sol.success:
                         took.append(time.monotonic() - frame[1])
+                except SurestepError:
+                    pass
+            trial = copy.copy(planner)
+            if hasattr(trial, "prepare"):
+                try:
+                    trial.prepare(1)
                 except SurestepError:
                     pass
             frame = self._first_frame()
@@ -228,10 +244,15 @@ class ServoLoop:
         return frame, lock, budget, took
 
     def _loop(self) -> int:
-        """Wakes on the servo process's reports (one per set-point) or every servo period."""
+        """Every MONITOR_PERIOD_S (deferred while a re-plan runs, up to DEFER_S): the servo
+        process's reports (one per set-point), the topics, the faults, the goal, restarts."""
         sh = self.shared
+        next_at = time.monotonic()
         while True:
-            reports = self.servo.take(self.period)
+            next_at = max(next_at + MONITOR_PERIOD_S, time.monotonic())
+            self.servo.wait_gone(next_at - time.monotonic())
+            self.replanner.idle.wait(DEFER_S)
+            reports = self.servo.take(0.0)
             now = time.monotonic()
             for r in reports:
                 self._on_report(r)

@@ -13,6 +13,7 @@ one), the reason on stderr and on the status topic.
 
 from __future__ import annotations
 
+import bisect
 import sys
 import time
 from collections import deque
@@ -124,12 +125,15 @@ class Measured:
         hist = list(self.history)
         if not hist:
             return None
-        ts = np.array([(h[0] - t0_wall_ns) * 1e-9 for h in hist])
-        i = int(np.searchsorted(ts, t))
+
+        def ts(j: int) -> float:
+            return (hist[j][0] - t0_wall_ns) * 1e-9
+
+        i = bisect.bisect_left(hist, t0_wall_ns + t * 1e9, key=lambda h: h[0])
         if i == 0 or i == len(hist):
             j = min(i, len(hist) - 1)
-            return hist[j][1] if abs(ts[j] - t) <= 0.05 else None
-        w = (t - ts[i - 1]) / max(ts[i] - ts[i - 1], 1e-9)
+            return hist[j][1] if abs(ts(j) - t) <= 0.05 else None
+        w = (t - ts(i - 1)) / max(ts(i) - ts(i - 1), 1e-9)
         return (1 - w) * hist[i - 1][1] + w * hist[i][1]
 
 

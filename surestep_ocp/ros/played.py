@@ -26,6 +26,7 @@ class PlayedCurve:
         self._lock = threading.Lock()
         self._pieces = [(0, np.array(q, float), start)]
         self._sampled = -np.inf  # the latest time `sample` was asked for with `commit`
+        self.version = 0  # counts the changes (add, reset): what was sampled before is stale
 
     def add(self, step: int, q, start) -> bool:
         """A plan from waypoint `step` (it replaces any piece starting there or later); False
@@ -38,6 +39,7 @@ class PlayedCurve:
             if self._sampled > piece[0] * self.dt + 1e-9:
                 return False
             self._pieces = [p for p in self._pieces if p[0] < piece[0]] + [piece]
+            self.version += 1
             return True
 
     def reset(self, q) -> None:
@@ -46,6 +48,7 @@ class PlayedCurve:
         with self._lock:
             self._pieces = [(0, np.array(q, float), None)]
             self._sampled = -np.inf
+            self.version += 1
 
     def pieces(self) -> list:
         with self._lock:

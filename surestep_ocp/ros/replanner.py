@@ -55,6 +55,12 @@ class ReplanLog:
     start: float | None = None
     received: float | None = None
     handed: float | None = None
+    # the Planner's real-time iteration: "feedback" or "full: <why>", its feedback phase's time
+    # [s] (from the call until the joints were known), prepared between frames or in the call
+    rti: str | None = None
+    feedback_s: float | None = None
+    prepared_ahead: bool | None = None
+    prepare_s: float | None = None  # the preparation for the next frame, after this one [s]
 
 
 @dataclass
@@ -99,7 +105,11 @@ class Replanner(threading.Thread):
         self.stale_s, self.first = stale_s, first  # first: (samples, arrival) taken already
         self.servo = servo  # servo.ServoProcess (None: the played curve here is the one played)
         self.recent: deque = deque(maxlen=LEAD_WINDOW)  # the last re-plans' arrival-to-ready [s]
-        self.busy = threading.Event()
+        self._ahead = None  # (epoch, played version, k, joints, pose) made ahead for waypoint k
+        self._lead = None  # lead() until the next re-plan
+        self.busy = threading.Event()  # a re-plan runs (from the frame's decoding to its hand-over)
+        self.idle = threading.Event()  # the opposite: the node's loop waits for it (a while)
+        self.idle.set()
 
     def run(self) -> None:
         sh = self.shared
@@ -129,13 +139,47 @@ class Replanner(threading.Thread):
                 sh.finite_since = arrival
             sh.last_finite = arrival
             sh.estimate = (mean, cov)
+            k = None
             if not sh.holding.is_set():
                 self.busy.set()
+                self.idle.clear()
                 try:
-                    self._replan(msg, mean, cov, arrival - sh.t0)
+                    k = self._replan(msg, mean, cov, arrival - sh.t0)
                 finally:
                     self.busy.clear()
+                    self.idle.set()
             self.on_estimate(mean, cov)  # after the hand-over: not in the latency
+            if k is not None and not sh.holding.is_set():
+                self._prepare(k + 1)
+
+    def _prepare(self, k: int) -> None:
+        """The real-time iteration's preparation (`Planner.prepare`) of the next frame's re-plan,
+        at waypoint k (the one after this frame's: the frames are a step apart), between frames:
+        that re-plan is then its feedback phase alone. A frame that aims elsewhere (a frame
+        missed, a late lead) prepares within its re-plan (the Planner's own fall-back)."""
+        pl = self.planner
+        if not pl.step <= k < pl.horizon:
+            return
+        # what that re-plan needs before its estimate: its waypoint's joints and pose, the lead
+        q_k = self.played.sample(k * self.played.dt)[0]
+        self._ahead = (self.shared.epoch, self.played.version, k, q_k, pl.setup.pose_of(q_k))
+        self._lead = None
+        if not hasattr(pl, "prepare"):
+            return
+        try:
+            took = pl.prepare(k)
+        except SurestepError:
+            return
+        if self.shared.logs:
+            self.shared.logs[-1].prepare_s = took
+
+    def _at(self, k: int, setup) -> tuple:
+        """(joints, pose) of the played curve at waypoint k (made ahead by `_prepare`)."""
+        ahead = self._ahead
+        if ahead is not None and ahead[:3] == (self.shared.epoch, self.played.version, k):
+            return ahead[3], ahead[4]
+        q_k = self.played.sample(k * self.played.dt)[0]
+        return q_k, setup.pose_of(q_k)
 
     def _restart(self) -> None:
         """`Planner.restart` for the servo loop's request; waits until the loop applied it (the
@@ -153,6 +197,7 @@ class Replanner(threading.Thread):
         while not sh.applied.wait(0.05) and not sh.stop.is_set():
             pass
         self.recent.clear()
+        self._lead = self._ahead = None
 
     def _hand_over(self, k: int, q, start, log: ReplanLog) -> bool:
         """The plan from waypoint k to the servo process (kept there if no set-point after k was
@@ -170,24 +215,26 @@ class Replanner(threading.Thread):
 
     def lead(self) -> float:
         """[s] the least time from an estimate's arrival to the waypoint its re-plan starts at."""
-        if len(self.recent) < LEAD_WINDOW // 2:
-            return self.margin_s
-        return max(self.margin_s, float(np.median(self.recent)) - 0.5 * self.servo_period)
+        if self._lead is None:
+            self._lead = (self.margin_s if len(self.recent) < LEAD_WINDOW // 2 else
+                          max(self.margin_s,
+                              float(np.median(self.recent)) - 0.5 * self.servo_period))
+        return self._lead
 
-    def _replan(self, msg, mean, cov, t_a: float) -> None:
+    def _replan(self, msg, mean, cov, t_a: float) -> int | None:
+        """The re-plan of one estimate; its waypoint, or None when none was tried."""
         pl, dt = self.planner, self.played.dt
         k = max(int(math.ceil((t_a + self.lead()) / dt - 1e-9)), pl.step)
         if k >= pl.horizon:
-            return  # the last step to the goal: played as planned
+            return None  # the last step to the goal: played as planned
         stamp = msg.header.stamp
         t_s = (int(stamp.sec) * 10**9 + int(stamp.nanosec) - self.shared.t0_wall_ns) * 1e-9
         if t_s < -dt or t_a - t_s > self.stale_s:
-            return  # an image from before the motion started, or older than the fault limit
+            return None  # an image from before the motion started, or older than the fault limit
         q_cmd_s = self.played.sample(min(max(t_s, 0.0), t_a))[0]
         q_s = self.measured_at(t_s, q_cmd_s)
-        q_k = self.played.sample(k * dt)[0]
         setup = pl.setup
-        mean_k = moved(mean, setup.pose_of(q_s), setup.pose_of(q_k))
+        mean_k = moved(mean, setup.pose_of(q_s), self._at(k, setup)[1])
         trial = copy.copy(pl)
         t_start = time.monotonic()
         try:
@@ -201,6 +248,10 @@ class Replanner(threading.Thread):
         late = False
         log = ReplanLog(t_a, ready, k, took, ok, epoch=self.shared.epoch, image=t_s,
                         start=t_start - t0)
+        record = getattr(sol, "replan", None)
+        if record is not None:
+            log.rti, log.feedback_s = record.rti, record.feedback_s
+            log.prepared_ahead = record.prepared_ahead
         if ok:
             st = sol.run.start_state
             start = None if st is None else (np.array(st.velocity), np.array(st.acceleration))
@@ -211,9 +262,11 @@ class Replanner(threading.Thread):
         log.ok, log.why = ok, "" if ok else why
         # the lead: from the arrival to the plan at the servo process
         self.recent.append((ready if log.received is None else log.received) - t_a)
+        self._lead = None
         self.shared.logs.append(log)
         if ok:
             self.planner = trial
             self.on_plan(k, sol, start)
         else:
             self.on_fail(why, late)
+        return k

@@ -374,6 +374,13 @@ class ServoProcess:
             self._reports.clear()
         return out
 
+    def wait_gone(self, timeout_s: float) -> bool:
+        """Sleeps `timeout_s` unless the servo process ends meanwhile; True if it has."""
+        with self._cond:
+            if not self.gone and timeout_s > 0:
+                self._cond.wait_for(lambda: self.gone, timeout_s)
+            return self.gone
+
     def wait_ready(self, timeout_s: float) -> bool:
         end = time.monotonic() + timeout_s
         with self._cond:
