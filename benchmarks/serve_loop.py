@@ -234,6 +234,8 @@ def main() -> None:
     base = 100 + os.getpid() % 50
     serve_args = ["--replan-budget", str(args.budget), "--servo-hz", str(args.servo_hz)]
     rows, faults = [], []
+    args.loadavg_start = os.getloadavg()
+    args.affinity = sorted(os.sched_getaffinity(0))
     hogs = [subprocess.Popen([sys.executable, "-c", "while True: pass"])
             for _ in range(args.load)]
     try:
@@ -242,6 +244,7 @@ def main() -> None:
         for h in hogs:
             h.kill()
             h.wait()
+    args.loadavg_end = os.getloadavg()
     report(rows, faults, args)
 
 
@@ -299,7 +302,9 @@ def report(rows, faults, args) -> None:
         if rows else None,
         "budget_ms_range": (f"{min(r['budget_ms'] for r in rows):.1f}-"
                             f"{max(r['budget_ms'] for r in rows):.1f}") if rows else None,
-        "servo_exit_nonzero": sum(r["servo_exit"] != 0 for r in rows), "load": args.load}
+        "servo_exit_nonzero": sum(r["servo_exit"] != 0 for r in rows), "load": args.load,
+        "cpus": ",".join(map(str, args.affinity)),
+        "loadavg_1min_start_end": f"{args.loadavg_start[0]:.2f}/{args.loadavg_end[0]:.2f}"}
     for k in ("image_to_arrival", "arrival_to_start", "replan", "handover", "slack", "tick"):
         a = np.concatenate([np.asarray(r["stages"][k], float) for r in rows] or [[]])
         summary[f"{k}_ms_median"] = round(float(np.median(a)), 2) if len(a) else None

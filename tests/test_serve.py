@@ -143,6 +143,7 @@ def test_bad_input_exits_2_naming_the_option(tmp_path, capsys, monkeypatch):
              (["serve", PROBLEM, "--resume-after", "-1"], "--resume-after"),
              (["serve", PROBLEM, "--replan-budget", "soon"], "--replan-budget"),
              (["serve", PROBLEM, "--replan-budget", "0"], "--replan-budget"),
+             (["serve", PROBLEM, "--servo-priority", "100"], "--servo-priority"),
              (["sim-robot", PROBLEM, "--fault", "melt@1"], "--fault"),
              (["serve", str(ROOT / "problems" / "needle_regrasp_paper_pace.yaml")],
               "cannot be served")]

@@ -92,7 +92,7 @@ def test_ticks_pieces_hold_and_a_new_epoch():
     assert d.until("added")[2] is False
     d.ctl.send(("hold", "test"))
     held = d.until("held")
-    assert held[1] == "test"
+    assert held[1] == "test" and held[3] <= time.monotonic()
     count = len(d.pub.sent)
     assert held[2] == count  # nothing sent after the hold
     time.sleep(0.05)
@@ -135,9 +135,9 @@ from surestep_ocp.ros.servo import ServoProcess
 
 servo = ServoProcess({"domain": int(sys.argv[1]), "servo_topic": "/PSM1/servo_jp",
                       "jaw_topic": "/PSM1/jaw/servo_jp", "period": 0.005,
-                      "parent_timeout_s": 5.0})
+                      "parent_timeout_s": 5.0, "priority": int(sys.argv[2])})
 assert servo.wait_ready(60)
-print(json.dumps({"servo_pid": servo.pid}), flush=True)
+print(json.dumps({"servo_pid": servo.pid, "priority_error": servo.priority_error}), flush=True)
 names = ["yaw", "pitch", "insertion", "roll", "wrist_pitch", "wrist_yaw"]
 servo.send(("curve", 0.05, names, ["jaw"], list(range(6)), [6]))
 q = np.linspace(0, 0.1, 41)[:, None] * np.ones(7)
@@ -173,11 +173,17 @@ def test_the_servo_process_over_dds(tmp_path):
     try:
         rec = Recorder(domain, {"/PSM1/servo_jp": m.JointState,
                                 "/PSM1/jaw/servo_jp": m.JointState})
-        # SIGTERM to the servo process: it holds, says so; its planner stops it; exit 0
-        p = subprocess.Popen([sys.executable, "-c", PLANNER, str(domain)], env=env,
+        # SIGTERM to the servo process: it holds, says so; its planner stops it; exit 0. Under
+        # the real-time scheduler (--servo-priority) where this machine permits it
+        p = subprocess.Popen([sys.executable, "-c", PLANNER, str(domain), "10"], env=env,
                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         lines = _lines(p)
-        servo_pid = next(lines)["servo_pid"]
+        ready = next(lines)
+        servo_pid = ready["servo_pid"]
+        if ready["priority_error"] is None:
+            assert os.sched_getscheduler(servo_pid) == os.SCHED_FIFO
+        else:
+            assert "SCHED_FIFO not permitted" in ready["priority_error"]
         while len(rec.samples["/PSM1/servo_jp"]) < 50:
             rec.poll()
             time.sleep(0.01)
@@ -198,9 +204,10 @@ def test_the_servo_process_over_dds(tmp_path):
         ticks = (t - t[0]) / 0.005
         assert np.abs(ticks - np.round(ticks)).max() < 1e-3
         # its planner killed: it ends by itself (the pipe closed), no orphan
-        p = subprocess.Popen([sys.executable, "-c", PLANNER, str(domain)], env=env,
+        p = subprocess.Popen([sys.executable, "-c", PLANNER, str(domain), "0"], env=env,
                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         servo_pid = next(_lines(p))["servo_pid"]
+        assert os.sched_getscheduler(servo_pid) == os.SCHED_OTHER
         while len(rec.samples["/PSM1/servo_jp"]) < n + 20:
             rec.poll()
             time.sleep(0.01)

@@ -36,6 +36,11 @@ def register(sub) -> None:
                                      "the tracker's rate and streams servo_jp (docs/serve.md)")
     _common(s)
     s.add_argument("--servo-hz", type=float, default=200.0, help="servo_jp rate (default 200)")
+    s.add_argument("--servo-priority", type=int, default=0, metavar="N",
+                   help="run the servo process (the servo_jp stream) under the real-time "
+                        "scheduler, SCHED_FIFO priority N in 1..99 (Linux; needs CAP_SYS_NICE or "
+                        "an rtprio limit, else said and run as usual); 0: the normal scheduler "
+                        "(default)")
     s.add_argument("--namespace", default=DEFAULT_NAMESPACE,
                    help="the node's own topics: plan, trace, planned_trace, confidence, status "
                         "(default /surestep)")
@@ -62,9 +67,9 @@ def register(sub) -> None:
                         "waypoints are phase-locked to the frames): a re-plan's time to be played "
                         "at once; auto (the default): the re-plans' time measured on the "
                         "tracker's first frames, before the motion starts (docs/serve.md)")
-    s.add_argument("--replan-margin", type=float, default=0.005,
+    s.add_argument("--replan-margin", type=float, default=0.002,
                    help="[s] a re-plan starts at the first waypoint at least this long after the "
-                        "estimate's arrival (default 0.005)")
+                        "estimate's arrival (default 0.002)")
     s.add_argument("--no-resume", action="store_true",
                    help="a fault hold lasts until the node is stopped (default: resume once its "
                         "cause has cleared, docs/serve.md)")
@@ -154,6 +159,9 @@ def cmd_serve(args) -> int:
                  (args.resume_after, "--resume-after"),
                  (args.wait, "--wait")):
         _positive(v, o)
+    if not 0 <= args.servo_priority <= 99:
+        raise SurestepError(f"--servo-priority: {args.servo_priority} must be 0 (the normal "
+                            "scheduler) or a SCHED_FIFO priority in 1..99")
     if args.max_replan_failures < 1:
         raise SurestepError(f"--max-replan-failures: {args.max_replan_failures} must be at "
                             "least 1")
@@ -168,7 +176,7 @@ def cmd_serve(args) -> int:
     opts = ServeOptions(args.problem, arm, tracker, namespace, args.servo_hz, domain,
                         args.continuous, args.start, args.wait, args.hold, args.replan_margin,
                         budget, args.joint_names, faults, args.log,
-                        not args.no_resume, args.resume_after)
+                        not args.no_resume, args.resume_after, args.servo_priority)
     code = Serve(opts, prob, naming).run()
     sys.stdout.flush()
     return code

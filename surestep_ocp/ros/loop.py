@@ -25,10 +25,13 @@ from .replanner import Shared
 
 REST_FRACTION = 0.1  # at rest: each joint's spread over the window, in its tolerances
 RETRY_S = 1.0  # a failed resume is tried again after this
-# --replan-budget auto: re-plans timed on this many tracker frames before the motion starts (not
-# played), the budget their second longest time from the frame's arrival plus BUDGET_MARGIN_S (the
-# hand-over to the servo process and its tick), within [--replan-margin, BUDGET_MAX_STEPS steps]
-PROBE_FRAMES = 5
+# --replan-budget auto: re-plans timed on the tracker's frames before the motion starts (not
+# played: PROBES of them, each prepared on the frame before), the budget the longest time from the
+# frame's arrival of those that were real-time iterations (their feedback phase: the loop's
+# re-plans; a full re-plan is mostly late there), else the second longest of all, plus
+# BUDGET_MARGIN_S (the hand-over to the servo process and its tick), within [--replan-margin,
+# BUDGET_MAX_STEPS steps]
+PROBES = 5
 BUDGET_MARGIN_S = 0.0015
 BUDGET_MAX_STEPS = 0.8
 BUDGET_FALLBACK_S = 0.02  # no probe re-plan succeeded
@@ -194,30 +197,32 @@ class ServoLoop:
         return self.camera
 
     def _probe(self, first):
-        """--replan-budget auto: the first PROBE_FRAMES tracker frames' re-plans as the loop makes
-        them (not played; the arm at rest at the start): each on a copy of the Planner prepared
-        for waypoint 1 between frames (`Planner.prepare`, the real-time iteration), the estimate
-        moved along the first plan to waypoint 1, timed from the frame's arrival. Returns (the
-        last frame, the frames' phase lock [monotonic s], the budget [s], the probes' times [s]),
-        or None when the tracker stops or a signal comes."""
+        """--replan-budget auto: the re-plans of the tracker's first frames as the loop makes them
+        (PROBES of them, not played; the arm at rest at the start): each on a copy of the Planner
+        prepared for waypoint 1 on the frame before (`Planner.prepare`, the real-time iteration),
+        the estimate moved along the first plan to waypoint 1, timed from the frame's arrival.
+        Returns (the last frame, the frames' phase lock [monotonic s], the budget [s], the
+        probes' times [s]), or None when the tracker stops or a signal comes."""
         import copy
 
         from ..errors import SurestepError
         from .estimate import from_message, moved
 
         planner, frame = self.serve.planner, first
-        took, arrivals = [], [first[1]]
+        took, feedback, arrivals = [], [], [first[1]]
         setup = planner.setup
         q = np.asarray(planner.plan.q, float)
         here, there = setup.pose_of(q[0]), setup.pose_of(q[1])
         trial = None
-        for _ in range(PROBE_FRAMES):
+        for _ in range(PROBES + 1):
             mean, cov, finite = from_message(frame[0][-1])
             if finite and trial is not None:
                 try:
                     sol = trial.replan(moved(mean, here, there), cov, step=1)
                     if sol.success:
                         took.append(time.monotonic() - frame[1])
+                        if getattr(sol.replan, "rti", None) == "feedback":
+                            feedback.append(took[-1])
                 except SurestepError:
                     pass
             trial = copy.copy(planner)
@@ -232,7 +237,8 @@ class ServoLoop:
             arrivals.append(frame[1])
         if took:
             ranked = sorted(took)
-            budget = (ranked[-2] if len(ranked) >= 3 else ranked[-1]) + BUDGET_MARGIN_S
+            budget = (max(feedback) if feedback else
+                      ranked[-2] if len(ranked) >= 3 else ranked[-1]) + BUDGET_MARGIN_S
             budget = min(max(budget, self.opts.replan_margin_s), BUDGET_MAX_STEPS * self.dt)
         else:
             budget = BUDGET_FALLBACK_S
@@ -240,16 +246,22 @@ class ServoLoop:
         offsets = [(a - frame[1] + self.dt / 2) % self.dt - self.dt / 2 for a in arrivals]
         lock = frame[1] + float(np.median(offsets))
         say(f"serve: re-plan budget {budget * 1e3:.1f} ms (auto: {len(took)} re-plans on the "
-            f"tracker's first frames took {', '.join(f'{t * 1e3:.1f}' for t in took)} ms)")
+            f"tracker's first frames took {', '.join(f'{t * 1e3:.1f}' for t in took)} ms, "
+            f"{len(feedback)} of them real-time iterations)")
         return frame, lock, budget, took
 
     def _loop(self) -> int:
         """Every MONITOR_PERIOD_S (deferred while a re-plan runs, up to DEFER_S): the servo
         process's reports (one per set-point), the topics, the faults, the goal, restarts."""
         sh = self.shared
-        next_at = time.monotonic()
+        next_at, lim = time.monotonic(), self.opts.faults.estimate_timeout_s
         while True:
             next_at = max(next_at + MONITOR_PERIOD_S, time.monotonic())
+            if not sh.holding.is_set():  # a silence's limit passing: looked at then
+                due = min(max(sh.last_estimate, self.epoch_at),
+                          max(self.serve.measured.arrived, sh.t0)) + lim + 1e-4
+                if time.monotonic() < due < next_at:
+                    next_at = due
             self.servo.wait_gone(next_at - time.monotonic())
             self.replanner.idle.wait(DEFER_S)
             reports = self.servo.take(0.0)
@@ -295,13 +307,15 @@ class ServoLoop:
         if kind == "sent":
             self._on_sent(r)
         elif kind == "held":
-            _, why, sent = r
+            _, why, sent, at = r
+            if not self.shared.holding.is_set() and not why.startswith("SIG"):
+                # the servo process held on its own (the planner silent), or for a NaN estimate
+                self.watchdog.trip(why, time.monotonic())
+                self._hold(self.watchdog.reason)
             if self.holds and self.holds[-1]["resumed"] is None:
                 h = self.holds[-1]
-                h["at"] = time.monotonic() - self.origin
+                h["at"] = at - self.origin  # when the stream stopped
                 h["sent_before"] = sent
-            if not self.shared.holding.is_set() and not why.startswith("SIG"):
-                self._hold(why)  # the servo process held on its own (the planner silent)
         elif kind == "signal":
             self.serve.signal = self.serve.signal or f"{r[1]} to the servo process"
 

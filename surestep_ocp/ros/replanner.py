@@ -134,6 +134,9 @@ class Replanner(threading.Thread):
                 sh.finite_since = None
                 if sh.fault is None:
                     sh.fault, sh.fault_at = "tracker estimate not finite", arrival
+                    if self.servo is not None and not sh.holding.is_set():
+                        # held at once; the node's loop records the hold (its next look)
+                        self.servo.send(("hold", sh.fault))
                 continue
             if sh.finite_since is None or gap > self.stale_s:
                 sh.finite_since = arrival

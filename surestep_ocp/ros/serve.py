@@ -42,13 +42,14 @@ class ServeOptions:
     start: str = "measured"
     wait_s: float = 30.0
     hold_s: float = 0.5
-    replan_margin_s: float = 0.005
+    replan_margin_s: float = 0.002
     replan_budget_s: float | None = None  # None: auto (loop.ServoLoop._probe)
     joint_names: str | None = None
     faults: FaultLimits = field(default_factory=FaultLimits)
     log: str | None = None
     resume: bool = True
     resume_after_s: float = 0.3
+    servo_priority: int = 0  # SCHED_FIFO priority of the servo process (0: the normal scheduler)
 
 
 class Stop(BaseException):
@@ -144,6 +145,10 @@ class Serve:
                     say(f"serve: the servo process did not start within {SERVO_START_S:g} s "
                         f"(exit {self.servo.proc.poll()}); nothing published")
                     return 1
+                if self.servo.priority_error:
+                    say(f"serve: --servo-priority {self.opts.servo_priority}: "
+                        f"{self.servo.priority_error}: the servo process runs on the normal "
+                        "scheduler")
             except Stop:
                 say(f"serve: stopped ({self.signal}) before the first plan; nothing published")
                 return 0
@@ -159,7 +164,8 @@ class Serve:
         self.servo = ServoProcess({"domain": self.opts.domain, "servo_topic": self.topics.servo,
                                    "jaw_topic": self.topics.jaw_servo,
                                    "period": 1.0 / self.opts.servo_hz,
-                                   "parent_timeout_s": self.opts.faults.estimate_timeout_s})
+                                   "parent_timeout_s": self.opts.faults.estimate_timeout_s,
+                                   "priority": self.opts.servo_priority})
 
     def close_servo(self) -> None:
         """The servo process stopped (it holds, flushes its writers and exits) and waited for."""

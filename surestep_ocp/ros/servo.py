@@ -24,11 +24,15 @@ another, written non-blocking, each in one write of at most PIPE_BUF bytes (atom
 planner process does not read, they queue here (set-point reports past a bound are dropped, and
 counted), so the stream never waits for the planner process.
 
+Under `--servo-priority N` it runs under the real-time scheduler (SCHED_FIFO, priority N): it sleeps
+between ticks, so it takes its core only for each tick's few hundred microseconds.
+
 Commands: ("curve", dt, arm names, jaw names, arm indices, jaw indices), ("epoch", epoch, t0
 [monotonic s], t0 [ns since the epoch], joints, first tick or None), ("piece", id, epoch, k,
-joints, start), ("hold", reason), ("beat",), ("stop",). Reports: ("ready", pid), ("sent", epoch,
-n, t, sent [monotonic s], piece, joints, dropped), ("added", id, kept, sampled up to [s],
-received [monotonic s]), ("held", why, set-points sent), ("signal", name), ("stopped", sent).
+joints, start), ("hold", reason), ("beat",), ("stop",). Reports: ("ready", pid, why not
+real-time or None), ("sent", epoch, n, t, sent [monotonic s], piece, joints, dropped), ("added",
+id, kept, sampled up to [s], received [monotonic s]), ("held", why, set-points sent, held
+[monotonic s]), ("signal", name), ("stopped", sent).
 Each tick's set-point is made (sampled, serialized) just before the tick and only written at it.
 """
 
@@ -177,7 +181,7 @@ class Stream:
     def hold(self, why: str) -> None:
         if not self.holding:
             self.holding = True
-            self.report(("held", why, self.sent))
+            self.report(("held", why, self.sent, time.monotonic()))
 
     # -- the loop ---------------------------------------------------------------------------------
     def run(self) -> str:
@@ -268,6 +272,17 @@ def warm_up(publisher) -> None:
     publisher.arm_names = publisher.jaw_names = publisher.arm_idx = publisher.jaw_idx = None
 
 
+def real_time(priority: int) -> str | None:
+    """This process under SCHED_FIFO at `priority` (1..99; 0: nothing done); why not, or None."""
+    if not priority:
+        return None
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+    except (OSError, AttributeError) as exc:
+        return f"SCHED_FIFO not permitted ({exc.strerror if isinstance(exc, OSError) else exc})"
+    return None
+
+
 def main(argv=None) -> int:
     signal.signal(signal.SIGINT, _on_signal)
     signal.signal(signal.SIGTERM, _on_signal)
@@ -288,7 +303,7 @@ def main(argv=None) -> int:
     stream = Stream(ctl, rep_fd, config["period"], config["parent_timeout_s"],
                     Publisher(bus, config["servo_topic"], config["jaw_topic"]))
     warm_up(stream.publisher)
-    stream.report(("ready", os.getpid()))
+    stream.report(("ready", os.getpid(), real_time(config.get("priority", 0))))
     why = stream.run()
     stream.holding = True
     if why == "gone":
@@ -330,6 +345,7 @@ class ServoProcess:
         self._answers: dict = {}
         self._ids = 0
         self.pid: int | None = None
+        self.priority_error: str | None = None  # why the real-time scheduler was not had
         self.gone = False  # its report pipe closed: it ended
         self.last_sent = time.monotonic()  # the last command sent (the heartbeat's clock)
         self.send(("config", config))
@@ -350,7 +366,7 @@ class ServoProcess:
                 if msg[0] == "added":
                     self._answers[msg[1]] = msg
                 elif msg[0] == "ready":
-                    self.pid = msg[1]
+                    self.pid, self.priority_error = msg[1], msg[2]
                 else:
                     self._reports.append(msg)
                 self._cond.notify_all()
