@@ -21,7 +21,7 @@ its set-point written (the servo process's tick). `--load N` runs N busy process
 loops, with the benchmark's CPU affinity and niceness) for the whole run: a loaded core.
 
     OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/serve_loop.py [--episodes 20] [--faults]
-        [--budget auto|S] [--load N] [--output benchmarks/results/serve_loop.md]
+        [--budget auto|S] [--load N] [--servo-priority N] [--output FILE.md]
 """
 
 from __future__ import annotations
@@ -221,6 +221,8 @@ def main() -> None:
     ap.add_argument("--faults", action="store_true")
     ap.add_argument("--budget", default="auto")
     ap.add_argument("--load", type=int, default=0, help="busy processes for the whole run")
+    ap.add_argument("--servo-priority", type=int, default=0,
+                    help="serve --servo-priority (SCHED_FIFO for the servo process; 0: off)")
     ap.add_argument("--servo-hz", type=float, default=200.0)
     ap.add_argument("--output")
     args = ap.parse_args()
@@ -232,7 +234,8 @@ def main() -> None:
     lim = problem_limits(setup)
     lower, upper = joint_bounds(setup.robot, lim.rcm_min_distance)
     base = 100 + os.getpid() % 50
-    serve_args = ["--replan-budget", str(args.budget), "--servo-hz", str(args.servo_hz)]
+    serve_args = ["--replan-budget", str(args.budget), "--servo-hz", str(args.servo_hz),
+                  "--servo-priority", str(args.servo_priority)]
     rows, faults = [], []
     args.loadavg_start = os.getloadavg()
     args.affinity = sorted(os.sched_getaffinity(0))
@@ -303,6 +306,7 @@ def report(rows, faults, args) -> None:
         "budget_ms_range": (f"{min(r['budget_ms'] for r in rows):.1f}-"
                             f"{max(r['budget_ms'] for r in rows):.1f}") if rows else None,
         "servo_exit_nonzero": sum(r["servo_exit"] != 0 for r in rows), "load": args.load,
+        "servo_priority": args.servo_priority,
         "cpus": ",".join(map(str, args.affinity)),
         "loadavg_1min_start_end": f"{args.loadavg_start[0]:.2f}/{args.loadavg_end[0]:.2f}"}
     for k in ("image_to_arrival", "arrival_to_start", "replan", "handover", "slack", "tick"):
@@ -312,7 +316,8 @@ def report(rows, faults, args) -> None:
     lines = [f"# serve loop over loopback DDS\n\n`OPENBLAS_NUM_THREADS=1 .venv/bin/python "
              f"benchmarks/serve_loop.py --episodes {args.episodes}"
              f"{' --faults' if args.faults else ''} --budget {args.budget}"
-             f"{f' --load {args.load}' if args.load else ''}`\n",
+             f"{f' --load {args.load}' if args.load else ''}"
+             f"{f' --servo-priority {args.servo_priority}' if args.servo_priority else ''}`\n",
              "| key | value |", "|---|---|"] + [f"| {k} | {v} |" for k, v in summary.items()]
     if faults:
         def ms(x):
