@@ -160,27 +160,33 @@ class ServoLoop:
                 + "; nothing published")
             return 0 if self.serve.signal else 1
         # waypoint 0 `budget` after a frame's arrival: the waypoints are phase-locked to the
-        # tracker's frames (one per step), each re-plan has that long before its waypoint
+        # tracker's frames (one per step), each re-plan has that long before its waypoint (the
+        # last frame's re-plan is made first: `_register`; t0 after it)
         if self.opts.replan_budget_s is None:
             probed = self._probe(first)
             if probed is None:
-                say("serve: the tracker stopped before the motion started"
-                    + (f" ({self.serve.signal})" if self.serve.signal else "")
-                    + "; nothing published")
+                say("serve: " + (f"stopped ({self.serve.signal})" if self.serve.signal else
+                                 "the tracker stopped")
+                    + " before the motion started; nothing published")
                 return 0 if self.serve.signal else 1
             first, lock, self.budget, self.probes = probed
         else:
             lock, self.budget = first[1], self.opts.replan_budget_s
+        sh.last_estimate = sh.last_finite = first[1]
+        left = self._register(first)
         sh.t0 = lock + self.budget
         while sh.t0 < time.monotonic() + 2 * self.period:
             sh.t0 += self.dt
         sh.t0_wall_ns = time.time_ns() + round((sh.t0 - time.monotonic()) * 1e9)
         self.origin, self.origin_wall_ns = sh.t0, sh.t0_wall_ns
-        sh.last_estimate = sh.last_finite = first[1]
+        if left is None:  # the next frame's re-plan prepared (its waypoint: the lock's)
+            k = max(math.ceil((first[1] + self.dt - sh.t0 + self.opts.replan_margin_s) / self.dt
+                              - 1e-9), 0)
+            self._prepare(k)
         self.replanner = build_replanner(self.serve.planner, self.played, sh, self.ep,
                                          self.serve.measured, self._camera_pose, self.opts,
                                          self.on_plan, self.on_fail, self.on_estimate,
-                                         (first[0], first[1]), self.servo)
+                                         left, self.servo)
         q = np.asarray(self.serve.planner.plan.q, float)
         self.servo.send(("curve", self.dt, [self.names[i] for i in self.arm_idx],
                          [self.names[i] for i in self.jaw_idx], self.arm_idx, self.jaw_idx))
@@ -196,13 +202,54 @@ class ServoLoop:
     def _camera_pose(self):
         return self.camera
 
+    def _prepare(self, k: int) -> None:
+        planner = self.serve.planner
+        if hasattr(planner, "prepare") and planner.step <= k < planner.horizon:
+            from ..errors import SurestepError
+
+            try:
+                planner.prepare(k)
+            except SurestepError:
+                pass
+
+    def _register(self, frame):
+        """The frame's estimate re-planned from waypoint 0 before the motion starts (the arm at
+        rest there, so the estimate needs no moving): the first re-plan, which registers the
+        camera to the tracker, is mostly a full one (tens of ms), late in the loop's race and
+        then the re-plans after it too (their preparations on the unregistered plan). Returns
+        the frame when the loop is to take it (an estimate not finite: its fault), else None."""
+        from ..errors import SurestepError
+        from .estimate import from_message
+
+        mean, cov, finite = from_message(frame[0][-1])
+        if not finite:
+            return frame
+        sh, planner, t = self.shared, self.serve.planner, time.monotonic()
+        sh.estimates += len(frame[0])
+        sh.finite_since, sh.estimate = frame[1], (mean, cov)
+        try:
+            sol = planner.replan(mean, cov, step=0)  # a success becomes its plan
+            why = "" if sol.success else f" (not played: {sol.status})"
+        except SurestepError as exc:
+            sol, why = None, f" (not played: {exc})"
+        if sol is not None and sol.success:
+            self.played.reset(np.asarray(planner.plan.q, float))
+            self.ep.planned_trace.write(m.Float64(float(sol.trace_final)))
+        self.on_estimate(mean, cov)
+        say(f"serve: the first estimate re-planned from waypoint 0 before the motion starts "
+            f"(the camera registered to the tracker) in {(time.monotonic() - t) * 1e3:.1f} ms"
+            + why)
+        return None
+
     def _probe(self, first):
-        """--replan-budget auto: the re-plans of the tracker's first frames as the loop makes them
-        (PROBES of them, not played; the arm at rest at the start): each on a copy of the Planner
-        prepared for waypoint 1 on the frame before (`Planner.prepare`, the real-time iteration),
-        the estimate moved along the first plan to waypoint 1, timed from the frame's arrival.
-        Returns (the last frame, the frames' phase lock [monotonic s], the budget [s], the
-        probes' times [s]), or None when the tracker stops or a signal comes."""
+        """--replan-budget auto: the tracker's first frames re-planned as the loop re-plans them
+        (not played; the arm at rest at the start): on one copy of the Planner, each frame's
+        estimate moved along that copy's plan to the next waypoint (1, 2, ...) and re-planned
+        there, the next one prepared between frames (`Planner.prepare`, the real-time iteration).
+        The first frame's re-plan registers the camera (a full one, as the loop's first); the
+        next PROBES are timed from their frame's arrival. Returns (the last frame, the frames'
+        phase lock [monotonic s], the budget [s], the probes' times [s]), or None when the tracker
+        stops or a signal comes."""
         import copy
 
         from ..errors import SurestepError
@@ -210,25 +257,20 @@ class ServoLoop:
 
         planner, frame = self.serve.planner, first
         took, feedback, arrivals = [], [], [first[1]]
-        setup = planner.setup
-        q = np.asarray(planner.plan.q, float)
-        here, there = setup.pose_of(q[0]), setup.pose_of(q[1])
-        trial = None
-        for _ in range(PROBES + 1):
+        trial = copy.copy(planner)
+        here = trial.setup.pose_of(np.asarray(planner.plan.q[0], float))
+        for step in range(1, PROBES + 2):
             mean, cov, finite = from_message(frame[0][-1])
-            if finite and trial is not None:
+            if finite and step < trial.horizon:
                 try:
-                    sol = trial.replan(moved(mean, here, there), cov, step=1)
-                    if sol.success:
+                    there = trial.setup.pose_of(trial.executed_state(step)[0])
+                    sol = trial.replan(moved(mean, here, there), cov, step=step)
+                    if sol.success and step > 1:
                         took.append(time.monotonic() - frame[1])
                         if getattr(sol.replan, "rti", None) == "feedback":
                             feedback.append(took[-1])
-                except SurestepError:
-                    pass
-            trial = copy.copy(planner)
-            if hasattr(trial, "prepare"):
-                try:
-                    trial.prepare(1)
+                    if hasattr(trial, "prepare") and step + 1 < trial.horizon:
+                        trial.prepare(step + 1)
                 except SurestepError:
                     pass
             frame = self._first_frame()
