@@ -116,3 +116,117 @@ def test_check_command(ocp, tmp_path, capsys):
     assert main(["check", str(tmp_path / "not.json")]) == 2
     err = capsys.readouterr().err
     assert len(err.strip().splitlines()) == 1 and "not.json" in err and "Traceback" not in err
+
+
+# What makes the certificate cheap (docs/certificate.md, "What it costs") changes none of its
+# measures: the compiled Function against the interpreted one and central differences, the
+# non-diagonal EKF against the textbook one, the multipliers' NNLS against a bounded least squares
+# over all of them, the tool rows' gradients against differences of their values.
+
+
+def test_the_compiled_certificate_is_the_interpreted_ones_and_the_differences(default_setup, ocp):
+    from surestep_ocp.solvers import certificate as cm
+    from surestep_ocp.solvers.codegen import available
+
+    # a structure of its own (smoothness is in its key): interpreted first, compiled at the second
+    setup = default_setup.with_ocp(smoothness=default_setup.ocp.smoothness + 1e-3)
+    holder = cm._function(setup, [0.0])
+    assert holder.uses == 0
+    sol = _moved(ocp, 7, 1, 2e-3)
+    first = certify(setup, sol)
+    assert not holder.compiled
+    second = certify(setup, sol)
+    if available() and holder.note is None:
+        assert holder.compiled
+    fd = certify(setup, sol, fd_step=1e-6)
+    for c in (first, second):
+        assert abs(c.stationarity - fd.stationarity) <= 1e-7 + 1e-5 * fd.stationarity
+        assert c.level == fd.level == FEASIBLE
+    for name in ("terminal_position_m", "terminal_angle_rad", "stationarity", "trace",
+                 "trace_error", "complementarity"):
+        a, b = getattr(first, name), getattr(second, name)
+        assert abs(a - b) <= 1e-12 * max(abs(a), 1e-12), name
+
+
+@pytest.mark.parametrize("family", ["correlated", "joint-space"])
+def test_a_non_diagonal_models_trace_is_the_textbook_ekfs(default_setup, ocp, family):
+    """The Joseph-form 6x6 pass (not the six scalar filters) against tests/numpy_ekf.py, the
+    joint-space term by its central-difference Jacobian; stationarity against differences."""
+    noise = default_setup.ocp.noise
+    if family == "correlated":
+        V = np.diag([1e-2, 1e-2, 1e-1, 5e-3, 5e-3, 5e-3])
+        V[0, 2] = V[2, 0] = 2e-2
+        noise = replace(noise, V_d0=V)
+    else:
+        noise = replace(noise, joint_sigma=(0.05, 0.05, 0.02, 0.05, 0.05, 0.05, 0.0))
+    setup = default_setup.with_ocp(noise=noise)
+    sol = _moved(ocp, 7, 1, 2e-3)
+    c = certify(setup, sol)
+    q = np.asarray(sol.q, float)
+    extra = None
+    if family == "joint-space":
+        extra = [ref.joint_motion_noise(setup.robot, setup.T_cam_base, q[t], q[t + 1],
+                                        noise.joint_sigma) for t in range(len(q) - 1)]
+    sig, pred = ref.propagate(setup.poses_of(q), setup.ocp.noise, setup.ocp.intrinsics,
+                              setup.model.components, guard=noise.cosine_guard ** 2,
+                              extra_W=extra)
+    last = pred[-1] if setup.model.noise.objective == "predicted" else sig[-1]
+    assert ref.rel_err(c.trace, np.trace(last)) < (1e-9 if extra is None else 1e-8)
+    fd = certify(setup, sol, fd_step=1e-6)
+    assert abs(c.stationarity - fd.stationarity) <= 1e-7 + 1e-5 * fd.stationarity
+
+
+def test_the_multipliers_are_the_bounded_least_squares_over_all_of_them():
+    """`_multipliers` (NNLS on what the terminal rows' span leaves, over the touched rows) against
+    scipy's BVLS over (lam free, nu >= 0) at once: the same residual (unique) and minimum, with
+    duplicated and rank-deficient columns."""
+    from scipy.optimize import lsq_linear
+
+    from surestep_ocp.solvers.certificate import _multipliers
+
+    rng = np.random.default_rng(3)
+    for trial in range(20):
+        n, k, m, start = 60, 6, 25, 54
+        B_E = rng.normal(size=(k, 7))
+        if trial % 3 == 0:
+            B_E[:, 6] = B_E[:, 5]  # rank-deficient terminal rows
+        B_A = rng.normal(size=(n, m)) * (rng.random((n, m)) < 0.1)
+        B_A[:, 1] = B_A[:, 0]  # a duplicated active row
+        B_A[start:, 2] = rng.normal(size=k)  # one acting on the last node
+        g = rng.normal(size=n)
+        lam, nu, r = _multipliers(g, B_A, B_E, start)
+        full = np.hstack([np.vstack([np.zeros((start, 7)), B_E]), B_A])
+        assert np.all(nu >= 0)
+        np.testing.assert_allclose(r, g + full @ np.concatenate([lam, nu]), atol=1e-12)
+        lb = np.concatenate([np.full(7, -np.inf), np.zeros(m)])
+        x = lsq_linear(full, -g, bounds=(lb, np.inf), method="bvls", tol=1e-14).x
+        np.testing.assert_allclose(r, g + full @ x, atol=1e-9)
+
+
+def test_the_tool_rows_gradients_are_their_differences(default_setup, ocp):
+    """Within enforced limits at a pace the plan breaks (many rows active): the tool rows'
+    gradients (assembled over all points at once) against central differences of their values,
+    and the certificate's stationarity against differences of the NumPy EKF."""
+    from surestep_ocp.problem.spec import LimitsSpec
+    from surestep_ocp.solvers.certificate import _Rows
+
+    setup = default_setup.with_ocp(limits=LimitsSpec(enforce=True),
+                                   timing=replace(default_setup.ocp.timing, step_s=0.05))
+    sol = _moved(ocp, 7, 1, 0.0)
+    c = certify(setup, sol)
+    assert c.level == INFEASIBLE and c.limit_violation > 0 and c.active_rows > 10
+    fd = certify(setup, sol, fd_step=1e-6)
+    assert abs(c.stationarity - fd.stationarity) <= 1e-7 + 1e-5 * fd.stationarity
+    rows = _Rows(setup)
+    q = np.asarray(sol.q, float)
+    lin, tool, Jz = rows.values(q, False, [0.0])
+    np.testing.assert_allclose(lin, rows.A @ q.ravel() + rows.a, atol=1e-12)
+    G = rows.tool_gradients(np.arange(len(tool)), Jz)
+    h, D = 1e-6, np.zeros_like(G)
+    for i in range(q.size):
+        e = np.zeros(q.size)
+        e[i] = h
+        up = rows.values(q + e.reshape(q.shape), False, [0.0])[1]
+        down = rows.values(q - e.reshape(q.shape), False, [0.0])[1]
+        D[:, i] = (up - down) / (2 * h)
+    np.testing.assert_allclose(G, D, atol=1e-5 * max(1.0, np.abs(D).max()))
