@@ -48,11 +48,12 @@ ACCEPTABLE = 1e-3  # IPOPT's acceptable_tol where the problem stops at that leve
 TRACE_RTOL = 1e-6  # two EKF passes in double precision agree far better
 ACTIVE = 1e-4  # an inequality row within this of its bound (its own units) is active
 S_MAX = 100.0  # IPOPT's s_max of the dual scale
-# the certificates of one structure in a process before its Function is compiled (or loaded from
-# the compile cache): a one-off plan (`surestep solve`) stays interpreted (a compile takes about
-# 1 s, a cached load about 20 ms, one interpreted evaluation 0.5-1.5 ms); a process that plans the
-# structure again (compare, evaluate, a benchmark, a re-planning loop) evaluates it compiled
-COMPILE_AFTER = 2
+# the certificate of one structure in a process at which its Function is compiled (or loaded from
+# the compile cache): `surestep solve` (its plan and the baseline it is compared with: two) stays
+# interpreted (a compile takes about 1 s, a cached load about 20 ms, one interpreted evaluation
+# 0.5-1.5 ms); a process that plans the structure again (compare, evaluate, a benchmark, a
+# re-planning loop) evaluates it compiled from its third certificate on
+COMPILE_AFTER = 3
 _OFF_DIAGONAL = ~np.eye(NX, dtype=bool)
 
 
