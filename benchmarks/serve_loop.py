@@ -299,6 +299,8 @@ def report(rows, faults, args) -> None:
         "ready_worst_ms": round(float(ready.max()), 1),
         "replan_median_ms": round(float(np.median(rp)), 1) if len(rp) else None,
         "first_cmd_p90_ms": round(float(np.percentile(first, 90)), 1),
+        # played from a waypoint a step later than its frame's (the lead rule, or a late frame)
+        "first_cmd_over_25ms": int(np.sum(first > 25.0)),
         "replans": sum(r["replans"] for r in rows),
         "not_played": sum(r["not_played"] for r in rows), "budget": args.budget,
         "budget_ms_median": round(float(np.median([r["budget_ms"] for r in rows])), 1)

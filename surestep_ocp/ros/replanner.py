@@ -219,9 +219,10 @@ class Replanner(threading.Thread):
     def lead(self) -> float:
         """[s] the least time from an estimate's arrival to the waypoint its re-plan starts at."""
         if self._lead is None:
+            # (the hand-over included: `recent` is from the arrival to the servo process's
+            # receipt; a waypoint aimed past costs a step, 50 ms, of latency)
             self._lead = (self.margin_s if len(self.recent) < LEAD_WINDOW // 2 else
-                          max(self.margin_s,
-                              float(np.median(self.recent)) - 0.5 * self.servo_period))
+                          max(self.margin_s, float(np.median(self.recent))))
         return self._lead
 
     def _replan(self, msg, mean, cov, t_a: float) -> int | None:
