@@ -18,7 +18,9 @@ Where the latency goes (the node's --log, each re-plan played): from the estimat
 re-plan's start (decoded, moved to its waypoint), the re-plan, its hand-over to the servo process
 (received there), the slack until its waypoint (the budget's rest), and from the waypoint's time to
 its set-point written (the servo process's tick). `--load N` runs N busy processes (pure Python
-loops, with the benchmark's CPU affinity and niceness) for the whole run: a loaded core.
+loops, with the benchmark's CPU affinity and niceness; `--load-duty D`: each spins D of every 20 ms)
+in each run from the node's first plan built (its auto budget measured under the load) to the
+run's end: a loaded core.
 
     OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/serve_loop.py [--episodes 20] [--faults]
         [--budget auto|S] [--load N] [--servo-priority N] [--output FILE.md]
@@ -33,6 +35,7 @@ import signal
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
 
@@ -43,12 +46,24 @@ sys.path.insert(0, str(ROOT / "tests"))
 from serve_dds import Recorder, loopback_env  # noqa: E402
 
 PROBLEM = str(ROOT / "problems" / "needle_regrasp.yaml")
+# a busy process: spins `duty` of every 20 ms (its CPU affinity and niceness the benchmark's)
+HOG = """
+import sys, time
+duty, t = float(sys.argv[1]), time.monotonic()
+while True:
+    t += 0.02
+    while time.monotonic() < t - 0.02 * (1 - duty):
+        pass
+    time.sleep(max(0.0, t - time.monotonic()))
+"""
 CLI = [sys.executable, "-m", "surestep_ocp.cli"]
 
 
 def run(tmp: Path, domain: int, serve_args, sim_args, kill_after=None, timeout=240.0,
-        stop_on_hold=True):
-    """One node + simulated robot run; the recorder's servo_jp samples decoded, the node's log."""
+        stop_on_hold=True, load=(0, 1.0)):
+    """One node + simulated robot run; the recorder's servo_jp samples decoded, the node's log.
+    `load`: (N, duty) busy processes from the node's first plan built (it says it waits for the
+    tracker: the build, 20-40 s of CPU, is not the loop's) to the run's end."""
     from surestep_ocp.ros import messages as m
 
     env = loopback_env(tmp, domain)
@@ -59,28 +74,45 @@ def run(tmp: Path, domain: int, serve_args, sim_args, kill_after=None, timeout=2
                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     serve = subprocess.Popen(CLI + ["serve", PROBLEM, "--log", str(tmp / "log.json")] + serve_args,
                              env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    t_end, first, killed_at = time.time() + timeout, None, None
-    while serve.poll() is None and time.time() < t_end:
+    err_lines: list = []
+    reader = threading.Thread(target=lambda: err_lines.extend(serve.stderr), daemon=True)
+    reader.start()
+    t_end, first, killed_at, hogs = time.time() + timeout, None, None, []
+    try:
+        while serve.poll() is None and time.time() < t_end:
+            if load[0] and not hogs and any("waiting for the tracker" in ln for ln in err_lines):
+                hogs = [subprocess.Popen([sys.executable, "-c", HOG, str(load[1])])
+                        for _ in range(load[0])]
+            rec.poll()
+            if first is None and rec.samples["/PSM1/servo_jp"]:
+                first = time.time()
+            if kill_after is not None and first and time.time() - first > kill_after:
+                serve.kill()
+                killed_at = time.time()
+                break
+            if stop_on_hold and any(b"hold:" in raw
+                                    for _, raw in rec.samples["/surestep/status"]):
+                time.sleep(0.3)
+                serve.send_signal(signal.SIGTERM)
+                break
+            time.sleep(0.005)
+        # serve's stdout and stderr are its servo process's too: they end when both have
+        out = serve.stdout.read()
+        reader.join(60)
+        serve.wait(60)
+        err = "".join(err_lines)
+        ended_ms = None if killed_at is None else (time.time() - killed_at) * 1e3
+        time.sleep(0.3)
         rec.poll()
-        if first is None and rec.samples["/PSM1/servo_jp"]:
-            first = time.time()
-        if kill_after is not None and first and time.time() - first > kill_after:
-            serve.kill()
-            killed_at = time.time()
-            break
-        if stop_on_hold and any(b"hold:" in raw for _, raw in rec.samples["/surestep/status"]):
-            time.sleep(0.3)
-            serve.send_signal(signal.SIGTERM)
-            break
-        time.sleep(0.005)
-    # serve's stdout and stderr are its servo process's too: they end when both have
-    out, err = serve.communicate(timeout=60)
-    ended_ms = None if killed_at is None else (time.time() - killed_at) * 1e3
-    time.sleep(0.3)
-    rec.poll()
-    sim.send_signal(signal.SIGTERM)
-    sim_out, sim_err = sim.communicate(timeout=30)
-    del os.environ["CYCLONEDDS_URI"]
+    finally:  # (interrupted: neither left running)
+        for h in hogs:
+            h.kill()
+            h.wait()
+        for p in (serve, sim):
+            if p.poll() is None:
+                p.send_signal(signal.SIGTERM)
+        sim_out, sim_err = sim.communicate(timeout=30)
+        del os.environ["CYCLONEDDS_URI"]
     log = json.loads((tmp / "log.json").read_text()) if (tmp / "log.json").exists() else None
     return {"code": serve.returncode, "out": out, "err": err, "sim_err": sim_err, "log": log,
             "servo_ended_ms": ended_ms,
@@ -221,6 +253,8 @@ def main() -> None:
     ap.add_argument("--faults", action="store_true")
     ap.add_argument("--budget", default="auto")
     ap.add_argument("--load", type=int, default=0, help="busy processes for the whole run")
+    ap.add_argument("--load-duty", type=float, default=1.0,
+                    help="each busy process's share of every 20 ms it spins (default 1: always)")
     ap.add_argument("--servo-priority", type=int, default=0,
                     help="serve --servo-priority (SCHED_FIFO for the servo process; 0: off)")
     ap.add_argument("--servo-hz", type=float, default=200.0)
@@ -239,14 +273,7 @@ def main() -> None:
     rows, faults = [], []
     args.loadavg_start = os.getloadavg()
     args.affinity = sorted(os.sched_getaffinity(0))
-    hogs = [subprocess.Popen([sys.executable, "-c", "while True: pass"])
-            for _ in range(args.load)]
-    try:
-        _runs(args, base, serve_args, rows, faults, lim, lower, upper)
-    finally:
-        for h in hogs:
-            h.kill()
-            h.wait()
+    _runs(args, base, serve_args, rows, faults, lim, lower, upper)
     args.loadavg_end = os.getloadavg()
     report(rows, faults, args)
 
@@ -254,7 +281,8 @@ def main() -> None:
 def _runs(args, base, serve_args, rows, faults, lim, lower, upper) -> None:
     for i in range(args.episodes):
         with tempfile.TemporaryDirectory() as tmp:
-            r = run(Path(tmp), base + i % 50, serve_args, ["--seed", str(i)])
+            r = run(Path(tmp), base + i % 50, serve_args, ["--seed", str(i)],
+                    load=(args.load, args.load_duty))
         rows.append(episode_row(r, lim, lower, upper, args.servo_hz))
         e = rows[-1]
         print(f"episode {i}: reached {e['reached']}, beyond {e['beyond']}, rate "
@@ -270,7 +298,7 @@ def _runs(args, base, serve_args, rows, faults, lim, lower, upper) -> None:
         for j, (kind, sa, sim_a, kill) in enumerate(specs):
             with tempfile.TemporaryDirectory() as tmp:
                 r = run(Path(tmp), base + (args.episodes + j) % 50, serve_args + sa, sim_a, kill,
-                        stop_on_hold=kill is not None)
+                        stop_on_hold=kill is not None, load=(args.load, args.load_duty))
             faults.append(fault_row(kind, r, lim, lower, upper))
             print(f"fault {kind}: {faults[-1]}", flush=True)
 
@@ -308,7 +336,7 @@ def report(rows, faults, args) -> None:
         "budget_ms_range": (f"{min(r['budget_ms'] for r in rows):.1f}-"
                             f"{max(r['budget_ms'] for r in rows):.1f}") if rows else None,
         "servo_exit_nonzero": sum(r["servo_exit"] != 0 for r in rows), "load": args.load,
-        "servo_priority": args.servo_priority,
+        "servo_priority": args.servo_priority, "load_duty": args.load_duty,
         "cpus": ",".join(map(str, args.affinity)),
         "loadavg_1min_start_end": f"{args.loadavg_start[0]:.2f}/{args.loadavg_end[0]:.2f}"}
     for k in ("image_to_arrival", "arrival_to_start", "replan", "handover", "slack", "tick"):
@@ -319,6 +347,7 @@ def report(rows, faults, args) -> None:
              f"benchmarks/serve_loop.py --episodes {args.episodes}"
              f"{' --faults' if args.faults else ''} --budget {args.budget}"
              f"{f' --load {args.load}' if args.load else ''}"
+             f"{f' --load-duty {args.load_duty:g}' if args.load and args.load_duty < 1 else ''}"
              f"{f' --servo-priority {args.servo_priority}' if args.servo_priority else ''}`\n",
              "| key | value |", "|---|---|"] + [f"| {k} | {v} |" for k, v in summary.items()]
     if faults:

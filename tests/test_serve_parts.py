@@ -62,11 +62,15 @@ def test_the_moved_estimate_gives_the_stamps_registration():
     from surestep_ocp.ros.estimate import moved
 
     rng = np.random.default_rng(2)
-    for _ in range(20):
+    for i in range(60):
         mean, then, at_k = (np.r_[rng.normal(0, 0.05, 3), rng.normal(0, 1, 3)] for _ in range(3))
+        if i % 3 == 1:  # rotations of pi and near it, and none
+            mean[3:] *= (np.pi - 10.0 ** -(i % 9)) / np.linalg.norm(mean[3:])
+            at_k[3:] = then[3:] * (0 if i % 2 else 1)
         mk = moved(mean, then, at_k)
         assert np.allclose(_T(then) @ np.linalg.inv(_T(mean)), _T(at_k) @ np.linalg.inv(_T(mk)),
                            atol=1e-12)
+        assert np.linalg.norm(mk[3:]) <= np.pi + 1e-12
 
 
 def test_message_to_mean_and_covariance():
