@@ -277,7 +277,8 @@ def main() -> None:
         "# The optimality certificate against finite differences; uncertified successes",
         "",
         f"`OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/certificate.py --instances "
-        f"{args.instances}{' --against ' + args.against if args.against else ''}` (seed "
+        f"{args.instances}{' --against ' + args.against if args.against else ''}"
+        f"{' --polish' if args.polish else ''}` (seed "
         f"{args.seed}; T = 20, limits T = 40 at 0.05 s per step). "
         "`backend success`: the backend's own claim (`sol.backend_success`, the old `success`); "
         "`success not certified`: of those, the certificate is neither optimal nor acceptable (the "
