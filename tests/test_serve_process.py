@@ -180,8 +180,10 @@ def test_the_servo_process_over_dds(tmp_path):
         lines = _lines(p)
         ready = next(lines)
         servo_pid = ready["servo_pid"]
-        if ready["priority_error"] is None:
-            assert os.sched_getscheduler(servo_pid) == os.SCHED_FIFO
+        if ready["priority_error"] is None:  # every thread: the tick loop's and Cyclone's
+            tids = [int(t) for t in os.listdir(f"/proc/{servo_pid}/task")]
+            assert len(tids) > 1
+            assert all(os.sched_getscheduler(t) == os.SCHED_FIFO for t in tids)
         else:
             assert "SCHED_FIFO not permitted" in ready["priority_error"]
         while len(rec.samples["/PSM1/servo_jp"]) < 50:

@@ -4,9 +4,9 @@ waypoint the robot reaches next, played from that waypoint on.
 An estimate arriving at time t_a (since waypoint 0) is of the tool when its image was taken (its
 stamp). The re-plan starts at the first waypoint k at or after t_a + lead (the waypoints are
 phase-locked to the tracker's frames, `--replan-budget` after each arrival: loop.py), where the
-lead is the recent re-plans' median time (at least `--replan-margin`): where most re-plans would be
-late (a loaded machine) they aim at the waypoint after; a late one costs a frame, aiming later
-always costs one. From the
+lead is the recent re-plans' lower quartile time (at least `--replan-margin`): where most re-plans
+would be late (a loaded machine) they aim at the waypoint after; a late one costs a frame, aiming
+later always costs one. From the
 played curve's state at k, with the estimate moved along the commanded motion from the stamp's
 joints (the arm's measured ones) to k (estimate.moved). It runs on a copy of the Planner (as
 closed_loop does); a plan that succeeded is handed to the servo process (servo.py), which plays it
@@ -220,9 +220,12 @@ class Replanner(threading.Thread):
         """[s] the least time from an estimate's arrival to the waypoint its re-plan starts at."""
         if self._lead is None:
             # (the hand-over included: `recent` is from the arrival to the servo process's
-            # receipt; a waypoint aimed past costs a step, 50 ms, of latency)
+            # receipt). Its lower quartile: a waypoint aimed past costs a step (50 ms) of
+            # latency, and a re-plan late for the waypoint its frame is phase-locked to loses
+            # nothing the next frame's (there a step later, with a newer estimate) does not
+            # bring; so a step later only where most re-plans are late (a loaded machine)
             self._lead = (self.margin_s if len(self.recent) < LEAD_WINDOW // 2 else
-                          max(self.margin_s, float(np.median(self.recent))))
+                          max(self.margin_s, float(np.percentile(self.recent, 25))))
         return self._lead
 
     def _replan(self, msg, mean, cov, t_a: float) -> int | None:

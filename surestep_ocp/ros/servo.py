@@ -273,11 +273,17 @@ def warm_up(publisher) -> None:
 
 
 def real_time(priority: int) -> str | None:
-    """This process under SCHED_FIFO at `priority` (1..99; 0: nothing done); why not, or None."""
+    """This process's threads under SCHED_FIFO at `priority` (1..99; 0: nothing done): the tick
+    loop's and Cyclone's own (a write may wait on them); why not, or None."""
     if not priority:
         return None
     try:
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+        tids = [int(t) for t in os.listdir("/proc/self/task")]
+    except OSError:
+        tids = [0]
+    try:
+        for tid in tids:
+            os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(priority))
     except (OSError, AttributeError) as exc:
         return f"SCHED_FIFO not permitted ({exc.strerror if isinstance(exc, OSError) else exc})"
     return None
