@@ -65,8 +65,8 @@ def register(sub) -> None:
     s.add_argument("--replan-budget", default="auto",
                    help="[s] each waypoint this long after a tracker frame's arrival (the "
                         "waypoints are phase-locked to the frames): a re-plan's time to be played "
-                        "at once; auto (the default): the re-plans' time measured on the "
-                        "tracker's first frames, before the motion starts (docs/serve.md)")
+                        "at once; auto: the re-plans' time measured on the tracker's first "
+                        "frames, before the motion starts (default: auto, docs/serve.md)")
     s.add_argument("--replan-margin", type=float, default=0.002,
                    help="[s] a re-plan starts at the first waypoint at least this long after the "
                         "estimate's arrival (default 0.002)")
