@@ -2,7 +2,7 @@
 cold and in a 20 Hz re-planning loop.
 
     OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/realtime.py [--configs 100] [--seed 0]
-        [--episodes 20] [--against main] [--repeats 1] [--output realtime.md]
+        [--episodes 20] [--against main] [--repeats 1] [--no-full-replans] [--output realtime.md]
 
 Cold: the default problem (problems/needle_regrasp.yaml: 40 steps of 50 ms, the limits enforced) and
 the first `--configs` configurations of problems/evaluations/evaluation.yaml at the same horizon,
@@ -19,19 +19,23 @@ surestep_ocp/solvers/interior.py (loaded beside it as a module), alternated per 
 each), for load-independent ratios.
 The 20 Hz loop: `--episodes` episodes of a `Planner` on the default problem (`solver.name:
 interior`) against a simulated tracker (seeds 0, 1, ...), a re-plan at every waypoint from the
-executed curve's state; per re-plan its time (builds apart) and whether it succeeded; per episode
+executed curve's state, by real-time iterations (prepared between frames), then (unless
+`--no-full-replans`) by full re-plans on the same episodes; per re-plan its time (builds apart;
+the call and its preparation), its feedback time and whether it succeeded; per episode
 the executed motion (every plan from its start until the next one's, sampled every millisecond)
 checked against the limits by finite differences and Pinocchio's kinematics (violations: samples
 beyond a limit by more than the differencing error). Writes benchmarks/results/realtime.md (or
 `--output`); the last
 line is `realtime: cold_median_ms=... cold_worst_ms=... replan_median_ms=... replan_worst_ms=...
-infeasible=... violations=...`.
+infeasible=... violations=... ipopt_ratio=<IPOPT's cold median / ours> replan_feedback_ms=<median>`
+(the re-plan figures: real-time iterations).
 """
 
 from __future__ import annotations
 
 import harness as h  # first: one BLAS thread
 
+import argparse  # noqa: E402
 import os  # noqa: E402
 from dataclasses import replace  # noqa: E402
 
@@ -105,51 +109,71 @@ def cold(args) -> tuple[list[str], dict]:
                        "its iterations", "its ms", "IPOPT status", "IPOPT ms",
                        "Tr / IPOPT's - 1"], rows), ""]
     return lines, {"cold_median_ms": so.median, "cold_worst_ms": so.worst,
+                   "ipopt_ratio": sr.median / so.median,
                    "cold_failed": len(failed), "cold_disagree": len(disagree),
                    "cold_worse": len(worse)}
 
 
-def loop(args) -> tuple[list[str], dict]:
-    """The 20 Hz loop's episodes: table lines and the figures (nan with `--episodes 0`: the cold
-    solves alone)."""
+def loop(args, rti: bool = True) -> tuple[list[str], dict]:
+    """The 20 Hz loop's episodes (`rti`: real-time iterations, each prepared between frames;
+    else full re-plans): table lines and the figures (nan with `--episodes 0`: the cold solves
+    alone). A re-plan's time is the frame's work: the call, and its preparation when made before
+    it; the feedback time is the real-time iteration's, from the call until the plan's joints."""
+    kind = "real-time iterations" if rti else "full re-plans"
     if args.episodes <= 0:
-        return (["## The 20 Hz loop within the limits", "", "Not run (`--episodes 0`).", ""],
+        return ([f"## The 20 Hz loop within the limits: {kind}", "", "Not run (`--episodes 0`).",
+                 ""],
                 {"replan_median_ms": float("nan"), "replan_worst_ms": float("nan"),
-                 "infeasible": 0, "violations": 0})
+                 "feedback_median_ms": float("nan"), "infeasible": 0, "violations": 0})
     setup = h.setup(h.load_problem(h.DEFAULT_PROBLEM).with_solver(name="interior"))
-    rows, times, failed, bad, late, held = [], [], 0, 0, [], 0
+    rows, times, feedback, failed, bad, late, held, full = [], [], [], 0, 0, [], 0, 0
     for seed in range(args.episodes):
-        episode = h.tracker_loop(setup, seed=seed)  # what `surestep replan` runs
+        episode = h.tracker_loop(setup, seed=seed, rti=rti)  # what `surestep replan` runs
         planner, pieces = episode["planner"], episode["pieces"]
         dt = planner.setup.ocp.timing.step_s
-        ep_times = [p.replan.time_s * 1e3 for p in episode["plans"]]
+        records = [p.replan for p in episode["plans"]]
+        ep_times = [(r.time_s + (r.prepare_s if r.prepared_ahead else 0.0)) * 1e3
+                    for r in records]
+        ep_feedback = [r.feedback_s * 1e3 for r in records if r.feedback_s is not None]
+        ep_full = sum(bool(r.rti and r.rti.startswith("full")) for r in records)
         ep_failed, ep_held = episode["summary"]["failed"], episode["summary"]["registration_held"]
         n_bad = h.violations(planner.setup, h.stitched(pieces, dt))
         s = h.stats(ep_times)
         late.append(planner.horizon - planner.setup.ocp.horizon)
-        rows.append((seed, len(ep_times), ep_failed, ep_held, f"{s.median:.1f}", f"{s.worst:.1f}",
-                     late[-1], n_bad))
+        rows.append((seed, len(ep_times), ep_failed, ep_held, ep_full, f"{s.median:.1f}",
+                     f"{s.worst:.1f}",
+                     f"{np.median(ep_feedback):.2f}" if ep_feedback else "-", late[-1], n_bad))
         print(*rows[-1], flush=True)
         times += ep_times
+        feedback += ep_feedback
         failed += ep_failed
         held += ep_held
+        full += ep_full
         bad += n_bad
     s = h.stats(times)
-    lines = ["## The 20 Hz loop within the limits", "",
+    fb = h.stats(feedback) if feedback else None
+    lines = [f"## The 20 Hz loop within the limits: {kind}", "",
              (f"{args.episodes} episodes of the default problem (`solver.name: interior`), "
               f"a re-plan at every waypoint from the executed curve's state: "
               f"{len(times)} re-plans, "
-              f"median {s.median:.1f} ms, p90 {s.p90:.1f} ms, worst {s.worst:.1f} ms; "
-              f"not succeeded (the previous plan kept): {failed}; "
+              f"median {s.median:.1f} ms, p90 {s.p90:.1f} ms, worst {s.worst:.1f} ms "
+              f"(the call, and its preparation between frames)"
+              + (f"; the feedback (the call until the plan's joints) median {fb.median:.2f} ms, "
+                 f"p90 {fb.p90:.2f} ms, worst {fb.worst:.2f} ms over the {len(feedback)} "
+                 f"re-plans that were real-time iterations; {full} re-planned in full instead "
+                 f"(a row broken by the moved goal, or the preparation failed)" if fb else "")
+              + f"; not succeeded (the previous plan kept): {failed}; "
               f"the registration before held (the tracker's estimate put the goal out of reach): "
               f"{held}; "
               f"steps the goal moved later (median, worst): {int(np.median(late))}, {max(late)}; "
               f"executed samples beyond a limit: {bad}."), "",
-             *h.table(["seed", "re-plans", "failed", "registration held", "median ms",
-                       "worst ms", "steps later", "violations"], rows),
+             *h.table(["seed", "re-plans", "failed", "registration held", "in full",
+                       "median ms", "worst ms", "feedback median ms", "steps later",
+                       "violations"], rows),
              ""]
-    return lines, {"replan_median_ms": s.median, "replan_worst_ms": s.worst, "infeasible": failed,
-                   "violations": bad}
+    return lines, {"replan_median_ms": s.median, "replan_worst_ms": s.worst,
+                   "feedback_median_ms": fb.median if fb else float("nan"),
+                   "infeasible": failed, "violations": bad}
 
 
 def against(args) -> list[str]:
@@ -252,6 +276,8 @@ def main() -> None:
     ap.add_argument("--against", default=None,
                     help="a git revision whose interior.py to alternate with this checkout's")
     ap.add_argument("--repeats", type=int, default=1)
+    ap.add_argument("--full-replans", action=argparse.BooleanOptionalAction, default=True,
+                    help="also run the loop with full re-plans (Planner(rti=False)), for ratios")
     ap.add_argument("--output", default="realtime.md",
                     help="a file name under benchmarks/results/, or a path")
     args = ap.parse_args()
@@ -267,17 +293,25 @@ def main() -> None:
         block += against(args)
     load.append(os.getloadavg()[0])
     block2, lp = loop(args)
+    block3, lf = loop(args, rti=False) if args.full_replans else ([], None)
     load.append(os.getloadavg()[0])
     lines += [(f"Load average (1 min) at the start, after the cold solves, at the end: "
                f"{', '.join(f'{x:.2f}' for x in load)} on {os.cpu_count()} cores (above about 1: "
                f"other work ran beside the benchmark, absolute times are inflated; "
-               f"`--against` gives ratios measured alternately)."), "", *block, *block2]
+               f"`--against` gives ratios measured alternately)."), "",
+              (f"Ratios in this run: IPOPT's cold median / ours {figs['ipopt_ratio']:.1f}x"
+               + (f"; full re-plans' median / real-time iterations' "
+                  f"{lf['replan_median_ms'] / lp['replan_median_ms']:.2f}x, worst "
+                  f"{lf['replan_worst_ms'] / lp['replan_worst_ms']:.2f}x" if lf else "") + "."),
+              "", *block, *block2, *block3]
     last = h.last_line("realtime", h.key_values(
         cold_median_ms=f"{figs['cold_median_ms']:.1f}",
         cold_worst_ms=f"{figs['cold_worst_ms']:.1f}",
         replan_median_ms=f"{lp['replan_median_ms']:.1f}",
         replan_worst_ms=f"{lp['replan_worst_ms']:.1f}",
-        infeasible=lp["infeasible"], violations=lp["violations"]))
+        infeasible=lp["infeasible"], violations=lp["violations"],
+        ipopt_ratio=f"{figs['ipopt_ratio']:.1f}",
+        replan_feedback_ms=f"{lp['feedback_median_ms']:.2f}"))
     text = "\n".join(lines + [last]) + "\n"
     h.write_result(args.output, text)
     print(text)

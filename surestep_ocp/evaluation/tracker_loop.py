@@ -17,12 +17,13 @@ from ..solvers.planner import Planner
 from .tracker import SimulatedTracker
 
 
-def tracker_loop(setup: Setup, seed: int = 0, progress=None) -> dict:
-    """One episode: the planner's first plan, then a re-plan per tracker frame until the goal.
+def tracker_loop(setup: Setup, seed: int = 0, progress=None, rti: bool = True) -> dict:
+    """One episode: the planner's first plan, then a re-plan per tracker frame until the goal
+    (`rti`: real-time iterations, each prepared between frames; else full re-plans).
 
     Returns the planner, the re-plans (Solutions), the executed pieces (start step, joints, start
     state or None) and a summary (times without builds, failures, steps the goal moved later)."""
-    planner = Planner(setup)
+    planner = Planner(setup, rti=rti)
     tracker = SimulatedTracker(setup.eval_model, planner.plan.poses[0], rng=seed)
     pieces = [(0, np.array(planner.plan.q, float), None)]
     plans, k = [], 0
