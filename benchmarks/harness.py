@@ -5,8 +5,7 @@ top of it).
 Import it first, before NumPy (`import harness as h` at the top of a study; a study run as
 `python benchmarks/<study>.py` finds it beside itself): it pins BLAS and OpenMP to one thread. It is
 also the one module of benchmarks/ that imports `surestep_ocp`: when the package's internals move,
-fix the imports below and the wrappers under them, not the studies. (The one exception is
-benchmarks/enforced_speed.py's worker, which imports the revision it measures, whatever its layout.)
+fix the imports below and the wrappers under them, not the studies.
 
 - The test set: the evaluation's configurations (`sampler`, `configurations`:
   problems/evaluations/*.yaml at a given horizon), the default problems (`DEFAULT_PROBLEM`,
@@ -21,37 +20,9 @@ benchmarks/enforced_speed.py's worker, which imports the revision it measures, w
   `name: key=value ...`).
 - The command line: `parser` (--configs, --seed, --horizons, --output, each where the study has it).
 
-The studies (benchmarks/README.md: each one's command and result files):
-
-- worst_case.py: the OCP's slowest configurations beside its median, against the gradient variant.
-- solve_speed.py: the OCP's solve speed against the gradient variant; the warm re-solve; `--limits`.
-- general_models.py: the OCP on belief models beyond the paper's constants, against the paper's
-  model.
-- newton_vs_ipopt.py: the projected Newton solver against IPOPT.
-- diagonal_start.py: the default strategy against Newton from the diagonal model's plan.
-- secant_endgame.py: Newton's secant end-game against the plain surrogate.
-- second_start_gate.py: the second start's gate at long horizons.
-- limits_cost.py: what enforcing the motion limits costs the OCP.
-- default_limits.py: the default problem with its motion limits enforced, at several paces.
-- curve_rows.py: the played curve's limit rows against finite differences.
-- enforced_speed.py: the enforced OCP solve of one revision against an older one (worker processes).
-- export_limits.py: the OCP's plans against the motion limits, planned and exported.
-- replan_rate.py: the re-planning rate of `Planner` against a simulated 20 Hz tracker.
-- realtime.py: plans within the motion limits, the interior-point method against IPOPT (cold), and
-  the 20 Hz re-planning loop within the limits.
-- replan_within_limits.py: one re-planning episode within the limits, per re-plan.
-- replan_budget.py: the re-plan's iteration budget within the limits.
-- scenarios.py: `surestep compare` on every scenario file.
-- baseline_timing.py: the baseline within enforced limits: kept or lengthened, against toppra.
-- closed_loop.py: time to a sure grasp in the simulated Table II (every method grasps when its
-  tracker's belief reaches the confidence, or at the cap).
-- tracker_calibration.py: the tracker's predicted against measured success per noise form.
-- grasp_ceiling.py: the grasp success each type's best plan predicts from its own final belief.
-- plan_steps.py, large_rollout_errors.py, worst_rollout.py: where the evaluation's large rollout
-  errors come from.
-- evaluation_limits.py, motion_limits_evaluation.py, execution_pace.py, rollout_variants.py:
-  evaluation runs (`surestep evaluate` / `surestep sweep`) and their tables.
-- fuzz_fresh.py: a fresh fuzz of `surestep validate` and `surestep solve`.
+The studies: benchmarks/README.md gives each one's claim, command and result files (solve_speed,
+realtime, general_models, closed_loop, grasp_ceiling, certificate, serve_loop; the evaluation and
+Table I through the CLI); what the removed one-off studies found is in docs/findings.md.
 """
 
 from __future__ import annotations
