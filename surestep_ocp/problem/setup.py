@@ -27,6 +27,7 @@ from ..quiet import quiet_fd
 # [rad or m] A batch-Newton IK solution farther than this from its guess (in any joint) is
 # taken as another IK branch and the waypoint is solved from the previous one instead.
 GUESS_RADIUS = 0.5
+CAMERA_PARAMETERS_KEPT = 256  # camera parameters kept per robot (cleared when full)
 
 
 @dataclass
@@ -114,18 +115,22 @@ class Setup:
         and its quaternion, signed so that the start's rotation vector is the principal one
         (angle at most pi)."""
         key = (np.asarray(self.camera_pose, float).tobytes(),
-               np.asarray(self.q_start, float).tobytes())
-        # per instance: camera and start may be reassigned
-        cache = self.__dict__.setdefault("_camera_parameter", {})
-        if key not in cache:
+               np.asarray(self.q_start, float).tobytes(), self.robot.base_pose.tobytes())
+        # kept on the robot, which every copy of a setup (`replace`, `with_ocp`) shares: a
+        # re-plan's setups are new instances of a few cameras and starts (about 0.25 ms each)
+        cache = self.robot.__dict__.setdefault("_camera_parameters", {})
+        value = cache.get(key)
+        if value is None:
             Tcb = self.T_cam_base
             Qc = np_quat_of_matrix(Tcb[:3, :3])
             Qs = np.asarray(self.robot.fk_quaternion(self.q_start)).ravel()
             if Qc[0] * Qs[0] - Qc[1:] @ Qs[1:] < 0:  # the real part of Qc Qs (Hamilton)
                 Qc = -Qc
-            cache.clear()
-            cache[key] = np.concatenate([Tcb[:3, :].ravel(order="F"), Qc])
-        return cache[key].copy()
+            value = np.concatenate([Tcb[:3, :].ravel(order="F"), Qc])
+            if len(cache) >= CAMERA_PARAMETERS_KEPT:
+                cache.clear()
+            cache[key] = value
+        return value.copy()
 
     def means_of(self, q: np.ndarray) -> np.ndarray:
         """(N, 7) camera-frame means `(p, Q)` at the joint vectors `q` (N, nq),
