@@ -14,7 +14,7 @@ both. An infeasibility verdict ends `solver.name: interior`'s solve (no
 IPOPT fallback); the separate IPOPT solve says whether it agrees. Where our Tr(Sigma_T) is above
 IPOPT's, the row IPOPT's plan breaks most (the interior point's rows, negative: beyond a limit).
 `--against REV`: the interior-point attempt alone of this checkout and of REV's
-surestep_ocp/solvers/interior.py (loaded beside it as a module), alternated per problem
+surestep_ocp/solvers/interior.py or interior/ (loaded beside it), alternated per problem
 (`--repeats` timed solves each after a warm-up; the iterations and the rows' evaluations of
 each), for load-independent ratios.
 The 20 Hz loop: `--episodes` episodes of a `Planner` on the default problem (`solver.name:
@@ -176,28 +176,50 @@ def loop(args, rti: bool = True) -> tuple[list[str], dict]:
                    "infeasible": failed, "violations": bad}
 
 
-def against(args) -> list[str]:
-    """The interior-point attempt alone, this checkout's interior.py against `args.against`'s,
-    alternated per problem: table lines."""
+def load_interior(rev: str):
+    """`rev`'s interior-point method as a module beside this checkout's
+    (surestep_ocp.solvers.interior_against): its single file surestep_ocp/solvers/interior.py or
+    its package surestep_ocp/solvers/interior/, whichever `rev` has."""
     import importlib.util
     import subprocess
     import sys
     import tempfile
     from pathlib import Path
 
+    def git(*a):
+        return subprocess.run(["git", *a], cwd=h.ROOT, check=True, capture_output=True,
+                              text=True).stdout
+
+    name, root = "surestep_ocp.solvers.interior_against", Path(tempfile.mkdtemp())
+    files = git("ls-tree", "-r", "--name-only", rev, "--", "surestep_ocp/solvers/interior/").split()
+    if files:  # a package: its modules in a directory of the module's name
+        package = root / "interior_against"
+        package.mkdir()
+        for file in files:
+            target = package / Path(file).relative_to("surestep_ocp/solvers/interior")
+            target.parent.mkdir(parents=True, exist_ok=True)
+            target.write_text(git("show", f"{rev}:{file}"))
+        spec = importlib.util.spec_from_file_location(
+            name, package / "__init__.py", submodule_search_locations=[str(package)])
+    else:
+        path = root / "interior_against.py"
+        path.write_text(git("show", f"{rev}:surestep_ocp/solvers/interior.py"))
+        spec = importlib.util.spec_from_file_location(name, path)
+    other = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = other
+    spec.loader.exec_module(other)
+    return other
+
+
+def against(args) -> list[str]:
+    """The interior-point attempt alone, this checkout's interior-point method against
+    `args.against`'s (`load_interior`), alternated per problem: table lines."""
     import surestep_ocp.solvers.backends.interior_point as backend
     import surestep_ocp.solvers.ocp as ocp_module
     from surestep_ocp.solvers import nlp_cache
     from surestep_ocp.solvers.strategy import Attempt, Start
 
-    src = subprocess.run(["git", "show", f"{args.against}:surestep_ocp/solvers/interior.py"],
-                         cwd=h.ROOT, check=True, capture_output=True, text=True).stdout
-    path = Path(tempfile.mkdtemp()) / "interior_against.py"
-    path.write_text(src)
-    spec = importlib.util.spec_from_file_location("surestep_ocp.solvers.interior_against", path)
-    other = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = other
-    spec.loader.exec_module(other)
+    other = load_interior(args.against)
     built = {}
 
     def other_solver(setup, moving=False):
@@ -211,7 +233,9 @@ def against(args) -> list[str]:
     from surestep_ocp.solvers.interior import InteriorNewton
 
     evaluations = [0]
-    originals = {cls: cls.constraints for cls in (InteriorNewton, other.InteriorNewton)}
+    # (each class's own attribute, None where it inherits `constraints` from a base class)
+    originals = {cls: (cls.constraints, cls.__dict__.get("constraints"))
+                 for cls in (InteriorNewton, other.InteriorNewton)}
 
     def counted(fn):
         def constraints(self, *a, **k):
@@ -219,12 +243,13 @@ def against(args) -> list[str]:
             return fn(self, *a, **k)
         return constraints
 
-    for cls, fn in originals.items():
+    for cls, (fn, _) in originals.items():
         cls.constraints = counted(fn)
     strategy, solver = ocp_module.default_strategy, backend.interior_solver
     ocp_module.default_strategy = lambda *a, **k: (Attempt("interior point", "interior",
                                                            start=Start.GIVEN),)
     rows, mine, theirs, its_mine, its_theirs, ev_mine, ev_theirs = [], [], [], [], [], [], []
+    same = 0  # problems whose plans are bit for bit the same
     try:
         for name, prob in cold_problems(args):
             setup = h.setup(h.with_solver(prob, name="interior"))
@@ -233,10 +258,12 @@ def against(args) -> list[str]:
                 variant = ("this", "other")[k % 2]
                 backend.interior_solver = solver if variant == "this" else other_solver
                 before = evaluations[0]
-                a = h.ocp(setup).attempts[0]
+                sol = h.ocp(setup)
+                a = sol.attempts[0]
                 if k >= 2:  # after a warm-up of each
                     res[variant].append((a.solve_time_s * 1e3, a.iterations, a.status,
-                                         evaluations[0] - before))
+                                         evaluations[0] - before,
+                                         np.asarray(sol.joints, float).tobytes()))
             t1, t0 = (float(np.median([r[0] for r in res[v]])) for v in ("this", "other"))
             mine.append(t1)
             theirs.append(t0)
@@ -244,18 +271,22 @@ def against(args) -> list[str]:
             its_theirs.append(res["other"][0][1])
             ev_mine.append(res["this"][0][3])
             ev_theirs.append(res["other"][0][3])
+            same += res["this"][0][4] == res["other"][0][4]
             rows.append((name, f"{t0:.1f}", res["other"][0][1], res["other"][0][3],
                          res["other"][0][2], f"{t1:.1f}", res["this"][0][1], res["this"][0][3],
                          res["this"][0][2], f"{t1 / t0:.2f}"))
             print("against", *rows[-1], flush=True)
     finally:
         ocp_module.default_strategy, backend.interior_solver = strategy, solver
-        for cls, fn in originals.items():
-            cls.constraints = fn
+        for cls, (_, own) in originals.items():
+            if own is None:
+                del cls.constraints
+            else:
+                cls.constraints = own
     a, b = h.stats(theirs), h.stats(mine)
     return [f"## The interior point against {args.against}'s", "",
             (f"`--against {args.against} --repeats {args.repeats}`: the interior-point attempt "
-             f"alone (no fallback) of {args.against}'s surestep_ocp/solvers/interior.py and of "
+             f"alone (no fallback) of {args.against}'s surestep_ocp/solvers/interior and of "
              f"this checkout's, alternated per problem, the median of {args.repeats} timed "
              f"solve(s) each after a warm-up: median {a.median:.1f} ms against this "
              f"checkout's {b.median:.1f} ms (ratio of medians {b.median / a.median:.2f}; "
@@ -264,7 +295,8 @@ def against(args) -> list[str]:
              f"against {b.worst:.1f} ms, iterations median {np.median(its_theirs):.0f} against "
              f"{np.median(its_mine):.0f}, worst {max(its_theirs)} against {max(its_mine)}, "
              f"in all {sum(its_theirs)} against {sum(its_mine)}; the rows evaluated (the start's "
-             f"and the line searches' points) {sum(ev_theirs)} against {sum(ev_mine)}."), "",
+             f"and the line searches' points) {sum(ev_theirs)} against {sum(ev_mine)}; the plans "
+             f"bit for bit the same in {same} of {len(rows)} problems."), "",
             *h.table(["problem", f"{args.against} ms", "its iterations", "its evaluations",
                       "its status", "this ms", "iterations", "evaluations", "status",
                       "this / theirs"], rows), ""]
@@ -274,7 +306,7 @@ def main() -> None:
     ap = h.parser(__doc__, configs=100, seed=0)
     ap.add_argument("--episodes", type=int, default=20)
     ap.add_argument("--against", default=None,
-                    help="a git revision whose interior.py to alternate with this checkout's")
+                    help="a git revision whose interior point to alternate with this checkout's")
     ap.add_argument("--repeats", type=int, default=1)
     ap.add_argument("--full-replans", action=argparse.BooleanOptionalAction, default=True,
                     help="also run the loop with full re-plans (Planner(rti=False)), for ratios")

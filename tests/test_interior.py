@@ -1,4 +1,4 @@
-"""The interior-point Newton method within enforced motion limits (`solvers/interior.py`,
+"""The interior-point Newton method within enforced motion limits (`solvers/interior/`,
 `solver.name: interior`) against IPOPT on the same NLP, its plan against the limits by the
 independent plan report (finite differences of the waypoints) and by the dense check of the played
 curve; a curve that starts in motion continues another."""
@@ -361,3 +361,26 @@ def test_the_step_to_the_boundary_is_the_largest_that_keeps_the_fraction():
         if a < 1.0:  # a little further breaks a row
             assert np.any(v + 1.001 * a * dv < (1 - tau) * v)
     assert _to_boundary(np.ones(3), np.array([0.0, 1.0, 2.0]), 0.99) == 1.0  # nothing falls
+
+
+def test_a_runs_options_as_one_object_and_its_iterations_records(relaxed_runs, capsys):
+    """`solve` with `InteriorOptions` is `run` with the same keyword arguments, to the bit; the
+    run's `history` holds one record per iteration (and the last test's), the lines `verbose`
+    prints."""
+    from surestep_ocp.solvers.interior import InteriorOptions
+    from surestep_ocp.solvers.iterate import InitialGuess
+    from surestep_ocp.solvers.nlp_cache import interior_solver
+
+    setup, _, _, relaxed, tight = relaxed_runs
+    solver = interior_solver(setup)
+    start = InitialGuess(relaxed.q, "relaxed run")
+    again = solver.solve(setup, start, InteriorOptions(max_iter=300, relax=True, reserve=0.05,
+                                                       verbose=True))
+    printed = [line for line in capsys.readouterr().out.splitlines()
+               if line.startswith("interior ")]
+    assert again.status == tight.status and again.iterations == tight.iterations
+    assert np.array_equal(again.q, tight.q) and np.array_equal(again.multipliers,
+                                                                tight.multipliers)
+    assert len(tight.history) == tight.iterations + 1
+    assert [r.iteration for r in tight.history] == list(range(tight.iterations + 1))
+    assert printed == [r.line() for r in again.history] == tight.log().splitlines()

@@ -1,4 +1,4 @@
-"""The interior-point Newton method (`interior.py`) on the OCP within the enforced motion limits:
+"""The interior-point Newton method (`interior/`) on the OCP within the enforced motion limits:
 the joint-space problem of the projected Newton solver plus the limit rows, solved with a banded
 system per iteration."""
 
