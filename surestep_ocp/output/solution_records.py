@@ -195,6 +195,7 @@ class ReplanRecord(JsonRecord):
     feedback_s: float | None = None  # from the call until the plan's joints were known [s]
     prepare_s: float | None = None  # its preparation [s], builds apart
     prepared_ahead: bool | None = None  # prepared before the call (`Planner.prepare`), not in it
+    certificate_s: float | None = None  # its certificate (in `time_s`: the command waits on it) [s]
 
     @staticmethod
     def _readers() -> dict:

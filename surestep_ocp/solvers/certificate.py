@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import math
 import time
+from copy import copy
 from dataclasses import replace
 
 import casadi as ca
@@ -54,6 +55,11 @@ S_MAX = 100.0  # IPOPT's s_max of the dual scale
 # 0.5-1.5 ms); a process that plans the structure again (compare, evaluate, a benchmark, a
 # re-planning loop) evaluates it compiled from its third certificate on
 COMPILE_AFTER = 3
+# a re-plan's certificate is evaluated by the Function of its horizon rounded up to a multiple of
+# this (padded; `_padded_call`): a re-planning loop's horizons share a few Functions, compiled in
+# its first episode, instead of one per horizon, each compiled at its third use
+PAD_STEPS = 16
+PAD_POINTS = 64  # ... and its tool rates' map of points (rounded up to a multiple of this)
 _OFF_DIAGONAL = ~np.eye(NX, dtype=bool)
 
 
@@ -92,12 +98,24 @@ class _Function:
 _FUNCTIONS: dict[tuple, _Function] = {}
 
 
-def _function(setup: Setup, built: list[float]) -> _Function:
+def padded_steps(T: int) -> int:
+    """The steps of the padded Function a re-plan over T steps is certified with: T rounded up
+    to a multiple of PAD_STEPS (a re-planning loop's horizons share a few Functions)."""
+    return -(-T // PAD_STEPS) * PAD_STEPS
+
+
+def _function(setup: Setup, built: list[float], padded: bool = False) -> _Function:
     """The certificate's Function of this setup's structure, `(Q, camera, sigma0, trace_ref) ->
-    (f, trace, grad f, means, mean Jacobians, W, V, F, Q, H, R, W_q)` (built once per process)."""
+    (f, trace, grad f, means, mean Jacobians, W, V, F, Q, H, R, W_q)` (built once per process).
+    `padded`: over `padded_steps(T)` steps N instead, with two more inputs, `(select, steps)` (1 x
+    N each): the trace is `select`'s weighted sum of the steps' traces (one-hot at step T) and the
+    smoothness sums the steps `steps` weighs (ones on the first T); the joints after q_T repeat it
+    (`_padded_call`)."""
     robot, model, T = setup.robot, setup.model, setup.ocp.horizon
+    if padded:
+        T = padded_steps(T)
     key = (str(robot.urdf), robot.frame, robot.offset.tobytes(), model.key(), T,
-           setup.ocp.smoothness)
+           setup.ocp.smoothness, padded)
     if key in _FUNCTIONS:
         return _FUNCTIONS[key]
     t0 = time.perf_counter()
@@ -112,9 +130,18 @@ def _function(setup: Setup, built: list[float]) -> _Function:
         w = ca.MX.zeros(NV, T)
     roll = model.step_pair.mapaccum("certificate_roll", T, [2], [0])
     post, prior = roll(a, b, s0, w)
-    last = (prior if model.noise.objective == "predicted" else post)[:, T - 1]
-    trace = sum(last[i] for i in DIAG)
-    f = trace / ref + setup.ocp.smoothness * ca.sumsqr(Q[:, 1:] - Q[:, :T])
+    kept = prior if model.noise.objective == "predicted" else post
+    extra = []
+    if padded:
+        select, steps = ca.MX.sym("select", 1, T), ca.MX.sym("steps", 1, T)
+        extra = [select, steps]
+        trace = ca.dot(select, sum(kept[i, :] for i in DIAG))
+        dQ = Q[:, 1:] - Q[:, :T]
+        f = trace / ref + setup.ocp.smoothness * ca.dot(steps, ca.sum1(dQ * dQ))
+    else:
+        last = kept[:, T - 1]
+        trace = sum(last[i] for i in DIAG)
+        f = trace / ref + setup.ocp.smoothness * ca.sumsqr(Q[:, 1:] - Q[:, :T])
     q1 = ca.SX.sym("q", nq)
     c1 = ca.SX.sym("camera", CAMERA_PARAMETERS)
     jac = ca.Function("mean_jacobian", [q1, c1],
@@ -126,12 +153,12 @@ def _function(setup: Setup, built: list[float]) -> _Function:
     W = model.motion_noise.map(T)(a, b)
     V = model.observation_noise.map(T)(b) if has_v else none
     maps = list(model.jacobians.map(T)(a, b)) if not model.identity_maps else [none] * 4
-    fn = ca.Function("certificate", [Q, cam, s0, ref],
+    fn = ca.Function("certificate_padded" if padded else "certificate", [Q, cam, s0, ref, *extra],
                      [ca.densify(v) for v in
                       (f, trace, ca.gradient(f, ca.vec(Q)), M, J, W, V, *maps,
                        w if model.joint_noise else none)])
     _FUNCTIONS[key] = _Function(fn, has_v=has_v, has_maps=not model.identity_maps,
-                                has_joint=model.joint_noise)
+                                has_joint=model.joint_noise, steps=T)
     built[0] += time.perf_counter() - t0
     return _FUNCTIONS[key]
 
@@ -267,10 +294,6 @@ class _Rows:
         R = np.vstack([rows, Rp])
         J = np.concatenate([joints, jp])
         a = np.concatenate([np.zeros(len(rows)), off])
-        if moving:
-            v0 = np.asarray(start_state.velocity, float)
-            a0 = np.asarray(start_state.acceleration, float)
-            a = a + R[:, T + 1] * v0[J] + R[:, T + 2] * a0[J]
         A = np.zeros((len(R), (T + 1) * nq))
         for i, (row, j) in enumerate(zip(R, J)):
             A[i, np.arange(T + 1) * nq + j] = row[:T + 1]
@@ -280,9 +303,11 @@ class _Rows:
         windows, weights, consts = lm.tool_point_windows(T, dt, moving)
         self.windows, self.weights = np.array(windows), weights
         self.offsets = np.zeros((len(windows), 2 * nq))
-        if moving:
-            self.offsets = np.hstack([np.outer(consts[:, 0], v0) + np.outer(consts[:, 1], a0),
-                                      np.outer(consts[:, 2], v0) + np.outer(consts[:, 3], a0)])
+        # a moving start's rows: the start's velocity and acceleration enter as values only
+        # (`at`), in the kept rows' constants and the tool points' offsets
+        self.base_a = self.a
+        self.start_rows = (R[keep, T + 1], R[keep, T + 2], J[keep]) if moving else None
+        self.start_consts = consts if moving else None
         # each point's weights on every node (a repeated end node has its weight in one slot)
         npts = len(windows)
         self.node_q = np.zeros((npts, T + 1))
@@ -290,8 +315,31 @@ class _Rows:
         for slot in range(4):
             np.add.at(self.node_q, (np.arange(npts), self.windows[:, slot]), weights[:, slot])
             np.add.at(self.node_v, (np.arange(npts), self.windows[:, slot]), weights[:, 4 + slot])
-        self.rate = _tool_rate(robot, lim, npts)
+        # a moving start's (a re-plan's): the tool rates' map over the points rounded up to a
+        # multiple of PAD_POINTS (zeros after the points), shared by a loop's horizons
+        self.mapped = -(-npts // PAD_POINTS) * PAD_POINTS if moving else npts
+        self.rate = _tool_rate(robot, lim, self.mapped)
         self.nq, self.T = nq, T
+        if moving:
+            self.a, self.offsets = self._start_values(start_state)
+
+    def _start_values(self, start_state) -> tuple[np.ndarray, np.ndarray]:
+        """(the linear rows' constants, the tool points' offsets) from a moving start's velocity
+        and acceleration."""
+        rv, ra, J = self.start_rows
+        v0 = np.asarray(start_state.velocity, float)
+        a0 = np.asarray(start_state.acceleration, float)
+        c = self.start_consts
+        return (self.base_a + rv * v0[J] + ra * a0[J],
+                np.hstack([np.outer(c[:, 0], v0) + np.outer(c[:, 1], a0),
+                           np.outer(c[:, 2], v0) + np.outer(c[:, 3], a0)]))
+
+    def at(self, start_state) -> _Rows:
+        """These rows (built for a moving start) from `start_state`: a shallow copy sharing the
+        rows' structure (built once per horizon), with the values that state gives."""
+        out = copy(self)
+        out.a, out.offsets = self._start_values(start_state)
+        return out
 
     def values(self, q: np.ndarray, codegen, built: list[float]
                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -302,9 +350,12 @@ class _Rows:
         z = np.hstack([np.einsum("pw,pwj->pj", self.weights[:, :4], Wq),
                        np.einsum("pw,pwj->pj", self.weights[:, 4:], Wq)]) + self.offsets
         fn = self.rate.current(codegen, built)
-        r, Jz = thread_buffered(("tool_rate", fn), lambda: fn)(z.T)
         npts = len(self.windows)
+        if self.mapped > npts:
+            z = np.vstack([z, np.zeros((self.mapped - npts, z.shape[1]))])
+        r, Jz = thread_buffered(("tool_rate", fn), lambda: fn)(z.T)
         # (column-major: r 2 x points, Jz 2 x points 2 nq)
+        r, Jz = r[:2 * npts], Jz[:4 * self.nq * npts]
         return lin, r.copy(), Jz.reshape(npts, 2 * self.nq, 2).transpose(0, 2, 1).copy()
 
     def tool_gradients(self, rows: np.ndarray, Jz: np.ndarray) -> np.ndarray:
@@ -363,27 +414,40 @@ def _layout(setup: Setup, built: list[float]) -> _Layout:
     return _LAYOUTS[key]
 
 
-def certify(setup: Setup, sol: Solution, fd_step: float | None = None) -> Certificate | None:
+def certify(setup: Setup, sol: Solution, fd_step: float | None = None,
+            padded: bool | None = None) -> Certificate | None:
     """The certificate of `sol`'s plan for `setup`'s OCP (the method's own setup); None where a
     waypoint has no joints (a pose-space plan not reachable). `fd_step` [rad, m]: the objective's
-    gradient by central differences of the NumPy EKF instead (an independent check, slow)."""
+    gradient by central differences of the NumPy EKF instead (an independent check, slow).
+    `padded`: evaluated by the Function of the horizon rounded up to a multiple of PAD_STEPS (the
+    same values: a re-planning loop's horizons share a few Functions); default: for a plan from a
+    moving start (a re-plan within enforced limits)."""
     t0 = time.perf_counter()
     if any(q is None for q in sol.q) or len(sol.q) != setup.ocp.horizon + 1:
         return None
     # built once per structure, their time not the certificate's: the Function (compiled at its
     # COMPILE_AFTER-th use), the layout, the rows
     built = [0.0]
-    holder = _function(setup, built)
-    fn = holder.current(setup.ocp.solver.codegen, built)
+    q = np.asarray(sol.q, float)
+    ref = sol.run.initial_trace if sol.run.initial_trace else max(sol.trace_final, 1e-300)
+    args = (setup.camera_parameter(), vech(setup.ocp.sigma0), ref)
+    # a re-plan from a moving start (a re-planning loop: a new horizon every frame): the padded
+    # Function of its horizon's bucket; else (or where padding gave a non-finite value) its own
+    if padded is None:
+        padded = sol.run.start_state is not None
+    out = _padded_call(setup, q, args, built) if padded and setup.ocp.horizon > 0 else None
+    if out is None:
+        holder = _function(setup, built)
+        fn = holder.current(setup.ocp.solver.codegen, built)
+        evaluate = thread_buffered(("certificate", fn), lambda: fn)  # (in the time: new one too)
+        out = evaluate(q.T, *args)
+    else:
+        holder, out = out
     lay = _layout(setup, built)
     limited = setup.ocp.limits.enforce
     rows_at = _limit_rows(setup, sol, built) if limited else None
-    evaluate = thread_buffered(("certificate", fn), lambda: fn)  # (in the time: a new one too)
-    q = np.asarray(sol.q, float)
     T, nq = setup.ocp.horizon, setup.robot.nq
     tol = tolerances(setup)
-    ref = sol.run.initial_trace if sol.run.initial_trace else max(sol.trace_final, 1e-300)
-    out = evaluate(q.T, setup.camera_parameter(), vech(setup.ocp.sigma0), ref)
     trace = float(out[1][0])
     g = out[2] if fd_step is None else _fd_gradient(setup, q, ref, fd_step)  # node-major
     M = out[3].reshape(T + 1, 7)
@@ -465,6 +529,28 @@ def certify(setup: Setup, sol: Solution, fd_step: float | None = None) -> Certif
         trace=trace_np, trace_error=float(trace_error), tolerances=tol, level="infeasible",
         time_s=0.0)
     return replace(cert, level=level_of(cert), time_s=time.perf_counter() - t0 - built[0])
+
+
+def _padded_call(setup: Setup, q: np.ndarray, args: tuple, built: list[float]):
+    """(holder, outputs) of the padded Function at the plan `q` (T + 1 waypoints): the joints
+    after q_T repeat it, the trace selected at step T, the smoothness over the first T steps;
+    each output cut to what the plan's own Function gives (every output's first T or T + 1
+    columns: the steps after T do not reach them). None where an output is not finite."""
+    T = len(q) - 1
+    holder = _function(setup, built, padded=True)
+    N = holder.facts["steps"]
+    fn = holder.current(setup.ocp.solver.codegen, built)
+    Q = np.vstack([q, np.repeat(q[-1:], N - T, axis=0)])
+    select, steps = np.zeros(N), np.zeros(N)
+    select[T - 1], steps[:T] = 1.0, 1.0
+    out = thread_buffered(("certificate", fn), lambda: fn)(Q.T, *args, select, steps)
+    nq = q.shape[1]
+    # per column: f, trace, grad f, M, J, W, V, F, Q, H, R, W_q (one-column outputs: the whole)
+    size = [1, 1, nq * (T + 1), 7 * (T + 1), 7 * nq * (T + 1)] + [NX * NX * T] * 6 + [NV * T]
+    cut = [v if v.size <= 1 else v[:n] for v, n in zip(out, size)]
+    if not all(np.all(np.isfinite(v)) for v in cut[:5]):
+        return None
+    return holder, cut
 
 
 def _out_blocks(v: np.ndarray, T: int) -> np.ndarray:
@@ -553,16 +639,15 @@ def _limit_rows(setup: Setup, sol: Solution, built: list[float]):
     structure; a moving start's built each time; `built[0]` += the seconds building took)."""
     t0 = time.perf_counter()
     state = sol.run.start_state
-    if state is not None:
-        rows = _Rows(setup, state)
+    key = (str(setup.robot.urdf), setup.robot.frame, setup.robot.offset.tobytes(),
+           setup.ocp.horizon, float(setup.ocp.timing.step_s), setup.ocp.limits,
+           state is not None)
+    if key not in _ROWS:
+        _ROWS[key] = _Rows(setup, state)
         built[0] += time.perf_counter() - t0
-    else:
-        key = (str(setup.robot.urdf), setup.robot.frame, setup.robot.offset.tobytes(),
-               setup.ocp.horizon, float(setup.ocp.timing.step_s), setup.ocp.limits)
-        if key not in _ROWS:
-            _ROWS[key] = _Rows(setup)
-            built[0] += time.perf_counter() - t0
-        rows = _ROWS[key]
+    rows = _ROWS[key]
+    if state is not None:  # (its values from the start state; the structure kept)
+        rows = rows.at(state)
     codegen = setup.ocp.solver.codegen
     return lambda q: (rows, *rows.values(q, codegen, built))
 

@@ -33,6 +33,7 @@ from ..errors import SurestepError
 from ..model.lie import pose_mean, pose_to_matrix
 from ..model.limits import enforce as enforce_limits
 from ..model.limits import evaluate_curve
+from .certificate import NOT_CERTIFIED, certify
 from .confidence import at_horizon, plan_to_confidence
 from .methods import ocp_initial_guess
 from .backends import Context
@@ -47,6 +48,7 @@ from .strategy import records, replan_strategy
 from .strategy import run as run_strategy
 from ..problem.spec import Problem
 from ..problem.setup import Setup, build_setup
+from ..output.certificate import INFEASIBLE
 from ..output.solution import Solution, evaluate
 from ..output.solution_records import ReplanAttempt, ReplanRecord, SolveRecord, StartState
 
@@ -272,8 +274,10 @@ class Planner:
             # IPOPT's models, or Newton did not converge: the whole strategy from the previous plan
             sol = solve_ocp_warm(sub, warm, method="ocp-replan")[0]
             sol.run = replace(sol.run, warm_start_q=np.asarray(warm.q, float).tolist())
+        certificate_s = _certified(sub, sol)
         built_s = sum(self.builds.values()) - builds_before
-        sol.replan = ReplanRecord(step, time.perf_counter() - t0 - built_s, sol.run.solver, built_s)
+        sol.replan = ReplanRecord(step, time.perf_counter() - t0 - built_s, sol.run.solver, built_s,
+                                  certificate_s=certificate_s)
         if sol.success:  # else the previous plan stays current
             self.plan, self.step, self._q = sol, step, np.array(sol.q, float)
         return sol
@@ -380,6 +384,8 @@ class Planner:
                                                                "rad": float(res_rad)}
         if unreached is not None and reachable:
             sol.extras["goal_ik_residual"] = unreached
+        # the certificate (docs/certificate.md): a plan it finds infeasible is not run
+        certificate_s = _certified(sol.extras.pop(_SETUP), sol)
         built_s = self.build_time_s - builds_before
         feedback_s = sol.extras.pop("feedback_s", None)
         sol.replan = ReplanRecord(
@@ -387,7 +393,7 @@ class Planner:
             sol.extras.pop("attempts_tried", None), registration_held=unreached is not None
             and reachable, rti=rti, feedback_s=feedback_s,
             prepare_s=None if prep is None else prep.time_s,
-            prepared_ahead=None if prep is None else ahead)
+            prepared_ahead=None if prep is None else ahead, certificate_s=certificate_s)
         if sol.success:
             self.plan, self.step, self._q = sol, step, np.array(sol.q, float)
             self._start = tuple(np.array(v, float) for v in (sol.run.start_state.velocity,
@@ -500,6 +506,7 @@ class Planner:
         sol.run = replace(sol.run, solver="interior",
                           start_state=StartState(v0.tolist(), a0.tolist()),
                           warm_start_q=np.asarray(warm.q, float).tolist())
+        sol.extras[_SETUP] = sub  # (the certificate's problem; taken out before it is returned)
         return sol
 
     def _goal_joints(self, registered: Setup, base: Setup) -> tuple[np.ndarray, float, float]:
@@ -561,6 +568,23 @@ class Planner:
             if C.tobytes() != self._camera[0]:
                 self._camera, moved = (C.tobytes(), self.setup.seen_from(C)), True
         return self._camera[1], moved
+
+
+_SETUP = "_certified_setup"  # a re-plan's setup, kept in its extras until it is certified
+
+
+def _certified(sub: Setup, sol: Solution) -> float:
+    """Certify the re-plan `sol` of `sub` (`sol.certificate`, solvers/certificate.py: from the
+    problem's own functions, not the solver's rows) and give it the re-plan's meaning of success:
+    a plan the robot can run, so a successful one the certificate finds infeasible (or cannot
+    certify) becomes `Not_Certified`, not run (the previous plan stays current); the solver's own
+    words stay in `backend_status`, `backend_success`. Returns the seconds it took."""
+    t0 = time.perf_counter()
+    sol.backend_status, sol.backend_success = sol.status, sol.success
+    sol.certificate = certify(sub, sol, padded=True)
+    if sol.success and (sol.certificate is None or sol.certificate.level == INFEASIBLE):
+        sol.success, sol.status = False, NOT_CERTIFIED
+    return time.perf_counter() - t0
 
 
 # re-plans keep this fraction of the velocity, acceleration and tool-speed limits for corrections
