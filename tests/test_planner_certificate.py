@@ -176,6 +176,7 @@ def test_a_replan_the_certificate_finds_infeasible_is_not_run_and_is_counted(set
     kept = loop._replan(0, planner, step, mean, cov, None)
     assert kept is planner and planner.plan is before and planner.step == 0
     assert loop.failures == [(step, 0, NOT_CERTIFIED)]
+    assert loop.summary()["not_certified"] == 1
     # the same re-plan seen directly
     planner.prepare(step)
     sol = planner.replan(mean, cov, step=step)

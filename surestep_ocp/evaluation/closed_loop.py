@@ -25,6 +25,7 @@ from scipy.spatial.transform import Rotation
 from ..errors import SurestepError
 from ..model.lie import matrix_to_pose, pose_to_matrix
 from ..problem.spec import Problem
+from ..solvers.certificate import NOT_CERTIFIED
 from ..solvers.methods import closed_loop_unavailable
 from ..solvers.confidence import at_horizon
 from ..solvers.planner import MAX_LATE, Planner, without_confidence
@@ -60,7 +61,8 @@ class ClosedLoop:
 
     After a rollout call: `times` (each re-plan's time without builds [s], its preparation between
     frames included), `feedback` (the real-time iterations' feedback times [s]), `failures` ((step,
-    rollout, status) of each re-plan that kept the previous plan), `held` ((step, rollout) of each
+    rollout, status) of each re-plan that kept the previous plan; `Not_Certified`: a plan its
+    certificate found infeasible, docs/certificate.md), `held` ((step, rollout) of each
     re-plan that kept the previous camera registration), `late` (steps each rollout's goal moved
     later), `violations` (executed samples beyond a limit, per rollout).
     """
@@ -195,12 +197,14 @@ class ClosedLoop:
                 self._finish(i, planner)
 
     def summary(self) -> dict:
-        """Re-plans (count, failures, those longer than a step, median, p90 and worst time [ms],
-        every time), the steps the goal moved later (median, worst) and the executed samples beyond
-        a limit, over the last rollout call."""
+        """Re-plans (count, failures, those not certified, those longer than a step, median, p90
+        and worst time [ms], every time), the steps the goal moved later (median, worst) and the
+        executed samples beyond a limit, over the last rollout call."""
         self.finish()
         ms = np.asarray(self.times) * 1e3
-        return {"replans": len(ms), "failed": len(self.failures), "held": len(self.held),
+        return {"replans": len(ms), "failed": len(self.failures),
+                "not_certified": sum(why == NOT_CERTIFIED for _, _, why in self.failures),
+                "held": len(self.held),
                 "rollouts_failed": sorted({i for _, i, _ in self.failures}),
                 "rollouts_held": sorted({i for _, i in self.held}),
                 "late_replans": int(np.sum(ms > self.dt * 1e3)),
