@@ -294,12 +294,17 @@ class _Rows:
         R = np.vstack([rows, Rp])
         J = np.concatenate([joints, jp])
         a = np.concatenate([np.zeros(len(rows)), off])
-        A = np.zeros((len(R), (T + 1) * nq))
-        for i, (row, j) in enumerate(zip(R, J)):
-            A[i, np.arange(T + 1) * nq + j] = row[:T + 1]
-        keep = np.any(np.abs(A) > 1e-12 * np.abs(A).max(), axis=1)
-        self.A, self.a = A[keep], a[keep]  # (dense: the active rows' gradients are its rows)
-        self.sparse = csr_matrix(self.A)  # (each row touches one joint at a few nodes)
+        # each row acts on one joint at every node: its entries at (node t, joint J) node-major
+        W = R[:, :T + 1]
+        keep = np.any(np.abs(W) > 1e-12 * np.abs(W).max(), axis=1)
+        W, cols = W[keep], np.arange(T + 1)[None, :] * nq + J[keep][:, None]
+        A = np.zeros((len(W), (T + 1) * nq))
+        A[np.arange(len(W))[:, None], cols] = W
+        self.A, self.a = A, a[keep]  # (dense: the active rows' gradients are its rows)
+        # (sparse: each row touches one joint at a few nodes)
+        self.sparse = csr_matrix((W.ravel(), cols.ravel(), np.arange(len(W) + 1) * (T + 1)),
+                                 shape=A.shape)
+        self.sparse.eliminate_zeros()
         windows, weights, consts = lm.tool_point_windows(T, dt, moving)
         self.windows, self.weights = np.array(windows), weights
         self.offsets = np.zeros((len(windows), 2 * nq))
