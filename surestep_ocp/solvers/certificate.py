@@ -16,7 +16,11 @@ EKF takes) is evaluated in place (`buffered.py`), interpreted at first and compi
 from the compile cache, `codegen.py`) at the structure's `COMPILE_AFTER`-th certificate in the
 process, as `solver.codegen` allows; the multipliers' bounded least squares runs only when an
 inequality row is active, as a non-negative least squares on the rows the equality multipliers
-leave; the limit rows and their gradients are NumPy arrays over all rows at once.
+leave; the limit rows and their gradients are NumPy arrays over all rows at once. A re-plan (a
+Planner's, from a moving start: docs/certificate.md, "Re-plans") keeps its horizon's rows with the
+start state as values (`_Rows.at`) and is evaluated by the padded Function of its horizon's bucket
+(`PAD_STEPS`, `_padded_call`; its tool rates likewise, `PAD_POINTS`): a loop's horizons share a
+few Functions, with the values each horizon's own would give.
 """
 
 from __future__ import annotations
