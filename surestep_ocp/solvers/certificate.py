@@ -44,6 +44,7 @@ from ..model.limits import problem_limits
 from ..model.robot import CAMERA_PARAMETERS
 from ..output.certificate import Certificate, Tolerances, level_of
 from ..output.solution import Solution
+from ..output.solution_records import StartState
 from ..problem.setup import Setup
 from .codegen import available as compiler_available
 from .codegen import compiled_or_interpreted
@@ -97,6 +98,12 @@ class _Function:
                 self.fn, self.compiled = fns[name], self.note is None
                 built[0] += time.perf_counter() - t0
         return self.fn
+
+    def settle(self, codegen, built: list[float]) -> None:
+        """Compiled (or loaded) now where `codegen` allows, as at its `COMPILE_AFTER`-th use."""
+        self.uses = max(self.uses, COMPILE_AFTER - 1)
+        self.current(codegen, built)
+        self.uses -= 1  # (not a use)
 
 
 _FUNCTIONS: dict[tuple, _Function] = {}
@@ -648,17 +655,41 @@ def _limit_rows(setup: Setup, sol: Solution, built: list[float]):
     structure; a moving start's built each time; `built[0]` += the seconds building took)."""
     t0 = time.perf_counter()
     state = sol.run.start_state
+    rows = _rows(setup, state)
+    built[0] += time.perf_counter() - t0
+    if state is not None:  # (its values from the start state; the structure kept)
+        rows = rows.at(state)
+    codegen = setup.ocp.solver.codegen
+    return lambda q: (rows, *rows.values(q, codegen, built))
+
+
+def _rows(setup: Setup, state) -> _Rows:
+    """The limit rows' structure of this setup's horizon, from rest or (`state` given) from a
+    moving start, built once per process."""
     key = (str(setup.robot.urdf), setup.robot.frame, setup.robot.offset.tobytes(),
            setup.ocp.horizon, float(setup.ocp.timing.step_s), setup.ocp.limits,
            state is not None)
     if key not in _ROWS:
         _ROWS[key] = _Rows(setup, state)
-        built[0] += time.perf_counter() - t0
-    rows = _ROWS[key]
-    if state is not None:  # (its values from the start state; the structure kept)
-        rows = rows.at(state)
+    return _ROWS[key]
+
+
+def prepare_replans(setup: Setup) -> float:
+    """Build now what certifying a re-plan over `setup`'s horizon from a moving start uses: the
+    padded Function of its horizon's bucket, its limit rows' structure and their tool rates' map,
+    the Functions compiled (or loaded from the compile cache) where the problem's codegen allows.
+    The Planner calls it for every horizon it may re-plan over, so that no build or compile (about
+    1 s) falls inside a re-planning loop. Returns the seconds it took."""
+    t0, built = time.perf_counter(), [0.0]
+    if setup.ocp.horizon <= 0:
+        return 0.0
     codegen = setup.ocp.solver.codegen
-    return lambda q: (rows, *rows.values(q, codegen, built))
+    _function(setup, built, padded=True).settle(codegen, built)
+    _layout(setup, built)
+    if setup.ocp.limits.enforce:
+        zero = [0.0] * setup.robot.nq
+        _rows(setup, StartState(zero, zero)).rate.settle(codegen, built)
+    return time.perf_counter() - t0
 
 
 def claims_optimum(method: str) -> bool:

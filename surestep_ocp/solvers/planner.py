@@ -33,7 +33,7 @@ from ..errors import SurestepError
 from ..model.lie import pose_mean, pose_to_matrix
 from ..model.limits import enforce as enforce_limits
 from ..model.limits import evaluate_curve
-from .certificate import NOT_CERTIFIED, certify
+from .certificate import NOT_CERTIFIED, certify, prepare_replans
 from .confidence import at_horizon, plan_to_confidence
 from .methods import ocp_initial_guess
 from .backends import Context
@@ -524,12 +524,14 @@ class Planner:
         """(interior-point solver, compiled EKF or None) of a re-plan over `sub`'s horizon from a
         moving start, built on first use (its build time in `builds`, keyed by minus the horizon).
         The EKF evaluates a plan in one call (`_propagation`); None for a model with joint-space
-        noise, which needs the joints (`evaluate`)."""
+        noise, which needs the joints (`evaluate`). The re-plan's certificate is made ready with
+        it (`prepare_replans`: compiled now, not in the loop)."""
         t0, n = time.perf_counter(), sub.ocp.horizon
         if -n not in self._solvers:  # a re-plan's structure is its horizon's (no cache key made)
             self._solvers[-n] = (interior_solver(sub, moving=True),
                                  None if self.setup.model.joint_noise
                                  else Buffered(_propagation(self.setup.eval_model, n)))
+            prepare_replans(sub)
             self.builds[-n] = time.perf_counter() - t0
         return self._solvers[-n]
 
