@@ -1,4 +1,4 @@
-"""The optimality certificate (solvers/certificate.py) against an independent check, per backend and
+"""The optimality certificate (ocp/certificate.py) against an independent check, per backend and
 belief-model family; how often a backend's own success was not certified; what it costs.
 
 For N evaluation configurations (problems/evaluations/evaluation.yaml, T = 20; the `limits` family
@@ -11,7 +11,7 @@ does not apply to a family (newton within enforced limits, ...) is `n/a`.
 
 The cost: the certificate's time (`Certificate.time_s`, the per-structure builds and compiles
 excluded) over the plan's cold solve time. `--against REV` also loads REV's
-surestep_ocp/solvers/certificate.py (`git show`, beside this one in the package) and certifies
+surestep_ocp/ocp/certificate.py (`git show`, beside this one in the package) and certifies
 every plan with both, interleaved (which one first alternates per configuration), so the cost
 before and after is measured on the same plans in the same process; their verdicts are compared.
 
@@ -76,9 +76,9 @@ def family_problem(problem, family: str, backend: str):
 
 
 def certificate_at(rev: str):
-    """REV's certificate module (surestep_ocp/solvers/certificate.py at REV), loaded beside this
+    """REV's certificate module (surestep_ocp/ocp/certificate.py at REV), loaded beside this
     revision's in the same package (its relative imports resolve to this checkout's modules)."""
-    path = "surestep_ocp/solvers/certificate.py"
+    path = "surestep_ocp/ocp/certificate.py"
     source = subprocess.run(["git", "show", f"{rev}:{path}"], cwd=h.ROOT, capture_output=True,
                             text=True, check=True).stdout
     package = h.certify.__module__.rpartition(".")[0]

@@ -78,14 +78,14 @@ from surestep_ocp.problem.load import load_problem  # noqa: E402
 from surestep_ocp.problem.spec import LimitsSpec, TimingSpec  # noqa: E402
 from surestep_ocp.problem.setup import build_setup  # noqa: E402
 from surestep_ocp.solvers import nlp_cache as _nlp_cache  # noqa: E402
-from surestep_ocp.solvers.baseline import _timed, solve_baseline, time_optimal_law  # noqa: E402
-from surestep_ocp.solvers.gradient import solve_gradient  # noqa: E402
-from surestep_ocp.solvers.methods import method_setup, ocp_initial_guess, run_method  # noqa: E402,F401
-from surestep_ocp.solvers.certificate import certify  # noqa: E402,F401 (benchmarks/certificate.py)
-from surestep_ocp.solvers.iterate import InitialGuess  # noqa: E402
+from surestep_ocp.methods.baseline import _timed, solve_baseline, time_optimal_law  # noqa: E402
+from surestep_ocp.methods.gradient import solve_gradient  # noqa: E402
+from surestep_ocp.methods.registry import method_setup, ocp_initial_guess, run_method  # noqa: E402,F401
+from surestep_ocp.ocp.certificate import certify  # noqa: E402,F401 (benchmarks/certificate.py)
+from surestep_ocp.ocp.iterate import InitialGuess  # noqa: E402
 from surestep_ocp.solvers.nlp_cache import cached_transcriptions, newton_solver  # noqa: E402
-from surestep_ocp.solvers.ocp import _objective_at, diagonal_model_setup, solve_ocp, solve_ocp_warm  # noqa: E402
-from surestep_ocp.solvers.planner import Planner  # noqa: E402
+from surestep_ocp.methods.ocp import _objective_at, diagonal_model_setup, solve_ocp, solve_ocp_warm  # noqa: E402
+from surestep_ocp.methods.planner import Planner  # noqa: E402
 
 __all__ = [
     "ROOT", "RESULTS", "PROBLEMS", "EVALUATION", "DEFAULT_PROBLEM", "PAPER_PACE_PROBLEM",
@@ -293,7 +293,7 @@ class Stats:
 def replan_first_mu(value: float | None = None) -> float:
     """The Planner's first barrier parameter of a re-plan within the limits, set to `value` (None:
     kept); the one in force."""
-    from surestep_ocp.solvers import planner as _planner
+    from surestep_ocp.methods import planner as _planner
 
     if value is not None:
         _planner.REPLAN_MU = float(value)

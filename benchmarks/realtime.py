@@ -57,7 +57,7 @@ def cold_problems(args) -> list:
 
 def worst_row(setup, q) -> float:
     """The smallest of the interior point's rows at the plan q (scaled; negative: beyond)."""
-    from surestep_ocp.solvers.iterate import InitialGuess
+    from surestep_ocp.ocp.iterate import InitialGuess
     from surestep_ocp.solvers.nlp_cache import interior_solver
 
     return interior_solver(setup).start_margin(setup, InitialGuess(np.asarray(q, float), "plan"))
@@ -222,6 +222,10 @@ def load_interior(rev: str):
         path = root / "interior_against.py"
         path.write_text(git("show", f"{rev}:surestep_ocp/solvers/interior.py"))
         spec = importlib.util.spec_from_file_location(name, path)
+    # the modules an older revision imports from solvers/ that now live in ocp/ (issue 45's rooms)
+    for moved in ("codegen", "iterate", "stages", "surrogate", "transcription", "lifted"):
+        sys.modules.setdefault(f"surestep_ocp.solvers.{moved}",
+                               importlib.import_module(f"surestep_ocp.ocp.{moved}"))
     other = importlib.util.module_from_spec(spec)
     sys.modules[spec.name] = other
     spec.loader.exec_module(other)
@@ -231,8 +235,8 @@ def load_interior(rev: str):
 def against(args) -> list[str]:
     """The interior-point attempt alone, this checkout's interior-point method against
     `args.against`'s (`load_interior`), alternated per problem: table lines."""
+    import surestep_ocp.methods.ocp as ocp_module
     import surestep_ocp.solvers.backends.interior_point as backend
-    import surestep_ocp.solvers.ocp as ocp_module
     from surestep_ocp.solvers import nlp_cache
     from surestep_ocp.solvers.strategy import Attempt, Start
 

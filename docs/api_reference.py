@@ -14,8 +14,8 @@ from pathlib import Path
 # the package page (every export in full), then the modules a user of the API reads further in
 MODULES = ["surestep_ocp", "surestep_ocp.api", "surestep_ocp.errors", "surestep_ocp.problem.spec",
            "surestep_ocp.problem.load", "surestep_ocp.output.solution",
-           "surestep_ocp.output.export", "surestep_ocp.solvers.planner",
-           "surestep_ocp.evaluation.tracker", "surestep_ocp.solvers.codegen"]
+           "surestep_ocp.output.export", "surestep_ocp.methods.planner",
+           "surestep_ocp.evaluation.tracker", "surestep_ocp.ocp.codegen"]
 
 
 def build(out: Path) -> Path:

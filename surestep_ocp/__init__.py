@@ -24,9 +24,9 @@ __version__ = "0.1.0"
 
 _EXPORTS = {
     "load_problem": "problem.load", "problem_from_dict": "problem.load", "Problem": "problem.spec",
-    "solve": "api", "export": "api", "Solution": "output.solution", "Planner": "solvers.planner",
+    "solve": "api", "export": "api", "Solution": "output.solution", "Planner": "methods.planner",
     "SimulatedTracker": "evaluation.tracker", "SurestepError": "errors", "ProblemError": "errors",
-    "ProblemErrors": "errors", "METHODS": "solvers.methods",
+    "ProblemErrors": "errors", "METHODS": "methods.registry",
 }
 __all__ = ["METHODS", "Planner", "Problem", "ProblemError", "ProblemErrors", "SimulatedTracker",
            "Solution", "SurestepError", "export", "load_problem", "problem_from_dict", "solve"]
@@ -39,8 +39,8 @@ if TYPE_CHECKING:
     from .output.solution import Solution
     from .problem.load import load_problem, problem_from_dict
     from .problem.spec import Problem
-    from .solvers.methods import BASE_METHODS as METHODS
-    from .solvers.planner import Planner
+    from .methods.registry import BASE_METHODS as METHODS
+    from .methods.planner import Planner
 
 
 def __getattr__(name: str):

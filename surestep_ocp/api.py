@@ -37,7 +37,7 @@ def solve(problem: Problem, method: str = "ocp") -> Solution:
     if not isinstance(method, str):
         raise SurestepError("solve: method must be a method name (a string), "
                             f"got {type(method).__name__}; {grammar()}")
-    from .solvers.methods import run_method
+    from .methods.registry import run_method
     from .problem.setup import build_setup
 
     return run_method(build_setup(problem), method)

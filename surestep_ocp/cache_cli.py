@@ -1,7 +1,7 @@
 """`surestep cache [--info | --clear | --prune [--max-mb N]]`: the compile cache of the OCP's
 derivatives.
 
-Where it is and how it is bounded: `solvers/codegen.py` (docs/cli.md, "The compile cache").
+Where it is and how it is bounded: `ocp/codegen.py` (docs/cli.md, "The compile cache").
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ def _mb(n: int) -> str:
 
 
 def info_text() -> str:
-    from .solvers import codegen
+    from .ocp import codegen
 
     folder = codegen.cache_dir()
     libs = codegen.entries(folder)
@@ -48,7 +48,7 @@ def info_text() -> str:
 
 def cmd_cache(args) -> int:
     from .errors import SurestepError
-    from .solvers import codegen
+    from .ocp import codegen
 
     folder = codegen.cache_dir()
     if args.clear:

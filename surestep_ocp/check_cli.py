@@ -33,8 +33,8 @@ def _recomputed(sol):
     """(certificate, where from) recomputed from the problem file, or (None, why not)."""
     from .problem.load import load_problem
     from .problem.setup import build_setup
-    from .solvers.certificate import certify
-    from .solvers.methods import method_setup
+    from .ocp.certificate import certify
+    from .methods.registry import method_setup
 
     if sol.replan is not None:
         return None, "a re-plan (its start and Sigma_0 are not the problem file's)"
@@ -53,7 +53,7 @@ def _recomputed(sol):
 def check_lines(path: str) -> tuple[bool, list[str]]:
     """(certified, the lines to print) for the solution file `path`."""
     from .output.certificate import FEASIBLE
-    from .solvers.certificate import claims_optimum
+    from .ocp.certificate import claims_optimum
 
     sol = _solution(path)
     cert, source = _recomputed(sol)

@@ -49,7 +49,7 @@ def _long_work_note(setup) -> None:
 
 
 def _summary(sol, base=None) -> str:
-    from .solvers.baseline import LENGTHENED, duration_note
+    from .methods.baseline import LENGTHENED, duration_note
 
     err_m, err_rad = sol.terminal_error
     lines = [
@@ -105,7 +105,7 @@ def certificate_lines(sol) -> list[str]:
 
 
 def grasp_line(rec: dict) -> str:
-    """A plan's grasp record (solvers/confidence.py) in one line."""
+    """A plan's grasp record (methods/confidence.py) in one line."""
     tol = rec["tolerance"]
     text = (f"confidence {rec['predicted']:.4f} (within {tol['position'] * 1e3:g} mm and "
             f"{tol['angle']:g} rad) at {rec['duration_s']:.2f} s")
@@ -129,7 +129,7 @@ def _with_solver_flags(setup, args):
 
 
 def cmd_solve(args) -> int:
-    from .solvers.methods import run_method
+    from .methods.registry import run_method
 
     from .output.files import check_finite, check_output_file
 
@@ -157,7 +157,7 @@ def cmd_solve(args) -> int:
 def cmd_compare(args) -> int:
     from .comparison import run_comparison, write_comparison
     from .model.limits import LimitsReport, worst_violations
-    from .solvers.methods import COMPARE_METHODS, counted_failures
+    from .methods.registry import COMPARE_METHODS, counted_failures
 
     from .output.files import check_finite, check_output_dir, check_output_file
 
@@ -194,7 +194,7 @@ def cmd_compare(args) -> int:
 
 
 def cmd_replan(args) -> int:
-    from .solvers.camera_move_replan import replan_after_camera_moves
+    from .methods.camera_move_replan import replan_after_camera_moves
 
     from .output.files import check_output_dir
 
@@ -253,7 +253,7 @@ def cmd_show(args) -> int:
         raise SurestepError(f"{target}: no such file or directory")
     solutions = None
     if target.suffix in (".yaml", ".yml"):
-        from .solvers.methods import run_method
+        from .methods.registry import run_method
 
         _, setup = _load(str(target))
         solutions = [run_method(setup, "baseline").to_dict()]

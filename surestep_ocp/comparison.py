@@ -9,10 +9,10 @@ from pathlib import Path
 import numpy as np
 
 from .errors import SurestepError
-from .solvers.gradient import JOINT_NOISE_UNSUPPORTED
+from .methods.gradient import JOINT_NOISE_UNSUPPORTED
 from .method_grammar import split_name
-from .solvers.baseline import LENGTHENED, duration_note
-from .solvers.methods import COMPARE_METHODS, run_method
+from .methods.baseline import LENGTHENED, duration_note
+from .methods.registry import COMPARE_METHODS, run_method
 from .evaluation.metrics import comparison_rows, markdown_table
 from .model.limits.enforcement import enforce
 from .model.limits.report import (

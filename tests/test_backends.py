@@ -21,9 +21,9 @@ from surestep_ocp.output.solution import Solution
 from surestep_ocp.problem.setup import build_setup
 from surestep_ocp.problem.solver_config import SolverName, resolve
 from surestep_ocp.solvers.backends import BACKENDS, Backend, Context
-from surestep_ocp.solvers.iterate import Iterate
-from surestep_ocp.solvers.methods import ocp_initial_guess, run_method
-from surestep_ocp.solvers.ocp import resolved_solver
+from surestep_ocp.ocp.iterate import Iterate
+from surestep_ocp.methods.registry import ocp_initial_guess, run_method
+from surestep_ocp.methods.ocp import resolved_solver
 
 
 @pytest.fixture(scope="module")

@@ -71,8 +71,8 @@ def no_work(monkeypatch):
     # every module that binds it on import, imported first: one first imported while it is
     # patched would keep the forbidden function for the rest of the session
     modules = [importlib.import_module(f"surestep_ocp.{name}") for name in (
-        "solvers.methods", "comparison", "evaluation.evaluation", "evaluation.table2",
-        "evaluation.sure_grasp", "solvers.camera_move_replan")]
+        "methods.registry", "comparison", "evaluation.evaluation", "evaluation.table2",
+        "evaluation.sure_grasp", "methods.camera_move_replan")]
     for module in modules:
         monkeypatch.setattr(module, "run_method", forbidden)
 
@@ -137,7 +137,7 @@ def test_replan_output_dir_under_a_file_is_refused_before_the_work(tmp_path, cap
 
 def test_a_non_finite_solution_is_not_written(tmp_path, default_setup):
     """NaN in a solution: an error naming the key that diverged, and no file."""
-    from surestep_ocp.solvers.baseline import solve_baseline
+    from surestep_ocp.methods.baseline import solve_baseline
     from surestep_ocp.output.files import NonFinite
 
     sol = solve_baseline(default_setup)
@@ -237,7 +237,7 @@ def test_plain_exponents_are_numbers(tmp_path):
 
 # ------------------------------------------------------------------ show
 def _solution(tmp_path, default_setup) -> Path:
-    from surestep_ocp.solvers.baseline import solve_baseline
+    from surestep_ocp.methods.baseline import solve_baseline
 
     out = tmp_path / "sol.json"
     solve_baseline(default_setup).save(out)
@@ -375,13 +375,13 @@ def test_a_corrupt_cached_library_is_rebuilt_with_a_note(tmp_path):
     In a subprocess: loading a truncated shared library can kill the process (SIGBUS).
     """
     pytest.importorskip("casadi")
-    from surestep_ocp.solvers.codegen import available
+    from surestep_ocp.ocp.codegen import available
 
     if not available():
         pytest.skip("no C compiler")
     script = """
 import casadi as ca
-from surestep_ocp.solvers import codegen
+from surestep_ocp.ocp import codegen
 x = ca.SX.sym("x", 3)
 g, fresh = codegen.compiled(ca.Function("fuzz_cache_probe", [x], [ca.sin(x) * x]))
 print(fresh, float(g([1, 2, 3])[1]))

@@ -216,7 +216,7 @@ def test_a_moving_camera_holds_its_last_pose_after_the_horizon():
 def test_a_line_no_time_law_keeps_within_is_a_failure_that_says_why(write_problem, capsys):
     """A tool speed of 10 um/s would need hours: beyond the search (MAX_STEPS) the baseline is the
     line at a constant pace in the problem's steps, status Motion_Limits_Violated, exit 1, said."""
-    from surestep_ocp.solvers.baseline import MAX_STEPS
+    from surestep_ocp.methods.baseline import MAX_STEPS
 
     path = write_problem(lambda t: t.update(limits={"enforce": True, "tool_speed": 1e-5}), "slow")
     sol = ss.solve(ss.load_problem(path), "baseline")

@@ -499,7 +499,7 @@ def predicted_setup():
 @pytest.mark.parametrize("method", ["gradient-no-pose-loss", "ocp"])
 def test_predicted_objective_is_the_covariance_before_the_last_update(predicted_setup, method):
     """`objective.covariance: predicted` minimises Tr(Sigma_T|T-1), as the exact EKF computes it."""
-    from surestep_ocp.solvers.methods import run_method
+    from surestep_ocp.methods.registry import run_method
 
     sol = run_method(predicted_setup, method)
     _, pred = predicted_setup.eval_model.propagate(np.array(sol.poses))

@@ -1,4 +1,4 @@
-"""The optimality certificate (solvers/certificate.py, output/certificate.py) and `surestep check`:
+"""The optimality certificate (ocp/certificate.py, output/certificate.py) and `surestep check`:
 its trace against the textbook NumPy EKF, its stationarity against finite differences, a perturbed
 plan not certified, the one meaning of success, the solution file's record."""
 
@@ -13,8 +13,8 @@ import numpy_ekf as ref
 from surestep_ocp.cli import main
 from surestep_ocp.output.certificate import FEASIBLE, INFEASIBLE, OPTIMAL
 from surestep_ocp.output.solution import Solution
-from surestep_ocp.solvers.certificate import NOT_CERTIFIED, certify, judge
-from surestep_ocp.solvers.methods import run_method
+from surestep_ocp.ocp.certificate import NOT_CERTIFIED, certify, judge
+from surestep_ocp.methods.registry import run_method
 
 
 @pytest.fixture(scope="module")
@@ -125,8 +125,8 @@ def test_check_command(ocp, tmp_path, capsys):
 
 
 def test_the_compiled_certificate_is_the_interpreted_ones_and_the_differences(default_setup, ocp):
-    from surestep_ocp.solvers import certificate as cm
-    from surestep_ocp.solvers.codegen import available
+    from surestep_ocp.ocp import certificate as cm
+    from surestep_ocp.ocp.codegen import available
 
     # a structure of its own (smoothness is in its key): interpreted at first, compiled at its
     # COMPILE_AFTER-th certificate
@@ -186,7 +186,7 @@ def test_the_multipliers_are_the_bounded_least_squares_over_all_of_them():
     duplicated and rank-deficient columns."""
     from scipy.optimize import lsq_linear
 
-    from surestep_ocp.solvers.certificate import _multipliers
+    from surestep_ocp.ocp.certificate import _multipliers
 
     rng = np.random.default_rng(3)
     for trial in range(20):
@@ -212,7 +212,7 @@ def test_the_tool_rows_gradients_are_their_differences(default_setup, ocp):
     gradients (assembled over all points at once) against central differences of their values,
     and the certificate's stationarity against differences of the NumPy EKF."""
     from surestep_ocp.problem.spec import LimitsSpec
-    from surestep_ocp.solvers.certificate import _Rows
+    from surestep_ocp.ocp.certificate import _Rows
 
     setup = default_setup.with_ocp(limits=LimitsSpec(enforce=True),
                                    timing=replace(default_setup.ocp.timing, step_s=0.05))

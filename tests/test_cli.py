@@ -130,7 +130,7 @@ def test_solver_flags_hessian_newton_and_fatrop(tmp_path):
     assert res.returncode == 2 and "solver.name" in res.stderr and "ipopt" in res.stderr
 
 
-@pytest.mark.skipif(not __import__("surestep_ocp.solvers.codegen").solvers.codegen.available(),
+@pytest.mark.skipif(not __import__("surestep_ocp.ocp.codegen").ocp.codegen.available(),
                     reason="no C compiler on this machine")
 def test_codegen_compiles_once_and_gives_the_same_plan(tmp_path):
     """--codegen: the compiled derivatives give the VM's plan; the second run loads the cached
@@ -212,7 +212,7 @@ def test_help_lists_every_method_name_from_the_registry(monkeypatch):
             assert part in text, (cmd, part)
     assert "(default: " + " ".join(BASE_METHODS) + ")" in help_text(subparsers()["compare"],
                                                                     monkeypatch)
-    from surestep_ocp.solvers.methods import COMPARE_METHODS
+    from surestep_ocp.methods.registry import COMPARE_METHODS
 
     assert COMPARE_METHODS == BASE_METHODS
 

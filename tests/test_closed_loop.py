@@ -23,8 +23,8 @@ from surestep_ocp.evaluation.rollout import Detection, rollout
 from surestep_ocp.model.limits import evaluate_curve
 from surestep_ocp.problem.load import load_problem
 from surestep_ocp.problem.setup import build_setup
-from surestep_ocp.solvers.baseline import straight_line
-from surestep_ocp.solvers.methods import run_method
+from surestep_ocp.ocp.straight_line import straight_line
+from surestep_ocp.methods.registry import run_method
 
 T = 6
 

@@ -15,7 +15,7 @@ import casadi as ca
 import pytest
 
 from surestep_ocp.cli import main
-from surestep_ocp.solvers import codegen
+from surestep_ocp.ocp import codegen
 
 REPO = Path(__file__).resolve().parents[1]
 needs_cc = pytest.mark.skipif(not codegen.available(), reason="no C compiler on this machine")
@@ -154,7 +154,7 @@ def test_the_cache_command_runs_as_a_program(cache_env):
 _TAMPER_SCRIPT = """
 import json, sys
 import casadi as ca
-from surestep_ocp.solvers import codegen
+from surestep_ocp.ocp import codegen
 
 def probe(n, k):  # one function name, as a horizon's functions share theirs: n inputs, constant k
     x = ca.SX.sym("x", n)
@@ -328,7 +328,7 @@ def test_cache_reads_are_of_regular_files_within_a_bound(tmp_path):
 _HOSTILE_SCRIPT = """
 import sys
 import casadi as ca
-from surestep_ocp.solvers import codegen
+from surestep_ocp.ocp import codegen
 x = ca.SX.sym("x", 2)
 f, fresh = codegen.compiled(ca.Function("hostile_probe", [x], [ca.cos(x) * 3.0]))
 print(fresh, list(map(float, f([1, 2]).nonzeros())))

@@ -23,7 +23,7 @@ import pytest
 import yaml
 
 from surestep_ocp.cli import main
-from surestep_ocp.solvers.methods import run_method
+from surestep_ocp.methods.registry import run_method
 
 REPO = Path(__file__).resolve().parents[1]
 PSM = REPO / "robots" / "psm.urdf"

@@ -26,7 +26,7 @@ def baseline(tmp_path_factory) -> dict:
     dict."""
     from surestep_ocp.problem.load import load_problem
     from surestep_ocp.problem.setup import build_setup
-    from surestep_ocp.solvers.methods import run_method
+    from surestep_ocp.methods.registry import run_method
 
     d = tmp_path_factory.mktemp("baseline")
     setup = build_setup(load_problem(REPO / "problems" / "needle_regrasp_paper_pace.yaml"))

@@ -20,7 +20,7 @@ from rosbags.typesys import Stores, get_typestore
 from test_export import ACCEL, ARM, LIMITS, REL, export, read_json
 
 from surestep_ocp.cli import main
-from surestep_ocp.solvers.methods import run_method
+from surestep_ocp.methods.registry import run_method
 
 REPO = Path(__file__).resolve().parents[1]
 TS = get_typestore(Stores.ROS2_HUMBLE)

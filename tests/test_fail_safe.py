@@ -15,7 +15,7 @@ from surestep_ocp.errors import SurestepError
 from surestep_ocp.evaluation.rollout import rollout
 from surestep_ocp.evaluation.tracker import SimulatedTracker
 from surestep_ocp.model.belief import BeliefModel
-from surestep_ocp.solvers.baseline import straight_line
+from surestep_ocp.ocp.straight_line import straight_line
 
 # the issue's repro: motion noise 1e6, observation noise 1e-30 (and the other extremes)
 SCALES = [(1e6, 1e-30), (1e-30, 1e6), (1e6, 1e6), (1e-30, 1e-30)]
@@ -80,7 +80,7 @@ def test_planner_refuses_a_bad_replan_iterations(value):
     """`Planner(replan_iterations=...)`: NaN was a raw ValueError, inf an OverflowError, "3"
     accepted and -1 silently unbounded; now one SurestepError naming the argument, before any
     setup is built."""
-    from surestep_ocp.solvers.planner import Planner
+    from surestep_ocp.methods.planner import Planner
 
     with pytest.raises(SurestepError, match="replan_iterations must be a whole number >= 0"):
         Planner(None, replan_iterations=value)
@@ -143,7 +143,7 @@ def test_the_surrogates_kalman_stage_keeps_its_accuracy(default_setup, w, v, H):
     import casadi as ca
 
     from surestep_ocp.model.belief import unvech, vech
-    from surestep_ocp.solvers.surrogate import kalman_stage
+    from surestep_ocp.ocp.surrogate import kalman_stage
 
     base = _extreme(default_setup, w, v)
     model = base if H is None else _with_jacobians(base, lambda x1: ca.SX(ca.DM(H)))

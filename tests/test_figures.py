@@ -35,7 +35,7 @@ def test_registry_is_what_the_code_runs():
     from surestep_ocp.model.belief import COMPONENTS
     from surestep_ocp.evaluation.evaluation import DEFAULT_METHODS
     from surestep_ocp.method_grammar import CLOSED_LOOP_METHODS
-    from surestep_ocp.solvers.methods import COMPARE_METHODS, parse_method
+    from surestep_ocp.methods.registry import COMPARE_METHODS, parse_method
 
     names = all_names()
     for m in names:
@@ -57,7 +57,7 @@ def test_scene_colours_are_the_png_colours():
 def solutions(default_setup):
     """The default problem's baseline under five method names, ocp and ocp-from-gradient
     coinciding."""
-    from surestep_ocp.solvers.methods import run_method
+    from surestep_ocp.methods.registry import run_method
 
     base = run_method(default_setup, "baseline")
     out = []

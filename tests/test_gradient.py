@@ -1,4 +1,4 @@
-"""The paper's gradient-descent variant (surestep_ocp.solvers.gradient) on a short horizon of the
+"""The paper's gradient-descent variant (surestep_ocp.methods.gradient) on a short horizon of the
 default problem."""
 
 import dataclasses
@@ -8,8 +8,9 @@ import numpy as np
 import pytest
 import yaml
 
-from surestep_ocp.solvers.baseline import solve_baseline, straight_line
-from surestep_ocp.solvers.gradient import build_loss, solve_gradient
+from surestep_ocp.methods.baseline import solve_baseline
+from surestep_ocp.ocp.straight_line import straight_line
+from surestep_ocp.methods.gradient import build_loss, solve_gradient
 from surestep_ocp.problem.load import load_problem
 from surestep_ocp.problem.setup import build_setup
 

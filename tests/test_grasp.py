@@ -20,8 +20,8 @@ from surestep_ocp.evaluation.closed_loop import robot_pace
 from surestep_ocp.model.grasp import grasp_probability, nees, within
 from surestep_ocp.problem.load import load_problem
 from surestep_ocp.problem.setup import build_setup
-from surestep_ocp.solvers.confidence import NOT_REACHED, at_horizon
-from surestep_ocp.solvers.methods import run_method
+from surestep_ocp.methods.confidence import NOT_REACHED, at_horizon
+from surestep_ocp.methods.registry import run_method
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -199,7 +199,7 @@ def test_a_confidence_the_cap_cannot_reach_is_a_status(tmp_path, capsys):
 def test_the_planner_plans_to_the_confidence():
     """A nominal 1 s is too short for 0.95 on Type 1 medium: the Planner lengthens it to the
     shortest horizon that reaches it, and never shortens the problem's own 2 s."""
-    from surestep_ocp.solvers.planner import Planner
+    from surestep_ocp.methods.planner import Planner
 
     p = robot_pace(load_problem(REPO / "problems" / "type1_medium.yaml"))
     medium = build_setup(p.with_sections(goal={**p.source["goal"], "confidence": 0.95}))
@@ -215,7 +215,7 @@ def test_a_plan_counts_only_the_observations_the_detector_delivers():
     """The confidence with a detector equals the NumPy EKF's that skips the updates at waypoints
     outside the detectable region (rollout.Detection's hard edge)."""
     from surestep_ocp.model.detection import Detection
-    from surestep_ocp.solvers.confidence import predicted_at_grasp
+    from surestep_ocp.methods.confidence import predicted_at_grasp
 
     p = load_problem(REPO / "problems" / "type1_medium.yaml")
     seen = build_setup(p.with_sections(detection={"margin": 0.25}))

@@ -18,7 +18,7 @@ from surestep_ocp.evaluation.rollout import rollout
 from surestep_ocp.model.grasp import within
 from surestep_ocp.problem.load import load_problem
 from surestep_ocp.problem.setup import build_setup
-from surestep_ocp.solvers.methods import run_method
+from surestep_ocp.methods.registry import run_method
 
 REPO = Path(__file__).resolve().parents[1]
 N = 400

@@ -92,8 +92,8 @@ def _played_peaks(setup, q):
 def relaxed_runs():
     """The default problem from the straight line at a constant pace (which breaks the acceleration
     rows in its first and last step), relaxed; and from its plan again within a 5 % reserve."""
-    from surestep_ocp.solvers.backends.interior_point import timed_line
-    from surestep_ocp.solvers.iterate import InitialGuess
+    from surestep_ocp.ocp.straight_line import timed_line
+    from surestep_ocp.ocp.iterate import InitialGuess
     from surestep_ocp.solvers.nlp_cache import interior_solver
 
     setup = build_setup(ss.load_problem("problems/needle_regrasp.yaml"))
@@ -240,8 +240,8 @@ def test_a_start_is_inside_when_its_rows_are():
     ends), the line at a feasible time law, and that line with one waypoint moved past a joint
     bound, by 0.05 rad (an acceleration row broken) and by 1e-9 rad (still inside)."""
     from surestep_ocp.solvers.backends.interior_point import feasible_line
-    from surestep_ocp.solvers.baseline import timed_line
-    from surestep_ocp.solvers.iterate import InitialGuess
+    from surestep_ocp.ocp.straight_line import timed_line
+    from surestep_ocp.ocp.iterate import InitialGuess
     from surestep_ocp.solvers.nlp_cache import interior_solver
 
     setup = build_setup(ss.load_problem("problems/needle_regrasp.yaml"))
@@ -325,7 +325,7 @@ def test_a_one_step_plan_is_decided_at_once():
     towards a slack of 0 and w / s overflowed)."""
     from dataclasses import replace
 
-    from surestep_ocp.solvers.iterate import InitialGuess
+    from surestep_ocp.ocp.iterate import InitialGuess
     from surestep_ocp.solvers.nlp_cache import interior_solver
 
     base = build_setup(ss.load_problem("problems/needle_regrasp.yaml"))
@@ -368,7 +368,7 @@ def test_a_runs_options_as_one_object_and_its_iterations_records(relaxed_runs, c
     run's `history` holds one record per iteration (and the last test's), the lines `verbose`
     prints."""
     from surestep_ocp.solvers.interior import InteriorOptions
-    from surestep_ocp.solvers.iterate import InitialGuess
+    from surestep_ocp.ocp.iterate import InitialGuess
     from surestep_ocp.solvers.nlp_cache import interior_solver
 
     setup, _, _, relaxed, tight = relaxed_runs

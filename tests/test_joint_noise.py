@@ -23,8 +23,8 @@ from surestep_ocp.model.belief import COSINE_GUARD, unvech
 from surestep_ocp.comparison import run_comparison
 from surestep_ocp.problem.load import load_problem
 from surestep_ocp.problem.setup import build_setup
-from surestep_ocp.solvers.methods import ocp_initial_guess, run_method
-from surestep_ocp.solvers.ocp import solve_ocp
+from surestep_ocp.methods.registry import ocp_initial_guess, run_method
+from surestep_ocp.methods.ocp import solve_ocp
 
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT = ROOT / "problems" / "needle_regrasp_paper_pace.yaml"

@@ -1,4 +1,4 @@
-"""The lifted form (surestep_ocp.solvers.lifted: vech(Sigma) multiple shooting,
+"""The lifted form (surestep_ocp.ocp.lifted: vech(Sigma) multiple shooting,
 `solver.covariance: full`) on belief models beyond the paper's constants: full 6x6 base covariances,
 a noise floor.
 
@@ -19,10 +19,10 @@ import pytest
 from numpy_ekf import propagate
 
 from surestep_ocp.model.belief import COSINE_GUARD
-from surestep_ocp.solvers.methods import ocp_initial_guess
-from surestep_ocp.solvers.iterate import InitialGuess
+from surestep_ocp.methods.registry import ocp_initial_guess
+from surestep_ocp.ocp.iterate import InitialGuess
 from surestep_ocp.solvers.nlp_cache import transcription
-from surestep_ocp.solvers.ocp import solve_ocp
+from surestep_ocp.methods.ocp import solve_ocp
 from surestep_ocp.problem.load import load_problem
 from surestep_ocp.problem.setup import build_setup
 

@@ -21,9 +21,9 @@ import pytest
 from surestep_ocp.model.belief import COSINE_GUARD
 from surestep_ocp.evaluation.configs import ConfigurationSampler, load_evaluation
 from surestep_ocp.errors import ProblemError
-from surestep_ocp.solvers.methods import ocp_initial_guess, run_method
+from surestep_ocp.methods.registry import ocp_initial_guess, run_method
 from surestep_ocp.solvers.nlp_cache import transcription
-from surestep_ocp.solvers.ocp import solve_ocp
+from surestep_ocp.methods.ocp import solve_ocp
 from surestep_ocp.problem.load import load_problem
 from surestep_ocp.problem.spec import LimitsSpec
 from surestep_ocp.problem.setup import build_setup

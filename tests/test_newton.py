@@ -17,9 +17,9 @@ from test_lifted import MODELS, correlated_depth, problem
 
 from surestep_ocp.model.belief import COSINE_GUARD, vech
 from surestep_ocp.errors import SurestepError
-from surestep_ocp.solvers.methods import ocp_initial_guess
+from surestep_ocp.methods.registry import ocp_initial_guess
 from surestep_ocp.solvers.nlp_cache import newton_solver
-from surestep_ocp.solvers.ocp import solve_ocp
+from surestep_ocp.methods.ocp import solve_ocp
 from surestep_ocp.problem.load import load_problem
 from surestep_ocp.problem.setup import build_setup
 from surestep_ocp.problem.solver_config import resolve_form
@@ -149,7 +149,7 @@ def test_newton_only_where_the_goal_fixes_the_last_joints(short):
     from types import SimpleNamespace
 
     from surestep_ocp.problem.solver_config import resolve
-    from surestep_ocp.solvers.ocp import resolved_solver
+    from surestep_ocp.methods.ocp import resolved_solver
 
     assert resolved_solver(short).newton_fits
     spec = short.ocp.solver
@@ -165,7 +165,7 @@ def test_newton_only_where_the_goal_fixes_the_last_joints(short):
 def test_newton_warm_resolve_after_a_camera_move(short):
     """A Newton solution returns its joints as the warm start; after a small camera move the warm
     Newton solve reaches the cold optimum, in fewer iterations."""
-    from surestep_ocp.solvers.ocp import solve_ocp_warm
+    from surestep_ocp.methods.ocp import solve_ocp_warm
 
     setup = with_solver(short, name="auto")
     init = ocp_initial_guess(setup)
@@ -203,7 +203,7 @@ def test_newton_stops_when_it_stalls(short):
     a success)."""
     from surestep_ocp.solvers.newton import STALL_WINDOW
     from surestep_ocp.solvers.nlp_cache import newton_solver
-    from surestep_ocp.solvers.iterate import InitialGuess
+    from surestep_ocp.ocp.iterate import InitialGuess
 
     solver = newton_solver(short)
     opt = solver.run(short, ocp_initial_guess(short), tol=1e-6)
@@ -239,7 +239,7 @@ def test_second_start_never_ends_above_the_diagonal_models_plan():
     in the same model. Evaluation configurations 9 and 38 with the correlated depth noise, where
     Newton from the straight line alone ended above the paper plan (docs/general_models.md)."""
     from surestep_ocp.evaluation.configs import ConfigurationSampler, load_evaluation
-    from surestep_ocp.solvers.ocp import diagonal_model_setup
+    from surestep_ocp.methods.ocp import diagonal_model_setup
 
     sampler = ConfigurationSampler(load_evaluation(DEFAULT.parent / "evaluations"
                                                    / "evaluation.yaml"))

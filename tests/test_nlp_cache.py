@@ -14,7 +14,7 @@ from surestep_ocp.model import limits as lm
 from surestep_ocp.output.export import time_parametrise, within_position_limits
 from surestep_ocp.problem.load import load_problem
 from surestep_ocp.problem.setup import build_setup
-from surestep_ocp.solvers.methods import ocp_initial_guess, run_method
+from surestep_ocp.methods.registry import ocp_initial_guess, run_method
 from surestep_ocp.solvers.nlp_cache import transcription
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -124,7 +124,7 @@ def test_the_interior_solver_compiles_the_robots_ik_once(monkeypatch):
     the interpreted one's, checked by Pinocchio's FK."""
     from surestep_ocp.model import robot as robot_module
     from surestep_ocp.solvers import nlp_cache
-    from surestep_ocp.solvers.codegen import available
+    from surestep_ocp.ocp.codegen import available
 
     if not available():
         pytest.skip("no C compiler")

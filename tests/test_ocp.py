@@ -18,9 +18,10 @@ import pinocchio as pin
 import pytest
 from scipy.spatial.transform import Rotation
 
-from surestep_ocp.solvers.baseline import solve_baseline, straight_line
-from surestep_ocp.solvers.iterate import InitialGuess
-from surestep_ocp.solvers.ocp import solve_ocp
+from surestep_ocp.methods.baseline import solve_baseline
+from surestep_ocp.ocp.straight_line import straight_line
+from surestep_ocp.ocp.iterate import InitialGuess
+from surestep_ocp.methods.ocp import solve_ocp
 from surestep_ocp.problem.setup import build_setup
 from surestep_ocp.output.solution import Solution
 

@@ -15,12 +15,12 @@ import numpy_ekf as ref
 import pytest
 from scipy.spatial.transform import Rotation
 
-from surestep_ocp.solvers.baseline import solve_baseline
+from surestep_ocp.methods.baseline import solve_baseline
 from surestep_ocp.model.belief import BeliefModel, NoiseParams
 from surestep_ocp.evaluation.configs import ConfigurationSampler, load_evaluation
 from surestep_ocp.errors import ProblemError
-from surestep_ocp.solvers.methods import ocp_initial_guess, run_method
-from surestep_ocp.solvers.ocp import solve_ocp
+from surestep_ocp.methods.registry import ocp_initial_guess, run_method
+from surestep_ocp.methods.ocp import solve_ocp
 from surestep_ocp.problem.load import load_problem
 from surestep_ocp.evaluation.rollout import rollout
 from surestep_ocp.model.lie import np_means, pose_mean

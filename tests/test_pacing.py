@@ -101,7 +101,7 @@ def test_execution_pace_is_read_strictly_and_runs_the_rollouts_on_the_paced_plan
     assert steps["planned"] == {"baseline": 20, "ocp": 20}
     spec = load_evaluation(path)
     setup = ConfigurationSampler(spec).setup_of(ConfigurationSampler(spec).sample(0, 1))
-    from surestep_ocp.solvers.methods import run_method
+    from surestep_ocp.methods.registry import run_method
 
     for m in ("baseline", "ocp"):
         P = np.asarray(run_method(setup, m).poses)

@@ -13,8 +13,8 @@ import pytest
 
 import surestep_ocp as ss
 from surestep_ocp.model.belief import COSINE_GUARD
-from surestep_ocp.solvers.iterate import InitialGuess
-from surestep_ocp.solvers.ocp import solve_ocp
+from surestep_ocp.ocp.iterate import InitialGuess
+from surestep_ocp.methods.ocp import solve_ocp
 from surestep_ocp.problem.setup import build_setup
 
 T = 8

@@ -1,4 +1,4 @@
-"""The Planner acts on each re-plan's certificate (solvers/planner.py `_certified`,
+"""The Planner acts on each re-plan's certificate (methods/planner.py `_certified`,
 docs/certificate.md "Re-plans"): every re-plan carries one, computed from the problem's own
 functions with what a horizon fixes kept (the padded Function, the limit rows' structure; the
 start state enters as values); a re-plan it finds infeasible is not run, and the closed loop
@@ -20,9 +20,9 @@ from surestep_ocp.model import limits as lm
 from surestep_ocp.model.limits import evaluate_curve
 from surestep_ocp.output.certificate import INFEASIBLE
 from surestep_ocp.problem.setup import build_setup
-from surestep_ocp.solvers import certificate as cm
-from surestep_ocp.solvers import planner as pm
-from surestep_ocp.solvers.certificate import NOT_CERTIFIED, certify
+from surestep_ocp.ocp import certificate as cm
+from surestep_ocp.methods import planner as pm
+from surestep_ocp.ocp.certificate import NOT_CERTIFIED, certify
 
 # the estimate at a waypoint: the plan's pose, off by millimetres and centiradians
 OFFSET = np.array([1e-3, -5e-4, 5e-4, 0.01, 0.0, -0.01])

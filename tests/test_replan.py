@@ -14,7 +14,7 @@ from surestep_ocp.model.camera import Intrinsics
 from surestep_ocp.model.lie import matrix_to_pose, np_exp, np_means, np_poses, pose_to_matrix
 from surestep_ocp.problem.load import load_problem
 from surestep_ocp.problem.spec import CameraMove
-from surestep_ocp.solvers.camera_move_replan import replan_after_camera_moves
+from surestep_ocp.methods.camera_move_replan import replan_after_camera_moves
 from surestep_ocp.problem.setup import build_setup
 
 PROBLEMS = Path(__file__).resolve().parents[1] / "problems"

@@ -117,7 +117,7 @@ def test_a_correction_that_does_not_fit_is_bounded_work_and_keeps_the_previous_p
     """A 2.3 cm correction six steps before the end: the re-plan's attempts (reserve, then later
     goals) share one iteration budget (without it they take 77 iterations here), and when none
     fits the previous plan stays current."""
-    from surestep_ocp.solvers import planner as planner_module
+    from surestep_ocp.methods import planner as planner_module
 
     budget = 12
     monkeypatch.setattr(planner_module, "REPLAN_BUDGET", budget)

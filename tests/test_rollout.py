@@ -11,7 +11,7 @@ import numpy_rollout
 import pytest
 from scipy.spatial.transform import Rotation
 
-from surestep_ocp.solvers.baseline import straight_line
+from surestep_ocp.ocp.straight_line import straight_line
 from surestep_ocp.model.belief import BeliefModel
 from surestep_ocp.model.lie import np_means
 from surestep_ocp.evaluation.rollout import METRICS, BatchedNoise, Detection, plan_metrics, rollout

@@ -11,7 +11,7 @@ import pinocchio as pin
 import pytest
 
 from surestep_ocp.model.lie import pose_to_matrix
-from surestep_ocp.solvers.methods import run_method
+from surestep_ocp.methods.registry import run_method
 from surestep_ocp.problem.load import load_problem
 from surestep_ocp.problem.setup import build_setup
 

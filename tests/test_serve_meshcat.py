@@ -22,7 +22,7 @@ def _matrix(cmd) -> np.ndarray:
 def view():
     from surestep_ocp.problem.load import load_problem
     from surestep_ocp.problem.setup import build_setup
-    from surestep_ocp.solvers.methods import run_method
+    from surestep_ocp.methods.registry import run_method
     from surestep_ocp.viz.live import LiveView
     from surestep_ocp.viz.recorder import recording_visualizer
 

@@ -148,7 +148,7 @@ def test_the_cli_says_which_file_and_key_in_one_line(write_problem, capsys, monk
                                                      edit, key):
     """`surestep validate FILE` and `surestep solve FILE`: exit 2, one line naming the file and the
     key, no traceback, and no solve started."""
-    import surestep_ocp.solvers.methods as methods
+    import surestep_ocp.methods.registry as methods
 
     def forbidden(*args, **kwargs):
         raise AssertionError("a solve started before the bad solver choice was refused")

@@ -14,16 +14,16 @@ import numpy as np
 import pytest
 
 import numpy_ekf as ref
-from surestep_ocp.solvers.baseline import solve_baseline
+from surestep_ocp.methods.baseline import solve_baseline
 from surestep_ocp.evaluation.configs import ConfigurationSampler, load_evaluation
-from surestep_ocp.solvers.methods import ocp_initial_guess
-from surestep_ocp.solvers.ocp import solve_ocp
+from surestep_ocp.methods.registry import ocp_initial_guess
+from surestep_ocp.methods.ocp import solve_ocp
 from surestep_ocp.problem.load import load_problem
 from surestep_ocp.problem.setup import build_setup
 from surestep_ocp.problem.solver_config import ResolvedSolver, SolverName
 from surestep_ocp.solvers import strategy
 from surestep_ocp.solvers.backends import Context, Outcome
-from surestep_ocp.solvers.iterate import InitialGuess, Iterate, PrimalDual
+from surestep_ocp.ocp.iterate import InitialGuess, Iterate, PrimalDual
 from surestep_ocp.solvers.nlp_cache import LIFTED_FROM_CONDENSED
 from surestep_ocp.output.solution_records import SolveRecord
 from surestep_ocp.solvers.strategy import Attempt, Condition, Stop, default_strategy, run
@@ -43,7 +43,7 @@ def test_a_false_infeasibility_verdict_is_retried_with_the_monotone_barrier(monk
     the adaptive barrier did on evaluation configuration 73 at T = 40, compiled): the monotone
     barrier with the same Hessian runs next, and no exact-Hessian attempt; its plan is IPOPT's own
     optimum, below the straight line."""
-    import surestep_ocp.solvers.transcription as tr
+    import surestep_ocp.ocp.transcription as tr
 
     setup = build_setup(replace(load_problem(DEFAULT), horizon=6))
     setup = setup.with_ocp(solver=replace(setup.ocp.solver, name="ipopt"))

@@ -1,4 +1,4 @@
-"""The structured solvers' scalar-coefficient form (surestep_ocp.solvers.surrogate): Tr(Sigma_T) =
+"""The structured solvers' scalar-coefficient form (surestep_ocp.ocp.surrogate): Tr(Sigma_T) =
 S(c) of the noise coefficients with constant base matrices, the 6x6 matrix recursion and its weights
 dS/dc, against a plain NumPy EKF (tests/numpy_ekf.py) and central differences of it. The models
 beyond the paper's constants (full 6x6 base covariances, a noise floor) are test_lifted.py's
@@ -14,7 +14,7 @@ from numpy_ekf import ekf_step
 from test_lifted import MODELS, problem
 
 from surestep_ocp.problem.setup import build_setup
-from surestep_ocp.solvers.surrogate import recursion_weights
+from surestep_ocp.ocp.surrogate import recursion_weights
 
 
 @pytest.mark.parametrize("name", list(MODELS))

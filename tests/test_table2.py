@@ -13,7 +13,7 @@ from surestep_ocp.evaluation.rollout import Detection, rollout
 from surestep_ocp.evaluation.table2 import RolloutReplanner
 from surestep_ocp.problem.load import load_problem
 from surestep_ocp.problem.setup import build_setup
-from surestep_ocp.solvers.camera_move_replan import _belief_after_move, replan_after_camera_moves
+from surestep_ocp.methods.camera_move_replan import _belief_after_move, replan_after_camera_moves
 
 TYPE4 = Path(__file__).resolve().parents[1] / "problems" / "type4_camera_moves.yaml"
 
@@ -78,7 +78,7 @@ def test_table2_rolls_out_each_plan_in_its_steps_camera_frames(type4):
     what the Table II of the previous release got wrong on Types 3 and 4 (the step frames
     re-expressed a second time)."""
     from surestep_ocp.evaluation.table2 import plans
-    from surestep_ocp.solvers.methods import run_method
+    from surestep_ocp.methods.registry import run_method
 
     setup = type4
     C = setup.camera_poses()

@@ -15,10 +15,10 @@ import numpy as np
 import numpy_ekf as ref
 import pytest
 
-from surestep_ocp.solvers.baseline import straight_line
+from surestep_ocp.ocp.straight_line import straight_line
 from surestep_ocp.model.belief import COSINE_GUARD
 from surestep_ocp.errors import ProblemError
-from surestep_ocp.solvers.methods import run_method
+from surestep_ocp.methods.registry import run_method
 from surestep_ocp.problem.load import load_problem
 from surestep_ocp.problem.spec import TimingSpec
 from surestep_ocp.problem.setup import build_setup

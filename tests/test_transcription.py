@@ -13,16 +13,16 @@ import pytest
 from numpy_ekf import image_offset
 from scipy.spatial.transform import Rotation
 
-from surestep_ocp.solvers.baseline import solve_baseline
+from surestep_ocp.methods.baseline import solve_baseline
 from surestep_ocp.model.belief import COSINE_GUARD
 from surestep_ocp.errors import SurestepError
-from surestep_ocp.solvers.methods import ocp_initial_guess
+from surestep_ocp.methods.registry import ocp_initial_guess
 from surestep_ocp.solvers.nlp_cache import transcription
-from surestep_ocp.solvers.ocp import solve_ocp, solve_ocp_warm
+from surestep_ocp.methods.ocp import solve_ocp, solve_ocp_warm
 from surestep_ocp.problem.load import load_problem
 from surestep_ocp.problem.setup import build_setup
 from surestep_ocp.problem.solver_config import resolve_form
-from surestep_ocp.solvers.iterate import InitialGuess
+from surestep_ocp.ocp.iterate import InitialGuess
 
 
 DEFAULT = Path(__file__).resolve().parents[1] / "problems" / "needle_regrasp_paper_pace.yaml"
@@ -206,7 +206,7 @@ def test_structured_hessians_reach_the_exact_hessians_optimum():
         assert np.max(np.abs(np.array(sols[h].poses[-1]) - setup.x_goal)) <= 1e-6
     # the planner's objective at its initial point (the straight line) is the baseline's exact-EKF
     # trace
-    from surestep_ocp.solvers.baseline import solve_baseline
+    from surestep_ocp.methods.baseline import solve_baseline
 
     base = solve_baseline(build_setup(prob)).trace_final
     for h in sols:

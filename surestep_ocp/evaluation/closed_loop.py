@@ -25,10 +25,10 @@ from scipy.spatial.transform import Rotation
 from ..errors import SurestepError
 from ..model.lie import matrix_to_pose, pose_to_matrix
 from ..problem.spec import Problem
-from ..solvers.certificate import NOT_CERTIFIED
-from ..solvers.methods import closed_loop_unavailable
-from ..solvers.confidence import at_horizon
-from ..solvers.planner import MAX_LATE, Planner, without_confidence
+from ..ocp.certificate import NOT_CERTIFIED
+from ..methods.registry import closed_loop_unavailable
+from ..methods.confidence import at_horizon
+from ..methods.planner import MAX_LATE, Planner, without_confidence
 from .executed_motion import stitched, violations
 
 

@@ -59,7 +59,7 @@ from .run_lock import hold
 from ..output.files import check_output_dir, check_output_file
 from ..output.solution import _jsonable, write_json_atomic, write_text_atomic
 from ..method_grammar import is_closed_loop
-from ..solvers.methods import CLOSED_LOOP_NEEDS, method_setup, parse_method, run_method
+from ..methods.registry import CLOSED_LOOP_NEEDS, method_setup, parse_method, run_method
 from .closed_loop import ClosedLoop
 
 MAX_CONFIGS = 100_000

@@ -20,7 +20,7 @@ import math
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ..solvers.baseline import straight_line
+from ..ocp.straight_line import straight_line
 
 PACES = ("planned", "limits")
 

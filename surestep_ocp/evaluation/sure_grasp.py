@@ -9,7 +9,7 @@ goal under observation until then, or at the cap (`grasp_rule.py`):
 - `baseline`: the straight line as fast as the limits allow (the fewest steps a time law within
   them fits, none before the last camera move), then the dwell;
 - `ocp-robot-pace`: the `Planner`'s first plan to the confidence (the shortest horizon whose plan
-  reaches it, not below the problem's, `solvers/confidence.py`), run open loop, then the dwell;
+  reaches it, not below the problem's, `methods/confidence.py`), run open loop, then the dwell;
 - `ocp-mpc`: that plan re-planned at every frame by every rollout from its own belief within the
   limits (`closed_loop.ClosedLoop`), then the dwell.
 
@@ -29,9 +29,9 @@ import numpy as np
 
 from ..model.grasp import nees, within
 from ..problem.setup import build_setup
-from ..solvers.confidence import at_horizon, last_move
-from ..solvers.methods import run_method
-from ..solvers.planner import Planner
+from ..methods.confidence import at_horizon, last_move
+from ..methods.registry import run_method
+from ..methods.planner import Planner
 from .closed_loop import ClosedLoop, robot_pace
 from .grasp_rule import GraspRule
 from .rollout import MODES, Detection, rollout

@@ -36,9 +36,9 @@ from ..output.solution import write_text_atomic
 from ..problem.load import load_problem
 from ..problem.setup import build_setup
 from ..problem.spec import GRADIENT_PRESETS, GradientSpec
-from ..solvers.methods import run_method
-from ..solvers.planner import Planner
-from ..solvers.camera_move_replan import replan_after_camera_moves
+from ..methods.registry import run_method
+from ..methods.planner import Planner
+from ..methods.camera_move_replan import replan_after_camera_moves
 from .configs import GRASP_ANGLE_RAD, GRASP_POSITION_M
 from .closed_loop import ClosedLoop, robot_pace
 from .table2_figure import error_figure

@@ -13,7 +13,7 @@ import numpy as np
 
 from ..output.solution import write_json_atomic, write_text_atomic
 from ..problem.setup import Setup
-from ..solvers.planner import Planner
+from ..methods.planner import Planner
 from .tracker import SimulatedTracker
 
 

@@ -1,6 +1,6 @@
 """When the tracker's detector sees the tool: the rest of the time the tracker only predicts.
 
-The evaluation's rollouts draw detections from it, and a plan's confidence (solvers/confidence.py)
+The evaluation's rollouts draw detections from it, and a plan's confidence (methods/confidence.py)
 counts only the observations it would deliver (a problem's `detection:` section): a belief that is
 to be calibrated must know what the detector delivers.
 """

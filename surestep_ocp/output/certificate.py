@@ -1,6 +1,6 @@
 """A plan's optimality certificate: the typed record of what was measured at it, and its verdict.
 
-Computed after the solve from the problem's own functions (`solvers/certificate.py`), written in
+Computed after the solve from the problem's own functions (`ocp/certificate.py`), written in
 the solution file under `certificate`, checked again by `surestep check` (docs/certificate.md).
 """
 

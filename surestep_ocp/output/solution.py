@@ -67,7 +67,7 @@ class Solution:
     motion_limits: LimitsReport | SkippedReport | None = None
     # only what is specific to a method or backend (docs/solution_file.md)
     extras: dict[str, Any] = field(default_factory=dict)
-    # the plan's optimality certificate (solvers/certificate.py); None: not computed
+    # the plan's optimality certificate (ocp/certificate.py); None: not computed
     certificate: Certificate | None = None
     backend_status: str | None = None  # the backend's own status, before the certificate
     backend_success: bool | None = None  # the backend's own success, before the certificate

@@ -40,7 +40,7 @@ class CondensedStart(JsonRecord):
 
 @dataclass(frozen=True)
 class SecondStart(JsonRecord):
-    """A 6x6-recursion model's second start from its diagonal model's plan (solvers/ocp.py,
+    """A 6x6-recursion model's second start from its diagonal model's plan (methods/ocp.py,
     `_second_start`): that solve's end, whether it scored below the first plan, and the Newton (and
     IPOPT) runs from it when it did."""
 
@@ -167,7 +167,7 @@ class ProblemRecord(_TopLevel):
 
 @dataclass(frozen=True)
 class ReplanAttempt(JsonRecord):
-    """One attempt of a re-plan within enforced limits (solvers/planner.py)."""
+    """One attempt of a re-plan within enforced limits (methods/planner.py)."""
 
     reserve: float  # the fraction of each limit kept free for later corrections
     steps_added: int  # steps added at the goal (the correction too large for the time left)

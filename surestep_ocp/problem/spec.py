@@ -95,7 +95,7 @@ class SolverSpec:
 
 @dataclass(frozen=True)
 class GradientSpec:
-    """The gradient variant's optimiser (see surestep_ocp/solvers/gradient.py and
+    """The gradient variant's optimiser (see surestep_ocp/methods/gradient.py and
     problems/README.md)."""
 
     # scipy (L-BFGS-B, `iterations`) | torch (torch.optim.LBFGS's algorithm, lbfgs.py)

@@ -119,7 +119,7 @@ def _served_problem(path: str):
     """The problem and its setup, if the node can re-plan it (within enforced limits, a PSM)."""
     from ..problem.load import load_problem
     from ..problem.setup import build_setup
-    from ..solvers.methods import closed_loop_unavailable
+    from ..methods.registry import closed_loop_unavailable
     from ..output.joint_names import PSM_ARM
 
     prob = load_problem(path)

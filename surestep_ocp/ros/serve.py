@@ -75,7 +75,7 @@ class Serve:
     def prepare(self):
         """Endpoints, the arm's joints, the first plan; a SurestepError (exit 2) if no plan."""
         from ..errors import SurestepError
-        from ..solvers.planner import Planner
+        from ..methods.planner import Planner
 
         self.ep = Endpoints(self.opts.domain, self.topics)
         arm = [n for n in self._urdf_names() if n != "jaw"]

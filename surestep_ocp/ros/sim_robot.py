@@ -109,7 +109,7 @@ class SimRobot:
 
     def _start_view(self) -> None:
         """The Meshcat view (its server on 127.0.0.1) and the thread that updates it."""
-        from ..solvers.methods import run_method
+        from ..methods.registry import run_method
         from ..viz import server
         from ..viz.live import LiveView
 

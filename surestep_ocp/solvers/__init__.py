@@ -1,2 +1,3 @@
-"""The planners: the OCP (transcriptions, Newton, IPOPT strategy), the gradient variant, the
-baseline, the method registry, re-planning."""
+"""The numerical methods behind one backend interface (backends/): the interior point
+(interior/), the projected Newton method, IPOPT through CasADi, L-BFGS; the solvers built per
+structure (nlp_cache) and the strategy that picks among them."""

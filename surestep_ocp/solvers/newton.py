@@ -49,8 +49,8 @@ from ..output.solution import Solution, evaluate
 from ..output.solution_records import SolveRecord
 from ..problem.setup import Setup
 from ..buffered import Buffered
-from .codegen import SX_OPTIONS, Deferred, compiled_or_interpreted
-from .surrogate import interval_terms, pose_function, recursion_weights
+from ..ocp.codegen import SX_OPTIONS, Deferred, compiled_or_interpreted
+from ..ocp.surrogate import interval_terms, pose_function, recursion_weights
 
 # projected gradient (objective 1 at the start) below which Newton tries the exact Hessian
 EXACT_BELOW = 1e-3

@@ -16,12 +16,12 @@ from ..model import limits as limits_module
 from ..model.limits import problem_limits
 from ..problem.setup import Setup
 from ..problem.solver_config import resolve_form
-from .codegen import available as compiler_available
-from .codegen import compiled_or_interpreted
+from ..ocp.codegen import available as compiler_available
+from ..ocp.codegen import compiled_or_interpreted
 from .interior import InteriorNewton
-from .lifted import LiftedTranscription
+from ..ocp.lifted import LiftedTranscription
 from .newton import NewtonSolver
-from .transcription import Transcription
+from ..ocp.transcription import Transcription
 
 _CACHE: dict[tuple, Transcription] = {}
 

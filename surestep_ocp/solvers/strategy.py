@@ -16,7 +16,7 @@ import numpy as np
 from ..output.attempt_record import AttemptRecord
 from ..output.solution import Solution
 from .backends import BACKENDS, Context, Outcome
-from .iterate import InitialGuess, Iterate
+from ..ocp.iterate import InitialGuess, Iterate
 from .newton import EXACT_BELOW
 from .nlp_cache import LIFTED_FROM_CONDENSED
 

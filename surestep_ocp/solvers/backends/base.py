@@ -15,7 +15,7 @@ from typing import Protocol
 from ...output.solution import Solution
 from ...problem.setup import Setup
 from ...problem.solver_config import ResolvedSolver, SolverName
-from ..iterate import InitialGuess, Iterate
+from ...ocp.iterate import InitialGuess, Iterate
 
 
 @dataclass(frozen=True)

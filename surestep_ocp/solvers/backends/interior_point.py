@@ -11,8 +11,8 @@ import numpy as np
 
 from ...model.limits import enforce as enforce_limits
 from ...problem.solver_config import SolverName
-from ..baseline import TIME_LAWS, timed_line
-from ..iterate import InitialGuess, Iterate
+from ...ocp.straight_line import TIME_LAWS, timed_line
+from ...ocp.iterate import InitialGuess, Iterate
 from ..nlp_cache import interior_solver
 from .base import Context, Outcome
 

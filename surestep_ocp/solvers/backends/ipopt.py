@@ -5,7 +5,7 @@ transcriptions (`transcription.py`) and the lifted vech(Sigma) form with the str
 from __future__ import annotations
 
 from ...problem.solver_config import SolverName
-from ..iterate import InitialGuess, Iterate
+from ...ocp.iterate import InitialGuess, Iterate
 from ..nlp_cache import WARM_OPTIONS, transcription
 from .base import Context, Outcome
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from ...model.limits import enforce as enforce_limits
 from ...problem.solver_config import SolverName
-from ..iterate import InitialGuess, Iterate
+from ...ocp.iterate import InitialGuess, Iterate
 from ..newton import EXACT_BELOW
 from ..nlp_cache import newton_solver
 from .base import Context, Outcome

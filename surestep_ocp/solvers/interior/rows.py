@@ -13,7 +13,7 @@ import scipy.sparse as sp
 
 from ...buffered import Buffered
 from ...model import limits as lm
-from ..codegen import SX_OPTIONS, compiled_or_interpreted
+from ...ocp.codegen import SX_OPTIONS, compiled_or_interpreted
 from ..newton import BOUND_PUSH, parameters
 from .jacobian import _csr_dot
 from .options import RELAX_TO, WINDOW

@@ -33,19 +33,19 @@ from ..errors import SurestepError
 from ..model.lie import pose_mean, pose_to_matrix
 from ..model.limits import enforce as enforce_limits
 from ..model.limits import evaluate_curve
-from .certificate import NOT_CERTIFIED, certify, prepare_replans
+from ..ocp.certificate import NOT_CERTIFIED, certify, prepare_replans
 from .confidence import at_horizon, plan_to_confidence
-from .methods import ocp_initial_guess
-from .backends import Context
+from .registry import ocp_initial_guess
+from ..solvers.backends import Context
 from ..buffered import Buffered
-from .interior import FEASIBLE, InteriorRun
-from .iterate import InitialGuess
-from .newton import NewtonRun, parameters
+from ..solvers.interior import FEASIBLE, InteriorRun
+from ..ocp.iterate import InitialGuess
+from ..solvers.newton import NewtonRun, parameters
 from ..model.robot import CAMERA_PARAMETERS
-from .nlp_cache import interior_solver, newton_solver
+from ..solvers.nlp_cache import interior_solver, newton_solver
 from .ocp import resolved_solver, solve_ocp_warm
-from .strategy import records, replan_strategy
-from .strategy import run as run_strategy
+from ..solvers.strategy import records, replan_strategy
+from ..solvers.strategy import run as run_strategy
 from ..problem.spec import Problem
 from ..problem.setup import Setup, build_setup
 from ..output.certificate import INFEASIBLE
@@ -576,7 +576,7 @@ _SETUP = "_certified_setup"  # a re-plan's setup, kept in its extras until it is
 
 
 def _certified(sub: Setup, sol: Solution) -> float:
-    """Certify the re-plan `sol` of `sub` (`sol.certificate`, solvers/certificate.py: from the
+    """Certify the re-plan `sol` of `sub` (`sol.certificate`, ocp/certificate.py: from the
     problem's own functions, not the solver's rows) and give it the re-plan's meaning of success:
     a plan the robot can run, so a successful one the certificate finds infeasible (or cannot
     certify) becomes `Not_Certified`, not run (the previous plan stays current); the solver's own
@@ -687,7 +687,7 @@ def _propagation(model: BeliefModel, n: int) -> ca.Function:
 
 def _horizon_for(setup: Setup) -> tuple[Setup, dict | None]:
     """(`setup` over a Planner's horizon, the grasp record): with `goal.confidence`, the shortest
-    horizon whose plan reaches it (solvers/confidence.py) but not below the problem's own, and
+    horizon whose plan reaches it (methods/confidence.py) but not below the problem's own, and
     that plan's record; else the problem's horizon and None."""
     if setup.ocp.grasp.confidence is None:
         return setup, None

@@ -33,8 +33,9 @@ import casadi as ca
 import numpy as np
 import scipy.optimize
 
-from .baseline import reachability, straight_line
-from .lbfgs import LBFGS
+from .baseline import reachability
+from ..ocp.straight_line import straight_line
+from ..solvers.lbfgs import LBFGS
 from ..model.belief import NX, trace_vech
 from ..model.lie import angle_sq, np_angle, pose_mean, so3_exp
 from ..errors import SurestepError

@@ -13,15 +13,16 @@ from dataclasses import replace
 
 import numpy as np
 
-from .baseline import solve_baseline, straight_line
-from .certificate import judge
+from .baseline import solve_baseline
+from ..ocp.straight_line import straight_line
+from ..ocp.certificate import judge
 from .confidence import plan_to_confidence
 from .gradient import solve_gradient
 from ..model.belief import COMPONENTS
 from ..errors import SurestepError
 from ..model.limits import VIOLATED, enforce as enforce_limits
 from ..method_grammar import BASE_METHODS, CLOSED_LOOP_METHODS, split_name
-from .iterate import InitialGuess
+from ..ocp.iterate import InitialGuess
 from .ocp import resolved_solver, solve_ocp
 from ..problem.setup import Setup
 from ..problem.solver_config import SolverName
@@ -140,7 +141,7 @@ def run_method(setup: Setup, name: str, cache: dict[str, Solution] | None = None
     grasp = s.ocp.grasp
     if grasp.confidence is not None and base not in ("baseline", "gradient",
                                                      "gradient-no-pose-loss"):
-        # the horizon is the OCP's decision (solvers/confidence.py): each one solved without it
+        # the horizon is the OCP's decision (methods/confidence.py): each one solved without it
         plain = replace(grasp, confidence=None)
         sol = plan_to_confidence(s, lambda sub: run_method(sub.with_ocp(grasp=plain), name, cache,
                                                            solver_options))

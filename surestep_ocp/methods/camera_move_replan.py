@@ -16,7 +16,7 @@ import numpy as np
 from ..model.belief import unvech, vech
 from ..errors import SurestepError
 from ..model.lie import matrix_to_pose, np_means, np_poses
-from .methods import run_method
+from .registry import run_method
 from ..output.files import check_finite
 from .planner import Planner
 from ..problem.setup import Setup

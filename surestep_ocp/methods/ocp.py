@@ -19,11 +19,11 @@ from ..output.solution import Solution
 from ..output.solution_records import CondensedStart, SecondStart
 from ..problem.setup import Setup
 from ..problem.solver_config import resolve
-from .backends import Context
-from .iterate import InitialGuess, Iterate
-from .newton import EXACT_MAX_N
-from .nlp_cache import newton_solver, transcription
-from .strategy import default_strategy, record, run
+from ..solvers.backends import Context
+from ..ocp.iterate import InitialGuess, Iterate
+from ..solvers.newton import EXACT_MAX_N
+from ..solvers.nlp_cache import newton_solver, transcription
+from ..solvers.strategy import default_strategy, record, run
 
 __all__ = ["resolved_solver", "solve_ocp", "solve_ocp_warm"]
 
