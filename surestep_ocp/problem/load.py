@@ -2,7 +2,7 @@
 
 `read_yaml` parses a file strictly (duplicate keys rejected, nesting and alias expansion bounded, no
 YAML 1.1 base-60 numbers); `load_problem` reads and validates a problem file, `problem_from_dict` a
-tree built in Python (both through `parse.parse_problem`).
+tree built in Python (both through `spec.parse_problem`).
 """
 
 from __future__ import annotations
@@ -14,12 +14,11 @@ from typing import Any
 import yaml
 
 from ..errors import ProblemError, shown
-from .parse import parse_problem
 from .paths import find_shipped
-from .spec import Problem, plain_tree
+from .spec import Problem, parse_problem, plain_tree
 
 # Limits of what a problem (or evaluation) file may be (problems/README.md, "Limits"); the caps on
-# the values it holds are beside their parsers (parse.py).
+# the values it holds are caps.py's.
 MAX_FILE_BYTES = 1_000_000
 MAX_YAML_DEPTH = 40  # nesting levels
 # values in the file, with every alias counted as the size of what it names
