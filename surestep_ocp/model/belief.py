@@ -10,8 +10,9 @@ in the noises for their composition (the noises are milliradians); a camera move
 (`camera_change`). Residuals between means are tangents of the relative rotation (`lie.quat_step`),
 so no axis-angle chart enters the model; poses `(p, r)` are converted at the boundary
 (`propagate`, `lie.np_means`). The covariance is carried as `vech(Sigma)` (21 numbers, the lower
-triangle column by column). All maps are named CasADi Functions built once; every method (OCP,
-gradient variant, baseline, rollouts) uses these.
+triangle column by column; `vech.py`), the noise constants are `NoiseParams`
+(`noise_params.py`; both importable from here). All maps are named CasADi Functions built once;
+every method (OCP, gradient variant, baseline, rollouts) uses these.
 
     predict:  P  = F Sigma F^T + Q (W(x_t, x_t+1) + W_q) Q^T
               (W_q: the optional joint-space term, joint_noise.py)
@@ -23,37 +24,28 @@ gradient variant, baseline, rollouts) uses these.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 from functools import cache, cached_property
 
 import casadi as ca
 import numpy as np
 
-from ..equality import ArrayEquality
 from .camera import Intrinsics
 from .lie import (SMALL, np_log, np_means, np_quat_of_matrix, quat_cos_angle, quat_mul, quat_of,
                   quat_step, quat_tangent)
+from .noise_params import (  # noqa: F401 (their home before)
+    COMPONENTS,
+    COSINE_GUARD,
+    DEFAULT_COSINE_GUARD,
+    DEFAULT_CUT_BAND,
+    OBJECTIVES,
+    OBSERVATION_NOISE_FORMS,
+    ORIENTATION_FORMULAS,
+    NoiseParams,
+)
+from .vech import _TRIL, DIAG, NV, NX, trace_vech, unvech, unvech_many, vech  # noqa: F401
 
-COMPONENTS = ("depth", "fov", "orientation")
-ORIENTATION_FORMULAS = ("cosine", "geodesic")
-OBSERVATION_NOISE_FORMS = ("mean", "expected")
-OBJECTIVES = ("posterior", "predicted")
-NX = 6  # the tangent (and pose) size: position, rotation
 NM = 7  # a mean: position, unit quaternion (w, x, y, z)
-NV = NX * (NX + 1) // 2  # 21
-_TRIL = [(i, j) for j in range(NX) for i in range(j, NX)]  # vech order: column-major lower triangle
-DIAG = [k for k, (i, j) in enumerate(_TRIL) if i == j]  # positions of the diagonal in vech
-_UNVECH_INDEX = np.zeros((NX, NX), int)  # (6, 6) position in vech of each entry
-for _k, (_i, _j) in enumerate(_TRIL):
-    _UNVECH_INDEX[_i, _j] = _UNVECH_INDEX[_j, _i] = _k
-# The default guard g of |r| in the paper's cosine formula, cos = r.o* / (sqrt(|r|^2 + g^2) |o*|),
-# as its square [rad^2] (`NoiseParams.cosine_guard` is g [rad]). The formula is undefined at r = 0,
-# and near it the direction of r is free, which an optimiser exploits to make the orientation noise
-# vanish; with the guard small rotations see the full orientation noise and larger ones nearly the
-# paper's cosine (docs/orientation.md, "The paper's cosine": the guard).
-DEFAULT_COSINE_GUARD = 0.05  # [rad]
-DEFAULT_CUT_BAND = 0.2  # [rad] (see `paper_cosine`)
-COSINE_GUARD = DEFAULT_COSINE_GUARD**2
 
 
 _SHARED: dict[tuple, ca.Function] = {}
@@ -83,71 +75,6 @@ def shared_function(build):
 
     get.__doc__ = build.__doc__
     return property(get)
-
-
-def vech(M):
-    """Lower triangle of a symmetric 6x6 matrix, column by column (CasADi or NumPy)."""
-    if isinstance(M, np.ndarray):
-        return np.array([M[i, j] for i, j in _TRIL])
-    return ca.vertcat(*[M[i, j] for i, j in _TRIL])
-
-
-def unvech(v):
-    """Symmetric 6x6 matrix of its `vech` (CasADi or NumPy)."""
-    if isinstance(v, np.ndarray):
-        M = np.zeros((NX, NX))
-        for k, (i, j) in enumerate(_TRIL):
-            M[i, j] = M[j, i] = v[k]
-        return M
-    M = ca.SX.zeros(NX, NX) if isinstance(v, ca.SX) else ca.MX.zeros(NX, NX)
-    for k, (i, j) in enumerate(_TRIL):
-        M[i, j] = v[k]
-        if i != j:
-            M[j, i] = v[k]
-    return M
-
-
-def unvech_many(V: np.ndarray) -> np.ndarray:
-    """(N, 6, 6) symmetric matrices of the rows of V (N, 21), NumPy."""
-    V = np.asarray(V, float)
-    return V[:, _UNVECH_INDEX]
-
-
-def trace_vech(v):
-    """Trace of the matrix whose vech is `v`."""
-    return sum(v[k] for k in DIAG)
-
-
-@dataclass(frozen=True, eq=False)
-class NoiseParams(ArrayEquality):
-    """Noise constants (6x6 matrices; the paper's values by default) and options."""
-
-    W_p0: np.ndarray = field(default_factory=lambda: 1e-3 * np.eye(NX))
-    W_o0: np.ndarray = field(default_factory=lambda: 1e-3 * np.eye(NX))
-    V_d0: np.ndarray = field(default_factory=lambda: 1e-1 * np.eye(NX))
-    V_f0: np.ndarray = field(default_factory=lambda: 1e-2 * np.eye(NX))
-    V_o0: np.ndarray = field(default_factory=lambda: 5e-3 * np.eye(NX))
-    Sigma0: np.ndarray = field(default_factory=lambda: 1e-2 * np.eye(NX))
-    depth_star: float = 0.15  # [m]
-    o_star: tuple[float, float, float] = (0.0, 0.0, 1.0)  # [rad] axis-angle
-    components: tuple[str, ...] = COMPONENTS
-    orientation_formula: str = "cosine"
-    # mean (the paper's) | expected (under the predicted belief, section 8)
-    observation_noise: str = "mean"
-    # planners minimise Tr(Sigma_T|T) (posterior) or Tr(Sigma_T|T-1) (predicted)
-    objective: str = "posterior"
-    # per camera move [1/m^2 scale]
-    camera_W_p0: np.ndarray = field(default_factory=lambda: 1e-3 * np.eye(NX))
-    camera_W_o0: np.ndarray = field(default_factory=lambda: 1e-3 * np.eye(NX))
-    # observation noise floor (PSD)
-    V_min: np.ndarray = field(default_factory=lambda: np.zeros((NX, NX)))
-    # [rad] g in the cosine formula; 0: the paper's formula (r != 0)
-    cosine_guard: float = DEFAULT_COSINE_GUARD
-    # [rad] below pi where the cosine fades to 0 (`paper_cosine`); 0: a jump
-    cut_band: float = DEFAULT_CUT_BAND
-    # joint-space motion noise `W_q = J diag(sigma_q^2 dq^2) J^T` (joint_noise.py): sigma_q per
-    # joint [-], or None
-    joint_sigma: tuple[float, ...] | None = None
 
 
 def paper_cosine(Q, o_star, guard: float, band: float):
