@@ -19,77 +19,30 @@ from __future__ import annotations
 
 import contextlib
 import json
-import math
-import re
+import sqlite3
 import time
 from pathlib import Path
 
 import numpy as np
+from rosbags.rosbag2 import Writer, WriterError  # this module is loaded on use (export_writers)
+from rosbags.typesys import Stores, get_typestore
 
 from ..errors import SurestepError, shown
+from .export_message import FORMAT_ID, channels, timing_text, to_joint_trajectory, written_names
+from .export_setpoints import DEFAULT_ARM, setpoint_rows, topics
 from .export_timing import Trajectory
-from .export_writers import FORMAT_ID, channels, timing_text, to_joint_trajectory, written_names
-from .joint_names import JointNaming
 from .files import check_finite, write_dir_atomic
+from .joint_names import JointNaming
 
-DEFAULT_ARM = "PSM1"
-ARM_NAME = re.compile(r"[A-Za-z][A-Za-z0-9_]*\Z")
 BAG_VERSION = 8  # rosbag2 metadata version (rosbags writes 8 or 9; 9 adds type hashes)
 # the message definitions (JointState, JointTrajectory: the same in later releases)
 TYPESTORE = "ROS2_HUMBLE"
-# a sample this close to a tick is the tick's (the export samples every tick, `_sample_times`)
-SNAP_S = 1e-9
-
-
-def topics(arm: str) -> dict[str, str]:
-    """The bag's topics by role."""
-    return {"servo_jp": f"/{arm}/servo_jp", "jaw_servo_jp": f"/{arm}/jaw/servo_jp",
-            "trajectory": f"/{arm}/trajectory", "jaw_trajectory": f"/{arm}/jaw/trajectory"}
-
-
-def check_arm(arm: str) -> str:
-    if not ARM_NAME.match(arm):
-        raise SurestepError(f"--arm: '{shown(arm)}' is not an arm name (a letter, then letters, "
-                            f"digits, _; default {DEFAULT_ARM})")
-    return arm
-
-
-def check_setpoint_rate(traj: Trajectory, rate_hz: float, steps: int) -> None:
-    """Refuse a rate too low to represent the plan: fewer set-point intervals over the motion than
-    its planned steps (at --rate 0.5 one set-point stood for a whole 1 s motion of 20 steps)."""
-    ticks = int(math.ceil(traj.duration * rate_hz - 1e-6))
-    if ticks < steps:
-        need = steps / traj.duration if traj.duration > 0 else math.inf
-        raise SurestepError(f"--rate {rate_hz:g} Hz: the bag's servo_jp stream would hold {ticks} "
-                            f"set-point step{'' if ticks == 1 else 's'} over the "
-                            f"{traj.duration:.6g} s motion, fewer than its {steps} planned steps; "
-                            f"give --rate at least {need:.6g} Hz")
-
-
-def setpoint_rows(traj: Trajectory, rate_hz: float) -> tuple[np.ndarray, np.ndarray]:
-    """The set-points' ticks (k = 0..K, at k / rate_hz s) and the sample row of each: the
-    exported sample at the tick, the last one from the trajectory's end on (K: the first
-    tick at or after it)."""
-    K = int(math.ceil(traj.duration * rate_hz - 1e-6))
-    ticks = np.arange(K + 1)
-    t = ticks / rate_hz
-    rows = np.minimum(np.searchsorted(traj.times, t - SNAP_S), len(traj.times) - 1)
-    inside = t < traj.duration - SNAP_S
-    if np.any(np.abs(traj.times[rows[inside]] - t[inside]) > SNAP_S):
-        # never expected: the export samples every tick
-        raise SurestepError(f"internal: the exported samples miss a {rate_hz:g} Hz tick")
-    rows[~inside] = len(traj.times) - 1
-    return ticks, rows
 
 
 @contextlib.contextmanager
 def _bag_errors(output: Path):
     """The storage's failures (sqlite3's `database or disk is full`, an OSError, rosbags' own) as
     one line naming the bag (they were `internal error: OperationalError`)."""
-    import sqlite3
-
-    from rosbags.rosbag2 import WriterError
-
     try:
         yield
     except (sqlite3.Error, OSError, WriterError) as exc:
@@ -105,9 +58,6 @@ def write_bag(traj: Trajectory, output: Path, meta: dict, naming: JointNaming | 
               rate_hz: float, arm: str = DEFAULT_ARM, start_ns: int | None = None) -> Path:
     """Write the bag directory `output` (module docstring); `start_ns`: the bag's start
     time (default now)."""
-    from rosbags.rosbag2 import Writer  # loaded on use: only --format rosbag2 needs it
-    from rosbags.typesys import Stores, get_typestore
-
     ts = get_typestore(getattr(Stores, TYPESTORE))
     T = ts.types
     Time, Duration, Header = (T["builtin_interfaces/msg/Time"],

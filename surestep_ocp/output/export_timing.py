@@ -278,12 +278,47 @@ def time_parametrise(q: np.ndarray, step_s: float, limits: MotionLimits,
                                 f"planned pace (peak / limit: {over}); use --timing auto or "
                                 "toppra to retime it")
         curve_info["not_played"] = f"over a limit at the planned pace ({over}): retimed by toppra"
+    return _toppra_trajectory(q, step_s, limits, rate_hz, robot, tool_frame, curve_info)
+
+
+def _toppra_trajectory(q: np.ndarray, step_s: float, limits: MotionLimits, rate_hz: float, robot,
+                       tool_frame: str | None, curve_info: dict | None) -> Trajectory:
+    """toppra's time-optimal trajectory through the waypoints `q` within `limits` (module
+    docstring), sampled every 1/rate_hz s and at every waypoint, which it passes exactly;
+    `curve_info`: why the planned curve is not played (None: not tried)."""
     ss = step_s * np.arange(len(q))
     path = PchipPath(ss, q)
     grid, wp_idx = toppra_grid(ss)
+    tool = None if robot is None else ToolSpeed(robot, tool_frame or robot.frame, limits)
+    traj, scales, times, wp_t, vr, ar, tool_ratio = _toppra_within_limits(
+        q, path, grid, wp_idx, limits, rate_hz, tool)
+    rows = np.searchsorted(times, wp_t)
+    n = q.shape[1]
+    Q, QD, QDD = traj(times, 0)[:, :n], traj(times, 1)[:, :n], traj(times, 2)[:, :n]
+    QD[0] = QD[-1] = 0.0  # at rest (toppra's sd = 0 there; removes rounding)
+    err = np.max(np.abs(Q[rows] - q))
+    if err > 1e-9 * max(1.0, float(np.max(np.abs(q)))):
+        # never expected
+        raise SurestepError(f"internal: the trajectory misses a waypoint by {err:.2e}")
+    # the waypoints themselves (differ from toppra's evaluation by rounding only, checked above)
+    Q[rows] = q
+    return Trajectory(list(limits.joint_names), times, Q, QD, QDD, wp_t, rows, limits,
+                      dict(zip(("joint_velocity", "joint_acceleration", "tool_speed"),
+                               scales.tolist())),
+                      step_s, vr, ar,
+                      None if tool_ratio is None else (float(tool_ratio[0]), float(tool_ratio[1])),
+                      None if tool is None else tool.frame, timing="toppra",
+                      planned_curve=curve_info)
+
+
+def _toppra_within_limits(q: np.ndarray, path: PchipPath, grid: np.ndarray, wp_idx: np.ndarray,
+                          limits: MotionLimits, rate_hz: float, tool: ToolSpeed | None) -> tuple:
+    """toppra run (`toppra_run`) until its trajectory is within every limit between the grid points
+    and at the samples too, each family over its limit scaled down for the next run (at most
+    MAX_TRIES runs): (trajectory, scales, sample times, waypoint times, peak velocity and
+    acceleration ratios, peak tool ratios)."""
     clock_v = 1.0  # [path s per s]: the path parameter's own limit, the planned pace
     clock_a = CLOCK_ACCELERATION
-    tool = None if robot is None else ToolSpeed(robot, tool_frame or robot.frame, limits)
     tool_ratio = None
     # of the joint velocity, joint acceleration and tool speed limits handed to toppra
     scales = np.ones(3)
@@ -317,22 +352,4 @@ def time_parametrise(q: np.ndarray, step_s: float, limits: MotionLimits,
         raise SurestepError(f"toppra found no trajectory within the limits in {MAX_TRIES} tries "
                             "(the limits handed to it scaled down to "
                             f"{', '.join(f'{x:.3g}' for x in scales)})")
-    rows = np.searchsorted(times, wp_t)
-    n = q.shape[1]
-    Q, QD, QDD = traj(times, 0)[:, :n], traj(times, 1)[:, :n], traj(times, 2)[:, :n]
-    QD[0] = QD[-1] = 0.0  # at rest (toppra's sd = 0 there; removes rounding)
-    err = np.max(np.abs(Q[rows] - q))
-    if err > 1e-9 * max(1.0, float(np.max(np.abs(q)))):
-        # never expected
-        raise SurestepError(f"internal: the trajectory misses a waypoint by {err:.2e}")
-    # the waypoints themselves (differ from toppra's evaluation by rounding only, checked above)
-    Q[rows] = q
-    return Trajectory(list(limits.joint_names), times, Q, QD, QDD, wp_t, rows, limits,
-                      dict(zip(("joint_velocity", "joint_acceleration", "tool_speed"),
-                               scales.tolist())),
-                      step_s, vr, ar,
-                      None if tool_ratio is None else (float(tool_ratio[0]), float(tool_ratio[1])),
-                      None if tool is None else tool.frame, timing="toppra",
-                      planned_curve=curve_info)
-
-
+    return traj, scales, times, wp_t, vr, ar, tool_ratio

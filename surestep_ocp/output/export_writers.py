@@ -1,5 +1,7 @@
 """Writers of an exported trajectory: CSV, JSON, the ROS 2 `trajectory_msgs/JointTrajectory` (YAML)
-and a ROS 2 bag (`export_rosbag.py`); the joints named for the consumer (`joint_names.py`).
+and a ROS 2 bag (`export_rosbag.py`, loaded when one is written); the joints named for the
+consumer (`joint_names.py`), the channels and the JointTrajectory message as `export_message.py`
+makes them.
 
 The six arm joints (every joint but `jaw` for other robots) and the jaw are separate channels.
 Files are written atomically (temporary file and rename), and never with a NaN or an
@@ -11,32 +13,26 @@ from __future__ import annotations
 
 import csv
 import io
-import math
 from pathlib import Path
 
 import yaml
 
 from ..errors import SurestepError
-from ..model.limits import CURVE_NAME, JAW
+from ..model.limits import JAW
+from .export_message import (  # noqa: F401 (their home before)
+    FORMAT_ID,
+    channels,
+    duration_msg,
+    timing_text,
+    to_joint_trajectory,
+    written_names,
+)
 from .export_timing import Trajectory
 from .files import check_finite
 from .joint_names import JointNaming
 from .solution import write_json_atomic, write_text_atomic
 
 FORMATS = ("csv", "json", "ros2", "rosbag2")
-FORMAT_ID = "surestep-joint-trajectory/1"
-
-
-def channels(traj: Trajectory) -> tuple[list[int], list[int]]:
-    """Indices of the arm joints and of the jaw (empty without one)."""
-    arm = [i for i, n in enumerate(traj.joint_names) if n != JAW]
-    jaw = [i for i, n in enumerate(traj.joint_names) if n == JAW]
-    return arm, jaw
-
-
-def written_names(traj: Trajectory, naming: JointNaming | None) -> list[str]:
-    """The names written for `traj.joint_names` (the URDF's without a naming)."""
-    return list(traj.joint_names) if naming is None else naming.of(traj.joint_names)
 
 
 def to_json(traj: Trajectory, meta: dict, naming: JointNaming | None = None) -> dict:
@@ -98,30 +94,6 @@ def to_csv(traj: Trajectory, naming: JointNaming | None = None) -> str:
     return buf.getvalue()
 
 
-def duration_msg(t: float) -> dict:
-    """builtin_interfaces/Duration of `t` seconds."""
-    sec = int(math.floor(t))
-    nanosec = int(round((t - sec) * 1e9))
-    if nanosec >= 1_000_000_000:
-        sec, nanosec = sec + 1, nanosec - 1_000_000_000
-    return {"sec": sec, "nanosec": nanosec}
-
-
-def to_joint_trajectory(traj: Trajectory, idx: list[int],
-                        naming: JointNaming | None = None) -> dict:
-    """trajectory_msgs/JointTrajectory (ROS 2) of the joints `idx`, as a plain mapping."""
-    names = written_names(traj, naming)
-    return {
-        "header": {"stamp": {"sec": 0, "nanosec": 0}, "frame_id": ""},
-        "joint_names": [names[i] for i in idx],
-        "points": [{"positions": [float(v) for v in traj.q[k, idx]],
-                    "velocities": [float(v) for v in traj.qd[k, idx]],
-                    "accelerations": [float(v) for v in traj.qdd[k, idx]],
-                    "effort": [],
-                    "time_from_start": duration_msg(float(t))} for k, t in enumerate(traj.times)],
-    }
-
-
 def _ros2_text(traj: Trajectory, idx: list[int], what: str,
                naming: JointNaming | None = None) -> str:
     times = ", ".join(f"{t:.6f}" for t in traj.waypoint_times)
@@ -133,13 +105,6 @@ def _ros2_text(traj: Trajectory, idx: list[int], what: str,
         head += f"# joint names: {naming.comment()}\n"
     return head + yaml.safe_dump(to_joint_trajectory(traj, idx, naming), sort_keys=False,
                                  default_flow_style=None)
-
-
-def timing_text(traj: Trajectory) -> str:
-    if traj.timing == "planned":
-        return f"planned ({CURVE_NAME}, at the planned times)"
-    why = (traj.planned_curve or {}).get("not_played", "--timing toppra")
-    return f"toppra (time-optimal within the limits; the planned curve: {why})"
 
 
 def jaw_path(output: Path) -> Path:
@@ -171,7 +136,7 @@ def write(traj: Trajectory, fmt: str, output: Path, meta: dict, naming: JointNam
             files.append(write_text_atomic(jaw_path(output), _ros2_text(traj, jaw, "jaw", naming)))
         return files
     if fmt == "rosbag2":
-        from .export_rosbag import write_bag  # here: export_rosbag imports this module
+        from .export_rosbag import write_bag  # here: it loads rosbags, only rosbag2 needs it
 
         return [write_bag(traj, output, meta, naming, **bag)]
     raise SurestepError(f"unknown format '{fmt}'; allowed: {', '.join(FORMATS)}")

@@ -319,16 +319,7 @@ def evaluate(
     """
     poses = np.array(poses, dtype=float)
     poses = setup.in_step_frames(_principal(poses))  # planned in the first camera frame
-    joint = None
-    if setup.model.joint_noise and sigma is None:
-        # the joint-space motion noise needs every waypoint's joints
-        if any(qi is None for qi in q):
-            raise SurestepError(f"{method}: a waypoint without joints (unreachable) has no "
-                                "joint-space motion noise (noise.joint_motion_sigma)")
-        joint = setup.joint_noises(np.asarray(q, float))
-    sig = (setup.eval_model.propagate(poses, setup.camera_changes(),
-                                      joint=joint)[0] if sigma is None
-           else np.asarray(sigma))
+    sig = _evaluated_covariances(setup, method, poses, q, sigma)
     ocp, scene = setup.ocp, setup.scene
     noise = noise_dict(setup)
     if components is not None:
@@ -337,19 +328,7 @@ def evaluate(
              "base_pose": setup.robot.base_pose.tolist()}
     if scene.robot.grasp is not None:
         robot["needle"] = _needle(scene.robot)
-    tm = ocp.timing  # the file's timing (noise's V_* are already divided by frames_per_step)
-    arms = [Placement(a.urdf, a.frame, a.base_pose.tolist(), [float(v) for v in a.joints],
-                      None if a.grasp is None else Needle(**_needle(a)))
-            for a in scene.other_arms]
-    record = ProblemRecord(
-        timing=Timing(tm.step_s, tm.tracker_hz, tm.frames),
-        # what `surestep export` honours (docs/motion_limits_and_export.md, "Export")
-        limits=LimitsRecord.from_json(recorded_limits(setup)),
-        other_arms=arms or None,
-        camera_poses=[C.tolist() for C in setup.camera_schedule] or None,
-        ecm=None if setup.ecm is None else Placement(
-            scene.ecm.urdf, scene.ecm.frame, setup.ecm.base_pose.tolist(),
-            list(map(float, scene.ecm.joints))))
+    record = _problem_record(setup)
     return Solution(
         method=method,
         problem=ocp.source,
@@ -374,3 +353,38 @@ def evaluate(
         problem_record=record,
         extras=dict(extras or {}),
     )
+
+
+def _evaluated_covariances(setup: Setup, method: str, poses: np.ndarray,
+                           q: list[np.ndarray | None], sigma: np.ndarray | None) -> np.ndarray:
+    """The (T+1, 6, 6) covariances of the evaluation EKF along `poses` (in their step frames), or
+    `sigma` when the caller has them already."""
+    joint = None
+    if setup.model.joint_noise and sigma is None:
+        # the joint-space motion noise needs every waypoint's joints
+        if any(qi is None for qi in q):
+            raise SurestepError(f"{method}: a waypoint without joints (unreachable) has no "
+                                "joint-space motion noise (noise.joint_motion_sigma)")
+        joint = setup.joint_noises(np.asarray(q, float))
+    return (setup.eval_model.propagate(poses, setup.camera_changes(),
+                                       joint=joint)[0] if sigma is None
+            else np.asarray(sigma))
+
+
+def _problem_record(setup: Setup) -> ProblemRecord:
+    """The problem's record in the solution: its timing, motion limits, other arms, camera moves
+    and ECM."""
+    ocp, scene = setup.ocp, setup.scene
+    tm = ocp.timing  # the file's timing (noise's V_* are already divided by frames_per_step)
+    arms = [Placement(a.urdf, a.frame, a.base_pose.tolist(), [float(v) for v in a.joints],
+                      None if a.grasp is None else Needle(**_needle(a)))
+            for a in scene.other_arms]
+    return ProblemRecord(
+        timing=Timing(tm.step_s, tm.tracker_hz, tm.frames),
+        # what `surestep export` honours (docs/motion_limits_and_export.md, "Export")
+        limits=LimitsRecord.from_json(recorded_limits(setup)),
+        other_arms=arms or None,
+        camera_poses=[C.tolist() for C in setup.camera_schedule] or None,
+        ecm=None if setup.ecm is None else Placement(
+            scene.ecm.urdf, scene.ecm.frame, setup.ecm.base_pose.tolist(),
+            list(map(float, scene.ecm.joints))))
