@@ -8,14 +8,15 @@ from __future__ import annotations
 
 import time
 
+from .errors import SurestepError
+from .ocp import codegen
+
 
 def _mb(n: int) -> str:
     return f"{n / 1e6:.1f} MB"
 
 
 def info_text() -> str:
-    from .ocp import codegen
-
     folder = codegen.cache_dir()
     libs = codegen.entries(folder)
     bound = codegen.max_bytes()
@@ -47,9 +48,6 @@ def info_text() -> str:
 
 
 def cmd_cache(args) -> int:
-    from .errors import SurestepError
-    from .ocp import codegen
-
     folder = codegen.cache_dir()
     if args.clear:
         freed = codegen.clear(folder)

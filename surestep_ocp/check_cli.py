@@ -13,12 +13,16 @@ from pathlib import Path
 import numpy as np
 
 from .errors import SurestepError, shown
+from .methods.registry import method_setup
+from .ocp.certificate import certify, claims_optimum
+from .output.certificate import FEASIBLE
+from .output.export_load import load_solution
+from .output.solution import Solution
+from .problem.load import load_problem
+from .problem.setup import build_setup
 
 
 def _solution(path: str):
-    from .output.export_load import load_solution
-    from .output.solution import Solution
-
     d = load_solution(path)  # a missing, huge or malformed file: one line, exit 2
     try:
         return Solution.from_dict(d)
@@ -31,11 +35,6 @@ def _solution(path: str):
 
 def _recomputed(sol):
     """(certificate, where from) recomputed from the problem file, or (None, why not)."""
-    from .problem.load import load_problem
-    from .problem.setup import build_setup
-    from .ocp.certificate import certify
-    from .methods.registry import method_setup
-
     if sol.replan is not None:
         return None, "a re-plan (its start and Sigma_0 are not the problem file's)"
     path = Path(str(sol.problem))
@@ -52,9 +51,6 @@ def _recomputed(sol):
 
 def check_lines(path: str) -> tuple[bool, list[str]]:
     """(certified, the lines to print) for the solution file `path`."""
-    from .output.certificate import FEASIBLE
-    from .ocp.certificate import claims_optimum
-
     sol = _solution(path)
     cert, source = _recomputed(sol)
     if cert is None and sol.certificate is None:

@@ -343,12 +343,21 @@ class _OneLineParser(argparse.ArgumentParser):
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from .method_grammar import BASE_METHODS, grammar
-
+    """The `surestep` command line: this module's commands, then those registered by theirs."""
     p = _OneLineParser(prog="surestep",
                        description="Uncertainty-aware trajectory optimisation (SURESTEP).")
     p.add_argument("--version", action="version", version=f"surestep {_version()}")
     sub = p.add_subparsers(dest="command", required=True)
+    _add_solve_and_compare(sub)
+    _add_replan(sub)
+    _add_validate_and_show(sub)
+    _register_commands(sub)
+    return p
+
+
+def _add_solve_and_compare(sub) -> None:
+    """`surestep solve` and `surestep compare`."""
+    from .method_grammar import BASE_METHODS, grammar
 
     s = sub.add_parser("solve", help="solve one problem with one method, write the solution JSON")
     s.add_argument("problem", help="problem YAML (problems/README.md)")
@@ -371,6 +380,9 @@ def build_parser() -> argparse.ArgumentParser:
     _solver_flags(c)
     c.set_defaults(func=cmd_compare)
 
+
+def _add_replan(sub) -> None:
+    """`surestep replan`."""
     r = sub.add_parser("replan", help="plan, then re-plan after every camera move (problems with "
                                       "camera.moves), else at every frame of a simulated "
                                       "20 Hz tracker")
@@ -388,6 +400,9 @@ def build_parser() -> argparse.ArgumentParser:
     _solver_flags(r)
     r.set_defaults(func=cmd_replan)
 
+
+def _add_validate_and_show(sub) -> None:
+    """`surestep validate` and `surestep show`."""
     v = sub.add_parser("validate", help="check problem files")
     v.add_argument("problems", nargs="+", metavar="PROBLEM", help="problem YAML files to check")
     v.set_defaults(func=cmd_validate)
@@ -406,6 +421,9 @@ def build_parser() -> argparse.ArgumentParser:
     w.add_argument("--endoscope-view", action="store_true", help="look through the endoscope")
     w.set_defaults(func=cmd_show)
 
+
+def _register_commands(sub) -> None:
+    """The commands registered by their own modules (evaluate, export, sweep, cache, ros, check)."""
     from .evaluation.evaluation import register as register_evaluate
     from .output.export import register as register_export
 
@@ -422,7 +440,6 @@ def build_parser() -> argparse.ArgumentParser:
 
     register_ros(sub)
     register_check(sub)
-    return p
 
 
 def main(argv: list[str] | None = None) -> int:
