@@ -21,7 +21,7 @@ speed, starting and ending at rest, and never faster than the plan's own pace (t
 observations per step assume it): `s` itself is a last, virtual joint with velocity limit 1, so
 each step takes at least `step_s`, longer only where a limit needs it. The tool's speed along the
 path is `|J_v(q(s)) q'(s)| s_dot` (Pinocchio's frame Jacobian), so its bound is one on `s_dot`
-per grid point (`ToolSpeed`, its `_ToolSpeedConstraint`).
+per grid point (`ToolSpeed`; the constraint: `export_toppra.tool_speed_constraint`).
 
 The limits are those the plan was made with (the solution's recorded `limits`: the problem's
 `limits:` section resolved against the URDF and the defaults; older files without it: the
@@ -35,7 +35,6 @@ again with that family's limits scaled down by the overshoot, and the scales use
 
 from __future__ import annotations
 
-import logging
 import math
 from dataclasses import dataclass
 
@@ -126,8 +125,8 @@ class PchipPath:
 
 class ToolSpeed:
     """The tool's translation and rotation speed per unit path speed along a path:
-    `|J_v(q(s)) q'(s)|` and `|J_w(q(s)) q'(s)|` (Pinocchio's frame Jacobian), and the bound they put
-    on `s_dot`."""
+    `|J_v(q(s)) q'(s)|` and `|J_w(q(s)) q'(s)|` (Pinocchio's frame Jacobian); the bound they put on
+    `s_dot` is `export_toppra.tool_speed_constraint`."""
 
     def __init__(self, robot, frame: str, limits: MotionLimits):
         self.robot, self.frame = robot, frame
@@ -140,29 +139,6 @@ class ToolSpeed:
                           np.array([self.robot.frame_jacobian(qk, self.frame) for qk in q]), qd)
         return np.column_stack([np.linalg.norm(twist[:, :3], axis=1),
                                 np.linalg.norm(twist[:, 3:], axis=1)])
-
-    def constraint(self, path, scale: float):
-        """A toppra velocity constraint: `s_dot^2 <= min_i (scale * vmax_i / rate_i(s))^2` at every
-        grid point."""
-        from toppra.constraint import DiscretizationType, LinearConstraint  # loaded on use (slow)
-
-        tool, n = self, self.robot.nq
-
-        class _ToolSpeedConstraint(LinearConstraint):
-            def __init__(self):
-                super().__init__()
-                self.dof = path.dof
-                self.discretization_type = DiscretizationType.Collocation
-                self._format_string = f"    Tool speed limit: {tool.vmax} x {scale:g}\n"
-
-            def compute_constraint_params(self, path_, gridpoints):
-                r = tool.rates(path_(gridpoints, 0)[:, :n], path_(gridpoints, 1)[:, :n])
-                with np.errstate(divide="ignore"):
-                    x_max = np.min((scale * tool.vmax / r) ** 2, axis=1)
-                xbound = np.column_stack([np.zeros(len(gridpoints)), np.minimum(x_max, 1e12)])
-                return None, None, None, None, None, None, xbound
-
-        return _ToolSpeedConstraint()
 
 
 def toppra_grid(ss: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -183,19 +159,10 @@ def toppra_run(path: PchipPath, grid: np.ndarray, limits: MotionLimits, scales: 
                clock_v: float, clock_a: float, tool: ToolSpeed | None = None):
     """One toppra run along `path` (its last joint the path parameter, within `clock_v`, `clock_a`)
     from rest to rest, within `limits` scaled per family by `scales` (joint velocity, joint
-    acceleration, tool speed): toppra's trajectory, or None when it finds none."""
-    import toppra.algorithm as algo  # loaded on use: toppra is slow to import
-    import toppra.constraint as constraint
+    acceleration, tool speed): toppra's trajectory, or None when it finds none (`export_toppra`)."""
+    from .export_toppra import run_toppra  # loaded on use: toppra is slow to import
 
-    logging.getLogger("toppra").setLevel(logging.ERROR)  # a failed try is retried: noise
-    vmax = np.append(scales[0] * limits.velocity, clock_v)
-    amax = np.append(scales[1] * limits.acceleration, clock_a)
-    cons = [constraint.JointVelocityConstraint(np.column_stack([-vmax, vmax])),
-            constraint.JointAccelerationConstraint(np.column_stack([-amax, amax]))]
-    if tool is not None:
-        cons.append(tool.constraint(path, scales[2]))
-    inst = algo.TOPPRA(cons, path, gridpoints=grid, parametrizer="ParametrizeConstAccel")
-    return inst.compute_trajectory(0.0, 0.0)
+    return run_toppra(path, grid, limits, scales, clock_v, clock_a, tool)
 
 
 def _sample_times(duration: float, wp_t: np.ndarray, rate_hz: float) -> np.ndarray:
