@@ -142,13 +142,7 @@ def solve_gradient(
     components = tuple(setup.model.components if components is None else components)
     model = (setup.model if components == tuple(setup.model.components)
              else setup.model.with_components(components))
-
-    base = straight_line(setup.x_start, setup.x_goal, T)
-    init = base if init_poses is None else np.array(init_poses, dtype=float)
-    if init.shape != (T + 1, NX):
-        raise ValueError(f"init_poses must have shape ({T + 1}, {NX}), got {init.shape}")
-    init[0] = setup.x_start
-    d0 = np.diff(init, axis=0).ravel()
+    base, d0 = _start(setup, init_poses)
 
     t_build = time.perf_counter()
     terms, loss_grad = build_loss(setup, model, pose_loss, spec.pose_loss_weight, spec.trace_scale)
@@ -164,30 +158,15 @@ def solve_gradient(
     else:
         run = _run_scipy(fun, d0, spec)
     solve_s = time.perf_counter() - t0
-    d_opt, nit, error = run["x"], run["iterations"], run["error"]
+    d_opt, nit = run["x"], run["iterations"]
 
     start, end = _terms_dict(terms, d0), _terms_dict(terms, d_opt)
     poses = poses_of(setup, d_opt)
-    # scipy's status: 0 converged, 1 iteration/evaluation limit (the normal stop here),
-    # 2 stopped otherwise (e.g. ABNORMAL line search: no further decrease found).
-    finite = bool(np.isfinite(end["loss"]) and np.all(np.isfinite(poses)))
-    success = finite and error is None and run["ok"] and end["loss"] <= start["loss"]
-    status = (run["status"] if finite
-              else f"{run['status']}; diverged (non-finite loss or waypoints)")
-    if finite and end["loss"] > start["loss"]:
-        status += f"; the loss rose from {start['loss']:.3g} to {end['loss']:.3g}"
+    finite, success, status = _verdict(run, start, end, poses)
 
-    dpos = float(np.max(np.linalg.norm(poses[:, :3] - base[:, :3], axis=1)))
-    dang = float(max(np_angle(a, b) for a, b in zip(poses[:, 3:], base[:, 3:])))
+    dpos, dang = _change_vs_baseline(poses, base)
     t_ik = time.perf_counter()
-    if finite and np.max(np.abs(poses[:, :3])) < FAR_M:
-        qs, info = reachability(setup, poses)
-    else:  # a diverged run (e.g. torch's fixed step without line search): no IK on absurd waypoints
-        far = ~np.all(np.isfinite(poses), axis=1) | (np.max(np.abs(poses[:, :3]), axis=1) >= FAR_M)
-        qs = [None] * len(poses)
-        info = {"reachable": 0, "unreachable": len(poses), "ik_residual_m": [],
-                "ik_residual_rad": [],
-                "note": f"not checked: {int(far.sum())} waypoints non-finite or beyond {FAR_M:g} m"}
+    qs, info = _reachability(setup, poses, finite)
     ik_s = time.perf_counter() - t_ik
     method = "gradient" if pose_loss else "gradient-no-pose-loss"
     extras = {
@@ -215,6 +194,53 @@ def solve_gradient(
         run=SolveRecord(init="straight-line baseline" if init_poses is None else "init_poses",
                         build_time_s=build_s),
     )
+
+
+def _start(setup: Setup, init_poses: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """(the straight-line baseline, the initial waypoint differences d0): from `init_poses` (its
+    first row replaced by x_start), else from the baseline."""
+    T = setup.ocp.horizon
+    base = straight_line(setup.x_start, setup.x_goal, T)
+    init = base if init_poses is None else np.array(init_poses, dtype=float)
+    if init.shape != (T + 1, NX):
+        raise ValueError(f"init_poses must have shape ({T + 1}, {NX}), got {init.shape}")
+    init[0] = setup.x_start
+    return base, np.diff(init, axis=0).ravel()
+
+
+def _change_vs_baseline(poses: np.ndarray, base: np.ndarray) -> tuple[float, float]:
+    """The waypoints' largest change from the straight-line baseline: position [m], angle [rad]."""
+    dpos = float(np.max(np.linalg.norm(poses[:, :3] - base[:, :3], axis=1)))
+    dang = float(max(np_angle(a, b) for a, b in zip(poses[:, 3:], base[:, 3:])))
+    return dpos, dang
+
+
+def _verdict(run: dict, start: dict, end: dict, poses: np.ndarray) -> tuple[bool, bool, str]:
+    """(finite, success, status) of an optimiser's run from its loss terms at start and end and
+    its waypoints."""
+    # scipy's status: 0 converged, 1 iteration/evaluation limit (the normal stop here),
+    # 2 stopped otherwise (e.g. ABNORMAL line search: no further decrease found).
+    finite = bool(np.isfinite(end["loss"]) and np.all(np.isfinite(poses)))
+    success = finite and run["error"] is None and run["ok"] and end["loss"] <= start["loss"]
+    status = (run["status"] if finite
+              else f"{run['status']}; diverged (non-finite loss or waypoints)")
+    if finite and end["loss"] > start["loss"]:
+        status += f"; the loss rose from {start['loss']:.3g} to {end['loss']:.3g}"
+    return finite, success, status
+
+
+def _reachability(setup: Setup, poses: np.ndarray, finite: bool) -> tuple[list, dict]:
+    """(joints of each waypoint or None, the reachability record): the waypoints checked by IK,
+    unless the run diverged."""
+    if finite and np.max(np.abs(poses[:, :3])) < FAR_M:
+        return reachability(setup, poses)
+    # a diverged run (e.g. torch's fixed step without line search): no IK on absurd waypoints
+    far = ~np.all(np.isfinite(poses), axis=1) | (np.max(np.abs(poses[:, :3]), axis=1) >= FAR_M)
+    qs = [None] * len(poses)
+    info = {"reachable": 0, "unreachable": len(poses), "ik_residual_m": [],
+            "ik_residual_rad": [],
+            "note": f"not checked: {int(far.sum())} waypoints non-finite or beyond {FAR_M:g} m"}
+    return qs, info
 
 
 def _run_scipy(fun, d0: np.ndarray, spec) -> dict:

@@ -1,7 +1,8 @@
 """The belief-space OCP solved by its strategy: choices resolved, attempts run, the plan picked and
 reported.
 
-`solve_ocp` / `solve_ocp_warm` take a Setup and an initial joint trajectory and return one Solution.
+`solve_ocp` / `solve_ocp_warm` take a Setup and an initial joint trajectory (`ocp_initial_guess`:
+the straight line's or a gradient plan's IK) and return one Solution.
 The solver choices are resolved once (`problem/solver_config.py`), the attempts are data
 (`strategy.py`), each runs on a backend (`backends/`); here the best converged attempt is kept (or
 the feasible start, when every converged point is above it), the attempts are recorded, and a
@@ -21,11 +22,26 @@ from ..problem.setup import Setup
 from ..problem.solver_config import resolve
 from ..solvers.backends import Context
 from ..ocp.iterate import InitialGuess, Iterate
+from ..ocp.straight_line import straight_line
 from ..solvers.newton import EXACT_MAX_N
 from ..solvers.nlp_cache import newton_solver, transcription
 from ..solvers.strategy import default_strategy, record, run
 
-__all__ = ["resolved_solver", "solve_ocp", "solve_ocp_warm"]
+__all__ = ["ocp_initial_guess", "resolved_solver", "solve_ocp", "solve_ocp_warm"]
+
+
+def ocp_initial_guess(setup: Setup, source: str = "baseline",
+                      gradient: Solution | None = None) -> InitialGuess:
+    """Joint trajectory to start the OCP from: IK of the straight line or of a gradient solution."""
+    if source == "baseline":
+        poses = straight_line(setup.x_start, setup.x_goal, setup.ocp.horizon)
+    else:
+        poses = np.asarray(gradient.poses)
+    q_best, ok, _, _ = setup.joints_along(poses, setup.q_start,
+                                          guesses=setup.joint_line(len(poses) - 1))
+    note = (source if ok.all()
+            else f"{source} ({int((~ok).sum())} waypoints unreachable, best-effort IK used)")
+    return InitialGuess(q_best, note)
 
 
 def resolved_solver(setup: Setup, form: str | None = None):
@@ -80,52 +96,72 @@ def solve_ocp_warm(setup: Setup, init: InitialGuess, solver_options: dict | None
     pick = min(finished, key=lambda k: tried[k][2].objective) if finished else len(tried) - 1
     smooth0 = setup.ocp.smoothness * float(np.sum(np.diff(np.asarray(cold.q, float), axis=0) ** 2))
     costly = setup.model.structured and not setup.model.scalar
-
-    # the planner's objective at the cold start (trace + smoothness)
-    def start_objective(s_k: Solution) -> float:
-        return s_k.run.initial_trace * (1 + smooth0)
-
-    if warm is None and ((finished and tried[pick][2].objective > start_objective(tried[pick][2]))
+    if warm is None and ((finished and tried[pick][2].objective
+                          > _start_objective(tried[pick][2], smooth0))
                          or ((costly or limited) and not finished and tried)):
         # Every converged point is above the (cold) start: keep the start if it is a feasible plan,
         # rather than return a plan worse than the one we began from. With enforced limits also when
         # nothing converged and the start meets every limit (docs/hessian_and_newton.md,
         # "Fallbacks").
-        nlps = [t.outcome.start_solution for t in ran if t.outcome.start_solution is not None]
-        start = nlps[-1](init) if nlps else None  # the last NLP's start point and bounds
-        if start is not None:
-            ran = sorted({s_k.run.solver for _, _, s_k, _ in tried})
-            start.run = replace(start.run, solver=(f"none (the initial guess; {', '.join(ran)} "
-                                                   "did not end below it)"))
-            tried.append(("none: the feasible initial guess, below every converged point"
-                          if finished
-                          else "none: the feasible initial guess (no attempt converged)",
-                          None, start, None))
-            pick = len(tried) - 1
+        pick = _kept_start(ran, tried, finished, init, pick)
     sol, last = tried[pick][2], tried[pick][3]
-    sol.attempts = [record(label, hess, s_k, k == pick)
-                    for k, (label, hess, s_k, _) in enumerate(tried)]
-    initial_objective = start_objective(sol)
-    sol.run = replace(sol.run, hessian=" + ".join(label for label, _, _, _ in tried),
-                      initial_objective=initial_objective,
-                      worse_than_initial_guess=bool(sol.objective > initial_objective),
-                      init=init.source if warm is None else f"warm start ({init.source})")
-    sol.solve_time_s = sum(s_k.solve_time_s for _, _, s_k, _ in tried)
-    sol.iterations = sum(s_k.iterations for _, _, s_k, _ in tried)
+    _report(sol, tried, pick, init, warm, _start_objective(sol, smooth0))
     # the condensed solve that started the lifted one: reported, and counted in time
     if pre is not None:
-        sol.run = replace(sol.run, condensed_start=CondensedStart(
-            pre.status, pre.iterations, pre.run.solver, pre.solve_time_s, pre.objective),
-            initial_trace=pre.run.initial_trace, initial_objective=pre.run.initial_objective,
-            worse_than_initial_guess=bool(sol.objective > pre.run.initial_objective))
-        sol.solve_time_s += pre.solve_time_s
-        sol.iterations += pre.iterations
+        _count_condensed_start(sol, pre)
     if (costly and resolved.form == "condensed" and warm is None and not limited
             and resolved.newton_fits and spec.name != "ipopt"):
         sol, last = _second_start(setup, cold, sol, last, solver_options, method)
     if enforce_limits(setup, sol) and not sol.success:
         last = None  # no warm start from a plan that breaks a limit
     return sol, last
+
+
+def _start_objective(s_k: Solution, smooth0: float) -> float:
+    """The planner's objective at the cold start (trace + smoothness `smooth0`)."""
+    return s_k.run.initial_trace * (1 + smooth0)
+
+
+def _kept_start(ran: list, tried: list, finished: list[int], init: InitialGuess, pick: int) -> int:
+    """The feasible start appended to `tried` as the plan kept (the last NLP's start point and
+    bounds), when there is one; returns the index picked."""
+    nlps = [t.outcome.start_solution for t in ran if t.outcome.start_solution is not None]
+    start = nlps[-1](init) if nlps else None  # the last NLP's start point and bounds
+    if start is not None:
+        ran = sorted({s_k.run.solver for _, _, s_k, _ in tried})
+        start.run = replace(start.run, solver=(f"none (the initial guess; {', '.join(ran)} "
+                                               "did not end below it)"))
+        tried.append(("none: the feasible initial guess, below every converged point"
+                      if finished
+                      else "none: the feasible initial guess (no attempt converged)",
+                      None, start, None))
+        pick = len(tried) - 1
+    return pick
+
+
+def _report(sol: Solution, tried: list, pick: int, init: InitialGuess, warm: Iterate | None,
+            initial_objective: float) -> None:
+    """Every attempt recorded in the plan kept (`tried[pick]`), its time and iterations their
+    sums."""
+    sol.attempts = [record(label, hess, s_k, k == pick)
+                    for k, (label, hess, s_k, _) in enumerate(tried)]
+    sol.run = replace(sol.run, hessian=" + ".join(label for label, _, _, _ in tried),
+                      initial_objective=initial_objective,
+                      worse_than_initial_guess=bool(sol.objective > initial_objective),
+                      init=init.source if warm is None else f"warm start ({init.source})")
+    sol.solve_time_s = sum(s_k.solve_time_s for _, _, s_k, _ in tried)
+    sol.iterations = sum(s_k.iterations for _, _, s_k, _ in tried)
+
+
+def _count_condensed_start(sol: Solution, pre: Solution) -> None:
+    """The condensed solve `pre` that started the lifted one, reported in `sol` and counted in its
+    time and iterations."""
+    sol.run = replace(sol.run, condensed_start=CondensedStart(
+        pre.status, pre.iterations, pre.run.solver, pre.solve_time_s, pre.objective),
+        initial_trace=pre.run.initial_trace, initial_objective=pre.run.initial_objective,
+        worse_than_initial_guess=bool(sol.objective > pre.run.initial_objective))
+    sol.solve_time_s += pre.solve_time_s
+    sol.iterations += pre.iterations
 
 
 SECOND_START_ITER = 60

@@ -15,44 +15,44 @@ CasADi call per step.
 
 Where the projected Newton solver does not apply (IPOPT's models, enforced motion limits, 6x6
 recursions) or does not converge, a re-plan runs `solve_ocp_warm`'s whole strategy from the previous
-plan instead (its NLPs are cached per horizon too, but built inside the solve).
+plan instead (its NLPs are cached per horizon too, but built inside the solve). Here: the public
+API, the first plans and the full re-plans within the limits; apart: the checks of its inputs
+(replan_inputs.py), its solvers (replan_solvers.py), the real-time iteration's feedback
+(real_time_iteration.py), re-plans without limits (replan_without_limits.py).
 """
 
 from __future__ import annotations
 
 import gc
 import time
-from dataclasses import dataclass, replace
+from dataclasses import replace
 
-import casadi as ca
 import numpy as np
 
-from ..model.belief import NV, NX, BeliefModel, unvech, vech
 from ..arguments import whole_number
 from ..errors import SurestepError
-from ..model.lie import pose_mean, pose_to_matrix
+from ..model.lie import pose_to_matrix
 from ..model.limits import enforce as enforce_limits
 from ..model.limits import evaluate_curve
-from ..ocp.certificate import NOT_CERTIFIED, certify, prepare_replans
+from ..ocp.certificate import NOT_CERTIFIED, certify
 from .confidence import at_horizon, plan_to_confidence
-from .registry import ocp_initial_guess
-from ..solvers.backends import Context
-from ..buffered import Buffered
-from ..solvers.interior import FEASIBLE, InteriorRun
 from ..ocp.iterate import InitialGuess
-from ..solvers.newton import NewtonRun, parameters
+from ..solvers.newton import parameters
 from ..model.robot import CAMERA_PARAMETERS
-from ..solvers.nlp_cache import interior_solver, newton_solver
-from .ocp import resolved_solver, solve_ocp_warm
-from ..solvers.strategy import records, replan_strategy
-from ..solvers.strategy import run as run_strategy
+from ..solvers.nlp_cache import interior_solver
+from .ocp import ocp_initial_guess, resolved_solver, solve_ocp_warm
 from ..problem.spec import Problem
 from ..problem.setup import Setup, build_setup
 from ..output.certificate import INFEASIBLE
-from ..output.solution import Solution, evaluate
-from ..output.solution_records import ReplanAttempt, ReplanRecord, SolveRecord, StartState
+from ..output.solution import Solution
+from ..output.solution_records import ReplanAttempt, ReplanRecord
+from .real_time_iteration import Prepared, RealTimeIteration
+from .replan_inputs import (checked_camera_pose, checked_estimate, checked_goal,
+                            checked_rest_joints, whole_step)
+from .replan_solvers import CERTIFIED_SETUP as _SETUP
+from .replan_solvers import replan_solution
+from .replan_without_limits import remaining_problem, replan_without_limits
 
-_UNVECH = unvech(np.arange(NV, dtype=float)).astype(int)  # (6, 6) positions of each entry in vech
 # a re-plan's first barrier parameter: its few iterations end well inside the rows, which leaves the
 # next frame's correction room (measured against 1e-4 and others: docs/realtime.md)
 REPLAN_MU = 3e-3
@@ -69,7 +69,7 @@ RTI_ITERATIONS = 1
 REPLAN_BUDGET = 40
 
 
-class Planner:
+class Planner(RealTimeIteration):
     """Plans a problem once, then re-plans from each new tracker estimate over the steps left.
 
     With `goal.confidence` set, the horizon is the shortest whose plan reaches it, but not shorter
@@ -145,7 +145,7 @@ class Planner:
         self._registration = np.eye(4)
         # within the limits: the real-time iteration prepared for the next re-plan (`prepare`),
         # and the last estimate's covariance (the prediction a preparation plans with)
-        self._prepared: _Prepared | None = None
+        self._prepared: Prepared | None = None
         self._cov = self.setup.ocp.sigma0
 
     def restart(self, joints, goal=None) -> Solution:
@@ -164,24 +164,10 @@ class Planner:
             either way): SurestepError carrying its status, the Planner unchanged.
         """
         base = self._camera[1]
-        q = _real(joints, "joints")
-        lo, hi = base.robot.lower, base.robot.upper
-        if q.shape != lo.shape or not np.all(np.isfinite(q)):
-            raise SurestepError(f"restart: joints must be {lo.size} finite numbers, got shape "
-                                f"{q.shape}")
-        if np.any(q < lo) or np.any(q > hi):
-            bad = [i for i in range(q.size) if not lo[i] <= q[i] <= hi[i]]
-            raise SurestepError(f"restart: joint(s) {bad} outside their bounds "
-                                f"{[[float(lo[i]), float(hi[i])] for i in bad]}: {q[bad].tolist()}")
+        q = checked_rest_joints(joints, base)
         asked = replace(self._asked, camera_pose=base.camera_pose, q_start=q)
         if goal is not None:
-            x = _real(goal, "goal")
-            if x.shape != (NX,) or not np.all(np.isfinite(x)):
-                raise SurestepError("restart: goal must be 6 finite numbers [px, py, pz, rx, ry, "
-                                    f"rz], got shape {x.shape}")
-            if x[2] < base.ocp.min_depth:
-                raise SurestepError(f"restart: goal's depth {x[2]:.4g} m is below the minimum "
-                                    f"depth {base.ocp.min_depth:g} m (constraints.min_depth)")
+            x = checked_goal(goal, base)
             q_goal, res_m, res_rad = asked.joints_for(x, base.q_goal, raise_on_fail=False)
             if res_m > 1e-6 or res_rad > 1e-5:
                 raise SurestepError(f"restart: goal {np.round(x, 4).tolist()} is not reachable "
@@ -198,11 +184,6 @@ class Planner:
         self._camera = (setup.camera_pose.tobytes(), setup)
         self._begin(plan)
         return plan
-
-    @property
-    def build_time_s(self) -> float:
-        """Seconds spent building solvers so far (not counted in any plan's time)."""
-        return sum(self.builds.values())
 
     def replan(self, mean, covariance, camera_pose=None, step: int | None = None) -> Solution:
         """The plan from the tracker's estimate to the goal over the steps left.
@@ -223,9 +204,9 @@ class Planner:
             (check `success`) the previous plan stays current.
         """
         t0, builds_before = time.perf_counter(), self.build_time_s
-        step = self.step + 1 if step is None else _step(step)
+        step = self.step + 1 if step is None else whole_step(step)
         self._check_step(step)
-        mean, cov = _estimate(mean, covariance, self.setup.ocp.min_depth)
+        mean, cov = checked_estimate(mean, covariance, self.setup.ocp.min_depth)
         camera = self._camera
         base, moved = self._seen_from(camera_pose)
         try:
@@ -240,40 +221,10 @@ class Planner:
         """`replan` with checked inputs (its docstring)."""
         if self.limited:
             return self._replan_within_limits(mean, cov, base, step, t0, builds_before)
-        seed = self._q[step - self.step]
-        q, ok, res_m, res_rad = base.joints_along(mean[None], seed, guesses=seed[None])
-        if not ok[0]:
-            raise SurestepError(f"replan: the tracker's mean {np.round(mean, 4).tolist()} "
-                                f"is not reachable (IK residual {res_m[0] * 1e3:.3f} mm, "
-                                f"{res_rad[0]:.4f} rad)")
         n = self.horizon - step
-        sub = replace(base.with_ocp(horizon=n, sigma0=cov), q_start=q[0])
-        # the goal's as seen from this start
-        sub.x_start, sub.x_goal = sub.pose_of(q[0]), sub.pose_of(sub.q_goal)
-        warm = InitialGuess(np.vstack([q[:1], self._q[step - self.step + 1:]]), "previous plan")
+        sub, warm = remaining_problem(base, mean, cov, self._q[step - self.step:], n)
         built = self._solver(n) if self.fast and sub.model.scalar else None
-        sol = None
-        if built is not None:
-            # the re-plan's Newton attempts (strategy.replan_strategy), evaluated in one call
-            def evaluate_run(setup, method, start, run):
-                sig = np.asarray(built[1](run.poses.T, vech(cov))).T[:, _UNVECH]
-                return evaluate(setup, method, run.poses, list(run.q), success=run.success,
-                                status=run.status, solve_time_s=run.solve_time_s,
-                                iterations=run.iterations, objective=run.objective,
-                                sigma=sig, run=SolveRecord(solver="newton", init=start.source,
-                                                           initial_trace=run.initial_trace,
-                                                           compiled=built[0].codegen))
-
-            ctx = Context(sub, resolved_solver(sub), "ocp-replan", {}, evaluate_newton=evaluate_run)
-            tried = run_strategy(replan_strategy(moved), ctx, warm, None)
-            if tried[-1].outcome.solution.success:
-                sol = tried[-1].outcome.solution
-                sol.attempts = records(tried, len(tried) - 1)
-                sol.run = replace(sol.run, warm_start_q=np.asarray(warm.q, float).tolist())
-        if sol is None:
-            # IPOPT's models, or Newton did not converge: the whole strategy from the previous plan
-            sol = solve_ocp_warm(sub, warm, method="ocp-replan")[0]
-            sol.run = replace(sol.run, warm_start_q=np.asarray(warm.q, float).tolist())
+        sol = replan_without_limits(sub, warm, cov, moved, built)
         certificate_s = _certified(sub, sol)
         built_s = sum(self.builds.values()) - builds_before
         sol.replan = ReplanRecord(step, time.perf_counter() - t0 - built_s, sol.run.solver, built_s,
@@ -301,7 +252,7 @@ class Planner:
         where re-plans are not real-time iterations (no enforced limits, or `rti=False`)."""
         if not (self.limited and self.rti):
             return 0.0
-        step = self.step + 1 if step is None else _step(step)
+        step = self.step + 1 if step is None else whole_step(step)
         self._check_step(step)
         self._prepared = self._prepare(step, self._camera)
         return self._prepared.time_s
@@ -312,7 +263,7 @@ class Planner:
                                 f"(the current plan starts at waypoint {self.step}; "
                                 f"the goal is waypoint {self.horizon})")
 
-    def _prepare(self, step: int, camera: tuple) -> _Prepared:
+    def _prepare(self, step: int, camera: tuple) -> Prepared:
         """`prepare` for waypoint `step` as seen from `camera` (bytes, setup)."""
         t0, builds_before = time.perf_counter(), self.build_time_s
         base = camera[1]
@@ -333,8 +284,8 @@ class Planner:
         P = parameters(sub)
         P[CAMERA_PARAMETERS] = run.initial_trace
         built = self.build_time_s - builds_before
-        return _Prepared(self.plan, step, camera[0], q0, v0, a0, warm, run, solver, P,
-                         time.perf_counter() - t0 - built)
+        return Prepared(self.plan, step, camera[0], q0, v0, a0, warm, run, solver, P,
+                        time.perf_counter() - t0 - built, RESERVE)
 
     def _replan_within_limits(self, mean, cov, base: Setup, step: int, t0: float,
                               builds_before: float) -> Solution:
@@ -404,44 +355,6 @@ class Planner:
             self._cov = cov
         return sol
 
-    def _feedback(self, prep: _Prepared, registered: Setup, q_goal: np.ndarray, cov,
-                  t0: float) -> tuple[Solution | None, np.ndarray]:
-        """The real-time iteration's feedback: the prepared iterate with its goal moved to
-        `q_goal` (the shift eased in, no velocity or acceleration added at either end), if that
-        keeps every row (the limits themselves: the reserve is room for such corrections): (its
-        Solution, with `extras["feedback_s"]` from `t0` until its joints were known, or None;
-        the moved iterate)."""
-        x = np.array(prep.run.q, float)
-        s = np.linspace(0.0, 1.0, len(x))
-        x += (10 * s**3 - 15 * s**4 + 6 * s**5)[:, None] * (q_goal - x[-1])[None]
-        # every row at the moved iterate, seen from the registered camera (the rows do not
-        # depend on the covariance)
-        P = prep.parameters.copy()
-        P[:CAMERA_PARAMETERS] = replace(registered, q_start=prep.q0).camera_parameter()
-        if not np.all(prep.solver.rows(x.ravel(), P, prep.v0, prep.a0, self.setup.ocp.min_depth)
-                      > 0.0):
-            return None, x
-        feedback_s = time.perf_counter() - t0
-        # the plan's Solution: no longer in the measurement's path
-        sub = replace(registered.with_ocp(horizon=len(x) - 1, sigma0=cov), q_start=prep.q0,
-                      q_goal=q_goal)
-        sub.x_start, sub.x_goal = sub.poses_of(np.vstack([prep.q0, q_goal]))
-        solver, propagation = self._interior(sub)
-        run = prep.run
-        P = parameters(sub)
-        P[CAMERA_PARAMETERS] = run.initial_trace  # the objective's scale: the preparation's
-        end = solver.newton._end(sub, x.ravel(), P, run.initial_trace, FEASIBLE, run.iterations,
-                                 0, t0)
-        run = InteriorRun(**{k: getattr(end, k) for k in NewtonRun.__dataclass_fields__},
-                          relaxed_iterations=run.relaxed_iterations)
-        sol = self._solution(sub, propagation, solver, prep.warm, run, cov, prep.v0, prep.a0)
-        sol.extras.update(reserve=RESERVE, extended_steps=0, feedback_s=feedback_s,
-                          attempts_tried=[ReplanAttempt(
-                              reserve=RESERVE, steps_added=0, status=prep.run.status,
-                              iterations=prep.run.iterations,
-                              relaxed_iterations=prep.run.relaxed_iterations)])
-        return sol, x
-
     def _full(self, cov, registered: Setup, q_goal: np.ndarray, reachable: bool,
               step: int, start: np.ndarray | None = None) -> Solution:
         """A full re-plan: the interior-point method from `start` (the real-time iteration's
@@ -492,21 +405,8 @@ class Planner:
                                        relaxed_iterations=run.relaxed_iterations))
             if run.success:
                 break
-        sol = self._solution(sub, propagation, solver, warm, run, cov, v0, a0)
+        sol = replan_solution(sub, propagation, solver, warm, run, cov, v0, a0)
         sol.extras.update(reserve=reserve, extended_steps=extra, attempts_tried=tried)
-        return sol
-
-    def _solution(self, sub: Setup, propagation, solver, warm: InitialGuess, run, cov, v0,
-                  a0) -> Solution:
-        """A re-plan's Solution from its run: evaluated by the compiled EKF where there is one."""
-        # (in place: the buffer's values are copied out by the indexing)
-        sigma = (None if propagation is None else
-                 propagation(run.poses.T, vech(cov))[0].reshape(-1, NV)[:, _UNVECH])
-        sol = solver.newton.solution(sub, "ocp-replan", warm, run, sigma=sigma)
-        sol.run = replace(sol.run, solver="interior",
-                          start_state=StartState(v0.tolist(), a0.tolist()),
-                          warm_start_q=np.asarray(warm.q, float).tolist())
-        sol.extras[_SETUP] = sub  # (the certificate's problem; taken out before it is returned)
         return sol
 
     def _goal_joints(self, registered: Setup, base: Setup) -> tuple[np.ndarray, float, float]:
@@ -520,59 +420,15 @@ class Planner:
                                                            raise_on_fail=False, restarts=0)
         return q_goal, res_m, res_rad
 
-    def _interior(self, sub: Setup) -> tuple:
-        """(interior-point solver, compiled EKF or None) of a re-plan over `sub`'s horizon from a
-        moving start, built on first use (its build time in `builds`, keyed by minus the horizon).
-        The EKF evaluates a plan in one call (`_propagation`); None for a model with joint-space
-        noise, which needs the joints (`evaluate`). The re-plan's certificate is made ready with
-        it (`prepare_replans`: compiled now, not in the loop)."""
-        t0, n = time.perf_counter(), sub.ocp.horizon
-        if -n not in self._solvers:  # a re-plan's structure is its horizon's (no cache key made)
-            self._solvers[-n] = (interior_solver(sub, moving=True),
-                                 None if self.setup.model.joint_noise
-                                 else Buffered(_propagation(self.setup.eval_model, n)))
-            prepare_replans(sub)
-            self.builds[-n] = time.perf_counter() - t0
-        return self._solvers[-n]
-
-    def _solver(self, n: int, background: bool = False) -> tuple:
-        """(projected Newton solver, compiled EKF over n steps) for n steps left, built on first
-        use; `background`: its C compiled in a background thread (loaded, and waited for if need be,
-        when it is first used: the wait counts as build time, not as a plan's)."""
-        if n not in self._solvers:
-            t0 = time.perf_counter()
-            sub = self.setup.with_ocp(horizon=n)
-            self._solvers[n] = (newton_solver(sub, background=background),
-                                _propagation(self.setup.eval_model, n))
-            self.builds[n] = time.perf_counter() - t0
-        if not background:
-            self.builds[n] += self._solvers[n][0].ready()
-        return self._solvers[n]
-
     def _seen_from(self, camera_pose) -> tuple[Setup, bool]:
         """The setup seen from `camera_pose` (None: the last one), and whether the camera moved
         since the last plan."""
         moved = False
         if camera_pose is not None:
-            C = _real(camera_pose, "camera_pose")
-            if C.shape != (4, 4) or not np.all(np.isfinite(C)):
-                raise SurestepError("replan: camera_pose must be a finite 4x4 matrix, "
-                                    + (f"got shape {C.shape}" if C.shape != (4, 4)
-                                       else "got non-finite entries"))
-            R = C[:3, :3]
-            if (np.abs(R.T @ R - np.eye(3)).max() > RIGID_TOL or np.linalg.det(R) <= 0
-                    or np.abs(C[3] - [0, 0, 0, 1]).max() > RIGID_TOL
-                    or np.abs(C[:3, 3]).max() > MAX_POSITION):
-                raise SurestepError("replan: camera_pose must be a rigid transform: a rotation "
-                                    f"(orthonormal, determinant +1, to {RIGID_TOL:g}), "
-                                    f"a translation within {MAX_POSITION:g} m, "
-                                    "and a last row 0 0 0 1")
+            C = checked_camera_pose(camera_pose)
             if C.tobytes() != self._camera[0]:
                 self._camera, moved = (C.tobytes(), self.setup.seen_from(C)), True
         return self._camera[1], moved
-
-
-_SETUP = "_certified_setup"  # a re-plan's setup, kept in its extras until it is certified
 
 
 def _certified(sub: Setup, sol: Solution) -> float:
@@ -596,93 +452,6 @@ EXTEND = 2  # steps a re-plan may add when the correction does not fit in the ti
 MAX_LATE = 10
 # a re-plan's (reserve, steps added), in order
 ATTEMPTS = ((RESERVE, 0), (0.0, 0), (RESERVE, EXTEND), (0.0, 2 * EXTEND))
-
-
-RIGID_TOL = 1e-6  # a camera pose's rotation is orthonormal to this
-MAX_POSITION = 100.0  # [m] as the problem files' positions (problem/parse.py)
-MAX_COVARIANCE = 1e6  # as the problem files' covariances: an entry at most this [m^2, m rad, rad^2]
-
-
-@dataclass
-class _Prepared:
-    """A real-time iteration's preparation (`Planner.prepare`): valid for the re-plan of `plan`
-    at waypoint `step` seen from the camera `camera` (its pose's bytes)."""
-
-    plan: Solution
-    step: int
-    camera: bytes
-    q0: np.ndarray  # the executed curve's state at `step`: joints, velocities, accelerations
-    v0: np.ndarray
-    a0: np.ndarray
-    warm: InitialGuess  # the shifted plan it iterated from
-    run: InteriorRun  # its iteration
-    solver: object  # the interior-point solver of its structure
-    parameters: np.ndarray  # its compiled functions' parameters (its objective's scale set)
-    time_s: float  # its time without builds
-
-
-def _real(value, name: str) -> np.ndarray:
-    """`value` as a float array; a complex or non-numeric one is an error naming the argument."""
-    try:
-        arr = np.asarray(value)
-    except (TypeError, ValueError, RecursionError):
-        raise SurestepError(f"replan: {name} must be an array of real numbers") from None
-    if np.iscomplexobj(arr) or arr.dtype == object or arr.dtype.kind not in "biuf":
-        raise SurestepError(f"replan: {name} must be an array of real numbers, got {arr.dtype}")
-    return arr.astype(float)
-
-
-def _step(step) -> int:
-    """The waypoint index given to `replan`: a whole number (a bool, a fraction, infinity or a list
-    is an error)."""
-    if isinstance(step, (bool, np.bool_)) or not isinstance(step, (int, np.integer, float,
-                                                                   np.floating)):
-        raise SurestepError(f"replan: step must be a whole number, got {type(step).__name__}")
-    if not np.isfinite(step) or step != int(step):
-        raise SurestepError(f"replan: step must be a whole number, got {step}")
-    return int(step)
-
-
-def _estimate(mean, covariance, min_depth: float) -> tuple[np.ndarray, np.ndarray]:
-    """The tracker's mean (6,) and covariance (6, 6), checked as the problem files' are: finite,
-    real, the mean in front of the camera (at least the minimum depth), the covariance symmetric (to
-    1e-9 relative: it is not silently symmetrised), positive definite and no entry beyond
-    MAX_COVARIANCE."""
-    mean, cov = _real(mean, "mean"), _real(covariance, "covariance")
-    if mean.shape != (NX,) or not np.all(np.isfinite(mean)):
-        raise SurestepError("replan: mean must be 6 finite numbers [px, py, pz, rx, ry, rz], "
-                            + (f"got shape {mean.shape}" if mean.shape != (NX,)
-                               else f"got {mean.tolist()}"))
-    if np.abs(mean[:3]).max() > MAX_POSITION:
-        raise SurestepError(f"replan: mean's position must be within {MAX_POSITION:g} m, "
-                            f"got {mean[:3].tolist()}")
-    if mean[2] < min_depth:
-        raise SurestepError(f"replan: mean's depth {mean[2]:.4g} m is below the minimum depth "
-                            f"{min_depth:g} m (constraints.min_depth): the tool would be behind or "
-                            "at the camera")
-    if cov.shape != (NX, NX) or not np.all(np.isfinite(cov)):
-        raise SurestepError("replan: covariance must be a finite 6x6 matrix, "
-                            + (f"got shape {cov.shape}" if cov.shape != (NX, NX)
-                               else "got non-finite entries"))
-    if np.abs(cov).max() > MAX_COVARIANCE:
-        raise SurestepError(f"replan: covariance entries must be at most {MAX_COVARIANCE:g}, got "
-                            f"{np.abs(cov).max():.3g}")
-    if np.abs(cov - cov.T).max() > 1e-9 * max(np.abs(cov).max(), 1e-300):
-        raise SurestepError("replan: covariance must be symmetric (to 1e-9 relative)")
-    cov = 0.5 * (cov + cov.T)  # the rounding left
-    if np.linalg.eigvalsh(cov)[0] <= 0:
-        raise SurestepError("replan: covariance must be positive definite")
-    return mean, cov
-
-
-def _propagation(model: BeliefModel, n: int) -> ca.Function:
-    """`(poses (6, n+1), vech(Sigma_0)) -> vech(Sigma_t|t) (21, n+1)`: the model's EKF step unrolled
-    (one call)."""
-    X, s0 = ca.SX.sym("X", NX, n + 1), ca.SX.sym("sigma0", NV)
-    out = [s0]
-    for t in range(n):
-        out.append(model.step(pose_mean(X[:, t]), pose_mean(X[:, t + 1]), out[-1]))
-    return ca.Function("propagation", [X, s0], [ca.horzcat(*out)])
 
 
 def _horizon_for(setup: Setup) -> tuple[Setup, dict | None]:

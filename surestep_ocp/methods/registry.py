@@ -11,10 +11,7 @@ from __future__ import annotations
 
 from dataclasses import replace
 
-import numpy as np
-
 from .baseline import solve_baseline
-from ..ocp.straight_line import straight_line
 from ..ocp.certificate import judge
 from .confidence import plan_to_confidence
 from .gradient import solve_gradient
@@ -22,8 +19,8 @@ from ..model.belief import COMPONENTS
 from ..errors import SurestepError
 from ..model.limits import VIOLATED, enforce as enforce_limits
 from ..method_grammar import BASE_METHODS, CLOSED_LOOP_METHODS, split_name
-from ..ocp.iterate import InitialGuess
-from .ocp import resolved_solver, solve_ocp
+from .ocp import ocp_initial_guess, resolved_solver, solve_ocp
+from .planner import Planner
 from ..problem.setup import Setup
 from ..problem.solver_config import SolverName
 from ..output.solution import Solution
@@ -64,25 +61,9 @@ def method_setup(setup: Setup, name: str) -> Setup:
     return _variant(setup, comps, form, objective)
 
 
-def ocp_initial_guess(setup: Setup, source: str = "baseline",
-                      gradient: Solution | None = None) -> InitialGuess:
-    """Joint trajectory to start the OCP from: IK of the straight line or of a gradient solution."""
-    if source == "baseline":
-        poses = straight_line(setup.x_start, setup.x_goal, setup.ocp.horizon)
-    else:
-        poses = np.asarray(gradient.poses)
-    q_best, ok, _, _ = setup.joints_along(poses, setup.q_start,
-                                          guesses=setup.joint_line(len(poses) - 1))
-    note = (source if ok.all()
-            else f"{source} ({int((~ok).sum())} waypoints unreachable, best-effort IK used)")
-    return InitialGuess(q_best, note)
-
-
 def closed_loop_plan(setup: Setup, solver_options: dict | None = None) -> Solution:
     """A closed-loop method's first plan: the `Planner`'s within the enforced limits (its rollouts
     re-plan from there, evaluation/closed_loop.py); an error naming what is missing otherwise."""
-    from .planner import Planner  # planner imports this module
-
     if solver_options:
         raise SurestepError("ocp-mpc: IPOPT options do not apply (it re-plans with the "
                             "interior-point solver)")
