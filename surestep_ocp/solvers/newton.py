@@ -29,12 +29,15 @@ the barrier parameter), which follows the central path of the IPOPT fallback it 
 space. Every evaluation is one call of a stage-wise Function (compiled with `solver.codegen`)
 through CasADi's buffer interface (no conversions), so an iteration costs less than IPOPT's own
 work per iteration (docs/solve_speed.md).
+
+Here the solver and its projected Newton run; apart: the secant correction (newton_secant.py),
+the barrier run (newton_barrier.py) and what the runs share (newton_run.py: parameters, scale,
+line search, `NewtonRun`).
 """
 
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
 
 import casadi as ca
 import numpy as np
@@ -51,6 +54,10 @@ from ..problem.setup import Setup
 from ..buffered import Buffered
 from ..ocp.codegen import SX_OPTIONS, Deferred, compiled_or_interpreted
 from ..ocp.surrogate import interval_terms, pose_function, recursion_weights
+# (BOUND_PUSH, TAU_MIN: re-exported for interior/)
+from .newton_barrier import BOUND_PUSH, TAU_MIN, BarrierRun  # noqa: F401
+from .newton_run import NewtonRun, _backtrack, _scale, parameters
+from .newton_secant import _SecantCorrection
 
 # projected gradient (objective 1 at the start) below which Newton tries the exact Hessian
 EXACT_BELOW = 1e-3
@@ -68,76 +75,11 @@ STALL_WINDOW, STALL_DECREASE = 10, 1e-10
 # (`run_barrier`, then IPOPT): most such runs converged below it anyway, and where one came back
 # above it IPOPT's plan was lower (docs/solve_speed.md, "Worst case")
 DEPTH_CHECK_BELOW = 1e-3
-# rank-one terms the secant end-game keeps (its tail is a few iterations: rarely reached)
-SECANT_MEMORY = 20
-# `run_barrier`: IPOPT's defaults for its barrier problem and the monotone update (mu_init,
-# barrier_tol_factor, mu_linear_decrease_factor, mu_superlinear_decrease_power, tau_min, bound_push
-# = bound_frac)
-MU_INIT, KAPPA_EPS, KAPPA_MU, THETA_MU, TAU_MIN, BOUND_PUSH = 0.1, 10.0, 0.2, 1.5, 0.99, 1e-2
 
 
-def _backtrack(alpha: float, trial_at) -> np.ndarray | None:
-    """Halve the step length from `alpha` until `trial_at(alpha)` returns an accepted point (each
-    caller's Armijo test); None once it is below 1e-12 (a failed line search)."""
-    while alpha > 1e-12:
-        trial = trial_at(alpha)
-        if trial is not None:
-            return trial
-        alpha /= 2
-    return None
-
-
-class _SecantCorrection:
-    """A limited-memory SR1 correction `A = U diag(w) U^T` of the surrogate Hessian (structured
-    quasi-Newton).
-
-    The surrogate misses S's own curvature in the coefficients (concave: negative semidefinite),
-    which has no cheap exact form for the 6x6 recursion (nc Hessian-vector products) or at long
-    horizons. Each step s with gradient change y gives the secant residual `r = y - H s - A s` of
-    the current surrogate H; SR1 adds `r r^T / (r . s)` (indefinite updates allowed, as the missing
-    part is). The step solves `(H + A) d = -g` by Woodbury on H's banded factor, and is used only
-    where `H + A` is positive definite on the free variables (Haynsworth: the capacitance matrix
-    `W^-1 + U^T H^-1 U` then has the inertia of `W^-1`)."""
-
-    def __init__(self, n: int):
-        self.U, self.w = np.zeros((n, 0)), np.zeros(0)
-        # (factor, U H^-1 terms) of the last `step`: the interior point solves twice per factor
-        self._last = None
-
-    def update(self, s: np.ndarray, r_surrogate: np.ndarray) -> None:
-        """Add the SR1 term for step s, given `y - H s` (H: the surrogate at the new point); skipped
-        when r . s is tiny against |r| |s| (SR1's safeguard)."""
-        r = r_surrogate - self.U @ (self.w * (self.U.T @ s))
-        den = float(r @ s)
-        if abs(den) <= 1e-8 * np.linalg.norm(r) * np.linalg.norm(s):
-            return
-        self.U = np.column_stack([self.U, r])[:, -SECANT_MEMORY:]
-        self.w = np.append(self.w, 1.0 / den)[-SECANT_MEMORY:]
-        self._last = None
-
-    def step(self, factor: np.ndarray, fixed: np.ndarray, z0: np.ndarray) -> np.ndarray | None:
-        """`(H + A)^-1 (-g)` from `z0 = H^-1 (-g)` and H's banded Cholesky factor (held variables:
-        identity rows, no correction), or None where `H + A` is not positive definite there."""
-        if not self.w.size:
-            return None
-        if self._last is None or self._last[0] is not factor or self._last[1] is not fixed:
-            U = np.where(fixed[:, None], 0.0, self.U)
-            Z = dpbtrs(factor, U, lower=1)[0]
-            cap = np.diag(1.0 / self.w) + U.T @ Z
-            cap = 0.5 * (cap + cap.T)
-            ev = np.linalg.eigvalsh(cap)
-            ok = not (np.min(np.abs(ev)) <= 1e-12 * np.max(np.abs(ev))
-                      or np.sum(ev < 0) != np.sum(self.w < 0))
-            self._last = (factor, fixed, U, Z, cap, ok)
-        _, _, U, Z, cap, ok = self._last
-        if not ok:
-            return None
-        d = z0 - Z @ np.linalg.solve(cap, U.T @ z0)
-        return d if np.all(np.isfinite(d)) else None
-
-
-class NewtonSolver:
-    """The joint-space problem of one structure (robot, model, horizon, smoothness), built once."""
+class NewtonSolver(BarrierRun):
+    """The joint-space problem of one structure (robot, model, horizon, smoothness), built once; its
+    runs: `run` (projected Newton) and `run_barrier` (newton_barrier.py)."""
 
     def __init__(self, robot: Robot, model: BeliefModel, horizon: int, smoothness: float,
                  codegen: bool, codegen_required: bool = False, background: bool = False):
@@ -206,6 +148,12 @@ class NewtonSolver:
                 fns, self.codegen_note = compiled_or_interpreted(fns, codegen_required)
                 self.codegen = self.codegen_note is None
             self._install(fns)
+        self._index_maps(T, nq)
+        self.build_time_s = time.perf_counter() - t0
+
+    def _index_maps(self, T: int, nq: int) -> None:
+        """The index maps that scatter the compiled functions' interval blocks into the gradient,
+        the banded and the dense Hessian, and the coefficient Jacobians."""
         # scatter maps: interval t covers the joint vectors of nodes t, t+1 (positions t*nq ..
         # (t+2)*nq)
         n = self.n = nq * (T + 1)
@@ -237,7 +185,6 @@ class NewtonSolver:
         self.c_index = np.array([c_row[t][k] * n + rows[t][j] for t in range(T)
                                  for j in range(2 * nq)
                                  for k in range(nm + no)])
-        self.build_time_s = time.perf_counter() - t0
 
     def _install(self, fns: dict) -> None:
         self.step, self.f = Buffered(fns["newton_step"]), Buffered(fns["newton_f"])
@@ -295,14 +242,10 @@ class NewtonSolver:
         run = self.run_barrier if barrier else self.run
         return self.solution(setup, method, init, run(setup, init, tol, max_iter, verbose))
 
-    def run(self, setup: Setup, init, tol: float = 1e-6, max_iter: int = 300, verbose: bool = False,
-            exact_below: float = EXACT_BELOW, use_secant: bool = True) -> NewtonRun:
-        """`solve` without the evaluation of its plan (the re-planning loop evaluates it faster,
-        planner.py); exact Hessian steps (or, without them, the secant end-game unless `use_secant`
-        is false: for measurements) once the projected gradient is at most `exact_below` (inf: from
-        a warm start on)."""
-        t0 = time.perf_counter()
-        T, nq, n, robot = self.T, self.robot.nq, self.n, self.robot
+    def _start(self, setup: Setup, init) -> tuple:
+        """(parameters, start point, lower and upper bounds, free variables, whether the start is
+        within the bounds at `setup`'s start joints) of a run from `init`."""
+        T, nq, robot = self.T, self.robot.nq, self.robot
         P = parameters(setup)
         x = np.array(init.q, float).ravel()  # node-major: x[t*nq + j]
         lo, hi = np.tile(robot.lower, T + 1), np.tile(robot.upper, T + 1)
@@ -311,6 +254,17 @@ class NewtonSolver:
         free = free.ravel()
         start_ok = bool(np.all(x >= lo - 1e-12) and np.all(x <= hi + 1e-12)
                         and np.allclose(x[:nq], setup.q_start, atol=1e-12))
+        return P, x, lo, hi, free, start_ok
+
+    def run(self, setup: Setup, init, tol: float = 1e-6, max_iter: int = 300, verbose: bool = False,
+            exact_below: float = EXACT_BELOW, use_secant: bool = True) -> NewtonRun:
+        """`solve` without the evaluation of its plan (the re-planning loop evaluates it faster,
+        planner.py); exact Hessian steps (or, without them, the secant end-game unless `use_secant`
+        is false: for measurements) once the projected gradient is at most `exact_below` (inf: from
+        a warm start on)."""
+        t0 = time.perf_counter()
+        n = self.n
+        P, x, lo, hi, free, start_ok = self._start(setup, init)
         # the objective is 1 (plus smoothness) at the start: its scale is the start's trace (by
         # `fz`: no derivatives)
         P[CAMERA_PARAMETERS] = trace_ref = _scale(float(self.fz(x, P)[2][0]))
@@ -377,111 +331,6 @@ class NewtonSolver:
                 break
             x, it = trial, it + 1
         return self._end(setup, x, P, trace_ref, status, it, exact_steps, t0, secant_steps)
-
-    def run_barrier(self, setup: Setup, init, tol: float = 1e-6, max_iter: int = 300,
-                    verbose: bool = False) -> NewtonRun:
-        """Newton on IPOPT's barrier problem, which keeps the minimum-depth bound: the objective
-        minus mu times the logs of the free joints' distances to their bounds and of the interior
-        means' depths above the bound, mu updated as IPOPT's monotone strategy does (from MU_INIT;
-        once the barrier gradient's inf-norm is below KAPPA_EPS mu, to max(tol / 10, min(KAPPA_MU
-        mu, mu^THETA_MU))), the start pushed inside the bounds as IPOPT does. The barrier problem's
-        minimisers do not depend on the method, so this follows the central path of IPOPT's monotone
-        fallback (`solve_ocp_warm`) with Newton's cheaper steps in joint space. Steps: the
-        surrogate's banded Hessian plus the barrier's, an Armijo search on the barrier function with
-        IPOPT's fraction to the boundary. Converged when the barrier gradient is at most `tol` at
-        mu = tol / 10."""
-        t0 = time.perf_counter()
-        T, nq, n, robot = self.T, self.robot.nq, self.n, self.robot
-        P = parameters(setup)
-        x = np.array(init.q, float).ravel()
-        lo, hi = np.tile(robot.lower, T + 1), np.tile(robot.upper, T + 1)
-        free = np.zeros((T + 1, nq), bool)
-        free[1:T, robot.supporting_joints()] = True
-        free = free.ravel()
-        idx, min_depth = np.flatnonzero(free), setup.ocp.min_depth
-        start_ok = bool(np.all(x >= lo - 1e-12) and np.all(x <= hi + 1e-12)
-                        and np.allclose(x[:nq], setup.q_start, atol=1e-12))
-        P[CAMERA_PARAMETERS] = trace_ref = _scale(float(self.fz(x, P)[2][0]))  # as `run`
-        push_lo = BOUND_PUSH * np.minimum(np.maximum(1.0, np.abs(lo)), hi - lo)
-        push_hi = BOUND_PUSH * np.minimum(np.maximum(1.0, np.abs(hi)), hi - lo)
-        x = np.where(free, np.clip(x, lo + push_lo, hi - push_hi), x)
-        xl, xh = lo[idx], hi[idx]
-
-        def barrier_value(f_y: float, z_y: np.ndarray, y: np.ndarray,
-                          m: float) -> tuple[float, np.ndarray]:
-            """The barrier function at y from its objective and node depths (inf where a depth is at
-            or below the bound), and the interior slacks."""
-            s_y = z_y[1:T] - min_depth
-            if np.any(s_y <= 0):
-                return np.inf, s_y
-            return f_y - m * (np.sum(np.log(s_y)) + np.sum(np.log(y[idx] - xl))
-                              + np.sum(np.log(xh - y[idx]))), s_y
-
-        def merit(y: np.ndarray, m: float) -> tuple[float, np.ndarray]:
-            f_y, z_y, _ = self.fz(y, P)
-            return barrier_value(float(f_y[0]), z_y, y, m)
-
-        a, b = self.node_pairs
-        m, it, shift = MU_INIT, 0, 0.0
-        mu_min = tol / 10
-        start_ok = start_ok and np.isfinite(merit(x, m)[0])
-        status = "Maximum_Iterations_Exceeded" if start_ok else "Infeasible_Start"
-        while start_ok and it <= max_iter:
-            _, f_val, G, HB, _ = self.step(x, P)
-            z, dz, d2z = self.depth(x, P)
-            inv_s = np.zeros(T + 1)
-            inv_s[1:T] = 1.0 / (z[1:T] - min_depth)
-            dz, d2z = dz.reshape(T + 1, nq), d2z.reshape(T + 1, nq, nq)
-            g = np.bincount(self.g_index, weights=G, minlength=n)
-            gb = -(inv_s[:, None] * dz).ravel()  # the barrier's gradient and curvature, per unit mu
-            gb[idx] += 1.0 / (xh - x[idx]) - 1.0 / (x[idx] - xl)
-            blocks = (inv_s[:, None, None] ** 2 * dz[:, :, None] * dz[:, None, :]
-                      - inv_s[:, None, None] * d2z)
-            band = np.bincount(self.node_band, weights=blocks[:, a, b].ravel(),
-                               minlength=self.band * n)
-            band = band.reshape(self.band, n)
-            band[0, idx] += 1.0 / (x[idx] - xl) ** 2 + 1.0 / (xh - x[idx]) ** 2
-            err = np.max(np.abs(g[idx] + m * gb[idx]))
-            # the barrier problem solved well enough: a smaller mu
-            while err <= KAPPA_EPS * m and m > mu_min:
-                m = max(mu_min, min(KAPPA_MU * m, m ** THETA_MU))
-                err = np.max(np.abs(g[idx] + m * gb[idx]))
-            if m <= mu_min and err <= tol:
-                status = "Solve_Succeeded"
-                break
-            if it == max_iter:
-                break
-            gm = g + m * gb
-            step = self._surrogate_step(HB, gm, idx, shift, band_extra=m * band)
-            if step is None:
-                status = "Singular_Hessian"
-                break
-            d, shift, _ = step
-            tau = max(TAU_MIN, 1.0 - m)
-            di = d[idx]
-            with np.errstate(divide="ignore", invalid="ignore"):
-                room = np.concatenate([np.where(di < 0, (x[idx] - xl) / -di, np.inf),
-                                       np.where(di > 0, (xh - x[idx]) / di, np.inf)])
-            # IPOPT's fraction to the boundary
-            alpha = min(1.0, tau * float(np.min(room, initial=np.inf)))
-            # this iterate's objective and depths, evaluated above
-            value, s = barrier_value(float(f_val[0]), z, x, m)
-            if verbose:
-                print(f"newton barrier {it:4d}  f {float(f_val[0]):.10e}  mu {m:.1e}  |g_mu| "
-                      f"{err:.2e}  depth margin {s.min(initial=np.inf):.3e}", flush=True)
-            # Armijo, boundary
-            def barrier_step(alpha, x=x, d=d, s=s, m=m, tau=tau, value=value, slope=float(gm @ d)):
-                trial = x + alpha * d
-                v_trial, s_trial = merit(trial, m)
-                return (trial if np.all(s_trial >= (1 - tau) * s)
-                        and v_trial <= value + 1e-4 * alpha * slope else None)
-
-            trial = _backtrack(alpha, barrier_step)
-            if trial is None:
-                status = "Line_Search_Failed"
-                break
-            x, it = trial, it + 1
-        return self._end(setup, x, P, trace_ref, status, it, 0, t0)
 
     def _exact_step(self, x, P, HB, g, idx) -> np.ndarray | None:
         """Newton's step with the exact Hessian (the surrogate's plus S's own curvature C^T d2S/dc2
@@ -569,37 +418,3 @@ class NewtonSolver:
             # its end-game's exact-Hessian and secant-corrected steps
             extras={"exact_steps": r.exact_steps, "secant_steps": r.secant_steps},
         )
-
-
-def parameters(setup: Setup) -> np.ndarray:
-    """The compiled functions' parameter vector of `setup`: the camera, the objective's scale (1
-    until a run sets its own) and Sigma_0 in the recursion's form."""
-    return np.concatenate([setup.camera_parameter(), [1.0],
-                           setup.model.recursion_sigma0(setup.ocp.sigma0)])
-
-
-@dataclass
-class NewtonRun:
-    """Where a projected Newton run ended, before its plan is evaluated (`NewtonSolver.run`)."""
-
-    q: np.ndarray  # (T+1, nq) joints
-    poses: np.ndarray  # (T+1, 6) planned poses [m, rad], camera frame
-    status: str
-    iterations: int
-    exact_steps: int
-    objective: float  # Tr(Sigma_T) of the planning model plus smoothness
-    trace: float  # Tr(Sigma_T) of the planning model
-    initial_trace: float  # at the initial guess
-    violation: float  # terminal pose [m or rad] or depth bound [m]
-    solve_time_s: float
-    secant_steps: int = 0  # steps with the secant end-game's correction
-
-    @property
-    def success(self) -> bool:
-        return self.status == "Solve_Succeeded"
-
-
-def _scale(trace: float) -> float:
-    """The objective's scale: the start's trace, or 1 where that is 0 (every observation noise 0:
-    the posterior is 0 along any plan, and only the smoothness term is left)."""
-    return trace if trace > 0 else 1.0
