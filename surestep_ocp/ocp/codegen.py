@@ -30,20 +30,20 @@ a link to /dev/zero). The cache's files are those named by its own scheme (`own_
 `<function>_<20 hex digits>.so`, their `.sha256`, `timing.json` and the partial writes of these
 (`<name>.<pid>[.<thread>].part`); `clear` and `prune` touch nothing else, and remove the partial
 writes whose process is gone (a compile killed midway).
+
+Here: the C generation, the compile and the loading. The cache's folder and its files (where, its
+bound, its naming scheme, listing, pruning, clearing): `compile_cache.py`; the checks of a
+library before and after it is loaded: `library_check.py`.
 """
 
 from __future__ import annotations
 
-import errno
 import hashlib
 import json
-import math
 import os
 import platform
 import re
 import shutil
-import stat
-import struct
 import subprocess
 import sys
 import tempfile
@@ -54,9 +54,16 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import casadi as ca
-import numpy as np
 
-from ..errors import SurestepError, shown
+from ..errors import SurestepError
+from .compile_cache import (LIBRARY_LIMIT, TIMING_LIMIT, _checksum_file, _unlink_quietly,
+                            cache_dir, max_bytes, prune, read_cache_file)
+from .library_check import _differs, verified
+# (the cache's and the checks' names as they were here: `surestep cache`, the tests)
+from .compile_cache import (  # noqa: F401
+    CHECKSUM_LIMIT, DEFAULT_MAX_MB, TIMING_FILE, Entry, clear, entries, megabytes, own_file,
+    partial_writes, total_bytes)
+from .library_check import elf_problem  # noqa: F401
 
 
 def _vector_flags(cpuinfo: str | None = None, machine: str | None = None) -> tuple[str, ...]:
@@ -90,52 +97,12 @@ FAST_FLAGS = ("-O3", *_VECTOR, "-fPIC", "-shared")
 # structural common-subexpression elimination, which shares repeated nodes (the same values
 # bitwise, fewer instructions: the FK's sines and products its derivatives repeat; docs/realtime.md)
 SX_OPTIONS = {"cse": True}
-# the cache's size bound [MB] unless $SURESTEP_CACHE_MAX_MB says otherwise (0: unbounded)
-DEFAULT_MAX_MB = 1024
 # wall-clock seconds per megabyte of generated C at -O1 (the batch's compilers in parallel) before
 # this cache has measured its own: a figure within the range measured on the default problem's
 # Newton functions (docs/solve_speed.md, "The compile")
 PRIOR_S_PER_MB = 5.0
-TIMING_FILE = "timing.json"
-# the largest cache files read [bytes]: a library, a checksum, the timing record
-LIBRARY_LIMIT, CHECKSUM_LIMIT, TIMING_LIMIT = 256 * 2**20, 4096, 65536
-_LIBRARY = r"[A-Za-z_][A-Za-z0-9_]*_[0-9a-f]{20}\.so"
-_OWN = re.compile(rf"(?:{_LIBRARY}(?:\.sha256)?|{re.escape(TIMING_FILE)})"
-                  r"(?:\.(?P<pid>[0-9]+)(?:\.[0-9]+)?\.part)?")
 # folders found unwritable in this process -> why (no compile tries them again)
 _UNWRITABLE: dict[str, str] = {}
-
-
-def cache_dir() -> Path:
-    """The compile cache's folder (module docstring): `$SURESTEP_CACHE`, else
-    `$XDG_CACHE_HOME/surestep_ocp`, else `~/.cache/surestep_ocp`."""
-    override = os.environ.get("SURESTEP_CACHE")
-    if override:
-        return Path(override)
-    xdg = os.environ.get("XDG_CACHE_HOME")
-    base = Path(xdg) if xdg and os.path.isabs(xdg) else Path.home() / ".cache"
-    return base / "surestep_ocp"
-
-
-def max_bytes() -> int | None:
-    """The cache's size bound in bytes (`$SURESTEP_CACHE_MAX_MB`, default `DEFAULT_MAX_MB`; 0: None,
-    unbounded)."""
-    text = os.environ.get("SURESTEP_CACHE_MAX_MB", "").strip()
-    return megabytes(text or str(DEFAULT_MAX_MB), "SURESTEP_CACHE_MAX_MB")
-
-
-def megabytes(text, name: str) -> int | None:
-    """A cache bound given as a number of megabytes (text or number) in bytes, None for 0
-    (unbounded); anything but a finite number >= 0 (a word, NaN, inf, -1) is an error naming
-    `name`."""
-    try:
-        mb = float(text)
-    except (TypeError, ValueError):
-        mb = math.nan
-    if not (math.isfinite(mb) and mb >= 0):
-        raise SurestepError(f"{name} must be a finite number of megabytes >= 0 (0: unbounded), "
-                            f"got {shown(str(text), 40)}")
-    return None if mb == 0 else int(mb * 1e6)
 
 
 def compiler() -> str:
@@ -218,140 +185,6 @@ class Deferred:
 
 def _digest(path: Path) -> str:
     return hashlib.sha256(read_cache_file(path, LIBRARY_LIMIT)).hexdigest()
-
-
-def read_cache_file(path: Path, limit: int) -> bytes:
-    """The bytes of the cache file `path` if it is a regular file (a symbolic link to one is) of
-    at most `limit` bytes, else OSError saying why: a FIFO is never opened for a blocking read, a
-    device never read."""
-    if not stat.S_ISREG(os.stat(path).st_mode):
-        raise OSError(errno.EINVAL, "not a regular file", str(path))
-    fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0))
-    with os.fdopen(fd, "rb") as f:
-        st = os.fstat(fd)  # (the file opened, not one swapped in after the check)
-        if not stat.S_ISREG(st.st_mode):
-            raise OSError(errno.EINVAL, "not a regular file", str(path))
-        data = f.read(limit + 1)
-    if len(data) > limit:
-        raise OSError(errno.EFBIG, f"larger than {limit} bytes", str(path))
-    return data
-
-
-def _checksum_file(lib: Path) -> Path:
-    return lib.with_name(lib.name + ".sha256")
-
-
-def verified(lib: Path) -> str | None:
-    """None if the cached library `lib` matches the SHA-256 stored beside it, else why not."""
-    try:
-        stored = read_cache_file(_checksum_file(lib), CHECKSUM_LIMIT).decode().strip()
-    except FileNotFoundError:
-        return "it has no checksum beside it"
-    except (OSError, UnicodeDecodeError) as exc:
-        return f"its checksum cannot be read ({getattr(exc, 'strerror', None) or exc})"
-    try:
-        data = read_cache_file(lib, LIBRARY_LIMIT)
-    except OSError as exc:
-        return f"it cannot be read ({exc.strerror or exc})"
-    if hashlib.sha256(data).hexdigest() != stored:
-        return "its content does not match its checksum (corrupt or truncated)"
-    return _elf_problem(data)
-
-
-# the ELF header after e_ident, a program header (with the index of p_offset and p_filesz) and
-# a section header, for 32- and 64-bit files; the byte order is prefixed as the file says
-_ELF_HEADER = {1: "HHIIIIIHHHHHH", 2: "HHIQQQIHHHHHH"}
-_PHDR = {1: ("IIIIIIII", 1, 4), 2: ("IIQQQQQQ", 2, 5)}
-_SHDR = {1: "IIIIIIIIII", 2: "IIQQQQIIQQ"}
-
-
-def elf_problem(lib: Path) -> str | None:
-    """None if `lib` is a whole ELF file, else why not: its header, its program and section
-    header tables, every loaded segment and every section with bytes in the file end within it.
-
-    dlopen maps a library's segments as its headers say; a file cut short is mapped past its
-    end and the first access there kills the process (SIGBUS), so this is checked before
-    loading. Off Linux a file that is not ELF is not checked (another object format).
-    """
-    try:
-        data = read_cache_file(lib, LIBRARY_LIMIT)
-    except OSError as exc:
-        return f"it cannot be read ({exc.strerror or exc})"
-    return _elf_problem(data)
-
-
-def _elf_problem(data: bytes) -> str | None:
-    """`elf_problem` of a library's bytes."""
-    size = len(data)
-    if data[:4] != b"\x7fELF":
-        return "it is not an ELF shared library" if sys.platform.startswith("linux") else None
-    if size < 16 or data[4] not in _ELF_HEADER or data[5] not in (1, 2):
-        return "its ELF header is not a 32- or 64-bit one of either byte order"
-    cls, order = data[4], "<" if data[5] == 1 else ">"
-    fmt = order + _ELF_HEADER[cls]
-    if size < 16 + struct.calcsize(fmt):
-        return f"it is cut short ({size} bytes: less than its ELF header)"
-    head = struct.unpack_from(fmt, data, 16)
-    phoff, shoff, phentsize, phnum, shentsize, shnum = head[4], head[5], *head[8:12]
-    for what, off, entsize, num in (("program", phoff, phentsize, phnum),
-                                    ("section", shoff, shentsize, shnum)):
-        if num and off + entsize * num > size:
-            return f"it is cut short ({size} bytes; its {what} header table ends at " \
-                   f"{off + entsize * num})"
-    pfmt, i_off, i_size = _PHDR[cls]
-    sfmt = order + _SHDR[cls]
-    pfmt = order + pfmt
-    if (phnum and phentsize < struct.calcsize(pfmt)) or (
-            shnum and shentsize < struct.calcsize(sfmt)):
-        return "its ELF header gives too small a program or section header size"
-    for k in range(phnum):
-        ph = struct.unpack_from(pfmt, data, phoff + k * phentsize)
-        if ph[0] == 1 and ph[i_off] + ph[i_size] > size:  # PT_LOAD
-            end = ph[i_off] + ph[i_size]
-            return f"it is cut short ({size} bytes; a loaded segment ends at {end})"
-    for k in range(shnum):
-        sh = struct.unpack_from(sfmt, data, shoff + k * shentsize)
-        if sh[1] != 8 and sh[4] + sh[5] > size:  # (SHT_NOBITS, 8, has no bytes in the file)
-            return f"it is cut short ({size} bytes; a section ends at {sh[4] + sh[5]})"
-    return None
-
-
-def _differs(loaded: ca.Function, fn: ca.Function) -> str | None:
-    """None if the loaded `loaded` is `fn` as far as one call can tell, else how it differs: its
-    name, its inputs' and outputs' sparsity, and its values at a fixed point (to 1e-6 of each
-    output's largest: loose enough for another compiler's rounding; NaN where `fn` gives NaN).
-    A library of another horizon or of other constants fails it."""
-    if loaded.name() != fn.name():
-        return f"it holds the function '{loaded.name()}', not '{fn.name()}'"
-    for kind, f_n, f_sp, n, sp in (
-            ("input", loaded.n_in(), loaded.sparsity_in, fn.n_in(), fn.sparsity_in),
-            ("output", loaded.n_out(), loaded.sparsity_out, fn.n_out(), fn.sparsity_out)):
-        if f_n != n:
-            return f"its function has {f_n} {kind}s, not {n}"
-        for i in range(n):
-            if f_sp(i) != sp(i):
-                a, b = f_sp(i), sp(i)
-                return (f"its {kind} {i} is {a.size1()}x{a.size2()} ({a.nnz()} nonzeros), not "
-                        f"{b.size1()}x{b.size2()} ({b.nnz()})")
-    golden = (5 ** 0.5 - 1) / 2  # a point with no two entries alike, no zeros, no symmetry
-    args = [ca.DM(fn.sparsity_in(i), list(0.1 + 0.8 * ((np.arange(fn.nnz_in(i)) + 1 + 7 * i)
-                                                         * golden % 1)))
-            for i in range(fn.n_in())]
-    try:
-        want = fn.call(args)
-    except RuntimeError:
-        return None  # no value to compare with (the structure matched)
-    try:
-        got = loaded.call(args)
-    except RuntimeError as exc:
-        return f"it fails where the function does not ({str(exc).strip().splitlines()[-1][:200]})"
-    for i, (a, b) in enumerate(zip(got, want)):
-        a, b = np.array(a.nonzeros(), dtype=float), np.array(b.nonzeros(), dtype=float)
-        scale = float(np.max(np.abs(b[np.isfinite(b)]), initial=1.0))
-        if not np.allclose(a, b, rtol=0.0, atol=1e-6 * scale, equal_nan=True):
-            return (f"its output {i} has other values than the function's (by up to "
-                    f"{np.nanmax(np.abs(a - b)):.3g})")
-    return None
 
 
 def _note(text: str) -> None:
@@ -550,160 +383,6 @@ def _record_rate(folder: Path, rate: float, size: int) -> None:
         os.replace(part, path)
     except OSError:
         _unlink_quietly(part)
-
-
-def _unlink_quietly(path: Path) -> None:
-    """Remove `path` if it is there; an error doing so is not raised (a cleanup inside an error
-    path must not replace that error, e.g. under a folder that is not a directory)."""
-    try:
-        path.unlink(missing_ok=True)
-    except OSError:
-        pass
-
-
-# ------------------------------------------------------------ the cache as a whole (surestep cache)
-
-@dataclass(frozen=True)
-class Entry:
-    """A compiled library in the cache, its checksum file, their bytes and its last use [s since the
-    epoch]."""
-
-    lib: Path
-    size: int
-    last_use: float
-
-
-def own_file(name: str) -> bool:
-    """Whether a file named `name` is one of the cache's (module docstring: its naming scheme)."""
-    return _OWN.fullmatch(name) is not None
-
-
-def _own(folder: Path) -> list[Path]:
-    """The cache's files in `folder` (none if it cannot be listed); never a directory."""
-    try:
-        names = [p for p in folder.iterdir() if own_file(p.name)]
-    except OSError:
-        return []
-    out = []
-    for p in names:
-        try:
-            if not stat.S_ISDIR(p.lstat().st_mode):
-                out.append(p)
-        except OSError:
-            pass
-    return out
-
-
-def partial_writes(folder: Path | None = None) -> tuple[list[Path], list[Path]]:
-    """The cache's partial writes: (orphaned ones, whose process is gone (a compile killed
-    midway), those of a live process)."""
-    folder = cache_dir() if folder is None else folder
-    orphans, live = [], []
-    for p in _own(folder):
-        pid = _OWN.fullmatch(p.name).group("pid")
-        if pid is not None:
-            (live if _alive(int(pid)) else orphans).append(p)
-    return orphans, live
-
-
-def _alive(pid: int) -> bool:
-    """Whether process `pid` exists (on this machine)."""
-    if pid == os.getpid():
-        return True
-    try:
-        os.kill(pid, 0)
-    except PermissionError:  # (another user's)
-        return True
-    except (ProcessLookupError, OverflowError, ValueError):
-        return False
-    return True
-
-
-def _size(path: Path) -> int:
-    """Bytes of `path` if it is a regular file (not following links), else 0."""
-    try:
-        st = path.lstat()
-    except OSError:
-        return 0
-    return st.st_size if stat.S_ISREG(st.st_mode) else 0
-
-
-def entries(folder: Path | None = None) -> list[Entry]:
-    """The cache's libraries (named by its scheme), least recently used first."""
-    folder = cache_dir() if folder is None else folder
-    out = []
-    for lib in _own(folder):
-        if not lib.name.endswith(".so"):
-            continue
-        try:
-            st = lib.stat()
-        except OSError:
-            continue
-        size, last = st.st_size, st.st_mtime
-        try:
-            cs = _checksum_file(lib).stat()
-            size, last = size + cs.st_size, max(last, cs.st_mtime)
-        except OSError:
-            pass
-        out.append(Entry(lib, size, last))
-    return sorted(out, key=lambda e: (e.last_use, e.lib.name))
-
-
-def total_bytes(folder: Path | None = None) -> int:
-    """Bytes of the cache's own files (libraries, checksums, partial writes, the timing record;
-    other files in its folder are not counted)."""
-    folder = cache_dir() if folder is None else folder
-    return sum(_size(p) for p in _own(folder))
-
-
-def _remove(entry: Entry) -> bool:
-    try:
-        entry.lib.unlink(missing_ok=True)  # (a process that loaded it keeps its mapping)
-        _checksum_file(entry.lib).unlink(missing_ok=True)
-        return True
-    except OSError:
-        return False
-
-
-def _remove_files(paths: list[Path]) -> int:
-    """Remove `paths` (the cache's own files); the bytes freed."""
-    freed = 0
-    for p in paths:
-        size = _size(p)
-        try:
-            p.unlink()
-            freed += size
-        except OSError:
-            pass
-    return freed
-
-
-def prune(limit: int | None, folder: Path | None = None) -> list[Entry]:
-    """Remove the orphaned partial writes, then the least recently used libraries until the
-    cache's libraries take at most `limit` bytes (None: no library removed). Returns the libraries
-    removed."""
-    _remove_files(partial_writes(folder)[0])
-    if limit is None:
-        return []
-    all_entries = entries(folder)
-    total = sum(e.size for e in all_entries)
-    removed = []
-    for e in all_entries:
-        if total <= limit:
-            break
-        if _remove(e):
-            total -= e.size
-            removed.append(e)
-    return removed
-
-
-def clear(folder: Path | None = None) -> int:
-    """Remove the cache's own files (`own_file`: libraries, checksums, the timing record, orphaned
-    partial writes; a live compile's are left to it); the bytes freed. Nothing else in its folder
-    is touched (a folder given as SURESTEP_CACHE may hold others)."""
-    folder = cache_dir() if folder is None else folder
-    live = set(partial_writes(folder)[1])
-    return _remove_files([p for p in _own(folder) if p not in live])
 
 
 def _build(cc: str, source: Path, lib: Path, flags: tuple[str, ...] = FLAGS) -> None:
