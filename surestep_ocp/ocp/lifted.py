@@ -54,6 +54,35 @@ from .surrogate import (
 from .transcription import ipopt_solution
 
 
+def _stage_functions(model: BeliefModel, stage: ca.Function, pose: ca.Function, nq: int) -> dict:
+    """The lifted NLP's stage Functions: per interval (`a`, `b` the means at both ends, `s` the
+    scaled covariance, `sc0`, `sc1` the scales) the shooting constraint `g`, its Jacobian `jac`
+    and the surrogate's curvature `hess`; per node the kinematic constraint's `node_jac` and
+    `node_hess`; the noise coefficients `coef` (the motion ones first, `nm` of them)."""
+    # ---- interval functions: (a, b) the means at both ends, s the scaled covariance, sc0/sc1
+    # the scales
+    a, b, s = ca.SX.sym("a", NM), ca.SX.sym("b", NM), ca.SX.sym("s", NV)
+    sc0, sc1 = ca.SX.sym("sc0"), ca.SX.sym("sc1")
+    (_, _), coefficients, (wm, wo, _), weighted = interval_terms(model, a, b)
+    c = ca.vertcat(*coefficients)
+    g_int = stage(sc0 * s, c)[0] / sc1
+    coef = ca.Function("lifted_coef", [a, b], [c])
+    interval_g = ca.Function("lifted_g", [a, b, s, sc0, sc1], [g_int])
+    Jsc = kalman_stage_jacobian(model)(sc0 * s, c) / sc1  # d g / d(Sigma, c)
+    Jab = ca.mtimes(Jsc[:, NV:], ca.jacobian(c, ca.vertcat(a, b)))
+    interval_jac = ca.Function("lifted_jac", [a, b, s, sc0, sc1],
+                               [ca.densify(ca.horzcat(Jab, sc0 * Jsc[:, :NV]))])
+    interval_hess = ca.Function("lifted_hess", [a, b, wm, wo],
+                                [ca.densify(ca.hessian(weighted, ca.vertcat(a, b))[0])])
+    q, lk, Tcb = ca.SX.sym("q", nq), ca.SX.sym("lk", NM), ca.SX.sym("camera", CAMERA_PARAMETERS)
+    node_jac = ca.Function("lifted_node_jac", [q, Tcb],
+                           [ca.densify(-ca.jacobian(pose(q, Tcb), q))])
+    node_hess = ca.Function("lifted_node_hess", [q, lk, Tcb],
+                            [ca.densify(ca.hessian(-ca.dot(lk, pose(q, Tcb)), q)[0])])
+    return {"coef": coef, "nm": wm.shape[0], "g": interval_g, "jac": interval_jac,
+            "hess": interval_hess, "node_jac": node_jac, "node_hess": node_hess}
+
+
 class LiftedTranscription:
     """The lifted NLP of one structure (robot, structured belief model, horizon, smoothness), built
     once."""
@@ -76,35 +105,14 @@ class LiftedTranscription:
         self.n_p = CAMERA_PARAMETERS + (T + 1) + 1 + NV
         pose = pose_function(robot)
         stage = kalman_stage(model)
-
-        # ---- interval functions: (a, b) the means at both ends, s the scaled covariance, sc0/sc1
-        # the scales
-        a, b, s = ca.SX.sym("a", NM), ca.SX.sym("b", NM), ca.SX.sym("s", NV)
-        sc0, sc1 = ca.SX.sym("sc0"), ca.SX.sym("sc1")
-        (_, _), coefficients, (wm, wo, _), weighted = interval_terms(model, a, b)
-        c = ca.vertcat(*coefficients)
-        g_int = stage(sc0 * s, c)[0] / sc1
-        self.coef = ca.Function("lifted_coef", [a, b], [c])
-        interval_g = ca.Function("lifted_g", [a, b, s, sc0, sc1], [g_int])
-        Jsc = kalman_stage_jacobian(model)(sc0 * s, c) / sc1  # d g / d(Sigma, c)
-        Jab = ca.mtimes(Jsc[:, NV:], ca.jacobian(c, ca.vertcat(a, b)))
-        interval_jac = ca.Function("lifted_jac", [a, b, s, sc0, sc1],
-                                   [ca.densify(ca.horzcat(Jab, sc0 * Jsc[:, :NV]))])
-        interval_hess = ca.Function("lifted_hess", [a, b, wm, wo],
-                                    [ca.densify(ca.hessian(weighted, ca.vertcat(a, b))[0])])
-        q, lk, Tcb = ca.SX.sym("q", nq), ca.SX.sym("lk", NM), ca.SX.sym("camera", CAMERA_PARAMETERS)
-        node_jac = ca.Function("lifted_node_jac", [q, Tcb],
-                               [ca.densify(-ca.jacobian(pose(q, Tcb), q))])
-        node_hess = ca.Function("lifted_node_hess", [q, lk, Tcb],
-                                [ca.densify(ca.hessian(-ca.dot(lk, pose(q, Tcb)), q)[0])])
+        fn = _stage_functions(model, stage, pose, nq)
+        self.coef = fn["coef"]
 
         # ---- indices (node-major decision vector: q_t, mu_t, s_t)
         base = [nz * t for t in range(T + 1)]
         self.q_idx = q_idx = [np.arange(o, o + nq) for o in base]
-        self.mu_idx = mu_idx = [np.arange(o + nq, o + nq + NM) for o in base]
-        self.s_idx = s_idx = [np.arange(o + nq + NM, o + nz) for o in base]
-        kin_rows = [np.arange(NM * t, NM * (t + 1)) for t in range(T + 1)]
-        step_rows = [NM * (T + 1) + np.arange(NV * t, NV * (t + 1)) for t in range(T)]
+        self.mu_idx = [np.arange(o + nq, o + nq + NM) for o in base]
+        self.s_idx = [np.arange(o + nq + NM, o + nz) for o in base]
         D = smoothness_matrix(n, q_idx, smoothness)
 
         # ---- symbolic NLP over the mapped stages
@@ -117,40 +125,14 @@ class LiftedTranscription:
         sc_a, sc_b = ca.reshape(scale[:T], 1, T), ca.reshape(scale[1:], 1, T)
         args = (mus[:, :T], mus[:, 1:], ss[:, :T], sc_a, sc_b)
         g_kin = ca.vec(mus - pose.map(T + 1)(qs, Tc))
-        g_step = ca.vec(interval_g.map(T)(*args) - ss[:, 1:])
+        g_step = ca.vec(fn["g"].map(T)(*args) - ss[:, 1:])
         g = ca.vertcat(g_kin, g_step)
         trace_T = scale[T] * sum(ss[k, T] for k in DIAG)
         f = trace_T / ref + (0.5 * ca.bilin(ca.DM(D), X, X) if smoothness > 0 else 0)
         grad_f = ca.Function("lifted_grad_f", [X, P], [f, ca.densify(ca.gradient(f, X))],
                              ["x", "p"], ["f", "grad"])
-
-        eye_nv = -np.eye(NV).ravel(order="F")
-        jac_sp, (j_q, j_mu, j_int, j_next), _ = assemble((self.ng, n), [
-            entries(list(zip(kin_rows, q_idx))), entries(list(zip(kin_rows, mu_idx))),
-            entries([(step_rows[t], np.concatenate([mu_idx[t], mu_idx[t + 1], s_idx[t]]))
-                     for t in range(T)]),
-            entries([(step_rows[t], s_idx[t + 1]) for t in range(T)])])
-        J_nz = (ca.mtimes(j_q, ca.vec(node_jac.map(T + 1)(qs, Tc)))
-                + ca.mtimes(j_mu, ca.DM(np.tile(np.eye(NM).ravel(order="F"), T + 1)))
-                + ca.mtimes(j_int, ca.vec(interval_jac.map(T)(*args)))
-                + ca.mtimes(j_next, ca.DM(np.tile(eye_nv, T))))
-        jac_g = ca.Function("lifted_jac_g", [X, P], [g, ca.MX(jac_sp, J_nz)], ["x", "p"],
-                            ["g", "jac"])
-
-        hess_sp, (h_int, h_q), const = assemble((n, n), [
-            entries([(np.concatenate([mu_idx[t], mu_idx[t + 1]]),) * 2 for t in range(T)]),
-            entries([(i, i) for i in q_idx])], np.triu(D))
-        lam_kin = ca.reshape(lam_g[:NM * (T + 1)], NM, T + 1)
-        # motion coefficients, then observation
-        C, nm = self.coef.map(T)(mus[:, :T], mus[:, 1:]), wm.shape[0]
-        _, w_m, w_o, _ = recursion_weights(model, T, ca.SX.sym("sigma0", NV),
-                                           ca.SX.sym("trace_ref"))(
-            C[:nm, :], C[nm:, :], ca.MX(0, T), P[c0 + T + 2:], ref)
-        H_nz = (lam_f * (const + ca.mtimes(
-                    h_int, ca.vec(interval_hess.map(T)(mus[:, :T], mus[:, 1:], w_m, w_o))))
-                + ca.mtimes(h_q, ca.vec(node_hess.map(T + 1)(qs, lam_kin, Tc))))
-        hess_lag = ca.Function("lifted_hess_l", [X, P, lam_f, lam_g], [ca.MX(hess_sp, H_nz)],
-                               ["x", "p", "lam_f", "lam_g"], ["hess"])
+        jac_g = self._jacobian(fn, X, P, g, qs, Tc, args)
+        hess_lag = self._hessian(fn, (X, P, lam_f, lam_g), qs, mus, Tc, ref, D)
 
         staged = {"grad_f": grad_f, "jac_g": jac_g, "hess_lag": hess_lag}
         self.codegen, self.codegen_note = codegen, None
@@ -175,6 +157,48 @@ class LiftedTranscription:
                                  # per evaluation
                                  "show_eval_warnings": False})
         self.build_time_s = time.perf_counter() - t0
+
+    def _jacobian(self, fn: dict, X, P, g, qs, Tc, args: tuple) -> ca.Function:
+        """`lifted_jac_g`: the constraints (the kinematic rows, then the shooting rows) and their
+        Jacobian, scattered from the mapped stages."""
+        T, n = self.T, self.n
+        q_idx, mu_idx, s_idx = self.q_idx, self.mu_idx, self.s_idx
+        kin_rows = [np.arange(NM * t, NM * (t + 1)) for t in range(T + 1)]
+        step_rows = [NM * (T + 1) + np.arange(NV * t, NV * (t + 1)) for t in range(T)]
+        eye_nv = -np.eye(NV).ravel(order="F")
+        jac_sp, (j_q, j_mu, j_int, j_next), _ = assemble((self.ng, n), [
+            entries(list(zip(kin_rows, q_idx))), entries(list(zip(kin_rows, mu_idx))),
+            entries([(step_rows[t], np.concatenate([mu_idx[t], mu_idx[t + 1], s_idx[t]]))
+                     for t in range(T)]),
+            entries([(step_rows[t], s_idx[t + 1]) for t in range(T)])])
+        J_nz = (ca.mtimes(j_q, ca.vec(fn["node_jac"].map(T + 1)(qs, Tc)))
+                + ca.mtimes(j_mu, ca.DM(np.tile(np.eye(NM).ravel(order="F"), T + 1)))
+                + ca.mtimes(j_int, ca.vec(fn["jac"].map(T)(*args)))
+                + ca.mtimes(j_next, ca.DM(np.tile(eye_nv, T))))
+        return ca.Function("lifted_jac_g", [X, P], [g, ca.MX(jac_sp, J_nz)], ["x", "p"],
+                           ["g", "jac"])
+
+    def _hessian(self, fn: dict, symbols: tuple, qs, mus, Tc, ref, D: np.ndarray) -> ca.Function:
+        """`lifted_hess_l`: the structured Hessian of the Lagrangian (module docstring): the
+        surrogate's curvature in the means with the recursion's weights along them, plus the
+        kinematic curvature and the smoothness."""
+        T, n, mu_idx = self.T, self.n, self.mu_idx
+        c0 = CAMERA_PARAMETERS
+        X, P, lam_f, lam_g = symbols
+        hess_sp, (h_int, h_q), const = assemble((n, n), [
+            entries([(np.concatenate([mu_idx[t], mu_idx[t + 1]]),) * 2 for t in range(T)]),
+            entries([(i, i) for i in self.q_idx])], np.triu(D))
+        lam_kin = ca.reshape(lam_g[:NM * (T + 1)], NM, T + 1)
+        # motion coefficients, then observation
+        C, nm = self.coef.map(T)(mus[:, :T], mus[:, 1:]), fn["nm"]
+        _, w_m, w_o, _ = recursion_weights(self.model, T, ca.SX.sym("sigma0", NV),
+                                           ca.SX.sym("trace_ref"))(
+            C[:nm, :], C[nm:, :], ca.MX(0, T), P[c0 + T + 2:], ref)
+        H_nz = (lam_f * (const + ca.mtimes(
+                    h_int, ca.vec(fn["hess"].map(T)(mus[:, :T], mus[:, 1:], w_m, w_o))))
+                + ca.mtimes(h_q, ca.vec(fn["node_hess"].map(T + 1)(qs, lam_kin, Tc))))
+        return ca.Function("lifted_hess_l", [X, P, lam_f, lam_g], [ca.MX(hess_sp, H_nz)],
+                           ["x", "p", "lam_f", "lam_g"], ["hess"])
 
     # ------------------------------------------------------------------ one solve
     def _start(self, setup: Setup, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:

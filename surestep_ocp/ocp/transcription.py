@@ -9,8 +9,8 @@ joint-step smoothness term. The covariance forms (`solver.covariance`):
 
 * `condensed`: no covariance variables; the EKF recursion is written out in the objective (six
   scalar Kalman updates for a scalar model, the 6x6 recursion otherwise). With the surrogate or
-  Gauss-Newton Hessian the derivatives are built stage-wise (`_staged_derivatives`, `stages.py`) and
-  compiled.
+  Gauss-Newton Hessian the derivatives are built stage-wise (`staged_derivatives.py`,
+  `stages.py`) and compiled.
 * `full` with the exact Hessian: `vech(Sigma_t)` per node and a free gain `K_t` per interval, the
   step in Joseph form, which is smallest at the Kalman gain (no symbolic inverse; any F, Q, H, R).
   The lifted form with the structured Hessian is `lifted.py`.
@@ -22,8 +22,8 @@ horizon (`nlp_cache.transcription` caches it). Measurements: docs/method.md and
 docs/hessian_and_newton.md.
 
 With `limits` (a problem's `limits.enforce: true`, `limits.py`) the NLP also carries the motion
-limits, each row normalised by its limit (so every bound is 1). By default
-(`limits.CURVE_ROWS = "curve"`, `_limit_rows`) they bound the curve `surestep export` plays at the
+limits, each row normalised by its limit (so every bound is 1; `transcription_limits.py`). By
+default (`limits.CURVE_ROWS = "curve"`) they bound the curve `surestep export` plays at the
 planned times: linear rows on its velocity and acceleration control points, the tool's speeds at
 points inside every step. With "steps" (before, kept for measurements): joint velocities
 `(q_t+1 - q_t) / (dt v_max)` and accelerations `(q_t+1 - 2 q_t + q_t-1) / (dt^2 a_max)` of the
@@ -39,25 +39,23 @@ from __future__ import annotations
 
 import time
 
-
 import casadi as ca
 import numpy as np
 
 from ..model.belief import DIAG, NM, NV, NX, BeliefModel, unvech, vech
-from .codegen import compiled_or_interpreted
-from ..errors import SurestepError
-from ..problem.solver_config import HESSIANS
-from .iterate import InitialGuess, PrimalDual
-from ..model.joint_noise import (joint_noise_expr, joint_noise_factor, joint_noise_function,
-                                 weight_matrix)
-from ..model import limits as lm
+from ..model.joint_noise import joint_noise_function
 from ..model.limits import MotionLimits
 from ..model.robot import CAMERA_PARAMETERS, Robot
-from ..problem.setup import Setup
 from ..output.solution import Solution, evaluate
 from ..output.solution_records import SolveRecord
-from .stages import assemble, entries, smoothness_matrix
-from .surrogate import interval_terms, pose_function, recursion_weights, scalar_trace
+from ..problem.setup import Setup
+from ..problem.solver_config import HESSIANS
+from .codegen import compiled_or_interpreted
+from .iterate import InitialGuess, PrimalDual
+from .staged_derivatives import staged_derivatives
+from .surrogate import pose_function, scalar_trace
+from .transcription_limits import add_limit_rows
+
 
 class _Layout:
     """Named blocks of the decision vector (no slicing by stride)."""
@@ -95,19 +93,11 @@ class Transcription:
         self.robot, self.model, self.T, self.form = robot, model, horizon, form
         self.limits = limits  # (step_s, MotionLimits) enforced as constraints, or None
         self.scalar = form == "condensed" and model.scalar
-        T, nq = horizon, robot.nq
+        T = horizon
         ns = NX if form == "diagonal" else NV
         self.ns = ns
         L = self.layout = _Layout()
-        qs, mus, ss, Ks = [], [], [], []
-        for t in range(T + 1):
-            qs.append(L.add(f"q{t}", nq))
-            mus.append(L.add(f"mu{t}", NM))
-            if form == "condensed":
-                continue
-            ss.append(L.add(f"s{t}", ns))
-            if t < T:
-                Ks.append(L.add(f"K{t}", NX * NX if form == "full" else NX))
+        qs, mus, ss, Ks = self._variables()
         # Parameters: robot base in the camera frame (3x4), covariance scales, trace reference.
         Tcb = ca.SX.sym("camera", CAMERA_PARAMETERS)
         scale = ca.SX.sym("scale", T + 1)
@@ -122,23 +112,8 @@ class Transcription:
         wq = [self.joint_fn(qs[t], qs[t + 1], Tcb) if self.joint_fn else None for t in range(T)]
 
         g = [mus[t] - pose(qs[t], Tcb) for t in range(T + 1)]
-        # needs the condensed form (solver_config.resolve)
-        predicted = model.noise.objective == "predicted"
         if form == "condensed":  # the covariance is shot through the EKF steps inside the objective
-            # exact: six scalar Kalman recursions (in Sigma_0's eigenbasis when isotropic)
-            if self.scalar:
-                trace_T = scalar_trace(
-                    sigma0, [ca.diag(model.motion_noise(mus[t], mus[t + 1])) for t in range(T)],
-                    [lambda p, t=t: ca.diag(model.planning_noise(mus[t + 1], vech(ca.diag(p))))
-                     for t in range(T)],
-                    predicted)
-            else:
-                s_t = sigma0
-                for t in range(T - 1):
-                    s_t = model.step_expr(mus[t], mus[t + 1], s_t, wq[t])
-                last = model.predict_expr if predicted else model.step_expr
-                s_t = last(mus[T - 1], mus[T], s_t, wq[T - 1])
-                trace_T = sum(s_t[i] for i in DIAG)
+            trace_T = self._condensed_trace(mus, sigma0, wq)
         else:
             for t in range(T):
                 g.append(self._step(mus[t], mus[t + 1], scale[t] * ss[t], Ks[t], wq[t])
@@ -153,7 +128,7 @@ class Transcription:
         if smoothness > 0:
             f += smoothness * sum(ca.sumsqr(qs[t + 1] - qs[t]) for t in range(T))
         self.ng_eq = ca.vertcat(*g).shape[0]  # the equality rows; the limit rows (if any) follow
-        self._limit_rows(L.vector(), qs, g)
+        add_limit_rows(self, L.vector(), qs, g)
         self.ng = ca.vertcat(*g).shape[0]
         self.hessian, self.hess_lag = hessian, None
         # solver_config.resolve rejects these for users: a caller's bug
@@ -165,7 +140,7 @@ class Transcription:
         self.codegen, self.codegen_note = codegen, None
         t0 = time.perf_counter()
         if hessian != "exact":
-            staged = self._staged_derivatives(pose, sigma0, trace_ref, smoothness)
+            staged = staged_derivatives(self, pose, sigma0, trace_ref, smoothness)
             # compiled: the derivatives' time per solve several times lower (docs/solve_speed.md)
             if codegen:
                 staged, self.codegen_note = compiled_or_interpreted(staged, codegen_required)
@@ -177,105 +152,39 @@ class Transcription:
                                 options)
         self.build_time_s = time.perf_counter() - t0
 
-    def _limit_rows(self, x: ca.SX, qs: list, g: list) -> None:
-        """Append the motion-limit rows (module docstring) to `g`: the linear ones `A x`
-        (A constant), then the tool's normalised translation and rotation (`self.tool_point`, of a
-        window of waypoints per point).
+    def _variables(self) -> tuple[list, list, list, list]:
+        """The decision vector's blocks, node by node: (joints, means, scaled covariances, gains);
+        the condensed form has joints and means only."""
+        L, T, nq, form = self.layout, self.T, self.robot.nq, self.form
+        qs, mus, ss, Ks = [], [], [], []
+        for t in range(T + 1):
+            qs.append(L.add(f"q{t}", nq))
+            mus.append(L.add(f"mu{t}", NM))
+            if form == "condensed":
+                continue
+            ss.append(L.add(f"s{t}", self.ns))
+            if t < T:
+                Ks.append(L.add(f"K{t}", NX * NX if form == "full" else NX))
+        return qs, mus, ss, Ks
 
-        `limits.CURVE_ROWS` "curve" (the default): the rows bound the curve `surestep export` plays
-        at the planned times (`limits.py`, "the played curve"): joint acceleration by the Bernstein
-        control points of each step's cubic (linear, sufficient everywhere), joint velocity at the
-        knots within `v_max - a_max dt / 2` (sufficient given the acceleration rows; the quartic's
-        control points where that is not positive), the tool's squared speed `|J_v(q(s)) q'(s)|^2`
-        and rotation `|J_w q'|^2` at `limits.TOOL_POINTS` of each step, each point a function of the
-        four waypoints the piece depends on. "steps": the finite differences of the waypoints
-        (velocity per step, acceleration per waypoint, the tool's chord per step), as before; kept
-        for measurements."""
-        self.n_lin = self.n_tool = 0
-        self.A, self.tool_point, self.rcm_bound, self.limit_g = None, None, None, None
-        # the curve's tool rows as a function of (q(s), q'(s)) (`_tool_stages`)
-        self.tool_rate = None
-        if self.limits is None:
-            return
-        dt, lim = self.limits
-        T, nq, n = self.T, self.robot.nq, x.shape[0]
-        idx = self._q_index()
-        mov = self.robot.supporting_joints()
-        self.curve = lm.CURVE_ROWS
-        if self.curve not in ("curve", "steps"):
-            raise SurestepError(f"limits.CURVE_ROWS must be 'curve' or 'steps', got {self.curve!r}")
-        if self.curve == "curve":
-            rows, joints = lm.curve_limit_rows(T, dt, lim, mov)  # the interior point's too
-        else:
-            # (q_t+1 - q_t) / dt per step; acceleration at waypoint t, at rest before q_0 and after
-            # q_T
-            Rv = (np.eye(T + 1, k=1) - np.eye(T + 1))[:T] / dt
-            Ra = lm.knot_derivatives(T, dt)[1]
-            rows = [row / scale[j] for R, scale in ((Rv, lim.velocity), (Ra, lim.acceleration))
-                    for row in R for j in mov]
-            joints = [j for R in (Rv, Ra) for _ in R for j in mov]
-        # the joint bounds on the curve between the waypoints (the insertion's lower one from the
-        # RCM distance): |row . x + offset| <= 1 (the interior point's rows too)
-        Rp, jp, off = lm.curve_position_rows(T, dt, *lm.joint_bounds(self.robot,
-                                                                      lim.rcm_min_distance), mov)
-        offsets = np.concatenate([np.zeros(len(rows)), off])
-        blocks = []
-        for row, j in zip([*rows, *Rp], [*joints, *jp]):
-            B = np.zeros(n)
-            B[[idx[m][j] for m in range(T + 1)]] = row
-            blocks.append(B)
-        self.A = np.array(blocks)
-        # exact zeros, rounded
-        self.A[np.abs(self.A) < 1e-12 * np.abs(self.A).max(axis=1, keepdims=True)] = 0.0
-        # rows that are 0 by construction (the velocities at rest)
-        nonzero = np.any(self.A != 0, axis=1)
-        self.A, self.A_offset = self.A[nonzero], offsets[nonzero]
-        self.n_lin = len(self.A)
-        qa, qd = ca.SX.sym("qa", nq), ca.SX.sym("qd", nq)
-        Ta = self.robot.fk_expr(qa, self.robot.frame)
-        if self.curve == "curve":
-            win = 4
-            pv = ca.jtimes(Ta[:3, 3], qa, qd)  # the tool's velocity [m/s] (world frame), and dR/dt
-            Rd = ca.jtimes(ca.vec(Ta[:3, :3]), qa, qd)
-            # the speed between the points may exceed theirs a little (the export checks)
-            k = 1 - lm.TOOL_MARGIN
-            rate = ca.Function("tool_rate", [qa, qd],
-                               [ca.vertcat(ca.sumsqr(pv) / (k * lim.tool_speed) ** 2,
-                                           0.5 * ca.sumsqr(Rd) / (k * lim.tool_rotation) ** 2)])
-            w, c = ca.SX.sym("w", win * nq), ca.SX.sym("c", 2 * win)
-            ws = ca.reshape(w, nq, win)
-            out = rate(ws @ c[:win], ws @ c[win:])
-            self.tool_rate = rate
-            windows, weights, _ = lm.tool_point_windows(T, dt)
-        else:
-            win = 2
-            # c unused: the chord of (q_t, q_t+1)
-            w, c = ca.SX.sym("w", win * nq), ca.SX.sym("c", 2 * win)
-            Tb = self.robot.fk_expr(w[nq:], self.robot.frame)
-            Tw = self.robot.fk_expr(w[:nq], self.robot.frame)
-            rows = [ca.sumsqr(Tb[:3, 3] - Tw[:3, 3]) / (lim.tool_speed * dt) ** 2]
-            if lim.tool_rotation * dt < np.pi:  # else any rotation is within the limit
-                rows.append((3 - ca.sum1(ca.sum2(Tw[:3, :3] * Tb[:3, :3])))
-                            / (2 - 2 * np.cos(lim.tool_rotation * dt)))
-            out = ca.vertcat(*rows)
-            windows, weights = [[t, t + 1] for t in range(T)], [np.zeros(2 * win)] * T
-        self.tool_point = ca.Function("tool_point", [w, c], [out])
-        self.tool_windows = windows  # per point: the waypoints (node indices) it depends on
-        self.tool_weights = ca.DM(np.array(weights).T)  # (2 win, points)
-        self.tool_k = out.shape[0]
-        self.n_tool = self.tool_k * len(windows)
-        lin = ca.mtimes(ca.sparsify(ca.DM(self.A)), x)
-        W = ca.horzcat(*[ca.vertcat(*[qs[m] for m in nodes]) for nodes in windows])
-        tool = ca.vec(self.tool_point.map(len(windows))(W, self.tool_weights))
-        g += [lin, tool]
-        self.limit_g = ca.Function("limit_g", [x], [ca.vertcat(lin, tool)])
-        self.rcm_bound = lm.rcm_insertion_bound(self.robot, lim.rcm_min_distance)
-
-    def _q_index(self) -> list[np.ndarray]:
-        offsets = dict(zip((name for name, _, _ in self.layout.blocks),
-                           np.cumsum([0] + [size for _, size, _ in self.layout.blocks])))
-        return [np.arange(offsets[f"q{t}"], offsets[f"q{t}"] + self.robot.nq)
-                for t in range(self.T + 1)]
+    def _condensed_trace(self, mus: list, sigma0: ca.SX, wq: list) -> ca.SX:
+        """Tr(Sigma_T) of the condensed form: the EKF recursion written out along the means (six
+        scalar Kalman recursions for a scalar model, in Sigma_0's eigenbasis when isotropic)."""
+        model, T = self.model, self.T
+        # needs the condensed form (solver_config.resolve)
+        predicted = model.noise.objective == "predicted"
+        if self.scalar:
+            return scalar_trace(
+                sigma0, [ca.diag(model.motion_noise(mus[t], mus[t + 1])) for t in range(T)],
+                [lambda p, t=t: ca.diag(model.planning_noise(mus[t + 1], vech(ca.diag(p))))
+                 for t in range(T)],
+                predicted)
+        s_t = sigma0
+        for t in range(T - 1):
+            s_t = model.step_expr(mus[t], mus[t + 1], s_t, wq[t])
+        last = model.predict_expr if predicted else model.step_expr
+        s_t = last(mus[T - 1], mus[T], s_t, wq[T - 1])
+        return sum(s_t[i] for i in DIAG)
 
     def g_bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """lbg, ubg: the equalities at 0, every normalised limit row at most 1 (the linear ones at
@@ -290,192 +199,6 @@ class Transcription:
         over 1)."""
         lo, hi = self.g_bounds()
         return float(np.max(np.maximum(lo - g, 0) + np.maximum(g - hi, 0))) if len(g) else 0.0
-
-    def _staged_derivatives(self, pose: ca.Function, sigma0, trace_ref, smoothness) -> dict:
-        """Objective gradient, constraint Jacobian and a structured Hessian of the Lagrangian, built
-        stage-wise.
-
-        The objective is S(c(mu)): S, the trace after the scalar Kalman recursions, as a function
-        of the noise coefficients c (each the squared norm of a residual e(mu)). S is concave and
-        nondecreasing in c. `surrogate`: drop S's own curvature, keep the coefficients' exact
-        one, `sum_k (dS/dc_k) Hess c_k`: the Hessian of the majorize-minimise surrogate
-        `sum_k (dS/dc_k) c_k(mu)` (S lies below its tangent). `gauss-newton`: drop the
-        residuals' curvature too, `sum_k (dS/dc_k) 2 J_k^T J_k`, positive semidefinite. Both are
-        block tridiagonal in the means (each c_k depends on two consecutive ones). The gradient
-        is exact: `sum_k (dS/dc_k) grad c_k`.
-
-        Each derivative is one small SX Function per interval (the means at both ends) or per
-        node (the kinematic constraint `mu_t - pose(q_t)`), mapped over the horizon and scattered
-        into the global sparsity by a constant sparse matrix; only the recursion's weights dS/dc
-        see the whole horizon. The expression graphs, and the C code of `solver.codegen`, hold
-        each stage once whatever the horizon. Returns IPOPT's `grad_f`, `jac_g` and `hess_lag`.
-        """
-        m, T, nq = self.model, self.T, self.robot.nq
-        n = self.layout.vector().shape[0]
-        weights = recursion_weights(m, T, sigma0, trace_ref)
-        a, b = ca.SX.sym("a", NM), ca.SX.sym("b", NM)
-        # the joint-space term: its own (q_t, q_t+1) stage
-        jv = ca.SX.sym("w_q", NV) if m.joint_noise else None
-        (res_m, res_o), coefficients, (wm, wo, wj), weighted = interval_terms(m, a, b, jv)
-        coef = ca.Function("coef", [a, b], list(coefficients[:2]))
-        ab = ca.vertcat(a, b)
-        if self.hessian == "surrogate":  # exact curvature of the weighted coefficients
-            block = ca.hessian(weighted, ab)[0]
-        else:  # Gauss-Newton: the residuals' curvature dropped too
-            block = sum(2 * wm[k] * ca.mtimes(ca.jacobian(e, ab).T, ca.jacobian(e, ab))
-                        for k, e in enumerate(res_m))
-            block += sum(2 * wo[k] * ca.mtimes(ca.jacobian(e, ab).T, ca.jacobian(e, ab))
-                         for k, e in enumerate(res_o))
-        if jv is not None:  # the means' terms do not depend on it
-            weighted, block = (ca.substitute(weighted, jv, ca.DM.zeros(NV)),
-                               ca.substitute(block, jv, ca.DM.zeros(NV)))
-        interval_grad = ca.Function("interval_grad", [a, b, wm, wo],
-                                    [ca.densify(ca.gradient(weighted, ab))])
-        interval_hess = ca.Function("interval_hess", [a, b, wm, wo], [ca.densify(block)])
-        q, lam, Tcb = (ca.SX.sym("q", nq), ca.SX.sym("lam", NM),
-                       ca.SX.sym("camera", CAMERA_PARAMETERS))
-        # g_t = mu_t - pose(q_t): Jacobian -d pose/dq (and I in the mean); curvature -Hess(lam .
-        # pose)
-        node_jac = ca.Function("node_jac", [q, Tcb], [ca.densify(-ca.jacobian(pose(q, Tcb), q))])
-        node_hess = ca.Function("node_hess", [q, lam, Tcb],
-                                [ca.densify(ca.hessian(-ca.dot(lam, pose(q, Tcb)), q)[0])])
-
-        # Where each stage output's entries go (column-major within each stage block).
-        offsets = dict(zip((name for name, _, _ in self.layout.blocks),
-                           np.cumsum([0] + [size for _, size, _ in self.layout.blocks])))
-        mu_idx = [np.arange(offsets[f"mu{t}"], offsets[f"mu{t}"] + NM) for t in range(T + 1)]
-        q_idx = [np.arange(offsets[f"q{t}"], offsets[f"q{t}"] + nq) for t in range(T + 1)]
-        ab_idx = [np.concatenate([mu_idx[t], mu_idx[t + 1]]) for t in range(T)]
-        g_idx = [np.arange(NM * t, NM * (t + 1)) for t in range(T + 1)]
-
-        D = smoothness_matrix(n, q_idx, smoothness)
-
-        X, P = ca.MX.sym("x", n), ca.MX.sym("p", self.p.shape[0])
-        lam_f, lam_g = ca.MX.sym("lam_f"), ca.MX.sym("lam_g", self.ng)
-        Tcb_x, sigma0_x, ref_x = ca.Function("params", [self.p],
-                                             [self.p[:CAMERA_PARAMETERS], sigma0, trace_ref])(P)
-        mus = ca.horzcat(*[X[i[0]:i[0] + NM] for i in mu_idx])
-        qs = ca.horzcat(*[X[i[0]:i[0] + nq] for i in q_idx])
-        qq_idx = [np.concatenate([q_idx[t], q_idx[t + 1]]) for t in range(T)]
-        qab_x = ca.vertcat(qs[:, :T], qs[:, 1:])
-        joint = self._joint_stages(wj, Tcb) if jv is not None else None
-        cj = joint["coef"].map(T)(qab_x, Tcb_x) if joint else ca.MX(0, T)
-        S_x, w_m, w_o, w_j = weights(*coef.map(T)(mus[:, :T], mus[:, 1:]), cj, sigma0_x, ref_x)
-        G = interval_grad.map(T)(mus[:, :T], mus[:, 1:], w_m, w_o)
-        B = interval_hess.map(T)(mus[:, :T], mus[:, 1:], w_m, w_o)
-        Jq = node_jac.map(T + 1)(qs, Tcb_x)
-        K = node_hess.map(T + 1)(qs, ca.reshape(lam_g[:NM * (T + 1)], NM, T + 1), Tcb_x)
-        smooth_f = 0.5 * ca.bilin(ca.DM(D), X, X) if smoothness > 0 else 0
-
-        grad_parts = ([entries([(i, [0]) for i in ab_idx])]
-                      + ([entries([(i, [0]) for i in qq_idx])] if joint else []))
-        grad_sp, sc_g, _ = assemble((n, 1), grad_parts)
-        grad_nz = ca.mtimes(sc_g[0], ca.vec(G))
-        if joint:
-            grad_nz += ca.mtimes(sc_g[1], ca.vec(joint["grad"].map(T)(qab_x, w_j, Tcb_x)))
-        grad = ca.MX(grad_sp, grad_nz)
-        if smoothness > 0:
-            grad = ca.densify(grad) + ca.mtimes(ca.DM(D), X)
-        grad_f = ca.Function("nlp_grad_f", [X, P], [S_x + smooth_f, ca.densify(grad)], ["x", "p"],
-                             ["f", "grad"])
-
-        jac_parts = [entries(list(zip(g_idx, q_idx))), entries(list(zip(g_idx, mu_idx)))]
-        hess_parts = [entries([(i, i) for i in ab_idx]), entries([(i, i) for i in q_idx])]
-        g_x = ca.vec(mus - ca.Function("poses", [q, Tcb], [pose(q, Tcb)]).map(T + 1)(qs, Tcb_x))
-        lin_const, g_lim = None, []
-        # the limit rows: A x (constant Jacobian), then the tool rows per point
-        if self.limits is not None:
-            k, npts = self.tool_k, len(self.tool_windows)
-            tool_jac, tool_hess = self._tool_stages()
-            win_idx = [np.concatenate([q_idx[m] for m in nodes]) for nodes in self.tool_windows]
-            t_idx = [self.ng_eq + self.n_lin + np.arange(k * p, k * (p + 1)) for p in range(npts)]
-            jac_parts.append(entries(list(zip(t_idx, win_idx))))
-            hess_parts.append(entries([(i, i) for i in win_idx]))
-            lin_const = np.zeros((self.ng, n))
-            lin_const[self.ng_eq:self.ng_eq + self.n_lin] = self.A
-            W_x = ca.reshape(X[np.concatenate(win_idx).tolist()], tool_jac.size1_in(0), npts)
-            Jt = tool_jac.map(npts)(W_x, self.tool_weights)
-            Ht = tool_hess.map(npts)(W_x, self.tool_weights,
-                                     ca.reshape(lam_g[self.ng_eq + self.n_lin:], k, npts))
-            A_sp = ca.sparsify(ca.DM(self.A))
-            g_lim = [ca.mtimes(A_sp, X), ca.vec(self.tool_point.map(npts)(W_x, self.tool_weights))]
-        jac_sp, sc_j, jconst = assemble((self.ng, n), jac_parts, lin_const)
-        J_nz = (ca.mtimes(sc_j[0], ca.vec(Jq))
-                + ca.mtimes(sc_j[1], ca.DM(np.tile(np.eye(NM).ravel(order="F"), T + 1))))
-        if self.limits is not None:
-            J_nz += jconst + ca.mtimes(sc_j[2], ca.vec(Jt))
-        jac_g = ca.Function("nlp_jac_g", [X, P], [ca.vertcat(g_x, *g_lim), ca.MX(jac_sp, J_nz)],
-                            ["x", "p"], ["g", "jac"])
-
-        if joint:
-            hess_parts.append(entries([(i, i) for i in qq_idx]))
-        hess_sp, sc_h, const = assemble((n, n), hess_parts, np.triu(D))
-        sc_b, sc_k = sc_h[:2]
-        H_nz = lam_f * (ca.mtimes(sc_b, ca.vec(B)) + const) + ca.mtimes(sc_k, ca.vec(K))
-        if self.limits is not None:
-            H_nz += ca.mtimes(sc_h[2], ca.vec(Ht))
-        if joint:
-            H_nz += lam_f * ca.mtimes(sc_h[-1], ca.vec(joint["hess"].map(T)(qab_x, w_j, Tcb_x)))
-        hess_lag = ca.Function("nlp_hess_l", [X, P, lam_f, lam_g], [ca.MX(hess_sp, H_nz)],
-                               ["x", "p", "lam_f", "lam_g"], ["hess"])
-        return {"grad_f": grad_f, "jac_g": jac_g, "hess_lag": hess_lag}
-
-    def _tool_stages(self) -> tuple[ca.Function, ca.Function]:
-        """One tool point's Jacobian `(w, c) -> d rows / d w` and curvature
-        `(w, c, lam) -> Hess_w (lam . rows)` over its window `w` of waypoints (`tool_point`).
-
-        On the played curve a point's joints and joint velocities are linear in the window,
-        `z = (q(s), q'(s)) = M w` with `M = [c_q^T kron I; c_v^T kron I]`, so the derivatives are
-        the rate's in z (2 nq variables) mapped by M:
-        `J = J_z M`, `H = M^T H_z M`, the same matrices as differentiating the composed rows over w
-        (4 nq variables) in fewer instructions (docs/motion_limits_and_export.md, "The enforced
-        solve's speed"). The finite-difference rows ("steps") are differentiated directly."""
-        w_in, c_in = self.tool_point.sx_in()
-        lam_k = ca.SX.sym("lam_k", self.tool_k)
-        if self.tool_rate is None:
-            rows_w = self.tool_point(w_in, c_in)
-            return (ca.Function("tool_jac", [w_in, c_in], [ca.densify(ca.jacobian(rows_w, w_in))]),
-                    ca.Function("tool_hess", [w_in, c_in, lam_k],
-                                [ca.densify(ca.hessian(ca.dot(lam_k, rows_w), w_in)[0])]))
-        nq = self.robot.nq
-        win = c_in.shape[0] // 2
-        z_a, z_d = ca.SX.sym("qa", nq), ca.SX.sym("qd", nq)
-        z = ca.vertcat(z_a, z_d)
-        rows_z = self.tool_rate(z_a, z_d)
-        jz = ca.Function("tool_jac_z", [z], [ca.densify(ca.jacobian(rows_z, z))])
-        hz = ca.Function("tool_hess_z", [z, lam_k],
-                         [ca.cse(ca.densify(ca.hessian(ca.dot(lam_k, rows_z), z)[0]))])
-        ws = ca.reshape(w_in, nq, win)
-        z_w = ca.vertcat(ws @ c_in[:win], ws @ c_in[win:])
-        M = ca.vertcat(ca.kron(c_in[:win].T, ca.SX.eye(nq)), ca.kron(c_in[win:].T, ca.SX.eye(nq)))
-        return (ca.Function("tool_jac", [w_in, c_in], [ca.densify(jz(z_w) @ M)]),
-                ca.Function("tool_hess", [w_in, c_in, lam_k],
-                            [ca.densify(M.T @ hz(z_w, lam_k) @ M)]))
-
-    def _joint_stages(self, wj, Tcb) -> dict:
-        """The joint-space motion noise's stage Functions of `(q_t, q_t+1)`: its vech (the
-        recursion's coefficients `cj`), and the gradient and Hessian of the surrogate's term
-        `wj . vech(W_q)` with the weights frozen (the Hessian: exact, or Gauss-Newton's
-        `2 sum_k du_k^T G du_k` with `W_q = sum_k u_k u_k^T`, G = dS/dW)."""
-        nq = self.robot.nq
-        qab = ca.SX.sym("qab", 2 * nq)
-        w = vech(joint_noise_expr(self.robot, self.model.noise.joint_sigma, qab[:nq], qab[nq:],
-                                  Tcb))
-        term = ca.dot(wj, w)
-        if self.hessian == "surrogate":
-            hess = ca.hessian(term, qab)[0]
-        else:
-            G = weight_matrix(wj)
-            U = joint_noise_factor(self.robot, self.model.noise.joint_sigma, qab[:nq], qab[nq:],
-                                   Tcb)
-            hess = 0
-            for k in range(nq):
-                dU = ca.jacobian(U[:, k], qab)
-                hess += 2 * dU.T @ G @ dU
-        return {"coef": ca.Function("joint_coef", [qab, Tcb], [w]),
-                "grad": ca.Function("joint_grad", [qab, wj, Tcb],
-                                    [ca.densify(ca.gradient(term, qab))]),
-                "hess": ca.Function("joint_hess", [qab, wj, Tcb], [ca.densify(hess)])}
 
     def _step(self, x0, x1, s, K, w=None):
         m = self.model
