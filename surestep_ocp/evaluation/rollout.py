@@ -34,17 +34,18 @@ The noise models are the belief model's own CasADi Functions (`motion_noise`,
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import casadi as ca
 import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ..errors import SurestepError
-from ..model.belief import _TRIL, NM, NX, BeliefModel
+from ..model.belief import NM, NX, BeliefModel
 from ..model.detection import Detection  # noqa: F401 (re-exported: its home before)
+# BatchedNoise and sample_gaussian: imported from here by tracker.py and the tests
+from .batched_ekf import BatchedNoise, ekf_update, pose_rows, sample_gaussian
 from .grasp_rule import GraspRule, Grasping
-from ..model.lie import np_means
 
 MODES = ("model", "true")
 METRICS = ("pos_err_mean", "pos_err_std", "ori_err_mean", "ori_err_std", "trace_noisy", "trace_ml",
@@ -103,47 +104,6 @@ class Rollouts:
         }
 
 
-class BatchedNoise:
-    """The model's noise Functions mapped over N poses at once (CasADi `Function.map`), taking poses
-    `(p, r)` (converted to the model's means, `lie.np_means`)."""
-
-    def __init__(self, model: BeliefModel, n: int):
-        self.n, self.model = n, model
-        self._W = model.motion_noise.map(n)
-        self._V = model.observation_noise.map(n)
-        self._V_expected = None
-
-    def _unstack(self, out) -> np.ndarray:
-        # map() concatenates the N 6x6 outputs horizontally: (6, 6N) -> (N, 6, 6)
-        return np.asarray(out).reshape(NX, self.n, NX).transpose(1, 0, 2)
-
-    def motion(self, x0: np.ndarray, x1: np.ndarray) -> np.ndarray:
-        """(N, 6, 6) W of the steps x0[k] -> x1[k] ((N, 6) each)."""
-        return self._unstack(self._W(np_means(x0).T, np_means(x1).T))
-
-    def observation(self, x: np.ndarray) -> np.ndarray:
-        """(N, 6, 6) V at the poses x ((N, 6))."""
-        return self._unstack(self._V(np_means(x).T))
-
-    def expected_observation(self, x: np.ndarray, P: np.ndarray) -> np.ndarray:
-        """(N, 6, 6) V expected under the beliefs N(x, P) ((N, 6), (N, 6, 6)): the model's
-        `expected` form, V(x) + tr(J P J^T) per term (surestep_method.md, section 8), the noise
-        of the observation given what the tracker knows of the pose."""
-        if self._V_expected is None:
-            form = replace(self.model.noise, observation_noise="expected")
-            self._V_expected = BeliefModel(form, self.model.camera,
-                                           self.model.components).planning_noise.map(self.n)
-        rows, cols = np.array(_TRIL).T
-        return self._unstack(self._V_expected(np_means(x).T, np.asarray(P)[:, rows, cols].T))
-
-
-def sample_gaussian(cov: np.ndarray, z: np.ndarray) -> np.ndarray:
-    """Samples of N(0, cov[k]) from standard normals z (N, 6); cov may be singular (PSD)."""
-    lam, U = np.linalg.eigh(0.5 * (cov + np.swapaxes(cov, 1, 2)))
-    L = U * np.sqrt(np.clip(lam, 0.0, None))[:, None, :]
-    return np.einsum("nij,nj->ni", L, z)
-
-
 def has_identity_maps(model: BeliefModel) -> bool:
     """Whether the model's F, Q, H, R are the constant identity (checked symbolically).
 
@@ -157,46 +117,16 @@ def has_identity_maps(model: BeliefModel) -> bool:
     return all(M.is_constant() and np.array_equal(np.asarray(ca.DM(M)), np.eye(NX)) for M in mats)
 
 
-def _pose(p: np.ndarray, R: Rotation) -> np.ndarray:
-    return np.hstack([p, R.as_rotvec()])
-
-
-def _gain(P: np.ndarray, S: np.ndarray) -> np.ndarray:
-    """K^T = S^-1 P for a stack; pseudo-inverse where S is singular (e.g. all noise constants 0)."""
-    try:
-        return np.linalg.solve(S, P)
-    except np.linalg.LinAlgError:
-        return np.linalg.pinv(S, hermitian=True) @ P
-
-
-def _update(P, V, y, seen) -> tuple[np.ndarray, np.ndarray]:
-    """(K^T, K y) of the update with observation noise V (stacks); no observation: no update."""
-    KT = _gain(P, P + V)  # K^T = S^-1 P (S, P symmetric); K = P S^-1
-    KT[~seen] = 0.0  # no observation: the EKF only predicts
-    return KT, np.einsum("nji,nj->ni", KT, y)  # K y
-
-
 # the iterated tracker's re-linearisations of V per update
 ITERATIONS = 2
 TRACKER_NOISES = ("mean", "expected", "iterated", "auto")
 
 
-def rollout(
-    model: BeliefModel,
-    poses: np.ndarray,
-    goal: np.ndarray | None = None,
-    n: int = 50,
-    rng: np.random.Generator | int | None = 0,
-    mode: str = "model",
-    sample_initial: bool = False,
-    keep_paths: bool = False,
-    detection: Detection | None = None,
-    changes: list | None = None,
-    replan=None,
-    policy=None,
-    grasp: GraspRule | None = None,
-    tracker_noise: str = "mean",
-) -> Rollouts:
+def rollout(model: BeliefModel, poses: np.ndarray, goal: np.ndarray | None = None, n: int = 50,
+            rng: np.random.Generator | int | None = 0, mode: str = "model",
+            sample_initial: bool = False, keep_paths: bool = False,
+            detection: Detection | None = None, changes: list | None = None, replan=None,
+            policy=None, grasp: GraspRule | None = None, tracker_noise: str = "mean") -> Rollouts:
     """Execute a plan `n` times in closed loop with sampled motion and observation noise.
 
     Args:
@@ -251,6 +181,20 @@ def rollout(
             mode's world's own (`mean` in `model` mode, whose noise is V at the predicted mean;
             `expected` in `true` mode, whose noise is V at the unknown true pose).
     """
+    tracker_noise, poses = _checked(model, poses, mode, tracker_noise)
+    goal = poses[-1] if goal is None else np.asarray(goal, dtype=float)
+    rng = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
+    run = _Batch(model, poses, goal, n, rng, mode, tracker_noise, sample_initial, keep_paths,
+                 detection, changes, replan, policy, grasp)
+    for t in range(run.steps):
+        if run.step(t):
+            break
+    return run.result()
+
+
+def _checked(model: BeliefModel, poses, mode: str, tracker_noise: str) -> tuple[str, np.ndarray]:
+    """The rollouts' arguments checked: the tracker noise (`auto` resolved) and the (T+1, 6)
+    poses."""
     if tracker_noise not in TRACKER_NOISES:
         raise ValueError(f"unknown tracker_noise '{tracker_noise}'; allowed: "
                          f"{', '.join(TRACKER_NOISES)}")
@@ -269,151 +213,232 @@ def rollout(
     poses = np.asarray(poses, dtype=float)
     if poses.ndim != 2 or poses.shape[1] != NX or len(poses) < 2:
         raise ValueError(f"poses must have shape (T+1, {NX}) with T >= 1, got {poses.shape}")
-    goal = poses[-1] if goal is None else np.asarray(goal, dtype=float)
-    rng = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
-    noise = BatchedNoise(model, n)
-    waypoints = Rotation.from_rotvec(poses[:, 3:])
+    return tracker_noise, poses
 
-    mu_p = np.tile(poses[0, :3], (n, 1))
-    mu_R = Rotation.from_rotvec(np.tile(poses[0, 3:], (n, 1)))
-    sigma0 = np.asarray(model.noise.Sigma0, dtype=float)
-    if sample_initial:
-        e0 = sample_gaussian(np.broadcast_to(sigma0, (n, NX, NX)), rng.standard_normal((n, NX)))
-        true_p, true_R = mu_p + e0[:, :3], Rotation.from_rotvec(e0[:, 3:]) * mu_R
-    else:
-        true_p, true_R = mu_p.copy(), mu_R
-    sigma = np.tile(sigma0, (n, 1, 1))
-    paths_true, paths_est = (([_pose(true_p, true_R)], [_pose(mu_p, mu_R)]) if keep_paths
-                             else (None, None))
 
-    steps = len(poses) - 1 if policy is None else int(policy.steps)
-    grasping = Grasping(grasp or GraspRule(), n, steps)
-    steps = grasping.cap
-    last = len(poses) - 1  # the plan's goal waypoint (a dwell targets it)
-    detected = np.ones((n, steps), dtype=bool)
-    # leaves rng's stream
-    u_rng = rng.spawn(1)[0] if detection is not None and detection.falloff > 0 else None
-    own = None  # (N, T+1, 6) each rollout's waypoints, once `replan` has been called
-    for t in range(steps):
+class _Batch:
+    """The N rollouts of `rollout` as they run, one step t -> t+1 at a time: the world (the true
+    poses `true_p`, `true_R`), each rollout's tracker (its EKF's mean `mu_p`, `mu_R` and covariance
+    `sigma`), the grasp decisions (`grasping`) and what is recorded (`detected`, the paths)."""
+
+    def __init__(self, model: BeliefModel, poses: np.ndarray, goal: np.ndarray, n: int,
+                 rng: np.random.Generator, mode: str, tracker_noise: str, sample_initial: bool,
+                 keep_paths: bool, detection: Detection | None, changes, replan, policy,
+                 grasp: GraspRule | None):
+        self.model, self.poses, self.goal, self.n, self.rng = model, poses, goal, n, rng
+        self.mode, self.tracker_noise, self.detection = mode, tracker_noise, detection
+        self.changes, self.replan, self.policy = changes, replan, policy
+        self.noise = BatchedNoise(model, n)
+        self.waypoints = Rotation.from_rotvec(poses[:, 3:])
+        self._start(sample_initial)
+        self.paths = (([pose_rows(self.true_p, self.true_R)], [pose_rows(self.mu_p, self.mu_R)])
+                      if keep_paths else None)
+        steps = len(poses) - 1 if policy is None else int(policy.steps)
+        self.grasping = Grasping(grasp or GraspRule(), n, steps)
+        self.steps = self.grasping.cap
+        self.last = len(poses) - 1  # the plan's goal waypoint (a dwell targets it)
+        self.detected = np.ones((n, self.steps), dtype=bool)
+        # leaves rng's stream
+        self.u_rng = rng.spawn(1)[0] if detection is not None and detection.falloff > 0 else None
+        self.own = None  # (N, T+1, 6) each rollout's waypoints, once `replan` has been called
+
+    def _start(self, sample_initial: bool) -> None:
+        """The start: every estimate at the plan's first waypoint with the prior Sigma0, the true
+        poses there too or drawn from N(poses[0], Sigma0)."""
+        n, poses = self.n, self.poses
+        self.mu_p = np.tile(poses[0, :3], (n, 1))
+        self.mu_R = Rotation.from_rotvec(np.tile(poses[0, 3:], (n, 1)))
+        sigma0 = np.asarray(self.model.noise.Sigma0, dtype=float)
+        if sample_initial:
+            e0 = sample_gaussian(np.broadcast_to(sigma0, (n, NX, NX)),
+                                 self.rng.standard_normal((n, NX)))
+            self.true_p = self.mu_p + e0[:, :3]
+            self.true_R = Rotation.from_rotvec(e0[:, 3:]) * self.mu_R
+        else:
+            self.true_p, self.true_R = self.mu_p.copy(), self.mu_R
+        self.sigma = np.tile(sigma0, (n, 1, 1))
+
+    def step(self, t: int) -> bool:
+        """The step t -> t+1 of every rollout; True when every rollout has grasped before the
+        last step (the paths end here)."""
+        changes = self.changes
         if changes is not None and t < len(changes) and changes[t] is not None:  # then it holds
-            Dc = np.asarray(changes[t], float)
-            R_D, t_D = Rotation.from_matrix(Dc[:3, :3]), Dc[:3, 3]
-            Wc = (t_D @ t_D) * np.asarray(model.noise.camera_W_p0, float) + \
-                R_D.magnitude() ** 2 * np.asarray(model.noise.camera_W_o0, float)
-            wc = sample_gaussian(np.broadcast_to(Wc, (n, NX, NX)), rng.standard_normal((n, NX)))
-            true_p = R_D.apply(true_p) + t_D + wc[:, :3]
-            true_R = Rotation.from_rotvec(wc[:, 3:]) * R_D * true_R
-            mu_p, mu_R = R_D.apply(mu_p) + t_D, R_D * mu_R
-            F = np.zeros((NX, NX))
-            F[:3, :3] = F[3:, 3:] = Dc[:3, :3]  # left-perturbation errors rotate with the frame
-            sigma = F @ sigma @ F.T + Wc
-            if replan is not None:
-                current = np.array(np.broadcast_to(poses, (n, *poses.shape)) if own is None
-                                   else own)
-                own = np.asarray(replan(t, _pose(mu_p, mu_R), sigma.copy(), current), dtype=float)
-                if own.shape != current.shape or not np.all(np.isfinite(own[:, t + 1:])):
-                    raise ValueError(f"replan at step {t} returned waypoints of shape {own.shape} "
-                                     f"(expected {current.shape}, finite)")
-        still = grasping.done.copy()  # grasped: they hold still
-        k = min(t + 1, last)
-        arriving = np.full(n, t + 1 >= last)
-        if policy is not None:
-            target, moving = policy(t, _pose(mu_p, mu_R), sigma.copy())
-            target, moving = np.asarray(target, float), np.asarray(moving, bool)
-            if target.shape != (n, NX) or moving.shape != (n,) or \
-                    not np.all(np.isfinite(target[moving])):
-                raise ValueError(f"policy at step {t} returned targets of shape {target.shape} "
-                                 f"and a mask of shape {moving.shape} (expected ({n}, {NX}), "
-                                 f"finite, and ({n},))")
-            dwell = ~moving & ~still
-            if grasping.rule.confidence is None:  # at its plan's end a rollout holds still
-                still |= dwell
-            target[dwell] = goal
-            arriving = dwell | np.asarray(getattr(policy, "arriving", np.zeros(n, bool)), bool)
-        elif own is None:
-            target = np.tile(poses[k], (n, 1))
+            self._move_camera(np.asarray(changes[t], float))
+            if self.replan is not None:
+                self._replan(t)
+        still = self.grasping.done.copy()  # grasped: they hold still
+        k = min(t + 1, self.last)
+        if self.policy is not None:
+            target, arriving = self._policy_targets(t, still)
         else:
-            target = own[:, k].copy()
-        held = (true_p, true_R.as_quat(), mu_p, mu_R.as_quat(), sigma)
-        z_w, z_v = rng.standard_normal((n, NX)), rng.standard_normal((n, NX))
-        u_det = None if u_rng is None else u_rng.random(n)
-        # command: from the estimate to the next waypoint; W of that step
-        W = noise.motion(_pose(mu_p, mu_R), target)
-        dp = target[:, :3] - mu_p
-        D = mu_R.inv() * (waypoints[k] if own is None and policy is None
-                          else Rotation.from_rotvec(target[:, 3:]))
-        w = sample_gaussian(W, z_w)
-        true_p = true_p + dp + w[:, :3]
-        true_R = Rotation.from_rotvec(w[:, 3:]) * true_R * D
+            target = (np.tile(self.poses[k], (self.n, 1)) if self.own is None
+                      else self.own[:, k].copy())
+            arriving = np.full(self.n, t + 1 >= self.last)
+        held = (self.true_p, self.true_R.as_quat(), self.mu_p, self.mu_R.as_quat(), self.sigma)
+        z_w, z_v = self.rng.standard_normal((self.n, NX)), self.rng.standard_normal((self.n, NX))
+        u_det = None if self.u_rng is None else self.u_rng.random(self.n)
+        W, dp, D = self._command(target, k)
+        self._world_moves(W, dp, D, z_w)
         # EKF predict (identity maps): the predicted mean is the commanded waypoint
-        pred_p, pred_R = mu_p + dp, mu_R * D
-        pred = _pose(pred_p, pred_R)
-        P = sigma + W
-        grasping.decide(t, arriving & ~still, P)
-        if detection is not None:
-            prob = detection.probability(model.camera, true_p)
+        pred_p, pred_R = self.mu_p + dp, self.mu_R * D
+        P = self.sigma + W
+        self.grasping.decide(t, arriving & ~still, P)
+        seen = self._detected(t, u_det)
+        V_ekf, y, seen = self._observe(t, pred_p, pred_R, P, seen, z_v)
+        self._tracker_update(pred_p, pred_R, P, V_ekf, y, seen)
+        if still.any():  # the rollouts that grasped (or ended their plan) hold still
+            self._hold_still(t, still, held)
+        if self.paths is not None:
+            self.paths[0].append(pose_rows(self.true_p, self.true_R))
+            self.paths[1].append(pose_rows(self.mu_p, self.mu_R))
+        if self.grasping.rule.confidence is not None and self.grasping.done.all() \
+                and t + 1 < self.steps:
+            # every rollout has grasped: the paths end here
+            self.detected = self.detected[:, :t + 1]
+            return True
+        return False
+
+    def _move_camera(self, Dc: np.ndarray) -> None:
+        """A camera move Dc (4x4) before the step: true poses and estimates re-expressed in the new
+        frame, the true poses perturbed by a draw of the camera's own motion noise, which the
+        tracker adds to its Sigma (rotated with the frame)."""
+        n, noise = self.n, self.model.noise
+        R_D, t_D = Rotation.from_matrix(Dc[:3, :3]), Dc[:3, 3]
+        Wc = (t_D @ t_D) * np.asarray(noise.camera_W_p0, float) + \
+            R_D.magnitude() ** 2 * np.asarray(noise.camera_W_o0, float)
+        wc = sample_gaussian(np.broadcast_to(Wc, (n, NX, NX)), self.rng.standard_normal((n, NX)))
+        self.true_p = R_D.apply(self.true_p) + t_D + wc[:, :3]
+        self.true_R = Rotation.from_rotvec(wc[:, 3:]) * R_D * self.true_R
+        self.mu_p, self.mu_R = R_D.apply(self.mu_p) + t_D, R_D * self.mu_R
+        F = np.zeros((NX, NX))
+        F[:3, :3] = F[3:, 3:] = Dc[:3, :3]  # left-perturbation errors rotate with the frame
+        self.sigma = F @ self.sigma @ F.T + Wc
+
+    def _replan(self, t: int) -> None:
+        """Each rollout's waypoints re-planned from its belief right after the camera move at t."""
+        poses, n = self.poses, self.n
+        current = np.array(np.broadcast_to(poses, (n, *poses.shape)) if self.own is None
+                           else self.own)
+        mean = pose_rows(self.mu_p, self.mu_R)
+        own = np.asarray(self.replan(t, mean, self.sigma.copy(), current), dtype=float)
+        self.own = own
+        if own.shape != current.shape or not np.all(np.isfinite(own[:, t + 1:])):
+            raise ValueError(f"replan at step {t} returned waypoints of shape {own.shape} "
+                             f"(expected {current.shape}, finite)")
+
+    def _policy_targets(self, t: int, still: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The policy's commands for step t: the (N, 6) targets (the goal for a rollout whose plan
+        has ended: it dwells there) and which rollouts' step ends on the goal; without a confidence
+        `still` (changed in place) gains the rollouts whose plan has ended."""
+        n = self.n
+        target, moving = self.policy(t, pose_rows(self.mu_p, self.mu_R), self.sigma.copy())
+        target, moving = np.asarray(target, float), np.asarray(moving, bool)
+        if target.shape != (n, NX) or moving.shape != (n,) or \
+                not np.all(np.isfinite(target[moving])):
+            raise ValueError(f"policy at step {t} returned targets of shape {target.shape} "
+                             f"and a mask of shape {moving.shape} (expected ({n}, {NX}), "
+                             f"finite, and ({n},))")
+        dwell = ~moving & ~still
+        if self.grasping.rule.confidence is None:  # at its plan's end a rollout holds still
+            still |= dwell
+        target[dwell] = self.goal
+        arriving = dwell | np.asarray(getattr(self.policy, "arriving", np.zeros(n, bool)), bool)
+        return target, arriving
+
+    def _command(self, target: np.ndarray, k: int):
+        """The command of the step: from each estimate to its target, (W of that step, the
+        translation dp, the body-frame rotation D)."""
+        W = self.noise.motion(pose_rows(self.mu_p, self.mu_R), target)
+        dp = target[:, :3] - self.mu_p
+        D = self.mu_R.inv() * (self.waypoints[k] if self.own is None and self.policy is None
+                               else Rotation.from_rotvec(target[:, 3:]))
+        return W, dp, D
+
+    def _world_moves(self, W: np.ndarray, dp: np.ndarray, D: Rotation, z_w: np.ndarray) -> None:
+        """The world's step: each true pose moves by the command plus a draw of its motion noise."""
+        w = sample_gaussian(W, z_w)
+        self.true_p = self.true_p + dp + w[:, :3]
+        self.true_R = Rotation.from_rotvec(w[:, 3:]) * self.true_R * D
+
+    def _detected(self, t: int, u_det) -> np.ndarray:
+        """(N,) whether the detector sees each true pose after the step (recorded in
+        `detected`)."""
+        if self.detection is not None:
+            prob = self.detection.probability(self.model.camera, self.true_p)
             seen = prob >= 1.0 if u_det is None else u_det < prob
-            detected[:, t] = seen
+            self.detected[:, t] = seen
         else:
-            seen = detected[:, t]
+            seen = self.detected[:, t]
+        return seen
+
+    def _observe(self, t: int, pred_p: np.ndarray, pred_R: Rotation, P: np.ndarray,
+                 seen: np.ndarray, z_v: np.ndarray):
+        """The observation of the true poses and the tracker's view of it: (the tracker's
+        observation noise V, the innovation y, which rollouts observed after gating)."""
+        noise, true_p, true_R = self.noise, self.true_p, self.true_R
+        pred = pose_rows(pred_p, pred_R)
         V_pred = noise.observation(pred)
-        V_ekf = V_pred if tracker_noise == "mean" else noise.expected_observation(pred, P)
-        if mode == "model":
+        V_ekf = V_pred if self.tracker_noise == "mean" else noise.expected_observation(pred, P)
+        if self.mode == "model":
             V_real = V_pred
         else:  # V at an undetected true pose (e.g. behind the lens) is not used; keep it finite
-            V_real = noise.observation(np.where(seen[:, None], _pose(true_p, true_R), pred))
+            V_real = noise.observation(np.where(seen[:, None], pose_rows(true_p, true_R), pred))
         v = sample_gaussian(V_real, z_v)
         z_p, z_R = true_p + v[:, :3], Rotation.from_rotvec(v[:, 3:]) * true_R
         # gating: a reported position outside the detectable region is no detection
-        if detection is not None:
-            seen = seen & (detection.probability(model.camera, z_p) > 0)
-            detected[:, t] = seen
+        if self.detection is not None:
+            seen = seen & (self.detection.probability(self.model.camera, z_p) > 0)
+            self.detected[:, t] = seen
         y = np.hstack([z_p - pred_p, (z_R * pred_R.inv()).as_rotvec()])
-        KT, dx = _update(P, V_ekf, y, seen)
-        for _ in range(ITERATIONS if tracker_noise == "iterated" else 0):
+        return V_ekf, y, seen
+
+    def _tracker_update(self, pred_p: np.ndarray, pred_R: Rotation, P: np.ndarray,
+                        V_ekf: np.ndarray, y: np.ndarray, seen: np.ndarray) -> None:
+        """The tracker's EKF update from the prediction (none where nothing was observed)."""
+        KT, dx = ekf_update(P, V_ekf, y, seen)
+        for _ in range(ITERATIONS if self.tracker_noise == "iterated" else 0):
             # V expected under the updated belief, then the update again from the prediction
             # P - P S^-1 P without its cancellation (unseen: P)
             upd = np.where(seen[:, None, None], np.swapaxes(KT, 1, 2) @ V_ekf, P)
-            V_ekf = noise.expected_observation(
-                _pose(pred_p + dx[:, :3], Rotation.from_rotvec(dx[:, 3:]) * pred_R),
+            V_ekf = self.noise.expected_observation(
+                pose_rows(pred_p + dx[:, :3], Rotation.from_rotvec(dx[:, 3:]) * pred_R),
                 0.5 * (upd + np.swapaxes(upd, 1, 2)))
-            KT, dx = _update(P, V_ekf, y, seen)
-        mu_p, mu_R = pred_p + dx[:, :3], Rotation.from_rotvec(dx[:, 3:]) * pred_R
+            KT, dx = ekf_update(P, V_ekf, y, seen)
+        self.mu_p, self.mu_R = pred_p + dx[:, :3], Rotation.from_rotvec(dx[:, 3:]) * pred_R
         # P - P S^-1 P as P S^-1 V: equal, without the cancellation that loses definiteness
         post = np.where(seen[:, None, None], np.swapaxes(KT, 1, 2) @ V_ekf, P)
-        sigma = 0.5 * (post + np.swapaxes(post, 1, 2))
-        if still.any():  # the rollouts that grasped (or ended their plan) hold still
-            detected[still, t] = False
-            true_p, mu_p = np.where(still[:, None], held[0], true_p), np.where(still[:, None],
-                                                                             held[2], mu_p)
-            true_R = Rotation.from_quat(np.where(still[:, None], held[1], true_R.as_quat()))
-            mu_R = Rotation.from_quat(np.where(still[:, None], held[3], mu_R.as_quat()))
-            sigma = np.where(still[:, None, None], held[4], sigma)
-        if keep_paths:
-            paths_true.append(_pose(true_p, true_R))
-            paths_est.append(_pose(mu_p, mu_R))
-        if grasping.rule.confidence is not None and grasping.done.all() and t + 1 < steps:
-            # every rollout has grasped: the paths end here
-            detected = detected[:, :t + 1]
-            break
+        self.sigma = 0.5 * (post + np.swapaxes(post, 1, 2))
 
-    goal_R = Rotation.from_rotvec(goal[3:])
-    return Rollouts(
-        mode=mode,
-        goal=goal,
-        final_true=_pose(true_p, true_R),
-        final_estimate=_pose(mu_p, mu_R),
-        final_error=np.hstack([true_p - mu_p, (true_R * mu_R.inv()).as_rotvec()]),
-        sigma_final=sigma,
-        pos_err=np.linalg.norm(true_p - goal[:3], axis=1),
-        ori_err=(goal_R.inv() * true_R).magnitude(),
-        true_path=None if paths_true is None else np.stack(paths_true, axis=1),
-        estimate_path=None if paths_est is None else np.stack(paths_est, axis=1),
-        detected=detected,
-        grasp_step=grasping.step,
-        predicted=grasping.predicted,
-        capped=grasping.capped,
-    )
+    def _hold_still(self, t: int, still: np.ndarray, held: tuple) -> None:
+        """The `still` rollouts keep their poses and beliefs from before the step, unobserved."""
+        self.detected[still, t] = False
+        self.true_p, self.mu_p = np.where(still[:, None], held[0], self.true_p), np.where(
+            still[:, None], held[2], self.mu_p)
+        self.true_R = Rotation.from_quat(np.where(still[:, None], held[1], self.true_R.as_quat()))
+        self.mu_R = Rotation.from_quat(np.where(still[:, None], held[3], self.mu_R.as_quat()))
+        self.sigma = np.where(still[:, None, None], held[4], self.sigma)
+
+    def result(self) -> Rollouts:
+        """The rollouts' final values (and paths, when kept)."""
+        goal, true_p, true_R, mu_p, mu_R = self.goal, self.true_p, self.true_R, self.mu_p, self.mu_R
+        goal_R = Rotation.from_rotvec(goal[3:])
+        paths_true, paths_est = (None, None) if self.paths is None else self.paths
+        return Rollouts(
+            mode=self.mode,
+            goal=goal,
+            final_true=pose_rows(true_p, true_R),
+            final_estimate=pose_rows(mu_p, mu_R),
+            final_error=np.hstack([true_p - mu_p, (true_R * mu_R.inv()).as_rotvec()]),
+            sigma_final=self.sigma,
+            pos_err=np.linalg.norm(true_p - goal[:3], axis=1),
+            ori_err=(goal_R.inv() * true_R).magnitude(),
+            true_path=None if paths_true is None else np.stack(paths_true, axis=1),
+            estimate_path=None if paths_est is None else np.stack(paths_est, axis=1),
+            detected=self.detected,
+            grasp_step=self.grasping.step,
+            predicted=self.grasping.predicted,
+            capped=self.grasping.capped,
+        )
 
 
 def plan_metrics(model: BeliefModel, poses: np.ndarray, goal: np.ndarray, n: int, rng, mode: str,
