@@ -1,7 +1,7 @@
 """Outputs of `surestep evaluate`: table.md, raw.csv, solves.csv and boxplot.png from
 per-configuration records.
 
-A record is one line of `progress.jsonl` (see `evaluation.evaluate_configuration`):
+A record is one line of `progress.jsonl` (see `configuration_record.evaluate_configuration`):
 `metrics[mode][method][metric]` absolute values, `solves[method]` the solver's
 outcome, `pos_errors[mode][method]` / `ori_errors[mode][method]` the final position /
 orientation error of every rollout, `success[mode][method]` the share of rollouts within
@@ -124,25 +124,47 @@ def _solve_stats(records, methods) -> dict:
 
 
 def markdown(records, methods, modes, header, spec) -> str:
+    """table.md: how the run was made and how to read it, then per rollout mode the relative table,
+    the paper's Table I beside it and the absolute values; the simulated Table II; the closed
+    loop's re-plans."""
     rel, st = relative_stats(records, methods, modes), _solve_stats(records, methods)
-    n = len(records)
-    det = getattr(spec, "detection", None)
-    det_text = ("every step observes (detection disabled)" if det is None else
-                "a step observes only when the true pose is detectable: depth in "
-                f"({det.min_depth:g}, {det.max_depth:g}) m and inside the image less a "
-                f"{det.margin:g} margin"
-                + (f", probability ramping over {det.falloff:g}" if det.falloff else "")
-                + ", and the measurement too (gating); otherwise the EKF only predicts")
     gp, ga = getattr(spec, "grasp_position", math.nan), getattr(spec, "grasp_angle", math.nan)
+    lines = _introduction(records, methods, header, spec, gp, ga)
+    cols = _relative_columns()
+    plain = [LABELS[k] for k in METRICS]
+    for mode in modes:
+        lines += _relative_table(records, methods, mode, rel, st, cols)
+        lines += _beside_paper(methods, mode, rel, plain)
+        lines += _absolute_table(records, methods, mode, plain)
+    lines += table2(records, methods, modes, gp, ga)
+    lines += closed_loop(records, methods, modes)
+    return "\n".join(lines)
+
+
+def _detection_text(spec) -> str:
+    """When the rollouts observe (the evaluation file's `detection`)."""
+    det = getattr(spec, "detection", None)
+    return ("every step observes (detection disabled)" if det is None else
+            "a step observes only when the true pose is detectable: depth in "
+            f"({det.min_depth:g}, {det.max_depth:g}) m and inside the image less a "
+            f"{det.margin:g} margin"
+            + (f", probability ramping over {det.falloff:g}" if det.falloff else "")
+            + ", and the measurement too (gating); otherwise the EKF only predicts")
+
+
+def _gradient_text(spec) -> str:
+    """The gradient variant's settings (the base problem's `gradient`)."""
     grad = spec.base.gradient
-    grad_text = (f"gradient variant: {grad.optimizer} L-BFGS"
-                 + (f", {grad.steps} step() calls of up to {grad.max_iter} iterations, line search "
-                    f"{grad.line_search}" if grad.optimizer == "torch"
-                    else f", {grad.iterations} iterations")
-                 + f", trace_scale {grad.trace_scale:g}, pose_loss_weight {grad.pose_loss_weight:g}"
-                 + (f" (preset {grad.preset})" if grad.preset else ""))
-    kept = [f"configuration {r['config']} ({m}: {r['solves'][m]['kept_start']})" for r in records
-            for m in methods if "kept_start" in r["solves"].get(m, {})]
+    return (f"gradient variant: {grad.optimizer} L-BFGS"
+            + (f", {grad.steps} step() calls of up to {grad.max_iter} iterations, line search "
+               f"{grad.line_search}" if grad.optimizer == "torch"
+               else f", {grad.iterations} iterations")
+            + f", trace_scale {grad.trace_scale:g}, pose_loss_weight {grad.pose_loss_weight:g}"
+            + (f" (preset {grad.preset})" if grad.preset else ""))
+
+
+def _pace_text(records, methods, spec) -> str:
+    """How the plans were executed (`execution.pace`), with the rollout steps per plan."""
     pace = getattr(spec, "pace", "planned")
     if pace == "limits":
         steps = {m: [r["solves"][m]["rollout_steps"] for r in records
@@ -156,99 +178,126 @@ def markdown(records, methods, modes, header, spec) -> str:
         pace_text = ("**Execution**: every plan at its planned pace, one rollout step (one "
                      "observation) per plan step however large (`execution.pace: planned`, the "
                      "paper's protocol).")
-    lines = [f"# Evaluation on `{spec.path}`", "",
-             (f"{n} random configurations (seed {header['seed']}, base problem "
-              f"`{spec.base_path.name}`, horizon T = {spec.horizon}), {header['rollouts']} noisy "
-              "closed-loop rollouts per plan and rollout mode; every plan evaluated with all "
-              f"observation components; {det_text}; {grad_text}."), "",
-             ("**How the relative numbers are made.** For configuration c, method m and metric k, "
-              "let y = the method's absolute value and b = the baseline's on the same "
-              "configuration (same rollout noise draws). The per-configuration ratio is the "
-              "paper's scaling (`metrics.relative`): y / b when both are positive, 1 - (y - b) / "
-              "b when both are negative (entropies), undefined (excluded) for mixed signs. `mean` "
-              "cells are the mean of these ratios over configurations (the paper's statistic; "
-              "lower is better, baseline = 1); `med` and `p90` are their median and 90th "
-              "percentile. pos/ori = final position error ||p_T^true - p^G|| and geodesic "
-              "orientation error angle(R_T^true, R^G), mean and sample std over the rollouts of "
-              "one configuration; Tr noisy and H noisy = Tr(Sigma_T) and Gaussian entropy of the "
-              "rollouts' EKF, mean over rollouts; Tr ML and H ML = the plan's own "
-              "maximum-likelihood Sigma_T. `grasp` = share of all rollouts whose final true pose "
-              f"is within {gp * 1e3:g} mm and {ga:g} rad of the goal (the simulated Table II; "
-              "absolute, not relative)."), "",
-             ("**Failed solves** are counted in the `failed` column and are not dropped: a plan "
-              "whose solver reported failure is still rolled out and averaged in; only a method "
-              "that produced no plan at all (`no plan`) is left out of that configuration's "
-              "averages (`n` = configurations averaged)."), "",
-             pace_text, "",
-             "`kept start`: the OCP's solvers ended above the straight line they started from, "
-             "which is then the plan; the attempts' statuses "
-             "say why: " + ("; ".join(kept) if kept else "none") + ".",
-             ""]
+    return pace_text
+
+
+def _introduction(records, methods, header, spec, gp: float, ga: float) -> list[str]:
+    """The lines before the tables: the run, how the relative numbers are made, failed solves,
+    the execution and the kept starts."""
+    n = len(records)
+    det_text, grad_text = _detection_text(spec), _gradient_text(spec)
+    kept = [f"configuration {r['config']} ({m}: {r['solves'][m]['kept_start']})" for r in records
+            for m in methods if "kept_start" in r["solves"].get(m, {})]
+    pace_text = _pace_text(records, methods, spec)
+    return [f"# Evaluation on `{spec.path}`", "",
+            (f"{n} random configurations (seed {header['seed']}, base problem "
+             f"`{spec.base_path.name}`, horizon T = {spec.horizon}), {header['rollouts']} noisy "
+             "closed-loop rollouts per plan and rollout mode; every plan evaluated with all "
+             f"observation components; {det_text}; {grad_text}."), "",
+            ("**How the relative numbers are made.** For configuration c, method m and metric k, "
+             "let y = the method's absolute value and b = the baseline's on the same "
+             "configuration (same rollout noise draws). The per-configuration ratio is the "
+             "paper's scaling (`metrics.relative`): y / b when both are positive, 1 - (y - b) / "
+             "b when both are negative (entropies), undefined (excluded) for mixed signs. `mean` "
+             "cells are the mean of these ratios over configurations (the paper's statistic; "
+             "lower is better, baseline = 1); `med` and `p90` are their median and 90th "
+             "percentile. pos/ori = final position error ||p_T^true - p^G|| and geodesic "
+             "orientation error angle(R_T^true, R^G), mean and sample std over the rollouts of "
+             "one configuration; Tr noisy and H noisy = Tr(Sigma_T) and Gaussian entropy of the "
+             "rollouts' EKF, mean over rollouts; Tr ML and H ML = the plan's own "
+             "maximum-likelihood Sigma_T. `grasp` = share of all rollouts whose final true pose "
+             f"is within {gp * 1e3:g} mm and {ga:g} rad of the goal (the simulated Table II; "
+             "absolute, not relative)."), "",
+            ("**Failed solves** are counted in the `failed` column and are not dropped: a plan "
+             "whose solver reported failure is still rolled out and averaged in; only a method "
+             "that produced no plan at all (`no plan`) is left out of that configuration's "
+             "averages (`n` = configurations averaged)."), "",
+            pace_text, "",
+            "`kept start`: the OCP's solvers ended above the straight line they started from, "
+            "which is then the plan; the attempts' statuses "
+            "say why: " + ("; ".join(kept) if kept else "none") + ".",
+            ""]
+
+
+def _relative_columns() -> list[str]:
+    """The relative table's metric columns (with median and p90 columns for ROBUST metrics)."""
     cols = []
     for k in METRICS:
         cols.append("Tr ML mean" if k == "trace_ml" else LABELS[k])
         if k in ROBUST:
             cols += [LABELS[k].split()[0] + " med" if k != "trace_ml" else "Tr ML med",
                      LABELS[k].split()[0] + " p90" if k != "trace_ml" else "Tr ML p90"]
-    plain = [LABELS[k] for k in METRICS]
-    for mode in modes:
-        lines += [f"## Rollout mode `{mode}`: {MODE_TEXT[mode]}", "",
-                  "| method | " + " | ".join(cols)
-                  + " | grasp | n | failed | no plan | kept start | solve time [s] | "
-                  "iters (median) |", "|---" * (len(cols) + 8) + "|"]
-        for m in methods:
-            cells = []
-            for k in METRICS:
-                cells.append(_fmt(rel[mode][m][k]["mean"]))
-                if k in ROBUST:
-                    cells += [_fmt(rel[mode][m][k]["median"]), _fmt(rel[mode][m][k]["p90"])]
-            used = min(rel[mode][m][k]["n"] for k in METRICS)
-            succ, _ = success_share(records, mode, m)
-            lines.append(f"| {m} | " + " | ".join(cells) + f" | {_fmt(succ, '{:.0%}')} | {used} | "
-                         f"{st[m]['failed']} | {st[m]['no_plan']} | {st[m]['kept']} | "
-                         f"{_fmt(st[m]['time'], '{:.2f}')} | {_fmt(st[m]['iters'], '{:.0f}')} |")
-        lines += ["",
-                  ("Beside the paper's Table I (cells: our mean / paper; the paper gives means "
-                   f"only), mode `{mode}`:"), "",
-                  "| ours | paper | " + " | ".join(plain) + " |", "|---" * (len(plain) + 2) + "|"]
-        for m, (label, vals) in PAPER.items():
-            if m in methods:
-                cells = [f"{_fmt(rel[mode][m][k]['mean'])} / {p:.3f}"
-                         for k, p in zip(METRICS, vals)]
-                lines.append(f"| {m} | {label} | " + " | ".join(cells) + " |")
-        lines += ["",
-                  (f"Absolute values, mode `{mode}`: means over configurations (pos in mm, ori in "
-                   "mrad), then the pooled final errors of every rollout (median, 90th "
-                   "percentile, maximum) and the share of steps with an observation:"), "",
-                  "| method | " + " | ".join(plain)
-                  + " | pos med [mm] | pos p90 [mm] | pos max [mm] | "
-                  "ori med [mrad] | ori p90 [mrad] | ori max [mrad] | observed |",
-                  "|---" * (len(plain) + 8) + "|"]
-        for m in methods:
-            cells = []
-            for k in METRICS:
-                v = _values(records, mode, m, k)
-                v = v[np.isfinite(v)]
-                mean = float(np.mean(v)) if len(v) else math.nan
-                if k.startswith(("pos", "ori")):
-                    cells.append(_fmt(mean * 1e3, "{:.2f}"))
-                elif k.startswith("trace"):
-                    cells.append(_fmt(mean, "{:.3e}"))
-                else:
-                    cells.append(_fmt(mean, "{:.2f}"))
-            for key in ("pos_errors", "ori_errors"):
-                e = pooled(records, key, mode, m) * 1e3
-                cells += [_fmt(float(np.median(e)) if len(e) else math.nan, "{:.2f}"),
-                          _fmt(float(np.percentile(e, 90)) if len(e) else math.nan, "{:.2f}"),
-                          _fmt(float(np.max(e)) if len(e) else math.nan, "{:.1f}")]
-            obs = [r["detected"][mode][m] for r in records
-                   if m in r.get("detected", {}).get(mode, {})]
-            cells.append(_fmt(float(np.mean(obs)) if obs else math.nan, "{:.1%}"))
-            lines.append(f"| {m} | " + " | ".join(cells) + " |")
-        lines.append("")
-    lines += table2(records, methods, modes, gp, ga)
-    lines += closed_loop(records, methods, modes)
-    return "\n".join(lines)
+    return cols
+
+
+def _relative_table(records, methods, mode: str, rel: dict, st: dict, cols) -> list[str]:
+    """The relative table of one rollout mode (ratios to the baseline, grasp share, solves)."""
+    lines = [f"## Rollout mode `{mode}`: {MODE_TEXT[mode]}", "",
+             "| method | " + " | ".join(cols)
+             + " | grasp | n | failed | no plan | kept start | solve time [s] | "
+             "iters (median) |", "|---" * (len(cols) + 8) + "|"]
+    for m in methods:
+        cells = []
+        for k in METRICS:
+            cells.append(_fmt(rel[mode][m][k]["mean"]))
+            if k in ROBUST:
+                cells += [_fmt(rel[mode][m][k]["median"]), _fmt(rel[mode][m][k]["p90"])]
+        used = min(rel[mode][m][k]["n"] for k in METRICS)
+        succ, _ = success_share(records, mode, m)
+        lines.append(f"| {m} | " + " | ".join(cells) + f" | {_fmt(succ, '{:.0%}')} | {used} | "
+                     f"{st[m]['failed']} | {st[m]['no_plan']} | {st[m]['kept']} | "
+                     f"{_fmt(st[m]['time'], '{:.2f}')} | {_fmt(st[m]['iters'], '{:.0f}')} |")
+    return lines
+
+
+def _beside_paper(methods, mode: str, rel: dict, plain) -> list[str]:
+    """Our relative means beside the paper's Table I, one rollout mode."""
+    lines = ["",
+             ("Beside the paper's Table I (cells: our mean / paper; the paper gives means "
+              f"only), mode `{mode}`:"), "",
+             "| ours | paper | " + " | ".join(plain) + " |", "|---" * (len(plain) + 2) + "|"]
+    for m, (label, vals) in PAPER.items():
+        if m in methods:
+            cells = [f"{_fmt(rel[mode][m][k]['mean'])} / {p:.3f}"
+                     for k, p in zip(METRICS, vals)]
+            lines.append(f"| {m} | {label} | " + " | ".join(cells) + " |")
+    return lines
+
+
+def _absolute_table(records, methods, mode: str, plain) -> list[str]:
+    """The absolute values of one rollout mode: the metrics' means, the pooled final errors and
+    the share of steps observed."""
+    lines = ["",
+             (f"Absolute values, mode `{mode}`: means over configurations (pos in mm, ori in "
+              "mrad), then the pooled final errors of every rollout (median, 90th "
+              "percentile, maximum) and the share of steps with an observation:"), "",
+             "| method | " + " | ".join(plain)
+             + " | pos med [mm] | pos p90 [mm] | pos max [mm] | "
+             "ori med [mrad] | ori p90 [mrad] | ori max [mrad] | observed |",
+             "|---" * (len(plain) + 8) + "|"]
+    for m in methods:
+        cells = []
+        for k in METRICS:
+            v = _values(records, mode, m, k)
+            v = v[np.isfinite(v)]
+            mean = float(np.mean(v)) if len(v) else math.nan
+            if k.startswith(("pos", "ori")):
+                cells.append(_fmt(mean * 1e3, "{:.2f}"))
+            elif k.startswith("trace"):
+                cells.append(_fmt(mean, "{:.3e}"))
+            else:
+                cells.append(_fmt(mean, "{:.2f}"))
+        for key in ("pos_errors", "ori_errors"):
+            e = pooled(records, key, mode, m) * 1e3
+            cells += [_fmt(float(np.median(e)) if len(e) else math.nan, "{:.2f}"),
+                      _fmt(float(np.percentile(e, 90)) if len(e) else math.nan, "{:.2f}"),
+                      _fmt(float(np.max(e)) if len(e) else math.nan, "{:.1f}")]
+        obs = [r["detected"][mode][m] for r in records
+               if m in r.get("detected", {}).get(mode, {})]
+        cells.append(_fmt(float(np.mean(obs)) if obs else math.nan, "{:.1%}"))
+        lines.append(f"| {m} | " + " | ".join(cells) + " |")
+    lines.append("")
+    return lines
 
 
 def closed_loop(records, methods, modes) -> list[str]:
