@@ -6,6 +6,7 @@ No DDS here: the checks run before anything is imported or published.
 
 from __future__ import annotations
 
+import os
 import re
 
 from ..errors import SurestepError, shown
@@ -57,8 +58,6 @@ def check_domain(value, option: str = "--domain-id") -> int:
 
 def domain_id(option_value) -> int:
     """The domain: --domain-id, else ROS_DOMAIN_ID, else 0 (as every ROS 2 process)."""
-    import os
-
     if option_value is not None:
         return check_domain(option_value)
     env = os.environ.get("ROS_DOMAIN_ID", "").strip()

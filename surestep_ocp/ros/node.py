@@ -20,6 +20,8 @@ from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
+from cyclonedds.core import InstanceState, ReadCondition, SampleState, ViewState, WaitSet
+from cyclonedds.util import duration
 
 from . import messages as m
 from .dds import Bus
@@ -74,16 +76,12 @@ class Endpoints:
         self.planned_trace = bus.writer(topics.planned_trace, m.Float64)
         self.confidence = bus.writer(topics.confidence, m.Float64)
         self.status = bus.writer(topics.status, m.String)
-        from cyclonedds.core import ReadCondition, ViewState, InstanceState, SampleState, WaitSet
-
         self._waitset = WaitSet(bus.participant)
         self._waitset.attach(ReadCondition(self.tracker, SampleState.Any | ViewState.Any
                                            | InstanceState.Any))
 
     def wait_tracker(self, timeout_s: float = 0.1) -> list:
         """The tracker's new samples, waiting up to `timeout_s` for one."""
-        from cyclonedds.util import duration
-
         self._waitset.wait(duration(milliseconds=int(timeout_s * 1e3)))
         return Bus.take(self.tracker)
 

@@ -16,7 +16,7 @@ gone).
 
 from __future__ import annotations
 
-import math
+import copy
 import signal
 import sys
 import time
@@ -24,8 +24,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..errors import SurestepError
+from ..methods.planner import Planner
+from ..problem.setup import build_setup
+from .dds import Bus
 from .faults import FaultLimits
+from .loop import ServoLoop
 from .node import (Endpoints, Measured, Topics, say)
+from .servo import ServoProcess
 
 SERVO_START_S = 30.0  # [s] the servo process's start-up (Python, numpy, Cyclone) at most
 
@@ -74,9 +80,6 @@ class Serve:
 
     def prepare(self):
         """Endpoints, the arm's joints, the first plan; a SurestepError (exit 2) if no plan."""
-        from ..errors import SurestepError
-        from ..methods.planner import Planner
-
         self.ep = Endpoints(self.opts.domain, self.topics)
         arm = [n for n in self._urdf_names() if n != "jaw"]
         aliases = {v: k for k, v in self.naming.names.items()}
@@ -98,16 +101,11 @@ class Serve:
         return planner
 
     def _urdf_names(self) -> list[str]:
-        from ..problem.setup import build_setup
-
         self.setup = build_setup(self.problem)
         return list(self.setup.robot.joint_names)
 
     def _wait_for_arm(self, arm) -> np.ndarray | None:
         """The arm's measured joints (and jaw's, if it publishes them) for the start."""
-        from ..errors import SurestepError
-        from .dds import Bus
-
         say(f"serve: waiting for {self.topics.measured} (domain {self.opts.domain})")
         deadline = time.monotonic() + self.opts.wait_s
         while self.measured.latest is None:
@@ -135,8 +133,6 @@ class Serve:
     def run(self) -> int:
         for s in (signal.SIGINT, signal.SIGTERM):
             signal.signal(s, self._on_signal)
-        from .loop import ServoLoop
-
         try:
             try:
                 self.start_servo()  # its start-up alongside the first plan's
@@ -159,8 +155,6 @@ class Serve:
             self.close_servo()
 
     def start_servo(self) -> None:
-        from .servo import ServoProcess
-
         self.servo = ServoProcess({"domain": self.opts.domain, "servo_topic": self.topics.servo,
                                    "jaw_topic": self.topics.jaw_servo,
                                    "period": 1.0 / self.opts.servo_hz,
@@ -177,10 +171,6 @@ class Serve:
 def warm_up(planner) -> None:
     """One re-plan and one restart on copies of the Planner (thrown away), so that the loop's
     first ones do not pay for first calls (measured: a re-plan about 40 ms against 10-15 ms)."""
-    import copy
-
-    from ..errors import SurestepError
-
     try:
         copy.copy(planner).replan(planner.plan.poses[1], planner.setup.eval_model.noise.Sigma0,
                                   step=1)
@@ -192,42 +182,9 @@ def warm_up(planner) -> None:
         pass
 
 
-def summary_line(loop) -> str:
-    """The one line `serve: ...` of a finished run."""
-    logs = [g for g in loop.shared.logs]
-    kept = [g for g in logs if g.ok]
-    ready = np.array([(g.ready - g.arrival) * 1e3 for g in kept])
-    first = np.array([(g.first_command - g.arrival) * 1e3 for g in kept
-                      if g.first_command is not None])
-    gaps = np.diff(np.array(loop.sent_at)) * 1e3 if len(loop.sent_at) > 1 else np.zeros(1)
-    # the fault holds' own gaps are not the stream's
-    held = [h["sent_before"] - 1 for h in loop.holds if 0 < h["sent_before"] < len(loop.sent_at)]
-    held = np.array(held, int)
-    gaps = np.delete(gaps, held) if len(gaps) > len(held) else np.zeros(1)
-    span = loop.sent_at[-1] - loop.sent_at[0] if len(loop.sent_at) > 1 else math.nan
-    span -= (np.sum(np.diff(loop.sent_at)[held]) if len(held) else 0.0)  # the holds' time
-    rate = (len(loop.sent_at) - 1 - len(held)) / span if span > 0 else math.nan
-
-    def stat(a):
-        return f"{np.median(a):.1f}/{a.max():.1f}" if len(a) else "-"
-
-    err = loop.goal_error()
-    budget = "-" if loop.budget is None else f"{loop.budget * 1e3:.1f}"
-    return (f"serve: {loop.outcome}; {len(logs)} re-plans ({len(logs) - len(kept)} not played), "
-            f"ready median/worst {stat(ready)} ms, first new set-point {stat(first)} ms after "
-            f"the estimate (budget {budget} ms); servo {rate:.1f} Hz, {len(loop.sent_at)} set-points, longest gap "
-            f"{gaps.max():.1f} ms" + (" outside holds" if loop.holds else "")
-            + (f"; {len(loop.holds)} fault hold(s), "
-               f"{sum(h['resumed'] is not None for h in loop.holds)} resumed" if loop.holds else "")
-            + f"; {loop.shared.estimates} estimates"
-            + (f"; last estimate {err[0] * 1e3:.2f} mm, {err[1]:.3f} rad from the goal, "
-               f"P(grasp) {err[2]:.3f}" if err else ""))
-
-
 def stderr_flush() -> None:
     for f in (sys.stdout, sys.stderr):
         try:
             f.flush()
         except (OSError, ValueError):
             pass
-

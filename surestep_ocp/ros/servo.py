@@ -58,6 +58,11 @@ import sys
 import threading
 import time
 from collections import deque
+from multiprocessing.connection import Connection
+
+import numpy as np
+
+from .played import PlayedCurve
 
 PIPE_BUF = 4096  # a pipe write of at most this many bytes is atomic (POSIX: at least 512)
 MAX_QUEUED = 2000  # set-point reports queued here while the planner process does not read
@@ -79,7 +84,7 @@ class Publisher:
     jaw's JointState before the tick, `send(prepared)` writes them at it."""
 
     def __init__(self, bus, servo_topic: str, jaw_topic: str):
-        from . import messages as m
+        from . import messages as m  # cyclonedds: loaded on use (the tick loop runs without it)
 
         self.bus = bus
         self.servo = bus.writer(servo_topic, m.JointState)
@@ -91,7 +96,7 @@ class Publisher:
         self.arm_idx, self.jaw_idx = list(arm_idx), list(jaw_idx)
 
     def prepare(self, q, v, ns: int) -> list:
-        from .node import joint_message
+        from .node import joint_message  # cyclonedds, as messages
 
         a, j = self.arm_idx, self.jaw_idx
         out = [(self.servo, self.bus.serialized(
@@ -164,8 +169,6 @@ class Stream:
         elif kind == "hold":
             self.hold(str(msg[1]))
         elif kind == "epoch":
-            from .played import PlayedCurve
-
             _, self.epoch, self.t0, self.t0_wall_ns, q, first = msg
             self.played = PlayedCurve(self.dt, q)
             n = ticks_of(time.monotonic() - self.t0, self.period) + 1  # after now: none twice
@@ -258,10 +261,6 @@ class Stream:
 def warm_up(publisher) -> None:
     """Everything a tick runs, once, before the first epoch (imports, first calls: the first
     tick must not pay for them)."""
-    import numpy as np
-
-    from .played import PlayedCurve
-
     curve = PlayedCurve(0.05, np.zeros((3, 7)))
     q, v, _ = curve.sample(0.01)
     curve.add(1, np.ones((2, 7)), (np.zeros(7), np.zeros(7)))
@@ -293,8 +292,6 @@ def main(argv=None) -> int:
     signal.signal(signal.SIGINT, _on_signal)
     signal.signal(signal.SIGTERM, _on_signal)
     signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT, signal.SIGTERM})
-    from multiprocessing.connection import Connection
-
     argv = sys.argv[1:] if argv is None else argv
     ctl = Connection(int(argv[0]), writable=False)
     rep_fd = int(argv[1])
@@ -341,8 +338,6 @@ class ServoProcess:
             os.close(ctl_r)
             os.close(rep_w)
             signal.pthread_sigmask(signal.SIG_SETMASK, old)
-        from multiprocessing.connection import Connection
-
         self.ctl = Connection(ctl_w, readable=False)
         self.rep = Connection(rep_r, writable=False)
         self._send_lock = threading.Lock()

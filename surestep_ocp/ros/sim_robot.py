@@ -26,6 +26,10 @@ from collections import deque
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from ..evaluation.tracker import SimulatedTracker
+from ..methods.registry import run_method
+from ..model.detection import Detection
+from ..model.limits import problem_limits
 from . import messages as m
 from .dds import Bus
 from .estimate import quaternion
@@ -37,10 +41,6 @@ SERVO_SILENT_S = 0.1  # [s] servo_jp this long silent: said on stderr (the arm h
 class SimRobot:
     def __init__(self, setup, ecm_joints, arm, tracker_topic, domain, rate, seed, latency, duration,
                  faults, meshcat_hz: float = 0.0):
-        from ..evaluation.rollout import Detection
-        from ..evaluation.tracker import SimulatedTracker
-        from ..model.limits import problem_limits
-
         self.setup, self.rate, self.latency, self.duration = setup, rate, latency, duration
         self.faults, self.ecm_joints = faults, ecm_joints
         names = list(setup.robot.joint_names)
@@ -109,7 +109,6 @@ class SimRobot:
 
     def _start_view(self) -> None:
         """The Meshcat view (its server on 127.0.0.1) and the thread that updates it."""
-        from ..methods.registry import run_method
         from ..viz import server
         from ..viz.live import LiveView
 
