@@ -71,7 +71,7 @@ def no_work(monkeypatch):
     # every module that binds it on import, imported first: one first imported while it is
     # patched would keep the forbidden function for the rest of the session
     modules = [importlib.import_module(f"surestep_ocp.{name}") for name in (
-        "methods.registry", "comparison", "evaluation.evaluation", "evaluation.table2",
+        "methods.registry", "comparison", "evaluation.configuration_record", "evaluation.table2",
         "evaluation.sure_grasp", "methods.camera_move_replan")]
     for module in modules:
         monkeypatch.setattr(module, "run_method", forbidden)
