@@ -25,6 +25,7 @@ import numpy as np
 from .metrics import relative
 from .rollout import METRICS
 from ..output.plot_styles import styles_of
+from ..output.plots_motion import pyplot
 from ..output.solution import write_text_atomic
 
 LABELS = {"pos_err_mean": "pos mean", "pos_err_std": "pos std", "ori_err_mean": "ori mean",
@@ -391,11 +392,7 @@ def boxplot(records, methods, modes, path: Path, rollouts: int | None = None,
 
     Tick labels count the method's failed solves (their plans are in the boxes too).
     """
-    import matplotlib  # loaded on use: only the box plot needs it (keeps `surestep` start-up light)
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()  # (matplotlib loaded on use: keeps `surestep` start-up light)
     fig, axes = plt.subplots(1, len(modes), figsize=(1.0 + 0.75 * len(methods) * len(modes), 4.6),
                              squeeze=False, sharey=True)
     for ax, mode in zip(axes[0], modes):

@@ -10,7 +10,6 @@ import multiprocessing
 import os
 import signal
 import sys
-import uuid
 from concurrent.futures import ProcessPoolExecutor, as_completed
 
 from ..errors import SurestepError
@@ -54,67 +53,19 @@ def run_pool(todo, args, rest, jobs, finish) -> None:
 
 def dask_client(scheduler, timeout: str):
     """(client, whether we opened it) for a scheduler address (connecting within `timeout`, e.g.
-    "10s"), or a `distributed.Client` passed in."""
+    "10s"), or a `distributed.Client` passed in (`dask_cluster.py`, loaded here: the `dask` extra
+    is optional)."""
     try:
-        from distributed import Client  # optional: the `dask` extra
+        from . import dask_cluster
     except ImportError as exc:
         raise SurestepError("--scheduler needs dask.distributed (pip install "
                             f"'surestep_ocp[dask]'): {exc}") from None
-    if not isinstance(scheduler, str):
-        return scheduler, False
-    _check_scheduler_address(scheduler)
-    try:
-        return Client(scheduler, timeout=timeout, set_as_default=False), True
-    except (OSError, TimeoutError, ValueError) as exc:
-        raise SurestepError(f"--scheduler {scheduler}: cannot connect to a Dask scheduler "
-                            f"({type(exc).__name__}: {exc})") from None
-
-
-def _check_scheduler_address(scheduler: str) -> None:
-    """Refuse an address dask.distributed cannot parse before a `Client` is made of it.
-
-    A `Client` whose address fails to parse is left half-started: its `__del__` then waits 20 s
-    and prints a traceback. The checks are distributed's own parsers (scheme, then host:port).
-    """
-    from distributed.comm import registry
-    from distributed.comm.addressing import parse_address
-
-    allowed = "an address like tcp://host:8786 (or tls://, ws://, wss://, inproc://)"
-    scheme, loc = parse_address(scheduler)
-    try:
-        backend = registry.get_backend(scheme)
-    except ValueError:
-        raise SurestepError(f"--scheduler {scheduler!r}: unknown scheme {scheme!r}; "
-                            f"expected {allowed}") from None
-    try:
-        try:
-            host, port = backend.get_address_host_port(loc)
-        except NotImplementedError:  # not an IP transport (inproc): its own form and checks
-            backend.get_address_host(loc)
-            return
-    except (ValueError, TypeError) as exc:
-        raise SurestepError(f"--scheduler {scheduler!r}: not a {scheme}:// address ({exc}); "
-                            f"expected {allowed}") from None
-    if not host or not 0 < port < 65536:
-        raise SurestepError(f"--scheduler {scheduler!r}: needs a host and a port in 1..65535; "
-                            f"expected {allowed}")
+    return dask_cluster.client(scheduler, timeout)
 
 
 def run_dask(todo, args, rest, client, finish) -> None:
-    """The configurations as Dask futures on the client's cluster; records handed to `finish` as
-    they complete."""
-    from distributed import as_completed  # optional (the `dask` extra), loaded on use
+    """The configurations as Dask futures on the client's cluster (`dask_cluster.run`; the client
+    exists, so `distributed` is there); records handed to `finish` as they complete."""
+    from .dask_cluster import run
 
-    futures = []
-    tag = uuid.uuid4().hex[:8]
-    try:
-        # pure=False: every configuration is its own task; retries=1 rescues a worker lost mid-task
-        futures = [client.submit(evaluate_configuration, *args, i, *rest,
-                                 key=f"surestep-config-{i}-{tag}", pure=False,
-                                 retries=1) for i in todo]
-        with client.as_current():
-            for fut in as_completed(futures):
-                finish(fut.result())
-    except BaseException:
-        client.cancel(futures)
-        raise
+    run(todo, args, rest, client, finish)

@@ -7,8 +7,11 @@ import math
 import sys
 
 from ..errors import SurestepError
+from ..output.joint_names import PSM_ARM, joint_naming
+from .faults import FaultLimits
 from .names import (DEFAULT_ARM, DEFAULT_NAMESPACE, TRACKER_TOPIC, check_arm, check_topic,
                     domain_id)
+from .sim_faults import parse_faults
 
 MAX_SERVO_HZ = 2000.0
 
@@ -120,7 +123,6 @@ def _served_problem(path: str):
     from ..problem.load import load_problem
     from ..problem.setup import build_setup
     from ..methods.registry import closed_loop_unavailable
-    from ..output.joint_names import PSM_ARM
 
     prob = load_problem(path)
     setup = build_setup(prob)
@@ -147,9 +149,6 @@ def _budget(text: str) -> float | None:
 
 
 def cmd_serve(args) -> int:
-    from ..output.joint_names import PSM_ARM, joint_naming
-    from .faults import FaultLimits
-
     arm, tracker, domain = _names(args)
     namespace = check_topic(args.namespace, "--namespace")
     _positive(args.servo_hz, "--servo-hz", MAX_SERVO_HZ)
@@ -198,8 +197,6 @@ def cmd_sim_robot(args) -> int:
                             ">= 0 (0: until stopped)")
     if not 0 <= args.seed < 2**63:
         raise SurestepError(f"--seed: {args.seed} must be a whole number in [0, 2^63)")
-    from .sim_faults import parse_faults
-
     faults = parse_faults(args.fault or [])
     prob, setup = _served_problem(args.problem)
     _need_dds()
