@@ -60,7 +60,7 @@ compiler:
 	  || echo "no C compiler installed: the OCP runs interpreted, compiled-path tests will be skipped")
 
 # The API reference from the docstrings (pdoc, in the test extra): docs/api/index.html. `make test` builds it
-# too, into a temporary folder (tests/test_discoverable.py).
+# too, into a temporary folder (tests/test_public_surface.py).
 docs: $(STAMP)
 	$(PY) docs/api_reference.py docs/api
 

@@ -64,3 +64,15 @@ def write_problem(tmp_path: Path, default_problem_tree: dict) -> Callable[..., P
         return path
 
     return write
+
+
+@pytest.fixture(scope="session")
+def interior_setup():
+    """The default problem by the interior-point method, interpreted (no compile): the setup of
+    the real-time iteration's and the re-plan certificate's tests. Shared: do not mutate."""
+    import surestep_ocp as ss
+    from surestep_ocp.problem.setup import build_setup
+
+    problem = ss.load_problem("problems/needle_regrasp.yaml").with_solver(name="interior",
+                                                                          codegen=False)
+    return build_setup(problem)

@@ -42,3 +42,18 @@ def assert_within_limits(setup, q) -> float:
     angle = np.arccos(np.clip((np.trace(rel, axis1=1, axis2=2) - 1) / 2, -1, 1)) / (5 * H)
     assert angle.max() <= lim.tool_rotation * 1.001
     return float(speed.max())
+
+
+def assert_tool_gradients_match(rows, q, h=1e-6):
+    """The certificate's tool rows' gradients at the joints q against central differences of the
+    rows' own values (each joint of each waypoint moved by +-h)."""
+    _, tool, Jz = rows.values(q, False, [0.0])
+    G = rows.tool_gradients(np.arange(len(tool)), Jz)
+    D = np.zeros_like(G)
+    for i in range(q.size):
+        e = np.zeros(q.size)
+        e[i] = h
+        up = rows.values(q + e.reshape(q.shape), False, [0.0])[1]
+        down = rows.values(q - e.reshape(q.shape), False, [0.0])[1]
+        D[:, i] = (up - down) / (2 * h)
+    np.testing.assert_allclose(G, D, atol=1e-5 * max(1.0, np.abs(D).max()))

@@ -19,10 +19,11 @@ from surestep_ocp.evaluation.closed_loop import ClosedLoop
 from surestep_ocp.model import limits as lm
 from surestep_ocp.model.limits import evaluate_curve
 from surestep_ocp.output.certificate import INFEASIBLE
-from surestep_ocp.problem.setup import build_setup
 from surestep_ocp.ocp import certificate as cm
 from surestep_ocp.methods import planner as pm
 from surestep_ocp.ocp.certificate import NOT_CERTIFIED, certify
+
+from limit_check import assert_tool_gradients_match
 
 # the estimate at a waypoint: the plan's pose, off by millimetres and centiradians
 OFFSET = np.array([1e-3, -5e-4, 5e-4, 0.01, 0.0, -0.01])
@@ -32,10 +33,8 @@ MEASURES = ("terminal_position_m", "terminal_angle_rad", "bound_violation", "dep
 
 
 @pytest.fixture(scope="module")
-def setup():
-    problem = ss.load_problem("problems/needle_regrasp.yaml").with_solver(name="interior",
-                                                                          codegen=False)
-    return build_setup(problem)
+def setup(interior_setup):
+    return interior_setup
 
 
 @pytest.fixture(scope="module")
@@ -141,15 +140,7 @@ def test_the_tool_rows_at_a_moving_start_are_the_kinematics_differences(replans)
                                    rtol=1e-5, atol=1e-9)
         np.testing.assert_allclose(tool[2 * i + 1], turn2 / (k * lim.tool_rotation) ** 2,
                                    rtol=1e-5, atol=1e-9)
-    G = rows.tool_gradients(np.arange(len(tool)), Jz)
-    e, D = 1e-6, np.zeros_like(G)
-    for i in range(q.size):
-        d = np.zeros(q.size)
-        d[i] = e
-        up = rows.values(q + d.reshape(q.shape), False, [0.0])[1]
-        down = rows.values(q - d.reshape(q.shape), False, [0.0])[1]
-        D[:, i] = (up - down) / (2 * e)
-    np.testing.assert_allclose(G, D, atol=1e-5 * max(1.0, np.abs(D).max()))
+    assert_tool_gradients_match(rows, q)
 
 
 def test_a_replan_the_certificate_finds_infeasible_is_not_run_and_is_counted(setup, monkeypatch):

@@ -13,7 +13,6 @@ import pytest
 import surestep_ocp as ss
 from surestep_ocp.model.lie import pose_to_matrix
 from surestep_ocp.model.limits import evaluate_curve
-from surestep_ocp.problem.setup import build_setup
 
 from limit_check import H, assert_within_limits
 
@@ -23,10 +22,8 @@ OFFSET = np.array([1e-3, -5e-4, 5e-4, 0.01, 0.0, -0.01])
 
 
 @pytest.fixture(scope="module")
-def setup():
-    problem = ss.load_problem("problems/needle_regrasp.yaml").with_solver(name="interior",
-                                                                          codegen=False)
-    return build_setup(problem)
+def setup(interior_setup):
+    return interior_setup
 
 
 @pytest.fixture(scope="module")

@@ -1,4 +1,4 @@
-"""A probe of the Python API with hypothesis (issue 30): `Planner.replan` and `Problem.with_*` given
+"""The Python API under hypothesis-generated arguments: `Planner.replan` and `Problem.with_*` given
 finite, non-finite, huge, wrong-shaped, complex or non-rigid arguments either plan (from valid input
 only) or raise a `SurestepError` naming what is wrong; no other exception escapes, and a plan from
 garbage never succeeds."""

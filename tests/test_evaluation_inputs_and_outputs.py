@@ -1,5 +1,5 @@
-"""Issue 30 for `surestep evaluate` and `surestep sweep`: every entry point keeps the file reader's
-promises.
+"""`surestep evaluate` and `surestep sweep` keep the file reader's promises at every entry
+point.
 
 Inputs are never overwritten (nor written through a symbolic link), one writer per output folder, a
 resumed run uses only whole, finite records of the same settings, and a bad sweep file is a one-line

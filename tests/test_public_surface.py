@@ -1,4 +1,4 @@
-"""Discoverable (issue 29 item 6): the exports an editor and a type checker see, `py.typed` in the
+"""The public surface a user finds: the exports an editor and a type checker see, `py.typed` in the
 wheel, the API reference built from the docstrings, the CHANGELOG, every CLI argument with help
 text."""
 

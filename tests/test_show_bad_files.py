@@ -1,4 +1,4 @@
-"""`surestep show` keeps the file reader's promises (issue 30): no NaN or Infinity reaches the
+"""`surestep show` keeps the file reader's promises: no NaN or Infinity reaches the
 scene, every number it reads is finite and within the problem reader's ranges, and the work is
 bounded (the solution file, the URDFs read: regular files of bounded size, never a device or a
 pipe); each refusal is one line, exit 2."""

@@ -1,4 +1,4 @@
-"""`surestep export` keeps the file reader's promises (issue 30): every malformed or extreme
+"""`surestep export` keeps the file reader's promises: every malformed or extreme
 solution file or option is a one-line error naming the file or the flag, exit code 2, and nothing is
 written; no NaN or Infinity reaches an output; the work is bounded (waypoints, samples, the URDF
 read)."""
