@@ -287,22 +287,21 @@ def _multipliers(g: np.ndarray, B_A: np.ndarray, B_E: np.ndarray, start: int
     return lam, nu, r
 
 
-def prepare_replans(setup: Setup) -> float:
+def prepare_replans(setup: Setup) -> None:
     """Build now what certifying a re-plan over `setup`'s horizon from a moving start uses: the
     padded Function of its horizon's bucket, its limit rows' structure and their tool rates' map,
     the Functions compiled (or loaded from the compile cache) where the problem's codegen allows.
     The Planner calls it for every horizon it may re-plan over, so that no build or compile (about
-    1 s) falls inside a re-planning loop. Returns the seconds it took."""
-    t0, built = time.perf_counter(), [0.0]
+    1 s) falls inside a re-planning loop (its time is the Planner's build time)."""
+    built = [0.0]
     if setup.ocp.horizon <= 0:
-        return 0.0
+        return
     codegen = setup.ocp.solver.codegen
     _function(setup, built, padded=True).settle(codegen, built)
     _layout(setup, built)
     if setup.ocp.limits.enforce:
         zero = [0.0] * setup.robot.nq
         _rows(setup, StartState(zero, zero)).rate.settle(codegen, built)
-    return time.perf_counter() - t0
 
 
 def claims_optimum(method: str) -> bool:

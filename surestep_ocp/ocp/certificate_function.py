@@ -47,21 +47,22 @@ class _Function:
     def current(self, codegen, built: list[float]) -> ca.Function:
         """The Function to evaluate now (`built[0]` += the seconds a compile or load took)."""
         self.uses += 1
-        if not self.settled and self.uses >= COMPILE_AFTER:
-            self.settled = True
-            if codegen is True or (codegen == "auto" and compiler_available()):
-                t0 = time.perf_counter()
-                name = self.fn.name()
-                fns, self.note = compiled_or_interpreted({name: self.fn}, required=False)
-                self.fn, self.compiled = fns[name], self.note is None
-                built[0] += time.perf_counter() - t0
+        if self.uses >= COMPILE_AFTER:
+            self.settle(codegen, built)
         return self.fn
 
     def settle(self, codegen, built: list[float]) -> None:
-        """Compiled (or loaded) now where `codegen` allows, as at its `COMPILE_AFTER`-th use."""
-        self.uses = max(self.uses, COMPILE_AFTER - 1)
-        self.current(codegen, built)
-        self.uses -= 1  # (not a use)
+        """Compiled (or loaded) now, once, where `codegen` allows: at its `COMPILE_AFTER`-th use,
+        or before a re-planning loop (`certificate.prepare_replans`)."""
+        if self.settled:
+            return
+        self.settled = True
+        if codegen is True or (codegen == "auto" and compiler_available()):
+            t0 = time.perf_counter()
+            name = self.fn.name()
+            fns, self.note = compiled_or_interpreted({name: self.fn}, required=False)
+            self.fn, self.compiled = fns[name], self.note is None
+            built[0] += time.perf_counter() - t0
 
 
 _FUNCTIONS: dict[tuple, _Function] = {}
