@@ -11,6 +11,7 @@ import sys
 from pathlib import Path
 
 from .errors import SolverError, SurestepError
+from .status import Status
 
 
 def _load(path: str):
@@ -57,8 +58,7 @@ def _summary(sol, base=None) -> str:
         f"status      {sol.status} ({'success' if sol.success else 'FAILED'})",
         f"iterations  {sol.iterations}",
         f"solve time  {sol.solve_time_s:.3f} s",
-        f"Tr(Sigma_T) {sol.trace_final:.4e}",
-    ]
+        f"Tr(Sigma_T) {sol.trace_final:.4e}"]
     if duration_note(sol):
         lines.append(f"duration    {duration_note(sol)}")
     if base is not None and base is not sol:
@@ -77,7 +77,7 @@ def _summary(sol, base=None) -> str:
     if sol.run.codegen_note:
         lines.append("note        solver.codegen auto: "
                      f"{sol.run.codegen_note.splitlines()[0]}")
-    if sol.status == "Initial_Guess_Kept":
+    if sol.status == Status.INITIAL_GUESS_KEPT:
         lines.append("warning     every point the solvers converged to was worse than the initial "
                      "guess, which is returned (a poor local optimum; see docs/orientation.md)")
     if sol.run.worse_than_initial_guess:

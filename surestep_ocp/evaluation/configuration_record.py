@@ -18,6 +18,7 @@ from .closed_loop import ClosedLoop
 from .configs import ConfigurationSampler, load_evaluation
 from .pacing import paced
 from .rollout import MODES, plan_metrics
+from ..status import Status
 
 _SAMPLERS: dict = {}
 
@@ -77,7 +78,7 @@ def evaluate_configuration(eval_path: str, seed: int, index: int, methods: tuple
         cache[name] = sol
         solve = {"success": sol.success, "status": sol.status, "solve_time_s": sol.solve_time_s,
                  "iterations": sol.iterations, "evaluated": True}
-        if sol.status == "Initial_Guess_Kept":  # why: what every solver attempt ended with
+        if sol.status == Status.INITIAL_GUESS_KEPT:  # why: what every solver attempt ended with
             solve["kept_start"] = ("; ".join(f"{a.label}: {a.status}" for a in sol.attempts)
                                    or sol.run.solver or "")
         try:

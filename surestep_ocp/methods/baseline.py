@@ -21,6 +21,7 @@ from ..output.export_timing import PchipPath, ToolSpeed, planned_curve, toppra_g
 from ..problem.setup import Setup
 from ..output.solution import Solution, evaluate
 from ..ocp.straight_line import TIME_LAWS, straight_line
+from ..status import Status
 
 
 def reachability(setup: Setup, poses: np.ndarray) -> tuple[list, dict]:
@@ -62,7 +63,7 @@ def constant_pace(T: int) -> np.ndarray:
 # The laws the baseline tries in turn within enforced limits: its own constant pace, then TIME_LAWS.
 BASELINE_LAWS = (("constant-pace", constant_pace), *TIME_LAWS)
 MAX_STEPS = 4000  # the longest baseline searched within the limits (200 s at 0.05 s per step)
-LENGTHENED = "Duration_Lengthened"  # the status of a baseline in more steps than the horizon
+LENGTHENED = Status.DURATION_LENGTHENED  # the status of a baseline in more steps than the horizon
 PATH_POINTS = 50  # points of the line (by IK) that toppra's path interpolates
 FREE_CLOCK = 1e3  # toppra's bound on the path parameter's own speed and acceleration: never binding
 

@@ -26,8 +26,9 @@ from ..model.grasp import grasp_probability
 from ..model.lie import np_means
 from ..output.solution import Solution
 from ..problem.setup import Setup
+from ..status import Status
 
-NOT_REACHED = "Confidence_Not_Reached"
+NOT_REACHED = Status.CONFIDENCE_NOT_REACHED
 
 
 def at_horizon(setup: Setup, steps: int) -> Setup:

@@ -26,6 +26,7 @@ from ..ocp.straight_line import straight_line
 from ..solvers.newton import EXACT_MAX_N
 from ..solvers.nlp_cache import newton_solver, transcription
 from ..solvers.strategy import default_strategy, record, run
+from ..status import Status
 
 __all__ = ["ocp_initial_guess", "resolved_solver", "solve_ocp", "solve_ocp_warm"]
 
@@ -82,7 +83,7 @@ def solve_ocp_warm(setup: Setup, init: InitialGuess, solver_options: dict | None
         # PSD cone (docs/general_models.md).
         pre = solve_ocp_warm(setup, init, solver_options, method, "condensed")[0]
         # no stationary point to start the lifted NLP from: the same plan
-        if pre.status == "Initial_Guess_Kept":
+        if pre.status == Status.INITIAL_GUESS_KEPT:
             pre.run = replace(pre.run, lifted=("not run: the condensed solve kept its start, where "
                                                "the lifted NLP does not converge "
                                                "(docs/general_models.md)"))
@@ -205,7 +206,7 @@ def _second_start(setup: Setup, cold: InitialGuess, sol: Solution, last, solver_
         approx = newton_solver(diag).solve(diag, cold, method, tol=spec.tol,
                                            max_iter=min(GATE_ITER, spec.max_iter))
     extra_time, extra_it = approx.solve_time_s, approx.iterations
-    ahead = (approx.success and approx.status != "Initial_Guess_Kept"
+    ahead = (approx.success and approx.status != Status.INITIAL_GUESS_KEPT
              and _objective_at(setup, sol, approx) < sol.objective)
     # the diagonal plan itself scores below the first plan: worth a Newton run from it
     gate = SecondStart(approx.status, approx.iterations, approx.solve_time_s, bool(ahead))
@@ -221,7 +222,7 @@ def _second_start(setup: Setup, cold: InitialGuess, sol: Solution, last, solver_
                        newton_objective=second.objective)
         extra_time += second.solve_time_s
         extra_it += second.iterations
-        if (not second.success and second.status == "Maximum_Iterations_Exceeded"
+        if (not second.success and second.status == Status.MAXIMUM_ITERATIONS_EXCEEDED
             and second.objective < sol.objective):
             # Newton's surrogate converges linearly on the 6x6 recursion; a better unfinished point
             # is finished by IPOPT (same surrogate Hessian, with the depth bound)

@@ -52,6 +52,7 @@ from .replan_inputs import (checked_camera_pose, checked_estimate, checked_goal,
 from .replan_solvers import CERTIFIED_SETUP as _SETUP
 from .replan_solvers import replan_solution
 from .replan_without_limits import remaining_problem, replan_without_limits
+from ..status import Status
 
 # a re-plan's first barrier parameter: its few iterations end well inside the rows, which leaves the
 # next frame's correction room (measured against 1e-4 and others: docs/realtime.md)
@@ -330,7 +331,7 @@ class Planner(RealTimeIteration):
         if sol is None:
             sol = self._full(cov, registered, q_goal, reachable, step, start)
             if not reachable:  # no plan tried (the goal's IK residual is in the log)
-                sol.success, sol.status = False, "Goal_Unreachable"
+                sol.success, sol.status = False, Status.GOAL_UNREACHABLE
                 sol.extras["goal_ik_residual"] = unreached or {"m": float(res_m),
                                                                "rad": float(res_rad)}
         if unreached is not None and reachable:

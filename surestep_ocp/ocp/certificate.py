@@ -52,6 +52,7 @@ from .certificate_ekf import _MAPS  # noqa: F401
 from .certificate_function import _FUNCTIONS, padded_steps  # noqa: F401
 from .certificate_rows import (_LAYOUTS, _LIMITS, _RATES, _ROWS, PAD_POINTS,  # noqa: F401
                                _Layout, _limits, _Rows)
+from ..status import Status
 
 FEASIBILITY = 1e-6  # IPOPT's acceptable_constr_viol_tol (nlp_cache.solver_options)
 ACCEPTABLE = 1e-3  # IPOPT's acceptable_tol where the problem stops at that level (ENFORCED_OPTIONS)
@@ -326,4 +327,4 @@ def judge(setup: Setup, sol: Solution, gate: bool = True) -> Solution:
     return sol
 
 
-NOT_CERTIFIED = "Not_Certified"
+NOT_CERTIFIED = Status.NOT_CERTIFIED

@@ -55,6 +55,7 @@ from .iterate import InitialGuess, PrimalDual
 from .staged_derivatives import staged_derivatives
 from .surrogate import pose_function, scalar_trace
 from .transcription_limits import add_limit_rows
+from ..status import Status
 
 
 class _Layout:
@@ -302,7 +303,7 @@ class Transcription:
             return None
         q = np.asarray(init.q, float)
         return evaluate(setup, method, setup.poses_of(q), list(q), success=True,
-                        status="Initial_Guess_Kept", solve_time_s=0.0, iterations=0,
+                        status=Status.INITIAL_GUESS_KEPT, solve_time_s=0.0, iterations=0,
                         objective=trace_ref,
                         run=SolveRecord(solver="ipopt", init=init.source,
                                         covariance_form=self.form,
@@ -356,7 +357,8 @@ def ipopt_solution(tr, setup: Setup, method: str, init, warm, q: np.ndarray, res
     poses = setup.poses_of(q)
     sol = evaluate(
         setup, method, poses, list(q),
-        success=bool(stats["success"]), status=str(stats["return_status"]), solve_time_s=solve_s,
+        success=bool(stats["success"]), status=Status.of(stats["return_status"]),
+        solve_time_s=solve_s,
         iterations=int(stats["iter_count"]), objective=float(res["f"]) * trace_ref,
         run=SolveRecord(
             solver="ipopt",

@@ -17,6 +17,7 @@ from ..model.lie import matrix_to_pose, np_angle, np_exp_many, np_log_many, pose
 from ..model.limits import LimitsReport, SkippedReport, read_report, recorded_limits
 from ..problem.scene import ArmRecord
 from ..problem.setup import Setup
+from ..status import Status
 from .attempt_record import AttemptRecord
 from .certificate import Certificate
 from .files import check_finite, check_replaceable
@@ -41,8 +42,9 @@ class Solution:
     # baseline's and the gradient variants' own (a completed plan, not an optimum)
     success: bool
     # the outcome: the backend's status, or `Not_Certified` when it claimed a success that the
-    # certificate does not confirm (then `backend_status` holds the claim)
-    status: str
+    # certificate does not confirm (then `backend_status` holds the claim); a `Status` for every
+    # solver and verdict, a sentence for the baseline and the gradient variant (status.py)
+    status: Status | str
     solve_time_s: float
     iterations: int
     horizon: int

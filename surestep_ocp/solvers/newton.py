@@ -58,6 +58,7 @@ from ..ocp.surrogate import interval_terms, pose_function, recursion_weights
 from .newton_barrier import BOUND_PUSH, TAU_MIN, BarrierRun  # noqa: F401
 from .newton_run import NewtonRun, _backtrack, _scale, parameters
 from .newton_secant import _SecantCorrection
+from ..status import Status
 
 # projected gradient (objective 1 at the start) below which Newton tries the exact Hessian
 EXACT_BELOW = 1e-3
@@ -268,8 +269,8 @@ class NewtonSolver(BarrierRun):
         # the objective is 1 (plus smoothness) at the start: its scale is the start's trace (by
         # `fz`: no derivatives)
         P[CAMERA_PARAMETERS] = trace_ref = _scale(float(self.fz(x, P)[2][0]))
-        status, it, shift = ("Maximum_Iterations_Exceeded" if start_ok
-                             else "Infeasible_Start"), 0, 0.0
+        status, it, shift = (Status.MAXIMUM_ITERATIONS_EXCEEDED if start_ok
+                             else Status.INFEASIBLE_START), 0, 0.0
         exact_steps, secant_steps, history = 0, 0, []
         secant, previous = None, None  # the end-game's correction; the last point and its gradient
         while start_ok and it <= max_iter:
@@ -279,7 +280,7 @@ class NewtonSolver(BarrierRun):
             if (len(history) > STALL_WINDOW
                 and history[-STALL_WINDOW - 1] - f_val <= STALL_DECREASE * abs(f_val)):
                 # not converged, and not getting there: the caller's fallback, not the cap
-                status = "Stalled"
+                status = Status.STALLED
                 break
             g = np.bincount(self.g_index, weights=G, minlength=n)
             # the secant pair of the last step, against the surrogate at the new point
@@ -290,13 +291,13 @@ class NewtonSolver(BarrierRun):
             held = ((x <= lo) & (g > 0)) | ((x >= hi) & (g < 0))
             idx = np.flatnonzero(free & ~held)
             if np.max(np.abs(g[idx]), initial=0.0) <= tol:
-                status = "Solve_Succeeded"
+                status = Status.SOLVE_SUCCEEDED
                 break
             if it == max_iter:
                 break
             pg = np.max(np.abs(g[idx]), initial=0.0)
             if pg <= DEPTH_CHECK_BELOW and float(depth[0]) < setup.ocp.min_depth:
-                status = "Depth_Bound_Violated"
+                status = Status.DEPTH_BOUND_VIOLATED
                 break
             d = (self._exact_step(x, P, HB, g, idx) if pg <= exact_below and self.curv is not None
                  else None)
@@ -308,7 +309,7 @@ class NewtonSolver(BarrierRun):
                     secant = _SecantCorrection(n)
                 step = self._surrogate_step(HB, g, idx, shift, secant)
                 if step is None:
-                    status = "Singular_Hessian"
+                    status = Status.SINGULAR_HESSIAN
                     break
                 d, shift, corrected = step
                 secant_steps += corrected
@@ -327,7 +328,7 @@ class NewtonSolver(BarrierRun):
 
             trial = _backtrack(1.0, projected)
             if trial is None:
-                status = "Line_Search_Failed"
+                status = Status.LINE_SEARCH_FAILED
                 break
             x, it = trial, it + 1
         return self._end(setup, x, P, trace_ref, status, it, exact_steps, t0, secant_steps)
@@ -394,8 +395,8 @@ class NewtonSolver(BarrierRun):
         mu = setup.means_of(q)  # means (p, Q), evaluated in place
         terminal = float(np.max(np.abs(mu[T] - setup.m_goal)))
         depth = float(max(0.0, setup.ocp.min_depth - mu[:, 2].min()))
-        if status == "Solve_Succeeded" and (depth > 0 or terminal > 1e-9):
-            status = "Depth_Bound_Violated" if depth > 0 else "Terminal_Pose_Not_Met"
+        if status == Status.SOLVE_SUCCEEDED and (depth > 0 or terminal > 1e-9):
+            status = Status.DEPTH_BOUND_VIOLATED if depth > 0 else Status.TERMINAL_POSE_NOT_MET
         solve_s = time.perf_counter() - t0
         f_y, _, s_y = self.fz(x, P)
         trace, f_val = float(s_y[0]), float(f_y[0])

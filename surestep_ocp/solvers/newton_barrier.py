@@ -17,6 +17,7 @@ import numpy as np
 from ..model.robot import CAMERA_PARAMETERS
 from ..problem.setup import Setup
 from .newton_run import NewtonRun, _backtrack, _scale
+from ..status import Status
 
 # `run_barrier`: IPOPT's defaults for its barrier problem and the monotone update (mu_init,
 # barrier_tol_factor, mu_linear_decrease_factor, mu_superlinear_decrease_power, tau_min, bound_push
@@ -80,7 +81,7 @@ class BarrierRun:
         m, it, shift = MU_INIT, 0, 0.0
         mu_min = tol / 10
         start_ok = start_ok and np.isfinite(bar.merit(x, m)[0])
-        status = "Maximum_Iterations_Exceeded" if start_ok else "Infeasible_Start"
+        status = Status.MAXIMUM_ITERATIONS_EXCEEDED if start_ok else Status.INFEASIBLE_START
         while start_ok and it <= max_iter:
             _, f_val, G, HB, _ = self.step(x, P)
             z, g, gb, band = self._barrier_derivatives(x, P, G, bar)
@@ -90,14 +91,14 @@ class BarrierRun:
                 m = max(mu_min, min(KAPPA_MU * m, m ** THETA_MU))
                 err = np.max(np.abs(g[idx] + m * gb[idx]))
             if m <= mu_min and err <= tol:
-                status = "Solve_Succeeded"
+                status = Status.SOLVE_SUCCEEDED
                 break
             if it == max_iter:
                 break
             gm = g + m * gb
             step = self._surrogate_step(HB, gm, idx, shift, band_extra=m * band)
             if step is None:
-                status = "Singular_Hessian"
+                status = Status.SINGULAR_HESSIAN
                 break
             d, shift, _ = step
             tau = max(TAU_MIN, 1.0 - m)
@@ -116,7 +117,7 @@ class BarrierRun:
 
             trial = _backtrack(alpha, barrier_step)
             if trial is None:
-                status = "Line_Search_Failed"
+                status = Status.LINE_SEARCH_FAILED
                 break
             x, it = trial, it + 1
         return self._end(setup, x, P, trace_ref, status, it, 0, t0)

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..problem.setup import Setup
+from ..status import Status
 
 
 def parameters(setup: Setup) -> np.ndarray:
@@ -28,7 +29,7 @@ class NewtonRun:
 
     q: np.ndarray  # (T+1, nq) joints
     poses: np.ndarray  # (T+1, 6) planned poses [m, rad], camera frame
-    status: str
+    status: Status
     iterations: int
     exact_steps: int
     objective: float  # Tr(Sigma_T) of the planning model plus smoothness
@@ -40,7 +41,7 @@ class NewtonRun:
 
     @property
     def success(self) -> bool:
-        return self.status == "Solve_Succeeded"
+        return self.status == Status.SOLVE_SUCCEEDED
 
 
 def _scale(trace: float) -> float:

@@ -19,15 +19,17 @@ from .backends import BACKENDS, Context, Outcome
 from ..ocp.iterate import InitialGuess, Iterate
 from .newton import EXACT_BELOW
 from .nlp_cache import LIFTED_FROM_CONDENSED
+from ..status import Status
 
-DEPTH = "Depth_Bound_Violated"
-INFEASIBLE = "Infeasible_Problem_Detected"
+DEPTH = Status.DEPTH_BOUND_VIOLATED
+INFEASIBLE = Status.INFEASIBLE_PROBLEM_DETECTED
 # IPOPT statuses that, from a feasible start, say more about the barrier's path than about the
 # problem
-FALSE_VERDICTS = ("Infeasible_Problem_Detected", "Restoration_Failed", "Error_In_Step_Computation")
+FALSE_VERDICTS = (Status.INFEASIBLE_PROBLEM_DETECTED, Status.RESTORATION_FAILED,
+                  Status.ERROR_IN_STEP_COMPUTATION)
 MONOTONE = {"ipopt.mu_strategy": "monotone"}
 # Newton's ends the switch may change
-HANDOVER = ("Stalled", "Maximum_Iterations_Exceeded", "Line_Search_Failed")
+HANDOVER = (Status.STALLED, Status.MAXIMUM_ITERATIONS_EXCEEDED, Status.LINE_SEARCH_FAILED)
 
 
 class Start(Enum):

@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from ...errors import SurestepError
+from ...status import Status
 
 # [rad/s^2, m/s^2] the dVRK's move_jp trajectory acceleration limits (sawIntuitiveResearchKit,
 # core/components/code/mtsIntuitiveResearchKitPSM.cpp, Init: a_max 90 deg/s^2 for yaw and pitch,
@@ -40,7 +41,7 @@ JAW = "jaw"
 INSERTION = "insertion"  # the PSM's prismatic joint along the shaft (through the RCM)
 # a value counts as over its limit beyond limit * (1 + REL_TOL) (IPOPT meets bounds to ~1e-8)
 REL_TOL = 1e-6
-VIOLATED = "Motion_Limits_Violated"
+VIOLATED = Status.MOTION_LIMITS_VIOLATED
 PROBLEM_SOURCE = "problem file"  # the source of a limit set by the problem's `limits:` section
 
 

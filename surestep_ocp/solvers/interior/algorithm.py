@@ -20,6 +20,7 @@ from .line_search import line_search
 from .options import ACCEPTABLE_CHANGE, RELAXED_MAX, InteriorOptions
 from .record import InteriorRun, IterationRecord
 from .rows import RowsPart, RunRows
+from ...status import Status
 
 
 @dataclass
@@ -32,7 +33,7 @@ class _State:
     s: np.ndarray  # the rows' slacks, c + rho
     w: np.ndarray  # the multipliers
     m: float  # the barrier parameter
-    status: str
+    status: Status
     start_ok: bool
     m_last: float = 0.0  # the last iteration's barrier parameter
     it: int = 0
@@ -139,11 +140,11 @@ def _start(ip, setup, init, v0, a0, warm, o: InteriorOptions) -> tuple[RunRows, 
     w = (np.asarray(warm, float).copy() if warm is not None and len(warm) == nc else m / s)
     if warm is not None and len(warm) == nc:
         w = safeguard(w, m, s)
-    status = "Maximum_Iterations_Exceeded" if start_ok else "Infeasible_Start"
+    status = Status.MAXIMUM_ITERATIONS_EXCEEDED if start_ok else Status.INFEASIBLE_START
     if start_ok and nb == 0:
         # nothing free (a one-step plan): the start is the plan, within every row or not (else
         # the relaxation shrinks towards a slack of 0, and w / s overflows)
-        status = "Solve_Succeeded" if np.all(c > 0) else "Infeasible_Problem_Detected"
+        status = Status.SOLVE_SUCCEEDED if np.all(c > 0) else Status.INFEASIBLE_PROBLEM_DETECTED
         start_ok = False
     return rows, _State(x, c, rho, s, w, m, status, start_ok, m_last=m), trace_ref
 
@@ -165,7 +166,7 @@ def _iteration(ip, rows: RunRows, st: _State, o: InteriorOptions, history: list)
         return False
     sig, factor = reduced_factor(ip, rows, d, st.w, st.s, st.end_game, st.shift)
     if factor is None:
-        st.status = "Singular_Hessian"
+        st.status = Status.SINGULAR_HESSIAN
         return False
     solve, st.shift, band_factor, fixed = factor
     # the tool rows' exact curvature from the end-game on (Gauss-Newton's can stall there)
@@ -195,13 +196,13 @@ def _step(st: _State, found, dx, dw, az, socs, o: InteriorOptions) -> bool:
     longer shrinks)."""
     rho, x, nc = st.rho, st.x, st.nc
     if found is None:
-        st.status = "Infeasible_Problem_Detected" if rho.any() else "Line_Search_Failed"
+        st.status = Status.INFEASIBLE_PROBLEM_DETECTED if rho.any() else Status.LINE_SEARCH_FAILED
         return False
     st.last_step = float(np.max(np.abs(found[0] - x)) / max(float(np.max(np.abs(dx))), 1e-300))
     st.stuck = st.stuck + 1 if rho.any() and found[2] < o.stuck_step else 0
     if st.stuck == o.stuck_iter:
         # the relaxation no longer shrinks: no point within every row near here
-        st.status = "Infeasible_Problem_Detected"
+        st.status = Status.INFEASIBLE_PROBLEM_DETECTED
         return False
     x, c = found[0], found[1]
     rho = (1.0 - found[2]) * rho if found[2] < 1.0 else np.zeros(nc)

@@ -7,6 +7,7 @@ import numpy as np
 
 from .line_search import _to_boundary
 from .options import FEASIBLE
+from ...status import Status
 
 
 def safeguard(w: np.ndarray, m: float, s: np.ndarray) -> np.ndarray:
@@ -30,7 +31,7 @@ def end_status(status, gap, err_d, is_stalled, rho, c, it, relaxed_its, options)
     steps that shrank a relaxation not counted, up to `relaxed_max`)."""
     o = options
     if gap <= o.mu_final and (err_d <= o.tol or is_stalled) and not rho.any():
-        return "Solve_Succeeded" if err_d <= o.tol else "Solved_To_Acceptable_Level"
+        return Status.SOLVE_SUCCEEDED if err_d <= o.tol else Status.SOLVED_TO_ACCEPTABLE_LEVEL
     if (it - (relaxed_its if o.feasible_ok else 0) == o.max_iter
             or (o.feasible_ok and relaxed_its >= o.relaxed_max)):
         if o.feasible_ok and not rho.any() and np.all(c > 0):

@@ -4,6 +4,7 @@ keyword arguments and the constants, with their defaults)."""
 from __future__ import annotations
 
 from dataclasses import dataclass
+from ...status import Status
 
 MU_INIT = 0.1  # IPOPT's mu_init (the objective is 1 at the start)
 # The last barrier parameter (IPOPT's mu_min): the barrier's optimum is above the problem's by up to
@@ -17,7 +18,7 @@ ACCEPTABLE_CHANGE, ACCEPTABLE_ITER = 1e-9, 3
 # `feasible_ok`: a run that reaches max_iter with every row kept (not relaxed) ends with this
 # status, a success: its plan keeps every limit and reaches the goal, not yet optimal (a re-planning
 # loop's iteration budget)
-FEASIBLE = "Feasible_Point_Found"
+FEASIBLE = Status.FEASIBLE_POINT_FOUND
 # with `feasible_ok`, the steps that shrink a relaxation do not count against max_iter, up to this
 # many
 RELAXED_MAX = 30

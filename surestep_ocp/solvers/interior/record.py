@@ -9,6 +9,7 @@ import numpy as np
 
 from ..newton import NewtonRun
 from .options import FEASIBLE
+from ...status import Status
 
 
 @dataclass(frozen=True)
@@ -45,7 +46,7 @@ class InteriorRun(NewtonRun):
 
     @property
     def success(self) -> bool:
-        return self.status in ("Solve_Succeeded", "Solved_To_Acceptable_Level", FEASIBLE)
+        return self.status in (Status.SOLVE_SUCCEEDED, Status.SOLVED_TO_ACCEPTABLE_LEVEL, FEASIBLE)
 
     def log(self) -> str:
         """The iterations' records as `verbose` printed them."""
