@@ -229,6 +229,10 @@ def load_interior(rev: str):
     other = importlib.util.module_from_spec(spec)
     sys.modules[spec.name] = other
     spec.loader.exec_module(other)
+    # what this revision's backend calls and an older class lacks (issue 45's solver boundary)
+    from surestep_ocp.solvers.interior import InteriorNewton
+    if not hasattr(other.InteriorNewton, "solution"):
+        other.InteriorNewton.solution = InteriorNewton.solution
     return other
 
 

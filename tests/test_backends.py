@@ -42,7 +42,8 @@ def plans(small):
     setup, ctx = small
     init = ocp_initial_guess(setup)
     return {"newton": BACKENDS["newton"].solve(ctx, init, None, None, {}),
-            "ipopt": BACKENDS["ipopt"].solve(ctx, init, None, "exact", {"ipopt.tol": 1e-10})}
+            "ipopt": BACKENDS["ipopt"].solve(replace(ctx, options={"ipopt.tol": 1e-10}), init,
+                                             None, "exact", {})}
 
 
 @pytest.mark.parametrize("key", list(BACKENDS))

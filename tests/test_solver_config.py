@@ -11,6 +11,7 @@ command line runs in this process (`cli.main`, as tests/test_bad_input.py does):
 from __future__ import annotations
 
 from dataclasses import replace
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -19,6 +20,8 @@ from surestep_ocp import cli
 from surestep_ocp.errors import ProblemError
 from surestep_ocp.model.belief import BeliefModel
 from surestep_ocp.problem.solver_config import Form, Hessian, SolverName, resolve
+from surestep_ocp.solvers.backends import Context
+from surestep_ocp.solvers.strategy import first_backend
 
 CORRELATED = np.diag([1e-2, 1e-2, 1e-1, 5e-3, 5e-3, 5e-3])
 CORRELATED[0, 2] = CORRELATED[2, 0] = 2e-2  # a depth noise correlating x and z: no scalar recursion
@@ -110,7 +113,10 @@ def test_accepted_choices_resolve_as_documented(default_problem, solver, noise, 
     """What runs for accepted choices (docs/hessian_and_newton.md): form, Hessian, forced, Newton
     fits, Newton first; written here from the documented rules."""
     r = resolve(spec(default_problem, **solver), model(default_problem, **noise), joints)
-    assert (r.form, r.hessian, r.forced, r.newton_fits, r.newton_first) == expected
+    first = first_backend(Context(SimpleNamespace(ocp=SimpleNamespace(
+        limits=SimpleNamespace(enforce=False))), r, "ocp", {}))
+    newton_first = first is not None and first.name == "newton"
+    assert (r.form, r.hessian, r.forced, r.newton_fits, newton_first) == expected
     assert r.form in {f.value for f in Form} and r.hessian in {h.value for h in Hessian}
 
 

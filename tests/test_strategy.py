@@ -22,7 +22,9 @@ from surestep_ocp.problem.load import load_problem
 from surestep_ocp.problem.setup import build_setup
 from surestep_ocp.problem.solver_config import ResolvedSolver, SolverName
 from surestep_ocp.solvers import strategy
-from surestep_ocp.solvers.backends import Context, Outcome
+from surestep_ocp.solvers.backends import BACKENDS, Context, Outcome
+from surestep_ocp.solvers.backends.base import why_not
+from surestep_ocp.solvers.backends.ipopt import ipopt_options
 from surestep_ocp.ocp.iterate import InitialGuess, Iterate, PrimalDual
 from surestep_ocp.solvers.nlp_cache import LIFTED_FROM_CONDENSED
 from surestep_ocp.output.solution_records import SolveRecord
@@ -296,22 +298,28 @@ def test_default_strategy_caps_and_barrier_options():
     lifted start's small barrier."""
     steps = default_strategy(context(resolved(), surrogate_max_iter=40), None, False, False)
     by_label = {s.label: s for s in reversed(steps)}  # the first of two same labels
-    assert by_label["surrogate"].options == {"ipopt.max_iter": 40}
-    assert by_label["surrogate, monotone barrier"].options == {"ipopt.max_iter": 40,
-                                                               **strategy.MONOTONE}
+    assert by_label["surrogate"].options == {"max_iter": 40}
+    assert by_label["surrogate, monotone barrier"].options == {"max_iter": 40,
+                                                               "barrier_update": "monotone"}
     assert (by_label["exact"].options == {}
-            and by_label["exact, monotone barrier"].options == strategy.MONOTONE)
-    assert by_label["newton, depth barrier"].options == {"barrier": True}
+            and by_label["exact, monotone barrier"].options == {"barrier_update": "monotone"})
+    assert by_label["newton, depth barrier"].options == {"depth_barrier": True}
     forced = default_strategy(context(resolved(hessian="surrogate", forced=True, fits=False),
                                       max_iter=900, surrogate_max_iter=40), None, False, False)
-    assert {s.options["ipopt.max_iter"] for s in forced} == {900}
+    assert {s.options["max_iter"] for s in forced} == {900}
     limited = default_strategy(context(resolved(), limits=True, surrogate_max_iter=40), None, False,
                                False)
-    assert all(s.options.get("ipopt.max_iter") == 40 for s in limited
+    assert all(s.options.get("max_iter") == 40 for s in limited
                if isinstance(s, Attempt) and s.backend == "ipopt")
     lifted = default_strategy(context(resolved(form="full", fits=False)), None, False, True)
-    assert lifted[0].options == {"ipopt.max_iter": 300, **LIFTED_FROM_CONDENSED}
-    assert lifted[1].options == {"ipopt.max_iter": 300}
+    assert lifted[0].options == {"max_iter": 300, "near_start": True}
+    assert lifted[1].options == {"max_iter": 300}
+    # in IPOPT's words
+    assert ipopt_options(lifted[0].options) == {**LIFTED_FROM_CONDENSED, "ipopt.max_iter": 300}
+    assert (ipopt_options({"max_iter": 40, "barrier_update": "monotone"})
+            == {"ipopt.max_iter": 40, "ipopt.mu_strategy": "monotone"})
+    with pytest.raises(ValueError, match="ipopt.tol"):
+        ipopt_options({"ipopt.tol": 1e-9})
 
 
 class FakeBackend:
@@ -320,9 +328,11 @@ class FakeBackend:
 
     def __init__(self, name: str, script: list[str], calls: list):
         self.name, self.script, self.calls = name, script, calls
+        # the real backend's declaration: the strategy is derived from it
+        self.label, self.handles = BACKENDS[name].label, BACKENDS[name].handles
 
     def applies(self, ctx):
-        return None
+        return why_not(self.handles, ctx)
 
     def solve(self, ctx, start, warm, hessian, options):
         status = self.script[len(self.calls)]
@@ -395,7 +405,7 @@ def test_run_retries_a_false_infeasibility_verdict_with_the_monotone_barrier(fak
     ran = run(default_strategy(context(r), None, False, False), context(r), INIT, None)
     assert labels(ran) == [("surrogate", strategy.INFEASIBLE),
                            ("surrogate, monotone barrier", "Solve_Succeeded")]
-    assert calls[1].options["ipopt.mu_strategy"] == "monotone" and calls[1].warm is None
+    assert calls[1].options["barrier_update"] == "monotone" and calls[1].warm is None
 
 
 def test_run_stops_at_an_infeasibility_verdict_with_the_limits_enforced(fake):
@@ -429,3 +439,57 @@ def test_run_starts_from_the_given_iterate(fake):
               Attempt("c", "ipopt", "exact"))
     fake("Solve_Succeeded", "Solve_Succeeded")
     assert [t.label for t in run(always, context(resolved()), INIT, None)] == ["a", "b"]
+
+
+# Which backend goes first, written out from docs/hessian_and_newton.md: `solver.name`'s own where
+# it applies, under auto projected Newton without enforced limits and the interior point within
+# them, none where neither fits or IPOPT is named. (name, limits enforced, Newton fits) -> first
+FIRST = {("auto", False, True): "newton", ("auto", True, True): "interior",
+         ("auto", False, False): None, ("auto", True, False): None,
+         ("newton", False, True): "newton", ("newton", True, True): "newton",
+         ("newton", False, False): None, ("interior", True, True): "interior",
+         ("interior", False, True): None, ("interior", True, False): None,
+         ("ipopt", False, True): None, ("ipopt", True, True): None}
+
+
+@pytest.mark.parametrize("case", list(FIRST))
+def test_the_first_backend_follows_the_declarations(case):
+    name, limits, fits = case
+    ctx = context(resolved(name, fits=fits), limits=limits)
+    first = strategy.first_backend(ctx)
+    assert (None if first is None else first.name) == FIRST[case]
+    # the Planner re-plans from the moving robot only within the limits, with the interior point
+    mover = strategy.replan_backend(ctx)
+    assert (None if mover is None else mover.name) == ("interior" if FIRST[case] == "interior"
+                                                       else None)
+
+
+def test_a_new_backend_is_tried_by_what_it_declares(monkeypatch):
+    """A backend registered before the others with its declaration only (enforced limits, any
+    model it fits) goes first under auto within the limits, with the verdict stop a backend that
+    carries the limits gets; nothing in the strategy names it. Without `moving_start` the Planner
+    does not re-plan with it."""
+    from surestep_ocp.solvers import backends
+    from surestep_ocp.solvers.backends.base import Handles
+
+    class Fresh(FakeBackend):
+        def __init__(self):
+            self.name, self.label = "fresh", "fresh method"
+            self.handles = Handles(limits=True, only_limits=True)
+
+    fresh = {"fresh": Fresh(), **BACKENDS}
+    monkeypatch.setattr(backends, "BACKENDS", fresh)
+    monkeypatch.setattr(strategy, "BACKENDS", fresh)
+    steps = described(default_strategy(context(resolved(), limits=True), None, False, False))
+    assert steps[:2] == [("fresh method", "fresh", None, "given"), "STOP"]
+    assert steps[2:] == SURROGATE_THEN_EXACT[:2] + ["STOP"] + SURROGATE_THEN_EXACT[3:]
+    # without the limits it does not apply: projected Newton first, as before
+    assert described(default_strategy(context(resolved()), None, False, False)) == EXPECTED["auto"]
+    assert strategy.replan_backend(context(resolved(), limits=True)) is None
+
+
+def test_an_attempt_option_its_backend_does_not_take_is_refused(fake):
+    fake("Solve_Succeeded")
+    bad = (Attempt("newton", "newton", options={"max_iter": 3}),)
+    with pytest.raises(ValueError, match="takes no options"):
+        run(bad, context(resolved()), INIT, None)

@@ -37,9 +37,9 @@ from ..model.limits import evaluate_curve
 from ..ocp.certificate import NOT_CERTIFIED, certify
 from .confidence import at_horizon, plan_to_confidence
 from ..ocp.iterate import InitialGuess
-from ..solvers.newton import parameters
 from ..model.robot import CAMERA_PARAMETERS
-from ..solvers.nlp_cache import interior_solver
+from ..solvers.backends import Backend, Context, ReplanOptions
+from ..solvers.strategy import first_backend, replan_backend, replan_strategy
 from .ocp import ocp_initial_guess, resolved_solver, solve_ocp_warm
 from ..problem.spec import Problem
 from ..problem.setup import Setup, build_setup
@@ -114,13 +114,17 @@ class Planner(RealTimeIteration):
         self.builds: dict[int, float] = {}
         # steps left -> its solvers (minus the steps left: the interior-point one within limits)
         self._solvers: dict[int, tuple] = {}
-        resolved = resolved_solver(self.setup)
-        self.fast = (resolved.newton_first and not setup.ocp.limits.enforce
+        ctx = Context(self.setup, resolved_solver(self.setup), "ocp-replan", {})
+        # without limits: the first backend's re-plan attempts (projected Newton's) where it takes
+        # them, its solvers built ahead
+        self._first = first_backend(ctx)
+        self.fast = (bool(replan_strategy(ctx, moved=False)) and not setup.ocp.limits.enforce
                      and self.setup.model.scalar)
-        # within enforced limits, where the interior-point method applies (`solver.name` auto or
-        # interior): it re-plans from the executed curve's state (docs/realtime.md); else a re-plan
-        # runs the whole strategy
-        self.limited = bool(setup.ocp.limits.enforce and resolved.interior_first)
+        # within enforced limits, the backend declaring re-plans from a moving start, where it
+        # applies (`solver.name` auto or its own): it re-plans from the executed curve's state
+        # (docs/realtime.md); else a re-plan runs the whole strategy
+        self._backend: Backend | None = replan_backend(ctx)
+        self.limited = self._backend is not None
         for n in (range(self.horizon, 0, -1) if prebuild else [self.horizon]) if self.fast else ():
             self._solver(n, background=n != self.horizon)  # timed apart from the solves
         # every re-plan's structure
@@ -278,11 +282,10 @@ class Planner(RealTimeIteration):
         warm = InitialGuess(q, "previous plan (real-time iteration)")
         spec = self.setup.ocp.solver
         solver = self._interior(sub)[0]
-        run = solver.run(
-            sub, warm, v0=v0, a0=a0, tol=spec.tol, mu0=REPLAN_MU, relax=True, reserve=RESERVE,
-            max_iter=min(RTI_ITERATIONS, spec.max_iter), feasible_ok=True,
-            acceptable_change=REPLAN_ACCEPTABLE, relaxed_max=REPLAN_BUDGET)
-        P = parameters(sub)
+        run = solver.replan(sub, warm, ReplanOptions(
+            v0, a0, spec.tol, REPLAN_MU, min(RTI_ITERATIONS, spec.max_iter), RESERVE,
+            acceptable_change=REPLAN_ACCEPTABLE, relaxed_max=REPLAN_BUDGET))
+        P = solver.parameters(sub)
         P[CAMERA_PARAMETERS] = run.initial_trace
         built = self.build_time_s - builds_before
         return Prepared(self.plan, step, camera[0], q0, v0, a0, warm, run, solver, P,
@@ -394,12 +397,10 @@ class Planner(RealTimeIteration):
                                 "previous plan"
                                 + (f", {extra} steps at the goal added" if extra else ""))
             solver, propagation = self._interior(sub)
-            run = solver.run(sub, warm, v0=v0, a0=a0, tol=spec.tol, mu0=REPLAN_MU, relax=True,
-                             reserve=reserve,
-                             max_iter=(min(self.replan_iterations, spec.max_iter, budget)
-                                       if reachable else 0),
-                             feasible_ok=True, acceptable_change=REPLAN_ACCEPTABLE,
-                             relaxed_max=budget)
+            run = solver.replan(sub, warm, ReplanOptions(
+                v0=v0, a0=a0, tol=spec.tol, mu0=REPLAN_MU, reserve=reserve,
+                max_iter=(min(self.replan_iterations, spec.max_iter, budget) if reachable else 0),
+                acceptable_change=REPLAN_ACCEPTABLE, relaxed_max=budget))
             budget -= run.iterations
             tried.append(ReplanAttempt(reserve=reserve, steps_added=extra, status=run.status,
                                        iterations=run.iterations,
@@ -476,25 +477,24 @@ def first_plan(setup: Setup) -> Solution:
     within enforced limits again within the limits less RESERVE (`within_reserve`)."""
     setup = without_confidence(setup)
     plan, _ = solve_ocp_warm(setup, ocp_initial_guess(setup))
-    limited = setup.ocp.limits.enforce and resolved_solver(setup).interior_first
-    return within_reserve(setup, plan) if limited and plan.success else plan
+    backend = replan_backend(Context(setup, resolved_solver(setup), "ocp", {}))
+    return within_reserve(setup, plan, backend) if backend and plan.success else plan
 
 
-def within_reserve(setup: Setup, plan: Solution) -> Solution:
+def within_reserve(setup: Setup, plan: Solution, backend: Backend) -> Solution:
     """The plan again within the limits less RESERVE (from the plan within the limits, the rows it
-    breaks relaxed), so that the re-plans have room for corrections; the plan itself if that
-    fails."""
+    breaks relaxed) by the re-planning `backend`, from rest, so that the re-plans have room for
+    corrections; the plan itself if that fails."""
     spec = setup.ocp.solver
-    solver = interior_solver(setup)
+    solver = backend.replan_solver(setup, moving=False)
     start = InitialGuess(np.array(plan.q, float), "the plan within the limits")
-    run = solver.run(setup, start, tol=spec.tol,
-                     max_iter=min(spec.surrogate_max_iter, spec.max_iter),
-                     mu0=REPLAN_MU, relax=True, reserve=RESERVE)
+    run = solver.replan(setup, start, ReplanOptions(
+        v0=None, a0=None, tol=spec.tol, mu0=REPLAN_MU, reserve=RESERVE,
+        max_iter=min(spec.surrogate_max_iter, spec.max_iter), feasible_ok=False))
     if not run.success:
         return plan
-    sol = solver.newton.solution(setup, plan.method, start, run)
+    sol = solver.solution(setup, plan.method, start, run)
     sol.solve_time_s += plan.solve_time_s
-    sol.run = replace(sol.run, solver="interior")
     sol.extras.update(reserve=RESERVE, attempts_within_limits=plan.attempts)
     enforce_limits(setup, sol)
     return sol if sol.success else plan

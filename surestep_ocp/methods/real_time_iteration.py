@@ -20,8 +20,8 @@ from ..ocp.iterate import InitialGuess
 from ..output.solution import Solution
 from ..output.solution_records import ReplanAttempt
 from ..problem.setup import Setup
-from ..solvers.interior import FEASIBLE, InteriorRun
-from ..solvers.newton import NewtonRun, parameters
+from ..solvers.backends import ReplanSolver
+from ..status import Status
 from .replan_solvers import ReplanSolvers, replan_solution
 
 
@@ -37,8 +37,8 @@ class Prepared:
     v0: np.ndarray
     a0: np.ndarray
     warm: InitialGuess  # the shifted plan it iterated from
-    run: InteriorRun  # its iteration
-    solver: object  # the interior-point solver of its structure
+    run: object  # its iteration (the solver's run record)
+    solver: ReplanSolver  # the re-planning solver of its structure
     parameters: np.ndarray  # its compiled functions' parameters (its objective's scale set)
     time_s: float  # its time without builds
     reserve: float  # the fraction of the limits its iteration kept for corrections
@@ -72,12 +72,10 @@ class RealTimeIteration(ReplanSolvers):
         sub.x_start, sub.x_goal = sub.poses_of(np.vstack([prep.q0, q_goal]))
         solver, propagation = self._interior(sub)
         run = prep.run
-        P = parameters(sub)
+        P = solver.parameters(sub)
         P[CAMERA_PARAMETERS] = run.initial_trace  # the objective's scale: the preparation's
-        end = solver.newton._end(sub, x.ravel(), P, run.initial_trace, FEASIBLE, run.iterations,
-                                 0, t0)
-        run = InteriorRun(**{k: getattr(end, k) for k in NewtonRun.__dataclass_fields__},
-                          relaxed_iterations=run.relaxed_iterations)
+        run = solver.plan_at(sub, x.ravel(), P, run.initial_trace, Status.FEASIBLE_POINT_FOUND,
+                             run.iterations, run.relaxed_iterations, t0)
         sol = replan_solution(sub, propagation, solver, prep.warm, run, cov, prep.v0, prep.a0)
         sol.extras.update(reserve=prep.reserve, extended_steps=0, feedback_s=feedback_s,
                           attempts_tried=[ReplanAttempt(

@@ -24,6 +24,8 @@ from .planner import Planner
 from ..problem.setup import Setup
 from ..problem.solver_config import SolverName
 from ..output.solution import Solution
+from ..solvers.backends import BACKENDS, Context
+from ..solvers.strategy import replan_backend
 
 COMPARE_METHODS = BASE_METHODS  # the open-loop plans
 
@@ -82,9 +84,10 @@ def closed_loop_unavailable(setup: Setup) -> str | None:
     """Why a closed-loop method cannot re-plan this setup (None: it can): the `Planner`'s
     conditions for re-planning within the limits, said."""
     resolved = resolved_solver(setup)
-    if not setup.ocp.limits.enforce or resolved.name not in (SolverName.AUTO, SolverName.INTERIOR):
+    movers = [b.name for b in BACKENDS.values() if b.handles.moving_start]
+    if not setup.ocp.limits.enforce or resolved.name not in (SolverName.AUTO, *movers):
         return CLOSED_LOOP_NEEDS
-    if not resolved.interior_first:
+    if replan_backend(Context(setup, resolved, "ocp-mpc", {})) is None:
         return ("ocp-mpc re-plans with the interior-point solver, which needs what newton "
                 "needs: the condensed form of a model with constant motion and observation maps, "
                 "noise.observation_noise: mean (not -expected), solver.hessian: auto and six "

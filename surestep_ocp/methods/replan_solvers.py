@@ -23,7 +23,7 @@ from ..ocp.iterate import InitialGuess
 from ..output.solution import Solution
 from ..output.solution_records import StartState
 from ..problem.setup import Setup
-from ..solvers.nlp_cache import interior_solver, newton_solver
+from ..solvers.backends import Backend
 
 UNVECH = unvech(np.arange(NV, dtype=float)).astype(int)  # (6, 6) positions of each entry in vech
 CERTIFIED_SETUP = "_certified_setup"  # a re-plan's setup, kept in its extras until it is certified
@@ -38,6 +38,8 @@ class ReplanSolvers:
     setup: Setup
     builds: dict[int, float]
     _solvers: dict[int, tuple]
+    _backend: Backend | None  # within enforced limits: the backend re-planning from a moving start
+    _first: Backend | None  # without: the first backend (its solvers built ahead)
 
     @property
     def build_time_s(self) -> float:
@@ -52,7 +54,7 @@ class ReplanSolvers:
         it (`prepare_replans`: compiled now, not in the loop)."""
         t0, n = time.perf_counter(), sub.ocp.horizon
         if -n not in self._solvers:  # a re-plan's structure is its horizon's (no cache key made)
-            self._solvers[-n] = (interior_solver(sub, moving=True),
+            self._solvers[-n] = (self._backend.replan_solver(sub),
                                  None if self.setup.model.joint_noise
                                  else Buffered(compiled_ekf(self.setup.eval_model, n)))
             prepare_replans(sub)
@@ -66,7 +68,7 @@ class ReplanSolvers:
         if n not in self._solvers:
             t0 = time.perf_counter()
             sub = self.setup.with_ocp(horizon=n)
-            self._solvers[n] = (newton_solver(sub, background=background),
+            self._solvers[n] = (self._first.prebuild(sub, background=background),
                                 compiled_ekf(self.setup.eval_model, n))
             self.builds[n] = time.perf_counter() - t0
         if not background:
@@ -92,9 +94,8 @@ def replan_solution(sub: Setup, propagation, solver, warm: InitialGuess, run, co
     # (in place: the buffer's values are copied out by the indexing)
     sigma = (None if propagation is None else
              propagation(run.poses.T, vech(cov))[0].reshape(-1, NV)[:, UNVECH])
-    sol = solver.newton.solution(sub, "ocp-replan", warm, run, sigma=sigma)
-    sol.run = replace(sol.run, solver="interior",
-                      start_state=StartState(v0.tolist(), a0.tolist()),
+    sol = solver.solution(sub, "ocp-replan", warm, run, sigma=sigma)
+    sol.run = replace(sol.run, start_state=StartState(v0.tolist(), a0.tolist()),
                       warm_start_q=np.asarray(warm.q, float).tolist())
     # (the certificate's problem; taken out before it is returned)
     sol.extras[CERTIFIED_SETUP] = sub

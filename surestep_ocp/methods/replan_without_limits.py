@@ -63,7 +63,7 @@ def replan_without_limits(sub: Setup, warm: InitialGuess, cov: np.ndarray, moved
                                                        compiled=built[0].codegen))
 
         ctx = Context(sub, resolved_solver(sub), "ocp-replan", {}, evaluate_newton=evaluate_run)
-        tried = run_strategy(replan_strategy(moved), ctx, warm, None)
+        tried = run_strategy(replan_strategy(ctx, moved), ctx, warm, None)
         if tried[-1].outcome.solution.success:
             sol = tried[-1].outcome.solution
             sol.attempts = records(tried, len(tried) - 1)

@@ -66,17 +66,6 @@ class ResolvedSolver:
     forced: bool  # the Hessian was named (surrogate or gauss-newton): no exact-Hessian attempts
     newton_fits: bool  # the projected Newton solver's reformulation is exact here
 
-    @property
-    def newton_first(self) -> bool:
-        """Whether projected Newton makes the first attempt (limits are checked by the caller)."""
-        return self.newton_fits and self.name in (SolverName.AUTO, SolverName.NEWTON)
-
-    @property
-    def interior_first(self) -> bool:
-        """Whether the interior-point method makes the first attempt when the limits are enforced
-        (checked by the caller): the plan, and a Planner's re-plans from the moving robot."""
-        return self.newton_fits and self.name in (SolverName.AUTO, SolverName.INTERIOR)
-
 
 def resolve_form(model: BeliefModel, form: str, file: str | None = None) -> str:
     """`solver.covariance` for this model: auto is condensed for a structured or scalar

@@ -15,10 +15,9 @@ import numpy as np
 
 from ..output.attempt_record import AttemptRecord
 from ..output.solution import Solution
-from .backends import BACKENDS, Context, Outcome
+from .backends import BACKENDS, Backend, Context, Outcome, Warm
 from ..ocp.iterate import InitialGuess, Iterate
 from .newton import EXACT_BELOW
-from .nlp_cache import LIFTED_FROM_CONDENSED
 from ..status import Status
 
 DEPTH = Status.DEPTH_BOUND_VIOLATED
@@ -27,7 +26,7 @@ INFEASIBLE = Status.INFEASIBLE_PROBLEM_DETECTED
 # problem
 FALSE_VERDICTS = (Status.INFEASIBLE_PROBLEM_DETECTED, Status.RESTORATION_FAILED,
                   Status.ERROR_IN_STEP_COMPUTATION)
-MONOTONE = {"ipopt.mu_strategy": "monotone"}
+MONOTONE = {"barrier_update": "monotone"}  # the general backend's option
 # Newton's ends the switch may change
 HANDOVER = (Status.STALLED, Status.MAXIMUM_ITERATIONS_EXCEEDED, Status.LINE_SEARCH_FAILED)
 
@@ -95,9 +94,37 @@ class Tried:
     outcome: Outcome
 
 
+def first_backend(ctx: Context) -> Backend | None:
+    """The backend tried before the general one (`Handles.any_model`): the one `solver.name`
+    names, else (auto) the first registered that applies and, with enforced limits, carries them;
+    None where none applies or the general one is named."""
+    name, limited = ctx.resolved.name, ctx.setup.ocp.limits.enforce
+    for b in BACKENDS.values():
+        if b.handles.any_model or b.applies(ctx) is not None:
+            continue
+        if name == b.name or (name == "auto" and (b.handles.limits or not limited)):
+            return b
+    return None
+
+
+def general_backend() -> Backend:
+    """The backend declaring any model, form and Hessian: every strategy's fallback."""
+    (general,) = [b for b in BACKENDS.values() if b.handles.any_model]
+    return general
+
+
+def replan_backend(ctx: Context) -> Backend | None:
+    """The backend a Planner re-plans with from the moving robot within enforced limits (one
+    declaring `moving_start` that applies, as `solver.name` allows), or None: its re-plans run the
+    whole strategy."""
+    first = first_backend(ctx) if ctx.setup.ocp.limits.enforce else None
+    return first if first is not None and first.handles.moving_start else None
+
+
 def default_strategy(ctx: Context, warm: Iterate | None, pinned: bool, lifted_start: bool) -> tuple:
     """The attempts of one solve, in order (docs/hessian_and_newton.md, "Fallbacks: the order of
-    attempts").
+    attempts"), from what the backends declare (`Handles`): the first backend where one applies
+    (`first_backend`), then the general one's attempts.
 
     Args:
         ctx: the solve's context (resolved solver choices, set-up).
@@ -107,81 +134,91 @@ def default_strategy(ctx: Context, warm: Iterate | None, pinned: bool, lifted_st
         lifted_start: the lifted form starts at a converged condensed solution (a KKT point with
             multipliers).
     """
+    setup = ctx.setup
+    limited = setup.ocp.limits.enforce
+    # a warm start with the general backend's primal-dual point goes to it
+    first = first_backend(ctx) if warm is None or not warm.has_duals else None
+    out: list = []
+    if first is not None:
+        out.append(Attempt(first.label, first.name, start=Start.GIVEN))
+        if limited and first.handles.limits:
+            # its infeasibility verdict (the relaxed rows stopped shrinking) stands: IPOPT takes
+            # far longer to agree (benchmarks/realtime.py checks each verdict; docs/realtime.md)
+            out.append(Stop(Condition(last_status_in=(INFEASIBLE,))))
+        elif "depth_barrier" in first.handles.options and setup.model.scalar:
+            # the depth bound broken: the same method on IPOPT's barrier problem, which has it
+            out.append(Attempt(f"{first.label}, depth barrier", first.name,
+                               options={"depth_barrier": True},
+                               when=Condition(unsolved=False, first_status_in=(DEPTH,))))
+    return tuple(out) + _general_attempts(ctx, warm, pinned, lifted_start)
+
+
+def _general_attempts(ctx: Context, warm: Iterate | None, pinned: bool,
+                      lifted_start: bool) -> tuple:
+    """The general backend's attempts of `default_strategy`, in order."""
     r, setup = ctx.resolved, ctx.setup
-    spec = setup.ocp.solver
+    spec, g = setup.ocp.solver, general_backend().name
     limited = setup.ocp.limits.enforce
     # the 6x6 recursion: no unrolled exact Hessian
     costly = setup.model.structured and not setup.model.scalar
     cap = spec.max_iter if r.forced else min(spec.surrogate_max_iter, spec.max_iter)
-    exact_cap = {"ipopt.max_iter": min(spec.surrogate_max_iter, spec.max_iter)} if limited else {}
+    exact_cap = {"max_iter": min(spec.surrogate_max_iter, spec.max_iter)} if limited else {}
     out: list = []
-    if (limited and r.newton_fits and r.name in ("auto", "interior")
-        and (warm is None or not warm.has_duals)):
-        # within enforced limits: the interior-point Newton method, which carries them (projected
-        # Newton does not); IPOPT follows where it does not converge
-        # (benchmarks/results/realtime.md)
-        out.append(Attempt("interior point", "interior", start=Start.GIVEN))
-        # its infeasibility verdict (the relaxed rows stopped shrinking) stands: IPOPT takes far
-        # longer to agree (benchmarks/realtime.py checks each verdict with IPOPT; docs/realtime.md)
-        out.append(Stop(Condition(last_status_in=(INFEASIBLE,))))
-    elif (r.name == "newton" or (r.name == "auto" and not limited)) and r.newton_fits and (
-            warm is None or not warm.has_duals):  # Newton first where it applies
-        out.append(Attempt("newton", "newton", start=Start.GIVEN))
-        # the depth bound broken: Newton on IPOPT's barrier problem, which has it
-        if setup.model.scalar:
-            out.append(Attempt("newton, depth barrier", "newton", options={"barrier": True},
-                               when=Condition(unsolved=False, first_status_in=(DEPTH,))))
     # near the optimum: Newton's local convergence (lifted: its own Hessian)
     if warm is not None and warm.has_duals:
         hess = r.hessian if r.forced or r.form == "full" else "exact"
-        out.append(Attempt(hess, "ipopt", hess, start=Start.GIVEN, when=ALWAYS))
+        out.append(Attempt(hess, g, hess, start=Start.GIVEN, when=ALWAYS))
     if r.hessian != "exact":
-        near = LIFTED_FROM_CONDENSED if lifted_start and not pinned else {}
-        main = {"ipopt.max_iter": cap, **near}
+        near = {"near_start": True} if lifted_start and not pinned else {}
+        main = {"max_iter": cap, **near}
         if r.form == "full":
-            out.append(Attempt("lifted", "ipopt", r.hessian, main))
+            out.append(Attempt("lifted", g, r.hessian, main))
         else:
             # Newton's plan went below the depth bound: the monotone barrier, robust when it is
             # active
             if not pinned:
-                out.append(Attempt(f"{r.hessian}, monotone barrier", "ipopt", r.hessian,
+                out.append(Attempt(f"{r.hessian}, monotone barrier", g, r.hessian,
                                    {**main, **MONOTONE}, when=Condition(first_status_in=(DEPTH,))))
-            out.append(Attempt(r.hessian, "ipopt", r.hessian, main,
+            out.append(Attempt(r.hessian, g, r.hessian, main,
                                when=Condition(first_status_not_in=(DEPTH,) if not pinned else ())))
         # the small monotone barrier did not settle: the adaptive update from the same point
         if near:
-            out.append(Attempt("lifted, adaptive barrier", "ipopt", r.hessian,
-                               {"ipopt.max_iter": cap}))
+            out.append(Attempt("lifted, adaptive barrier", g, r.hessian, {"max_iter": cap}))
         # "infeasible" from a feasible start is the barrier's restoration failing
         if not (near or pinned or limited):
-            out.append(Attempt(f"{r.hessian}, monotone barrier", "ipopt", r.hessian,
-                               {"ipopt.max_iter": cap, **MONOTONE},
+            out.append(Attempt(f"{r.hessian}, monotone barrier", g, r.hessian,
+                               {"max_iter": cap, **MONOTONE},
                                when=Condition(first_status_not_in=(DEPTH,),
                                               last_status_in=FALSE_VERDICTS)))
         # with enforced limits an infeasibility verdict is the limits': no exact-Hessian attempts
         if limited:
             out.append(Stop(Condition(last_status_in=(INFEASIBLE,))))
         if not r.forced and r.form == "condensed" and not costly:  # polish from the point reached
-            out.append(Attempt("exact", "ipopt", "exact", exact_cap, start=Start.REACHED))
+            out.append(Attempt("exact", g, "exact", exact_cap, start=Start.REACHED))
     # the exact Hessian asked for: always tried
     if not r.forced and (not costly or r.hessian == "exact"):
-        out.append(Attempt("exact", "ipopt", "exact", exact_cap))
+        out.append(Attempt("exact", g, "exact", exact_cap))
         if not pinned:
-            out.append(Attempt("exact, monotone barrier", "ipopt", "exact",
-                               {**MONOTONE, **exact_cap}))
+            out.append(Attempt("exact, monotone barrier", g, "exact", {**MONOTONE, **exact_cap}))
     return tuple(out)
 
 
-def replan_strategy(moved: bool) -> tuple:
-    """A re-plan's attempts from the previous plan (`Planner.replan`): near the optimum after a
-    tracker update, Newton's exact steps from the first iteration (the surrogate's converge linearly
-    there); after a camera move, or when exact steps from the first stall, the usual switch to exact
-    steps near the optimum. What they leave unsolved goes to `default_strategy` from the same start
-    (the Planner's fallback)."""
-    switch = Attempt("newton", "newton", options={"exact_below": EXACT_BELOW}, start=Start.INIT)
+def replan_strategy(ctx: Context, moved: bool) -> tuple:
+    """A re-plan's attempts from the previous plan (`Planner.replan`) by the first backend where
+    it takes `exact_below` (projected Newton): near the optimum after a tracker update, exact
+    steps from the first iteration (the surrogate's converge linearly there); after a camera move,
+    or when exact steps from the first stall, the usual switch to exact steps near the optimum.
+    What they leave unsolved goes to `default_strategy` from the same start (the Planner's
+    fallback); no attempts where no backend takes it."""
+    first = first_backend(ctx)
+    if first is None or "exact_below" not in first.handles.options:
+        return ()
+    switch = Attempt(first.label, first.name, options={"exact_below": EXACT_BELOW},
+                     start=Start.INIT)
     if moved:
         return (switch,)
-    return (Attempt("newton, exact steps", "newton", options={"exact_below": np.inf}, when=ALWAYS),
+    return (Attempt(f"{first.label}, exact steps", first.name, options={"exact_below": np.inf},
+                    when=ALWAYS),
             replace(switch, when=Condition(last_status_in=HANDOVER)))
 
 
@@ -209,15 +246,20 @@ def run(strategy: tuple, ctx: Context, init: InitialGuess, warm: Iterate | None)
             continue
         if isinstance(step, Stop):
             break
+        backend = BACKENDS[step.backend]
+        unknown = set(step.options) - backend.handles.options
+        if unknown:
+            raise ValueError(f"attempt {step.label!r}: {backend.name} takes no options "
+                             f"{sorted(unknown)} (it takes {sorted(backend.handles.options)})")
+        joints = backend.handles.warm is Warm.JOINTS  # it starts from a warm start's joints
         start, from_iterate = init, None
         if step.start is Start.GIVEN and warm is not None:
             from_iterate = warm
-            if step.backend == "newton":
+            if joints:
                 start = InitialGuess(np.asarray(warm.q), f"warm start ({init.source})")
         elif step.start is Start.REACHED and tried:
             from_iterate = tried[-1].outcome.iterate
-        outcome = BACKENDS[step.backend].solve(ctx, start, from_iterate, step.hessian, step.options)
-        warm_started = (from_iterate is not None
-                        and (step.backend == "newton" or from_iterate.has_duals))
+        outcome = backend.solve(ctx, start, from_iterate, step.hessian, step.options)
+        warm_started = from_iterate is not None and (joints or from_iterate.has_duals)
         tried.append(Tried(step.label + (", warm start" if warm_started else ""), step, outcome))
     return tried

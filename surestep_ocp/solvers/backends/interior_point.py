@@ -14,7 +14,7 @@ from ...problem.solver_config import SolverName
 from ...ocp.straight_line import TIME_LAWS, timed_line
 from ...ocp.iterate import InitialGuess, Iterate
 from ..nlp_cache import interior_solver
-from .base import Context, Outcome
+from .base import Backend, Context, Handles, Outcome, ReplanSolver, Warm
 
 
 def feasible_line(setup, solver, near: InitialGuess | None = None) -> InitialGuess:
@@ -40,20 +40,18 @@ def feasible_line(setup, solver, near: InitialGuess | None = None) -> InitialGue
     return best
 
 
-class InteriorPointBackend:
+class InteriorPointBackend(Backend):
     """The OCP with enforced limits where projected Newton's reformulation is exact (`newton_fits`);
-    a start within every row (the caller's, else the straight line at a minimum-jerk pace)."""
+    a start within every row (the caller's, else the straight line at a minimum-jerk pace); warm
+    starts from its own multipliers."""
 
     name = SolverName.INTERIOR
+    label = "interior point"
+    handles = Handles(limits=True, only_limits=True, newton_fit=True, warm=Warm.PRIMAL_DUAL,
+                      moving_start=True)
 
-    def applies(self, ctx: Context) -> str | None:
-        if not ctx.setup.ocp.limits.enforce:
-            return ("the interior-point method is for problems with enforced motion limits "
-                    "(limits.enforce: true)")
-        if not ctx.resolved.newton_fits:
-            return ("it needs the condensed scalar recursion with the mean observation noise and "
-                    "six joints moving the tracked frame")
-        return None
+    def replan_solver(self, setup, moving: bool = True) -> ReplanSolver:
+        return interior_solver(setup, moving=moving)
 
     def solve(self, ctx: Context, start: InitialGuess, warm: Iterate | None, hessian: str | None,
               options: dict) -> Outcome:
@@ -72,8 +70,7 @@ class InteriorPointBackend:
         else:
             run = solver.run(setup, start, warm=multipliers, **kw)
         run = replace(run, solve_time_s=time.perf_counter() - t0)
-        sol = solver.newton.solution(setup, ctx.method, start, run)
-        sol.run = replace(sol.run, solver="interior")
+        sol = solver.solution(setup, ctx.method, start, run)
         # the played curve checked densely, as every plan within the limits
         enforce_limits(setup, sol)
         return Outcome(sol, (Iterate(sol.joints, multipliers=run.multipliers) if sol.success

@@ -9,25 +9,26 @@ from ...problem.solver_config import SolverName
 from ...ocp.iterate import InitialGuess, Iterate
 from ..newton import EXACT_BELOW
 from ..nlp_cache import newton_solver
-from .base import Context, Outcome
+from .base import Backend, Context, Handles, Outcome
 
 
-class NewtonBackend:
+class NewtonBackend(Backend):
     """Exact for the surrogate model with six joints moving the tracked frame
     (`ResolvedSolver.newton_fits`).
 
-    Options: `barrier` (bool) runs Newton on IPOPT's barrier problem, which keeps the depth bound;
-    `exact_below` the projected gradient's norm below which it takes exact Hessian steps (inf: from
-    the start, for warm starts). The plan is evaluated by `ctx.evaluate_newton` when the caller has
-    a faster evaluation (the Planner's)."""
+    Options: `depth_barrier` (bool) runs Newton on IPOPT's barrier problem, which keeps the depth
+    bound; `exact_below` the projected gradient's norm below which it takes exact Hessian steps
+    (inf: from the start, for warm starts). The plan is evaluated by `ctx.evaluate_newton` when
+    the caller has a faster evaluation (the Planner's)."""
 
     name = SolverName.NEWTON
+    label = "newton"
+    # the limits are checked on its plan, not kept by its steps
+    handles = Handles(limits=False, newton_fit=True,
+                      options=frozenset({"depth_barrier", "exact_below"}))
 
-    def applies(self, ctx: Context) -> str | None:
-        if not ctx.resolved.newton_fits:
-            return ("Newton needs the condensed scalar recursion with the mean observation noise "
-                    "and six joints moving the tracked frame")
-        return None
+    def prebuild(self, setup, background: bool = False):
+        return newton_solver(setup, background=background)
 
     def solve(self, ctx: Context, start: InitialGuess, warm: Iterate | None, hessian: str | None,
               options: dict) -> Outcome:
@@ -35,7 +36,7 @@ class NewtonBackend:
         solver = newton_solver(ctx.setup)
         kw = dict(tol=spec.tol, max_iter=min(spec.surrogate_max_iter, spec.max_iter),
                   verbose=spec.print_level > 0)
-        if options.get("barrier"):
+        if options.get("depth_barrier"):
             run = solver.run_barrier(ctx.setup, start, **kw)
         else:
             run = solver.run(ctx.setup, start, exact_below=options.get("exact_below", EXACT_BELOW),

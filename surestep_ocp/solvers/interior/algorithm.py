@@ -6,7 +6,7 @@ the line search, the step)."""
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -93,6 +93,35 @@ class InteriorNewton(RowsPart, BandPart):
                                   acceptable_change=acceptable_change, use_secant=use_secant,
                                   relaxed_max=relaxed_max)
         return self.solve(setup, init, options, v0=v0, a0=a0, warm=warm)
+
+    def replan(self, setup, warm, options) -> InteriorRun:
+        """A Planner's re-plan (`backends.ReplanSolver`): `options` a `backends.ReplanOptions`,
+        what it leaves None `InteriorOptions`' defaults."""
+        o = options
+        given = dict(acceptable_change=o.acceptable_change, relaxed_max=o.relaxed_max)
+        return self.solve(setup, warm, InteriorOptions(
+            tol=o.tol, max_iter=o.max_iter, mu0=o.mu0, relax=o.relax, reserve=o.reserve,
+            feasible_ok=o.feasible_ok, **{k: v for k, v in given.items() if v is not None}),
+            v0=o.v0, a0=o.a0)
+
+    def plan_at(self, setup, x, P, trace_ref: float, status, iterations: int,
+                relaxed_iterations: int, t0: float) -> InteriorRun:
+        """The run that ends at the joints `x` (flat) with `status` after `iterations` (a real-time
+        iteration's moved iterate: no iteration of its own), timed from `t0`."""
+        end = self.newton._end(setup, x, P, trace_ref, status, iterations, 0, t0)
+        return InteriorRun(**{k: getattr(end, k) for k in NewtonRun.__dataclass_fields__},
+                           relaxed_iterations=relaxed_iterations)
+
+    def parameters(self, setup) -> np.ndarray:
+        """The compiled functions' parameters of `setup` (projected Newton's)."""
+        return parameters(setup)
+
+    def solution(self, setup, method: str, start, run: InteriorRun, sigma=None):
+        """The Solution of a run (the plan evaluated as projected Newton's are; `sigma`: its
+        covariances when the caller has them), its solver named "interior"."""
+        sol = self.newton.solution(setup, method, start, run, sigma=sigma)
+        sol.run = replace(sol.run, solver="interior")
+        return sol
 
     def solve(self, setup, init, options: InteriorOptions, v0=None, a0=None,
               warm: np.ndarray | None = None) -> InteriorRun:
