@@ -44,30 +44,26 @@ def run_comparison(setup: Setup, methods: tuple[str, ...] = COMPARE_METHODS,
         if progress:
             progress(name)
         cache[name] = run_method(setup, name, cache)
-    sols = [cache[m] for m in methods]
-    for s in sols:
-        attach_motion_limits(setup, s)
-    return sols
+    return [with_motion_limits(setup, cache[m]) for m in methods]
 
 
-def attach_motion_limits(setup: Setup, sol: Solution) -> None:
-    """Record the plan's motion-limit report (limits.plan_report, with the problem's `limits:`
-    overrides) as `sol.motion_limits` (with `limits.enforce: true` also a failure over a limit,
+def with_motion_limits(setup: Setup, sol: Solution) -> Solution:
+    """`sol` with its plan's motion-limit report (limits.plan_report, with the problem's `limits:`
+    overrides) as `motion_limits` (with `limits.enforce: true` also a failure over a limit,
     `limits.enforce`), with the peaks of the curve the robot plays through the waypoints
     (`played_curve`: what `surestep export` checks)."""
     if any(q is None for q in sol.q):
-        sol.motion_limits = SkippedReport(UNREACHABLE)
-        if setup.ocp.limits.enforce:
-            enforce(setup, sol)
-        return
+        sol = replace(sol, motion_limits=SkippedReport(UNREACHABLE))
+        return enforce(setup, sol) if setup.ocp.limits.enforce else sol
     q, step, limits = np.array(sol.q, float), setup.ocp.timing.step_s, problem_limits(setup)
     if setup.ocp.limits.enforce:
-        enforce(setup, sol, limits)
+        sol = enforce(setup, sol, limits)
     else:
-        sol.motion_limits = plan_report(setup.robot, q, step, limits,
-                                        tool_frame=setup.robot.frame)
+        sol = replace(sol, motion_limits=plan_report(setup.robot, q, step, limits,
+                                                     tool_frame=setup.robot.frame))
     played = planned_curve(q, step, limits, 1.0 / step, setup.robot, setup.robot.frame)[1]
-    sol.motion_limits = replace(sol.motion_limits, played_curve=PlayedCurve(**played))
+    return replace(sol, motion_limits=replace(sol.motion_limits,
+                                              played_curve=PlayedCurve(**played)))
 
 
 def write_comparison(solutions: list[Solution], out_dir: Path, problem_path: str) -> str:

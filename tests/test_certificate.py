@@ -27,10 +27,9 @@ def _moved(sol: Solution, t: int, j: int, by: float) -> Solution:
     """A copy of `sol` with joint j of waypoint t moved by `by` (no reported trace: it was the
     plan's before the move)."""
     d = Solution.from_dict(sol.to_dict())
-    d.run = replace(d.run, ocp_trace_final=None)
-    d.q = [list(qi) for qi in d.q]
-    d.q[t][j] += by
-    return d
+    q = [list(qi) for qi in d.q]
+    q[t][j] += by
+    return replace(d, run=replace(d.run, ocp_trace_final=None), q=q)
 
 
 def test_the_optimum_is_certified_and_its_trace_is_the_textbook_ekfs(default_setup, ocp):
@@ -65,7 +64,8 @@ def test_a_plan_off_the_optimum_is_not_certified(default_setup, ocp):
     assert "terminal position" in [line.split(":")[0] for line in miss.failures()]
     # a reported trace that is not the plan's
     wrong = _moved(ocp, 7, 1, 0.0)
-    wrong.run = replace(wrong.run, ocp_trace_final=ocp.run.ocp_trace_final * (1 + 1e-4))
+    wrong = replace(wrong, run=replace(wrong.run,
+                                       ocp_trace_final=ocp.run.ocp_trace_final * (1 + 1e-4)))
     lines = certify(default_setup, wrong).failures()
     assert [line.split(":")[0] for line in lines] == ["trace"]
 

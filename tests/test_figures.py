@@ -8,6 +8,7 @@ Meshcat page built from test_viz's fixture solutions.
 from __future__ import annotations
 
 import copy
+from dataclasses import replace
 import re
 
 import numpy as np
@@ -63,13 +64,12 @@ def solutions(default_setup):
     out = []
     for k, m in enumerate(("baseline", "gradient", "gradient-no-pose-loss", "ocp",
                            "ocp-from-gradient")):
-        s = copy.deepcopy(base)
-        s.method = m
-        bend = 0.004 * min(k, 3) * np.sin(np.linspace(0, np.pi, len(s.poses)))
-        s.poses = [list(np.add(p, [b, 0, 0, 0, 0, 0])) for p, b in zip(s.poses, bend)]
-        s.sigma = (np.asarray(s.sigma) * 0.7 ** min(k, 3)).tolist()
-        s.trace = [float(np.trace(S)) for S in np.asarray(s.sigma)]
-        out.append(s)
+        bend = 0.004 * min(k, 3) * np.sin(np.linspace(0, np.pi, len(base.poses)))
+        sigma = np.asarray(base.sigma) * 0.7 ** min(k, 3)
+        out.append(replace(copy.deepcopy(base), method=m,
+                           poses=[list(np.add(p, [b, 0, 0, 0, 0, 0]))
+                                  for p, b in zip(base.poses, bend)],
+                           sigma=sigma.tolist(), trace=[float(np.trace(S)) for S in sigma]))
     return out
 
 

@@ -154,7 +154,7 @@ def test_a_replan_the_certificate_finds_infeasible_is_not_run_and_is_counted(set
         if sol is not None:
             q = np.array(sol.q, float)
             q[-1, 0] += 2e-3  # the last waypoint 2 mrad off on the first joint
-            sol.q = q.tolist()
+            sol = replace(sol, q=q.tolist())
         return sol, x
 
     monkeypatch.setattr(pm.Planner, "_feedback", off_goal)

@@ -6,6 +6,7 @@ limit report's numbers against finite differences of a plan computed here."""
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -226,7 +227,7 @@ def test_a_plans_limit_report_round_trips_and_matches_finite_differences(default
                      if x.kind == "joint_velocity"] == over
     assert not any(x.kind == "joint_acceleration" for x in rep.violations) and not rep.ok
     assert rep.duration_s == pytest.approx(dt * sol.horizon)
-    sol.motion_limits = rep
+    sol = replace(sol, motion_limits=rep)
     back = Solution.load(sol.save(tmp_path / "baseline.json"))
     assert back.motion_limits == rep and "motion_limits" not in back.extras
     assert back.to_dict() == sol.to_dict()

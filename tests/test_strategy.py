@@ -56,7 +56,7 @@ def test_a_false_infeasibility_verdict_is_retried_with_the_monotone_barrier(monk
         sol, reached = real(self, *args, **kw)
         calls.append(sol.status)
         if len(calls) == 1:
-            sol.status, sol.success = "Infeasible_Problem_Detected", False
+            sol = replace(sol, status="Infeasible_Problem_Detected", success=False)
         return sol, reached
 
     monkeypatch.setattr(tr.Transcription, "solve", first_infeasible)

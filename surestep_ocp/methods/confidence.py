@@ -139,7 +139,8 @@ def plan_to_confidence(setup: Setup, solve) -> Solution:
         hi = max(ok, key=lambda T: (tried[T][2], -T)) if ok else cap
     sol, s, _ = tried[hi]
     searched = [(T, v[2]) for T, v in tried.items()]
-    sol.extras["grasp"] = grasp_record(s, sol, searched)
-    if sol.success and not sol.extras["grasp"]["reached"]:
-        sol.success, sol.status = False, NOT_REACHED
+    grasp = grasp_record(s, sol, searched)
+    sol = replace(sol, extras={**sol.extras, "grasp": grasp})
+    if sol.success and not grasp["reached"]:
+        sol = replace(sol, success=False, status=NOT_REACHED)
     return sol

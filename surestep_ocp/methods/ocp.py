@@ -84,10 +84,9 @@ def solve_ocp_warm(setup: Setup, init: InitialGuess, solver_options: dict | None
         pre = solve_ocp_warm(setup, init, solver_options, method, "condensed")[0]
         # no stationary point to start the lifted NLP from: the same plan
         if pre.status == Status.INITIAL_GUESS_KEPT:
-            pre.run = replace(pre.run, lifted=("not run: the condensed solve kept its start, where "
-                                               "the lifted NLP does not converge "
-                                               "(docs/general_models.md)"))
-            return pre, None
+            return replace(pre, run=replace(pre.run, lifted=(
+                "not run: the condensed solve kept its start, where the lifted NLP does not "
+                "converge (docs/general_models.md)"))), None
         if pre.success:
             init = InitialGuess(np.array(pre.q), f"condensed solution ({init.source})")
     strategy = default_strategy(ctx, warm, pinned, lifted_start=pre is not None and pre.success)
@@ -106,14 +105,15 @@ def solve_ocp_warm(setup: Setup, init: InitialGuess, solver_options: dict | None
         # "Fallbacks").
         pick = _kept_start(ran, tried, finished, init, pick)
     sol, last = tried[pick][2], tried[pick][3]
-    _report(sol, tried, pick, init, warm, _start_objective(sol, smooth0))
+    sol = _report(sol, tried, pick, init, warm, _start_objective(sol, smooth0))
     # the condensed solve that started the lifted one: reported, and counted in time
     if pre is not None:
-        _count_condensed_start(sol, pre)
+        sol = _count_condensed_start(sol, pre)
     if (costly and resolved.form == "condensed" and warm is None and not limited
             and resolved.newton_fits and spec.name != "ipopt"):
         sol, last = _second_start(setup, cold, sol, last, solver_options, method)
-    if enforce_limits(setup, sol) and not sol.success:
+    sol = enforce_limits(setup, sol)
+    if setup.ocp.limits.enforce and not sol.success:
         last = None  # no warm start from a plan that breaks a limit
     return sol, last
 
@@ -130,8 +130,8 @@ def _kept_start(ran: list, tried: list, finished: list[int], init: InitialGuess,
     start = nlps[-1](init) if nlps else None  # the last NLP's start point and bounds
     if start is not None:
         ran = sorted({s_k.run.solver for _, _, s_k, _ in tried})
-        start.run = replace(start.run, solver=(f"none (the initial guess; {', '.join(ran)} "
-                                               "did not end below it)"))
+        start = replace(start, run=replace(start.run, solver=(
+            f"none (the initial guess; {', '.join(ran)} did not end below it)")))
         tried.append(("none: the feasible initial guess, below every converged point"
                       if finished
                       else "none: the feasible initial guess (no attempt converged)",
@@ -141,28 +141,29 @@ def _kept_start(ran: list, tried: list, finished: list[int], init: InitialGuess,
 
 
 def _report(sol: Solution, tried: list, pick: int, init: InitialGuess, warm: Iterate | None,
-            initial_objective: float) -> None:
-    """Every attempt recorded in the plan kept (`tried[pick]`), its time and iterations their
+            initial_objective: float) -> Solution:
+    """The plan kept (`tried[pick]`) with every attempt recorded, its time and iterations their
     sums."""
-    sol.attempts = [record(label, hess, s_k, k == pick)
-                    for k, (label, hess, s_k, _) in enumerate(tried)]
-    sol.run = replace(sol.run, hessian=" + ".join(label for label, _, _, _ in tried),
-                      initial_objective=initial_objective,
-                      worse_than_initial_guess=bool(sol.objective > initial_objective),
-                      init=init.source if warm is None else f"warm start ({init.source})")
-    sol.solve_time_s = sum(s_k.solve_time_s for _, _, s_k, _ in tried)
-    sol.iterations = sum(s_k.iterations for _, _, s_k, _ in tried)
+    return replace(
+        sol, attempts=[record(label, hess, s_k, k == pick)
+                       for k, (label, hess, s_k, _) in enumerate(tried)],
+        run=replace(sol.run, hessian=" + ".join(label for label, _, _, _ in tried),
+                    initial_objective=initial_objective,
+                    worse_than_initial_guess=bool(sol.objective > initial_objective),
+                    init=init.source if warm is None else f"warm start ({init.source})"),
+        solve_time_s=sum(s_k.solve_time_s for _, _, s_k, _ in tried),
+        iterations=sum(s_k.iterations for _, _, s_k, _ in tried))
 
 
-def _count_condensed_start(sol: Solution, pre: Solution) -> None:
-    """The condensed solve `pre` that started the lifted one, reported in `sol` and counted in its
-    time and iterations."""
-    sol.run = replace(sol.run, condensed_start=CondensedStart(
+def _count_condensed_start(sol: Solution, pre: Solution) -> Solution:
+    """`sol` with the condensed solve `pre` that started the lifted one reported, and counted in
+    its time and iterations."""
+    return replace(sol, run=replace(sol.run, condensed_start=CondensedStart(
         pre.status, pre.iterations, pre.run.solver, pre.solve_time_s, pre.objective),
         initial_trace=pre.run.initial_trace, initial_objective=pre.run.initial_objective,
-        worse_than_initial_guess=bool(sol.objective > pre.run.initial_objective))
-    sol.solve_time_s += pre.solve_time_s
-    sol.iterations += pre.iterations
+        worse_than_initial_guess=bool(sol.objective > pre.run.initial_objective)),
+        solve_time_s=sol.solve_time_s + pre.solve_time_s,
+        iterations=sol.iterations + pre.iterations)
 
 
 SECOND_START_ITER = 60
@@ -235,17 +236,17 @@ def _second_start(setup: Setup, cold: InitialGuess, sol: Solution, last, solver_
             extra_it += second.iterations
         if second.success and (not sol.success or second.objective < sol.objective * (1 - 1e-9)):
             label = f"{second.run.solver} from the diagonal model's plan"
-            second.attempts = [replace(a, kept=False) for a in sol.attempts] + [
-                record(label, "surrogate", second, True)]
-            second.run = replace(
-                second.run, initial_trace=sol.run.initial_trace,
-                initial_objective=sol.run.initial_objective,
-                hessian=sol.run.hessian + f" + {label}", init=sol.run.init,
-                worse_than_initial_guess=bool(second.objective > sol.run.initial_objective))
-            second.solve_time_s, second.iterations = sol.solve_time_s, sol.iterations
+            second = replace(
+                second, attempts=[replace(a, kept=False) for a in sol.attempts]
+                + [record(label, "surrogate", second, True)],
+                run=replace(second.run, initial_trace=sol.run.initial_trace,
+                            initial_objective=sol.run.initial_objective,
+                            hessian=sol.run.hessian + f" + {label}", init=sol.run.init,
+                            worse_than_initial_guess=bool(
+                                second.objective > sol.run.initial_objective)),
+                solve_time_s=sol.solve_time_s, iterations=sol.iterations)
             sol, last = second, (Iterate(np.array(second.q))
                                  if second.run.solver == "newton" else None)
-    sol.run = replace(sol.run, second_start=gate)
-    sol.solve_time_s += extra_time
-    sol.iterations += extra_it
-    return sol, last
+    return replace(sol, run=replace(sol.run, second_start=gate),
+                   solve_time_s=sol.solve_time_s + extra_time,
+                   iterations=sol.iterations + extra_it), last

@@ -229,11 +229,11 @@ class Planner(RealTimeIteration):
         n = self.horizon - step
         sub, warm = remaining_problem(base, mean, cov, self._q[step - self.step:], n)
         built = self._solver(n) if self.fast and sub.model.scalar else None
-        sol = replan_without_limits(sub, warm, cov, moved, built)
-        certificate_s = _certified(sub, sol)
+        sol, certificate_s = _certified(sub, replan_without_limits(sub, warm, cov, moved, built))
         built_s = sum(self.builds.values()) - builds_before
-        sol.replan = ReplanRecord(step, time.perf_counter() - t0 - built_s, sol.run.solver, built_s,
-                                  certificate_s=certificate_s)
+        sol = replace(sol, replan=ReplanRecord(step, time.perf_counter() - t0 - built_s,
+                                               sol.run.solver, built_s,
+                                               certificate_s=certificate_s))
         if sol.success:  # else the previous plan stays current
             self.plan, self.step, self._q = sol, step, np.array(sol.q, float)
         return sol
@@ -334,21 +334,23 @@ class Planner(RealTimeIteration):
         if sol is None:
             sol = self._full(cov, registered, q_goal, reachable, step, start)
             if not reachable:  # no plan tried (the goal's IK residual is in the log)
-                sol.success, sol.status = False, Status.GOAL_UNREACHABLE
-                sol.extras["goal_ik_residual"] = unreached or {"m": float(res_m),
-                                                               "rad": float(res_rad)}
+                sol = replace(sol, success=False, status=Status.GOAL_UNREACHABLE, extras={
+                    **sol.extras, "goal_ik_residual": unreached or {"m": float(res_m),
+                                                                    "rad": float(res_rad)}})
         if unreached is not None and reachable:
-            sol.extras["goal_ik_residual"] = unreached
+            sol = replace(sol, extras={**sol.extras, "goal_ik_residual": unreached})
+        # what the re-plan's record takes out of the extras
+        extras = dict(sol.extras)
+        sub, feedback_s = extras.pop(_SETUP), extras.pop("feedback_s", None)
+        tried = extras.pop("attempts_tried", None)
         # the certificate (docs/certificate.md): a plan it finds infeasible is not run
-        certificate_s = _certified(sol.extras.pop(_SETUP), sol)
+        sol, certificate_s = _certified(sub, replace(sol, extras=extras))
         built_s = self.build_time_s - builds_before
-        feedback_s = sol.extras.pop("feedback_s", None)
-        sol.replan = ReplanRecord(
+        sol = replace(sol, replan=ReplanRecord(
             step, time.perf_counter() - t0 - built_s, "interior", built_s, not sol.success,
-            sol.extras.pop("attempts_tried", None), registration_held=unreached is not None
-            and reachable, rti=rti, feedback_s=feedback_s,
-            prepare_s=None if prep is None else prep.time_s,
-            prepared_ahead=None if prep is None else ahead, certificate_s=certificate_s)
+            tried, registration_held=unreached is not None and reachable, rti=rti,
+            feedback_s=feedback_s, prepare_s=None if prep is None else prep.time_s,
+            prepared_ahead=None if prep is None else ahead, certificate_s=certificate_s))
         if sol.success:
             self.plan, self.step, self._q = sol, step, np.array(sol.q, float)
             self._start = tuple(np.array(v, float) for v in (sol.run.start_state.velocity,
@@ -408,8 +410,8 @@ class Planner(RealTimeIteration):
             if run.success:
                 break
         sol = replan_solution(sub, propagation, solver, warm, run, cov, v0, a0)
-        sol.extras.update(reserve=reserve, extended_steps=extra, attempts_tried=tried)
-        return sol
+        return replace(sol, extras={**sol.extras, "reserve": reserve, "extended_steps": extra,
+                                    "attempts_tried": tried})
 
     def _goal_joints(self, registered: Setup, base: Setup) -> tuple[np.ndarray, float, float]:
         """(joints, IK residual [m], [rad]) of the goal as the `registered` camera sees it: from
@@ -433,18 +435,18 @@ class Planner(RealTimeIteration):
         return self._camera[1], moved
 
 
-def _certified(sub: Setup, sol: Solution) -> float:
-    """Certify the re-plan `sol` of `sub` (`sol.certificate`, ocp/certificate.py: from the
-    problem's own functions, not the solver's rows) and give it the re-plan's meaning of success:
-    a plan the robot can run, so a successful one the certificate finds infeasible (or cannot
-    certify) becomes `Not_Certified`, not run (the previous plan stays current); the solver's own
-    words stay in `backend_status`, `backend_success`. Returns the seconds it took."""
+def _certified(sub: Setup, sol: Solution) -> tuple[Solution, float]:
+    """The re-plan `sol` of `sub` certified (`certificate`, ocp/certificate.py: from the
+    problem's own functions, not the solver's rows) with the re-plan's meaning of success: a plan
+    the robot can run, so a successful one the certificate finds infeasible (or cannot certify)
+    becomes `Not_Certified`, not run (the previous plan stays current); the solver's own words
+    stay in `backend_status`, `backend_success`. And the seconds it took."""
     t0 = time.perf_counter()
-    sol.backend_status, sol.backend_success = sol.status, sol.success
-    sol.certificate = certify(sub, sol, padded=True)
-    if sol.success and (sol.certificate is None or sol.certificate.level == INFEASIBLE):
-        sol.success, sol.status = False, NOT_CERTIFIED
-    return time.perf_counter() - t0
+    cert = certify(sub, sol, padded=True)
+    verdict = dict(backend_status=sol.status, backend_success=sol.success, certificate=cert)
+    if sol.success and (cert is None or cert.level == INFEASIBLE):
+        verdict.update(success=False, status=NOT_CERTIFIED)
+    return replace(sol, **verdict), time.perf_counter() - t0
 
 
 # re-plans keep this fraction of the velocity, acceleration and tool-speed limits for corrections
@@ -494,7 +496,7 @@ def within_reserve(setup: Setup, plan: Solution, backend: Backend) -> Solution:
     if not run.success:
         return plan
     sol = solver.solution(setup, plan.method, start, run)
-    sol.solve_time_s += plan.solve_time_s
-    sol.extras.update(reserve=RESERVE, attempts_within_limits=plan.attempts)
-    enforce_limits(setup, sol)
+    sol = enforce_limits(setup, replace(
+        sol, solve_time_s=sol.solve_time_s + plan.solve_time_s,
+        extras={**sol.extras, "reserve": RESERVE, "attempts_within_limits": plan.attempts}))
     return sol if sol.success else plan

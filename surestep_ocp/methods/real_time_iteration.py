@@ -77,9 +77,8 @@ class RealTimeIteration(ReplanSolvers):
         run = solver.plan_at(sub, x.ravel(), P, run.initial_trace, Status.FEASIBLE_POINT_FOUND,
                              run.iterations, run.relaxed_iterations, t0)
         sol = replan_solution(sub, propagation, solver, prep.warm, run, cov, prep.v0, prep.a0)
-        sol.extras.update(reserve=prep.reserve, extended_steps=0, feedback_s=feedback_s,
-                          attempts_tried=[ReplanAttempt(
-                              reserve=prep.reserve, steps_added=0, status=prep.run.status,
-                              iterations=prep.run.iterations,
-                              relaxed_iterations=prep.run.relaxed_iterations)])
-        return sol, x
+        tried = [ReplanAttempt(reserve=prep.reserve, steps_added=0, status=prep.run.status,
+                               iterations=prep.run.iterations,
+                               relaxed_iterations=prep.run.relaxed_iterations)]
+        return replace(sol, extras={**sol.extras, "reserve": prep.reserve, "extended_steps": 0,
+                                    "feedback_s": feedback_s, "attempts_tried": tried}), x

@@ -129,8 +129,7 @@ def run_method(setup: Setup, name: str, cache: dict[str, Solution] | None = None
         plain = replace(grasp, confidence=None)
         sol = plan_to_confidence(s, lambda sub: run_method(sub.with_ocp(grasp=plain), name, cache,
                                                            solver_options))
-        sol.method = name
-        return sol
+        return replace(sol, method=name)
     if base == "baseline":
         sol = solve_baseline(s)
     elif base in ("gradient", "gradient-no-pose-loss"):
@@ -144,10 +143,9 @@ def run_method(setup: Setup, name: str, cache: dict[str, Solution] | None = None
         grad = ((cache or {}).get("gradient" + suffix)
                 or run_method(setup, "gradient" + suffix, cache))
         sol = solve_ocp(s, ocp_initial_guess(s, "gradient", grad), solver_options)
-    sol.method = name
+    sol = replace(sol, method=name)
     # one meaning of success: the certificate (docs/certificate.md); the Planner's own plan
     # (ocp-mpc) is certified, its success left to the Planner
-    judge(s, sol, gate=base not in CLOSED_LOOP_METHODS)
+    sol = judge(s, sol, gate=base not in CLOSED_LOOP_METHODS)
     # limits.enforce: true: a plan over a limit is not a success, whichever method made it
-    enforce_limits(s, sol)
-    return sol
+    return enforce_limits(s, sol)

@@ -95,8 +95,7 @@ def replan_solution(sub: Setup, propagation, solver, warm: InitialGuess, run, co
     sigma = (None if propagation is None else
              propagation(run.poses.T, vech(cov))[0].reshape(-1, NV)[:, UNVECH])
     sol = solver.solution(sub, "ocp-replan", warm, run, sigma=sigma)
-    sol.run = replace(sol.run, start_state=StartState(v0.tolist(), a0.tolist()),
-                      warm_start_q=np.asarray(warm.q, float).tolist())
+    run_record = replace(sol.run, start_state=StartState(v0.tolist(), a0.tolist()),
+                         warm_start_q=np.asarray(warm.q, float).tolist())
     # (the certificate's problem; taken out before it is returned)
-    sol.extras[CERTIFIED_SETUP] = sub
-    return sol
+    return replace(sol, run=run_record, extras={**sol.extras, CERTIFIED_SETUP: sub})

@@ -32,9 +32,11 @@ from .solution_records import (
 )
 
 
-@dataclass
+@dataclass(frozen=True)
 class Solution:
-    """A planned trajectory and its evaluation (see docs/solution_file.md)."""
+    """A planned trajectory and its evaluation (see docs/solution_file.md). Frozen: a layer that
+    gives a plan a verdict or a record returns a new Solution (`dataclasses.replace`), so a solver's
+    plan is never changed under whoever holds it."""
 
     method: str
     problem: str

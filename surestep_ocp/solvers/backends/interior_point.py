@@ -72,6 +72,6 @@ class InteriorPointBackend(Backend):
         run = replace(run, solve_time_s=time.perf_counter() - t0)
         sol = solver.solution(setup, ctx.method, start, run)
         # the played curve checked densely, as every plan within the limits
-        enforce_limits(setup, sol)
+        sol = enforce_limits(setup, sol)
         return Outcome(sol, (Iterate(sol.joints, multipliers=run.multipliers) if sol.success
                              else None))

@@ -43,5 +43,5 @@ class NewtonBackend(Backend):
                              **kw)
         sol = (ctx.evaluate_newton or solver.solution)(ctx.setup, ctx.method, start, run)
         # a plan over an enforced limit is not a success: the strategy goes on
-        enforce_limits(ctx.setup, sol)
+        sol = enforce_limits(ctx.setup, sol)
         return Outcome(sol, Iterate(sol.joints) if sol.success else None)
