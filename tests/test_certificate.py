@@ -72,7 +72,7 @@ def test_a_plan_off_the_optimum_is_not_certified(default_setup, ocp):
 
 def test_a_backend_success_without_a_certificate_is_not_a_success(default_setup, ocp):
     claimed = _moved(ocp, 7, 1, 2e-3)
-    judge(default_setup, claimed)
+    claimed = judge(default_setup, claimed)
     assert not claimed.success and claimed.status == NOT_CERTIFIED
     assert claimed.backend_status == "Solve_Succeeded" and claimed.backend_success
     # the gradient variant claims a completed run, not an optimum: its success stays its own
