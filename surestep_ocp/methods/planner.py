@@ -68,6 +68,13 @@ RTI_ITERATIONS = 1
 # does not fit ran four attempts of up to 34 iterations each, then failed all the same); the value
 # trades the worst re-plan against the closed loop's grasps (docs/realtime.md)
 REPLAN_BUDGET = 40
+# re-plans keep this fraction of the velocity, acceleration and tool-speed limits for corrections
+RESERVE = 0.02
+EXTEND = 2  # steps a re-plan may add when the correction does not fit in the time left
+# ... and the goal at most this many steps later in all (past it, the previous plan is kept)
+MAX_LATE = 10
+# a re-plan's (reserve, steps added), in order
+ATTEMPTS = ((RESERVE, 0), (0.0, 0), (RESERVE, EXTEND), (0.0, 2 * EXTEND))
 
 
 class Planner(RealTimeIteration):
@@ -231,9 +238,9 @@ class Planner(RealTimeIteration):
         built = self._solver(n) if self.fast and sub.model.scalar else None
         sol, certificate_s = _certified(sub, replan_without_limits(sub, warm, cov, moved, built))
         built_s = sum(self.builds.values()) - builds_before
-        sol = replace(sol, replan=ReplanRecord(step, time.perf_counter() - t0 - built_s,
-                                               sol.run.solver, built_s,
-                                               certificate_s=certificate_s))
+        record = ReplanRecord(step, time.perf_counter() - t0 - built_s, sol.run.solver, built_s,
+                              certificate_s=certificate_s)
+        sol = replace(sol, replan=record)
         if sol.success:  # else the previous plan stays current
             self.plan, self.step, self._q = sol, step, np.array(sol.q, float)
         return sol
@@ -334,9 +341,9 @@ class Planner(RealTimeIteration):
         if sol is None:
             sol = self._full(cov, registered, q_goal, reachable, step, start)
             if not reachable:  # no plan tried (the goal's IK residual is in the log)
-                sol = replace(sol, success=False, status=Status.GOAL_UNREACHABLE, extras={
-                    **sol.extras, "goal_ik_residual": unreached or {"m": float(res_m),
-                                                                    "rad": float(res_rad)}})
+                residual = unreached or {"m": float(res_m), "rad": float(res_rad)}
+                sol = replace(sol, success=False, status=Status.GOAL_UNREACHABLE,
+                              extras={**sol.extras, "goal_ik_residual": residual})
         if unreached is not None and reachable:
             sol = replace(sol, extras={**sol.extras, "goal_ik_residual": unreached})
         # what the re-plan's record takes out of the extras
@@ -436,11 +443,10 @@ class Planner(RealTimeIteration):
 
 
 def _certified(sub: Setup, sol: Solution) -> tuple[Solution, float]:
-    """The re-plan `sol` of `sub` certified (`certificate`, ocp/certificate.py: from the
-    problem's own functions, not the solver's rows) with the re-plan's meaning of success: a plan
-    the robot can run, so a successful one the certificate finds infeasible (or cannot certify)
-    becomes `Not_Certified`, not run (the previous plan stays current); the solver's own words
-    stay in `backend_status`, `backend_success`. And the seconds it took."""
+    """The re-plan `sol` of `sub` certified (ocp/certificate.py: from the problem's functions, not
+    the solver's rows) with the re-plan's meaning of success: a plan the robot can run, so one the
+    certificate finds infeasible (or cannot certify) is `Not_Certified`, not run (the previous plan
+    stays current; the solver's words in `backend_status`, `backend_success`); and its seconds."""
     t0 = time.perf_counter()
     cert = certify(sub, sol, padded=True)
     verdict = dict(backend_status=sol.status, backend_success=sol.success, certificate=cert)
@@ -448,14 +454,6 @@ def _certified(sub: Setup, sol: Solution) -> tuple[Solution, float]:
         verdict.update(success=False, status=NOT_CERTIFIED)
     return replace(sol, **verdict), time.perf_counter() - t0
 
-
-# re-plans keep this fraction of the velocity, acceleration and tool-speed limits for corrections
-RESERVE = 0.02
-EXTEND = 2  # steps a re-plan may add when the correction does not fit in the time left
-# ... and the goal at most this many steps later in all (past it, the previous plan is kept)
-MAX_LATE = 10
-# a re-plan's (reserve, steps added), in order
-ATTEMPTS = ((RESERVE, 0), (0.0, 0), (RESERVE, EXTEND), (0.0, 2 * EXTEND))
 
 
 def _horizon_for(setup: Setup) -> tuple[Setup, dict | None]:
@@ -490,13 +488,13 @@ def within_reserve(setup: Setup, plan: Solution, backend: Backend) -> Solution:
     spec = setup.ocp.solver
     solver = backend.replan_solver(setup, moving=False)
     start = InitialGuess(np.array(plan.q, float), "the plan within the limits")
-    run = solver.replan(setup, start, ReplanOptions(
-        v0=None, a0=None, tol=spec.tol, mu0=REPLAN_MU, reserve=RESERVE,
-        max_iter=min(spec.surrogate_max_iter, spec.max_iter), feasible_ok=False))
+    run = solver.replan(setup, start, ReplanOptions(  # from rest
+        None, None, spec.tol, REPLAN_MU, min(spec.surrogate_max_iter, spec.max_iter), RESERVE,
+        feasible_ok=False))
     if not run.success:
         return plan
     sol = solver.solution(setup, plan.method, start, run)
-    sol = enforce_limits(setup, replace(
-        sol, solve_time_s=sol.solve_time_s + plan.solve_time_s,
-        extras={**sol.extras, "reserve": RESERVE, "attempts_within_limits": plan.attempts}))
+    sol = enforce_limits(setup, replace(sol, solve_time_s=sol.solve_time_s + plan.solve_time_s,
+                                        extras={**sol.extras, "reserve": RESERVE,
+                                                "attempts_within_limits": plan.attempts}))
     return sol if sol.success else plan
