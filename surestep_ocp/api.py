@@ -21,7 +21,7 @@ from .problem.spec import Problem
 from .output.solution import Solution
 
 if TYPE_CHECKING:
-    from .output.export_timing import Trajectory
+    from .model.limits.retiming import Trajectory
 
 
 def solve(problem: Problem, method: str = "ocp") -> Solution:

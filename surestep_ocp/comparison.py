@@ -26,7 +26,7 @@ from .model.limits.report import (
 )
 from .model.limits.values import problem_limits
 from .problem.paths import resolve_urdf
-from .output.export_timing import planned_curve
+from .model.limits.retiming import planned_curve
 from .output.plots_compare import write_figures
 from .output.plots_motion import plot_plans
 from .problem.setup import Setup

@@ -1,7 +1,7 @@
 """Unit tests of the scenario drawing: needles, arms that hold still, a moving camera.
 
 No browser and no solver: the fixture arm and solutions of test_viz.py, extended
-with `robot.needle`, `other_arms` and `camera_poses` as `solution.evaluate` writes them.
+with `robot.needle`, `other_arms` and `camera_poses` as `ocp.plan_evaluation.evaluate` writes them.
 """
 
 from __future__ import annotations

@@ -17,9 +17,10 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..model.limits import VIOLATED, MotionLimits, problem_limits
-from ..output.export_timing import PchipPath, ToolSpeed, planned_curve, toppra_grid, toppra_run
+from ..model.limits.retiming import PchipPath, ToolSpeed, planned_curve, toppra_grid, toppra_run
 from ..problem.setup import Setup
-from ..output.solution import Solution, evaluate
+from ..output.solution import Solution
+from ..ocp.plan_evaluation import evaluate
 from ..ocp.straight_line import TIME_LAWS, straight_line
 from ..status import Status
 
@@ -76,7 +77,7 @@ class _Timed:
     poses: np.ndarray
     qs: list
     reach: dict
-    played: dict | None  # export_timing.planned_curve's check (None: a waypoint unreachable)
+    played: dict | None  # retiming.planned_curve's check (None: a waypoint unreachable)
 
     @property
     def within(self) -> bool:

@@ -21,7 +21,8 @@ from .registry import run_method
 from ..output.files import check_finite
 from .planner import Planner
 from ..problem.setup import Setup
-from ..output.solution import Solution, evaluate, write_json_atomic, write_text_atomic
+from ..output.solution import Solution, write_json_atomic, write_text_atomic
+from ..ocp.plan_evaluation import evaluate
 
 
 def _belief_after_move(setup: Setup, q_exec: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:

@@ -40,7 +40,8 @@ from ..model.belief import NX, trace_vech
 from ..model.lie import angle_sq, np_angle, pose_mean, so3_exp
 from ..errors import SurestepError
 from ..problem.setup import Setup
-from ..output.solution import Solution, evaluate
+from ..output.solution import Solution
+from ..ocp.plan_evaluation import evaluate
 from ..output.solution_records import SolveRecord
 
 # Smooth guards of the two norms in the pose loss: sqrt(a^2 + eps^2) - eps equals |a|

@@ -17,7 +17,8 @@ import numpy as np
 from ..errors import SurestepError
 from ..model.belief import vech
 from ..ocp.iterate import InitialGuess
-from ..output.solution import Solution, evaluate
+from ..output.solution import Solution
+from ..ocp.plan_evaluation import evaluate
 from ..output.solution_records import SolveRecord
 from ..problem.setup import Setup
 from ..solvers.backends import Context

@@ -46,7 +46,8 @@ from ..model.belief import DIAG, NM, NV, NX, BeliefModel, unvech, vech
 from ..model.joint_noise import joint_noise_function
 from ..model.limits import MotionLimits
 from ..model.robot import CAMERA_PARAMETERS, Robot
-from ..output.solution import Solution, evaluate
+from ..output.solution import Solution
+from .plan_evaluation import evaluate
 from ..output.solution_records import SolveRecord
 from ..problem.setup import Setup
 from ..problem.solver_config import HESSIANS

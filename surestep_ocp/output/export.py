@@ -2,7 +2,7 @@
 time-stamped joint trajectory.
 
 The command: the solution read (`export_load.py`), its waypoints timed within its motion limits
-(`export_timing.py`: the planned curve at the planned times when within them, else toppra's
+(`model/limits/retiming.py`: the planned curve at the planned times when within them, else toppra's
 retiming) and written (`export_writers.py`; the bag: `export_rosbag.py`, its options checked by
 `export_setpoints.py`) with the joints named for the consumer (`joint_names.py`), and
 `<name>_motion.png` beside it (`plots_motion.py`; named after the whole output name, so `bag.1` and
@@ -25,7 +25,7 @@ from ..errors import SurestepError, shown
 from ..model.limits import JAW, parse_overrides
 from .export_setpoints import DEFAULT_ARM, check_arm, check_setpoint_rate
 from .export_load import limits_of, load_solution, solution_label, step_of, within_position_limits
-from .export_timing import DEFAULT_RATE_HZ, TIMINGS, Trajectory, time_parametrise
+from ..model.limits.retiming import DEFAULT_RATE_HZ, TIMINGS, Trajectory, time_parametrise
 from .export_writers import FORMATS, channels, jaw_path, timing_text, write
 from .joint_names import PRESETS, joint_naming
 from .plots_motion import plot_trajectory

@@ -9,7 +9,7 @@ from __future__ import annotations
 import math
 
 from ..model.limits import CURVE_NAME, JAW
-from .export_timing import Trajectory
+from ..model.limits.retiming import Trajectory
 from .joint_names import JointNaming
 
 FORMAT_ID = "surestep-joint-trajectory/1"

@@ -30,7 +30,7 @@ from rosbags.typesys import Stores, get_typestore
 from ..errors import SurestepError, shown
 from .export_message import FORMAT_ID, channels, timing_text, to_joint_trajectory, written_names
 from .export_setpoints import DEFAULT_ARM, setpoint_rows, topics
-from .export_timing import Trajectory
+from ..model.limits.retiming import Trajectory
 from .files import check_finite, write_dir_atomic
 from .joint_names import JointNaming
 

@@ -12,7 +12,7 @@ import re
 import numpy as np
 
 from ..errors import SurestepError, shown
-from .export_timing import Trajectory
+from ..model.limits.retiming import Trajectory
 
 DEFAULT_ARM = "PSM1"
 ARM_NAME = re.compile(r"[A-Za-z][A-Za-z0-9_]*\Z")

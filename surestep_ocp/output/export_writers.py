@@ -27,7 +27,7 @@ from .export_message import (  # noqa: F401 (their home before)
     to_joint_trajectory,
     written_names,
 )
-from .export_timing import Trajectory
+from ..model.limits.retiming import Trajectory
 from .files import check_finite
 from .joint_names import JointNaming
 from .solution import write_json_atomic, write_text_atomic

@@ -48,7 +48,8 @@ from ..model.belief import NV, BeliefModel, vech
 from ..model.lie import np_poses
 from ..model.joint_noise import joint_noise_curvature, joint_noise_expr
 from ..model.robot import CAMERA_PARAMETERS, Robot
-from ..output.solution import Solution, evaluate
+from ..output.solution import Solution
+from ..ocp.plan_evaluation import evaluate
 from ..output.solution_records import SolveRecord
 from ..problem.setup import Setup
 from ..buffered import Buffered

@@ -39,7 +39,7 @@ class Violation(JsonRecord):
 @dataclass(frozen=True)
 class PlayedCurve(JsonRecord):
     """The peaks of the curve the robot plays through the waypoints at the planned pace
-    (output/export_timing.py, `planned_curve`; recorded by `surestep compare`)."""
+    (model/limits/retiming.py, `planned_curve`; recorded by `surestep compare`)."""
 
     curve: str  # its name (limits.CURVE_NAME)
     # joint_velocity, joint_acceleration, tool_speed, tool_rotation: peak / limit (None: the tool

@@ -21,7 +21,7 @@ speed, starting and ending at rest, and never faster than the plan's own pace (t
 observations per step assume it): `s` itself is a last, virtual joint with velocity limit 1, so
 each step takes at least `step_s`, longer only where a limit needs it. The tool's speed along the
 path is `|J_v(q(s)) q'(s)| s_dot` (Pinocchio's frame Jacobian), so its bound is one on `s_dot`
-per grid point (`ToolSpeed`; the constraint: `export_toppra.tool_speed_constraint`).
+per grid point (`ToolSpeed`; the constraint: `retiming_toppra.tool_speed_constraint`).
 
 The limits are those the plan was made with (the solution's recorded `limits`: the problem's
 `limits:` section resolved against the URDF and the defaults; older files without it: the
@@ -41,8 +41,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.interpolate import PchipInterpolator
 
-from ..errors import SurestepError
-from ..model.limits import CURVE_NAME, REL_TOL, MotionLimits, evaluate_curve
+from ...errors import SurestepError
+from .curve import CURVE_NAME, evaluate_curve
+from .values import REL_TOL, MotionLimits
 
 DEFAULT_RATE_HZ = 100.0
 MAX_TRIES = 12  # toppra runs, each with the limits over which the last one went scaled down
@@ -126,7 +127,7 @@ class PchipPath:
 class ToolSpeed:
     """The tool's translation and rotation speed per unit path speed along a path:
     `|J_v(q(s)) q'(s)|` and `|J_w(q(s)) q'(s)|` (Pinocchio's frame Jacobian); the bound they put on
-    `s_dot` is `export_toppra.tool_speed_constraint`."""
+    `s_dot` is `retiming_toppra.tool_speed_constraint`."""
 
     def __init__(self, robot, frame: str, limits: MotionLimits):
         self.robot, self.frame = robot, frame
@@ -159,8 +160,9 @@ def toppra_run(path: PchipPath, grid: np.ndarray, limits: MotionLimits, scales: 
                clock_v: float, clock_a: float, tool: ToolSpeed | None = None):
     """One toppra run along `path` (its last joint the path parameter, within `clock_v`, `clock_a`)
     from rest to rest, within `limits` scaled per family by `scales` (joint velocity, joint
-    acceleration, tool speed): toppra's trajectory, or None when it finds none (`export_toppra`)."""
-    from .export_toppra import run_toppra  # loaded on use: toppra is slow to import
+    acceleration, tool speed): toppra's trajectory, or None when it finds none
+    (`retiming_toppra`)."""
+    from .retiming_toppra import run_toppra  # loaded on use: toppra is slow to import
 
     return run_toppra(path, grid, limits, scales, clock_v, clock_a, tool)
 

@@ -1,4 +1,4 @@
-"""One toppra run (`run_toppra`, behind `export_timing.toppra_run`) and the tool-speed bound it is
+"""One toppra run (`run_toppra`, behind `retiming.toppra_run`) and the tool-speed bound it is
 given (`tool_speed_constraint`): the only module that imports toppra, loaded on first use, since
 toppra is slow to import (the CLI starts without it).
 """
@@ -12,14 +12,14 @@ import toppra.algorithm as algo
 import toppra.constraint as constraint
 from toppra.constraint import DiscretizationType, LinearConstraint
 
-from ..model.limits import MotionLimits
+from .values import MotionLimits
 
 
 def run_toppra(path, grid: np.ndarray, limits: MotionLimits, scales: np.ndarray, clock_v: float,
                clock_a: float, tool=None):
-    """One toppra run along `path` (an `export_timing.PchipPath`, its last joint the path parameter,
+    """One toppra run along `path` (an `retiming.PchipPath`, its last joint the path parameter,
     within `clock_v`, `clock_a`) from rest to rest, within `limits` scaled per family by `scales`
-    (joint velocity, joint acceleration, tool speed; `tool`: an `export_timing.ToolSpeed` or None):
+    (joint velocity, joint acceleration, tool speed; `tool`: an `retiming.ToolSpeed` or None):
     toppra's trajectory, or None when it finds none."""
     logging.getLogger("toppra").setLevel(logging.ERROR)  # a failed try is retried: noise
     vmax = np.append(scales[0] * limits.velocity, clock_v)
