@@ -55,17 +55,20 @@ def dask_client(scheduler, timeout: str):
     """(client, whether we opened it) for a scheduler address (connecting within `timeout`, e.g.
     "10s"), or a `distributed.Client` passed in (`dask_cluster.py`, loaded here: the `dask` extra
     is optional)."""
-    try:
-        from . import dask_cluster
-    except ImportError as exc:
-        raise SurestepError("--scheduler needs dask.distributed (pip install "
-                            f"'surestep_ocp[dask]'): {exc}") from None
-    return dask_cluster.client(scheduler, timeout)
+    return _dask_cluster().client(scheduler, timeout)
 
 
 def run_dask(todo, args, rest, client, finish) -> None:
     """The configurations as Dask futures on the client's cluster (`dask_cluster.run`; the client
     exists, so `distributed` is there); records handed to `finish` as they complete."""
-    from .dask_cluster import run
+    _dask_cluster().run(todo, args, rest, client, finish)
 
-    run(todo, args, rest, client, finish)
+
+def _dask_cluster():
+    """`dask_cluster.py`, loaded on use (the `dask` extra is optional)."""
+    try:
+        from . import dask_cluster
+    except ImportError as exc:
+        raise SurestepError("--scheduler needs dask.distributed (pip install "
+                            f"'surestep_ocp[dask]'): {exc}") from None
+    return dask_cluster

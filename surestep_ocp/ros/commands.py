@@ -3,6 +3,7 @@ checks run, and bad input exits 2, before cyclonedds is loaded or anything is pu
 
 from __future__ import annotations
 
+import importlib.util
 import math
 import sys
 
@@ -110,30 +111,20 @@ def _names(args) -> tuple[str, str, int]:
     return arm, tracker, domain_id(args.domain_id)
 
 
+NO_DDS = "surestep serve / sim-robot need Cyclone DDS: pip install 'surestep_ocp[ros]'"
+
+
 def _need_dds() -> None:
-    try:
-        import cyclonedds  # noqa: F401
-    except ImportError:
-        raise SurestepError("surestep serve / sim-robot need Cyclone DDS: "
-                            "pip install 'surestep_ocp[ros]'") from None
+    if importlib.util.find_spec("cyclonedds") is None:
+        raise SurestepError(NO_DDS)
 
 
 def _served_problem(path: str):
-    """The problem and its setup, if the node can re-plan it (within enforced limits, a PSM)."""
-    from ..problem.load import load_problem
-    from ..problem.setup import build_setup
-    from ..methods.registry import closed_loop_unavailable
+    """The problem and its setup, if the node can re-plan it (ros/served_problem.py: the problem
+    and the solvers loaded only once the options are checked)."""
+    from .served_problem import served_problem
 
-    prob = load_problem(path)
-    setup = build_setup(prob)
-    why = closed_loop_unavailable(setup)
-    if why:
-        raise SurestepError(f"{path}: cannot be served: {why}")
-    names = [n for n in setup.robot.joint_names if n != "jaw"]
-    if tuple(names) != PSM_ARM:
-        raise SurestepError(f"{path}: cannot be served: the robot's joints ({', '.join(names)}) "
-                            "are not a dVRK PSM's")
-    return prob, setup
+    return served_problem(path)
 
 
 def _budget(text: str) -> float | None:
@@ -168,7 +159,7 @@ def cmd_serve(args) -> int:
     naming = joint_naming(args.joint_names, list(PSM_ARM), ["jaw"])
     prob, _ = _served_problem(args.problem)
     _need_dds()
-    from .serve import Serve, ServeOptions
+    from .serve import Serve, ServeOptions  # cyclonedds: loaded once everything is checked
 
     faults = FaultLimits(args.estimate_timeout, args.tolerance, args.insertion_tolerance, 0.1,
                          args.max_replan_failures)
@@ -186,10 +177,8 @@ def cmd_sim_robot(args) -> int:
     _positive(args.rate, "--rate", MAX_SERVO_HZ)
     if args.meshcat is not None:
         _positive(args.meshcat, "--meshcat", 60.0)
-        try:
-            import meshcat  # noqa: F401
-        except ImportError:
-            raise SurestepError("--meshcat: the view needs meshcat (pip install meshcat)") from None
+        if importlib.util.find_spec("meshcat") is None:
+            raise SurestepError("--meshcat: the view needs meshcat (pip install meshcat)")
     if not (math.isfinite(args.tracker_latency) and 0 <= args.tracker_latency < 1):
         raise SurestepError(f"--tracker-latency: {args.tracker_latency:g} must be in [0, 1) s")
     if not (math.isfinite(args.duration) and args.duration >= 0):

@@ -84,11 +84,12 @@ class Publisher:
     jaw's JointState before the tick, `send(prepared)` writes them at it."""
 
     def __init__(self, bus, servo_topic: str, jaw_topic: str):
-        from . import messages as m  # cyclonedds: loaded on use (the tick loop runs without it)
+        # cyclonedds: loaded on use (the tick loop runs without it)
+        from . import messages, node
 
-        self.bus = bus
-        self.servo = bus.writer(servo_topic, m.JointState)
-        self.jaw = bus.writer(jaw_topic, m.JointState)
+        self.bus, self.joint_message = bus, node.joint_message
+        self.servo = bus.writer(servo_topic, messages.JointState)
+        self.jaw = bus.writer(jaw_topic, messages.JointState)
         self.arm_names = self.jaw_names = self.arm_idx = self.jaw_idx = None
 
     def curve(self, arm_names, jaw_names, arm_idx, jaw_idx) -> None:
@@ -96,8 +97,7 @@ class Publisher:
         self.arm_idx, self.jaw_idx = list(arm_idx), list(jaw_idx)
 
     def prepare(self, q, v, ns: int) -> list:
-        from .node import joint_message  # cyclonedds, as messages
-
+        joint_message = self.joint_message
         a, j = self.arm_idx, self.jaw_idx
         out = [(self.servo, self.bus.serialized(
             self.servo, joint_message(ns, self.arm_names, q[a], v[a])))]

@@ -109,11 +109,10 @@ class SimRobot:
 
     def _start_view(self) -> None:
         """The Meshcat view (its server on 127.0.0.1) and the thread that updates it."""
-        from ..viz import server
-        from ..viz.live import LiveView
+        from ..viz import live, server  # meshcat: loaded on use
 
         vis = server.visualizer()
-        self.view = LiveView(run_method(self.setup, "baseline").to_dict(), vis)
+        self.view = live.LiveView(run_method(self.setup, "baseline").to_dict(), vis)
         print(f"sim-robot: Meshcat view at {vis.url()} (the arm and the tracker's belief at "
               f"{self.meshcat_hz:g} Hz)", file=sys.stderr, flush=True)
 
