@@ -53,16 +53,16 @@ def with_motion_limits(setup: Setup, sol: Solution) -> Solution:
     `limits.enforce`), with the peaks of the curve the robot plays through the waypoints
     (`played_curve`: what `surestep export` checks)."""
     if any(q is None for q in sol.q):
-        sol = replace(sol, motion_limits=SkippedReport(UNREACHABLE))
+        sol = sol.replaced(motion_limits=SkippedReport(UNREACHABLE))
         return enforce(setup, sol) if setup.ocp.limits.enforce else sol
     q, step, limits = np.array(sol.q, float), setup.ocp.timing.step_s, problem_limits(setup)
     if setup.ocp.limits.enforce:
         sol = enforce(setup, sol, limits)
     else:
-        sol = replace(sol, motion_limits=plan_report(setup.robot, q, step, limits,
+        sol = sol.replaced(motion_limits=plan_report(setup.robot, q, step, limits,
                                                      tool_frame=setup.robot.frame))
     played = planned_curve(q, step, limits, 1.0 / step, setup.robot, setup.robot.frame)[1]
-    return replace(sol, motion_limits=replace(sol.motion_limits,
+    return sol.replaced(motion_limits=replace(sol.motion_limits,
                                               played_curve=PlayedCurve(**played)))
 
 

@@ -5,6 +5,7 @@ limit report's numbers against finite differences of a plan computed here."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from dataclasses import replace
 
@@ -185,6 +186,15 @@ def test_a_solved_plan_round_trips(tmp_path):
     back = Solution.load(sol.save(tmp_path / "ocp.json"))
     assert back.run == sol.run and back.problem_record == sol.problem_record
     assert back.attempts == sol.attempts and back.to_dict() == sol.to_dict()
+    # frozen: a changed copy, the plan as it was
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        sol.success = False
+    failed = sol.replaced(success=False, status="Not_Certified")
+    assert failed == dataclasses.replace(sol, success=False, status="Not_Certified")
+    assert sol.success and failed.to_dict() == {**sol.to_dict(), "success": False,
+                                                "status": "Not_Certified"}
+    with pytest.raises(TypeError, match="no field succes"):
+        sol.replaced(succes=False)
 
 
 @pytest.mark.parametrize("old, typed", [

@@ -6,7 +6,6 @@ is one JSON-able record (a line of `progress.jsonl`; `evaluation.py` runs the co
 from __future__ import annotations
 
 import time
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -66,7 +65,7 @@ def evaluate_configuration(eval_path: str, seed: int, index: int, methods: tuple
         try:
             if is_closed_loop(name):  # re-plans in every rollout, from this first plan
                 policy = ClosedLoop(method_setup(setup, name))
-                sol = replace(policy.first_plan, method=name)
+                sol = policy.first_plan.replaced(method=name)
             else:
                 sol = run_method(setup, name, cache)
         except Exception as exc:  # noqa: BLE001 - recorded in solves.csv and counted in the table

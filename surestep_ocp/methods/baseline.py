@@ -52,7 +52,7 @@ def solve_baseline(setup: Setup) -> Solution:
     sol = evaluate(setup, "baseline", poses, qs, success=True, status="not optimised",
                    solve_time_s=elapsed, iterations=0, objective=np.nan,
                    extras={"reachability": info})
-    return replace(sol, objective=sol.trace_final)
+    return sol.replaced(objective=sol.trace_final)
 
 
 def constant_pace(T: int) -> np.ndarray:
@@ -195,7 +195,7 @@ def _within_limits(setup: Setup) -> Solution:
     sol = evaluate(_with_steps(setup, line.steps), "baseline", line.poses, line.qs,
                    success=success, status=status, solve_time_s=elapsed, iterations=0,
                    objective=np.nan, extras={"reachability": line.reach, "time_law": record})
-    return replace(sol, objective=sol.trace_final)
+    return sol.replaced(objective=sol.trace_final)
 
 
 def _with_steps(setup: Setup, steps: int) -> Setup:

@@ -9,7 +9,6 @@ the new frame (a `Planner`: warm-started from the previous plan, over the steps 
 
 from __future__ import annotations
 
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -59,7 +58,7 @@ def replan_after_camera_moves(setup: Setup, out_dir: Path, progress=None) -> dic
                     status=first.status, solve_time_s=first.solve_time_s,
                     iterations=first.iterations, objective=first.objective,
                     run=first.run, extras=first.extras)
-    once = replace(once, motion_limits=first.motion_limits)
+    once = once.replaced(motion_limits=first.motion_limits)
     q_exec = np.array(once.q, dtype=float)
     plans: list[Solution] = []
     total_time, total_iter = once.solve_time_s, once.iterations
@@ -68,8 +67,8 @@ def replan_after_camera_moves(setup: Setup, out_dir: Path, progress=None) -> dic
         if progress:
             progress(k)
         mean, sigma = _belief_after_move(setup, q_exec, k)
-        plan = replace(planner.replan(mean, sigma, camera_pose=C[k], step=k - 1),
-                       method=f"ocp-replan-{k}")
+        plan = planner.replan(mean, sigma, camera_pose=C[k], step=k - 1).replaced(
+            method=f"ocp-replan-{k}")
         if not plan.success:
             raise SurestepError(f"re-plan at step {k}: {plan.run.solver} "
                                 f"status {plan.status}")
@@ -83,7 +82,7 @@ def replan_after_camera_moves(setup: Setup, out_dir: Path, progress=None) -> dic
                         iterations=total_iter, objective=np.nan,
                         extras={"replans_at_steps": [int(p.method.rsplit('-', 1)[1])
                                                      for p in plans]})
-    executed = replace(executed, objective=executed.trace_final)
+    executed = executed.replaced(objective=executed.trace_final)
     solutions = (baseline, once, executed, *plans)
     # every solution checked before any file is written: the set is written whole or not at all
     for sol in solutions:

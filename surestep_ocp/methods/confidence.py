@@ -140,7 +140,7 @@ def plan_to_confidence(setup: Setup, solve) -> Solution:
     sol, s, _ = tried[hi]
     searched = [(T, v[2]) for T, v in tried.items()]
     grasp = grasp_record(s, sol, searched)
-    sol = replace(sol, extras={**sol.extras, "grasp": grasp})
+    sol = sol.replaced(extras={**sol.extras, "grasp": grasp})
     if sol.success and not grasp["reached"]:
-        sol = replace(sol, success=False, status=NOT_REACHED)
+        sol = sol.replaced(success=False, status=NOT_REACHED)
     return sol

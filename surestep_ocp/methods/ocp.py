@@ -84,7 +84,7 @@ def solve_ocp_warm(setup: Setup, init: InitialGuess, solver_options: dict | None
         pre = solve_ocp_warm(setup, init, solver_options, method, "condensed")[0]
         # no stationary point to start the lifted NLP from: the same plan
         if pre.status == Status.INITIAL_GUESS_KEPT:
-            return replace(pre, run=replace(pre.run, lifted=(
+            return pre.replaced(run=replace(pre.run, lifted=(
                 "not run: the condensed solve kept its start, where the lifted NLP does not "
                 "converge (docs/general_models.md)"))), None
         if pre.success:
@@ -130,7 +130,7 @@ def _kept_start(ran: list, tried: list, finished: list[int], init: InitialGuess,
     start = nlps[-1](init) if nlps else None  # the last NLP's start point and bounds
     if start is not None:
         ran = sorted({s_k.run.solver for _, _, s_k, _ in tried})
-        start = replace(start, run=replace(start.run, solver=(
+        start = start.replaced(run=replace(start.run, solver=(
             f"none (the initial guess; {', '.join(ran)} did not end below it)")))
         tried.append(("none: the feasible initial guess, below every converged point"
                       if finished
@@ -144,8 +144,7 @@ def _report(sol: Solution, tried: list, pick: int, init: InitialGuess, warm: Ite
             initial_objective: float) -> Solution:
     """The plan kept (`tried[pick]`) with every attempt recorded, its time and iterations their
     sums."""
-    return replace(
-        sol, attempts=[record(label, hess, s_k, k == pick)
+    return sol.replaced(attempts=[record(label, hess, s_k, k == pick)
                        for k, (label, hess, s_k, _) in enumerate(tried)],
         run=replace(sol.run, hessian=" + ".join(label for label, _, _, _ in tried),
                     initial_objective=initial_objective,
@@ -158,7 +157,7 @@ def _report(sol: Solution, tried: list, pick: int, init: InitialGuess, warm: Ite
 def _count_condensed_start(sol: Solution, pre: Solution) -> Solution:
     """`sol` with the condensed solve `pre` that started the lifted one reported, and counted in
     its time and iterations."""
-    return replace(sol, run=replace(sol.run, condensed_start=CondensedStart(
+    return sol.replaced(run=replace(sol.run, condensed_start=CondensedStart(
         pre.status, pre.iterations, pre.run.solver, pre.solve_time_s, pre.objective),
         initial_trace=pre.run.initial_trace, initial_objective=pre.run.initial_objective,
         worse_than_initial_guess=bool(sol.objective > pre.run.initial_objective)),
@@ -236,8 +235,7 @@ def _second_start(setup: Setup, cold: InitialGuess, sol: Solution, last, solver_
             extra_it += second.iterations
         if second.success and (not sol.success or second.objective < sol.objective * (1 - 1e-9)):
             label = f"{second.run.solver} from the diagonal model's plan"
-            second = replace(
-                second, attempts=[replace(a, kept=False) for a in sol.attempts]
+            second = second.replaced(attempts=[replace(a, kept=False) for a in sol.attempts]
                 + [record(label, "surrogate", second, True)],
                 run=replace(second.run, initial_trace=sol.run.initial_trace,
                             initial_objective=sol.run.initial_objective,
@@ -247,6 +245,6 @@ def _second_start(setup: Setup, cold: InitialGuess, sol: Solution, last, solver_
                 solve_time_s=sol.solve_time_s, iterations=sol.iterations)
             sol, last = second, (Iterate(np.array(second.q))
                                  if second.run.solver == "newton" else None)
-    return replace(sol, run=replace(sol.run, second_start=gate),
+    return sol.replaced(run=replace(sol.run, second_start=gate),
                    solve_time_s=sol.solve_time_s + extra_time,
                    iterations=sol.iterations + extra_it), last

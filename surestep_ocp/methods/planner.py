@@ -240,7 +240,7 @@ class Planner(RealTimeIteration):
         built_s = sum(self.builds.values()) - builds_before
         record = ReplanRecord(step, time.perf_counter() - t0 - built_s, sol.run.solver, built_s,
                               certificate_s=certificate_s)
-        sol = replace(sol, replan=record)
+        sol = sol.replaced(replan=record)
         if sol.success:  # else the previous plan stays current
             self.plan, self.step, self._q = sol, step, np.array(sol.q, float)
         return sol
@@ -342,18 +342,18 @@ class Planner(RealTimeIteration):
             sol = self._full(cov, registered, q_goal, reachable, step, start)
             if not reachable:  # no plan tried (the goal's IK residual is in the log)
                 residual = unreached or {"m": float(res_m), "rad": float(res_rad)}
-                sol = replace(sol, success=False, status=Status.GOAL_UNREACHABLE,
+                sol = sol.replaced(success=False, status=Status.GOAL_UNREACHABLE,
                               extras={**sol.extras, "goal_ik_residual": residual})
         if unreached is not None and reachable:
-            sol = replace(sol, extras={**sol.extras, "goal_ik_residual": unreached})
+            sol = sol.replaced(extras={**sol.extras, "goal_ik_residual": unreached})
         # what the re-plan's record takes out of the extras
         extras = dict(sol.extras)
         sub, feedback_s = extras.pop(_SETUP), extras.pop("feedback_s", None)
         tried = extras.pop("attempts_tried", None)
         # the certificate (docs/certificate.md): a plan it finds infeasible is not run
-        sol, certificate_s = _certified(sub, replace(sol, extras=extras))
+        sol, certificate_s = _certified(sub, sol.replaced(extras=extras))
         built_s = self.build_time_s - builds_before
-        sol = replace(sol, replan=ReplanRecord(
+        sol = sol.replaced(replan=ReplanRecord(
             step, time.perf_counter() - t0 - built_s, "interior", built_s, not sol.success,
             tried, registration_held=unreached is not None and reachable, rti=rti,
             feedback_s=feedback_s, prepare_s=None if prep is None else prep.time_s,
@@ -417,7 +417,7 @@ class Planner(RealTimeIteration):
             if run.success:
                 break
         sol = replan_solution(sub, propagation, solver, warm, run, cov, v0, a0)
-        return replace(sol, extras={**sol.extras, "reserve": reserve, "extended_steps": extra,
+        return sol.replaced(extras={**sol.extras, "reserve": reserve, "extended_steps": extra,
                                     "attempts_tried": tried})
 
     def _goal_joints(self, registered: Setup, base: Setup) -> tuple[np.ndarray, float, float]:
@@ -452,7 +452,7 @@ def _certified(sub: Setup, sol: Solution) -> tuple[Solution, float]:
     verdict = dict(backend_status=sol.status, backend_success=sol.success, certificate=cert)
     if sol.success and (cert is None or cert.level == INFEASIBLE):
         verdict.update(success=False, status=NOT_CERTIFIED)
-    return replace(sol, **verdict), time.perf_counter() - t0
+    return sol.replaced(**verdict), time.perf_counter() - t0
 
 
 
@@ -494,7 +494,7 @@ def within_reserve(setup: Setup, plan: Solution, backend: Backend) -> Solution:
     if not run.success:
         return plan
     sol = solver.solution(setup, plan.method, start, run)
-    sol = enforce_limits(setup, replace(sol, solve_time_s=sol.solve_time_s + plan.solve_time_s,
+    sol = enforce_limits(setup, sol.replaced(solve_time_s=sol.solve_time_s + plan.solve_time_s,
                                         extras={**sol.extras, "reserve": RESERVE,
                                                 "attempts_within_limits": plan.attempts}))
     return sol if sol.success else plan

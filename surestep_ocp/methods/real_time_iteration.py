@@ -80,5 +80,5 @@ class RealTimeIteration(ReplanSolvers):
         tried = [ReplanAttempt(reserve=prep.reserve, steps_added=0, status=prep.run.status,
                                iterations=prep.run.iterations,
                                relaxed_iterations=prep.run.relaxed_iterations)]
-        return replace(sol, extras={**sol.extras, "reserve": prep.reserve, "extended_steps": 0,
+        return sol.replaced(extras={**sol.extras, "reserve": prep.reserve, "extended_steps": 0,
                                     "feedback_s": feedback_s, "attempts_tried": tried}), x

@@ -129,7 +129,7 @@ def run_method(setup: Setup, name: str, cache: dict[str, Solution] | None = None
         plain = replace(grasp, confidence=None)
         sol = plan_to_confidence(s, lambda sub: run_method(sub.with_ocp(grasp=plain), name, cache,
                                                            solver_options))
-        return replace(sol, method=name)
+        return sol.replaced(method=name)
     if base == "baseline":
         sol = solve_baseline(s)
     elif base in ("gradient", "gradient-no-pose-loss"):
@@ -143,7 +143,7 @@ def run_method(setup: Setup, name: str, cache: dict[str, Solution] | None = None
         grad = ((cache or {}).get("gradient" + suffix)
                 or run_method(setup, "gradient" + suffix, cache))
         sol = solve_ocp(s, ocp_initial_guess(s, "gradient", grad), solver_options)
-    sol = replace(sol, method=name)
+    sol = sol.replaced(method=name)
     # one meaning of success: the certificate (docs/certificate.md); the Planner's own plan
     # (ocp-mpc) is certified, its success left to the Planner
     sol = judge(s, sol, gate=base not in CLOSED_LOOP_METHODS)

@@ -98,4 +98,4 @@ def replan_solution(sub: Setup, propagation, solver, warm: InitialGuess, run, co
     run_record = replace(sol.run, start_state=StartState(v0.tolist(), a0.tolist()),
                          warm_start_q=np.asarray(warm.q, float).tolist())
     # (the certificate's problem; taken out before it is returned)
-    return replace(sol, run=run_record, extras={**sol.extras, CERTIFIED_SETUP: sub})
+    return sol.replaced(run=run_record, extras={**sol.extras, CERTIFIED_SETUP: sub})

@@ -67,10 +67,10 @@ def replan_without_limits(sub: Setup, warm: InitialGuess, cov: np.ndarray, moved
         tried = run_strategy(replan_strategy(ctx, moved), ctx, warm, None)
         if tried[-1].outcome.solution.success:
             sol = tried[-1].outcome.solution
-            sol = replace(sol, attempts=records(tried, len(tried) - 1),
+            sol = sol.replaced(attempts=records(tried, len(tried) - 1),
                           run=replace(sol.run, warm_start_q=np.asarray(warm.q, float).tolist()))
     if sol is None:
         # IPOPT's models, or Newton did not converge: the whole strategy from the previous plan
         sol = solve_ocp_warm(sub, warm, method="ocp-replan")[0]
-        sol = replace(sol, run=replace(sol.run, warm_start_q=np.asarray(warm.q, float).tolist()))
+        sol = sol.replaced(run=replace(sol.run, warm_start_q=np.asarray(warm.q, float).tolist()))
     return sol

@@ -318,11 +318,11 @@ def judge(setup: Setup, sol: Solution, gate: bool = True) -> Solution:
     plan, not an optimum: their success stays their own, with the certificate beside it. The
     backend's own status is kept as `sol.backend_status`. `gate` false: certified, success left
     as it is."""
-    sol = replace(sol, backend_status=sol.status, backend_success=sol.success,
+    sol = sol.replaced(backend_status=sol.status, backend_success=sol.success,
                   certificate=certify(setup, sol))
     if gate and claims_optimum(sol.method) and sol.success and (
             sol.certificate is None or not sol.certificate.certified):
-        sol = replace(sol, success=False, status=NOT_CERTIFIED)
+        sol = sol.replaced(success=False, status=NOT_CERTIFIED)
     return sol
 
 

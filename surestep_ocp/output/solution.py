@@ -29,8 +29,8 @@ from .solution_records import (
 @dataclass(frozen=True)
 class Solution:
     """A planned trajectory and its evaluation (see docs/solution_file.md). Frozen: a layer that
-    gives a plan a verdict or a record returns a new Solution (`dataclasses.replace`), so a solver's
-    plan is never changed under whoever holds it."""
+    gives a plan a verdict or a record returns a new Solution (`replaced`), so a solver's plan is
+    never changed under whoever holds it."""
 
     method: str
     problem: str
@@ -69,6 +69,18 @@ class Solution:
     certificate: Certificate | None = None
     backend_status: str | None = None  # the backend's own status, before the certificate
     backend_success: bool | None = None  # the backend's own success, before the certificate
+
+    def replaced(self, **changes) -> Solution:
+        """A copy with `changes`: `dataclasses.replace` without re-running `__init__` (a Solution
+        derives nothing from its fields, and a re-plan makes several copies: 3 us each, not 20);
+        a name that is not a field is a TypeError, as there."""
+        unknown = changes.keys() - _FIELDS
+        if unknown:
+            raise TypeError(f"Solution has no field {', '.join(sorted(unknown))}")
+        new = object.__new__(Solution)
+        new.__dict__.update(self.__dict__)
+        new.__dict__.update(changes)
+        return new
 
     # ----------------------------------------------------------- derived numbers
     @property
@@ -178,6 +190,7 @@ class Solution:
                    extras={**extras, **d})
 
 
+_FIELDS = frozenset(Solution.__dataclass_fields__)
 # the typed records of a Solution, written as top-level keys of its file
 _RECORDS = ("run", "problem_record", "replan", "motion_limits", "certificate")
 # fields a file written before them does not hold

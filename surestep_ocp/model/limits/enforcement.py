@@ -32,7 +32,7 @@ def enforce(setup, sol, limits: MotionLimits | None = None):
     rep = report(setup, sol.q, limits)
     # a failure keeps its own status (the report says what it breaks)
     if not rep.ok and sol.success:
-        return replace(sol, motion_limits=rep, success=False, status=VIOLATED,
+        return sol.replaced(motion_limits=rep, success=False, status=VIOLATED,
                        run=replace(sol.run, solver_status=sol.status))
-    return replace(sol, motion_limits=rep)
+    return sol.replaced(motion_limits=rep)
 

@@ -120,7 +120,7 @@ class InteriorNewton(RowsPart, BandPart):
         """The Solution of a run (the plan evaluated as projected Newton's are; `sigma`: its
         covariances when the caller has them), its solver named "interior"."""
         sol = self.newton.solution(setup, method, start, run, sigma=sigma)
-        return replace(sol, run=replace(sol.run, solver="interior"))
+        return sol.replaced(run=replace(sol.run, solver="interior"))
 
     def solve(self, setup, init, options: InteriorOptions, v0=None, a0=None,
               warm: np.ndarray | None = None) -> InteriorRun:
