@@ -46,13 +46,21 @@ def _needle(arm: ArmRecord) -> dict:
     return {"radius": arm.needle_radius, "grasp": arm.grasp.tolist()}
 
 
+def _joint_lists(q: list) -> list[list[float] | None]:
+    """Each waypoint's joints as a list of floats (None where it has none)."""
+    if any(qi is None for qi in q):
+        return [None if qi is None else [float(v) for v in qi] for qi in q]
+    return np.asarray(q, float).tolist()
+
+
 def _principal(poses: np.ndarray) -> np.ndarray:
     """(N, 6) poses with every rotation vector beyond pi replaced by the principal one of the same
     rotation (the OCP's means and the setup's goal are continued vectors, docs/orientation.md); the
     others untouched."""
     poses = np.array(poses, dtype=float)
     beyond = np.linalg.norm(poses[:, 3:], axis=1) > np.pi
-    poses[beyond, 3:] = np_log_many(np_exp_many(poses[beyond, 3:]))
+    if beyond.any():  # (rarely: a re-plan evaluates a plan per frame)
+        poses[beyond, 3:] = np_log_many(np_exp_many(poses[beyond, 3:]))
     return poses
 
 
@@ -102,14 +110,14 @@ def evaluate(
         iterations=int(iterations),
         horizon=len(poses) - 1,
         joint_names=setup.robot.joint_names,
-        q=[None if qi is None else [float(v) for v in qi] for qi in q],
+        q=_joint_lists(q),
         poses=poses.tolist(),
         goal=_principal(setup.x_goal[None])[0].tolist(),
         camera=ocp.intrinsics.to_dict(),
         camera_pose=setup.camera_pose.tolist(),
         robot=robot,
         noise=noise,
-        trace=[float(np.trace(s)) for s in sig],
+        trace=np.trace(sig, axis1=1, axis2=2).tolist(),
         sigma=sig.tolist(),
         sigma_final=sig[-1].tolist(),
         objective=float(objective),
