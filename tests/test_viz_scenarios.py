@@ -12,12 +12,26 @@ import pytest
 pin = pytest.importorskip("pinocchio")
 pytest.importorskip("meshcat")
 
-from test_viz import (arm_urdf, built, last, make_solution, solutions,  # noqa: E402,F401
-                      unpack_points)
+from test_viz import ARM_URDF, built, last, make_solution, unpack_points  # noqa: E402
 
 from surestep_ocp.viz import style  # noqa: E402
 from surestep_ocp.viz.scene import resolve_file  # noqa: E402
 from surestep_ocp.viz.timeline import Timeline  # noqa: E402
+
+
+@pytest.fixture()
+def arm_urdf(tmp_path):
+    """test_viz.py's small arm, written for this test."""
+    p = tmp_path / "mini_arm.urdf"
+    p.write_text(ARM_URDF)
+    return p
+
+
+@pytest.fixture()
+def solutions(arm_urdf):
+    """test_viz.py's two solutions (baseline and OCP) on that arm."""
+    return [make_solution(arm_urdf, "baseline", 0.0, 1), make_solution(arm_urdf, "ocp", 0.15, 2)]
+
 
 RADIUS = 0.0115
 
