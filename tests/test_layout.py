@@ -113,6 +113,27 @@ def test_no_function_over_the_limit():
     assert not long, long
 
 
+# the lazy entry points (the command line, the API, the package): their imports wait for a command
+ENTRY_POINTS = {"surestep_ocp", "surestep_ocp.cli", "surestep_ocp.api"}
+MAX_LOCAL_IMPORTS = 14  # issue 45: fewer than 15, each an optional or slow dependency loaded on use
+
+
+def _local_imports(source: str) -> list[int]:
+    """The lines of the import statements inside functions."""
+    return [node.lineno for fn in ast.walk(ast.parse(source))
+            if isinstance(fn, (ast.FunctionDef, ast.AsyncFunctionDef))
+            for node in ast.walk(fn) if isinstance(node, (ast.Import, ast.ImportFrom))]
+
+
+def test_few_imports_inside_functions():
+    found = [f"{name}:{line}" for name, path in MODULES.items() if name not in ENTRY_POINTS
+             for line in _local_imports(path.read_text())]
+    assert len(found) <= MAX_LOCAL_IMPORTS, found
+    # (counted as written: one in a function, one in a method, none at the top)
+    assert _local_imports("import a\ndef f():\n    import b\nclass C:\n    def g(self):\n"
+                          "        from . import c\n") == [3, 6]
+
+
 def test_the_checks_catch_a_cycle_and_a_long_function(tmp_path):
     """The checks above on a made-up package: a two-module cycle inside a function and a function
     of 81 lines are found (the tests can fail)."""
