@@ -182,9 +182,10 @@ def test_a_non_diagonal_models_trace_is_the_textbook_ekfs(default_setup, ocp, fa
 
 
 def test_the_multipliers_are_the_bounded_least_squares_over_all_of_them():
-    """`_multipliers` (NNLS on what the terminal rows' span leaves, over the touched rows) against
-    scipy's BVLS over (lam free, nu >= 0) at once: the same residual (unique) and minimum, with
-    duplicated and rank-deficient columns."""
+    """`_multipliers` (NNLS on what the terminal rows' span leaves, over the touched rows, with the
+    complementarity rows `slack * nu`) against scipy's BVLS over (lam free, nu >= 0) at once on
+    the stacked KKT residual: the same residual (unique) and minimum, with duplicated and
+    rank-deficient columns, rows at their bound (slack 0) and rows away from it."""
     from scipy.optimize import lsq_linear
 
     from surestep_ocp.ocp.certificate import _multipliers
@@ -198,14 +199,18 @@ def test_the_multipliers_are_the_bounded_least_squares_over_all_of_them():
         B_A = rng.normal(size=(n, m)) * (rng.random((n, m)) < 0.1)
         B_A[:, 1] = B_A[:, 0]  # a duplicated active row
         B_A[start:, 2] = rng.normal(size=k)  # one acting on the last node
+        slack = np.where(rng.random(m) < 0.5, 0.0, 10.0 ** rng.uniform(-4, 0, m))
         g = rng.normal(size=n)
-        lam, nu, r = _multipliers(g, B_A, B_E, start)
+        lam, nu, r = _multipliers(g, B_A, B_E, start, slack)
         full = np.hstack([np.vstack([np.zeros((start, 7)), B_E]), B_A])
         assert np.all(nu >= 0)
         np.testing.assert_allclose(r, g + full @ np.concatenate([lam, nu]), atol=1e-12)
         lb = np.concatenate([np.full(7, -np.inf), np.zeros(m)])
-        x = lsq_linear(full, -g, bounds=(lb, np.inf), method="bvls", tol=1e-14).x
-        np.testing.assert_allclose(r, g + full @ x, atol=1e-9)
+        stacked = np.vstack([full, np.hstack([np.zeros((m, 7)), np.diag(slack)])])
+        x = lsq_linear(stacked, np.concatenate([-g, np.zeros(m)]), bounds=(lb, np.inf),
+                       method="bvls", tol=1e-14).x
+        np.testing.assert_allclose(r, g + full @ x, atol=1e-8)
+        np.testing.assert_allclose(slack * nu, slack * x[7:], atol=1e-8)
 
 
 def test_the_tool_rows_gradients_are_their_differences(default_setup, ocp):
@@ -227,3 +232,65 @@ def test_the_tool_rows_gradients_are_their_differences(default_setup, ocp):
     lin, tool, Jz = rows.values(q, False, [0.0])
     np.testing.assert_allclose(lin, rows.A @ q.ravel() + rows.a, atol=1e-12)
     assert_tool_gradients_match(rows, q)
+
+
+@pytest.fixture(scope="module")
+def near_rows_plan():
+    """IPOPT's plan of the evaluation's configuration 2 within the default limits enforced at
+    0.05 s per step over 40 steps (benchmarks/certificate.py's `limits` family), interpreted: IPOPT
+    says Solve_Succeeded with limit rows 1e-4 to 1e-2 from their bound carrying multipliers."""
+    from surestep_ocp.evaluation.configs import ConfigurationSampler, load_evaluation
+    from surestep_ocp.problem.setup import build_setup
+    from surestep_ocp.problem.spec import LimitsSpec, TimingSpec
+
+    smp = ConfigurationSampler(load_evaluation("problems/evaluations/evaluation.yaml"))
+    p = smp.problem(smp.sample(0, 2))
+    p = replace(p, horizon=40, limits=LimitsSpec(enforce=True),
+                timing=TimingSpec(step_s=0.05, tracker_hz=20.0))
+    setup = build_setup(replace(p, solver=replace(p.solver, name="ipopt", codegen=False)))
+    return setup, run_method(setup, "ocp")
+
+
+def _descent(setup, sol) -> float:
+    """How much the interior-point method (not the certificate's code) lowers the objective
+    (1 at the start, plus the smoothness term; the trace by the certificate's NumPy EKF) from the
+    plan's joints."""
+    from surestep_ocp.methods.ocp import solve_ocp
+    from surestep_ocp.ocp.iterate import InitialGuess
+
+    setup = setup.with_ocp(solver=replace(setup.ocp.solver, name="interior"))
+    out = solve_ocp(setup, InitialGuess(np.asarray(sol.q, float), "the plan"))
+    assert out.success
+
+    def f(plan):
+        q = np.asarray(plan.q, float)
+        return (certify(setup, plan).trace / sol.run.initial_trace
+                + setup.ocp.smoothness * float(np.sum(np.diff(q, axis=0) ** 2)))
+
+    return f(sol) - f(out)
+
+
+def test_rows_near_their_bound_carry_multipliers_by_complementarity(near_rows_plan, monkeypatch):
+    """The active set chosen by complementarity: IPOPT's plan with rows 1e-4 to 1e-2 from their
+    bound is certified (by the rows within 1e-4 alone it was only feasible), as the interior-point
+    method from it confirms (no lower objective beyond solver.tol), its stationarity the same with
+    the gradient by finite differences of the NumPy EKF. The same plan under another objective
+    (a smoothness term) is feasible, not certified, and the interior-point method lowers it."""
+    import surestep_ocp.ocp.certificate as cert_module
+
+    setup, sol = near_rows_plan
+    tol = setup.ocp.solver.tol
+    c = certify(setup, sol)
+    assert sol.backend_status == "Solve_Succeeded" and c.certified, c
+    assert c.complementarity <= c.tolerances.complementarity
+    fd = certify(setup, sol, fd_step=1e-6)
+    assert fd.level == c.level
+    assert abs(c.stationarity - fd.stationarity) <= 1e-7 + 1e-4 * fd.stationarity
+    assert _descent(setup, sol) <= tol
+    with monkeypatch.context() as m:  # the rows that decide it are beyond 1e-4
+        m.setattr(cert_module, "WINDOW", 1e-4)
+        assert certify(setup, sol).level == FEASIBLE
+    smooth = setup.with_ocp(smoothness=0.1)
+    c_off = certify(smooth, sol)
+    assert c_off.level == FEASIBLE and certify(smooth, sol, fd_step=1e-6).level == FEASIBLE
+    assert _descent(smooth, sol) > 100 * tol

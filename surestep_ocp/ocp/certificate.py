@@ -5,22 +5,23 @@ over the moving joints of q_1..q_T, subject to the terminal mean `mu(q_T) = mu_g
 bounds (the RCM distance on the insertion with enforced limits), `z(q_t) >= min_depth` and, with
 `limits.enforce`, the played curve's rows (`model/limits/curve.py`). The covariance is the model's
 6x6 EKF (`BeliefModel.step_pair`, whatever recursion the backend used), differentiated by CasADi's
-reverse mode; the multipliers are estimated by bounded least squares on the active rows; the trace
+reverse mode; the multipliers are estimated by bounded least squares on the rows within WINDOW of
+their bound, the active set chosen by complementarity (multiplier x slack small); the trace
 is recomputed by a NumPy EKF of its own (Joseph form, no CasADi recursion). `certify` computes the
 record, `judge` gives a Solution its meaning of success (docs/certificate.md).
 
 What it costs (docs/certificate.md, "What it costs"): everything a structure (robot, belief model,
-horizon, smoothness, enforced limits) fixes is built once per process and kept here; the one
-CasADi Function (objective, its gradient, the means and their Jacobians, the noise maps the NumPy
-EKF takes) is evaluated in place (`buffered.py`), interpreted at first and compiled to C (or loaded
+horizon, smoothness, enforced limits) fixes is built once per process and kept here; the one CasADi
+Function (objective, its gradient, the means and their Jacobians, the noise maps the NumPy EKF
+takes) is evaluated in place (`buffered.py`), interpreted at first and compiled to C (or loaded
 from the compile cache, `codegen.py`) at the structure's `COMPILE_AFTER`-th certificate in the
 process, as `solver.codegen` allows; the multipliers' bounded least squares runs only when an
-inequality row is active, as a non-negative least squares on the rows the equality multipliers
-leave; the limit rows and their gradients are NumPy arrays over all rows at once. A re-plan (a
-Planner's, from a moving start: docs/certificate.md, "Re-plans") keeps its horizon's rows with the
-start state as values (`_Rows.at`) and is evaluated by the padded Function of its horizon's bucket
-(`PAD_STEPS`, `_padded_call`; its tool rates likewise, `PAD_POINTS`): a loop's horizons share a
-few Functions, with the values each horizon's own would give.
+inequality row is near its bound, as a non-negative least squares on the rows the equality
+multipliers leave; the limit rows and their gradients are NumPy arrays over all rows at once. A
+re-plan (a Planner's, from a moving start: docs/certificate.md, "Re-plans") keeps its horizon's rows
+with the start state as values (`_Rows.at`) and is evaluated by the padded Function of its
+horizon's bucket (`PAD_STEPS`, `_padded_call`; its tool rates likewise, `PAD_POINTS`): a loop's
+horizons share a few Functions, with the values each horizon's own would give.
 
 Here: the measures, the multipliers and the verdict. Its parts: the Function per structure
 (`certificate_function.py`), the layout and the limit rows (`certificate_rows.py`), the NumPy EKF
@@ -57,7 +58,9 @@ from ..status import Status
 FEASIBILITY = 1e-6  # IPOPT's acceptable_constr_viol_tol (nlp_cache.solver_options)
 ACCEPTABLE = 1e-3  # IPOPT's acceptable_tol where the problem stops at that level (ENFORCED_OPTIONS)
 TRACE_RTOL = 1e-6  # two EKF passes in double precision agree far better
-ACTIVE = 1e-4  # an inequality row within this of its bound (its own units) is active
+# an inequality row within this of its bound (its own units) is a candidate for the active set;
+# which candidates carry a multiplier is chosen by complementarity (`_multipliers`)
+WINDOW = 1e-2
 S_MAX = 100.0  # IPOPT's s_max of the dual scale
 
 
@@ -128,7 +131,7 @@ def certify(setup: Setup, sol: Solution, fd_step: float | None = None,
     M = out[3].reshape(T + 1, 7)
     J = out[4].reshape(T + 1, nq, 7)  # J[t, j]: d mean_t / d q_t,j
     term_p, term_a, beyond, moved, depth_slack, depth = _primal_measures(setup, lay, q, M)
-    cols, slack, limit_violation = _active_rows(lay, q, J, depth_slack, rows_at)
+    cols, slack, limit_violation = _candidate_rows(lay, q, J, depth_slack, rows_at)
     r, mult, compl, s_d = _stationarity(g, lay, J, T, cols, slack)
     trace_np, trace_error = _trace_check(setup, sol, holder, out, M, q, trace)
     cert = Certificate(
@@ -136,7 +139,8 @@ def certify(setup: Setup, sol: Solution, fd_step: float | None = None,
         bound_violation=max(beyond, moved), depth_violation=depth,
         limit_violation=limit_violation,
         stationarity=float(np.max(np.abs(r), initial=0.0)) / s_d,
-        complementarity=compl / s_d, dual_scale=s_d, active_rows=len(mult) - 7,
+        complementarity=compl / s_d, dual_scale=s_d,
+        active_rows=int(np.count_nonzero(mult[7:] > 0)),
         trace=trace_np, trace_error=float(trace_error), tolerances=tol, level="infeasible",
         time_s=0.0)
     return replace(cert, level=level_of(cert), time_s=time.perf_counter() - t0 - built[0])
@@ -180,14 +184,15 @@ def _primal_measures(setup: Setup, lay, q: np.ndarray, M: np.ndarray) -> tuple:
     return term_p, term_a, beyond, moved, depth_slack, depth
 
 
-def _active_rows(lay, q: np.ndarray, J: np.ndarray, depth_slack: np.ndarray, rows_at
-                 ) -> tuple[list, list, float | None]:
-    """The inequality rows c(x) <= 0 near their bound: (their gradients over the free joints as
-    column blocks, their slacks, the limit rows' violation (None without enforced limits))."""
+def _candidate_rows(lay, q: np.ndarray, J: np.ndarray, depth_slack: np.ndarray, rows_at
+                    ) -> tuple[list, list, float | None]:
+    """The inequality rows c(x) <= 0 within WINDOW of their bound: (their gradients over the free
+    joints as column blocks, their slacks, the limit rows' violation (None without enforced
+    limits))."""
     T, nq = len(q) - 1, q.shape[1]
     xf = q.ravel()[lay.idx]
-    at_lo = np.flatnonzero(xf - lay.lo_x <= ACTIVE)
-    at_hi = np.flatnonzero(lay.hi_x - xf <= ACTIVE)
+    at_lo = np.flatnonzero(xf - lay.lo_x <= WINDOW)
+    at_hi = np.flatnonzero(lay.hi_x - xf <= WINDOW)
     nf = len(lay.idx)
     cols, slack = [], []
     if len(at_lo) or len(at_hi):
@@ -196,7 +201,7 @@ def _active_rows(lay, q: np.ndarray, J: np.ndarray, depth_slack: np.ndarray, row
         C[at_hi, len(at_lo) + np.arange(len(at_hi))] = 1.0
         cols.append(C)
         slack += [xf[at_lo] - lay.lo_x[at_lo], lay.hi_x[at_hi] - xf[at_hi]]
-    near = np.flatnonzero(depth_slack <= ACTIVE) + 1  # the waypoints at the depth bound
+    near = np.flatnonzero(depth_slack <= WINDOW) + 1  # the waypoints at the depth bound
     if len(near):
         C = np.zeros((len(near), T + 1, nq))
         C[np.arange(len(near)), near] = -J[near, :, 2]
@@ -207,8 +212,8 @@ def _active_rows(lay, q: np.ndarray, J: np.ndarray, depth_slack: np.ndarray, row
         rows, lin, tool, Jz = rows_at(q)
         limit_violation = float(max(0.0, np.max(np.abs(lin) - 1, initial=0.0),
                                     np.max(tool - 1, initial=0.0)))
-        up, down = np.flatnonzero(1 - lin <= ACTIVE), np.flatnonzero(1 + lin <= ACTIVE)
-        fast = np.flatnonzero(1 - tool <= ACTIVE)
+        up, down = np.flatnonzero(1 - lin <= WINDOW), np.flatnonzero(1 + lin <= WINDOW)
+        fast = np.flatnonzero(1 - tool <= WINDOW)
         if len(up) or len(down) or len(fast):
             cols.append(np.vstack([rows.A[up], -rows.A[down],
                                    rows.tool_gradients(fast, Jz)])[:, lay.idx].T)
@@ -218,16 +223,18 @@ def _active_rows(lay, q: np.ndarray, J: np.ndarray, depth_slack: np.ndarray, row
 
 def _stationarity(g: np.ndarray, lay, J: np.ndarray, T: int, cols: list, slack: list
                   ) -> tuple[np.ndarray, np.ndarray, float, float]:
-    """Stationarity on the free joints, grad f + J_E^T lam + J_A^T nu = 0 with nu >= 0: (its
-    residual, the multipliers, the complementarity, the dual scale)."""
+    """Stationarity on the free joints, grad f + J_E^T lam + J_A^T nu = 0 with nu >= 0 over the
+    candidate rows, nu x slack small: (its residual, the multipliers, the complementarity (the
+    largest multiplier x slack), the dual scale)."""
     gf = g[lay.idx]
     B_E = J[T, lay.mov, :]  # the terminal rows act on the last node's free joints only
     if cols:
         B_A = np.hstack(cols)
-        lam, nu, r = _multipliers(gf, B_A, B_E, lay.terminal)
+        s = np.maximum(np.concatenate(slack), 0.0)
+        lam, nu, r = _multipliers(gf, B_A, B_E, lay.terminal, s)
         mult = np.concatenate([lam, nu])
-        compl = float(np.max(np.abs(nu * np.maximum(np.concatenate(slack), 0.0)), initial=0.0))
-    else:  # no inequality active: the equality multipliers alone, by least squares
+        compl = float(np.max(nu * s, initial=0.0))
+    else:  # no inequality near its bound: the equality multipliers alone, by least squares
         r = gf.copy()
         lam = np.linalg.lstsq(B_E, -gf[lay.terminal:], rcond=None)[0]
         r[lay.terminal:] += B_E @ lam
@@ -256,14 +263,17 @@ def _trace_check(setup: Setup, sol: Solution, holder: _Function, out: list, M: n
     return trace_np, trace_error
 
 
-def _multipliers(g: np.ndarray, B_A: np.ndarray, B_E: np.ndarray, start: int
-                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(lam, nu >= 0, residual g + B_E lam + B_A nu) minimising the residual's 2-norm, where the
-    equality rows' gradients `B_E` (the last node's free joints x 7) act on the free joints from
-    `start` on: nu by non-negative least squares on what the equality rows' span leaves (projected
-    out), over the free joints an active row touches (the others' residual is g's whatever nu),
-    then lam by least squares: the minimum of the bounded least squares over (lam, nu) together,
-    whose residual is unique."""
+def _multipliers(g: np.ndarray, B_A: np.ndarray, B_E: np.ndarray, start: int,
+                 slack: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(lam, nu >= 0, residual g + B_E lam + B_A nu) minimising the KKT residual of a perturbed
+    (barrier-like) point, |g + B_E lam + B_A nu|^2 + |slack * nu|^2: stationarity and
+    complementarity together, so that the candidate rows (`slack` >= 0 from their bound) that
+    carry a multiplier are those whose multiplier x slack stays small (IPOPT's complementarity),
+    the active set chosen by complementarity. `B_E` (the last node's free joints x 7, the
+    equality rows) acts on the free joints from `start` on: nu by non-negative least squares on
+    what its span leaves (projected out), over the free joints a row touches (the others'
+    residual is g's whatever nu) with the rows `slack * nu` below, then lam by least squares: the
+    minimum over (lam, nu) together, whose residual is unique."""
     U, sv, _ = np.linalg.svd(B_E, full_matrices=False)
     U = U[:, sv > (sv[0] if sv.size else 0.0) * max(B_E.shape) * np.finfo(float).eps]
 
@@ -274,13 +284,18 @@ def _multipliers(g: np.ndarray, B_A: np.ndarray, B_E: np.ndarray, start: int
 
     A, y = project(B_A), -project(g)
     touched = np.flatnonzero(np.any(A != 0, axis=1))
+    m = B_A.shape[1]
     try:
-        nu = nnls(A[touched], y[touched], maxiter=50 * A.shape[1])[0]
+        nu = nnls(np.vstack([A[touched], np.diag(slack)]),
+                  np.concatenate([y[touched], np.zeros(m)]), maxiter=50 * m)[0]
     except RuntimeError:  # (not converged: the bounded least squares over both at once)
-        lb = np.concatenate([np.full(B_E.shape[1], -np.inf), np.zeros(B_A.shape[1])])
-        full = np.hstack([np.vstack([np.zeros((start, B_E.shape[1])), B_E]), B_A])
-        x = lsq_linear(full, -g, bounds=(lb, np.inf), method="bvls", tol=1e-14).x
-        lam, nu = x[:B_E.shape[1]], x[B_E.shape[1]:]
+        k = B_E.shape[1]
+        lb = np.concatenate([np.full(k, -np.inf), np.zeros(m)])
+        full = np.hstack([np.vstack([np.zeros((start, k)), B_E]), B_A])
+        weighted = np.vstack([full, np.hstack([np.zeros((m, k)), np.diag(slack)])])
+        x = lsq_linear(weighted, np.concatenate([-g, np.zeros(m)]), bounds=(lb, np.inf),
+                       method="bvls", tol=1e-14).x
+        lam, nu = x[:k], x[k:]
         return lam, nu, g + full @ x
     r = g + B_A @ nu
     lam = np.linalg.lstsq(B_E, -r[start:], rcond=None)[0]

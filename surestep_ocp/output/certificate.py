@@ -38,9 +38,9 @@ class Certificate(JsonRecord):
     depth_violation: float  # [m] the means below the problem's min_depth
     limit_violation: float | None  # enforced limit rows beyond 1 (normalised); None: not enforced
     stationarity: float  # scaled inf-norm of grad f + J^T lambda, multipliers estimated
-    complementarity: float  # scaled largest |multiplier x slack| of the active rows
+    complementarity: float  # scaled largest multiplier x slack of the inequality rows
     dual_scale: float  # s_d
-    active_rows: int  # inequality rows at their bound (within ACTIVE)
+    active_rows: int  # inequality rows carrying a multiplier (chosen by complementarity)
     trace: float  # Tr(Sigma_T) of the planning model by a plain NumPy EKF pass
     trace_error: float  # its relative difference from the reported (and evaluated) trace
     tolerances: Tolerances
