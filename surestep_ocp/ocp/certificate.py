@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.optimize import lsq_linear, nnls
@@ -40,7 +40,7 @@ from scipy.optimize import lsq_linear, nnls
 from ..buffered import thread_buffered
 from ..model.belief import NV, unvech_many, vech
 from ..model.lie import np_means
-from ..output.certificate import Certificate, Tolerances, level_of
+from ..output.certificate import Certificate, Tolerances, level_of, primal_met
 from ..output.solution import Solution
 from ..output.solution_records import StartState
 from ..problem.setup import Setup
@@ -112,6 +112,70 @@ def certify(setup: Setup, sol: Solution, fd_step: float | None = None,
     `padded`: evaluated by the Function of the horizon rounded up to a multiple of PAD_STEPS (the
     same values: a re-planning loop's horizons share a few Functions); default: for a plan from a
     moving start (a re-plan within enforced limits)."""
+    part = feasibility(setup, sol, padded)
+    return None if part is None else part.complete(fd_step)
+
+
+@dataclass
+class Feasibility:
+    """A plan's certificate up to its primal verdict (`feasibility`): the measures that decide
+    whether it is `infeasible` (the Planner's gate: docs/certificate.md, "Re-plans"), and what
+    `complete` needs for the rest (stationarity, complementarity)."""
+
+    setup: Setup
+    q: np.ndarray
+    ref: float
+    holder: _Function
+    out: list
+    lay: _Layout
+    limit_values: tuple | None  # (rows, linear rows' values, tool rows' values, Jz) with limits
+    term_p: float
+    term_a: float
+    bound_violation: float
+    depth_slack: np.ndarray
+    depth: float
+    limit_violation: float | None
+    trace: float  # by the NumPy EKF
+    trace_error: float
+    tolerances: Tolerances
+    time_s: float  # its time, builds apart
+
+    @property
+    def infeasible(self) -> bool:
+        """The verdict `level_of` gives these measures: infeasible (off the goal, beyond a bound,
+        a limit row or the depth, the trace not the independent EKF's)."""
+        return not primal_met(self.tolerances, self._primal(), self.trace_error)
+
+    def _primal(self) -> list[float]:
+        return [self.term_p, self.term_a, self.bound_violation, self.depth,
+                self.limit_violation or 0.0]
+
+    def complete(self, fd_step: float | None = None) -> Certificate:
+        """The full certificate: the multipliers, stationarity and complementarity added (its
+        time: this part's and that)."""
+        t0 = time.perf_counter()
+        setup, q, out, lay = self.setup, self.q, self.out, self.lay
+        T, nq = setup.ocp.horizon, setup.robot.nq
+        g = out[2] if fd_step is None else _fd_gradient(setup, q, self.ref, fd_step)
+        J = out[4].reshape(T + 1, nq, 7)  # J[t, j]: d mean_t / d q_t,j (node-major)
+        cols, slack = _candidate_rows(lay, q, J, self.depth_slack, self.limit_values)
+        r, mult, compl, s_d = _stationarity(g, lay, J, T, cols, slack)
+        cert = Certificate(
+            terminal_position_m=self.term_p, terminal_angle_rad=self.term_a,
+            bound_violation=self.bound_violation, depth_violation=self.depth,
+            limit_violation=self.limit_violation,
+            stationarity=float(np.max(np.abs(r), initial=0.0)) / s_d,
+            complementarity=compl / s_d, dual_scale=s_d,
+            active_rows=int(np.count_nonzero(mult[7:] > 0)),
+            trace=self.trace, trace_error=self.trace_error, tolerances=self.tolerances,
+            level="infeasible", time_s=0.0)
+        return replace(cert, level=level_of(cert),
+                       time_s=self.time_s + time.perf_counter() - t0)
+
+
+def feasibility(setup: Setup, sol: Solution, padded: bool | None = None) -> Feasibility | None:
+    """`certify`'s primal part (`Feasibility`): the Function's evaluation, the terminal, bound,
+    depth and limit-row measures, the trace by the NumPy EKF; None where `certify` gives None."""
     t0 = time.perf_counter()
     if any(q is None for q in sol.q) or len(sol.q) != setup.ocp.horizon + 1:
         return None
@@ -122,28 +186,16 @@ def certify(setup: Setup, sol: Solution, fd_step: float | None = None,
     ref = sol.run.initial_trace if sol.run.initial_trace else max(sol.trace_final, 1e-300)
     holder, out = _evaluated(setup, sol, q, ref, padded, built)
     lay = _layout(setup, built)
-    limited = setup.ocp.limits.enforce
-    rows_at = _limit_rows(setup, sol, built) if limited else None
-    T, nq = setup.ocp.horizon, setup.robot.nq
-    tol = tolerances(setup)
-    trace = float(out[1][0])
-    g = out[2] if fd_step is None else _fd_gradient(setup, q, ref, fd_step)  # node-major
+    rows_at = _limit_rows(setup, sol, built) if setup.ocp.limits.enforce else None
+    T = setup.ocp.horizon
     M = out[3].reshape(T + 1, 7)
-    J = out[4].reshape(T + 1, nq, 7)  # J[t, j]: d mean_t / d q_t,j
     term_p, term_a, beyond, moved, depth_slack, depth = _primal_measures(setup, lay, q, M)
-    cols, slack, limit_violation = _candidate_rows(lay, q, J, depth_slack, rows_at)
-    r, mult, compl, s_d = _stationarity(g, lay, J, T, cols, slack)
-    trace_np, trace_error = _trace_check(setup, sol, holder, out, M, q, trace)
-    cert = Certificate(
-        terminal_position_m=term_p, terminal_angle_rad=term_a,
-        bound_violation=max(beyond, moved), depth_violation=depth,
-        limit_violation=limit_violation,
-        stationarity=float(np.max(np.abs(r), initial=0.0)) / s_d,
-        complementarity=compl / s_d, dual_scale=s_d,
-        active_rows=int(np.count_nonzero(mult[7:] > 0)),
-        trace=trace_np, trace_error=float(trace_error), tolerances=tol, level="infeasible",
-        time_s=0.0)
-    return replace(cert, level=level_of(cert), time_s=time.perf_counter() - t0 - built[0])
+    values, limit_violation = _limit_values(rows_at, q)
+    trace_np, trace_error = _trace_check(setup, sol, holder, out, M, q, float(out[1][0]))
+    return Feasibility(setup, q, ref, holder, out, lay, values, term_p, term_a,
+                       max(beyond, moved), depth_slack, depth, limit_violation, trace_np,
+                       float(trace_error), tolerances(setup),
+                       time.perf_counter() - t0 - built[0])
 
 
 def _evaluated(setup: Setup, sol: Solution, q: np.ndarray, ref: float, padded: bool | None,
@@ -184,11 +236,21 @@ def _primal_measures(setup: Setup, lay, q: np.ndarray, M: np.ndarray) -> tuple:
     return term_p, term_a, beyond, moved, depth_slack, depth
 
 
-def _candidate_rows(lay, q: np.ndarray, J: np.ndarray, depth_slack: np.ndarray, rows_at
-                    ) -> tuple[list, list, float | None]:
+def _limit_values(rows_at, q: np.ndarray) -> tuple[tuple | None, float | None]:
+    """The limit rows at the plan `q` (rows, linear rows' values, tool rows' values, Jz) and their
+    violation (beyond 1, normalised); (None, None) without enforced limits."""
+    if rows_at is None:
+        return None, None
+    rows, lin, tool, Jz = rows_at(q)
+    limit_violation = float(max(0.0, np.max(np.abs(lin) - 1, initial=0.0),
+                                np.max(tool - 1, initial=0.0)))
+    return (rows, lin, tool, Jz), limit_violation
+
+
+def _candidate_rows(lay, q: np.ndarray, J: np.ndarray, depth_slack: np.ndarray, values
+                    ) -> tuple[list, list]:
     """The inequality rows c(x) <= 0 within WINDOW of their bound: (their gradients over the free
-    joints as column blocks, their slacks, the limit rows' violation (None without enforced
-    limits))."""
+    joints as column blocks, their slacks); `values` the limit rows' (`_limit_values`)."""
     T, nq = len(q) - 1, q.shape[1]
     xf = q.ravel()[lay.idx]
     at_lo = np.flatnonzero(xf - lay.lo_x <= WINDOW)
@@ -207,18 +269,15 @@ def _candidate_rows(lay, q: np.ndarray, J: np.ndarray, depth_slack: np.ndarray, 
         C[np.arange(len(near)), near] = -J[near, :, 2]
         cols.append(C.reshape(len(near), -1)[:, lay.idx].T)
         slack.append(depth_slack[near - 1])
-    limit_violation = None
-    if rows_at is not None:
-        rows, lin, tool, Jz = rows_at(q)
-        limit_violation = float(max(0.0, np.max(np.abs(lin) - 1, initial=0.0),
-                                    np.max(tool - 1, initial=0.0)))
+    if values is not None:
+        rows, lin, tool, Jz = values
         up, down = np.flatnonzero(1 - lin <= WINDOW), np.flatnonzero(1 + lin <= WINDOW)
         fast = np.flatnonzero(1 - tool <= WINDOW)
         if len(up) or len(down) or len(fast):
             cols.append(np.vstack([rows.A[up], -rows.A[down],
                                    rows.tool_gradients(fast, Jz)])[:, lay.idx].T)
             slack += [1 - lin[up], 1 + lin[down], 1 - tool[fast]]
-    return cols, slack, limit_violation
+    return cols, slack
 
 
 def _stationarity(g: np.ndarray, lay, J: np.ndarray, T: int, cols: list, slack: list
