@@ -61,6 +61,9 @@ def replans(setup):
             sol = planner.replan(mean, np.asarray(plan.covariances[j], float), step=step)
             assert sol.success and sol.replan.certificate_s > 0.0
             assert sol.replan.certificate_s <= sol.replan.time_s
+            # by the clock, the verdict comes after the plan's joints and its certificate
+            if sol.replan.verdict_s is not None:
+                assert sol.replan.verdict_s >= sol.replan.feedback_s + sol.replan.certificate_s
     finally:
         mp.undo()
     assert len(seen) == 3

@@ -352,12 +352,13 @@ class Planner(RealTimeIteration):
         tried = extras.pop("attempts_tried", None)
         # the certificate (docs/certificate.md): a plan it finds infeasible is not run
         sol, certificate_s = _certified(sub, sol.replaced(extras=extras))
-        built_s = self.build_time_s - builds_before
+        verdict, built_s = time.perf_counter(), self.build_time_s - builds_before
         sol = sol.replaced(replan=ReplanRecord(
             step, time.perf_counter() - t0 - built_s, "interior", built_s, not sol.success,
             tried, registration_held=unreached is not None and reachable, rti=rti,
             feedback_s=feedback_s, prepare_s=None if prep is None else prep.time_s,
-            prepared_ahead=None if prep is None else ahead, certificate_s=certificate_s))
+            prepared_ahead=None if prep is None else ahead, certificate_s=certificate_s,
+            verdict_s=None if feedback_s is None else verdict - t_feedback))
         if sol.success:
             self.plan, self.step, self._q = sol, step, np.array(sol.q, float)
             self._start = tuple(np.array(v, float) for v in (sol.run.start_state.velocity,
@@ -453,7 +454,6 @@ def _certified(sub: Setup, sol: Solution) -> tuple[Solution, float]:
     if sol.success and (cert is None or cert.level == INFEASIBLE):
         verdict.update(success=False, status=NOT_CERTIFIED)
     return sol.replaced(**verdict), time.perf_counter() - t0
-
 
 
 def _horizon_for(setup: Setup) -> tuple[Setup, dict | None]:

@@ -196,6 +196,9 @@ class ReplanRecord(JsonRecord):
     prepare_s: float | None = None  # its preparation [s], builds apart
     prepared_ahead: bool | None = None  # prepared before the call (`Planner.prepare`), not in it
     certificate_s: float | None = None  # its certificate (in `time_s`: the command waits on it) [s]
+    # a real-time iteration's feedback by the clock: from `feedback_s`'s start until the
+    # certificate's verdict, the plan's Solution (its evaluation) and certificate included [s]
+    verdict_s: float | None = None
 
     @staticmethod
     def _readers() -> dict:
