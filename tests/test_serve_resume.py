@@ -108,7 +108,9 @@ def test_the_hold_resumes_once_the_tracker_is_back(run):
 def test_set_points_on_one_clock_within_the_limits(run):
     """Stamps on the servo clock across restarts; bounds; divided differences within the velocity
     and acceleration limits in each stretch between holds (the restart to the new goal, from the
-    held goal at rest, is inside a stretch: no step there)."""
+    held goal at rest, is inside a stretch: no step there). The hold is the gap the node's log
+    says; any other gap (the servo process starved on a loaded machine: timing is the
+    benchmark's, not this test's) is inside a stretch, whose samples are of one played curve."""
     from surestep_ocp.model.limits import joint_bounds, problem_limits
     from surestep_ocp.problem.load import load_problem
     from surestep_ocp.problem.setup import build_setup
@@ -121,8 +123,11 @@ def test_set_points_on_one_clock_within_the_limits(run):
     ticks = (t - t[0]) * HZ
     assert np.abs(ticks - np.round(ticks)).max() < 1e-3
     assert np.all(q >= lower - 1e-6) and np.all(q <= upper + 1e-6)
-    cut = np.flatnonzero(np.diff(t) > 0.1)  # the hold
-    assert len(cut) == 1
+    (h,) = run["log"]["holds"]
+    rel = t - run["log"]["t0_wall"]
+    gaps = np.flatnonzero(np.diff(t) > 0.1)
+    cut = [c for c in gaps if rel[c] <= h["at"] + 0.1 and rel[c + 1] >= h["resumed"] - 1e-3]
+    assert len(cut) == 1, (gaps, rel[gaps], h)  # the hold
     for a, b in ((0, cut[0] + 1), (cut[0] + 1, len(t))):
         assert_stretch_within_limits(lim, t[a:b], q[a:b])
 
