@@ -144,25 +144,26 @@ def _report(sol: Solution, tried: list, pick: int, init: InitialGuess, warm: Ite
             initial_objective: float) -> Solution:
     """The plan kept (`tried[pick]`) with every attempt recorded, its time and iterations their
     sums."""
-    return sol.replaced(attempts=[record(label, hess, s_k, k == pick)
-                       for k, (label, hess, s_k, _) in enumerate(tried)],
-        run=replace(sol.run, hessian=" + ".join(label for label, _, _, _ in tried),
-                    initial_objective=initial_objective,
-                    worse_than_initial_guess=bool(sol.objective > initial_objective),
-                    init=init.source if warm is None else f"warm start ({init.source})"),
-        solve_time_s=sum(s_k.solve_time_s for _, _, s_k, _ in tried),
+    run = replace(sol.run, hessian=" + ".join(label for label, _, _, _ in tried),
+                  initial_objective=initial_objective,
+                  worse_than_initial_guess=bool(sol.objective > initial_objective),
+                  init=init.source if warm is None else f"warm start ({init.source})")
+    return sol.replaced(
+        attempts=[record(label, hess, s_k, k == pick)
+                  for k, (label, hess, s_k, _) in enumerate(tried)],
+        run=run, solve_time_s=sum(s_k.solve_time_s for _, _, s_k, _ in tried),
         iterations=sum(s_k.iterations for _, _, s_k, _ in tried))
 
 
 def _count_condensed_start(sol: Solution, pre: Solution) -> Solution:
     """`sol` with the condensed solve `pre` that started the lifted one reported, and counted in
     its time and iterations."""
-    return sol.replaced(run=replace(sol.run, condensed_start=CondensedStart(
+    run = replace(sol.run, condensed_start=CondensedStart(
         pre.status, pre.iterations, pre.run.solver, pre.solve_time_s, pre.objective),
         initial_trace=pre.run.initial_trace, initial_objective=pre.run.initial_objective,
-        worse_than_initial_guess=bool(sol.objective > pre.run.initial_objective)),
-        solve_time_s=sol.solve_time_s + pre.solve_time_s,
-        iterations=sol.iterations + pre.iterations)
+        worse_than_initial_guess=bool(sol.objective > pre.run.initial_objective))
+    return sol.replaced(run=run, solve_time_s=sol.solve_time_s + pre.solve_time_s,
+                        iterations=sol.iterations + pre.iterations)
 
 
 SECOND_START_ITER = 60
@@ -235,16 +236,17 @@ def _second_start(setup: Setup, cold: InitialGuess, sol: Solution, last, solver_
             extra_it += second.iterations
         if second.success and (not sol.success or second.objective < sol.objective * (1 - 1e-9)):
             label = f"{second.run.solver} from the diagonal model's plan"
-            second = second.replaced(attempts=[replace(a, kept=False) for a in sol.attempts]
-                + [record(label, "surrogate", second, True)],
-                run=replace(second.run, initial_trace=sol.run.initial_trace,
-                            initial_objective=sol.run.initial_objective,
-                            hessian=sol.run.hessian + f" + {label}", init=sol.run.init,
-                            worse_than_initial_guess=bool(
-                                second.objective > sol.run.initial_objective)),
-                solve_time_s=sol.solve_time_s, iterations=sol.iterations)
+            run = replace(second.run, initial_trace=sol.run.initial_trace,
+                          initial_objective=sol.run.initial_objective,
+                          hessian=sol.run.hessian + f" + {label}", init=sol.run.init,
+                          worse_than_initial_guess=bool(
+                              second.objective > sol.run.initial_objective))
+            attempts = ([replace(a, kept=False) for a in sol.attempts]
+                        + [record(label, "surrogate", second, True)])
+            second = second.replaced(attempts=attempts, run=run, solve_time_s=sol.solve_time_s,
+                                     iterations=sol.iterations)
             sol, last = second, (Iterate(np.array(second.q))
                                  if second.run.solver == "newton" else None)
     return sol.replaced(run=replace(sol.run, second_start=gate),
-                   solve_time_s=sol.solve_time_s + extra_time,
-                   iterations=sol.iterations + extra_it), last
+                        solve_time_s=sol.solve_time_s + extra_time,
+                        iterations=sol.iterations + extra_it), last

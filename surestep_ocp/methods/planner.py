@@ -343,7 +343,7 @@ class Planner(RealTimeIteration):
             if not reachable:  # no plan tried (the goal's IK residual is in the log)
                 residual = unreached or {"m": float(res_m), "rad": float(res_rad)}
                 sol = sol.replaced(success=False, status=Status.GOAL_UNREACHABLE,
-                              extras={**sol.extras, "goal_ik_residual": residual})
+                                   extras={**sol.extras, "goal_ik_residual": residual})
         if unreached is not None and reachable:
             sol = sol.replaced(extras={**sol.extras, "goal_ik_residual": unreached})
         # what the re-plan's record takes out of the extras
@@ -494,7 +494,7 @@ def within_reserve(setup: Setup, plan: Solution, backend: Backend) -> Solution:
     if not run.success:
         return plan
     sol = solver.solution(setup, plan.method, start, run)
-    sol = enforce_limits(setup, sol.replaced(solve_time_s=sol.solve_time_s + plan.solve_time_s,
-                                        extras={**sol.extras, "reserve": RESERVE,
-                                                "attempts_within_limits": plan.attempts}))
+    sol = enforce_limits(setup, sol.replaced(
+        solve_time_s=sol.solve_time_s + plan.solve_time_s,
+        extras={**sol.extras, "reserve": RESERVE, "attempts_within_limits": plan.attempts}))
     return sol if sol.success else plan

@@ -65,12 +65,9 @@ def replan_without_limits(sub: Setup, warm: InitialGuess, cov: np.ndarray, moved
 
         ctx = Context(sub, resolved_solver(sub), "ocp-replan", {}, evaluate_newton=evaluate_run)
         tried = run_strategy(replan_strategy(ctx, moved), ctx, warm, None)
-        if tried[-1].outcome.solution.success:
-            sol = tried[-1].outcome.solution
-            sol = sol.replaced(attempts=records(tried, len(tried) - 1),
-                          run=replace(sol.run, warm_start_q=np.asarray(warm.q, float).tolist()))
+        if tried and tried[-1].outcome.solution.success:
+            sol = tried[-1].outcome.solution.replaced(attempts=records(tried, len(tried) - 1))
     if sol is None:
         # IPOPT's models, or Newton did not converge: the whole strategy from the previous plan
         sol = solve_ocp_warm(sub, warm, method="ocp-replan")[0]
-        sol = sol.replaced(run=replace(sol.run, warm_start_q=np.asarray(warm.q, float).tolist()))
-    return sol
+    return sol.replaced(run=replace(sol.run, warm_start_q=np.asarray(warm.q, float).tolist()))

@@ -42,7 +42,7 @@ from ..model.belief import NV, unvech_many, vech
 from ..model.lie import np_means
 from ..output.certificate import ACCEPTABLE as ACCEPTABLE_LEVEL
 from ..output.certificate import (FEASIBLE, INFEASIBLE, OPTIMAL, Certificate, Tolerances,
-                                  level_of, primal_met)
+                                  level_of)
 from ..output.solution import Solution
 from ..output.solution_records import StartState
 from ..problem.setup import Setup
@@ -122,14 +122,13 @@ def certify(setup: Setup, sol: Solution, fd_step: float | None = None,
 
 @dataclass
 class Feasibility:
-    """A plan's certificate up to its primal verdict (`feasibility`): the measures that decide
-    whether it is `infeasible` (the Planner's gate: docs/certificate.md, "Re-plans"), and what
-    `complete` needs for the rest (stationarity, complementarity)."""
+    """A plan's certificate up to its primal measures (`feasibility`: what decides whether it is
+    infeasible, the Planner's gate), and what `complete` needs for the rest (stationarity,
+    complementarity)."""
 
     setup: Setup
     q: np.ndarray
     ref: float
-    holder: _Function
     out: list
     lay: _Layout
     limit_values: tuple | None  # (rows, linear rows' values, tool rows' values, Jz) with limits
@@ -143,16 +142,6 @@ class Feasibility:
     trace_error: float
     tolerances: Tolerances
     time_s: float  # its time, builds apart
-
-    @property
-    def infeasible(self) -> bool:
-        """The verdict `level_of` gives these measures: infeasible (off the goal, beyond a bound,
-        a limit row or the depth, the trace not the independent EKF's)."""
-        return not primal_met(self.tolerances, self._primal(), self.trace_error)
-
-    def _primal(self) -> list[float]:
-        return [self.term_p, self.term_a, self.bound_violation, self.depth,
-                self.limit_violation or 0.0]
 
     def complete(self, fd_step: float | None = None) -> Certificate:
         """The full certificate: the multipliers, stationarity and complementarity added (its
@@ -210,7 +199,7 @@ def feasibility(setup: Setup, sol: Solution, padded: bool | None = None) -> Feas
     term_p, term_a, beyond, moved, depth_slack, depth = _primal_measures(setup, lay, q, M)
     values, limit_violation = _limit_values(rows_at, q)
     trace_np, trace_error = _trace_check(setup, sol, holder, out, M, q, float(out[1][0]))
-    return Feasibility(setup, q, ref, holder, out, lay, values, term_p, term_a,
+    return Feasibility(setup, q, ref, out, lay, values, term_p, term_a,
                        max(beyond, moved), depth_slack, depth, limit_violation, trace_np,
                        float(trace_error), tolerances(setup),
                        time.perf_counter() - t0 - built[0])
@@ -411,7 +400,7 @@ def judge(setup: Setup, sol: Solution, gate: bool = True) -> Solution:
     backend's own status is kept as `sol.backend_status`. `gate` false: certified, success left
     as it is."""
     sol = sol.replaced(backend_status=sol.status, backend_success=sol.success,
-                  certificate=certify(setup, sol))
+                       certificate=certify(setup, sol))
     if gate and claims_optimum(sol.method) and sol.success and (
             sol.certificate is None or not sol.certificate.certified):
         sol = sol.replaced(success=False, status=NOT_CERTIFIED)

@@ -82,18 +82,12 @@ class Certificate(JsonRecord):
         return out
 
 
-def primal_met(tol: Tolerances, primal: list[float], trace_error: float) -> bool:
-    """Whether the primal measures (terminal position and angle, bounds, depth, limit rows) and
-    the trace's disagreement are within the tolerances: not `infeasible`."""
-    return all(v <= tol.feasibility for v in primal) and trace_error <= tol.trace
-
-
 def level_of(c: Certificate) -> str:
     """The level the measures of `c` grant under its tolerances."""
     tol = c.tolerances
     primal = [c.terminal_position_m, c.terminal_angle_rad, c.bound_violation, c.depth_violation,
               c.limit_violation or 0.0]
-    if not primal_met(tol, primal, c.trace_error):
+    if not (all(v <= tol.feasibility for v in primal) and c.trace_error <= tol.trace):
         return INFEASIBLE
     if c.stationarity <= tol.stationarity and c.complementarity <= tol.complementarity:
         return OPTIMAL

@@ -33,6 +33,6 @@ def enforce(setup, sol, limits: MotionLimits | None = None):
     # a failure keeps its own status (the report says what it breaks)
     if not rep.ok and sol.success:
         return sol.replaced(motion_limits=rep, success=False, status=VIOLATED,
-                       run=replace(sol.run, solver_status=sol.status))
+                            run=replace(sol.run, solver_status=sol.status))
     return sol.replaced(motion_limits=rep)
 
