@@ -76,3 +76,24 @@ def interior_setup():
     problem = ss.load_problem("problems/needle_regrasp.yaml").with_solver(name="interior",
                                                                           codegen=False)
     return build_setup(problem)
+
+
+@pytest.fixture()
+def count_evaluated(monkeypatch) -> Callable[[], list[int]]:
+    """`count_evaluated()`: the list of the configuration numbers `surestep evaluate` runs from
+    then on, in order (a counting wrapper around `evaluation.evaluate_configuration`): what a
+    resumed run does again."""
+    from surestep_ocp.evaluation import evaluation
+
+    def install() -> list[int]:
+        calls: list[int] = []
+        real = evaluation.evaluate_configuration
+
+        def counting(*args):
+            calls.append(args[2])
+            return real(*args)
+
+        monkeypatch.setattr(evaluation, "evaluate_configuration", counting)
+        return calls
+
+    return install

@@ -95,7 +95,7 @@ def _run(argv: list[str]) -> int:
     return args.func(args)
 
 
-def test_evaluate_end_to_end_and_resume(tmp_path, monkeypatch, capsys):
+def test_evaluate_end_to_end_and_resume(tmp_path, capsys, count_evaluated):
     """`evaluate` writes table.md, raw.csv, solves.csv, boxplot.png; `--resume` only runs unfinished
     configs."""
     out = tmp_path / "run"
@@ -144,14 +144,7 @@ def test_evaluate_end_to_end_and_resume(tmp_path, monkeypatch, capsys):
     # an interrupted write leaves a torn line: it is dropped, and only config 2 is run
     with open(out / "progress.jsonl", "a") as fh:
         fh.write('{"config": 2, "solv')
-    calls = []
-    real = evaluation.evaluate_configuration
-
-    def counting(*args):
-        calls.append(args[2])
-        return real(*args)
-
-    monkeypatch.setattr(evaluation, "evaluate_configuration", counting)
+    calls = count_evaluated()
     capsys.readouterr()
     assert _run(base + ["--configs", "3", "--resume"]) == 0
     assert calls == [2]

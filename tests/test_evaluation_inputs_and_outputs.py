@@ -217,7 +217,7 @@ BREAKS = [_nan_metric, _nan_success, _string_metric, _null_metric, _no_solve, _n
 
 
 @pytest.mark.parametrize("brk", BREAKS, ids=[b.__name__.lstrip("_") for b in BREAKS])
-def test_resume_runs_a_broken_record_again(finished, tmp_path, monkeypatch, capsys, brk):
+def test_resume_runs_a_broken_record_again(finished, tmp_path, capsys, brk, count_evaluated):
     out = _copy(finished, tmp_path)
     if brk is _no_settings_no_run_json:
         (out / "run.json").unlink()
@@ -226,14 +226,7 @@ def test_resume_runs_a_broken_record_again(finished, tmp_path, monkeypatch, caps
     brk(rec)
     lines[1] = json.dumps(rec)
     (out / "progress.jsonl").write_text("\n".join(lines) + "\n")
-    calls = []
-    real = evaluation.evaluate_configuration
-
-    def counting(*args):
-        calls.append(args[2])
-        return real(*args)
-
-    monkeypatch.setattr(evaluation, "evaluate_configuration", counting)
+    calls = count_evaluated()
     capsys.readouterr()
     assert _run(["evaluate", str(EVAL), *TINY, "--seed", "0", "--output-dir", str(out),
                  "--resume"]) == 0
