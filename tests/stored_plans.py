@@ -99,6 +99,25 @@ def case_keys(kind: str, *args) -> set[str]:
     return {f"replan/{k}" for k in range(REPLANS + 1)}
 
 
+def machine() -> str:
+    """What decides a plan's last bits on this machine: OpenBLAS's kernels (the core it picked) and
+    the SIMD extensions NumPy dispatches its loops on (AVX-512 ones change rounding)."""
+    import ctypes
+    import glob
+
+    from numpy._core._multiarray_umath import __cpu_features__ as features
+
+    libs = sorted(glob.glob(str(Path(np.__file__).parent.parent / "numpy.libs" / "*openblas*")))
+    core = "unknown"
+    for lib in libs[:1]:
+        fn = getattr(ctypes.CDLL(lib), "scipy_openblas_get_corename64_", None)
+        if fn is not None:
+            fn.restype = ctypes.c_char_p
+            core = fn().decode()
+    simd = ",".join(sorted(k for k, v in features.items() if v and k.startswith(("AVX", "FMA"))))
+    return f"openblas {core}; numpy {np.__version__} {simd}"
+
+
 def load() -> tuple[dict[str, np.ndarray], dict[str, str]]:
     """The stored joints and statuses, by plan key."""
     with np.load(STORE) as data:
@@ -106,9 +125,18 @@ def load() -> tuple[dict[str, np.ndarray], dict[str, str]]:
         return {k: data[k] for k in statuses}, statuses
 
 
+def stored_machine() -> str | None:
+    """`machine()` where the store was made (None: not recorded)."""
+    with np.load(STORE) as data:
+        return str(data["machine"]) if "machine" in data.files else None
+
+
 def main(keys: list[str]) -> None:
     """Solve every case and store its plans; given `keys`, only the cases holding them, and only
     those keys (the others kept as stored)."""
+    if keys and stored_machine() != machine():
+        sys.exit(f"the store was made on another machine ({stored_machine()}; here: {machine()}): "
+                 "store every plan here, not some")
     arrays, statuses = load() if keys else ({}, {})
     unknown = set(keys) - set(statuses)
     if unknown:
@@ -122,7 +150,7 @@ def main(keys: list[str]) -> None:
         print(case, flush=True)
     STORE.parent.mkdir(exist_ok=True)
     tmp = STORE.with_suffix(".tmp.npz")
-    np.savez_compressed(tmp, statuses=json.dumps(statuses), **arrays)
+    np.savez_compressed(tmp, statuses=json.dumps(statuses), machine=machine(), **arrays)
     tmp.replace(STORE)
     print(f"{len(statuses)} plans -> {STORE}", file=sys.stderr)
 

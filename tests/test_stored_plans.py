@@ -20,7 +20,17 @@ joints moved by 1.1e-6 rad along the optimum's flat directions, Tr(Sigma_T) equa
 relative); and again when the rows' Jacobian products went by pairs of direct rows and its ratio
 tests by one division (rounding-level changes: Solve_Succeeded in 21 iterations, `ocp`'s joints
 moved by 2.7e-9 rad and Tr(Sigma_T) equal to 1e-14 relative, `ocp-from-gradient`'s 7.0e-7 rad and
-3e-11)."""
+3e-11).
+
+The last bits of a plan depend on the machine: OpenBLAS's kernels and the SIMD extensions NumPy
+dispatches on (`stored_plans.machine()`, recorded in the store). On the machine that made the store
+the joints are equal to 1e-10; on another, rounding differences grow along the optimum's flat
+directions and through the gradient variant's 50 L-BFGS iterations, so the joints are compared to
+ACROSS_MACHINES and the statuses exactly. Measured (the store of 8597f0c, made on an earlier
+machine not recorded, against an AMD EPYC with AVX2 and no AVX-512, the same wheels): every status the same, the
+joints at most 4.0e-6 apart (the default problem's `ocp`, Tr(Sigma_T) 2.8e-9 relative), the gradient
+variant's at most 4.1e-8. The store was made again on that EPYC then (no plan changed beyond those
+differences)."""
 
 from __future__ import annotations
 
@@ -29,6 +39,9 @@ import pytest
 import stored_plans
 
 STORED_Q, STORED_STATUS = stored_plans.load()
+# joints [rad, m] on another machine than the store's (module docstring)
+ACROSS_MACHINES = 1e-5
+ATOL = 1e-10 if stored_plans.stored_machine() == stored_plans.machine() else ACROSS_MACHINES
 
 
 @pytest.mark.parametrize("args", [a for _, a in stored_plans.cases()],
@@ -38,7 +51,7 @@ def test_plans_equal_the_stored_ones(args):
     assert made, "a case with no plans"
     for key, (q, status) in made.items():
         assert status == STORED_STATUS[key], key
-        np.testing.assert_allclose(q, STORED_Q[key], rtol=0, atol=1e-10, err_msg=key)
+        np.testing.assert_allclose(q, STORED_Q[key], rtol=0, atol=ATOL, err_msg=key)
 
 
 def test_every_stored_plan_is_checked():
