@@ -27,10 +27,10 @@ dispatches on (`stored_plans.machine()`, recorded in the store). On the machine 
 the joints are equal to 1e-10; on another, rounding differences grow along the optimum's flat
 directions and through the gradient variant's 50 L-BFGS iterations, so the joints are compared to
 ACROSS_MACHINES and the statuses exactly. Measured (the store of 8597f0c, made on an earlier
-machine not recorded, against an AMD EPYC with AVX2 and no AVX-512, the same wheels): every status the same, the
-joints at most 4.0e-6 apart (the default problem's `ocp`, Tr(Sigma_T) 2.8e-9 relative), the gradient
-variant's at most 4.1e-8. The store was made again on that EPYC then (no plan changed beyond those
-differences)."""
+machine not recorded, against an AMD EPYC with AVX2 and no AVX-512, the same wheels): every status
+the same, the joints at most 4.0e-6 apart (the default problem's `ocp`, Tr(Sigma_T) 2.8e-9
+relative), the gradient variant's at most 4.1e-8. The store was made again on that EPYC then (no
+plan changed beyond those differences)."""
 
 from __future__ import annotations
 
