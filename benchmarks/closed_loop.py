@@ -70,8 +70,9 @@ def tables(res: dict, args) -> list[str]:
               "yes" if r["plan"]["reached"] else f"no; {needed(r['plan'], r['cap_steps'])}",
               r["baseline_steps"], r["cap_steps"]] for label, r in res.items()]
     rp = [[label] + [f"{sum(s[k] for s in r['ocp-mpc']['replans'].values())}"
-                     for k in ("replans", "failed", "held")]
-          + [", ".join(f"{c}: {n}" for c, n in sum_causes(r).items()) or "none",
+                     for k in ("replans", "failed")] + [constrained(r)]
+          + [f"{sum(s['held'] for s in r['ocp-mpc']['replans'].values())}",
+             ", ".join(f"{c}: {n}" for c, n in sum_causes(r).items()) or "none",
              " / ".join(f"{r['ocp-mpc'][mode]['missed_after_failure']}, "
                         f"{r['ocp-mpc'][mode]['missed_after_hold']}" for mode in h.ROLLOUT_MODES),
              f"{r['ocp-mpc']['violations']}"] for label, r in res.items()]
@@ -84,10 +85,14 @@ def tables(res: dict, args) -> list[str]:
             "problem's), the baseline's fewest steps within the limits, the cap:", "",
             *h.table(["scenario", "shortest", "planned", "predicted", "reached",
                       "baseline steps", "cap steps"], plans), "",
-            "`ocp-mpc`'s re-plans (both modes): a failed one keeps the previous plan (by cause), "
-            "a held one the previous camera registration (its goal out of reach); missed grasps "
-            "of rollouts that had a failed / held re-plan (model; true):", "",
-            *h.table(["scenario", "re-plans", "failed", "held", "causes of failures",
+            "`ocp-mpc`'s re-plans (both modes): a failed one keeps the previous plan (by cause); "
+            "where the tracker's estimate puts the goal beyond a joint limit, a constrained one "
+            "registers the nearest estimate its belief allows within reach (squared Mahalanobis "
+            "distance at most 16.8, the largest in brackets), a held one the previous camera "
+            "registration (none allowed); missed grasps of rollouts that had a failed / held "
+            "re-plan (model; true):", "",
+            *h.table(["scenario", "re-plans", "failed", "constrained", "held",
+                      "causes of failures",
                       "misses after a failure, after a hold (model / true)",
                       "executed samples beyond a limit"], rp)]
 
@@ -97,6 +102,16 @@ def needed(plan: dict, cap: int) -> str:
     if plan.get("needed_steps") is None:
         return (f"not within {2 * cap} steps either (best {plan.get('needed_predicted', 0):.3f})")
     return f"needs {plan['needed_steps']} steps ({plan['needed_steps'] * 0.05:.2f} s at 0.05 s)"
+
+
+def constrained(r: dict) -> str:
+    """`ocp-mpc`'s constrained registrations over both modes, the largest squared Mahalanobis
+    distance in brackets."""
+    s = r["ocp-mpc"]["replans"].values()
+    worst = max((v["constrained_d2_max"] for v in s if v["constrained_d2_max"] is not None),
+                default=None)
+    n = sum(v["constrained"] for v in s)
+    return f"{n}" + ("" if worst is None else f" ({worst:.1f})")
 
 
 def sum_causes(r: dict) -> dict:

@@ -63,8 +63,10 @@ class ClosedLoop:
     frames included), `feedback` (the real-time iterations' feedback times [s]), `failures` ((step,
     rollout, status) of each re-plan that kept the previous plan; `Not_Certified`: a plan its
     certificate found infeasible, docs/certificate.md), `held` ((step, rollout) of each
-    re-plan that kept the previous camera registration), `late` (steps each rollout's goal moved
-    later), `violations` (executed samples beyond a limit, per rollout).
+    re-plan that kept the previous camera registration), `constrained` ((step, rollout, squared
+    Mahalanobis distance) of each that registered the nearest estimate within reach), `late`
+    (steps each rollout's goal moved later), `violations` (executed samples beyond a limit, per
+    rollout).
     """
 
     def __init__(self, setup, planner: Planner | None = None, keep_pieces: bool = False,
@@ -104,6 +106,9 @@ class ClosedLoop:
         self.failures: list[tuple[int, int, str]] = []
         # (step, rollout) of the re-plans that held the registration
         self.held: list[tuple[int, int]] = []
+        # (step, rollout, squared Mahalanobis distance) of those that registered the nearest
+        # estimate reaching the goal (methods/registration.py)
+        self.constrained: list[tuple[int, int, float]] = []
         self.late: list[int] = []
         self.violations: list[int] = []
 
@@ -155,6 +160,8 @@ class ClosedLoop:
             return planner
         if sol.replan is not None and sol.replan.registration_held:
             self.held.append((t, i))
+        if sol.replan is not None and sol.replan.registration_constrained is not None:
+            self.constrained.append((t, i, sol.replan.registration_constrained))
         st = sol.run.start_state
         self.pieces[i].append((t, np.array(sol.q, float),
                                (np.array(st.velocity), np.array(st.acceleration))))
@@ -205,6 +212,8 @@ class ClosedLoop:
         return {"replans": len(ms), "failed": len(self.failures),
                 "not_certified": sum(why == NOT_CERTIFIED for _, _, why in self.failures),
                 "held": len(self.held),
+                "constrained": len(self.constrained),
+                "constrained_d2_max": max((d for _, _, d in self.constrained), default=None),
                 "rollouts_failed": sorted({i for _, i, _ in self.failures}),
                 "rollouts_held": sorted({i for _, i in self.held}),
                 "late_replans": int(np.sum(ms > self.dt * 1e3)),

@@ -31,7 +31,6 @@ import numpy as np
 
 from ..arguments import whole_number
 from ..errors import SurestepError
-from ..model.lie import pose_to_matrix
 from ..model.limits import enforce as enforce_limits
 from ..model.limits import evaluate_curve
 from ..ocp.certificate import NOT_CERTIFIED, certify
@@ -47,6 +46,7 @@ from ..output.certificate import INFEASIBLE
 from ..output.solution import Solution
 from ..output.solution_records import ReplanAttempt, ReplanRecord
 from .real_time_iteration import Prepared, RealTimeIteration
+from .registration import register
 from .replan_inputs import (checked_camera_pose, checked_estimate, checked_goal,
                             checked_rest_joints, whole_step)
 from .replan_solvers import CERTIFIED_SETUP as _SETUP
@@ -303,9 +303,11 @@ class Planner(RealTimeIteration):
         """A re-plan within the enforced limits: from the executed curve's state at `step` (joints,
         velocity, acceleration: the commanded motion stays twice continuously differentiable), with
         the camera registered to the tracker (the kinematics at those joints see the tool at the
-        tracker's mean), to the goal where the camera sees it. A registration that puts the goal
-        out of reach is not used: the current plan's holds (`replan.registration_held`, the
-        tracker's IK residual in `extras["goal_ik_residual"]`). With `rti`, the prepared iterate
+        tracker's mean), to the goal where the camera sees it. Where that registration puts the
+        goal out of reach (the tracker's IK residual in `extras["goal_ik_residual"]`), the nearest
+        estimate its belief allows that reaches it is registered instead
+        (`replan.registration_constrained`), else the current plan's registration holds
+        (`replan.registration_held`; methods/registration.py). With `rti`, the prepared iterate
         with its goal moved (`_feedback`), else (or where that breaks a row) the interior-point
         method from the previous plan (`_full`). A failure keeps the previous plan
         (`replan.kept_previous`)."""
@@ -318,18 +320,8 @@ class Planner(RealTimeIteration):
         t_feedback = t0 + (0.0 if ahead or prep is None else
                            prep.time_s + self.build_time_s - builds_before)
         q0 = self.executed_state(step)[0] if prep is None else prep.q0
-        world_tool = base.camera_pose @ pose_to_matrix(base.pose_of(q0))
-        registered = replace(base, camera_pose=world_tool @ np.linalg.inv(pose_to_matrix(mean)))
-        q_goal, res_m, res_rad = self._goal_joints(registered, base)
-        reachable = res_m <= 1e-6 and res_rad <= 1e-5
-        unreached = None  # the tracker's registration's goal IK residual, when it is held instead
-        if not reachable:
-            # the estimate puts the goal beyond the arm's reach: it is off by more than the
-            # workspace allows (the first frames' centimetres); the last registration holds
-            unreached = {"m": float(res_m), "rad": float(res_rad)}
-            registered = replace(base, camera_pose=base.camera_pose @ self._registration)
-            q_goal, res_m, res_rad = self._goal_joints(registered, base)
-            reachable = res_m <= 1e-6 and res_rad <= 1e-5
+        reg = register(base, q0, mean, cov, self._registration, self._q[-1])
+        registered, q_goal, reachable = reg.setup, reg.q_goal, reg.reachable
         sol, rti, start = None, None, None
         if self.rti:
             if reachable and prep.run.success:
@@ -341,11 +333,10 @@ class Planner(RealTimeIteration):
         if sol is None:
             sol = self._full(cov, registered, q_goal, reachable, step, start)
             if not reachable:  # no plan tried (the goal's IK residual is in the log)
-                residual = unreached or {"m": float(res_m), "rad": float(res_rad)}
                 sol = sol.replaced(success=False, status=Status.GOAL_UNREACHABLE,
-                                   extras={**sol.extras, "goal_ik_residual": residual})
-        if unreached is not None and reachable:
-            sol = sol.replaced(extras={**sol.extras, "goal_ik_residual": unreached})
+                                   extras={**sol.extras, "goal_ik_residual": reg.unreached})
+        if reg.unreached is not None and reachable:
+            sol = sol.replaced(extras={**sol.extras, "goal_ik_residual": reg.unreached})
         # what the re-plan's record takes out of the extras
         extras = dict(sol.extras)
         sub, feedback_s = extras.pop(_SETUP), extras.pop("feedback_s", None)
@@ -355,7 +346,8 @@ class Planner(RealTimeIteration):
         verdict, built_s = time.perf_counter(), self.build_time_s - builds_before
         sol = sol.replaced(replan=ReplanRecord(
             step, time.perf_counter() - t0 - built_s, "interior", built_s, not sol.success,
-            tried, registration_held=unreached is not None and reachable, rti=rti,
+            tried, registration_held=reg.held and reachable,
+            registration_constrained=reg.constrained, rti=rti,
             feedback_s=feedback_s, prepare_s=None if prep is None else prep.time_s,
             prepared_ahead=None if prep is None else ahead, certificate_s=certificate_s,
             verdict_s=None if feedback_s is None else verdict - t_feedback))
@@ -420,17 +412,6 @@ class Planner(RealTimeIteration):
         sol = replan_solution(sub, propagation, solver, warm, run, cov, v0, a0)
         return sol.replaced(extras={**sol.extras, "reserve": reserve, "extended_steps": extra,
                                     "attempts_tried": tried})
-
-    def _goal_joints(self, registered: Setup, base: Setup) -> tuple[np.ndarray, float, float]:
-        """(joints, IK residual [m], [rad]) of the goal as the `registered` camera sees it: from
-        the current plan's goal joints (a small move), then from the file's; no random restarts
-        within a frame."""
-        q_goal, res_m, res_rad = registered.joints_for(base.x_goal, self._q[-1],
-                                                       raise_on_fail=False, restarts=0)
-        if res_m > 1e-6 or res_rad > 1e-5:
-            q_goal, res_m, res_rad = registered.joints_for(base.x_goal, base.q_goal,
-                                                           raise_on_fail=False, restarts=0)
-        return q_goal, res_m, res_rad
 
     def _seen_from(self, camera_pose) -> tuple[Setup, bool]:
         """The setup seen from `camera_pose` (None: the last one), and whether the camera moved
