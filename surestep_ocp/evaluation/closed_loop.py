@@ -116,7 +116,8 @@ class ClosedLoop:
     def __call__(self, t: int, mean: np.ndarray, cov: np.ndarray):
         # the cyclic collector runs between frames, not inside a re-plan: the rollouts' planners,
         # plans and pieces make a heap whose full collection takes 30-50 ms (Type 1 easy, 20
-        # rollouts), which a re-plan would otherwise be timed with; one robot's loop has no such heap
+        # rollouts), which a re-plan would otherwise be timed with (one robot's loop has no such
+        # heap)
         gc.disable()
         try:
             return self._frame(t, mean, cov)
