@@ -97,10 +97,14 @@ def register(base: Setup, q0: np.ndarray, mean: np.ndarray, cov: np.ndarray, cur
 
 def _newton_goal(registered: Setup, starts: np.ndarray) -> np.ndarray | None:
     """The goal's joints by plain Newton steps from the first of `starts` that converges within
-    the limits (`Robot.newton_batch`, every start in one batch), or None."""
+    the limits (`Robot.newton_batch`, one start at a time: the first, the current goal's joints,
+    converges in a few steps where the goal moved little), or None."""
     target = np.linalg.inv(registered.T_cam_base) @ pose_to_matrix(registered.x_goal)
-    q, done, _ = registered.robot.newton_batch(np.repeat(target[None], len(starts), 0), starts)
-    return q[int(np.argmax(done))] if done.any() else None
+    for start in starts:
+        q, done, _ = registered.robot.newton_batch(target[None], start[None])
+        if done[0]:
+            return q[0]
+    return None
 
 
 def _goal_error(registered: Setup, q: np.ndarray) -> tuple[float, float]:
