@@ -130,7 +130,10 @@ def nearest_reaching(base: Setup, q0: np.ndarray, M: np.ndarray, cov: np.ndarray
     lo, hi = robot.lower[mov], robot.upper[mov]
     span = np.where(np.isfinite(hi - lo), hi - lo, 2 * np.pi)
     lo, hi = lo + MARGIN * span, hi - MARGIN * span
-    L_inv = np.linalg.inv(np.linalg.cholesky(0.5 * (cov + cov.T)))
+    try:
+        L_inv = np.linalg.inv(np.linalg.cholesky(0.5 * (cov + cov.T)))
+    except np.linalg.LinAlgError:  # positive definite, but too ill-conditioned to factor
+        return np.array(q_guess, float), M, np.inf
     # the goal (camera frame) and the tool at q0 (URDF root)
     A = pose_to_matrix(base.x_goal)
     F0 = np.linalg.inv(base.T_cam_base) @ pose_to_matrix(base.pose_of(q0))
