@@ -87,10 +87,11 @@ def tables(res: dict, args) -> list[str]:
                       "baseline steps", "cap steps"], plans), "",
             "`ocp-mpc`'s re-plans (both modes): a failed one keeps the previous plan (by cause); "
             "where the tracker's estimate puts the goal beyond a joint limit, a constrained one "
-            "registers the nearest estimate its belief allows within reach (squared Mahalanobis "
-            "distance at most 16.8, the largest in brackets), a held one the previous camera "
-            "registration (none allowed); missed grasps of rollouts that had a failed / held "
-            "re-plan (model; true):", "",
+            "registers the nearest estimate within reach under its belief (in brackets: those "
+            "beyond the chi-square 99 % gate, squared Mahalanobis distance over 16.8, where the "
+            "belief puts the goal out of reach; the largest distance), a held one the previous "
+            "camera registration; missed grasps of rollouts that had a failed / held re-plan "
+            "(model; true):", "",
             *h.table(["scenario", "re-plans", "failed", "constrained", "held",
                       "causes of failures",
                       "misses after a failure, after a hold (model / true)",
@@ -111,7 +112,8 @@ def constrained(r: dict) -> str:
     worst = max((v["constrained_d2_max"] for v in s if v["constrained_d2_max"] is not None),
                 default=None)
     n = sum(v["constrained"] for v in s)
-    return f"{n}" + ("" if worst is None else f" ({worst:.1f})")
+    beyond = sum(v["constrained_beyond_gate"] for v in s)
+    return f"{n}" + ("" if worst is None else f" ({beyond}; {worst:.1f})")
 
 
 def sum_causes(r: dict) -> dict:

@@ -30,6 +30,7 @@ from ..ocp.certificate import NOT_CERTIFIED
 from ..methods.registry import closed_loop_unavailable
 from ..methods.confidence import at_horizon
 from ..methods.planner import MAX_LATE, Planner, without_confidence
+from ..methods.registration import GATE
 from .executed_motion import stitched, violations
 
 
@@ -228,6 +229,8 @@ class ClosedLoop:
                 "held": len(self.held),
                 "constrained": len(self.constrained),
                 "constrained_d2_max": max((d for _, _, d in self.constrained), default=None),
+                # of them, estimates the belief rules out (beyond the chi-square 99 % gate)
+                "constrained_beyond_gate": sum(d > GATE for _, _, d in self.constrained),
                 "rollouts_failed": sorted({i for _, i, _ in self.failures}),
                 "rollouts_held": sorted({i for _, i in self.held}),
                 "late_replans": int(np.sum(ms > self.dt * 1e3)),

@@ -15,10 +15,14 @@ limits, the estimate that puts the goal there is closed-form, m(q_g) = A B(q_g)^
 B(q) the tool's pose at q, B0 at q0, camera frame), so the projection is a bounded least-squares
 problem over q_g: minimise |L^-1 e(m(q_g), M)|^2, Sigma = L L^T, e = (p_m - p_M, log(R_m R_M^T))
 (the tracker's error coordinates, rollout.py). Its minimum d2 is the squared Mahalanobis distance
-the constraint moves the estimate: within GATE (the chi-square 99 % quantile, 6 degrees of freedom)
-the belief allows the goal within reach and the constrained registration is used
-(`Registration.constrained` = d2); beyond it the belief says the goal is out of reach and the
-current plan's registration holds (`Registration.held`), as before.
+the constraint moves the estimate (`Registration.constrained`).
+
+The constrained registration is used whatever d2 is: holding the current plan's registration (what
+re-plans did before) is itself one estimate whose goal is within reach, the one the descent starts
+from (the current goal's joints), so the projection ends at least as near the tracker's belief. A
+d2 beyond GATE (the chi-square 99 % quantile, 6 degrees of freedom) says the belief puts the goal
+out of reach: such re-plans are counted apart (`beyond_gate`). The current registration holds
+(`Registration.held`) only where no projection is made (a covariance Cholesky cannot factor).
 """
 
 from __future__ import annotations
@@ -33,7 +37,8 @@ from ..model.lie import pose_to_matrix, so3_log
 from ..problem.setup import Setup
 
 # the chi-square distribution's 99 % quantile with 6 degrees of freedom (scipy.stats.chi2.ppf(0.99,
-# 6)): a constrained estimate farther than this from the tracker's is one its belief rules out
+# 6)): a constrained estimate farther than this from the tracker's is one its belief rules out (the
+# goal beyond reach by the belief: counted apart)
 GATE = 16.811893829770927
 # the projection keeps the goal's joints this far inside each limit (a fraction of the joint's
 # range: 0.24 mm of the PSM's insertion): the re-plan's interior point keeps its rows strictly
@@ -51,6 +56,11 @@ class Registration:
     goal IK residual ({"m", "rad"}) when it did not reach; then either `constrained` (the squared
     Mahalanobis distance to the nearest registration that reaches it, used) or `held` (the current
     plan's registration used)."""
+
+    @property
+    def beyond_gate(self) -> bool:
+        """The constrained estimate is one the tracker's belief rules out (d2 > GATE)."""
+        return self.constrained is not None and self.constrained > GATE
 
     setup: Setup
     q_goal: np.ndarray
@@ -84,7 +94,7 @@ def register(base: Setup, q0: np.ndarray, mean: np.ndarray, cov: np.ndarray, cur
     if _reaches(res_m, res_rad):
         return Registration(registered, q_near, True)
     unreached = {"m": res_m, "rad": res_rad}
-    if d2 <= GATE:
+    if np.isfinite(d2):
         return Registration(registered_to(base, q0, m), q_near, True, unreached, constrained=d2)
     held = replace(base, camera_pose=base.camera_pose @ current)
     for start in (q_previous, base.q_goal):

@@ -190,8 +190,9 @@ class ReplanRecord(JsonRecord):
     # registration of the plan before was used
     registration_held: bool | None = None
     # within enforced limits: the tracker's estimate put the goal out of reach, and the nearest
-    # estimate its belief allows that reaches it was registered: its squared Mahalanobis distance
-    # (methods/registration.py)
+    # estimate under its belief that reaches it was registered: its squared Mahalanobis distance
+    # (over 16.8, the chi-square 99 % quantile: the belief puts the goal out of reach;
+    # methods/registration.py)
     registration_constrained: float | None = None
     # within enforced limits, a real-time iteration (`Planner(rti=True)`): "feedback" (the
     # prepared iterate with the measured goal) or "full: <why>" (a full re-plan instead)
